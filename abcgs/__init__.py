@@ -1,0 +1,15 @@
+"""abcgs — ABC-GS (alignment-based controllable style transfer for 3D Gaussian Splatting).
+
+The library is organised one module per concept:
+
+- :mod:`abcgs.params`   — the ``params.yaml`` schema (pydantic) and its loader.
+- :mod:`abcgs.io`       — atomic writes, image loading, INRIA-layout PLY.
+- :mod:`abcgs.cameras`  — pinhole cameras and COLMAP-model reading.
+- :mod:`abcgs.render`   — the differentiable Gaussian rasterizer (reference, fast CPU, gsplat backends).
+- :mod:`abcgs.sfm`      — structure from motion through pycolmap.
+- :mod:`abcgs.scene`    — the embedded synthetic default scene.
+- :mod:`abcgs.fit`      — baseline 3DGS fitting (losses, densification strategies, trainer).
+- :mod:`abcgs.style`    — ABC-GS: VGG features, FAST loss, colour match, style isolation, mask lifting.
+"""
+
+__version__ = "0.1.0"

@@ -1,0 +1,105 @@
+"""Image and label-map reading/writing with errors that say what is wrong.
+
+Conventions: colour images are ``(H, W, 3) float32`` RGB in ``[0, 1]``; label maps are ``(H, W) int64``
+small integers with 0 = background/unassigned.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from abcgs.errors import InputError
+from abcgs.io.atomic import atomic_path
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
+
+
+def list_images(folder: str | os.PathLike) -> list[Path]:
+    """Sorted image files directly inside ``folder``; a clear error when none exist."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(f"image folder {folder} does not exist; point params.yaml data.scenes at a folder with images/")
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
+    if not files:
+        raise InputError(f"no images ({', '.join(IMAGE_SUFFIXES)}) found in {folder}")
+    return files
+
+
+def load_image(path: str | os.PathLike) -> np.ndarray:
+    """Read an RGB image as ``(H, W, 3) float32`` in ``[0, 1]``.
+
+    Grey images are expanded to three channels and an alpha channel is dropped. A missing, empty or
+    undecodable file raises :class:`InputError` naming the file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"image {path} does not exist")
+    if path.stat().st_size == 0:
+        raise InputError(f"image {path} is empty (0 bytes); replace or remove it")
+    data = np.fromfile(str(path), dtype=np.uint8)
+    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise InputError(f"image {path} could not be decoded (corrupt or not an image); replace or remove it")
+    if img.ndim == 2:
+        img = np.repeat(img[:, :, None], 3, axis=2)
+    elif img.shape[2] == 4:
+        img = img[:, :, :3]
+    img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    scale = 65535.0 if img.dtype == np.uint16 else 255.0
+    return (img.astype(np.float32) / scale).clip(0.0, 1.0)
+
+
+def load_labels(path: str | os.PathLike, *, expect_hw: tuple[int, int] | None = None) -> np.ndarray:
+    """Read a label PNG as ``(H, W) int64``.
+
+    Single-channel 8/16-bit PNGs hold labels directly. ``expect_hw`` checks the size against the view
+    it belongs to and raises :class:`InputError` with both sizes when they differ.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"label map {path} does not exist")
+    img = cv2.imdecode(np.fromfile(str(path), dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise InputError(f"label map {path} could not be decoded; it must be a single-channel PNG of small integers")
+    if img.ndim == 3:
+        if not (np.all(img[..., 0] == img[..., 1]) and np.all(img[..., 1] == img[..., 2])):
+            raise InputError(f"label map {path} has colour channels that differ; save labels as a single-channel PNG")
+        img = img[..., 0]
+    if expect_hw is not None and tuple(img.shape[:2]) != tuple(expect_hw):
+        raise InputError(
+            f"label map {path} is {img.shape[1]}x{img.shape[0]} but its image is {expect_hw[1]}x{expect_hw[0]}; "
+            "masks must have the same size as the view they label"
+        )
+    return img.astype(np.int64)
+
+
+def to_uint8(img: np.ndarray) -> np.ndarray:
+    """``[0, 1]`` float image → uint8 with rounding."""
+    return (np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+def save_image(path: str | os.PathLike, img: np.ndarray) -> None:
+    """Write an RGB float ``[0, 1]`` or uint8 image (PNG/JPEG by suffix), atomically."""
+    path = Path(path)
+    arr = img if img.dtype == np.uint8 else to_uint8(img)
+    if arr.ndim == 3:
+        arr = cv2.cvtColor(arr, cv2.COLOR_RGB2BGR)
+    ok, buf = cv2.imencode(path.suffix or ".png", arr)
+    if not ok:
+        raise InputError(f"could not encode image for {path}")
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(buf.tobytes())
+
+
+def save_labels(path: str | os.PathLike, labels: np.ndarray) -> None:
+    """Write an ``(H, W)`` integer label map as an 8-bit (or 16-bit if needed) PNG, atomically."""
+    arr = labels.astype(np.uint16 if labels.max(initial=0) > 255 else np.uint8)
+    ok, buf = cv2.imencode(".png", arr)
+    if not ok:
+        raise InputError(f"could not encode label map for {path}")
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(buf.tobytes())

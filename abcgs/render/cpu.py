@@ -1,0 +1,179 @@
+"""Fast CPU backend: a C++ torch extension (``csrc/rasterize_cpu.cpp``) with a hand-written backward pass.
+
+The extension is compiled on first use with ``torch.utils.cpp_extension.load`` (needs a C++17 compiler
+and ninja, both installed by ``make``) and cached under ``$ABCGS_CACHE`` (default ``~/.cache/abcgs``)
+in a folder keyed by the source hash, the torch version and the compiler flags, so later processes load it
+in well under a second. If the build fails, :func:`load_extension` raises :class:`BackendUnavailable` with
+the compiler's message; ``rasterize(backend="auto")`` then falls back to the reference backend with a
+warning.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import platform
+import sys
+import threading
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+from abcgs.render.projection import Projected
+from abcgs.render.reference import tile_ranges
+
+_SOURCES = [Path(__file__).parent / "csrc" / n for n in ("rasterize_cpu.cpp", "projection_cpu.cpp")]
+_FLAGS = ["-O3", "-march=native", "-ffp-contract=off", "-std=c++17"]
+_lock = threading.Lock()
+_module = None
+_error: str | None = None
+
+
+class BackendUnavailable(RuntimeError):
+    """The requested rasterizer backend cannot run here (reason in the message)."""
+
+
+def cache_dir() -> Path:
+    return Path(os.environ.get("ABCGS_CACHE", Path.home() / ".cache" / "abcgs"))
+
+
+def _build_dir() -> Path:
+    key = hashlib.sha256()
+    for src in _SOURCES:
+        key.update(src.read_bytes())
+    key.update(" ".join(_FLAGS).encode())
+    key.update(torch.__version__.encode())
+    key.update(platform.machine().encode())
+    key.update(platform.processor().encode())
+    key.update(sys.version.encode())
+    return cache_dir() / "ext" / f"rasterize_cpu_{key.hexdigest()[:16]}"
+
+
+def load_extension(verbose: bool = False):
+    """Compile (first time) and import the C++ extension; raise :class:`BackendUnavailable` on failure."""
+    global _module, _error
+    with _lock:
+        if _module is not None:
+            return _module
+        if _error is not None:
+            raise BackendUnavailable(_error)
+        try:
+            import ninja  # noqa: F401  (the ninja wheel ships the build tool)
+
+            bin_dir = Path(ninja.BIN_DIR)
+            if str(bin_dir) not in os.environ.get("PATH", ""):
+                os.environ["PATH"] = f"{bin_dir}{os.pathsep}{os.environ.get('PATH', '')}"
+        except ImportError:
+            pass
+        try:
+            from torch.utils.cpp_extension import load
+
+            build = _build_dir()
+            build.mkdir(parents=True, exist_ok=True)
+            _module = load(
+                name="abcgs_rasterize_cpu",
+                sources=[str(s) for s in _SOURCES],
+                extra_cflags=_FLAGS,
+                build_directory=str(build),
+                verbose=verbose,
+            )
+        except Exception as exc:  # compiler missing, ninja missing, build error
+            _error = (
+                f"the fast CPU rasterizer could not be built ({type(exc).__name__}: {str(exc).strip()[:2000]}). "
+                "It needs a C++17 compiler (g++) and ninja (`pip install ninja`); `make install` sets both up."
+            )
+            raise BackendUnavailable(_error) from exc
+        return _module
+
+
+def is_available() -> bool:
+    try:
+        load_extension()
+        return True
+    except BackendUnavailable:
+        return False
+
+
+def rasterize_cpu(
+    means2d: Tensor, conics: Tensor, colors: Tensor, opacities: Tensor, depths: Tensor, extents: Tensor,
+    width: int, height: int, *, tile_size: int = 16,
+) -> tuple[Tensor, Tensor]:
+    """Fast-backend twin of :func:`abcgs.render.reference.rasterize_reference` (same arguments and outputs)."""
+    image, alpha = _RasterizeCPUAlpha.apply(means2d, conics, colors, opacities, depths, extents, width, height, tile_size)
+    return image, alpha[..., None]
+
+
+class _RasterizeCPUAlpha(torch.autograd.Function):
+    """Forward returns (image, alpha); backward passes both output gradients to the C++ kernel."""
+
+    @staticmethod
+    def forward(ctx, means2d, conics, colors, opacities, depths, extents, width, height, tile_size):
+        ext = load_extension()
+        means2d, conics, colors = means2d.contiguous(), conics.contiguous(), colors.contiguous()
+        opacities, extents = opacities.contiguous(), extents.contiguous().to(colors.dtype)
+        with torch.no_grad():
+            vis = torch.nonzero(extents[:, 0] > 0).squeeze(1)
+            order = vis[torch.argsort(depths.detach()[vis], stable=True)].contiguous()
+            ranges = tile_ranges(means2d, extents, width, height, tile_size).contiguous()
+        image, trans, last, toff, ids, goff, gisect = ext.rasterize_forward(
+            means2d, conics, colors, opacities, extents, order, ranges, width, height, tile_size
+        )
+        ctx.save_for_backward(means2d, conics, colors, opacities, extents, trans, last, toff, ids, goff, gisect)
+        ctx.dims = (width, height, tile_size)
+        return image, 1.0 - trans
+
+    @staticmethod
+    def backward(ctx, v_image, v_alpha):
+        ext = load_extension()
+        width, height, tile_size = ctx.dims
+        (means2d, conics, colors, opacities, extents, trans, last, toff, ids, goff, gisect) = ctx.saved_tensors
+        if v_image is None:
+            v_image = torch.zeros(height, width, colors.shape[1], dtype=colors.dtype)
+        if v_alpha is None:
+            v_alpha = torch.zeros(height, width, dtype=colors.dtype)
+        vm, vc, vcol, vo = ext.rasterize_backward(
+            means2d, conics, colors, opacities, extents, trans, last, toff, ids, goff, gisect,
+            v_image.contiguous(), v_alpha.contiguous(), width, height, tile_size,
+        )
+        return vm, vc, vcol, vo, None, None, None, None, None
+
+
+class _ProjectCPU(torch.autograd.Function):
+    """Fused projection (C++); gradients flow to means, quats and scales (the camera is constant)."""
+
+    @staticmethod
+    def forward(ctx, means, quats, scales, opacities, viewmat, K, width, height, near, far, eps2d):
+        ext = load_extension()
+        dtype = means.dtype
+        means, quats, scales = means.contiguous(), quats.contiguous().to(dtype), scales.contiguous().to(dtype)
+        out = ext.project_forward(
+            means, quats, scales, opacities.detach().contiguous().to(dtype), viewmat.detach(), K.detach(),
+            width, height, near, far, eps2d,
+        )
+        ctx.save_for_backward(means, quats, scales, viewmat.detach(), K.detach())
+        ctx.args = (width, height, near, far, eps2d)
+        ctx.mark_non_differentiable(out[3], out[4], out[5])
+        return tuple(out)
+
+    @staticmethod
+    def backward(ctx, v_means2d, v_conics, v_depths, _ve, _vr, _vv):
+        ext = load_extension()
+        means, quats, scales, viewmat, K = ctx.saved_tensors
+        z = torch.zeros_like
+        v_means2d = z(means[:, :2]) if v_means2d is None else v_means2d
+        v_conics = z(means) if v_conics is None else v_conics
+        v_depths = z(means[:, 0]) if v_depths is None else v_depths
+        vm, vq, vs = ext.project_backward(means, quats, scales, viewmat, K, *ctx.args, v_means2d, v_conics, v_depths)
+        return vm, vq, vs, None, None, None, None, None, None, None, None
+
+
+def project_cpu(
+    means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, viewmat: Tensor, K: Tensor,
+    width: int, height: int, *, near: float = 0.01, far: float = 1e10, eps2d: float = 0.3,
+) -> Projected:
+    """Compiled twin of :func:`abcgs.render.projection.project_gaussians` (same arguments and outputs)."""
+    means2d, conics, depths, extents, radii, visible = _ProjectCPU.apply(
+        means, quats, scales, opacities, viewmat, K, width, height, near, far, eps2d
+    )
+    return Projected(means2d, conics, depths, extents, radii, visible)

@@ -1,0 +1,381 @@
+// Fast CPU backend of the abcgs Gaussian rasterizer: tile binning, forward alpha blending and a
+// hand-written backward pass, multi-threaded over 16x16 tiles on PyTorch's intra-op thread pool.
+//
+// The blending rule is the one in abcgs/render/reference.py (the test oracle):
+//   sigma = 0.5 (a dx^2 + c dy^2) + b dx dy ; alpha = min(0.99, o exp(-sigma))
+//   skip if sigma < 0 or alpha < 1/255 ; stop before T (1 - alpha) <= 1e-4 ;
+//   C += c alpha T ; T *= 1 - alpha
+//
+// Determinism: each tile is processed by exactly one thread and writes only its own pixels and its
+// own intersection rows; per-Gaussian gradients are then reduced over that Gaussian's intersections
+// in a fixed order (tile-major, the binning order). Results do not depend on the thread count.
+//
+// Built with -ffp-contract=off so that the forward and backward passes evaluate alpha with the same
+// rounding and therefore make the same skip/stop decisions.
+
+#include <torch/extension.h>
+#include <ATen/Parallel.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <vector>
+
+namespace {
+
+constexpr double kAlphaThreshold = 1.0 / 255.0;
+constexpr double kMaxAlpha = 0.99;
+constexpr double kTransmittanceEps = 1e-4;
+
+// Tile lists and their inverse (per-Gaussian intersection lists), stored in tensors so the forward
+// pass can hand them to autograd for the backward pass without copies.
+struct Binning {
+  int64_t tiles_x = 0, tiles_y = 0;
+  at::Tensor tile_offsets_t, ids_t, gauss_offsets_t, gauss_isect_t;
+  const int64_t* tile_offsets = nullptr;   // (n_tiles + 1) start of each tile's list in `ids`
+  const int32_t* ids = nullptr;            // (M) Gaussian index per intersection, depth-sorted in a tile
+  const int64_t* gauss_offsets = nullptr;  // (N + 1) start of each Gaussian's row in `gauss_isect`
+  const int64_t* gauss_isect = nullptr;    // (M) intersection indices of each Gaussian, in tile order
+  int64_t num_isects() const { return ids_t.numel(); }
+
+  Binning(at::Tensor tile_offsets_, at::Tensor ids_, at::Tensor gauss_offsets_, at::Tensor gauss_isect_,
+          int64_t width, int64_t height, int64_t tile)
+      : tiles_x((width + tile - 1) / tile),
+        tiles_y((height + tile - 1) / tile),
+        tile_offsets_t(tile_offsets_.contiguous()),
+        ids_t(ids_.contiguous()),
+        gauss_offsets_t(gauss_offsets_.contiguous()),
+        gauss_isect_t(gauss_isect_.contiguous()) {
+    TORCH_CHECK(tile_offsets_t.numel() == tiles_x * tiles_y + 1, "binning does not match the image size");
+    tile_offsets = tile_offsets_t.data_ptr<int64_t>();
+    ids = ids_t.data_ptr<int32_t>();
+    gauss_offsets = gauss_offsets_t.data_ptr<int64_t>();
+    gauss_isect = gauss_isect_t.data_ptr<int64_t>();
+  }
+};
+
+// Bin visible Gaussians (given front-to-back in `order`) into tiles. `ranges` is (N, 4) inclusive
+// tile boxes (tx0, ty0, tx1, ty1); an empty box has tx0 > tx1.
+Binning bin_gaussians(const at::Tensor& order, const at::Tensor& ranges, int64_t n, int64_t width,
+                      int64_t height, int64_t tile) {
+  const int64_t tiles_x = (width + tile - 1) / tile, tiles_y = (height + tile - 1) / tile;
+  const int64_t n_tiles = tiles_x * tiles_y;
+  const int64_t* ord = order.data_ptr<int64_t>();
+  const int64_t n_vis = order.numel();
+  const int64_t* rg = ranges.data_ptr<int64_t>();
+
+  at::Tensor tile_offsets = at::zeros({n_tiles + 1}, at::kLong);
+  at::Tensor gauss_offsets = at::zeros({n + 1}, at::kLong);
+  int64_t* toff = tile_offsets.data_ptr<int64_t>();
+  int64_t* goff = gauss_offsets.data_ptr<int64_t>();
+  for (int64_t k = 0; k < n_vis; ++k) {
+    const int64_t g = ord[k];
+    const int64_t* r = rg + 4 * g;
+    if (r[0] > r[2] || r[1] > r[3]) continue;
+    for (int64_t ty = r[1]; ty <= r[3]; ++ty)
+      for (int64_t tx = r[0]; tx <= r[2]; ++tx) toff[ty * tiles_x + tx + 1]++;
+    goff[g + 1] = (r[2] - r[0] + 1) * (r[3] - r[1] + 1);
+  }
+  for (int64_t t = 0; t < n_tiles; ++t) toff[t + 1] += toff[t];
+  for (int64_t g = 0; g < n; ++g) goff[g + 1] += goff[g];
+  const int64_t m = toff[n_tiles];
+  at::Tensor ids = at::empty({m}, at::kInt);
+  at::Tensor gauss_isect = at::empty({m}, at::kLong);
+  int32_t* id = ids.data_ptr<int32_t>();
+  int64_t* gi = gauss_isect.data_ptr<int64_t>();
+  std::vector<int64_t> cursor(toff, toff + n_tiles);
+  for (int64_t k = 0; k < n_vis; ++k) {
+    const int64_t g = ord[k];
+    const int64_t* r = rg + 4 * g;
+    if (r[0] > r[2] || r[1] > r[3]) continue;
+    int64_t j = goff[g];
+    for (int64_t ty = r[1]; ty <= r[3]; ++ty)
+      for (int64_t tx = r[0]; tx <= r[2]; ++tx) {
+        const int64_t pos = cursor[ty * tiles_x + tx]++;
+        id[pos] = static_cast<int32_t>(g);
+        gi[j++] = pos;
+      }
+  }
+  return Binning(tile_offsets, ids, gauss_offsets, gauss_isect, width, height, tile);
+}
+
+// Run `fn(tile)` for every tile with dynamic scheduling on PyTorch's thread pool.
+template <typename F>
+void for_each_tile(int64_t n_tiles, const F& fn) {
+  std::atomic<int64_t> next{0};
+  const int64_t workers = std::max<int64_t>(1, std::min<int64_t>(at::get_num_threads(), n_tiles));
+  at::parallel_for(0, workers, 1, [&](int64_t begin, int64_t end) {
+    for (int64_t w = begin; w < end; ++w) {
+      for (int64_t t = next.fetch_add(1); t < n_tiles; t = next.fetch_add(1)) fn(t);
+    }
+  });
+}
+
+// Pixel-column range [x_lo, x_hi) of a Gaussian's box inside one tile (same for rows).
+template <typename scalar_t>
+inline void box_in_tile(scalar_t mean, scalar_t ext, int64_t lo, int64_t hi, int64_t& a, int64_t& b) {
+  a = std::max<int64_t>(lo, static_cast<int64_t>(std::ceil(mean - ext - scalar_t(0.5))));
+  b = std::min<int64_t>(hi, static_cast<int64_t>(std::floor(mean + ext - scalar_t(0.5))) + 1);
+}
+
+template <typename scalar_t>
+struct GaussianView {
+  const scalar_t* means2d;   // (N, 2)
+  const scalar_t* conics;    // (N, 3)
+  const scalar_t* colors;    // (N, C)
+  const scalar_t* opac;      // (N)
+  const scalar_t* extents;   // (N, 2)
+  int64_t channels;
+};
+
+// Forward pass for one tile. Writes image (H, W, C), transmittance (H, W) and, per pixel, the number
+// of tile-list entries up to and including the last Gaussian blended (0 = none).
+template <typename scalar_t>
+void forward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t tile, int64_t width, int64_t height,
+                  int64_t tile_size, scalar_t* image, scalar_t* trans, int32_t* last) {
+  const int64_t C = gv.channels;
+  const int64_t tx = tile % bin.tiles_x, ty = tile / bin.tiles_x;
+  const int64_t x0 = tx * tile_size, y0 = ty * tile_size;
+  const int64_t x1 = std::min(width, x0 + tile_size), y1 = std::min(height, y0 + tile_size);
+  const int64_t tw = x1 - x0, th = y1 - y0, npix = tw * th;
+  std::vector<scalar_t> T(npix, scalar_t(1)), acc(npix * C, scalar_t(0));
+  std::vector<int32_t> lst(npix, 0);
+  std::vector<uint8_t> done(npix, 0);
+  int64_t remaining = npix;
+  const int64_t start = bin.tile_offsets[tile], end = bin.tile_offsets[tile + 1];
+  for (int64_t k = start; k < end && remaining > 0; ++k) {
+    const int64_t g = bin.ids[k];
+    const scalar_t mx = gv.means2d[2 * g], my = gv.means2d[2 * g + 1];
+    const scalar_t ca = gv.conics[3 * g], cb = gv.conics[3 * g + 1], cc = gv.conics[3 * g + 2];
+    const scalar_t o = gv.opac[g];
+    const scalar_t* col = gv.colors + g * C;
+    int64_t xa, xb, ya, yb;
+    box_in_tile<scalar_t>(mx, gv.extents[2 * g], x0, x1, xa, xb);
+    box_in_tile<scalar_t>(my, gv.extents[2 * g + 1], y0, y1, ya, yb);
+    for (int64_t y = ya; y < yb; ++y) {
+      const scalar_t dy = scalar_t(y) + scalar_t(0.5) - my;
+      for (int64_t x = xa; x < xb; ++x) {
+        const int64_t p = (y - y0) * tw + (x - x0);
+        if (done[p]) continue;
+        const scalar_t dx = scalar_t(x) + scalar_t(0.5) - mx;
+        const scalar_t sigma = scalar_t(0.5) * (ca * dx * dx + cc * dy * dy) + cb * dx * dy;
+        if (sigma < 0) continue;
+        const scalar_t alpha = std::min(scalar_t(kMaxAlpha), o * std::exp(-sigma));
+        if (alpha < scalar_t(kAlphaThreshold)) continue;
+        const scalar_t next_T = T[p] * (scalar_t(1) - alpha);
+        if (next_T <= scalar_t(kTransmittanceEps)) {
+          done[p] = 1;
+          --remaining;
+          continue;
+        }
+        const scalar_t w = alpha * T[p];
+        scalar_t* a = acc.data() + p * C;
+        for (int64_t c = 0; c < C; ++c) a[c] += w * col[c];
+        T[p] = next_T;
+        lst[p] = static_cast<int32_t>(k - start + 1);
+      }
+    }
+  }
+  for (int64_t y = y0; y < y1; ++y)
+    for (int64_t x = x0; x < x1; ++x) {
+      const int64_t p = (y - y0) * tw + (x - x0), q = y * width + x;
+      trans[q] = T[p];
+      last[q] = lst[p];
+      for (int64_t c = 0; c < C; ++c) image[q * C + c] = acc[p * C + c];
+    }
+}
+
+// Backward pass for one tile: walks the tile's list back to front, reconstructing each pixel's
+// transmittance from its final value, and writes one gradient row per intersection:
+// [d mean_x, d mean_y, d conic_a, d conic_b, d conic_c, d opacity, d color_0 .. d color_{C-1}].
+template <typename scalar_t>
+void backward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t tile, int64_t width,
+                   int64_t height, int64_t tile_size, const scalar_t* trans, const int32_t* last,
+                   const scalar_t* v_image, const scalar_t* v_alpha, scalar_t* isect_grads) {
+  const int64_t C = gv.channels, row = 6 + C;
+  const int64_t tx = tile % bin.tiles_x, ty = tile / bin.tiles_x;
+  const int64_t x0 = tx * tile_size, y0 = ty * tile_size;
+  const int64_t x1 = std::min(width, x0 + tile_size), y1 = std::min(height, y0 + tile_size);
+  const int64_t tw = x1 - x0, th = y1 - y0, npix = tw * th;
+  const int64_t start = bin.tile_offsets[tile];
+  std::vector<scalar_t> T(npix), Tfin(npix), S(npix * C, scalar_t(0)), vimg(npix * C), vA(npix);
+  std::vector<int32_t> lst(npix);
+  int32_t max_last = 0;
+  for (int64_t y = y0; y < y1; ++y)
+    for (int64_t x = x0; x < x1; ++x) {
+      const int64_t p = (y - y0) * tw + (x - x0), q = y * width + x;
+      T[p] = Tfin[p] = trans[q];
+      lst[p] = last[q];
+      max_last = std::max(max_last, last[q]);
+      vA[p] = v_alpha[q];
+      for (int64_t c = 0; c < C; ++c) vimg[p * C + c] = v_image[q * C + c];
+    }
+  std::vector<scalar_t> gcol(C);
+  for (int64_t kk = max_last - 1; kk >= 0; --kk) {
+    const int64_t k = start + kk;
+    const int64_t g = bin.ids[k];
+    const scalar_t mx = gv.means2d[2 * g], my = gv.means2d[2 * g + 1];
+    const scalar_t ca = gv.conics[3 * g], cb = gv.conics[3 * g + 1], cc = gv.conics[3 * g + 2];
+    const scalar_t o = gv.opac[g];
+    const scalar_t* col = gv.colors + g * C;
+    scalar_t g_mx = 0, g_my = 0, g_a = 0, g_b = 0, g_c = 0, g_o = 0;
+    std::fill(gcol.begin(), gcol.end(), scalar_t(0));
+    int64_t xa, xb, ya, yb;
+    box_in_tile<scalar_t>(mx, gv.extents[2 * g], x0, x1, xa, xb);
+    box_in_tile<scalar_t>(my, gv.extents[2 * g + 1], y0, y1, ya, yb);
+    for (int64_t y = ya; y < yb; ++y) {
+      const scalar_t dy = scalar_t(y) + scalar_t(0.5) - my;
+      for (int64_t x = xa; x < xb; ++x) {
+        const int64_t p = (y - y0) * tw + (x - x0);
+        if (kk >= lst[p]) continue;
+        const scalar_t dx = scalar_t(x) + scalar_t(0.5) - mx;
+        const scalar_t sigma = scalar_t(0.5) * (ca * dx * dx + cc * dy * dy) + cb * dx * dy;
+        if (sigma < 0) continue;
+        const scalar_t vis = std::exp(-sigma);
+        const scalar_t raw = o * vis;
+        const scalar_t alpha = std::min(scalar_t(kMaxAlpha), raw);
+        if (alpha < scalar_t(kAlphaThreshold)) continue;
+        const scalar_t ra = scalar_t(1) / (scalar_t(1) - alpha);
+        const scalar_t Ti = T[p] * ra;
+        T[p] = Ti;
+        const scalar_t fac = alpha * Ti;
+        const scalar_t* vi = vimg.data() + p * C;
+        scalar_t* s = S.data() + p * C;
+        scalar_t v_al = vA[p] * Tfin[p] * ra;
+        for (int64_t c = 0; c < C; ++c) {
+          gcol[c] += fac * vi[c];
+          v_al += (col[c] * Ti - s[c] * ra) * vi[c];
+          s[c] += col[c] * fac;
+        }
+        if (raw < scalar_t(kMaxAlpha)) {
+          const scalar_t v_sigma = -raw * v_al;
+          g_o += vis * v_al;
+          g_a += scalar_t(0.5) * dx * dx * v_sigma;
+          g_b += dx * dy * v_sigma;
+          g_c += scalar_t(0.5) * dy * dy * v_sigma;
+          g_mx -= (ca * dx + cb * dy) * v_sigma;
+          g_my -= (cb * dx + cc * dy) * v_sigma;
+        }
+      }
+    }
+    scalar_t* out = isect_grads + k * row;
+    out[0] = g_mx;
+    out[1] = g_my;
+    out[2] = g_a;
+    out[3] = g_b;
+    out[4] = g_c;
+    out[5] = g_o;
+    for (int64_t c = 0; c < C; ++c) out[6 + c] = gcol[c];
+  }
+}
+
+void check_inputs(const at::Tensor& means2d, const at::Tensor& conics, const at::Tensor& colors,
+                  const at::Tensor& opacities, const at::Tensor& extents) {
+  for (const auto* t : {&means2d, &conics, &colors, &opacities, &extents}) {
+    TORCH_CHECK(t->device().is_cpu(), "abcgs cpu rasterizer: tensors must be on the CPU");
+    TORCH_CHECK(t->is_contiguous(), "abcgs cpu rasterizer: tensors must be contiguous");
+    TORCH_CHECK(t->scalar_type() == colors.scalar_type(), "abcgs cpu rasterizer: all float inputs must share a dtype");
+  }
+  const int64_t n = means2d.size(0);
+  TORCH_CHECK(means2d.dim() == 2 && means2d.size(1) == 2, "means2d must be (N, 2)");
+  TORCH_CHECK(conics.dim() == 2 && conics.size(1) == 3 && conics.size(0) == n, "conics must be (N, 3)");
+  TORCH_CHECK(colors.dim() == 2 && colors.size(0) == n, "colors must be (N, C)");
+  TORCH_CHECK(opacities.dim() == 1 && opacities.size(0) == n, "opacities must be (N,)");
+  TORCH_CHECK(extents.dim() == 2 && extents.size(1) == 2 && extents.size(0) == n, "extents must be (N, 2)");
+}
+
+}  // namespace
+
+// Returns (image (H, W, C), transmittance (H, W), last (H, W) int32,
+//          tile_offsets, ids, gauss_offsets, gauss_isect) — the last four are saved for backward.
+std::vector<at::Tensor> rasterize_forward(const at::Tensor& means2d, const at::Tensor& conics, const at::Tensor& colors,
+                                          const at::Tensor& opacities, const at::Tensor& extents,
+                                          const at::Tensor& order, const at::Tensor& ranges, int64_t width,
+                                          int64_t height, int64_t tile_size) {
+  check_inputs(means2d, conics, colors, opacities, extents);
+  TORCH_CHECK(order.scalar_type() == at::kLong && ranges.scalar_type() == at::kLong, "order/ranges must be int64");
+  const int64_t n = means2d.size(0), C = colors.size(1);
+  Binning bin = bin_gaussians(order.contiguous(), ranges.contiguous(), n, width, height, tile_size);
+  auto opts = colors.options();
+  at::Tensor image = at::zeros({height, width, C}, opts);
+  at::Tensor trans = at::ones({height, width}, opts);
+  at::Tensor last = at::zeros({height, width}, at::kInt);
+  AT_DISPATCH_FLOATING_TYPES(colors.scalar_type(), "abcgs_rasterize_forward", [&] {
+    GaussianView<scalar_t> gv{means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(), colors.data_ptr<scalar_t>(),
+                              opacities.data_ptr<scalar_t>(), extents.data_ptr<scalar_t>(), C};
+    scalar_t* im = image.data_ptr<scalar_t>();
+    scalar_t* tr = trans.data_ptr<scalar_t>();
+    int32_t* ls = last.data_ptr<int32_t>();
+    for_each_tile(bin.tiles_x * bin.tiles_y,
+                  [&](int64_t t) { forward_tile<scalar_t>(gv, bin, t, width, height, tile_size, im, tr, ls); });
+  });
+  return {image, trans, last, bin.tile_offsets_t, bin.ids_t, bin.gauss_offsets_t, bin.gauss_isect_t};
+}
+
+// Returns (v_means2d (N, 2), v_conics (N, 3), v_colors (N, C), v_opacities (N)).
+std::vector<at::Tensor> rasterize_backward(const at::Tensor& means2d, const at::Tensor& conics,
+                                           const at::Tensor& colors, const at::Tensor& opacities,
+                                           const at::Tensor& extents, const at::Tensor& trans,
+                                           const at::Tensor& last, const at::Tensor& tile_offsets,
+                                           const at::Tensor& ids, const at::Tensor& gauss_offsets,
+                                           const at::Tensor& gauss_isect, const at::Tensor& v_image,
+                                           const at::Tensor& v_alpha, int64_t width, int64_t height,
+                                           int64_t tile_size) {
+  check_inputs(means2d, conics, colors, opacities, extents);
+  const int64_t n = means2d.size(0), C = colors.size(1), row = 6 + C;
+  Binning bin(tile_offsets, ids, gauss_offsets, gauss_isect, width, height, tile_size);
+  const int64_t m = bin.num_isects();
+  auto opts = colors.options();
+  at::Tensor isect_grads = at::zeros({m, row}, opts);
+  at::Tensor v_means2d = at::zeros({n, 2}, opts), v_conics = at::zeros({n, 3}, opts);
+  at::Tensor v_colors = at::zeros({n, C}, opts), v_opac = at::zeros({n}, opts);
+  at::Tensor vi = v_image.contiguous().to(colors.scalar_type());
+  at::Tensor va = v_alpha.contiguous().to(colors.scalar_type());
+  AT_DISPATCH_FLOATING_TYPES(colors.scalar_type(), "abcgs_rasterize_backward", [&] {
+    GaussianView<scalar_t> gv{means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(), colors.data_ptr<scalar_t>(),
+                              opacities.data_ptr<scalar_t>(), extents.data_ptr<scalar_t>(), C};
+    const scalar_t* tr = trans.data_ptr<scalar_t>();
+    const int32_t* ls = last.data_ptr<int32_t>();
+    const scalar_t* vip = vi.data_ptr<scalar_t>();
+    const scalar_t* vap = va.data_ptr<scalar_t>();
+    scalar_t* ig = isect_grads.data_ptr<scalar_t>();
+    for_each_tile(bin.tiles_x * bin.tiles_y, [&](int64_t t) {
+      backward_tile<scalar_t>(gv, bin, t, width, height, tile_size, tr, ls, vip, vap, ig);
+    });
+    scalar_t* vm = v_means2d.data_ptr<scalar_t>();
+    scalar_t* vc = v_conics.data_ptr<scalar_t>();
+    scalar_t* vcol = v_colors.data_ptr<scalar_t>();
+    scalar_t* vo = v_opac.data_ptr<scalar_t>();
+    at::parallel_for(0, n, 2048, [&](int64_t begin, int64_t end) {
+      for (int64_t g = begin; g < end; ++g) {
+        for (int64_t j = bin.gauss_offsets[g]; j < bin.gauss_offsets[g + 1]; ++j) {
+          const scalar_t* r = ig + bin.gauss_isect[j] * row;
+          vm[2 * g] += r[0];
+          vm[2 * g + 1] += r[1];
+          vc[3 * g] += r[2];
+          vc[3 * g + 1] += r[3];
+          vc[3 * g + 2] += r[4];
+          vo[g] += r[5];
+          for (int64_t c = 0; c < C; ++c) vcol[g * C + c] += r[6 + c];
+        }
+      }
+    });
+  });
+  return {v_means2d, v_conics, v_colors, v_opac};
+}
+
+// projection_cpu.cpp
+std::vector<at::Tensor> project_forward(const at::Tensor& means, const at::Tensor& quats, const at::Tensor& scales,
+                                        const at::Tensor& opacities, const at::Tensor& viewmat, const at::Tensor& K,
+                                        int64_t width, int64_t height, double near, double far, double eps2d);
+std::vector<at::Tensor> project_backward(const at::Tensor& means, const at::Tensor& quats, const at::Tensor& scales,
+                                         const at::Tensor& viewmat, const at::Tensor& K, int64_t width, int64_t height,
+                                         double near, double far, double eps2d, const at::Tensor& v_means2d,
+                                         const at::Tensor& v_conics, const at::Tensor& v_depths);
+
+PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
+  m.def("project_forward", &project_forward, "abcgs fused EWA projection forward (CPU)");
+  m.def("project_backward", &project_backward, "abcgs fused EWA projection backward (CPU)");
+  m.def("rasterize_forward", &rasterize_forward, "abcgs tile rasterizer forward (CPU)");
+  m.def("rasterize_backward", &rasterize_backward, "abcgs tile rasterizer backward (CPU)");
+}

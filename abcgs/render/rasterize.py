@@ -1,0 +1,228 @@
+"""The public rasterizer API (gsplat's shape): one function, backends behind it.
+
+    image, alpha, meta = rasterize(means, quats, scales, opacities, colors, viewmat, K, width, height)
+
+Backends:
+    ``"reference"`` pure PyTorch (readable spec, test oracle; any device),
+    ``"cpu"``       compiled C++ kernel with a hand-written backward (CPU tensors),
+    ``"gsplat"``    ``gsplat.rasterization`` (CUDA tensors; optional dependency),
+    ``"auto"``      (default) gsplat for CUDA tensors, the compiled kernel for CPU tensors, falling back to
+                    the reference backend with a warning when the preferred one cannot run.
+The environment variable ``ABCGS_RENDER_BACKEND`` overrides ``"auto"``. A backend named explicitly never
+falls back: it runs or raises :class:`BackendUnavailable`.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from abcgs.render import cpu as cpu_backend
+from abcgs.render.cpu import BackendUnavailable
+from abcgs.render.projection import project_gaussians
+from abcgs.render.reference import rasterize_reference
+from abcgs.render.sh import sh_to_color
+
+BACKENDS = ("auto", "reference", "cpu", "gsplat")
+_warned: set[str] = set()
+
+
+@dataclass
+class RenderMeta:
+    """What a render returns besides the image.
+
+    Attributes:
+        means2d: ``(N, 2)`` screen positions in px, part of the autograd graph: call ``retain_grad()`` on it
+            before ``backward()`` to read the view-space positional gradient the densifier needs.
+        radii: ``(N, 2)`` int32 3.33-sigma screen half-extent in px (0 = not rendered).
+        depths: ``(N,)`` camera-space z (world units).
+        visible: ``(N,)`` bool, rendered in this view.
+        depth: ``(H, W, 1)`` expected depth Σ T_i α_i z_i (or normalised by alpha), when requested.
+        backend: the backend that produced the image.
+    """
+
+    means2d: Tensor
+    radii: Tensor
+    depths: Tensor
+    visible: Tensor
+    depth: Tensor | None
+    backend: str
+    width: int
+    height: int
+
+
+def select_backend(device: torch.device, requested: str = "auto") -> str:
+    """Resolve ``requested`` (or ``$ABCGS_RENDER_BACKEND`` when ``"auto"``) to a runnable backend name."""
+    if requested == "auto":
+        requested = os.environ.get("ABCGS_RENDER_BACKEND", "auto") or "auto"
+    if requested not in BACKENDS:
+        raise ValueError(f"unknown rasterizer backend {requested!r}; choose one of {BACKENDS}")
+    if requested == "gsplat":
+        if device.type != "cuda":
+            raise BackendUnavailable("the gsplat backend needs CUDA tensors; use backend='cpu' or 'reference' on the CPU")
+        _import_gsplat()
+        return "gsplat"
+    if requested == "cpu":
+        if device.type != "cpu":
+            raise BackendUnavailable("the cpu backend needs CPU tensors")
+        cpu_backend.load_extension()
+        return "cpu"
+    if requested == "reference":
+        return "reference"
+    # auto
+    if device.type == "cuda":
+        try:
+            _import_gsplat()
+            return "gsplat"
+        except BackendUnavailable as exc:
+            _warn_once("gsplat", f"{exc}; falling back to the (slow) reference rasterizer")
+            return "reference"
+    if device.type == "cpu":
+        try:
+            cpu_backend.load_extension()
+            return "cpu"
+        except BackendUnavailable as exc:
+            _warn_once("cpu", f"{exc} Falling back to the (slow) reference rasterizer.")
+            return "reference"
+    return "reference"
+
+
+def _warn_once(key: str, message: str) -> None:
+    if key not in _warned:
+        _warned.add(key)
+        warnings.warn(message, RuntimeWarning, stacklevel=3)
+
+
+def _import_gsplat():
+    try:
+        import gsplat  # noqa: F401
+    except Exception as exc:
+        raise BackendUnavailable(f"gsplat is not importable ({exc}); install it with `pip install gsplat`") from exc
+    return gsplat
+
+
+def rasterize(
+    means: Tensor,
+    quats: Tensor,
+    scales: Tensor,
+    opacities: Tensor,
+    colors: Tensor,
+    viewmat: Tensor,
+    K: Tensor,
+    width: int,
+    height: int,
+    *,
+    sh_degree: int | None = None,
+    background: Tensor | None = None,
+    render_depth: bool = False,
+    normalize_depth: bool = False,
+    near: float = 0.01,
+    far: float = 1e10,
+    eps2d: float = 0.3,
+    tile_size: int = 16,
+    backend: str = "auto",
+) -> tuple[Tensor, Tensor, RenderMeta]:
+    """Render N 3-D Gaussians into one pinhole view (differentiable in every float input).
+
+    Args:
+        means: ``(N, 3)`` world positions (world units).
+        quats: ``(N, 4)`` rotations, wxyz, any norm (normalised inside the graph).
+        scales: ``(N, 3)`` standard deviations along the local axes (world units, not log).
+        opacities: ``(N,)`` in [0, 1] (not logits).
+        colors: ``(N, C)`` any number of channels, or SH coefficients ``(N, K, 3)`` with ``sh_degree`` set.
+        viewmat: ``(4, 4)`` world→camera (OpenCV axes). K: ``(3, 3)`` intrinsics in px.
+        width, height: output size in px.
+        sh_degree: evaluate ``colors`` as SH of this degree (0..3); ``None`` = plain colours.
+        background: ``(C,)`` colour composited behind: ``image + (1 - alpha) · background``.
+        render_depth: also return the expected depth Σ T_i α_i z_i in ``meta.depth``
+            (divided by alpha where alpha > 0 when ``normalize_depth``).
+        near, far: clip planes on camera z. eps2d: px² added to the projected covariance.
+        backend: see the module docstring.
+
+    Returns:
+        image ``(H, W, C)``, alpha ``(H, W, 1)``, :class:`RenderMeta`.
+    """
+    if width < 1 or height < 1:
+        raise ValueError(f"image size must be positive, got {width}x{height}")
+    name = select_backend(means.device, backend)
+    if name == "gsplat":
+        return _rasterize_gsplat(
+            means, quats, scales, opacities, colors, viewmat, K, width, height, sh_degree=sh_degree,
+            background=background, render_depth=render_depth, normalize_depth=normalize_depth, near=near,
+            far=far, eps2d=eps2d, tile_size=tile_size,
+        )
+    project = cpu_backend.project_cpu if name == "cpu" else project_gaussians
+    proj = project(means, quats, scales, opacities, viewmat, K, width, height, near=near, far=far, eps2d=eps2d)
+    if sh_degree is not None:
+        R, t = viewmat[:3, :3], viewmat[:3, 3]
+        campos = -R.T @ t
+        colors = sh_to_color(sh_degree, colors, means, campos)
+    n_color = colors.shape[1]
+    feats = torch.cat([colors, proj.depths[:, None]], dim=1) if render_depth else colors
+    blend = cpu_backend.rasterize_cpu if name == "cpu" else rasterize_reference
+    out, alpha = blend(proj.means2d, proj.conics, feats, opacities, proj.depths, proj.extents, width, height, tile_size=tile_size)
+    image, depth = out[..., :n_color], None
+    if render_depth:
+        depth = out[..., n_color:]
+        if normalize_depth:
+            depth = torch.where(alpha > 0, depth / alpha.clamp_min(1e-10), torch.zeros_like(depth))
+    if background is not None:
+        image = image + (1.0 - alpha) * background.to(image)
+    meta = RenderMeta(proj.means2d, proj.radii, proj.depths, proj.visible, depth, name, width, height)
+    return image, alpha, meta
+
+
+def _rasterize_gsplat(
+    means, quats, scales, opacities, colors, viewmat, K, width, height, *, sh_degree, background, render_depth,
+    normalize_depth, near, far, eps2d, tile_size,
+):
+    gsplat = _import_gsplat()
+    render, alpha, info = gsplat.rasterization(
+        means, quats, scales, opacities, colors, viewmat[None], K[None], width, height,
+        near_plane=near, far_plane=far, eps2d=eps2d, sh_degree=sh_degree, tile_size=tile_size, packed=False,
+        backgrounds=None if background is None else background[None],
+        render_mode="RGB+ED" if render_depth and normalize_depth else ("RGB+D" if render_depth else "RGB"),
+    )
+    image, alpha = render[0], alpha[0]
+    depth = None
+    if render_depth:
+        image, depth = image[..., :-1], image[..., -1:]
+    radii = info["radii"][0]
+    if radii.dim() == 1:
+        radii = radii[:, None].expand(-1, 2)
+    meta = RenderMeta(info["means2d"][0], radii.int(), info["depths"][0], radii[:, 0] > 0, depth, "gsplat", width, height)
+    return image, alpha, meta
+
+
+def accumulate_weights(
+    means: Tensor,
+    quats: Tensor,
+    scales: Tensor,
+    opacities: Tensor,
+    viewmat: Tensor,
+    K: Tensor,
+    pixel_weights: Tensor,
+    *,
+    backend: str = "auto",
+    **kwargs,
+) -> Tensor:
+    """Per-Gaussian sums of blending weight × pixel weight (ABC-GS Eq. 2).
+
+    ``w[i, j] = Σ_p α_i(p) T_i(p) M_j(p)`` for pixel weight maps ``pixel_weights`` ``(H, W, J)`` (e.g. one-hot
+    content masks), returned as ``(N, J)``. It equals the gradient of ``Σ_p image(p)·M(p)`` with respect to
+    per-Gaussian colours, so every backend computes it with its own backward pass and nothing of size
+    N×H×W is ever built.
+    """
+    height, width, n_labels = pixel_weights.shape
+    with torch.enable_grad():
+        probe = torch.zeros(means.shape[0], n_labels, dtype=pixel_weights.dtype, device=means.device, requires_grad=True)
+        image, _, _ = rasterize(
+            means.detach(), quats.detach(), scales.detach(), opacities.detach(), probe, viewmat, K, width, height,
+            backend=backend, **kwargs,
+        )
+        (grad,) = torch.autograd.grad((image * pixel_weights).sum(), probe)
+    return grad
