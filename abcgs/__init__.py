@@ -12,4 +12,8 @@ The library is organised one module per concept:
 - :mod:`abcgs.style`    — ABC-GS: VGG features, FAST loss, colour match, style isolation, mask lifting.
 """
 
+# Import OpenCV before pycolmap can be imported anywhere: pycolmap's bundled zlib otherwise captures
+# libz's internal calls and the next cv2.imencode of a PNG aborts with "double free or corruption".
+import cv2  # noqa: F401,E402
+
 __version__ = "0.1.0"

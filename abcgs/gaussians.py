@@ -1,0 +1,222 @@
+"""A 3-D Gaussian scene as a plain container of raw (unactivated) parameter tensors.
+
+Parameters are stored the way the optimiser sees them (the 3DGS / gsplat convention):
+
+==================  ==============  ==================================================
+field               shape           activation → physical quantity
+==================  ==============  ==================================================
+``means``           ``(N, 3)``      identity → world position (world units)
+``quats``           ``(N, 4)``      normalise → rotation, wxyz
+``log_scales``      ``(N, 3)``      ``exp`` → standard deviations (world units)
+``opacity_logits``  ``(N,)``        ``sigmoid`` → opacity in ``[0, 1]``
+``sh0``             ``(N, 1, 3)``   DC spherical-harmonic coefficient (colour = C0·sh0 + 0.5)
+``shN``             ``(N, K-1, 3)`` higher SH bands, ``K = (degree + 1)²`` (``K - 1 = 0`` for degree 0)
+==================  ==============  ==================================================
+
+The densification strategies (:mod:`abcgs.fit.strategy`) replace these tensors in place of the
+dataclass fields (``setattr``) when they add or remove Gaussians; nothing else holds on to them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+from typing import Iterator
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+from torch import Tensor
+
+from abcgs.cameras import Camera
+from abcgs.errors import InputError
+from abcgs.render import RenderMeta, num_sh_bases, rasterize, rgb_to_sh0, sh0_to_rgb
+
+PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh0", "shN")
+"""Names of the per-Gaussian parameter tensors, in a fixed order (also the optimiser keys)."""
+
+
+@dataclass
+class GaussianModel:
+    """N Gaussians with raw parameters (see the module docstring for shapes and activations)."""
+
+    means: Tensor
+    quats: Tensor
+    log_scales: Tensor
+    opacity_logits: Tensor
+    sh0: Tensor
+    shN: Tensor
+
+    def __post_init__(self) -> None:
+        n = self.means.shape[0]
+        expected = {
+            "means": (n, 3), "quats": (n, 4), "log_scales": (n, 3), "opacity_logits": (n,), "sh0": (n, 1, 3),
+        }
+        for name, shape in expected.items():
+            got = tuple(getattr(self, name).shape)
+            if got != shape:
+                raise InputError(f"GaussianModel.{name} has shape {got}, expected {shape}")
+        shn = tuple(self.shN.shape)
+        if len(shn) != 3 or shn[0] != n or shn[2] != 3 or shn[1] + 1 not in (1, 4, 9, 16):
+            raise InputError(f"GaussianModel.shN has shape {shn}, expected ({n}, K-1, 3) with K in 1, 4, 9, 16")
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_points(
+        cls,
+        points: np.ndarray | Tensor,
+        colors: np.ndarray | Tensor,
+        sh_degree: int = 0,
+        init_opacity: float = 0.1,
+        *,
+        device: torch.device | str = "cpu",
+    ) -> "GaussianModel":
+        """Initial Gaussians at SfM points (3DGS initialisation).
+
+        Args:
+            points: ``(M, 3)`` world positions. colors: ``(M, 3)`` RGB in ``[0, 1]``.
+            sh_degree: highest SH band kept (0..3); higher bands start at zero.
+            init_opacity: initial opacity of every Gaussian, in ``(0, 1)``.
+
+        Isotropic scales are ``sqrt`` of the mean squared distance to the 3 nearest other points
+        (``scipy.spatial.cKDTree``; 3DGS's ``distCUDA2``), floored at ``sqrt(1e-7)``; rotations are identity.
+        """
+        pts = np.asarray(points.detach().cpu() if isinstance(points, Tensor) else points, dtype=np.float64)
+        cols = np.asarray(colors.detach().cpu() if isinstance(colors, Tensor) else colors, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] == 0:
+            raise InputError(f"need a non-empty (M, 3) array of points to initialise Gaussians, got shape {pts.shape}")
+        if cols.shape != pts.shape:
+            raise InputError(f"point colours have shape {cols.shape}, expected {pts.shape}")
+        if not np.isfinite(pts).all():
+            raise InputError("the initial point cloud contains NaN/Inf coordinates")
+        if not 0.0 < init_opacity < 1.0:
+            raise InputError(f"init_opacity must be in (0, 1), got {init_opacity}")
+        n_sh = num_sh_bases(sh_degree)
+        m = pts.shape[0]
+        if m > 1:
+            k = min(4, m)  # the point itself + up to 3 neighbours
+            dist, _ = cKDTree(pts).query(pts, k=k)
+            dist2 = (dist[:, 1:] ** 2).mean(axis=1)
+        else:
+            dist2 = np.ones(1)
+        dist2 = np.maximum(dist2, 1e-7)
+        f32 = dict(dtype=torch.float32, device=device)
+        n = m
+        quats = torch.zeros(n, 4, **f32)
+        quats[:, 0] = 1.0
+        return cls(
+            means=torch.as_tensor(pts, **f32),
+            quats=quats,
+            log_scales=torch.as_tensor(np.log(np.sqrt(dist2)), **f32)[:, None].repeat(1, 3),
+            opacity_logits=torch.full((n,), math.log(init_opacity / (1.0 - init_opacity)), **f32),
+            sh0=rgb_to_sh0(torch.as_tensor(np.clip(cols, 0.0, 1.0), **f32))[:, None, :],
+            shN=torch.zeros(n, n_sh - 1, 3, **f32),
+        )
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def num_gaussians(self) -> int:
+        return int(self.means.shape[0])
+
+    @property
+    def sh_degree(self) -> int:
+        """Highest SH band stored (0..3)."""
+        return int(round(math.sqrt(self.shN.shape[1] + 1))) - 1
+
+    @property
+    def device(self) -> torch.device:
+        return self.means.device
+
+    @property
+    def scales(self) -> Tensor:
+        """``(N, 3)`` standard deviations in world units."""
+        return torch.exp(self.log_scales)
+
+    @property
+    def opacities(self) -> Tensor:
+        """``(N,)`` opacities in ``[0, 1]``."""
+        return torch.sigmoid(self.opacity_logits)
+
+    @property
+    def rotations(self) -> Tensor:
+        """``(N, 4)`` unit quaternions, wxyz."""
+        return torch.nn.functional.normalize(self.quats, dim=-1)
+
+    @property
+    def sh(self) -> Tensor:
+        """``(N, K, 3)`` all SH coefficients."""
+        return torch.cat([self.sh0, self.shN], dim=1)
+
+    def activated(self) -> dict[str, Tensor]:
+        """Physical quantities: ``means, quats`` (unit), ``scales``, ``opacities``, ``sh``."""
+        return {
+            "means": self.means, "quats": self.rotations, "scales": self.scales,
+            "opacities": self.opacities, "sh": self.sh,
+        }
+
+    def colors_or_sh(self, sh_degree: int | None = None) -> tuple[Tensor, int | None]:
+        """What :func:`abcgs.render.rasterize` takes as ``colors`` and ``sh_degree``.
+
+        For an active degree of 0 this is the plain RGB ``(N, 3)`` = ``max(C0·sh0 + 0.5, 0)`` with ``None``
+        (identical to SH evaluation, cheaper); otherwise the ``(N, K, 3)`` coefficients and the degree.
+        ``sh_degree`` limits the active band (3DGS raises it during training); default: all stored bands.
+        """
+        degree = self.sh_degree if sh_degree is None else min(int(sh_degree), self.sh_degree)
+        if degree == 0:
+            return sh0_to_rgb(self.sh0[:, 0, :]).clamp_min(0.0), None
+        return self.sh, degree
+
+    # ------------------------------------------------------------------ tensor plumbing
+    def items(self) -> Iterator[tuple[str, Tensor]]:
+        """``(name, tensor)`` pairs in :data:`PARAM_NAMES` order."""
+        for name in PARAM_NAMES:
+            yield name, getattr(self, name)
+
+    def params(self) -> dict[str, Tensor]:
+        return dict(self.items())
+
+    def map(self, fn) -> "GaussianModel":
+        """A new model with ``fn(tensor)`` applied to every parameter."""
+        return GaussianModel(**{name: fn(t) for name, t in self.items()})
+
+    def detach(self) -> "GaussianModel":
+        """A copy of the values without autograd history (new storage)."""
+        return self.map(lambda t: t.detach().clone())
+
+    def to(self, device: torch.device | str) -> "GaussianModel":
+        return self.map(lambda t: t.to(device))
+
+    def as_parameters(self) -> "GaussianModel":
+        """A copy whose fields are leaf ``torch.nn.Parameter`` s (what the optimiser updates)."""
+        return self.map(lambda t: torch.nn.Parameter(t.detach().clone().contiguous()))
+
+    def index(self, mask_or_idx: Tensor) -> "GaussianModel":
+        """The Gaussians selected by a bool mask or index tensor (detached copies)."""
+        return self.map(lambda t: t.detach()[mask_or_idx].clone())
+
+
+assert tuple(f.name for f in fields(GaussianModel)) == PARAM_NAMES
+
+
+def render(
+    model: GaussianModel,
+    camera: Camera,
+    *,
+    backend: str = "auto",
+    sh_degree: int | None = None,
+    background: Tensor | None = None,
+    **kwargs,
+) -> tuple[Tensor, Tensor, RenderMeta]:
+    """Render ``model`` into ``camera``: image ``(H, W, 3)``, alpha ``(H, W, 1)``, :class:`RenderMeta`.
+
+    ``sh_degree`` caps the active SH band (default: all stored bands). ``background`` ``(3,)`` in
+    ``[0, 1]`` is composited behind. Other keywords go to :func:`abcgs.render.rasterize`
+    (e.g. ``render_depth=True``). Differentiable in every model parameter.
+    """
+    device = model.device
+    colors, degree = model.colors_or_sh(sh_degree)
+    return rasterize(
+        model.means, model.quats, model.scales, model.opacities, colors,
+        camera.torch_viewmat(device), camera.torch_K(device), camera.width, camera.height,
+        sh_degree=degree, background=background, backend=backend, **kwargs,
+    )

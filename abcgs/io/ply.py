@@ -1,0 +1,153 @@
+"""Reading and writing 3-D Gaussians in the standard INRIA 3DGS PLY layout.
+
+One ``vertex`` element, binary little endian, all properties ``float32``, in this order::
+
+    x y z  nx ny nz  f_dc_0 f_dc_1 f_dc_2  f_rest_0 … f_rest_{3(K-1)-1}  opacity  scale_0 scale_1 scale_2
+    rot_0 rot_1 rot_2 rot_3
+
+- ``f_dc_*``: the DC SH coefficient per channel (R, G, B).
+- ``f_rest_*``: the higher SH bands stored channel-major as INRIA does: the K-1 coefficients of R, then
+  those of G, then of B (``shN.transpose(1, 2).flatten(1)``). K = (degree+1)², so 0, 9, 24 or 45 fields.
+- ``opacity``: the logit; ``scale_*``: log standard deviations; ``rot_*``: the quaternion wxyz, unnormalised.
+- ``nx ny nz`` are written as zeros (3DGS does) and ignored on reading.
+
+This is what the reference implementation writes and what common viewers (SuperSplat, the INRIA SIBR
+viewer, gsplat's viewer, antimatter15/splat) read. Raw ``float32`` values are written unchanged, so
+:func:`write_ply` → :func:`read_ply` is bit-exact.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+import torch
+from plyfile import PlyData, PlyElement, PlyListProperty, PlyParseError
+
+from abcgs.errors import InputError
+from abcgs.gaussians import GaussianModel
+from abcgs.io.atomic import atomic_path
+
+_REST_COUNTS = {0: 0, 9: 1, 24: 2, 45: 3}
+"""Number of ``f_rest_*`` fields → SH degree."""
+
+
+def ply_property_names(sh_degree: int) -> list[str]:
+    """Vertex property names, in file order, for a given SH degree (0..3)."""
+    n_rest = 3 * ((sh_degree + 1) ** 2 - 1)
+    return (
+        ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+        + [f"f_rest_{i}" for i in range(n_rest)]
+        + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    )
+
+
+def gaussians_to_array(model: GaussianModel) -> np.ndarray:
+    """The model as a ``(N,)`` numpy structured array in the INRIA layout (``float32`` fields)."""
+    n = model.num_gaussians
+
+    def host(t: torch.Tensor) -> np.ndarray:
+        return t.detach().to("cpu", torch.float32).numpy().reshape(n, -1)
+
+    cols = np.concatenate(
+        [
+            host(model.means),
+            np.zeros((n, 3), np.float32),
+            host(model.sh0),  # (N, 1, 3) → (N, 3)
+            host(model.shN.transpose(1, 2)),  # (N, 3, K-1) → channel-major (N, 3(K-1))
+            host(model.opacity_logits),
+            host(model.log_scales),
+            host(model.quats),
+        ],
+        axis=1,
+    )
+    names = ply_property_names(model.sh_degree)
+    assert cols.shape[1] == len(names)
+    arr = np.empty(n, dtype=[(name, "<f4") for name in names])
+    for i, name in enumerate(names):
+        arr[name] = cols[:, i]
+    return arr
+
+
+def write_ply(path: str | os.PathLike, model: GaussianModel) -> None:
+    """Write ``model`` as an INRIA-layout 3DGS PLY (binary little endian), atomically."""
+    element = PlyElement.describe(gaussians_to_array(model), "vertex")
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:
+            PlyData([element], text=False, byte_order="<").write(fh)
+
+
+def _check_body_size(path: Path, raw: bytes, data: PlyData) -> None:
+    """Binary files of fixed-size rows must end exactly after the counted rows (catches a wrong count)."""
+    if data.text or any(isinstance(p, PlyListProperty) for el in data.elements for p in el.properties):
+        return
+    end = raw.find(b"end_header")
+    body = raw.index(b"\n", end) + 1
+    expected = sum(el.count * np.dtype(el.dtype()).itemsize for el in data.elements)
+    extra = len(raw) - body - expected
+    if extra:
+        counts = ", ".join(f"{el.count} {el.name}" for el in data.elements)
+        raise InputError(
+            f"{path} has {extra} bytes after the {counts} rows its header declares; the element count in the "
+            "header is wrong or the file is corrupt"
+        )
+
+
+def read_ply(path: str | os.PathLike, *, device: torch.device | str = "cpu") -> GaussianModel:
+    """Read a 3DGS PLY written by this module, by the INRIA code or by tools that keep its layout.
+
+    The SH degree is inferred from the number of ``f_rest_*`` fields. Any numeric property type is
+    accepted and converted to ``float32``. A missing file, a file that is not a PLY, a truncated body, a
+    missing ``vertex`` element or property, or an ``f_rest`` count that is not 0/9/24/45 raises
+    :class:`InputError` saying which.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"PLY file {path} does not exist")
+    raw = path.read_bytes()
+    if not (raw.startswith(b"ply\n") or raw.startswith(b"ply\r\n")):
+        raise InputError(f"{path} is not a PLY file (it does not start with the 'ply' magic line)")
+    try:
+        data = PlyData.read(io.BytesIO(raw), mmap=False)
+    except (PlyParseError, ValueError, EOFError, IndexError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path} is a malformed or truncated PLY file: {exc}") from exc
+    _check_body_size(path, raw, data)
+    if "vertex" not in [el.name for el in data.elements]:
+        raise InputError(f"{path} has no 'vertex' element; a 3DGS PLY stores one vertex per Gaussian")
+    vertex = data["vertex"]
+    names = [p.name for p in vertex.properties]
+    rest = [n for n in names if n.startswith("f_rest_")]
+    if len(rest) not in _REST_COUNTS:
+        raise InputError(
+            f"{path} has {len(rest)} f_rest_* properties; a 3DGS PLY has 0, 9, 24 or 45 "
+            "(SH degree 0, 1, 2 or 3)"
+        )
+    degree = _REST_COUNTS[len(rest)]
+    if sorted(int(re.sub(r"\D", "", n) or -1) for n in rest) != list(range(len(rest))):
+        raise InputError(f"{path}: the f_rest_* properties are not numbered 0..{len(rest) - 1}")
+    required = [n for n in ply_property_names(degree) if n not in ("nx", "ny", "nz")]
+    missing = [n for n in required if n not in names]
+    if missing:
+        raise InputError(f"{path} is missing the vertex properties {', '.join(missing)} of the 3DGS layout")
+    arr = vertex.data
+    n = len(arr)
+
+    def col(*props: str) -> np.ndarray:
+        if not props:
+            return np.zeros((n, 0), np.float32)
+        return np.stack([np.asarray(arr[p], dtype=np.float32) for p in props], axis=1)
+
+    k1 = len(rest) // 3
+    f_rest = col(*[f"f_rest_{i}" for i in range(len(rest))]).reshape(n, 3, k1)
+    t = lambda a: torch.from_numpy(np.ascontiguousarray(a)).to(device)  # noqa: E731
+    return GaussianModel(
+        means=t(col("x", "y", "z")),
+        quats=t(col("rot_0", "rot_1", "rot_2", "rot_3")),
+        log_scales=t(col("scale_0", "scale_1", "scale_2")),
+        opacity_logits=t(col("opacity")[:, 0]),
+        sh0=t(col("f_dc_0", "f_dc_1", "f_dc_2")[:, None, :]),
+        shN=t(f_rest.transpose(0, 2, 1)),
+    )

@@ -1,0 +1,136 @@
+"""The ``params.yaml`` schema and its loader.
+
+Every stage validates the whole file before it does any work, so a typo anywhere fails fast with the
+key's path, what was wrong and the allowed keys or values:
+
+    params.yaml: fit.iteratons: unknown key; allowed keys here: iterations, sh_degree, ...
+
+Each section's model lives next to the code it configures (``TinySceneParams`` in
+:mod:`abcgs.scene.synthetic`, ``ReconstructParams`` in :mod:`abcgs.sfm.colmap`, ``FitParams`` in
+:mod:`abcgs.fit.trainer`); this module only assembles them.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from abcgs.errors import ParamsError
+from abcgs.fit.trainer import FitParams
+from abcgs.scene.synthetic import TinySceneParams
+from abcgs.sfm.colmap import ReconstructParams
+from abcgs.style.colormatch import ColorMatchParams
+from abcgs.style.content_masks import MaskParams
+from abcgs.style.matching import ExperimentParams, IsolationParams
+from abcgs.style.stylize import StylizeParams
+from abcgs.style.weights import VggWeightsParams
+
+
+class DataParams(BaseModel):
+    """Where the scenes and style images are. Paths are relative to the repository root."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    scenes: dict[str, str] = Field(
+        description="scene name → folder holding images/ (and optional masks/ with label PNGs of the same stem)"
+    )
+    styles: dict[str, str] = Field(default_factory=dict, description="style name → painting image file")
+    style_masks: dict[str, str] = Field(
+        default_factory=dict, description="style name → label PNG of that painting (semantic transfer)"
+    )
+
+    @field_validator("scenes")
+    @classmethod
+    def _some_scene(cls, v: dict[str, str]) -> dict[str, str]:
+        if not v:
+            raise ValueError("at least one scene is needed")
+        for name in v:
+            if not name.replace("_", "").replace("-", "").isalnum():
+                raise ValueError(f"scene name {name!r} must be letters, digits, '-' or '_' (it becomes a folder name)")
+        return v
+
+
+class Params(BaseModel):
+    """The whole ``params.yaml``."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    data: DataParams
+    tiny: TinySceneParams = Field(default_factory=TinySceneParams)
+    reconstruct: ReconstructParams = Field(default_factory=ReconstructParams)
+    fit: FitParams = Field(default_factory=FitParams)
+    masks: MaskParams = Field(default_factory=MaskParams)
+    vgg: VggWeightsParams = Field(default_factory=VggWeightsParams)
+    isolation: IsolationParams = Field(default_factory=IsolationParams)
+    colormatch: ColorMatchParams = Field(default_factory=ColorMatchParams)
+    stylize: StylizeParams = Field(default_factory=StylizeParams)
+    experiments: dict[str, ExperimentParams] = Field(
+        default_factory=dict, description="stylization runs: name → scene, transfer type, style(s), loss method"
+    )
+
+    @model_validator(mode="after")
+    def _cross_check(self) -> "Params":
+        for name, exp in self.experiments.items():
+            if exp.scene not in self.data.scenes:
+                raise ValueError(f"experiments.{name}.scene {exp.scene!r} is not in data.scenes ({', '.join(self.data.scenes)})")
+            for key in exp.style_keys():
+                if key not in self.data.styles:
+                    raise ValueError(f"experiments.{name} uses style {key!r}, not in data.styles ({', '.join(self.data.styles)})")
+            if exp.transfer == "semantic" and exp.style not in self.data.style_masks:
+                raise ValueError(f"experiments.{name} is semantic but data.style_masks has no label map for {exp.style!r}")
+        return self
+
+
+def _model_at(model: type[BaseModel], loc: tuple[Any, ...]) -> type[BaseModel] | None:
+    """The pydantic model class that owns the key at ``loc`` (for listing allowed keys)."""
+    current: Any = model
+    for part in loc[:-1]:
+        if isinstance(part, int) or not (isinstance(current, type) and issubclass(current, BaseModel)):
+            return None
+        field = current.model_fields.get(part)
+        if field is None:
+            return None
+        current = field.annotation
+    return current if isinstance(current, type) and issubclass(current, BaseModel) else None
+
+
+def format_validation_error(exc: ValidationError, source: str, model: type[BaseModel] = Params) -> str:
+    lines = [f"{source} does not match the schema ({exc.error_count()} problem(s)):"]
+    for err in exc.errors():
+        loc = tuple(err["loc"])
+        path = ".".join(str(p) for p in loc) or "<top level>"
+        if err["type"] == "extra_forbidden":
+            owner = _model_at(model, loc)
+            allowed = ", ".join(owner.model_fields) if owner else "?"
+            lines.append(f"  {path}: unknown key; allowed keys here: {allowed}")
+        elif err["type"] == "missing":
+            lines.append(f"  {path}: required key is missing")
+        else:
+            lines.append(f"  {path}: {err['msg']} (got {err.get('input')!r})")
+    return "\n".join(lines)
+
+
+def validate_params(raw: Any, source: str = "params.yaml") -> Params:
+    """Validate an already-parsed mapping; raise :class:`ParamsError` with every problem listed."""
+    if not isinstance(raw, dict):
+        raise ParamsError(f"{source} must be a YAML mapping at the top level, got {type(raw).__name__}")
+    try:
+        return Params.model_validate(raw)
+    except ValidationError as exc:
+        raise ParamsError(format_validation_error(exc, source)) from None
+
+
+def load_params(path: str | os.PathLike = "params.yaml") -> Params:
+    """Read and validate ``params.yaml``."""
+    path = Path(path)
+    if not path.is_file():
+        raise ParamsError(f"{path} not found; run from the repository root or pass --params")
+    try:
+        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except yaml.YAMLError as exc:
+        raise ParamsError(f"{path} is not valid YAML: {exc}") from None
+    return validate_params(raw, str(path))

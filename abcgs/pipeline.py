@@ -1,0 +1,42 @@
+"""Shared plumbing of the DVC stage scripts in ``stages/``: argument parsing, params, logging, errors.
+
+A stage script is a short ``main(args, params)`` that calls the library; :func:`run_stage` validates the
+whole ``params.yaml`` first (so a typo fails before any work), sets up logging, and turns an
+:class:`abcgs.errors.AbcgsError` into a one-paragraph message and exit status 2 instead of a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from pathlib import Path
+from typing import Callable
+
+from abcgs.errors import AbcgsError
+from abcgs.params import Params, load_params
+
+log = logging.getLogger("abcgs")
+
+
+def stage_parser(description: str) -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("--params", type=Path, default=Path("params.yaml"), help="the pipeline's params file")
+    return ap
+
+
+def run_stage(
+    name: str, parser: argparse.ArgumentParser, main: Callable[[argparse.Namespace, Params], None], argv=None
+) -> int:
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s", datefmt="%H:%M:%S")
+    t0 = time.perf_counter()
+    try:
+        params = load_params(args.params)
+        main(args, params)
+    except AbcgsError as exc:
+        print(f"\n[{name}] error: {exc}", file=sys.stderr)
+        return 2
+    log.info("[%s] done in %.1f s", name, time.perf_counter() - t0)
+    return 0

@@ -1,0 +1,1 @@
+"""The embedded synthetic default scene (see :mod:`abcgs.scene.synthetic`)."""

@@ -1,0 +1,10 @@
+"""Structure from motion through pycolmap, and reading COLMAP models (see :mod:`abcgs.sfm.colmap`).
+
+Import-order hazard: pycolmap 4.x's ``_core`` module carries its own (exported) zlib. If ``pycolmap``
+is imported before ``cv2``, the system ``libz`` that both load binds its internal calls to
+pycolmap's copy, and the next ``cv2.imencode('.png', ...)`` aborts with "double free or corruption".
+Importing ``cv2`` first (as done here and in :mod:`abcgs.sfm.colmap`) avoids it; never import
+``pycolmap`` at the top of a module before ``cv2``/``abcgs``.
+"""
+
+import cv2  # noqa: F401  (must be loaded before pycolmap, see above)

@@ -1,0 +1,341 @@
+"""Structure from motion with pycolmap, and reading the result as :class:`SceneData`.
+
+:func:`reconstruct` runs SIFT extraction → matching (exhaustive or sequential) → incremental mapping
+(largest model kept) → undistortion to PINHOLE, and writes::
+
+    out_dir/sparse/{cameras,images,points3D}.bin   undistorted COLMAP model (binary)
+    out_dir/images/                                undistorted images (registered views only)
+    out_dir/masks/                                 undistorted label maps (only when masks are given)
+    out_dir/metrics.json                           {registered, total, points, mean_reprojection_error_px,
+                                                    seconds, unregistered: [names]}
+
+Determinism: COLMAP's RANSAC, mapper and triangulator are seeded with ``params.seed``. With
+``num_threads = 1`` (the default) repeated runs give identical models. More threads are faster, but
+feature/match ordering and multi-threaded bundle adjustment then vary run to run (camera centres
+differ at the 1e-3 level). Tested with pycolmap 4.2 (CPU).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import cv2  # before pycolmap: see abcgs/sfm/__init__.py
+import numpy as np
+import pycolmap
+from pydantic import BaseModel, Field
+
+from abcgs.cameras import Camera
+from abcgs.errors import InputError, ReconstructionError
+from abcgs.io.atomic import atomic_path, write_json
+from abcgs.io.images import list_images, load_image, load_labels, save_labels
+
+log = logging.getLogger(__name__)
+
+EXHAUSTIVE_MAX_IMAGES = 100
+"""``matcher: auto`` matches all pairs up to this many images, sequentially above."""
+
+MIN_IMAGES = 3
+
+
+class ReconstructParams(BaseModel, extra="forbid"):
+    """Options of the ``reconstruct`` stage (``params.yaml`` section ``reconstruct:``)."""
+
+    min_registered_fraction: float = Field(0.9, ge=0.0, le=1.0, description="fail below this fraction of registered images")
+    matcher: Literal["auto", "exhaustive", "sequential"] = Field(
+        "auto", description=f"auto = exhaustive up to {EXHAUSTIVE_MAX_IMAGES} images, else sequential"
+    )
+    sequential_overlap: int = Field(10, ge=1, description="sequential matcher: neighbours matched on each side")
+    max_image_size: int = Field(3200, ge=-1, description="SIFT runs on images downscaled to this longest side (-1 = no limit)")
+    camera_model: Literal["SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"] = "SIMPLE_RADIAL"
+    single_camera: Literal["auto"] | bool = Field(
+        "auto", description="share intrinsics between all images; auto = when all images have the same size"
+    )
+    num_threads: int = Field(1, ge=-1, description="COLMAP threads; -1 = all cores (faster, not bit-reproducible)")
+    seed: int = Field(0, ge=0, description="seed for COLMAP's RANSAC / mapper / triangulator")
+
+
+@dataclass
+class ReconstructionReport:
+    """What :func:`reconstruct` did; ``metrics()`` is what goes into ``metrics.json``."""
+
+    registered: int
+    total: int
+    points: int
+    mean_reprojection_error_px: float
+    seconds: float
+    unregistered: list[str] = field(default_factory=list)
+    out_dir: Path | None = None
+
+    def metrics(self) -> dict:
+        data = asdict(self)
+        data.pop("out_dir")
+        return data
+
+
+@dataclass
+class SceneData:
+    """A calibrated scene as the fit stage consumes it.
+
+    Attributes:
+        cameras: one PINHOLE :class:`Camera` per registered image, sorted by image name.
+        image_paths: the image file of each camera, same order.
+        points: ``(M, 3) float32`` sparse SfM points in world coordinates.
+        colors: ``(M, 3) float32`` their RGB colours in ``[0, 1]``.
+    """
+
+    cameras: list[Camera]
+    image_paths: list[Path]
+    points: np.ndarray
+    colors: np.ndarray
+
+
+def set_colmap_log_level(level: Literal["info", "warning", "error"]) -> None:
+    """How much COLMAP itself prints to stderr (its glog output; abcgs's own messages use :mod:`logging`)."""
+    pycolmap.logging.minloglevel = {"info": 0, "warning": 1, "error": 2}[level]
+
+
+# ----------------------------------------------------------------------------------------------
+# Input validation
+# ----------------------------------------------------------------------------------------------
+
+
+def validate_images(images_dir: str | os.PathLike) -> tuple[list[Path], dict[str, tuple[int, int]]]:
+    """Check the input folder before COLMAP sees it.
+
+    Returns the sorted image paths and each image's ``(width, height)`` by file name. Raises
+    :class:`InputError` for fewer than :data:`MIN_IMAGES` images or any unreadable image (named).
+    """
+    files = list_images(images_dir)
+    if len(files) < MIN_IMAGES:
+        raise InputError(
+            f"{images_dir} holds {len(files)} image(s); structure from motion needs at least {MIN_IMAGES} "
+            "overlapping photos of the scene (LLFF-style captures have 20-60)"
+        )
+    sizes = {}
+    for f in files:
+        img = load_image(f)  # raises InputError naming the file
+        sizes[f.name] = (img.shape[1], img.shape[0])
+    return files, sizes
+
+
+def resolve_single_camera(params: ReconstructParams, sizes: dict[str, tuple[int, int]]) -> bool:
+    """Whether all images share one camera; an error when that is forced but sizes differ."""
+    distinct = sorted(set(sizes.values()))
+    if params.single_camera == "auto":
+        return len(distinct) == 1
+    if params.single_camera and len(distinct) > 1:
+        examples = ", ".join(f"{n} is {w}x{h}" for n, (w, h) in list(sizes.items()) if (w, h) in distinct[:2])
+        raise InputError(
+            f"reconstruct.single_camera is true but the images have {len(distinct)} different sizes "
+            f"({', '.join(f'{w}x{h}' for w, h in distinct)}; e.g. {examples}); resize them to one size "
+            "or set reconstruct.single_camera to auto/false"
+        )
+    return bool(params.single_camera)
+
+
+# ----------------------------------------------------------------------------------------------
+# COLMAP steps
+# ----------------------------------------------------------------------------------------------
+
+
+def _extract(db: Path, images_dir: Path, names: list[str], params: ReconstructParams, single: bool) -> None:
+    opts = pycolmap.FeatureExtractionOptions(num_threads=params.num_threads, max_image_size=params.max_image_size)
+    pycolmap.extract_features(
+        db,
+        images_dir,
+        image_names=names,
+        camera_mode=pycolmap.CameraMode.SINGLE if single else pycolmap.CameraMode.PER_IMAGE,
+        reader_options=pycolmap.ImageReaderOptions(camera_model=params.camera_model),
+        extraction_options=opts,
+        device=pycolmap.Device.cpu,
+    )
+
+
+def choose_matcher(params: ReconstructParams, n_images: int) -> str:
+    """``exhaustive`` or ``sequential`` (``auto``: exhaustive up to :data:`EXHAUSTIVE_MAX_IMAGES` images)."""
+    if params.matcher != "auto":
+        return params.matcher
+    return "exhaustive" if n_images <= EXHAUSTIVE_MAX_IMAGES else "sequential"
+
+
+def _match(db: Path, params: ReconstructParams, matcher: str) -> None:
+    matching = pycolmap.FeatureMatchingOptions(num_threads=params.num_threads)
+    verification = pycolmap.TwoViewGeometryOptions()
+    verification.ransac.random_seed = params.seed
+    if matcher == "exhaustive":
+        pycolmap.match_exhaustive(db, matching_options=matching, verification_options=verification, device=pycolmap.Device.cpu)
+    else:
+        pairing = pycolmap.SequentialPairingOptions(overlap=params.sequential_overlap, num_threads=params.num_threads)
+        pycolmap.match_sequential(
+            db, matching_options=matching, pairing_options=pairing, verification_options=verification, device=pycolmap.Device.cpu
+        )
+
+
+def _map(db: Path, images_dir: Path, sparse_dir: Path, params: ReconstructParams) -> pycolmap.Reconstruction | None:
+    """Incremental mapping; the model with the most registered images (ties: most points), or None."""
+    opts = pycolmap.IncrementalPipelineOptions(num_threads=params.num_threads, random_seed=params.seed, min_model_size=MIN_IMAGES)
+    opts.mapper.random_seed = params.seed
+    opts.triangulation.random_seed = params.seed
+    sparse_dir.mkdir(parents=True, exist_ok=True)
+    models = pycolmap.incremental_mapping(db, images_dir, sparse_dir, options=opts)
+    if not models:
+        return None
+    return max(models.values(), key=lambda r: (r.num_reg_images(), r.num_points3D()))
+
+
+def check_registration(rec: pycolmap.Reconstruction | None, names: list[str], params: ReconstructParams) -> list[str]:
+    """The unregistered image names; :class:`ReconstructionError` when too few images registered."""
+    registered = {im.name for im in rec.images.values() if im.has_pose} if rec is not None else set()
+    missing = [n for n in names if n not in registered]
+    frac = len(registered) / len(names)
+    if frac < params.min_registered_fraction:
+        shown = ", ".join(missing[:20]) + (f" ... (+{len(missing) - 20} more)" if len(missing) > 20 else "")
+        raise ReconstructionError(
+            f"structure from motion registered only {len(registered)} of {len(names)} images "
+            f"({frac:.0%} < reconstruct.min_registered_fraction = {params.min_registered_fraction:.0%}). "
+            f"Unregistered: {shown}. Try photos with more overlap between neighbouring views and more "
+            "texture (avoid blank walls, motion blur, reflections), remove unrelated photos, or lower "
+            "reconstruct.min_registered_fraction to keep the partial model."
+        )
+    return missing
+
+
+def undistort_labels(labels: np.ndarray, distorted: pycolmap.Camera, undistorted: pycolmap.Camera) -> np.ndarray:
+    """Warp a label map ``(H, W)`` of a distorted view onto its undistorted PINHOLE view.
+
+    Same pixel mapping as COLMAP's image undistorter but nearest-neighbour, so labels stay labels.
+    Returns ``(H', W') int64`` at the undistorted camera's size; pixels that map outside get 0.
+    """
+    w, h = undistorted.width, undistorted.height
+    u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    rays = undistorted.cam_from_img(np.stack([u.ravel(), v.ravel()], axis=1))
+    pix = distorted.img_from_cam(np.concatenate([rays, np.ones((rays.shape[0], 1))], axis=1)) - 0.5
+    mx = pix[:, 0].astype(np.float32).reshape(h, w)
+    my = pix[:, 1].astype(np.float32).reshape(h, w)
+    src = labels.astype(np.uint16 if labels.max(initial=0) > 255 else np.uint8)
+    out = cv2.remap(src, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return out.astype(np.int64)
+
+
+def _undistort_masks(masks_dir: Path, rec: pycolmap.Reconstruction, und: pycolmap.Reconstruction, out: Path) -> int:
+    """Write undistorted copies of ``masks_dir/<stem>.png`` for every registered image; returns the count."""
+    by_stem = {Path(im.name).stem: im for im in rec.images.values()}
+    count = 0
+    for mask_path in sorted(masks_dir.glob("*.png")):
+        im = by_stem.get(mask_path.stem)
+        if im is None:
+            log.warning("mask %s has no registered image with that stem; skipped", mask_path.name)
+            continue
+        cam = rec.cameras[im.camera_id]
+        labels = load_labels(mask_path, expect_hw=(cam.height, cam.width))
+        und_cam = und.cameras[und.find_image_with_name(im.name).camera_id]
+        save_labels(out / f"{mask_path.stem}.png", undistort_labels(labels, cam, und_cam))
+        count += 1
+    return count
+
+
+def _undistort(model_dir: Path, images_dir: Path, work: Path, out: Path, params: ReconstructParams) -> None:
+    """COLMAP undistortion of ``model_dir`` into ``out/sparse`` and ``out/images`` (other outputs dropped)."""
+    und = work / "undistorted"
+    pycolmap.undistort_images(und, model_dir, images_dir, output_type="COLMAP", num_threads=params.num_threads)
+    shutil.move(str(und / "sparse"), str(out / "sparse"))
+    shutil.move(str(und / "images"), str(out / "images"))
+
+
+# ----------------------------------------------------------------------------------------------
+# Public entry points
+# ----------------------------------------------------------------------------------------------
+
+
+def reconstruct(
+    images_dir: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    params: ReconstructParams | None = None,
+    masks_dir: str | os.PathLike | None = None,
+) -> ReconstructionReport:
+    """Run SfM on every image in ``images_dir`` and write ``out_dir`` atomically (layout: module docstring).
+
+    ``masks_dir`` (optional): label PNGs named like the images; they are undistorted alongside.
+    Raises :class:`InputError` for bad input and :class:`ReconstructionError` when fewer than
+    ``params.min_registered_fraction`` of the images register.
+    """
+    params = params or ReconstructParams()
+    images_dir = Path(images_dir)
+    t0 = time.perf_counter()
+    files, sizes = validate_images(images_dir)
+    single = resolve_single_camera(params, sizes)
+    names = [f.name for f in files]
+    matcher = choose_matcher(params, len(names))
+    pycolmap.set_random_seed(params.seed)
+    with tempfile.TemporaryDirectory(prefix="abcgs-sfm-") as scratch:
+        work = Path(scratch)
+        db = work / "database.db"
+        log.info("reconstruct: %d images, %s camera(s), %s matching", len(names), "one shared" if single else "per-image", matcher)
+        _extract(db, images_dir, names, params, single)
+        log.info("reconstruct: features extracted (%.1f s)", time.perf_counter() - t0)
+        _match(db, params, matcher)
+        log.info("reconstruct: features matched (%.1f s)", time.perf_counter() - t0)
+        rec = _map(db, images_dir, work / "sparse", params)
+        unregistered = check_registration(rec, names, params)
+        assert rec is not None
+        log.info("reconstruct: %d/%d images registered (%.1f s)", rec.num_reg_images(), len(names), time.perf_counter() - t0)
+        model_dir = work / "model"
+        model_dir.mkdir()
+        rec.write_binary(str(model_dir))
+        with atomic_path(out_dir, is_dir=True) as tmp:
+            _undistort(model_dir, images_dir, work, tmp, params)
+            if masks_dir is not None and Path(masks_dir).is_dir():
+                und = pycolmap.Reconstruction(str(tmp / "sparse"))
+                n = _undistort_masks(Path(masks_dir), rec, und, tmp / "masks")
+                log.info("reconstruct: %d label maps undistorted", n)
+            report = ReconstructionReport(
+                registered=rec.num_reg_images(),
+                total=len(names),
+                points=rec.num_points3D(),
+                mean_reprojection_error_px=float(rec.compute_mean_reprojection_error()),
+                seconds=round(time.perf_counter() - t0, 3),
+                unregistered=unregistered,
+                out_dir=Path(out_dir),
+            )
+            write_json(tmp / "metrics.json", report.metrics())
+    log.info("reconstruct: done in %.1f s -> %s", report.seconds, out_dir)
+    return report
+
+
+def camera_from_colmap(image: pycolmap.Image, camera: pycolmap.Camera) -> Camera:
+    """A :class:`Camera` from a registered COLMAP image and its (SIMPLE_)PINHOLE camera."""
+    if camera.model_name not in ("PINHOLE", "SIMPLE_PINHOLE"):
+        raise InputError(
+            f"image {image.name} uses a {camera.model_name} camera; read_colmap_scene needs an undistorted "
+            "(PINHOLE) model, i.e. the sparse/ folder written by the reconstruct stage"
+        )
+    viewmat = np.eye(4)
+    viewmat[:3, :] = image.cam_from_world().matrix()
+    return Camera(image.name, np.asarray(camera.calibration_matrix(), float), viewmat, int(camera.width), int(camera.height))
+
+
+def read_colmap_scene(model_dir: str | os.PathLike, images_dir: str | os.PathLike) -> SceneData:
+    """Read an undistorted COLMAP model (``sparse/``) and its images into :class:`SceneData`."""
+    model_dir, images_dir = Path(model_dir), Path(images_dir)
+    if not (model_dir / "cameras.bin").is_file() and not (model_dir / "cameras.txt").is_file():
+        raise InputError(f"{model_dir} is not a COLMAP model (no cameras.bin/.txt); run the reconstruct stage first")
+    rec = pycolmap.Reconstruction(str(model_dir))
+    images = sorted((im for im in rec.images.values() if im.has_pose), key=lambda im: im.name)
+    if not images:
+        raise InputError(f"COLMAP model {model_dir} has no registered images")
+    cameras = [camera_from_colmap(im, rec.cameras[im.camera_id]) for im in images]
+    paths = [images_dir / im.name for im in images]
+    missing = [p.name for p in paths if not p.is_file()]
+    if missing:
+        raise InputError(f"{len(missing)} image(s) of the model are missing from {images_dir}: {', '.join(missing[:10])}")
+    pts = list(rec.points3D.values())
+    xyz = np.array([p.xyz for p in pts], np.float32).reshape(-1, 3)
+    rgb = np.array([p.color for p in pts], np.float32).reshape(-1, 3) / 255.0
+    return SceneData(cameras, paths, xyz, rgb)

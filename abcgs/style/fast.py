@@ -1,0 +1,217 @@
+"""FAST: feature alignment style transfer loss (paper Eq. 5–7, supplementary derivation).
+
+For one matching group with rendered features ``F_r`` ``(C, N_r)`` (carrying grad) and style features
+``F_s`` ``(C, N_s)``:
+
+- ``A_ij = 1`` iff style ``j`` ∈ kNN_s(rendered ``i``) OR rendered ``i`` ∈ kNN_r(style ``j``), cosine
+  similarity, ``k = 5`` (:func:`abcgs.style.knn.mutual_knn_pairs`, chunked, sparse index lists);
+- ``U = A / ΣA`` (``ΣA = N_pair``), ``D_r = diag(row sums of U)``;
+- ``P = (F_r D_r F_rᵀ + εI)⁻¹ F_r U F_sᵀ`` — the minimiser of ``Σ_ij A_ij ‖Pᵀ v_i − s_j‖²``
+  (``ε = 1e-12``); on a failed solve or a non-finite ``P`` the identity is used and counted in
+  :class:`FastStats`;
+- target ``F_rs = Pᵀ F_r`` computed without grad;
+- loss = mean over columns of ``1 − cos(F_r[:, i], F_rs[:, i])``; groups are summed.
+
+``P`` is formed from the raw (un-normalised) features, the neighbours from cosine similarity. The
+products ``F_r D_r F_rᵀ`` and ``F_r U F_sᵀ`` are accumulated in the features' dtype and solved in
+``solve_dtype`` (float64 by default: with ``N_r < C`` or dead ReLU channels the system is singular up to
+``ε`` and float32 loses the decoupling). No dense ``N_r × N_s`` matrix larger than ``max_block_elems``
+is ever built.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Literal, Sequence
+
+import torch
+import torch.nn.functional as F
+from pydantic import BaseModel, ConfigDict, Field
+
+from abcgs.errors import InputError, NumericalError
+from abcgs.style.knn import DEFAULT_MAX_BLOCK_ELEMS, check_feature_pair, mutual_knn_pairs, normalize_columns
+
+
+class FastParams(BaseModel):
+    """Knobs of the FAST loss."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    k: int = Field(5, ge=1)
+    """Neighbours per feature in each direction."""
+    eps: float = Field(1e-12, ge=0.0)
+    """Ridge added to ``F_r D_r F_rᵀ`` before solving (the authors' value)."""
+    max_block_elems: int = Field(DEFAULT_MAX_BLOCK_ELEMS, ge=1)
+    """Largest number of similarities held at once (tile size of the N_r × N_s similarity)."""
+    solve_dtype: Literal["float64", "float32"] = "float64"
+
+
+@dataclass
+class FastStats:
+    """Running counters of FAST solves (pass one in to see fallbacks)."""
+
+    solves: int = 0
+    fallbacks: int = 0
+    """Solves that failed or gave a non-finite ``P`` and used the identity instead."""
+    last_pairs: int = 0
+    """``N_pair`` of the most recent group."""
+    pairs_total: int = 0
+    fallback_reasons: list[str] = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def cosine_distance_loss(f: torch.Tensor, target: torch.Tensor, eps: float = 1e-8) -> torch.Tensor:
+    """Mean over columns of ``1 − cos(f[:, i], target[:, i])``; ``f``, ``target`` ``(C, N)`` → scalar.
+
+    Norms get ``+ eps`` (ARF's convention), so zero columns give distance 1 with finite gradients.
+    """
+    if f.shape != target.shape:
+        raise InputError(f"cosine_distance_loss: shapes differ {tuple(f.shape)} vs {tuple(target.shape)}")
+    a = f / (f.norm(dim=0, keepdim=True) + eps)
+    b = target / (target.norm(dim=0, keepdim=True) + eps)
+    return (1.0 - (a * b).sum(dim=0)).mean()
+
+
+@torch.no_grad()
+def pair_statistics(
+    f_r: torch.Tensor, f_s: torch.Tensor, rows: torch.Tensor, cols: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """From sparse pairs, return ``(F_r D_r F_rᵀ, F_r U F_sᵀ)``, both ``(C, C)``, with ``U = A / N_pair``.
+
+    ``A`` is the 0/1 matrix with ones at ``(rows[p], cols[p])`` (pairs must be unique). ``U F_sᵀ``
+    ``(N_r, C)`` is a sparse-times-dense product done by ``embedding_bag`` (sum over each rendered
+    feature's paired style features) — nothing of size ``N_pair × C`` or ``N_r × N_s`` is built.
+    """
+    n_pair = rows.numel()
+    if n_pair == 0 or cols.numel() != n_pair:
+        raise InputError(f"FAST: need equally long, non-empty pair lists (got {n_pair} rows, {cols.numel()} cols)")
+    f_r = f_r.detach()
+    f_s = f_s.detach()
+    n_r = f_r.shape[1]
+    if n_pair > 1 and not bool((rows[1:] >= rows[:-1]).all()):
+        order = torch.argsort(rows, stable=True)
+        rows, cols = rows[order], cols[order]
+    counts = torch.bincount(rows, minlength=n_r)  # row sums of A
+    offsets = torch.zeros(n_r, dtype=torch.long, device=rows.device)
+    offsets[1:] = counts.cumsum(0)[:-1]
+    g = F.embedding_bag(cols, f_s.t().contiguous(), offsets, mode="sum")  # (N_r, C) = A F_sᵀ
+    m = (f_r * (counts.to(f_r.dtype) / n_pair)) @ f_r.t()
+    rhs = (f_r @ g) / n_pair
+    return m, rhs
+
+
+@torch.no_grad()
+def solve_alignment(
+    m: torch.Tensor,
+    rhs: torch.Tensor,
+    *,
+    eps: float = 1e-12,
+    solve_dtype: torch.dtype = torch.float64,
+    stats: FastStats | None = None,
+) -> torch.Tensor:
+    """``P = (m + εI)⁻¹ rhs`` ``(C, C)`` in ``solve_dtype``, returned in ``m``'s dtype; identity on failure."""
+    c = m.shape[0]
+    eye = torch.eye(c, dtype=solve_dtype, device=m.device)
+    reason = None
+    try:
+        p, info = torch.linalg.solve_ex(m.to(solve_dtype) + eps * eye, rhs.to(solve_dtype))
+        if int(info) != 0:
+            reason = f"singular system (info={int(info)})"
+        elif not bool(torch.isfinite(p).all()):
+            reason = "non-finite solution"
+    except RuntimeError as exc:  # e.g. non-finite input on some backends
+        reason = f"solve error: {exc}"
+    if stats is not None:
+        stats.solves += 1
+    if reason is not None:
+        p = eye
+        if stats is not None:
+            stats.fallbacks += 1
+            if len(stats.fallback_reasons) < 20:
+                stats.fallback_reasons.append(reason)
+    return p.to(m.dtype)
+
+
+@torch.no_grad()
+def alignment_matrix(
+    f_r: torch.Tensor,
+    f_s: torch.Tensor,
+    params: FastParams | None = None,
+    stats: FastStats | None = None,
+) -> torch.Tensor:
+    """The FAST alignment ``P`` ``(C, C)`` for one group (see module docstring)."""
+    params = params or FastParams()
+    check_feature_pair(f_r, f_s, "FAST")
+    rows, cols = mutual_knn_pairs(f_r, f_s, params.k, max_block_elems=params.max_block_elems)
+    if stats is not None:
+        stats.last_pairs = rows.numel()
+        stats.pairs_total += rows.numel()
+    m, rhs = pair_statistics(f_r, f_s, rows, cols)
+    return solve_alignment(m, rhs, eps=params.eps, solve_dtype=getattr(torch, params.solve_dtype), stats=stats)
+
+
+@torch.no_grad()
+def fast_target(
+    f_r: torch.Tensor,
+    f_s: torch.Tensor,
+    params: FastParams | None = None,
+    stats: FastStats | None = None,
+) -> torch.Tensor:
+    """Aligned features ``F_rs = Pᵀ F_r`` ``(C, N_r)``, detached."""
+    p = alignment_matrix(f_r, f_s, params, stats)
+    return p.t() @ f_r.detach()
+
+
+def fast_loss_group(
+    f_r: torch.Tensor,
+    f_s: torch.Tensor,
+    params: FastParams | None = None,
+    stats: FastStats | None = None,
+) -> torch.Tensor:
+    """FAST loss of one group: mean over rendered features of ``1 − cos(F_r, F_rs)``; grad flows to ``F_r``."""
+    if not bool(torch.isfinite(f_r).all()):
+        raise NumericalError("FAST: rendered features contain NaN/Inf (the render or the optimiser diverged)")
+    if not bool(torch.isfinite(f_s).all()):
+        raise InputError("FAST: style features contain NaN/Inf")
+    target = fast_target(f_r, f_s, params, stats)
+    return cosine_distance_loss(f_r, target)
+
+
+def fast_loss(
+    groups: Sequence[tuple[torch.Tensor, torch.Tensor]],
+    params: FastParams | None = None,
+    stats: FastStats | None = None,
+) -> torch.Tensor:
+    """Sum over matching groups ``[(F_r^z (C, N_r^z), F_s^z (C, N_s^z)), …]`` of :func:`fast_loss_group`."""
+    if len(groups) == 0:
+        raise InputError("FAST: no matching groups")
+    return torch.stack([fast_loss_group(f_r, f_s, params, stats) for f_r, f_s in groups]).sum()
+
+
+# --------------------------------------------------------------------------- dense reference (tests)
+
+
+@torch.no_grad()
+def affinity_dense(f_r: torch.Tensor, f_s: torch.Tensor, k: int = 5) -> torch.Tensor:
+    """Dense ``A`` ``(N_r, N_s)`` float (0/1), straight from the definition. Reference for tests only."""
+    sim = normalize_columns(f_r.detach()).t() @ normalize_columns(f_s.detach())
+    a = torch.zeros_like(sim)
+    a.scatter_(1, sim.topk(min(k, sim.shape[1]), dim=1).indices, 1.0)
+    b = torch.zeros_like(sim)
+    b.scatter_(0, sim.topk(min(k, sim.shape[0]), dim=0).indices, 1.0)
+    return torch.maximum(a, b)
+
+
+def fast_loss_dense(f_r: torch.Tensor, f_s: torch.Tensor, k: int = 5, eps: float = 1e-12) -> torch.Tensor:
+    """Dense FAST loss for one group, written directly from the formulas. Reference for tests only."""
+    with torch.no_grad():
+        a = affinity_dense(f_r, f_s, k)
+        u = a / a.sum()
+        fr = f_r.detach().double()
+        d = torch.diag(u.sum(dim=1)).double()
+        m = fr @ d @ fr.t() + eps * torch.eye(fr.shape[0], dtype=torch.float64, device=fr.device)
+        p = torch.linalg.solve(m, fr @ u.double() @ f_s.detach().double().t())
+        target = (p.t() @ fr).to(f_r.dtype)
+    return cosine_distance_loss(f_r, target)

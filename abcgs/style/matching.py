@@ -1,0 +1,143 @@
+"""Matching groups Ω^z = {style features, content label, Gaussians} for the three transfer types.
+
+- ``single``: one style image for the whole scene (one group covering every pixel).
+- ``compositional``: several style images, each bound to a content label (``styles: {label: style}``).
+- ``semantic``: regions of one painting (its label map) bound to content labels (``binding: {content: style}``,
+  or ``"auto"``: content label j ↔ style label j).
+
+Style regions are isolated (:mod:`abcgs.style.isolation`) before VGG so that no receptive field sees
+another region.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import cv2
+import numpy as np
+import torch
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from abcgs.errors import InputError
+from abcgs.io.images import load_image, load_labels
+from abcgs.style.isolation import region_features
+from abcgs.style.vgg import VGG16Features, extract_features
+
+TransferType = Literal["single", "compositional", "semantic"]
+ALL_PIXELS = -1
+"""Content label of the single-image group: every pixel."""
+
+
+class ExperimentParams(BaseModel):
+    """One stylization experiment (``params.yaml``: ``experiments.<name>``)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    scene: str = Field(description="a key of data.scenes")
+    transfer: TransferType = "single"
+    style: str | None = Field(None, description="single/semantic: a key of data.styles")
+    styles: dict[int, str] = Field(default_factory=dict, description="compositional: content label → key of data.styles")
+    binding: dict[int, int] | Literal["auto"] = Field(
+        "auto", description="semantic: content label → style label of the painting's label map (auto: same number)"
+    )
+    method: Literal["fast", "nnfm", "knnfm", "gram"] = Field("fast", description="style loss (fast = ABC-GS)")
+
+    @model_validator(mode="after")
+    def _check(self) -> "ExperimentParams":
+        if self.transfer in ("single", "semantic") and not self.style:
+            raise ValueError(f"transfer {self.transfer!r} needs 'style' (a key of data.styles)")
+        if self.transfer == "compositional" and not self.styles:
+            raise ValueError("transfer 'compositional' needs 'styles' (content label → style key)")
+        return self
+
+    def style_keys(self) -> list[str]:
+        return sorted(set(self.styles.values())) if self.transfer == "compositional" else [self.style]
+
+
+class IsolationParams(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    method: Literal["mirror", "translate", "fill"] = Field("mirror", description="how outside pixels are completed")
+    erode_px: int = Field(0, ge=0, description="erode each style region by this many pixels first")
+
+
+@dataclass
+class MatchingGroup:
+    """One Ω^z: content label (``ALL_PIXELS`` for single), style pixels and style features."""
+
+    content_label: int
+    style_name: str
+    style_pixels: np.ndarray  # (M, 3) float32 RGB of the style region (colour match)
+    features: torch.Tensor  # (C, N_s) style features of the region
+    style_image: np.ndarray = field(repr=False, default=None)  # isolated region image (for reports)
+
+
+def load_style(path: str, height: int) -> np.ndarray:
+    """A style image resized to ``height`` (aspect kept); a 1×1 or unreadable image is an error."""
+    img = load_image(path)
+    if min(img.shape[:2]) < 8:
+        raise InputError(f"style image {path} is {img.shape[1]}x{img.shape[0]}; it must be at least 8x8 pixels")
+    if height > 0 and img.shape[0] != height:
+        width = max(8, round(img.shape[1] * height / img.shape[0]))
+        img = cv2.resize(img, (width, height), interpolation=cv2.INTER_AREA if img.shape[0] > height else cv2.INTER_CUBIC)
+    return img
+
+
+def build_groups(
+    exp: ExperimentParams,
+    style_paths: dict[str, str],
+    style_mask_paths: dict[str, str],
+    content_labels: set[int],
+    vgg: VGG16Features,
+    *,
+    style_height: int = 256,
+    isolation: IsolationParams | None = None,
+    layers: list[str] | None = None,
+) -> list[MatchingGroup]:
+    """Resolve an experiment into matching groups, with clear errors for unknown styles/labels."""
+    isolation = isolation or IsolationParams()
+    for key in exp.style_keys():
+        if key not in style_paths:
+            raise InputError(f"style {key!r} is not in data.styles (known: {', '.join(sorted(style_paths)) or 'none'})")
+
+    def whole(key: str, label: int) -> MatchingGroup:
+        img = load_style(style_paths[key], style_height)
+        x = torch.from_numpy(img).permute(2, 0, 1)[None]
+        with torch.no_grad():
+            f = extract_features(vgg, x, layers)[0]
+        return MatchingGroup(label, key, img.reshape(-1, 3), f.reshape(f.shape[0], -1), img)
+
+    if exp.transfer == "single":
+        return [whole(exp.style, ALL_PIXELS)]
+    if exp.transfer == "compositional":
+        unknown = sorted(set(exp.styles) - content_labels)
+        if unknown:
+            raise InputError(
+                f"compositional binding names content label(s) {unknown} that no Gaussian carries "
+                f"(labels present: {sorted(content_labels)})"
+            )
+        return [whole(key, label) for label, key in sorted(exp.styles.items())]
+    # semantic
+    key = exp.style
+    if key not in style_mask_paths:
+        raise InputError(f"semantic transfer needs a label map of style {key!r} in data.style_masks")
+    img = load_style(style_paths[key], style_height)
+    raw = load_labels(style_mask_paths[key])
+    labels = cv2.resize(raw.astype(np.int32), (img.shape[1], img.shape[0]), interpolation=cv2.INTER_NEAREST)
+    style_labels = sorted(int(v) for v in np.unique(labels) if v != 0)
+    binding = {j: j for j in sorted(content_labels) if j in style_labels} if exp.binding == "auto" else dict(exp.binding)
+    if not binding:
+        raise InputError(f"semantic transfer: no content label ({sorted(content_labels)}) matches a style label ({style_labels})")
+    groups = []
+    for c_label, s_label in sorted(binding.items()):
+        if c_label not in content_labels:
+            raise InputError(f"binding names content label {c_label}, which no Gaussian carries (present: {sorted(content_labels)})")
+        region = labels == s_label
+        if not region.any():
+            raise InputError(f"style label {s_label} of {style_mask_paths[key]} has no pixels (labels present: {style_labels})")
+        feats = region_features(
+            vgg, img, region, isolation.method, erode_px=isolation.erode_px, label=s_label, layers=layers
+        )
+        groups.append(MatchingGroup(c_label, f"{key}:{s_label}", img[region], feats, img))
+    return groups

@@ -1,0 +1,320 @@
+"""The ABC-GS stylization stage: colour match, then optimise the Gaussians with
+
+    L = λ_FAST·L_style + λ_c·L_con + λ_tv·L_tv + λ_dep·L_dep + λ_sca·‖Δs‖ + λ_opa·‖Δα‖
+
+(defaults λ = {2, 0.005, 0.02, 0.01, 1, 1}, densification off), optionally followed by a colour-only
+pass (xyz/scale/opacity frozen) after a second colour match of the re-rendered views, as in the
+authors' code. ``L_style`` is FAST (ABC-GS) or a baseline (NNFM, KNNFM, Gram) chosen by one parameter.
+
+Shapes: renders ``(H, W, 3)``; VGG features ``(C, h, w)`` at 1/4 of the (×0.5 downsampled) render;
+per-group features ``(C, N)``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from pydantic import BaseModel, ConfigDict, Field
+from torch import Tensor
+from tqdm.auto import tqdm
+
+from abcgs.cameras import Camera
+from abcgs.errors import InputError, NumericalError
+from abcgs.gaussians import GaussianModel, render
+from abcgs.render import rgb_to_sh0, sh0_to_rgb
+from abcgs.style.color import apply_color_transform, fit_color_transform, preserve_color
+from abcgs.style.fast import FastParams, FastStats
+from abcgs.style.isolation import downsample_mask
+from abcgs.style.losses import content_loss, style_loss, tv_loss
+from abcgs.style.matching import ALL_PIXELS, MatchingGroup
+from abcgs.style.vgg import VGG16Features, downsample_half, extract_features
+
+log = logging.getLogger(__name__)
+
+
+class StylizeParams(BaseModel):
+    """``params.yaml``: ``stylize``."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    iterations: int = Field(600, ge=0, description="main pass (authors: 600 on LLFF)")
+    color_pass_iterations: int = Field(0, ge=0, description="colour-only pass after a second colour match (authors: 400)")
+    lambda_style: float = Field(2.0, ge=0, description="λ_FAST: stylization strength")
+    lambda_content: float = Field(0.005, ge=0, description="λ_c: content preservation")
+    lambda_tv: float = Field(0.02, ge=0)
+    lambda_depth: float = Field(0.01, ge=0)
+    lambda_scale: float = Field(1.0, ge=0)
+    lambda_opacity: float = Field(1.0, ge=0)
+    fast: FastParams = Field(default_factory=FastParams)
+    layers: list[str] = Field(default_factory=lambda: ["relu3_1", "relu3_2", "relu3_3"])
+    downsample_render: bool = Field(True, description="render ×0.5 before VGG (authors' code)")
+    style_height: int = Field(256, ge=16, description="style images are resized to this height")
+    resolution_scale: float = Field(1.0, gt=0, le=1.0, description="stylize at this fraction of the view size")
+    lr_sh0: float = 0.01
+    lr_means: float = 1.6e-5
+    lr_scales: float = 1e-3
+    lr_opacity: float = 1e-2
+    lr_quats: float = 1e-3
+    optimize_geometry: bool = Field(True, description="also optimise xyz/scale/opacity/rotation in the main pass")
+    preserve_color: bool = Field(False, description="keep the scene's colours: transfer luminance only")
+    seed: int = 0
+    backend: str = "auto"
+    log_every: int = Field(10, ge=1)
+
+
+@dataclass
+class StylizeResult:
+    model: GaussianModel
+    history: list[dict]
+    timings: dict[str, float]
+    fast_stats: dict
+    seconds: float
+
+
+@dataclass
+class ViewTargets:
+    """Per-view fixed targets: content features, original depth, per-group feature masks."""
+
+    camera: Camera
+    content_feats: Tensor  # (C, h, w)
+    depth: Tensor  # (H, W, 1)
+    group_masks: list[Tensor] = field(default_factory=list)  # per group (h, w) bool
+    content_image: Tensor | None = None  # (H, W, 3) the colour-matched render
+
+
+def color_match_model(
+    model: GaussianModel, labels: Tensor, groups: list[MatchingGroup], content_pixels: dict[int, np.ndarray]
+) -> tuple[GaussianModel, dict[int, tuple[Tensor, Tensor]]]:
+    """Apply each group's mean/covariance colour transform to the DC colours of its Gaussians.
+
+    ``content_pixels[z]``: ``(n, 3)`` pixels of the content (training images) covered by group z.
+    Single transfer (one group over all pixels) recolours every Gaussian.
+    """
+    out = model.detach()
+    rgb = sh0_to_rgb(out.sh0[:, 0, :])
+    transforms = {}
+    for g in groups:
+        pix = content_pixels.get(g.content_label)
+        if pix is None or len(pix) < 2:
+            raise InputError(f"colour match: no content pixels for content label {g.content_label}")
+        A, b = fit_color_transform(pix, g.style_pixels)
+        transforms[g.content_label] = (A, b)
+        sel = torch.ones_like(labels, dtype=torch.bool) if g.content_label == ALL_PIXELS else labels == g.content_label
+        rgb[sel] = apply_color_transform(rgb[sel], A, b)
+    out.sh0 = rgb_to_sh0(rgb)[:, None, :].contiguous()
+    if out.shN.numel():
+        out.shN = torch.zeros_like(out.shN)  # view-dependent colour would undo the match
+    return out, transforms
+
+
+def group_pixel_masks(groups: list[MatchingGroup], label_map: np.ndarray) -> list[np.ndarray]:
+    """Per group, the ``(H, W)`` bool pixels it covers in one view's (rendered) label map."""
+    return [np.ones_like(label_map, bool) if g.content_label == ALL_PIXELS else label_map == g.content_label for g in groups]
+
+
+def _features(vgg: VGG16Features, img_hw3: Tensor, params: StylizeParams) -> Tensor:
+    x = img_hw3.permute(2, 0, 1)[None]
+    if params.downsample_render:
+        x = downsample_half(x)
+    return extract_features(vgg, x, params.layers)[0]
+
+
+def prepare_targets(
+    model_content: GaussianModel,
+    model_original: GaussianModel,
+    cameras: list[Camera],
+    label_maps: list[np.ndarray],
+    groups: list[MatchingGroup],
+    vgg: VGG16Features,
+    params: StylizeParams,
+) -> list[ViewTargets]:
+    """Content features (from the colour-matched scene), depth (from the original scene), group masks."""
+    targets = []
+    with torch.no_grad():
+        for cam, lab in zip(cameras, label_maps):
+            img, _, _ = render(model_content, cam, backend=params.backend)
+            _, _, meta = render(model_original, cam, backend=params.backend, render_depth=True)
+            feats = _features(vgg, img.clamp(0, 1), params)
+            hw = tuple(feats.shape[-2:])
+            masks = [downsample_mask(m, hw) if m.any() else torch.zeros(hw, dtype=torch.bool)
+                     for m in group_pixel_masks(groups, lab)]
+            targets.append(ViewTargets(cam, feats, meta.depth, masks, img))
+    return targets
+
+
+def _optimizers(model: GaussianModel, params: StylizeParams, color_only: bool) -> list[torch.optim.Optimizer]:
+    groups = [{"params": [model.sh0], "lr": params.lr_sh0}]
+    if not color_only and params.optimize_geometry:
+        groups += [
+            {"params": [model.means], "lr": params.lr_means},
+            {"params": [model.log_scales], "lr": params.lr_scales},
+            {"params": [model.opacity_logits], "lr": params.lr_opacity},
+            {"params": [model.quats], "lr": params.lr_quats},
+        ]
+    return [torch.optim.Adam(groups, eps=1e-15)]
+
+
+def _check_finite(value: Tensor, name: str, step: int) -> None:
+    if not torch.isfinite(value):
+        raise NumericalError(
+            f"stylization loss term {name} became {value.item()} at step {step}; lower the learning rates or "
+            "λ of that term, or check the inputs (style image, masks)"
+        )
+
+
+def optimise(
+    model: GaussianModel,
+    targets: list[ViewTargets],
+    groups: list[MatchingGroup],
+    vgg: VGG16Features,
+    params: StylizeParams,
+    *,
+    iterations: int,
+    color_only: bool,
+    start_step: int = 0,
+    progress: bool = True,
+    history: list[dict] | None = None,
+    timings: dict[str, float] | None = None,
+    fast_stats: FastStats | None = None,
+    method: str = "fast",
+) -> GaussianModel:
+    """One optimisation pass over random views; returns the optimised (detached) model."""
+    history = [] if history is None else history
+    timings = {} if timings is None else timings
+    orig = model.detach()
+    orig_scales, orig_opac = orig.scales, orig.opacities
+    m = model.as_parameters()
+    opts = _optimizers(m, params, color_only)
+    gen = torch.Generator().manual_seed(params.seed + start_step)
+    order: list[int] = []
+    style_feats = [g.features for g in groups]
+    bar = tqdm(range(iterations), desc="colour pass" if color_only else "stylize", disable=not progress,
+               dynamic_ncols=True, mininterval=1.0)
+    t_start = time.perf_counter()
+    for it in bar:
+        step = start_step + it
+        if not order:
+            order = torch.randperm(len(targets), generator=gen).tolist()
+        tgt = targets[order.pop()]
+        t0 = time.perf_counter()
+        img, alpha, meta = render(m, tgt.camera, backend=params.backend, render_depth=params.lambda_depth > 0)
+        t1 = time.perf_counter()
+        feats = _features(vgg, img, params)
+        t2 = time.perf_counter()
+        pairs = [(feats[:, mask], fs) for mask, fs in zip(tgt.group_masks, style_feats) if int(mask.sum()) > 0]
+        terms: dict[str, Tensor] = {}
+        if pairs and params.lambda_style > 0:
+            terms["style"] = params.lambda_style * style_loss(
+                method, pairs, k=params.fast.k, fast_params=params.fast, stats=fast_stats,
+                max_block_elems=params.fast.max_block_elems,
+            )
+        t3 = time.perf_counter()
+        if params.lambda_content > 0:
+            terms["content"] = params.lambda_content * content_loss(feats, tgt.content_feats)
+        if params.lambda_tv > 0:
+            terms["tv"] = params.lambda_tv * tv_loss(img.permute(2, 0, 1)[None])
+        if params.lambda_depth > 0 and meta.depth is not None:
+            terms["depth"] = params.lambda_depth * F.mse_loss(meta.depth, tgt.depth)
+        if not color_only and params.optimize_geometry:
+            if params.lambda_scale > 0:
+                terms["scale"] = params.lambda_scale * (m.scales - orig_scales).norm(dim=-1).mean()
+            if params.lambda_opacity > 0:
+                terms["opacity"] = params.lambda_opacity * (m.opacities - orig_opac).abs().mean()
+        for name, value in terms.items():
+            _check_finite(value, name, step)
+        loss = torch.stack(list(terms.values())).sum()
+        for o in opts:
+            o.zero_grad(set_to_none=True)
+        loss.backward()
+        t4 = time.perf_counter()
+        for o in opts:
+            o.step()
+        with torch.no_grad():
+            m.quats.data = m.quats.data / m.quats.data.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+        t5 = time.perf_counter()
+        for key, dt in (("render", t1 - t0), ("vgg", t2 - t1), ("style_loss", t3 - t2), ("backward", t4 - t3),
+                        ("step", t5 - t4)):
+            timings[key] = timings.get(key, 0.0) + dt
+        timings["iterations"] = timings.get("iterations", 0) + 1
+        if it % params.log_every == 0 or it == iterations - 1:
+            row = {"step": step, "seconds": time.perf_counter() - t_start, "loss": float(loss),
+                   "pass": "color" if color_only else "main"}
+            row.update({k: float(v) for k, v in terms.items()})
+            history.append(row)
+            bar.set_postfix({k: f"{float(v):.4f}" for k, v in terms.items()}, refresh=False)
+    bar.close()
+    return m.detach()
+
+
+def stylize(
+    model: GaussianModel,
+    cameras: list[Camera],
+    label_maps: list[np.ndarray],
+    gaussian_labels: Tensor,
+    groups: list[MatchingGroup],
+    vgg: VGG16Features,
+    params: StylizeParams,
+    *,
+    method: str = "fast",
+    progress: bool = True,
+) -> StylizeResult:
+    """Run the stylization passes on a (colour-matched) model.
+
+    Args:
+        model: the colour-matched, re-fitted scene (the content target and the starting point).
+        cameras: the views to stylize from.
+        label_maps: per view ``(H, W)`` rendered content labels (ignored by single transfer).
+        gaussian_labels: ``(N,)`` lifted content label of each Gaussian (for the second colour match).
+        groups: matching groups with style features (:func:`abcgs.style.matching.build_groups`).
+    """
+    if not cameras:
+        raise InputError("stylize: no views")
+    torch.manual_seed(params.seed)
+    t0 = time.perf_counter()
+    history: list[dict] = []
+    timings: dict[str, float] = {}
+    stats = FastStats()
+    targets = prepare_targets(model, model, cameras, label_maps, groups, vgg, params)
+    for g, z in enumerate(groups):
+        if not any(bool(t.group_masks[g].any()) for t in targets):
+            raise InputError(f"matching group for content label {z.content_label} covers no pixel in any view")
+    styled = optimise(model, targets, groups, vgg, params, iterations=params.iterations, color_only=False,
+                      progress=progress, history=history, timings=timings, fast_stats=stats, method=method)
+    if params.color_pass_iterations > 0:
+        styled = second_color_match(styled, gaussian_labels, targets, groups, params)
+        styled = optimise(styled, targets, groups, vgg, params, iterations=params.color_pass_iterations,
+                          color_only=True, start_step=params.iterations, progress=progress, history=history,
+                          timings=timings, fast_stats=stats, method=method)
+    if params.preserve_color:
+        styled = recolor_to_content(styled, model)
+    return StylizeResult(styled, history, timings, stats.as_dict(), time.perf_counter() - t0)
+
+
+def second_color_match(
+    model: GaussianModel, labels: Tensor, targets: list[ViewTargets], groups: list[MatchingGroup], params: StylizeParams
+) -> GaussianModel:
+    """Re-render every view and match its colour statistics to the style again (authors' code)."""
+    pix: dict[int, list[np.ndarray]] = {g.content_label: [] for g in groups}
+    with torch.no_grad():
+        for t in targets:
+            img, _, _ = render(model, t.camera, backend=params.backend)
+            h, w = img.shape[:2]
+            for g, m in zip(groups, t.group_masks):
+                full = F.interpolate(m[None, None].float(), size=(h, w), mode="nearest")[0, 0] > 0.5
+                pix[g.content_label].append(img[full].numpy())
+    content = {k: np.concatenate(v) if v else np.zeros((0, 3), np.float32) for k, v in pix.items()}
+    out, _ = color_match_model(model, labels, groups, content)
+    return out
+
+
+def recolor_to_content(styled: GaussianModel, content: GaussianModel) -> GaussianModel:
+    """``preserve_color``: keep the stylised luminance, take chroma from the content colours (YIQ)."""
+    out = styled.detach()
+    rgb = preserve_color(sh0_to_rgb(styled.sh0[:, 0, :]), sh0_to_rgb(content.sh0[:, 0, :]))
+    out.sh0 = rgb_to_sh0(rgb)[:, None, :].contiguous()
+    return out

@@ -1,0 +1,72 @@
+"""Pictures people look at: side-by-side grids with captions, and videos."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from abcgs.io.atomic import atomic_path
+from abcgs.io.images import to_uint8
+
+
+def _fit(img: np.ndarray, height: int) -> np.ndarray:
+    img = img if img.dtype == np.uint8 else to_uint8(img)
+    if img.ndim == 2:
+        img = np.repeat(img[..., None], 3, axis=2)
+    if img.shape[0] != height:
+        w = max(1, round(img.shape[1] * height / img.shape[0]))
+        img = cv2.resize(img, (w, height), interpolation=cv2.INTER_AREA)
+    return img
+
+
+def image_grid(rows: list[list[np.ndarray]], captions: list[str] | None = None, height: int = 160, pad: int = 4) -> np.ndarray:
+    """Rows of images (float [0, 1] or uint8, any sizes) → one ``uint8`` RGB grid, each cell ``height`` px high.
+
+    ``captions`` label the columns (drawn above the first row).
+    """
+    cells = [[_fit(im, height) for im in row] for row in rows]
+    n_cols = max(len(r) for r in cells)
+    col_w = [max(r[c].shape[1] for r in cells if c < len(r)) for c in range(n_cols)]
+    top = 18 if captions else 0
+    H = top + len(cells) * (height + pad) + pad
+    W = sum(col_w) + pad * (n_cols + 1)
+    grid = np.full((H, W, 3), 255, np.uint8)
+    y = top + pad
+    for row in cells:
+        x = pad
+        for c, im in enumerate(row):
+            grid[y : y + height, x : x + im.shape[1]] = im
+            x += col_w[c] + pad
+        y += height + pad
+    if captions:
+        x = pad
+        for c, text in enumerate(captions[:n_cols]):
+            cv2.putText(grid, text, (x + 2, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+            x += col_w[c] + pad
+    return grid
+
+
+def write_video(path: str | os.PathLike, frames: list[np.ndarray], fps: int = 24) -> None:
+    """Write RGB frames as an mp4 (H.264 via imageio-ffmpeg; MJPEG .avi via OpenCV if that is missing), atomically."""
+    path = Path(path)
+    frames = [f if f.dtype == np.uint8 else to_uint8(f) for f in frames]
+    # even sizes for yuv420p
+    h, w = frames[0].shape[:2]
+    frames = [f[: h - h % 2, : w - w % 2] for f in frames]
+    with atomic_path(path) as tmp:
+        try:
+            import imageio.v2 as imageio
+
+            with imageio.get_writer(str(tmp), format="FFMPEG", fps=fps, codec="libx264", quality=8,
+                                    pixelformat="yuv420p", macro_block_size=1) as writer:
+                for f in frames:
+                    writer.append_data(f)
+        except Exception:  # no ffmpeg binary: OpenCV's own encoder
+            fourcc = cv2.VideoWriter_fourcc(*"mp4v")
+            vw = cv2.VideoWriter(str(tmp), fourcc, fps, (frames[0].shape[1], frames[0].shape[0]))
+            for f in frames:
+                vw.write(cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
+            vw.release()

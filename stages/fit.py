@@ -1,0 +1,27 @@
+"""Stage ``fit``: baseline 3DGS (Kerbl et al. 2023) from a COLMAP reconstruction.
+
+    python stages/fit.py --colmap out/<scene>/colmap --out out/<scene>/gs
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from abcgs.fit.trainer import fit_and_save  # noqa: E402
+from abcgs.pipeline import run_stage, stage_parser  # noqa: E402
+from abcgs.sfm.colmap import read_colmap_scene  # noqa: E402
+
+
+def main(args, params) -> None:
+    scene = read_colmap_scene(args.colmap / "sparse", args.colmap / "images")
+    fit_and_save(scene, params.fit, args.out)
+
+
+if __name__ == "__main__":
+    ap = stage_parser(__doc__.strip().splitlines()[0])
+    ap.add_argument("--colmap", type=Path, required=True, help="reconstruct stage output (sparse/ + images/)")
+    ap.add_argument("--out", type=Path, required=True, help="output folder for point_cloud.ply, metrics, plots")
+    sys.exit(run_stage("fit", ap, main))

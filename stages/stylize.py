@@ -1,0 +1,91 @@
+"""Stage ``stylize``: optimise the colour-matched Gaussians with FAST (or a baseline) + content, TV, depth,
+scale and opacity terms; write the stylized PLY, renders, a grid, a turntable video and the loss curves.
+
+    python stages/stylize.py --experiment tiny_single --out out/tiny_single/stylize
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import torch  # noqa: E402
+
+from abcgs.camera_paths import spiral_path  # noqa: E402
+from abcgs.gaussians import render  # noqa: E402
+from abcgs.io.atomic import atomic_path, write_json, write_text  # noqa: E402
+from abcgs.io.images import save_image  # noqa: E402
+from abcgs.io.ply import read_ply, write_ply  # noqa: E402
+from abcgs.pipeline import run_stage, stage_parser  # noqa: E402
+from abcgs.style.content_masks import colorize_labels  # noqa: E402
+from abcgs.style.experiment import experiment, load_groups, load_scene, load_scene_masks, load_vgg  # noqa: E402
+from abcgs.style.stylize import stylize  # noqa: E402
+from abcgs.viz import image_grid, write_video  # noqa: E402
+
+
+def history_csv(rows: list[dict]) -> str:
+    cols = ["step", "seconds", "loss", "style", "content", "tv", "depth", "scale", "opacity"]
+    lines = [",".join(cols)]
+    for r in rows:
+        lines.append(",".join("" if r.get(c) is None else f"{r[c]:.6g}" if isinstance(r.get(c), float) else str(r[c]) for c in cols))
+    return "\n".join(lines) + "\n"
+
+
+def main(args, params) -> None:
+    exp = experiment(params, args.experiment)
+    sp = params.stylize
+    scene, original = load_scene(args.root, exp.scene)
+    matched = read_ply(args.root / args.experiment / "colormatch" / "point_cloud.ply")
+    masks = load_scene_masks(args.root / exp.scene / "masks", scene, original.num_gaussians)
+    vgg, info = load_vgg(params)
+    groups = load_groups(params, exp, vgg, masks.gaussian_labels)
+    cams = [c.scaled(sp.resolution_scale) if sp.resolution_scale != 1.0 else c for c in scene.cameras]
+    labels = masks.view_labels
+    if sp.resolution_scale != 1.0:
+        import cv2
+        import numpy as np
+
+        labels = [cv2.resize(v.astype(np.int32), (c.width, c.height), interpolation=cv2.INTER_NEAREST).astype(np.int64)
+                  for v, c in zip(labels, cams)]
+    res = stylize(matched, cams, labels, masks.gaussian_labels, groups, vgg, sp, method=exp.method)
+
+    with atomic_path(args.out, is_dir=True) as tmp:
+        write_ply(tmp / "point_cloud.ply", res.model)
+        (tmp / "renders").mkdir()
+        rows = []
+        with torch.no_grad():
+            t0 = time.perf_counter()
+            renders = [render(res.model, c, backend=sp.backend)[0].clamp(0, 1).numpy() for c in scene.cameras]
+            fps = len(renders) / (time.perf_counter() - t0)
+            for cam, img in zip(scene.cameras, renders):
+                save_image(tmp / "renders" / f"{Path(cam.name).stem}.png", img)
+            for i in range(min(3, len(renders))):
+                content = render(original, scene.cameras[i], backend=sp.backend)[0].clamp(0, 1).numpy()
+                rows.append([content, colorize_labels(masks.view_labels[i]), groups[0].style_image, renders[i]])
+            frames = [render(res.model, c, backend=sp.backend)[0].clamp(0, 1).numpy()
+                      for c in spiral_path(scene.cameras, n_frames=args.frames)]
+        save_image(tmp / "grid.png", image_grid(rows, ["content", "labels", "style", "stylized"]))
+        write_video(tmp / "turntable.mp4", frames, fps=24)
+    write_text(args.history, history_csv(res.history))
+    n_it = max(1, res.timings.get("iterations", 1))
+    write_json(args.metrics, {
+        "experiment": args.experiment, "method": exp.method, "transfer": exp.transfer,
+        "stylize_seconds": res.seconds, "iterations": int(res.timings.get("iterations", 0)),
+        "seconds_per_iteration": {k: v / n_it for k, v in res.timings.items() if k != "iterations"},
+        "render_fps": fps, "fast": res.fast_stats, "n_gaussians": res.model.num_gaussians,
+        "vgg_weights": info.model_dump(), "seed": sp.seed,
+    })
+
+
+if __name__ == "__main__":
+    ap = stage_parser(__doc__.strip().splitlines()[0])
+    ap.add_argument("--experiment", required=True)
+    ap.add_argument("--root", type=Path, default=Path("out"))
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--metrics", type=Path, required=True, help="metrics JSON (a DVC metric)")
+    ap.add_argument("--history", type=Path, required=True, help="per-iteration loss terms CSV (a DVC plot)")
+    ap.add_argument("--frames", type=int, default=48, help="turntable frames")
+    sys.exit(run_stage("stylize", ap, main))

@@ -1,0 +1,37 @@
+"""Shared fixtures.
+
+- ``tiny_scene``: the embedded synthetic scene, generated once per test session (folder Path with
+  images/, masks/, cameras.json, styles/).
+- ``tiny_colmap``: the ``reconstruct`` output for ``tiny_scene`` (sparse/, images/, masks/, metrics.json),
+  computed once per session (a few seconds of COLMAP).
+- ``SHARED_DATA``: ``../shared/data`` next to the repository; tests that need it are marked
+  ``@pytest.mark.shared_data`` (marker registered in pyproject.toml) and skip where it is absent.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2  # noqa: F401  (load before anything imports pycolmap; see abcgs/sfm/__init__.py)
+import pytest
+
+from abcgs.scene.synthetic import TinySceneParams, make_tiny_scene
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+SHARED_DATA = REPO_ROOT.parent / "shared" / "data"
+
+
+@pytest.fixture(scope="session")
+def tiny_scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The default embedded scene (``TinySceneParams()``), written once per session."""
+    return make_tiny_scene(tmp_path_factory.mktemp("tiny") / "tiny", TinySceneParams())
+
+
+@pytest.fixture(scope="session")
+def tiny_colmap(tiny_scene: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``reconstruct`` output for :func:`tiny_scene` with default parameters."""
+    from abcgs.sfm.colmap import ReconstructParams, reconstruct
+
+    out = tmp_path_factory.mktemp("tiny_colmap") / "colmap"
+    reconstruct(tiny_scene / "images", out, ReconstructParams(), masks_dir=tiny_scene / "masks")
+    return out

@@ -1,0 +1,215 @@
+"""Fast C++ backend vs the reference backend, tiling invariance, determinism and backend selection."""
+
+from __future__ import annotations
+
+import importlib
+import warnings
+
+import pytest
+import torch
+from render_scenes import GRAD_FIELDS, random_scene, torch_threads
+
+from abcgs.render import BACKENDS, BackendUnavailable, project_gaussians, rasterize, select_backend
+from abcgs.render import cpu as cpu_backend
+from abcgs.render.reference import rasterize_brute_force, rasterize_reference
+
+# the package re-exports the function `rasterize`, which shadows the submodule attribute of the same name
+rasterize_module = importlib.import_module("abcgs.render.rasterize")
+
+needs_cpu = pytest.mark.skipif(not cpu_backend.is_available(), reason="C++ backend not built")
+
+
+@pytest.fixture(autouse=True)
+def _single_thread():
+    with torch_threads(1):
+        yield
+
+
+def _render_and_grads(scene, backend, weights, **kw):
+    """Render, backprop a random weighting of image/alpha/depth; return outputs and input gradients."""
+    s = scene.leaves()
+    bg = kw.pop("background", None)
+    if bg is not None:
+        bg = bg.clone().requires_grad_(True)
+    image, alpha, meta = rasterize(*s.args(), render_depth=True, background=bg, backend=backend, **kw)
+    assert meta.backend == backend
+    meta.means2d.retain_grad()
+    loss = sum((o * w).sum() for o, w in zip((image, alpha, meta.depth), weights))
+    loss.backward()
+    grads = {k: getattr(s, k).grad for k in GRAD_FIELDS}
+    grads["means2d"] = meta.means2d.grad
+    if bg is not None:
+        grads["background"] = bg.grad
+    outs = {"image": image.detach(), "alpha": alpha.detach(), "depth": meta.depth.detach()}
+    return outs, grads, meta
+
+
+# (width, height, N, channels, scale_range, opacity_range, dtype, seed, extra kwargs)
+CONFIGS = {
+    "64x48-200-rgb-f32": (64, 48, 200, 3, (0.02, 0.12), (0.1, 0.9), torch.float32, 0, {}),
+    "96x64-800-16ch-f32-bg-normdepth": (
+        96, 64, 800, 16, (0.02, 0.1), (0.1, 0.9), torch.float32, 1,
+        {"background": torch.linspace(0, 1, 16), "normalize_depth": True},
+    ),
+    "128x96-2000-32ch-f32": (128, 96, 2000, 32, (0.01, 0.06), (0.1, 0.9), torch.float32, 2, {}),
+    "64x48-500-rgb-f64-opaque": (64, 48, 500, 3, (0.05, 0.2), (0.6, 1.0), torch.float64, 3, {"tile_size": 8}),
+}
+
+
+@needs_cpu
+@pytest.mark.parametrize("seed_offset", [0, 100])
+@pytest.mark.parametrize("name", list(CONFIGS))
+def test_cpu_matches_reference(name, seed_offset):
+    """images/alpha/depth ≤ 1e-4 max abs; gradients of every input group ≤ 1e-3 relative (norm)."""
+    W, H, N, C, sr, op, dtype, seed, kw = CONFIGS[name]
+    seed += seed_offset
+    scene = random_scene(N, W, H, dtype, seed, channels=C, scale_range=sr, opacity_range=op)
+    g = torch.Generator().manual_seed(seed)
+    weights = [torch.randn(H, W, c, generator=g, dtype=torch.float64).to(dtype) for c in (C, 1, 1)]
+    if "background" in kw:
+        kw = {**kw, "background": kw["background"].to(dtype)}
+    ref_out, ref_grads, ref_meta = _render_and_grads(scene, "reference", weights, **dict(kw))
+    cpu_out, cpu_grads, cpu_meta = _render_and_grads(scene, "cpu", weights, **dict(kw))
+
+    assert 0.1 < ref_out["alpha"].mean() < 0.99, "degenerate test scene"
+    if name.endswith("opaque"):
+        assert (ref_out["alpha"] > 0.999).float().mean() > 0.05, "opaque scene should saturate (clamp/stop paths)"
+    assert torch.equal(ref_meta.visible, cpu_meta.visible)
+    assert torch.equal(ref_meta.radii, cpu_meta.radii)
+    torch.testing.assert_close(cpu_meta.means2d, ref_meta.means2d, atol=1e-4, rtol=0)
+    torch.testing.assert_close(cpu_meta.depths, ref_meta.depths, atol=1e-5, rtol=1e-6)
+    for k in ref_out:
+        err = (cpu_out[k] - ref_out[k]).abs().max().item()
+        assert err <= 1e-4, f"{k}: max abs difference {err:.3g}"
+    for k, ref in ref_grads.items():
+        rel = ((cpu_grads[k] - ref).norm() / ref.norm()).item()
+        assert ref.norm() > 0, k
+        assert rel <= 1e-3, f"d/d{k}: relative difference {rel:.3g}"
+
+
+def _tiny_projected(dtype=torch.float64, seed=7, n=8, width=21, height=13):
+    scene = random_scene(n, width, height, dtype, seed, scale_range=(0.2, 0.7), opacity_range=(0.3, 0.95), channels=4)
+    proj = project_gaussians(scene.means, scene.quats, scene.scales, scene.opacities, scene.viewmat, scene.K, width, height)
+    assert bool(proj.visible.any())
+    return scene, proj
+
+
+def test_tiled_reference_matches_brute_force():
+    """Tile binning loses nothing: every tile size equals the untiled oracle (odd image size, partial tiles)."""
+    scene, proj = _tiny_projected()
+    args = (proj.means2d, proj.conics, scene.colors, scene.opacities, proj.depths, proj.extents, scene.width, scene.height)
+    bf_img, bf_alpha = rasterize_brute_force(*args)
+    assert bf_alpha.max() > 0.5
+    for tile in (4, 8, 16, 32):
+        for chunk in (3, 512):  # depth chunking carries T across chunks
+            img, alpha = rasterize_reference(*args, tile_size=tile, chunk=chunk)
+            torch.testing.assert_close(img, bf_img, atol=1e-6, rtol=0)
+            torch.testing.assert_close(alpha, bf_alpha, atol=1e-6, rtol=0)
+
+
+@needs_cpu
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_tiled_cpu_matches_brute_force_and_tile_sizes(dtype):
+    scene, proj = _tiny_projected(dtype)
+    args = (proj.means2d, proj.conics, scene.colors, scene.opacities, proj.depths, proj.extents, scene.width, scene.height)
+    bf_img, bf_alpha = rasterize_brute_force(*args)
+    tol = 1e-6 if dtype == torch.float32 else 1e-12
+    for tile in (8, 16, 32):
+        img, alpha = cpu_backend.rasterize_cpu(*args, tile_size=tile)
+        torch.testing.assert_close(img, bf_img, atol=tol, rtol=0)
+        torch.testing.assert_close(alpha, bf_alpha, atol=tol, rtol=0)
+
+
+@needs_cpu
+def test_tile_size_invariance_full_pipeline():
+    """Same image and gradients from rasterize() with tile sizes 8, 16, 32 (both backends, float64)."""
+    scene = random_scene(60, 40, 30, torch.float64, 4, scale_range=(0.05, 0.3), channels=3)
+    weights = [torch.randn(30, 40, c, generator=torch.Generator().manual_seed(0), dtype=torch.float64) for c in (3, 1, 1)]
+    results = {}
+    for backend in ("reference", "cpu"):
+        for tile in (8, 16, 32):
+            results[backend, tile] = _render_and_grads(scene, backend, weights, tile_size=tile)
+    base_out, base_grads, _ = results["reference", 16]
+    for key, (out, grads, _) in results.items():
+        for k in base_out:
+            torch.testing.assert_close(out[k], base_out[k], atol=1e-10, rtol=0, msg=f"{key} {k}")
+        for k in base_grads:
+            torch.testing.assert_close(grads[k], base_grads[k], atol=1e-9, rtol=1e-9, msg=f"{key} d/d{k}")
+
+
+@needs_cpu
+def test_cpu_deterministic_across_calls_and_threads():
+    """Bit-identical images and gradients: repeated calls, 1 vs 2 intra-op threads (float32, many tiles)."""
+    scene = random_scene(1500, 128, 96, torch.float32, 5, scale_range=(0.02, 0.1), channels=8)
+    weights = [torch.randn(96, 128, c, generator=torch.Generator().manual_seed(1)) for c in (8, 1, 1)]
+    runs = []
+    for threads in (1, 2, 2, 1):
+        with torch_threads(threads):
+            out, grads, _ = _render_and_grads(scene, "cpu", weights)
+        runs.append((out, grads))
+    out0, grads0 = runs[0]
+    for out, grads in runs[1:]:
+        for k in out0:
+            assert torch.equal(out[k], out0[k]), k
+        for k in grads0:
+            assert torch.equal(grads[k], grads0[k]), f"d/d{k}"
+
+
+# ---------------------------------------------------------------------------------------------- selection
+
+
+def _tiny_scene():
+    return random_scene(3, 8, 6, torch.float32, 0)
+
+
+def test_unknown_backend_raises_value_error_naming_options():
+    with pytest.raises(ValueError) as info:
+        rasterize(*_tiny_scene().args(), backend="vulkan")
+    msg = str(info.value)
+    assert "vulkan" in msg
+    for name in BACKENDS:
+        assert name in msg
+
+
+def test_gsplat_on_cpu_tensors_is_unavailable():
+    with pytest.raises(BackendUnavailable):
+        rasterize(*_tiny_scene().args(), backend="gsplat")
+
+
+@needs_cpu
+def test_env_var_overrides_auto(monkeypatch):
+    scene = _tiny_scene()
+    monkeypatch.setenv("ABCGS_RENDER_BACKEND", "reference")
+    assert rasterize(*scene.args())[2].backend == "reference"
+    assert rasterize(*scene.args(), backend="auto")[2].backend == "reference"
+    # an explicit backend wins over the environment
+    assert rasterize(*scene.args(), backend="cpu")[2].backend == "cpu"
+    monkeypatch.setenv("ABCGS_RENDER_BACKEND", "cpu")
+    assert rasterize(*scene.args())[2].backend == "cpu"
+    monkeypatch.setenv("ABCGS_RENDER_BACKEND", "bogus")
+    with pytest.raises(ValueError, match="bogus"):
+        rasterize(*scene.args())
+    monkeypatch.delenv("ABCGS_RENDER_BACKEND")
+    assert select_backend(torch.device("cpu")) == "cpu"
+
+
+def test_auto_falls_back_to_reference_with_warning(monkeypatch):
+    def broken(verbose=False):
+        raise BackendUnavailable("no compiler (test)")
+
+    monkeypatch.delenv("ABCGS_RENDER_BACKEND", raising=False)
+    monkeypatch.setattr(cpu_backend, "load_extension", broken)
+    monkeypatch.setattr(rasterize_module, "_warned", set())
+    with pytest.warns(RuntimeWarning, match="no compiler"):
+        assert rasterize(*_tiny_scene().args())[2].backend == "reference"
+    with pytest.raises(BackendUnavailable, match="no compiler"):
+        rasterize(*_tiny_scene().args(), backend="cpu")
+    with warnings.catch_warnings():  # warned once only
+        warnings.simplefilter("error")
+        assert select_backend(torch.device("cpu")) == "reference"
+
+
+def test_invalid_image_size():
+    s = _tiny_scene()
+    with pytest.raises(ValueError):
+        rasterize(s.means, s.quats, s.scales, s.opacities, s.colors, s.viewmat, s.K, 0, 5)

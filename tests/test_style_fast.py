@@ -1,0 +1,165 @@
+"""FAST loss: chunked == dense, P == least squares, loss decreases, gradients, fallbacks, errors."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from abcgs.errors import InputError, NumericalError
+from abcgs.style import fast, knn
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    """Tiny tensors: one thread avoids OpenMP oversubscription on a shared 2-core machine."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+def _feats(c: int, n_r: int, n_s: int, seed: int = 0, dtype=torch.float64):
+    g = torch.Generator().manual_seed(seed)
+    # ReLU-like, non-negative features with a shared component, as VGG's are
+    f_r = (torch.randn(c, n_r, generator=g, dtype=dtype) + 0.5).relu()
+    f_s = (torch.randn(c, n_s, generator=g, dtype=dtype) + 0.5).relu() * 2.0
+    return f_r, f_s
+
+
+def _dense_from_pairs(rows, cols, n_r, n_s):
+    a = torch.zeros(n_r, n_s, dtype=torch.float64)
+    a[rows, cols] = 1.0
+    return a
+
+
+@pytest.mark.parametrize("budget", [2**30, 10_000, 257, 41, 7, 1])
+@pytest.mark.parametrize("shape", [(16, 50, 37), (8, 9, 120), (8, 120, 3)])
+def test_chunked_affinity_equals_dense(budget, shape):
+    c, n_r, n_s = shape
+    f_r, f_s = _feats(c, n_r, n_s, seed=n_r)
+    rows, cols = knn.mutual_knn_pairs(f_r, f_s, 5, max_block_elems=budget)
+    a = _dense_from_pairs(rows, cols, n_r, n_s)
+    assert torch.equal(a, fast.affinity_dense(f_r, f_s, 5))
+    # pairs are unique and sorted
+    keys = rows * n_s + cols
+    assert torch.equal(keys, torch.unique(keys))
+
+
+@pytest.mark.parametrize("budget", [2**30, 333, 50, 5])
+def test_cosine_topk_both_directions(budget):
+    f_r, f_s = _feats(12, 40, 31, seed=3)
+    nn_rs, nn_sr = knn.cosine_topk(f_r, f_s, 4, 3, max_block_elems=budget)
+    sim = knn.normalize_columns(f_r).t() @ knn.normalize_columns(f_s)
+    assert torch.equal(nn_rs, sim.topk(4, dim=1).indices)
+    assert torch.equal(nn_sr, sim.topk(3, dim=0).indices)
+
+
+@pytest.mark.parametrize("budget", [2**30, 500, 13, 1])
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_chunked_loss_equals_dense(budget, dtype):
+    f_r, f_s = _feats(24, 60, 45, seed=7, dtype=dtype)
+    params = fast.FastParams(max_block_elems=budget)
+    got = fast.fast_loss([(f_r, f_s)], params)
+    ref = fast.fast_loss_dense(f_r, f_s)
+    tol = 1e-5 if dtype == torch.float32 else 1e-12
+    assert abs(float(got) - float(ref)) < tol
+
+
+def test_alignment_equals_weighted_least_squares():
+    """P minimises Σ A_ij ||Pᵀ v_i − s_j||²: compare with lstsq on the stacked pair system."""
+    f_r, f_s = _feats(10, 70, 55, seed=11)
+    p = fast.alignment_matrix(f_r, f_s, fast.FastParams(eps=0.0, max_block_elems=64))
+    rows, cols = knn.mutual_knn_pairs(f_r, f_s, 5)
+    v = f_r[:, rows].t()  # (N_pair, C): one equation block per pair, weight A_ij = 1
+    s = f_s[:, cols].t()
+    p_ls = torch.linalg.lstsq(v, s, driver="gelsd").solution
+    assert torch.allclose(p, p_ls, atol=1e-9, rtol=1e-9)
+    # and with the authors' eps the difference is negligible
+    p_eps = fast.alignment_matrix(f_r, f_s)
+    assert torch.allclose(p_eps, p_ls, atol=1e-8)
+
+
+def test_loss_decreases_along_gradient():
+    f_r0, f_s = _feats(16, 80, 60, seed=5, dtype=torch.float32)
+    f_r = f_r0.clone().requires_grad_(True)
+    opt = torch.optim.SGD([f_r], lr=200.0)
+    losses = []
+    for _ in range(10):
+        opt.zero_grad()
+        loss = fast.fast_loss([(f_r, f_s)])  # target re-aligned every step, as in training
+        loss.backward()
+        losses.append(float(loss.detach()))
+        opt.step()
+    assert all(b < a for a, b in zip(losses, losses[1:])), losses
+    assert losses[-1] < 0.3 * losses[0]
+    # moving straight to the aligned target gives zero loss for that target
+    target = fast.fast_target(f_r0, f_s)
+    assert float(fast.cosine_distance_loss(target, target)) < 1e-6
+
+
+def test_gradient_only_through_rendered_features():
+    f_r, f_s = _feats(8, 20, 15, seed=2)
+    f_r.requires_grad_(True)
+    f_s.requires_grad_(True)
+    fast.fast_loss([(f_r, f_s)]).backward()
+    assert f_s.grad is None
+    target = fast.fast_target(f_r, f_s)
+    assert not target.requires_grad
+    f_r2 = f_r.detach().clone().requires_grad_(True)
+    fast.cosine_distance_loss(f_r2, target).backward()
+    assert torch.allclose(f_r.grad, f_r2.grad)
+
+
+def test_cosine_distance_gradcheck():
+    f_r, f_s = _feats(5, 7, 6, seed=1)
+    target = fast.fast_target(f_r, f_s)
+    x = f_r.clone().requires_grad_(True)
+    assert torch.autograd.gradcheck(lambda t: fast.cosine_distance_loss(t, target), (x,))
+
+
+def test_groups_are_summed():
+    g1 = _feats(8, 20, 15, seed=1)
+    g2 = _feats(8, 30, 25, seed=2)
+    total = fast.fast_loss([g1, g2])
+    assert torch.allclose(total, fast.fast_loss([g1]) + fast.fast_loss([g2]))
+
+
+def test_singular_solve_falls_back_to_identity_and_counts():
+    f_r, f_s = _feats(6, 20, 15, seed=4)
+    f_r[2] = 0.0  # dead channel: singular without the ridge
+    stats = fast.FastStats()
+    p = fast.alignment_matrix(f_r, f_s, fast.FastParams(eps=0.0), stats)
+    assert stats.fallbacks == 1 and stats.solves == 1 and stats.fallback_reasons
+    assert torch.equal(p, torch.eye(6, dtype=p.dtype))
+    # with the default ridge the dead channel decouples and the solve succeeds
+    stats2 = fast.FastStats()
+    p2 = fast.alignment_matrix(f_r, f_s, fast.FastParams(), stats2)
+    assert stats2.fallbacks == 0 and torch.isfinite(p2).all() and stats2.last_pairs > 0
+    assert torch.all(p2[2] == 0)
+
+
+def test_fewer_features_than_channels_is_stable():
+    f_r, f_s = _feats(64, 10, 12, seed=9, dtype=torch.float32)
+    stats = fast.FastStats()
+    loss = fast.fast_loss([(f_r, f_s)], stats=stats)
+    assert torch.isfinite(loss) and stats.fallbacks == 0
+
+
+def test_bad_inputs():
+    f_r, f_s = _feats(8, 10, 10)
+    with pytest.raises(InputError, match="channel"):
+        fast.fast_loss([(f_r, f_s[:7])])
+    with pytest.raises(InputError, match="empty"):
+        fast.fast_loss([(f_r[:, :0], f_s)])
+    with pytest.raises(InputError, match="no matching groups"):
+        fast.fast_loss([])
+    with pytest.raises(InputError, match=r"\(C, N\)"):
+        fast.fast_loss([(f_r[None], f_s)])
+    bad = f_r.clone()
+    bad[0, 0] = float("nan")
+    with pytest.raises(NumericalError):
+        fast.fast_loss([(bad, f_s)])
+    with pytest.raises(InputError):
+        knn.mutual_knn_pairs(f_r, f_s, 0)
+    with pytest.raises(Exception):
+        fast.FastParams(k=5, bogus=1)
