@@ -52,7 +52,9 @@ class Scene:
 
     def args(self) -> tuple:
         """Positional arguments of :func:`abcgs.render.rasterize`."""
-        return (self.means, self.quats, self.scales, self.opacities, self.colors, self.viewmat, self.K, self.width, self.height)
+        return (
+            self.means, self.quats, self.scales, self.opacities, self.colors, self.viewmat, self.K, self.width, self.height
+        )
 
     def leaves(self, names=GRAD_FIELDS) -> "Scene":
         """A copy whose ``names`` fields are fresh leaf tensors requiring grad."""
@@ -154,7 +156,9 @@ def blend_margins(scene: Scene, **proj_kwargs) -> dict[str, float]:
         vis = torch.nonzero(proj.visible).squeeze(1)
         vis = vis[torch.argsort(proj.depths[vis], stable=True)]
         ys, xs = torch.meshgrid(
-            torch.arange(s.height, dtype=torch.float64) + 0.5, torch.arange(s.width, dtype=torch.float64) + 0.5, indexing="ij"
+            torch.arange(s.height, dtype=torch.float64) + 0.5,
+            torch.arange(s.width, dtype=torch.float64) + 0.5,
+            indexing="ij",
         )
         px, py = xs.reshape(-1), ys.reshape(-1)
         m, con, o = proj.means2d[vis], proj.conics[vis], s.opacities[vis]
@@ -210,6 +214,8 @@ def finite_difference_check(
             bad = err > atol + rtol * numeric.abs()
             if bad.any():
                 j, i = (int(t[0]) for t in torch.nonzero(bad, as_tuple=True))
-                failures.append(f"d loss[{j}] / d {k}.flat[{i}]: autograd {a[j, i].item():.10g} vs FD {numeric[j, i].item():.10g}")
+                failures.append(
+                    f"d loss[{j}] / d {k}.flat[{i}]: autograd {a[j, i].item():.10g} vs FD {numeric[j, i].item():.10g}"
+                )
     assert not failures, "gradient mismatch:\n" + "\n".join(failures) + f"\n(max abs err, max |grad|) per input: {report}"
     return report

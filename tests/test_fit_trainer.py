@@ -14,10 +14,18 @@ import torch
 from abcgs.cameras import Camera, intrinsics, look_at
 from abcgs.errors import InputError, NumericalError
 from abcgs.fit import FitParams, StrategyParams, evaluate, fit, fit_and_save, load_views
+from abcgs.fit.trainer import torch_threads
 from abcgs.gaussians import GaussianModel, render
 from abcgs.io.images import load_image, save_image
 from abcgs.io.ply import read_ply
 from abcgs.sfm.colmap import SceneData
+
+
+@pytest.fixture(autouse=True)
+def _one_torch_thread():
+    """Tiny tensors: intra-op threads only add overhead (seconds on a busy 2-core box)."""
+    with torch_threads(1):
+        yield
 
 W, H = 48, 36
 
@@ -56,7 +64,7 @@ def make_scene(folder: Path, n: int = 200, n_views: int = 6, seed: int = 0) -> t
 
 def small_params(**kw) -> FitParams:
     base = dict(
-        iterations=150, backend="cpu", test_every=3, lr_means=1.6e-3, lr_means_final=1.6e-5, max_gaussians=400,
+        iterations=150, backend="cpu", test_every=3, threads=1, lr_means=1.6e-3, lr_means_final=1.6e-5, max_gaussians=400,
         strategy=StrategyParams(refine_start=30, refine_every=30, refine_stop=120, reset_every=10_000),
     )
     base.update(kw)

@@ -37,8 +37,10 @@ def _gaussians(means, dtype, *, scale=0.3, opacity=0.8, quats=None, scales=None,
     if opacities is None:
         opacities = torch.full((n,), opacity, dtype=torch.float64)
     colors = torch.rand(n, channels, generator=g, dtype=torch.float64)
-    as_t = lambda t: torch.as_tensor(t).to(dtype).reshape(n, -1).squeeze(-1) if torch.as_tensor(t).dim() <= 1 else torch.as_tensor(t).to(dtype)  # noqa: E731
-    return dict(means=means, quats=as_t(quats), scales=as_t(scales), opacities=as_t(opacities), colors=colors.to(dtype))
+    def as_t(t, *shape):
+        return torch.as_tensor(t).to(dtype).reshape(n, *shape)
+
+    return dict(means=means, quats=as_t(quats, 4), scales=as_t(scales, 3), opacities=as_t(opacities), colors=colors.to(dtype))
 
 
 NORMAL = [[0.0, 0.0, 3.0], [0.4, -0.2, 2.5], [-0.5, 0.3, 4.0]]
@@ -50,7 +52,8 @@ def _case(name, dtype):
     if name == "behind_camera":
         g = _gaussians([[0, 0, -2.0], [0.1, 0, -0.5], [0, 0, -1e-3]] + NORMAL, dtype)
     elif name == "camera_plane":  # exactly at z=0, between 0 and near, at near, just past near
-        g = _gaussians([[0.0, 0.0, 0.0], [0.1, 0.0, 0.005], [0.0, 0.0, 0.01], [0.001, 0.0, 0.0101], [0.5, 0.5, 0.02]] + NORMAL, dtype)
+        near_plane = [[0.0, 0.0, 0.0], [0.1, 0.0, 0.005], [0.0, 0.0, 0.01], [0.001, 0.0, 0.0101], [0.5, 0.5, 0.02]]
+        g = _gaussians(near_plane + NORMAL, dtype)
     elif name == "zero_opacity":
         g = _gaussians(NORMAL + NORMAL, dtype, opacities=[0.0, 0.0, 0.0, 1e-3, 0.0039, 1.0 / 255.0])
     elif name == "empty":
@@ -69,7 +72,8 @@ def _case(name, dtype):
             [[1e4, 0, 3.0], [-1e8, 5e7, 3.0], [0, 1e6, 2.0], [3.0, 3.0, 1e12], [0, 0, 2e10]] + NORMAL, dtype
         )
     elif name == "identical_depth":
-        g = _gaussians([[0.0, 0.0, 3.0], [0.1, 0.05, 3.0], [-0.1, 0.0, 3.0], [0.0, 0.0, 3.0]], dtype, scales=torch.full((4, 3), 0.3))
+        same_z = [[0.0, 0.0, 3.0], [0.1, 0.05, 3.0], [-0.1, 0.0, 3.0], [0.0, 0.0, 3.0]]
+        g = _gaussians(same_z, dtype, scales=torch.full((4, 3), 0.3))
     elif name == "opaque_stack":  # clamp at 0.99 and the transmittance stop
         g = _gaussians([[0.0, 0.0, 2.0 + 0.2 * i] for i in range(6)], dtype, opacity=1.0, scale=0.5)
     else:
@@ -93,11 +97,32 @@ def _render(g, width, height, backend, dtype, **kw):
     )
     meta.means2d.retain_grad()
     wts = torch.Generator().manual_seed(0)
-    loss = sum((o * torch.randn(o.shape, generator=wts, dtype=torch.float64).to(dtype)).sum() for o in (image, alpha, meta.depth))
+    loss = sum(
+        (o * torch.randn(o.shape, generator=wts, dtype=torch.float64).to(dtype)).sum() for o in (image, alpha, meta.depth)
+    )
     loss.backward()
     grads = {k: leaves[k].grad for k in GRAD_FIELDS}
     grads["background"] = bg.grad
     return image.detach(), alpha.detach(), meta, grads
+
+
+def _case_specific_checks(case, alpha, meta):
+    """Make sure each case builds the situation it is named after."""
+    vis = meta.visible
+    if case == "behind_camera":
+        assert not vis[:3].any() and vis[3:].all()
+    elif case == "camera_plane":
+        assert not vis[:3].any() and vis[3] and vis[5:].all()  # z=0, z<near, z=near culled; z>near kept
+    elif case == "zero_opacity":
+        assert not vis[:5].any()  # opacity < 1/255 can never reach the alpha threshold
+    elif case == "huge":
+        assert vis[:2].all() and alpha.min() > 0.5  # covers every pixel
+    elif case == "far_off_screen":
+        assert not vis[:5].any() and vis[5:].all()
+    elif case in ("zero_quaternion", "zero_scale", "identical_depth", "one_pixel", "opaque_stack"):
+        assert vis.all()
+    if case == "opaque_stack":
+        assert alpha.max() > 0.999
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64], ids=["f32", "f64"])
@@ -117,6 +142,7 @@ def test_degenerate_inputs_finite(case, dtype):
             assert torch.isfinite(v).all(), f"{backend}: non-finite d/d{k}: {v}"
         assert meta.means2d.grad is not None and torch.isfinite(meta.means2d.grad).all()
         assert (meta.radii[~meta.visible] == 0).all()
+        _case_specific_checks(case, alpha, meta)
         results[backend] = (image, alpha, meta)
     if len(results) == 2:
         tol = 1e-5 if dtype == torch.float32 else 1e-10
@@ -157,7 +183,8 @@ def test_empty_scene_is_background(backend, dtype):
     assert meta.means2d.shape == (0, 2) and meta.radii.shape[0] == 0
     # without background: zeros
     viewmat, K = _camera(dtype)
-    image, alpha, _ = rasterize(g["means"], g["quats"], g["scales"], g["opacities"], g["colors"], viewmat, K, w, h, backend=backend)
+    args = (g["means"], g["quats"], g["scales"], g["opacities"], g["colors"], viewmat, K, w, h)
+    image, alpha, _ = rasterize(*args, backend=backend)
     assert torch.equal(image, torch.zeros(h, w, 3, dtype=dtype))
 
 
@@ -188,13 +215,15 @@ def test_expected_depth_two_layers_front_to_back(backend):
     q = torch.tensor([[1.0, 0, 0, 0]], dtype=dtype)
 
     def one(z, s, o):
-        return torch.tensor([[0.0, 0.0, z]], dtype=dtype), torch.tensor([[s, s, s]], dtype=dtype), torch.tensor([o], dtype=dtype)
+        t = lambda v: torch.tensor(v, dtype=dtype)  # noqa: E731
+        return t([[0.0, 0.0, z]]), t([[s, s, s]]), t([o])
 
     (m1, s1, o1), (m2, s2, o2) = one(d1, 0.2, 0.6), one(d2, 0.6, 0.7)
 
     def render(m, s, o):
         n = m.shape[0]
-        _, a, meta = rasterize(m, q.expand(n, 4), s, o, torch.ones(n, 1, dtype=dtype), viewmat, K, W, H, render_depth=True, backend=backend)
+        ones = torch.ones(n, 1, dtype=dtype)
+        _, a, meta = rasterize(m, q.expand(n, 4), s, o, ones, viewmat, K, W, H, render_depth=True, backend=backend)
         return a, meta.depth
 
     a1, _ = render(m1, s1, o1)

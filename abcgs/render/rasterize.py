@@ -155,7 +155,9 @@ def rasterize(
             background=background, render_depth=render_depth, normalize_depth=normalize_depth, near=near,
             far=far, eps2d=eps2d, tile_size=tile_size,
         )
-    project = cpu_backend.project_cpu if name == "cpu" else project_gaussians
+    # The fused C++ projection treats the camera as constant; camera optimisation takes the autograd path.
+    camera_grad = viewmat.requires_grad or K.requires_grad
+    project = cpu_backend.project_cpu if name == "cpu" and not camera_grad else project_gaussians
     proj = project(means, quats, scales, opacities, viewmat, K, width, height, near=near, far=far, eps2d=eps2d)
     if sh_degree is not None:
         R, t = viewmat[:3, :3], viewmat[:3, 3]

@@ -95,12 +95,12 @@ def rasterize_reference(
     dtype, device = colors.dtype, colors.device
     image = torch.zeros(height, width, C, dtype=dtype, device=device)
     trans = torch.ones(height, width, dtype=dtype, device=device)
+    # Keep the outputs attached to every input's graph (zero gradients, like the other backends) even when
+    # no Gaussian reaches any tile, so backward() / autograd.grad on an empty view does not raise. Empty
+    # slices never read the values, so this stays finite even for inf/NaN rows of culled Gaussians.
+    link = means2d[:0].sum() + conics[:0].sum() + colors[:0].sum() + opacities[:0].sum()
     vis = torch.nonzero(extents[:, 0] > 0).squeeze(1)
     if vis.numel() == 0:
-        # Nothing visible: keep the outputs attached to the inputs' graph (zero gradients, like the other
-        # backends) so backward() / autograd.grad on an empty view does not raise. Empty slices never
-        # read the values, so this stays finite even for inf/NaN rows of culled Gaussians.
-        link = means2d[:0].sum() + conics[:0].sum() + colors[:0].sum() + opacities[:0].sum()
         return image + link, (1.0 - trans)[..., None] + link
     vis = vis[torch.argsort(depths.detach()[vis], stable=True)]
     ranges = tile_ranges(means2d[vis], extents[vis], width, height, tile_size)
@@ -132,7 +132,7 @@ def rasterize_reference(
         rows.append(row)
     image = torch.cat([torch.cat([t[0] for t in row], dim=1) for row in rows], dim=0)
     trans = torch.cat([torch.cat([t[1] for t in row], dim=1) for row in rows], dim=0)
-    return image, (1.0 - trans)[..., None]
+    return image + link, (1.0 - trans)[..., None] + link
 
 
 def rasterize_brute_force(

@@ -242,11 +242,11 @@ def optimise(
             timings[key] = timings.get(key, 0.0) + dt
         timings["iterations"] = timings.get("iterations", 0) + 1
         if it % params.log_every == 0 or it == iterations - 1:
-            row = {"step": step, "seconds": time.perf_counter() - t_start, "loss": float(loss),
+            row = {"step": step, "seconds": time.perf_counter() - t_start, "loss": float(loss.detach()),
                    "pass": "color" if color_only else "main"}
-            row.update({k: float(v) for k, v in terms.items()})
+            row.update({k: float(v.detach()) for k, v in terms.items()})
             history.append(row)
-            bar.set_postfix({k: f"{float(v):.4f}" for k, v in terms.items()}, refresh=False)
+            bar.set_postfix({k: f"{float(v.detach()):.4f}" for k, v in terms.items()}, refresh=False)
     bar.close()
     return m.detach()
 

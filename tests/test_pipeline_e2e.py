@@ -1,0 +1,108 @@
+"""End to end: `dvc repro` of the whole pipeline on the embedded tiny scene, in a copy of the repository.
+
+Checks what a DVC user relies on: every stage runs and writes its artifacts for all three transfer
+types; a second `dvc repro` does nothing; changing one fit parameter invalidates `fit` and what
+follows, but not `make_tiny` or `reconstruct`. Iterations are reduced (see REDUCED) to keep it to a
+few minutes on two cores.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from conftest import REPO_ROOT
+
+pytestmark = pytest.mark.slow
+
+REDUCED = {
+    ("fit", "iterations"): 300,
+    ("colormatch", "refit_iterations"): 20,
+    ("stylize", "iterations"): 20,
+}
+
+
+def _run(args: list[str], cwd: Path, timeout: int = 900) -> subprocess.CompletedProcess:
+    env = dict(os.environ)
+    env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}"
+    env["PYTHONUNBUFFERED"] = "1"
+    return subprocess.run(args, cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def repo(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A git+DVC copy of the working tree (tracked and untracked-not-ignored files) with reduced params."""
+    files = subprocess.run(
+        ["git", "ls-files", "--cached", "--others", "--exclude-standard", "-z"], cwd=REPO_ROOT,
+        capture_output=True, check=True,
+    ).stdout.decode().split("\0")
+    dst = tmp_path_factory.mktemp("e2e") / "repo"
+    for rel in filter(None, files):
+        src = REPO_ROOT / rel
+        if src.is_file():
+            (dst / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, dst / rel)
+    params = yaml.safe_load((dst / "params.yaml").read_text())
+    for (section, key), value in REDUCED.items():
+        params[section][key] = value
+    (dst / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    git = ["git", "-c", "user.name=ci", "-c", "user.email=ci@example.invalid"]
+    for cmd in (["git", "init", "-q"], ["git", "add", "-A"], git + ["commit", "-qm", "copy"]):
+        subprocess.run(cmd, cwd=dst, check=True, capture_output=True)
+    return dst
+
+
+@pytest.fixture(scope="module")
+def first_repro(repo: Path) -> subprocess.CompletedProcess:
+    proc = _run(["dvc", "repro"], repo)
+    assert proc.returncode == 0, f"dvc repro failed:\n{proc.stdout[-4000:]}\n{proc.stderr[-4000:]}"
+    return proc
+
+
+def test_all_stages_write_their_artifacts(repo: Path, first_repro) -> None:
+    out = repo / "out"
+    rec = json.loads((out / "tiny" / "reconstruct.json").read_text())
+    assert rec["registered"] == rec["total"] == 16
+    fit = json.loads((out / "tiny" / "gs" / "metrics.json").read_text())
+    assert fit["psnr"] > 18.0, fit  # 300 steps on 160×120; ~22 dB seen
+    masks = json.loads((out / "tiny" / "masks" / "masks.json").read_text())
+    assert masks["source"] == "given" and masks["agreement_with_input_masks"] > 0.9
+    for exp in ("tiny_single", "tiny_compositional", "tiny_semantic"):
+        d = out / exp / "stylize"
+        for name in ("point_cloud.ply", "grid.png", "turntable.mp4"):
+            assert (d / name).stat().st_size > 0, f"{exp}: {name} missing or empty"
+        assert len(list((d / "renders").glob("*.png"))) == 16
+        metrics = json.loads((out / exp / "stylize.json").read_text())
+        assert metrics["iterations"] == REDUCED[("stylize", "iterations")]
+        assert metrics["vgg_weights"]["sha256"]
+        history = (out / exp / "stylize_history.csv").read_text().splitlines()
+        assert history[0].startswith("step,") and len(history) >= 3
+
+
+def test_second_repro_is_a_no_op(repo: Path, first_repro) -> None:
+    proc = _run(["dvc", "repro"], repo)
+    assert proc.returncode == 0, proc.stderr
+    assert "Running stage" not in proc.stdout, proc.stdout
+    status = _run(["dvc", "status"], repo)
+    assert "up to date" in status.stdout, status.stdout
+
+
+def test_changing_a_fit_param_invalidates_fit_and_downstream_only(repo: Path, first_repro) -> None:
+    params = yaml.safe_load((repo / "params.yaml").read_text())
+    params["fit"]["iterations"] += 1
+    (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    try:
+        status = _run(["dvc", "status"], repo).stdout
+        changed = {line.split(":")[0].strip() for line in status.splitlines() if line and not line.startswith("\t")}
+        assert "fit@tiny" in changed
+        assert not changed & {"make_tiny", "reconstruct@tiny"}, status
+    finally:
+        params["fit"]["iterations"] -= 1
+        (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
