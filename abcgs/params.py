@@ -28,6 +28,7 @@ from abcgs.style.content_masks import MaskParams
 from abcgs.style.matching import ExperimentParams, IsolationParams
 from abcgs.style.stylize import StylizeParams
 from abcgs.style.weights import VggWeightsParams
+from abcgs.eval_params import EvalParams
 
 
 class DataParams(BaseModel):
@@ -68,6 +69,7 @@ class Params(BaseModel):
     isolation: IsolationParams = Field(default_factory=IsolationParams)
     colormatch: ColorMatchParams = Field(default_factory=ColorMatchParams)
     stylize: StylizeParams = Field(default_factory=StylizeParams)
+    evaluate: EvalParams = Field(default_factory=EvalParams)
     experiments: dict[str, ExperimentParams] = Field(
         default_factory=dict, description="stylization runs: name → scene, transfer type, style(s), loss method"
     )

@@ -15,7 +15,6 @@ per-axis screen-space standard deviations log-normal around 1.5 px (σ_log = 0.8
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import statistics

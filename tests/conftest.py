@@ -15,10 +15,20 @@ from pathlib import Path
 import cv2  # noqa: F401  (load before anything imports pycolmap; see abcgs/sfm/__init__.py)
 import pytest
 
+from abcgs.fit.trainer import torch_threads
+
 from abcgs.scene.synthetic import TinySceneParams, make_tiny_scene
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO_ROOT.parent / "shared" / "data"
+
+
+@pytest.fixture(autouse=True)
+def _one_torch_thread():
+    """Tests use tiny tensors: one intra-op thread avoids OpenMP spin-waiting, which makes small ops many times
+    slower on a loaded 2-core machine. Tests that compare thread counts set their own inside."""
+    with torch_threads(1):
+        yield
 
 
 @pytest.fixture(scope="session")

@@ -10,7 +10,6 @@ world→camera transform is exercised too.
 
 from __future__ import annotations
 
-import contextlib
 import math
 from dataclasses import dataclass, fields, replace
 
@@ -18,24 +17,12 @@ import torch
 from torch import Tensor
 
 from abcgs.render.projection import ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_EPS, project_gaussians
+from abcgs.fit.trainer import torch_threads  # noqa: F401  (re-exported for the tests)
 from abcgs.render.sh import num_sh_bases
 
 GRAD_FIELDS = ("means", "quats", "scales", "opacities", "colors")
 
 
-@contextlib.contextmanager
-def torch_threads(n: int):
-    """Run a block with ``torch.set_num_threads(n)``, restoring the previous value.
-
-    The tiny-scene tests use 1 thread: on a loaded 2-core machine, intra-op threading of tiny tensor ops
-    costs far more than it saves (the reference backend runs ~5x faster single-threaded there).
-    """
-    old = torch.get_num_threads()
-    torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(old)
 
 
 @dataclass

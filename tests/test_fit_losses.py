@@ -11,14 +11,7 @@ import torch.nn.functional as F
 
 from abcgs.fit import metrics
 from abcgs.fit.losses import dssim, l1, reconstruction_loss, ssim, ssim_map
-from abcgs.fit.trainer import torch_threads
 
-
-@pytest.fixture(autouse=True)
-def _one_torch_thread():
-    """Tiny tensors: intra-op threads only add overhead (seconds on a busy 2-core box)."""
-    with torch_threads(1):
-        yield
 
 
 def ssim_3dgs_2d(img1: torch.Tensor, img2: torch.Tensor) -> torch.Tensor:

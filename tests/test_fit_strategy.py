@@ -17,16 +17,10 @@ from abcgs.fit.strategy import (
     scene_extent,
     split,
 )
-from abcgs.fit.trainer import FitParams, make_optimizers, torch_threads
+from abcgs.fit.trainer import FitParams, make_optimizers
 from abcgs.gaussians import PARAM_NAMES, GaussianModel
 from abcgs.render import RenderMeta, quat_to_rotmat
 
-
-@pytest.fixture(autouse=True)
-def _one_torch_thread():
-    """Tiny tensors: intra-op threads only add overhead (seconds on a busy 2-core box)."""
-    with torch_threads(1):
-        yield
 
 
 def make_model(n: int, degree: int = 1, seed: int = 0) -> GaussianModel:

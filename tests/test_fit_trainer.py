@@ -14,18 +14,11 @@ import torch
 from abcgs.cameras import Camera, intrinsics, look_at
 from abcgs.errors import InputError, NumericalError
 from abcgs.fit import FitParams, StrategyParams, evaluate, fit, fit_and_save, load_views
-from abcgs.fit.trainer import torch_threads
 from abcgs.gaussians import GaussianModel, render
 from abcgs.io.images import load_image, save_image
 from abcgs.io.ply import read_ply
 from abcgs.sfm.colmap import SceneData
 
-
-@pytest.fixture(autouse=True)
-def _one_torch_thread():
-    """Tiny tensors: intra-op threads only add overhead (seconds on a busy 2-core box)."""
-    with torch_threads(1):
-        yield
 
 W, H = 48, 36
 

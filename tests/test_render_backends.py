@@ -19,11 +19,6 @@ rasterize_module = importlib.import_module("abcgs.render.rasterize")
 needs_cpu = pytest.mark.skipif(not cpu_backend.is_available(), reason="C++ backend not built")
 
 
-@pytest.fixture(autouse=True)
-def _single_thread():
-    with torch_threads(1):
-        yield
-
 
 def _render_and_grads(scene, backend, weights, **kw):
     """Render, backprop a random weighting of image/alpha/depth; return outputs and input gradients."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 import torch
-from render_scenes import GRAD_FIELDS, torch_threads
+from render_scenes import GRAD_FIELDS
 
 from abcgs.render import rasterize
 from abcgs.render.cpu import is_available
@@ -13,11 +13,6 @@ from abcgs.render.cpu import is_available
 BACKENDS = ["reference", pytest.param("cpu", marks=pytest.mark.skipif(not is_available(), reason="C++ backend not built"))]
 W, H = 16, 12
 
-
-@pytest.fixture(autouse=True)
-def _single_thread():
-    with torch_threads(1):
-        yield
 
 
 def _camera(dtype, width=W, height=H, f=16.0):

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import pytest
 import torch
-from render_scenes import blend_margins, finite_difference_check, random_scene, torch_threads
+from render_scenes import blend_margins, finite_difference_check, random_scene
 
 from abcgs.render import rasterize
 from abcgs.render.cpu import _RasterizeCPUAlpha, is_available
@@ -30,11 +30,6 @@ MIN_MARGIN = 1e-3
 CAMERA_GRAD_BACKENDS = ("reference",)
 BACKENDS = ["reference", pytest.param("cpu", marks=pytest.mark.skipif(not is_available(), reason="C++ backend not built"))]
 
-
-@pytest.fixture(autouse=True)
-def _single_thread():
-    with torch_threads(1):
-        yield
 
 
 def _check_margins(scene, *, clamped=False, stopped=False):

@@ -6,7 +6,7 @@ import math
 
 import pytest
 import torch
-from render_scenes import random_scene, torch_threads
+from render_scenes import random_scene
 
 from abcgs.render import eval_sh, num_sh_bases, rasterize, rgb_to_sh0, sh0_to_rgb
 from abcgs.render.cpu import is_available
@@ -15,11 +15,6 @@ from abcgs.render.sh import sh_to_color
 BACKENDS = ["reference", pytest.param("cpu", marks=pytest.mark.skipif(not is_available(), reason="C++ backend not built"))]
 F64 = torch.float64
 
-
-@pytest.fixture(autouse=True)
-def _single_thread():
-    with torch_threads(1):
-        yield
 
 
 def _basis(degree, dirs):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 import torch
-from render_scenes import random_scene, torch_threads
+from render_scenes import random_scene
 
 from abcgs.render import accumulate_weights, project_gaussians, rasterize
 from abcgs.render.cpu import is_available
@@ -18,11 +18,6 @@ def _weights(scene, pixel_weights, backend):
     s = scene
     return accumulate_weights(s.means, s.quats, s.scales, s.opacities, s.viewmat, s.K, pixel_weights, backend=backend)
 
-
-@pytest.fixture(autouse=True)
-def _single_thread():
-    with torch_threads(1):
-        yield
 
 
 def naive_blend_weights(scene):

@@ -9,14 +9,6 @@ from abcgs.errors import InputError, NumericalError
 from abcgs.style import fast, knn
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """Tiny tensors: one thread avoids OpenMP oversubscription on a shared 2-core machine."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
 
 def _feats(c: int, n_r: int, n_s: int, seed: int = 0, dtype=torch.float64):
     g = torch.Generator().manual_seed(seed)

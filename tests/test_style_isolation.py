@@ -13,13 +13,6 @@ from abcgs.style.vgg import VGG16Features, random_state_dict
 METHODS = ("mirror", "translate", "fill")
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
 
 @pytest.fixture(scope="module")
 def vgg():

@@ -10,13 +10,6 @@ from abcgs.style import losses
 from abcgs.style.fast import FastParams, FastStats, fast_loss
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
 
 def _feats(c=12, n_r=40, n_s=33, seed=0, dtype=torch.float64):
     g = torch.Generator().manual_seed(seed)

@@ -14,13 +14,6 @@ from abcgs.style import vgg as V
 from abcgs.style import weights as W
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
 
 @pytest.fixture
 def no_hub(tmp_path, monkeypatch):

@@ -425,14 +425,16 @@ def _fit(
             bar.set_postfix_str(f"loss={loss:.4f} psnr={psnr:.2f} n_gaussians={model.num_gaussians}", refresh=False)
         if params.eval_every and test_cams and step % params.eval_every == 0 and step != params.iterations:
             ev = evaluate(model, test_cams, test_imgs, backend, background=fixed_bg)
-            eval_history.append({"step": step, "psnr": ev.psnr, "ssim": ev.ssim})
+            eval_history.append({"step": step, "seconds": train_seconds, "psnr": ev.psnr, "ssim": ev.ssim})
     bar.close()
 
     final = model.detach()
     heldout = None
     if test_cams:
         heldout = evaluate(final, test_cams, test_imgs, backend, background=fixed_bg, keep_images=True)
-        eval_history.append({"step": params.iterations, "psnr": heldout.psnr, "ssim": heldout.ssim})
+        eval_history.append(
+            {"step": params.iterations, "seconds": train_seconds, "psnr": heldout.psnr, "ssim": heldout.ssim}
+        )
     return FitResult(final, history, heldout, eval_history, refinements, views, extent, train_seconds, backend, params)
 
 

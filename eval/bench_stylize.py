@@ -1,0 +1,127 @@
+"""Benchmark ABC-GS stylization on a real scene: content preservation, style distance, time split.
+
+    python eval/bench_stylize.py --scene ../shared/data/scenes/fern \
+        --style ../shared/data/styles/starry_night.jpg --json out/bench/stylize_fern_starry.json
+
+Needs the fitted scene of ``eval/bench_fit.py`` (``out/bench/<scene>/{colmap,gs}``). Runs single-image
+transfer: colour match + re-fit, then the stylization passes with ``params.yaml``'s ``stylize`` section
+(overridable on the command line). Reports, over all views:
+
+- ``ssim``: SSIM between renders of the original scene and of the stylized scene (content preservation);
+- ``gram_distance``: mean over views of ‖G(render) − G(style)‖²_F / C² with G the Gram matrix of the
+  relu3_1..3 features normalised by the number of positions (Gatys), for the colour-matched start and
+  the final scene, and its relative drop;
+- wall time per iteration and its split between render, VGG, style loss, backward and optimiser step.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+from abcgs.fit.metrics import ssim as ssim_metric  # noqa: E402
+from abcgs.gaussians import render  # noqa: E402
+from abcgs.io.atomic import write_json  # noqa: E402
+from abcgs.io.images import save_image  # noqa: E402
+from abcgs.io.ply import read_ply, write_ply  # noqa: E402
+from abcgs.params import load_params  # noqa: E402
+from abcgs.sfm.colmap import read_colmap_scene  # noqa: E402
+from abcgs.style.colormatch import ColorMatchParams, color_match_and_refit  # noqa: E402
+from abcgs.style.losses import gram_matrix  # noqa: E402
+from abcgs.style.matching import ExperimentParams, build_groups, load_style  # noqa: E402
+from abcgs.style.stylize import stylize  # noqa: E402
+from abcgs.style.vgg import VGG16Features, downsample_half, extract_features  # noqa: E402
+from abcgs.style.weights import resolve_vgg16  # noqa: E402
+from abcgs.viz import image_grid  # noqa: E402
+
+
+@torch.no_grad()
+def gram_distance(model, cameras, vgg, style_img: np.ndarray, layers) -> float:
+    fs = extract_features(vgg, torch.from_numpy(style_img).permute(2, 0, 1)[None], layers)[0]
+    gs = gram_matrix(fs.reshape(fs.shape[0], -1))
+    d = []
+    for cam in cameras:
+        img = render(model, cam)[0].clamp(0, 1).permute(2, 0, 1)[None]
+        fr = extract_features(vgg, downsample_half(img), layers)[0]
+        d.append(float(((gram_matrix(fr.reshape(fr.shape[0], -1)) - gs) ** 2).sum()))
+    return float(np.mean(d))
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scene", type=Path, required=True)
+    ap.add_argument("--style", type=Path, required=True)
+    ap.add_argument("--work", type=Path, default=Path("out/bench"))
+    ap.add_argument("--params", type=Path, default=Path("params.yaml"))
+    ap.add_argument("--iterations", type=int, default=None, help="override stylize.iterations")
+    ap.add_argument("--refit-iterations", type=int, default=200)
+    ap.add_argument("--method", default="fast", choices=["fast", "nnfm", "knnfm", "gram"])
+    ap.add_argument("--threads", type=int, default=0)
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args(argv)
+    if args.threads:
+        torch.set_num_threads(args.threads)
+
+    params = load_params(args.params)
+    sp = params.stylize if args.iterations is None else params.stylize.model_copy(update={"iterations": args.iterations})
+    base = args.work / args.scene.name
+    scene = read_colmap_scene(base / "colmap" / "sparse", base / "colmap" / "images")
+    original = read_ply(base / "gs" / "point_cloud.ply")
+    sd, info = resolve_vgg16(params.vgg)
+    vgg = VGG16Features(sd, sp.layers, feature_scale=info.feature_scale)
+    exp = ExperimentParams(scene=args.scene.name, transfer="single", style="style", method=args.method)
+    groups = build_groups(exp, {"style": str(args.style)}, {}, set(), vgg, style_height=sp.style_height, layers=sp.layers)
+    labels = torch.zeros(original.num_gaussians, dtype=torch.long)
+    view_labels = [np.zeros((c.height, c.width), np.int64) for c in scene.cameras]
+
+    t0 = time.perf_counter()
+    cm = color_match_and_refit(original, scene, labels, view_labels, groups,
+                               ColorMatchParams(refit_iterations=args.refit_iterations))
+    t_cm = time.perf_counter() - t0
+    res = stylize(cm.model, scene.cameras, view_labels, labels, groups, vgg, sp, method=args.method)
+
+    style_img = load_style(str(args.style), sp.style_height)
+    g_start = gram_distance(cm.model, scene.cameras, vgg, style_img, sp.layers)
+    g_end = gram_distance(res.model, scene.cameras, vgg, style_img, sp.layers)
+    g_orig = gram_distance(original, scene.cameras, vgg, style_img, sp.layers)
+    ssims, rows = [], []
+    with torch.no_grad():
+        for i, cam in enumerate(scene.cameras):
+            a = render(original, cam)[0].clamp(0, 1)
+            b = render(res.model, cam)[0].clamp(0, 1)
+            ssims.append(ssim_metric(b, a))
+            if i % 7 == 0:
+                rows.append([a.numpy(), style_img, render(cm.model, cam)[0].clamp(0, 1).numpy(), b.numpy()])
+    n_it = max(1, res.timings.get("iterations", 1))
+    split = {k: v / n_it for k, v in res.timings.items() if k != "iterations"}
+    out = {
+        "scene": str(args.scene), "style": str(args.style), "method": args.method,
+        "iterations": int(res.timings.get("iterations", 0)), "refit_iterations": args.refit_iterations,
+        "ssim_mean": float(np.mean(ssims)), "ssim_per_view": ssims,
+        "gram_distance": {"original": g_orig, "color_matched": g_start, "stylized": g_end,
+                          "drop_from_color_matched": 1.0 - g_end / g_start},
+        "seconds": {"colormatch_refit": t_cm, "stylize": res.seconds},
+        "seconds_per_iteration": split, "vgg_weights": info.model_dump(), "threads": torch.get_num_threads(),
+        "fast": res.fast_stats, "n_gaussians": res.model.num_gaussians,
+    }
+    print(f"SSIM(original, stylized) = {out['ssim_mean']:.3f} over {len(ssims)} views")
+    print(f"Gram distance: original {g_orig:.4g}, colour-matched {g_start:.4g}, stylized {g_end:.4g} "
+          f"(drop {100 * out['gram_distance']['drop_from_color_matched']:.1f}% from the colour-matched start)")
+    print(f"time: colour match + re-fit {t_cm:.1f} s, stylize {res.seconds:.1f} s for {out['iterations']} iterations; "
+          "per iteration: " + ", ".join(f"{k} {1000 * v:.0f} ms" for k, v in split.items()))
+    if args.json:
+        write_json(args.json, out)
+        save_image(args.json.with_suffix(".png"), image_grid(rows, ["original", "style", "colour-matched", "stylized"], height=200))
+        write_ply(args.json.with_suffix(".ply"), res.model)
+    return out
+
+
+if __name__ == "__main__":
+    main()

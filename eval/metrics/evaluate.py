@@ -1,0 +1,268 @@
+"""Evaluate one stylized scene against its original: every metric of SPEC stage 7, with provenance.
+
+:func:`evaluate_scene` is the library entry (``stages/evaluate.py`` loads the pipeline outputs and calls it).
+Key names say what a number is: ``lpips`` / ``artfid`` appear only when the official networks ran;
+offline they are ``lpips_proxy_vgg`` / ``artfid_proxy``; FID/KID are ``fid_tf_inception`` /
+``kid_tf_inception`` (patch-based, TF-FID Inception). See the README section "Evaluation metrics".
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import logging
+import platform
+import statistics
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from abcgs.cameras import Camera
+from abcgs.errors import InputError
+from abcgs.gaussians import GaussianModel, render
+from eval.metrics.artfid import ArtInception, artfid_formula, find_art_inception
+from eval.metrics.consistency import (
+    FlowCache,
+    FlowEstimator,
+    consistency,
+    heatmap_panel,
+)
+from eval.metrics.content import (
+    SSIM,
+    PerceptualDistance,
+    check_pair,
+    check_same_count,
+    masked_rmse,
+)
+from eval.metrics.fid import (
+    TFInception,
+    fid_from_features,
+    kid,
+    random_patches,
+    resize_short_side,
+)
+from abcgs.eval_params import EvalParams
+
+log = logging.getLogger(__name__)
+
+@dataclass
+class EvalResult:
+    metrics: dict
+    per_view: list[dict]
+    heatmap: list[np.ndarray]  # cells of one image_grid row (see consistency.heatmap_panel)
+    heatmap_captions: list[str]
+
+
+def _versions() -> dict:
+    out = {"python": platform.python_version(), "torch": torch.__version__, "numpy": np.__version__, "opencv": cv2.__version__}
+    for dist in ("scipy", "lpips", "pyiqa"):
+        try:
+            out[dist] = importlib.metadata.version(dist)
+        except importlib.metadata.PackageNotFoundError:
+            pass
+    return out
+
+
+@torch.no_grad()
+def render_views(model: GaussianModel, cameras: list[Camera], backend: str) -> tuple[list[np.ndarray], str]:
+    imgs, used = [], None
+    for cam in cameras:
+        img, _, meta = render(model, cam, backend=backend)
+        imgs.append(img.clamp(0, 1).cpu().numpy().astype(np.float32))
+        used = meta.backend
+    return imgs, used
+
+
+@torch.no_grad()
+def render_fps(model: GaussianModel, cameras: list[Camera], backend: str, passes: int) -> tuple[float, list[float]]:
+    """Median over ``passes`` full passes of (views / seconds); the caller renders once before (warm-up)."""
+    times = []
+    for _ in range(passes):
+        t0 = time.perf_counter()
+        for cam in cameras:
+            img, _, _ = render(model, cam, backend=backend)
+        if img.is_cuda:
+            torch.cuda.synchronize()
+        times.append(time.perf_counter() - t0)
+    return len(cameras) / statistics.median(times), times
+
+
+def _mean(v) -> float:
+    a = np.asarray(v, np.float64)
+    return float(np.nanmean(a)) if np.isfinite(a).any() else float("nan")
+
+
+def evaluate_images(
+    originals: list[np.ndarray],
+    stylized: list[np.ndarray],
+    style_images: list[np.ndarray],
+    params: EvalParams,
+    *,
+    perceptual: PerceptualDistance | None = None,
+    inception: TFInception | None = None,
+    view_names: list[str] | None = None,
+    vgg_params=None,
+) -> EvalResult:
+    """All image metrics for matched lists of original/stylized renders (channels-last, [0, 1])."""
+    check_same_count(originals, stylized)
+    for k, (o, s) in enumerate(zip(originals, stylized)):
+        check_pair(o, s, f"original and stylized render of view {k}")
+    if len(originals) < 2:
+        raise InputError(f"evaluation needs at least 2 views, got {len(originals)}")
+    if not style_images:
+        raise InputError("no style images to compare the stylized renders with")
+    n = len(originals)
+    names = view_names or [str(i) for i in range(n)]
+    timings: dict[str, float] = {}
+    t = time.perf_counter()
+
+    ssim = SSIM(params.ssim_impl)
+    perceptual = perceptual or PerceptualDistance(params.perceptual, layers=params.proxy_layers, vgg_params=vgg_params)
+    pname = perceptual.name
+    ssims = [ssim(o, s) for o, s in zip(originals, stylized)]
+    content = [perceptual(o, s) for o, s in zip(originals, stylized)]
+    timings["content_s"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    flows = FlowCache(originals, FlowEstimator(params.flow))
+    short, short_pairs = consistency(originals, stylized, params.short_term_gap, flows, perceptual)
+    long, long_pairs = consistency(originals, stylized, params.long_term_gap, flows, perceptual)
+    timings["consistency_s"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    inception = inception or TFInception(batch=params.fid_batch)
+    h, w = originals[0].shape[:2]
+    n_r = n * params.fid_patches_per_image
+    n_s = params.fid_style_patches or n_r
+    styles = [resize_short_side(s, min(h, w)) for s in style_images]
+    rng_r, rng_s = np.random.default_rng([params.seed, 1]), np.random.default_rng([params.seed, 2])
+    p_r = random_patches(stylized, n_r, params.fid_patch_size, rng_r)
+    p_s = random_patches(styles, n_s, params.fid_patch_size, rng_s)
+    f_r, f_s = inception.features(p_r), inception.features(p_s)
+    fid = fid_from_features(f_s, f_r)
+    kid_mean, kid_std, kid_m = kid(f_s, f_r, params.kid_subsets, params.kid_subset_size, params.seed)
+    timings["fid_s"] = time.perf_counter() - t
+
+    # ArtFID: official only with real LPIPS and the art-trained Inception
+    art_path, art_why = find_art_inception(params.art_inception_path)
+    content_mean = _mean(content)
+    components = {"content_distance": {"name": pname, "value": content_mean}}
+    if art_path is not None and pname == "lpips":
+        art = ArtInception(art_path, params.fid_batch)
+        fid_art = fid_from_features(art.features(p_s), art.features(p_r))
+        components["style_distance"] = {"name": "fid_art_inception", "value": fid_art, "network": art.provenance()}
+        art_key, art_val = "artfid", artfid_formula(content_mean, fid_art)
+        art_note = "official components (LPIPS-alex, art-trained Inception); FID on the same random patches as fid_tf_inception"
+    else:
+        components["style_distance"] = {"name": "fid_tf_inception", "value": fid}
+        art_key, art_val = "artfid_proxy", artfid_formula(content_mean, fid)
+        reasons = [r for r in ((None if pname == "lpips" else f"content distance is {pname}: {perceptual.note}"),
+                               (None if art_path is not None else art_why)) if r]
+        art_note = "proxy, NOT comparable to the paper's ArtFID: " + "; ".join(reasons)
+
+    # per view: pair (i, i+gap) is attributed to view i
+    sp = {r.i: r for r in short_pairs}
+    lp = {r.i: r for r in long_pairs}
+    rows = []
+    for i in range(n):
+        rows.append({
+            "view": i, "name": names[i], "ssim": ssims[i], f"content_{pname}": content[i],
+            "short_rmse": sp[i].rmse if i in sp else None, f"short_{pname}": sp[i].perceptual if i in sp else None,
+            "long_rmse": lp[i].rmse if i in lp else None, f"long_{pname}": lp[i].perceptual if i in lp else None,
+        })
+
+    pairs = short_pairs if params.heatmap_pair == "short" else long_pairs
+    pick = min(params.heatmap_view, len(pairs) - 1)
+    pr = pairs[pick]
+    panel = heatmap_panel(originals[pr.i], stylized[pr.i], pr)
+    captions = [f"original {names[pr.i]}", f"stylized {names[pr.i]}", f"stylized {names[pr.j]} warped",
+                f"error (cyan: occluded) rmse {pr.rmse:.3f}"]
+
+    metrics = {
+        "n_views": n, "resolution": [int(w), int(h)],
+        "ssim": _mean(ssims), "ssim_impl": ssim.provenance()["ssim_impl"],
+        f"content_{pname}": content_mean,
+        "short_rmse": short["rmse"], f"short_{pname}": short["perceptual"],
+        "long_rmse": long["rmse"], f"long_{pname}": long["perceptual"],
+        "short_term_gap": short["gap"], "long_term_gap": long["gap"],
+        "short_valid_fraction": short["valid_fraction"], "long_valid_fraction": long["valid_fraction"],
+        "fid_tf_inception": fid, "kid_tf_inception": kid_mean, "kid_tf_inception_std": kid_std,
+        art_key: art_val,
+        "artfid_components": {**components, "note": art_note},
+        "provenance": {
+            "ssim": ssim.provenance(),
+            "perceptual": perceptual.info,
+            "flow": flows.estimator.provenance(),
+            "occlusion": "forward-backward check |f_fw + f_bw(x+f_fw)|^2 < 0.01(|f_fw|^2+|f_bw|^2) + 0.5 (Sundaram et al. 2010) and target inside the frame",
+            "fid_kid": {
+                "inception": inception.provenance(),
+                "n_stylized_patches": int(n_r), "n_style_patches": int(n_s), "n_style_images": len(style_images),
+                "patch_size_px": int(p_r.shape[1]), "kid_subset_size": int(kid_m), "kid_subsets": params.kid_subsets,
+                "protocol": "seeded random square crops resized to 299x299; style images first resized to the renders' short side; "
+                            "FID with n << 2048 is biased upwards and depends on n; KID = unbiased MMD^2, cubic polynomial kernel",
+            },
+            "seed": params.seed, "versions": _versions(),
+        },
+        "eval_timings_s": timings,
+    }
+    return EvalResult(metrics, rows, panel, captions)
+
+
+def evaluate_scene(
+    cameras: list[Camera],
+    original: GaussianModel,
+    stylized: GaussianModel,
+    style_images: list[np.ndarray],
+    params: EvalParams,
+    *,
+    stylize_info: dict | None = None,
+    saved_renders: list[np.ndarray] | None = None,
+    **kwargs,
+) -> EvalResult:
+    """Render both scenes for ``cameras`` (first ``params.max_views``), compute all metrics, time rendering."""
+    if params.num_threads is not None:
+        old = torch.get_num_threads()
+        torch.set_num_threads(params.num_threads)
+        try:
+            return _evaluate_scene(cameras, original, stylized, style_images, params, stylize_info=stylize_info,
+                                   saved_renders=saved_renders, **kwargs)
+        finally:
+            torch.set_num_threads(old)
+    return _evaluate_scene(cameras, original, stylized, style_images, params, stylize_info=stylize_info,
+                           saved_renders=saved_renders, **kwargs)
+
+
+def _evaluate_scene(cameras, original, stylized, style_images, params, *, stylize_info=None, saved_renders=None, **kwargs):
+    cams = cameras[: params.max_views] if params.max_views else list(cameras)
+    if len(cams) < 2:
+        raise InputError(f"evaluation needs at least 2 views, the scene has {len(cams)}")
+    t = time.perf_counter()
+    originals, backend = render_views(original, cams, params.backend)
+    styl, backend_s = render_views(stylized, cams, params.backend)
+    render_s = time.perf_counter() - t
+    saved_rmse = None
+    if saved_renders is not None:  # the stylize stage's PNGs must be these views (fail before the slow metrics)
+        sr = saved_renders[: len(cams)]
+        check_same_count(styl, sr, "re-rendered stylized views", "saved stylize renders")
+        for k, (a, b) in enumerate(zip(styl, sr)):
+            check_pair(a, b, f"re-rendered and saved stylized view {k}")
+        saved_rmse = max(masked_rmse(a, b) for a, b in zip(styl, sr))
+    fps, pass_times = render_fps(stylized, cams, params.backend, params.fps_passes)
+    res = evaluate_images(originals, styl, style_images, params, view_names=[Path(c.name).stem for c in cams], **kwargs)
+    m = res.metrics
+    m["render_fps"] = fps
+    m["speed"] = {"render_fps": fps, "fps_passes_s": pass_times, "fps_views_per_pass": len(cams), "backend": backend_s,
+                  "device": str(stylized.device), "resolution": m["resolution"],
+                  "torch_threads": torch.get_num_threads()}
+    if stylize_info is not None:
+        m["stylize_seconds"] = stylize_info.get("stylize_seconds")
+        m["stylize_minutes"] = stylize_info["stylize_seconds"] / 60.0 if stylize_info.get("stylize_seconds") is not None else None
+        m["speed"].update({k: stylize_info.get(k) for k in ("stylize_seconds", "iterations", "seconds_per_iteration", "n_gaussians")})
+    if saved_rmse is not None:
+        m["saved_renders_rmse"] = saved_rmse  # re-render vs stylize's 8-bit PNGs: ~quantisation noise expected
+    m["eval_timings_s"]["render_s"] = render_s
+    m["provenance"]["render_backend"] = {"original": backend, "stylized": backend_s}
+    return res

@@ -1,0 +1,86 @@
+"""Stage ``evaluate``: content preservation (SSIM, perceptual), multi-view consistency, FID/KID, ArtFID, speed.
+
+    python stages/evaluate.py --experiment tiny_single --out out/tiny_single/eval.json
+
+Renders the original scene (``out/S/gs``) and the stylized one (``out/E/stylize``) for the training views,
+writes the metrics JSON (a DVC metric), per-view scores ``eval_views.csv`` (a DVC plot) and
+``eval_consistency.png`` (one warped pair: error map with the occlusion mask in cyan). Proxy metrics are
+named as proxies (``lpips_proxy_vgg``, ``artfid_proxy``); see ``eval/metrics/__init__.py``.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from abcgs.errors import InputError  # noqa: E402
+from abcgs.io.atomic import write_json, write_text  # noqa: E402
+from abcgs.io.images import load_image, save_image  # noqa: E402
+from abcgs.io.ply import read_ply  # noqa: E402
+from abcgs.pipeline import run_stage, stage_parser  # noqa: E402
+from abcgs.style.experiment import experiment, load_scene  # noqa: E402
+from abcgs.viz import image_grid  # noqa: E402
+from eval.metrics.evaluate import evaluate_scene  # noqa: E402
+
+
+def views_csv(rows: list[dict]) -> str:
+    cols = list(rows[0])
+    out = [",".join(cols)]
+    for r in rows:
+        out.append(",".join("" if r[c] is None else f"{r[c]:.6g}" if isinstance(r[c], float) else str(r[c]) for c in cols))
+    return "\n".join(out) + "\n"
+
+
+def load_stylize_run(root: Path, name: str, n_views: int, view_stems: list[str]) -> tuple[Path, dict, list]:
+    """The stylize stage's outputs for experiment ``name``, checked against the scene's views."""
+    run = root / name
+    ply, info_path, renders = run / "stylize" / "point_cloud.ply", run / "stylize.json", run / "stylize" / "renders"
+    for p in (ply, info_path, renders):
+        if not p.exists():
+            raise InputError(f"{p} is missing: run the stylize stage for experiment {name!r} first (dvc repro stylize@{name})")
+    pngs = sorted(renders.glob("*.png"))
+    if len(pngs) != n_views:
+        raise InputError(
+            f"{renders} holds {len(pngs)} renders but the scene has {n_views} views: the stylize run is stale or "
+            f"incomplete; re-run dvc repro stylize@{name}"
+        )
+    by_stem = {p.stem: p for p in pngs}
+    missing = [s for s in view_stems if s not in by_stem]
+    if missing:
+        raise InputError(f"{renders} has no render for views {missing[:5]}: names do not match the scene's cameras")
+    return ply, json.loads(info_path.read_text()), [by_stem[s] for s in view_stems]
+
+
+def main(args, params) -> None:
+    ep = params.evaluate
+    exp = experiment(params, args.experiment)
+    scene, original = load_scene(args.root, exp.scene)
+    stems = [Path(c.name).stem for c in scene.cameras]
+    ply, info, pngs = load_stylize_run(args.root, args.experiment, len(scene.cameras), stems)
+    stylized = read_ply(ply)
+    n = min(len(scene.cameras), ep.max_views or len(scene.cameras))
+    saved = [load_image(p) for p in pngs[:n]]
+    styles = [load_image(params.data.styles[k]) for k in exp.style_keys()]
+    res = evaluate_scene(scene.cameras, original, stylized, styles, ep, stylize_info=info, saved_renders=saved,
+                         vgg_params=params.vgg)
+    metrics = {"experiment": args.experiment, "scene": exp.scene, "transfer": exp.transfer, "method": exp.method,
+               "styles": {k: params.data.styles[k] for k in exp.style_keys()}, **res.metrics}
+    out = Path(args.out)
+    views = Path(args.views) if args.views else out.with_name("eval_views.csv")
+    heat = Path(args.heatmap) if args.heatmap else out.with_name("eval_consistency.png")
+    save_image(heat, image_grid([res.heatmap], res.heatmap_captions, height=max(160, res.heatmap[0].shape[0])))
+    write_text(views, views_csv(res.per_view))
+    write_json(out, metrics)
+
+
+if __name__ == "__main__":
+    ap = stage_parser(__doc__.strip().splitlines()[0])
+    ap.add_argument("--experiment", required=True)
+    ap.add_argument("--root", type=Path, default=Path("out"))
+    ap.add_argument("--out", type=Path, required=True, help="metrics JSON (a DVC metric)")
+    ap.add_argument("--views", type=Path, default=None, help="per-view CSV (default: eval_views.csv next to --out)")
+    ap.add_argument("--heatmap", type=Path, default=None, help="consistency PNG (default: eval_consistency.png next to --out)")
+    sys.exit(run_stage("evaluate", ap, main))

@@ -1,0 +1,28 @@
+"""Stage ``report``: one self-contained HTML page and a PNG summary across all experiments.
+
+    python stages/report.py --out out/report.html
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from abcgs.io.atomic import write_text  # noqa: E402
+from abcgs.pipeline import run_stage, stage_parser  # noqa: E402
+from eval.report import load_runs, render_html, summary_png  # noqa: E402
+
+
+def main(args, params) -> None:
+    runs = load_runs(args.root, {k: v.model_dump() for k, v in params.experiments.items()})
+    write_text(args.out, render_html(runs))
+    summary_png(runs, args.out.with_suffix(".png"))
+
+
+if __name__ == "__main__":
+    ap = stage_parser(__doc__.strip().splitlines()[0])
+    ap.add_argument("--root", type=Path, default=Path("out"))
+    ap.add_argument("--out", type=Path, required=True)
+    sys.exit(run_stage("report", ap, main))

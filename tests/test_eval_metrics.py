@@ -1,0 +1,237 @@
+"""Unit tests of the evaluation metrics (eval/metrics): SSIM, RMSE, flow/warp/occlusion, FID/KID, ArtFID."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+import scipy.linalg
+import scipy.ndimage
+import torch
+
+from abcgs.errors import InputError
+from abcgs.fit.losses import ssim_map as ssim_map_3dgs
+from abcgs.fit.trainer import torch_threads
+from eval.metrics.artfid import artfid_formula
+from eval.metrics.consistency import (
+    FlowCache,
+    FlowEstimator,
+    backward_warp,
+    consistency,
+    fb_consistency_mask,
+    in_frame_mask,
+    view_pairs,
+)
+from eval.metrics.content import (
+    PerceptualDistance,
+    masked_rmse,
+    ssim_map_wang,
+    ssim_wang,
+)
+from eval.metrics.fid import (
+    TFInception,
+    fid_from_features,
+    frechet_distance,
+    gaussian_stats,
+    kid,
+    mmd2_unbiased,
+    random_patches,
+)
+
+
+@pytest.fixture(autouse=True)
+def _one_torch_thread():
+    with torch_threads(1):
+        yield
+
+
+def texture(h: int, w: int, seed: int = 0, sigma: float = 2.0) -> np.ndarray:
+    """Smooth random RGB texture in [0, 1] (blurred noise: trackable by optical flow)."""
+    rng = np.random.default_rng(seed)
+    img = scipy.ndimage.gaussian_filter(rng.random((h, w, 3)), sigma=(sigma, sigma, 0))
+    img = (img - img.min()) / (img.max() - img.min())
+    return img.astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def proxy() -> PerceptualDistance:
+    from abcgs.style.vgg import random_state_dict
+
+    return PerceptualDistance("proxy", vgg_state=random_state_dict(0, "relu5_3"), vgg_info={"source": "random (test)"})
+
+
+# ------------------------------------------------------------------------------------------------ SSIM / RMSE
+def test_identical_images_ssim_one_rmse_zero(proxy) -> None:
+    a = texture(40, 50)
+    assert ssim_wang(a, a) == pytest.approx(1.0, abs=1e-12)
+    assert masked_rmse(a, a) == 0.0
+    assert masked_rmse(a, a, np.ones(a.shape[:2])) == 0.0
+    assert proxy(a, a) == pytest.approx(0.0, abs=1e-9)
+    b = np.clip(a + 0.1, 0, 1)
+    assert ssim_wang(a, b) < 1.0 and masked_rmse(a, b) > 0.05 and proxy(a, b) > 0
+
+
+def test_ssim_matches_scipy_reference_and_3dgs_interior() -> None:
+    a, b = texture(30, 36, 1), texture(30, 36, 2)
+    m = ssim_map_wang(a, b)[0].numpy()  # (3, 20, 26)
+
+    def filt(x):  # 11-tap Gaussian (σ 1.5), valid region only
+        return scipy.ndimage.gaussian_filter(x.astype(np.float64), 1.5, truncate=5 / 1.5)[5:-5, 5:-5]
+
+    for c in range(3):
+        x, y = a[..., c].astype(np.float64), b[..., c].astype(np.float64)
+        mx, my = filt(x), filt(y)
+        sx, sy, sxy = filt(x * x) - mx**2, filt(y * y) - my**2, filt(x * y) - mx * my
+        c1, c2 = 0.01**2, 0.03**2
+        ref = ((2 * mx * my + c1) * (2 * sxy + c2)) / ((mx**2 + my**2 + c1) * (sx + sy + c2))
+        np.testing.assert_allclose(m[c], ref, atol=1e-10)
+    # same as the training-loss SSIM away from its zero-padded border
+    z = ssim_map_3dgs(torch.from_numpy(a).double(), torch.from_numpy(b).double())[0].numpy()[:, 5:-5, 5:-5]
+    np.testing.assert_allclose(m, z, atol=1e-10)
+
+
+def test_masked_rmse_only_counts_mask() -> None:
+    a = np.zeros((4, 5, 3))
+    b = a.copy()
+    b[0] = 1.0
+    mask = np.ones((4, 5), bool)
+    mask[0] = False
+    assert masked_rmse(a, b, mask) == 0.0
+    assert np.isnan(masked_rmse(a, b, np.zeros((4, 5))))
+
+
+# ------------------------------------------------------------------------------------------------ flow / warp
+def shifted_pair(dx: int = 3, dy: int = 2, h: int = 120, w: int = 160):
+    """img2(x) = img1(x − (dx, dy)) with true content on both sides (no wrap-around)."""
+    canvas = texture(h + 20, w + 20, seed=3, sigma=2.5)
+    img1 = canvas[10 : 10 + h, 10 : 10 + w]
+    img2 = canvas[10 - dy : 10 - dy + h, 10 - dx : 10 - dx + w]
+    return img1, img2
+
+
+def test_dis_recovers_known_translation_and_warp_error_vanishes() -> None:
+    img1, img2 = shifted_pair(3, 2)
+    flow = FlowEstimator("dis")(img1, img2)  # 1 → 2: img1(x) = img2(x + f)
+    interior = flow[12:-12, 12:-12]
+    err = np.linalg.norm(interior - np.array([3.0, 2.0]), axis=-1)
+    assert err.mean() < 0.5 and np.median(err) < 0.25, (err.mean(), np.median(err))
+    back = FlowEstimator("dis")(img2, img1)
+    mask = fb_consistency_mask(flow, back)
+    warped = backward_warp(img2, flow)
+    assert mask[12:-12, 12:-12].mean() > 0.95
+    assert masked_rmse(img1, warped, mask) < 0.02
+    # the columns/rows that map outside view 2 are rejected
+    assert not mask[:, -2:].any() and not mask[-1:, :].any()
+
+
+def test_fb_check_flags_inconsistent_and_out_of_frame() -> None:
+    h, w = 30, 40
+    fw = np.zeros((h, w, 2), np.float32)
+    fw[..., 0], fw[..., 1] = 3.0, 2.0
+    bw = -fw.copy()
+    bw[10:20, 20:30] = (5.0, -4.0)  # disagrees → occluded where fw lands in this block
+    valid = fb_consistency_mask(fw, bw)
+    assert not valid[:, w - 3 :].any() and not valid[h - 2 :, :].any()  # target outside the frame
+    assert not valid[10:16, 19:25].any()  # x + (3, 2) inside the inconsistent block
+    assert valid[0:5, 0:10].all()
+    np.testing.assert_array_equal(in_frame_mask(fw)[:, : w - 3][: h - 2], True)
+
+
+def test_backward_warp_is_exact_for_integer_shift() -> None:
+    img1, img2 = shifted_pair(3, 2, 30, 40)
+    flow = np.zeros((30, 40, 2), np.float32)
+    flow[..., 0], flow[..., 1] = 3, 2
+    np.testing.assert_allclose(backward_warp(img2, flow)[:-2, :-3], img1[:-2, :-3], atol=1e-6)
+
+
+@pytest.mark.parametrize("method", ["deepflow", "dualtvl1"])
+def test_contrib_flows_when_present(method) -> None:
+    if not hasattr(cv2, "optflow"):
+        pytest.skip("opencv-contrib's cv2.optflow is not available")
+    img1, img2 = shifted_pair(3, 2, 60, 80)
+    flow = FlowEstimator(method)(img1, img2)
+    assert np.median(np.linalg.norm(flow[10:-10, 10:-10] - np.array([3.0, 2.0]), axis=-1)) < 0.5
+
+
+def test_view_pairs_clip_gap() -> None:
+    assert view_pairs(5, 1) == [(0, 1), (1, 2), (2, 3), (3, 4)]
+    assert view_pairs(5, 7) == [(0, 4)]
+    with pytest.raises(InputError):
+        view_pairs(1, 1)
+
+
+def test_consistency_of_a_static_stylization_is_zero(proxy) -> None:
+    views = [shifted_pair(2 * k, k)[1] for k in range(3)]  # a camera panning over one texture
+    summary, _ = consistency(views, views, 1, FlowCache(views, FlowEstimator("dis")), proxy)
+    assert summary["n_pairs"] == 2 and summary["rmse"] < 0.02 and summary["valid_fraction"] > 0.8
+
+
+def test_mismatched_view_counts_are_an_error(proxy) -> None:
+    views = [texture(20, 24, k) for k in range(3)]
+    with pytest.raises(InputError, match="3 original renders but 2 stylized"):
+        consistency(views, views[:2], 1, FlowCache(views, FlowEstimator("dis")), proxy)
+    with pytest.raises(InputError, match="differ in shape"):
+        consistency(views, [v[:-1] for v in views], 1, FlowCache(views, FlowEstimator("dis")), proxy)
+
+
+# ------------------------------------------------------------------------------------------------ FID / KID
+def frechet_reference(mu1, s1, mu2, s2) -> float:
+    """pytorch-fid's formula with scipy.linalg.sqrtm."""
+    covmean = scipy.linalg.sqrtm(s1 @ s2)
+    return float(((mu1 - mu2) ** 2).sum() + np.trace(s1) + np.trace(s2) - 2 * np.trace(covmean.real))
+
+
+def test_frechet_distance_matches_scipy_reference() -> None:
+    rng = np.random.default_rng(0)
+    for d in (3, 16):
+        a = rng.normal(size=(400, d)) @ rng.normal(size=(d, d))
+        b = rng.normal(size=(300, d)) @ rng.normal(size=(d, d)) + rng.normal(size=d)
+        st_a, st_b = gaussian_stats(a), gaussian_stats(b)
+        ref = frechet_reference(*st_a, *st_b)
+        assert frechet_distance(*st_a, *st_b) == pytest.approx(ref, rel=1e-7, abs=1e-9)
+        assert fid_from_features(a, b) == pytest.approx(ref, rel=1e-7, abs=1e-9)  # low-rank path
+    # n < d (Inception-like): both paths agree
+    a, b = rng.normal(size=(20, 64)), rng.normal(0.5, 2.0, size=(30, 64))
+    assert fid_from_features(a, b) == pytest.approx(frechet_distance(*gaussian_stats(a), *gaussian_stats(b)), rel=1e-6)
+
+
+def test_fid_and_kid_of_a_set_with_itself_are_zero() -> None:
+    rng = np.random.default_rng(1)
+    f = rng.normal(size=(60, 32))
+    assert fid_from_features(f, f) == pytest.approx(0.0, abs=1e-8)
+    # rank-deficient (n < d), as with 2048-d Inception features of a few patches
+    g = rng.normal(size=(10, 64))
+    assert fid_from_features(g, g) == pytest.approx(0.0, abs=1e-8)
+    # KID: ≈ 0 between two samples of one distribution, clearly positive between two distributions
+    x, y, z = rng.normal(size=(200, 32)), rng.normal(size=(200, 32)), rng.normal(1.0, 1.0, size=(200, 32))
+    same, _, _ = kid(x, y)
+    diff, _, _ = kid(x, z)
+    assert abs(same) < 0.02 * diff
+    _, std, m = kid(x, y[:50], subsets=20, subset_size=1000)
+    assert m == 50 and std is not None and std >= 0
+
+
+def test_mmd2_unbiased_matches_loops() -> None:
+    rng = np.random.default_rng(2)
+    x, y = rng.normal(size=(5, 3)), rng.normal(size=(4, 3))
+    k = lambda a, b: (a @ b / 3 + 1) ** 3
+    xx = sum(k(x[i], x[j]) for i in range(5) for j in range(5) if i != j) / 20
+    yy = sum(k(y[i], y[j]) for i in range(4) for j in range(4) if i != j) / 12
+    xy = sum(k(x[i], y[j]) for i in range(5) for j in range(4)) / 20
+    assert mmd2_unbiased(x, y) == pytest.approx(xx + yy - 2 * xy, rel=1e-12)
+
+
+def test_tf_inception_features_and_self_fid() -> None:
+    inc = TFInception()
+    prov = inc.provenance()
+    assert len(prov["sha256"]) == 64 and prov["path"].endswith("default_1.pt")
+    patches = random_patches([texture(64, 80, 4), texture(64, 80, 5)], 6, 48, np.random.default_rng(0))
+    assert patches.shape == (6, 48, 48, 3)
+    f = inc.features(patches)
+    assert f.shape == (6, 2048) and np.isfinite(f).all()
+    assert fid_from_features(f, f) < 1e-3
+
+
+def test_artfid_formula() -> None:
+    assert artfid_formula(0.5, 10.0) == pytest.approx(16.5)
+    assert artfid_formula(0.0, 0.0) == 1.0

@@ -1,0 +1,131 @@
+"""The evaluate stage end to end on a synthetic scene: output keys never claim official metrics for proxies,
+bad inputs (missing runs, mismatched view counts) fail with clear errors."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from abcgs.cameras import Camera, intrinsics, look_at
+from abcgs.errors import InputError
+from abcgs.fit.trainer import torch_threads
+from abcgs.gaussians import GaussianModel
+from abcgs.render.sh import rgb_to_sh0
+from eval.metrics.content import PerceptualDistance
+from eval.metrics.evaluate import evaluate_images, evaluate_scene
+from abcgs.eval_params import EvalParams
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(autouse=True)
+def _one_torch_thread():
+    with torch_threads(1):
+        yield
+
+
+def load_stage():
+    spec = importlib.util.spec_from_file_location("stage_evaluate", REPO / "stages" / "evaluate.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.fixture(scope="module")
+def proxy() -> PerceptualDistance:
+    from abcgs.style.vgg import random_state_dict
+
+    return PerceptualDistance("proxy", vgg_state=random_state_dict(0, "relu5_3"), vgg_info={"source": "random (test)"})
+
+
+@pytest.fixture(scope="module")
+def scene():
+    rng = np.random.default_rng(0)
+    pts = np.concatenate([rng.uniform([-1.5, -1, 0.0], [1.5, 1, 0.6], (600, 3))])
+    model = GaussianModel.from_points(pts, rng.random((600, 3)), init_opacity=0.9)
+    w, h = 64, 48
+    cams = [Camera(f"v{k:02d}.png", intrinsics(60.0, w, h), look_at(np.array([-0.3 + 0.1 * k, 0, -3.0]), np.array([0, 0, 0.3])), w, h)
+            for k in range(5)]
+    styl = model.detach()
+    styl.sh0 = rgb_to_sh0(torch.from_numpy(rng.random((600, 3))).float())[:, None, :]
+    style = rng.random((80, 120, 3)).astype(np.float32)
+    return cams, model, styl, style
+
+
+def walk_keys(obj, prefix=""):
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            yield f"{prefix}{k}", k
+            yield from walk_keys(v, f"{prefix}{k}.")
+
+
+PARAMS = EvalParams(fid_patches_per_image=2, fid_patch_size=32, fps_passes=1, long_term_gap=7, kid_subsets=5)
+
+
+def test_evaluate_scene_names_proxies_as_proxies(scene, proxy) -> None:
+    cams, model, styl, style = scene
+    res = evaluate_scene(cams, model, styl, [style], PARAMS, perceptual=proxy,
+                         stylize_info={"stylize_seconds": 12.0, "iterations": 3, "seconds_per_iteration": {"render": 1.0}})
+    m = res.metrics
+    keys = {k for _, k in walk_keys(m)}
+    for bad in ("lpips", "artfid", "fid", "kid", "short_lpips", "long_lpips", "content_lpips"):
+        assert bad not in keys, f"proxy written under the official name {bad!r}"
+    for good in ("ssim", "ssim_impl", "content_lpips_proxy_vgg", "short_rmse", "short_lpips_proxy_vgg", "long_rmse",
+                 "long_lpips_proxy_vgg", "fid_tf_inception", "kid_tf_inception", "artfid_proxy", "render_fps", "stylize_seconds"):
+        assert good in m, good
+    assert m["long_term_gap"] == 4 and m["n_views"] == 5  # 7 clipped to n − 1
+    assert m["artfid_components"]["content_distance"]["name"] == "lpips_proxy_vgg"
+    assert m["artfid_components"]["style_distance"]["name"] == "fid_tf_inception"
+    assert m["artfid_proxy"] == pytest.approx((1 + m["content_lpips_proxy_vgg"]) * (1 + m["fid_tf_inception"]))
+    assert m["provenance"]["perceptual"]["comparable_to_paper"] is False
+    fk = m["provenance"]["fid_kid"]
+    assert fk["n_stylized_patches"] == 10 and fk["n_style_patches"] == 10 and len(fk["inception"]["sha256"]) == 64
+    assert 0 < m["ssim"] < 1 and m["render_fps"] > 0 and m["speed"]["backend"]
+    assert len(res.per_view) == 5 and res.per_view[-1]["short_rmse"] is None
+    json.dumps(m)  # serialisable
+
+
+def test_identical_scenes_score_perfect_content(scene, proxy) -> None:
+    cams, model, _, style = scene
+    res = evaluate_scene(cams[:3], model, model, [style], PARAMS, perceptual=proxy)
+    assert res.metrics["ssim"] == pytest.approx(1.0, abs=1e-9)
+    assert res.metrics["content_lpips_proxy_vgg"] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_mismatched_counts_and_missing_inputs_fail_clearly(scene, proxy, tmp_path) -> None:
+    img = [np.zeros((20, 24, 3), np.float32)] * 3
+    with pytest.raises(InputError, match="3 original renders but 2 stylized"):
+        evaluate_images(img, img[:2], [img[0]], PARAMS, perceptual=proxy)
+    with pytest.raises(InputError, match="no style images"):
+        evaluate_images(img, img, [], PARAMS, perceptual=proxy)
+    stage = load_stage()
+    with pytest.raises(InputError, match="run the stylize stage"):
+        stage.load_stylize_run(tmp_path, "exp", 3, ["a", "b", "c"])
+    run = tmp_path / "exp"
+    (run / "stylize" / "renders").mkdir(parents=True)
+    (run / "stylize" / "point_cloud.ply").write_bytes(b"")
+    (run / "stylize.json").write_text("{}")
+    for s in ("a", "b"):
+        (run / "stylize" / "renders" / f"{s}.png").write_bytes(b"")
+    with pytest.raises(InputError, match="holds 2 renders but the scene has 3 views"):
+        stage.load_stylize_run(tmp_path, "exp", 3, ["a", "b", "c"])
+    with pytest.raises(InputError, match="no render for views"):
+        stage.load_stylize_run(tmp_path, "exp", 2, ["a", "c"])
+    cams, model, styl, style = scene
+    with pytest.raises(InputError, match="saved stylize renders"):
+        evaluate_scene(cams[:3], model, styl, [style], PARAMS, perceptual=proxy, saved_renders=[img[0]] * 2)
+
+
+def test_eval_params_reject_unknown_keys() -> None:
+    from abcgs.errors import ParamsError
+    from abcgs.params import validate_params
+
+    p = validate_params({"data": {"scenes": {"s": "x"}}, "evaluate": {"long_term_gap": 3}})
+    assert p.evaluate.long_term_gap == 3 and p.evaluate.flow == "dis"
+    with pytest.raises(ParamsError, match="evaluate.long_gap: unknown key"):
+        validate_params({"data": {"scenes": {"s": "x"}}, "evaluate": {"long_gap": 3}})
