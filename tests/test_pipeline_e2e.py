@@ -22,6 +22,9 @@ from conftest import REPO_ROOT
 
 pytestmark = pytest.mark.slow
 
+GATED = ("ssim", "short_rmse", "long_rmse")
+"""Metrics whose regression fails CI; tolerances in tests/baselines/tiny_seed_spread.json (eval/seed_spread.py)."""
+
 REDUCED = {
     ("fit", "iterations"): 300,
     ("colormatch", "refit_iterations"): 20,
@@ -106,3 +109,18 @@ def test_changing_a_fit_param_invalidates_fit_and_downstream_only(repo: Path, fi
     finally:
         params["fit"]["iterations"] -= 1
         (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+
+
+def test_quality_has_not_regressed(repo: Path, first_repro) -> None:
+    """SSIM and consistency stay within 3 seed-to-seed standard deviations (floor 0.01) of the recorded
+    baseline (tests/baselines/tiny_seed_spread.json, measured with eval/seed_spread.py)."""
+    baseline = json.loads((REPO_ROOT / "tests" / "baselines" / "tiny_seed_spread.json").read_text())["metrics"]
+    failures = []
+    for exp, metrics in baseline.items():
+        ev = json.loads((repo / "out" / exp / "eval.json").read_text())
+        for key, ref in metrics.items():
+            tol = max(3.0 * ref["std"], 0.01)
+            worse = ref["mean"] - ev[key] if key == "ssim" else ev[key] - ref["mean"]
+            if worse > tol:
+                failures.append(f"{exp}.{key} = {ev[key]:.4f}, baseline {ref['mean']:.4f} ± {tol:.4f}")
+    assert not failures, "quality regressed:\n" + "\n".join(failures)

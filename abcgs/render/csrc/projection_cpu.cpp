@@ -95,6 +95,53 @@ Camera<T> make_camera(const at::Tensor& viewmat, const at::Tensor& K, int64_t wi
   return c;
 }
 
+// Everything the forward pass computes for one Gaussian that the backward pass needs again.
+template <typename T>
+struct Ewa {
+  T p[3];                 // camera-space mean
+  bool in_depth = false;  // near < z < far
+  T xz, yz, cx_clamped, cy_clamped, tx, ty;
+  T J00, J02, J11, J12;   // the two non-trivial rows of the projection Jacobian
+  T qn[4], qnorm;         // normalised quaternion and the input's norm
+  bool q_ok = false;
+  Mat3<T> Rq, W;          // rotation of the Gaussian; W = R_cam Rq diag(s), so cov_cam = W W^T
+  T A[3], B[3];           // rows of J W; cov2d = [[A.A, A.B], [A.B, B.B]] + eps2d I
+  T a = 0, b = 0, c = 0, det = 0;
+};
+
+template <typename T>
+Ewa<T> ewa(const Camera<T>& cam, const T* m, const T* q, const T* s, double near, double far, double eps2d) {
+  Ewa<T> e;
+  for (int r = 0; r < 3; ++r) e.p[r] = cam.R.m[r][0] * m[0] + cam.R.m[r][1] * m[1] + cam.R.m[r][2] * m[2] + cam.t[r];
+  e.in_depth = e.p[2] > T(near) && e.p[2] < T(far);
+  if (!e.in_depth) return e;
+  const T z = e.p[2];
+  e.xz = e.p[0] / z;
+  e.yz = e.p[1] / z;
+  e.cx_clamped = std::min(cam.lim_x_pos, std::max(-cam.lim_x_neg, e.xz));
+  e.cy_clamped = std::min(cam.lim_y_pos, std::max(-cam.lim_y_neg, e.yz));
+  e.tx = z * e.cx_clamped;
+  e.ty = z * e.cy_clamped;
+  e.J00 = cam.fx / z;
+  e.J02 = -cam.fx * e.tx / (z * z);
+  e.J11 = cam.fy / z;
+  e.J12 = -cam.fy * e.ty / (z * z);
+  e.q_ok = quat_rotmat(q, e.qn, e.qnorm, e.Rq);
+  Mat3<T> M;
+  for (int r = 0; r < 3; ++r)
+    for (int k = 0; k < 3; ++k) M.m[r][k] = e.Rq.m[r][k] * s[k];
+  e.W = mul(cam.R, M);
+  for (int k = 0; k < 3; ++k) {
+    e.A[k] = e.J00 * e.W.m[0][k] + e.J02 * e.W.m[2][k];
+    e.B[k] = e.J11 * e.W.m[1][k] + e.J12 * e.W.m[2][k];
+  }
+  e.a = e.A[0] * e.A[0] + e.A[1] * e.A[1] + e.A[2] * e.A[2] + T(eps2d);
+  e.b = e.A[0] * e.B[0] + e.A[1] * e.B[1] + e.A[2] * e.B[2];
+  e.c = e.B[0] * e.B[0] + e.B[1] * e.B[1] + e.B[2] * e.B[2] + T(eps2d);
+  e.det = e.a * e.c - e.b * e.b;
+  return e;
+}
+
 }  // namespace
 
 // Returns (means2d (N,2), conics (N,3), depths (N), extents (N,2), radii (N,2) int32, visible (N) bool).
@@ -120,38 +167,14 @@ std::vector<at::Tensor> project_forward(const at::Tensor& means, const at::Tenso
     bool* vi = visible.data_ptr<bool>();
     at::parallel_for(0, n, 4096, [&](int64_t begin, int64_t end) {
       for (int64_t i = begin; i < end; ++i) {
-        const T* m = mp + 3 * i;
-        T p[3];
-        for (int r = 0; r < 3; ++r) p[r] = cam.R.m[r][0] * m[0] + cam.R.m[r][1] * m[1] + cam.R.m[r][2] * m[2] + cam.t[r];
-        de[i] = p[2];
-        const bool in_depth = p[2] > T(near) && p[2] < T(far);
-        if (!in_depth) continue;
-        const T z = p[2];
-        const T tx = z * std::min(cam.lim_x_pos, std::max(-cam.lim_x_neg, p[0] / z));
-        const T ty = z * std::min(cam.lim_y_pos, std::max(-cam.lim_y_neg, p[1] / z));
-        const T J00 = cam.fx / z, J02 = -cam.fx * tx / (z * z), J11 = cam.fy / z, J12 = -cam.fy * ty / (z * z);
-        T qn[4], qnorm;
-        Mat3<T> Rq;
-        quat_rotmat(qp + 4 * i, qn, qnorm, Rq);
-        Mat3<T> M;
-        for (int r = 0; r < 3; ++r)
-          for (int c = 0; c < 3; ++c) M.m[r][c] = Rq.m[r][c] * sp[3 * i + c];
-        const Mat3<T> W = mul(cam.R, M);  // camera-space R Rq S; cov_cam = W W^T
-        // rows of J W: (J00 W0 + J02 W2, J11 W1 + J12 W2)
-        T A[3], B[3];
-        for (int c = 0; c < 3; ++c) {
-          A[c] = J00 * W.m[0][c] + J02 * W.m[2][c];
-          B[c] = J11 * W.m[1][c] + J12 * W.m[2][c];
-        }
-        const T a = A[0] * A[0] + A[1] * A[1] + A[2] * A[2] + T(eps2d);
-        const T b = A[0] * B[0] + A[1] * B[1] + A[2] * B[2];
-        const T c = B[0] * B[0] + B[1] * B[1] + B[2] * B[2] + T(eps2d);
-        const T det = a * c - b * b;
-        if (!(det > T(1e-12))) continue;
+        const Ewa<T> e = ewa(cam, mp + 3 * i, qp + 4 * i, sp + 3 * i, near, far, eps2d);
+        de[i] = e.p[2];
+        if (!e.in_depth || !(e.det > T(1e-12))) continue;
+        const T a = e.a, b = e.b, c = e.c, det = e.det, z = e.p[2];
         co[3 * i] = c / det;
         co[3 * i + 1] = -b / det;
         co[3 * i + 2] = a / det;
-        const T u = cam.fx * p[0] / z + cam.cx, v = cam.fy * p[1] / z + cam.cy;
+        const T u = cam.fx * e.p[0] / z + cam.cx, v = cam.fy * e.p[1] / z + cam.cy;
         m2[2 * i] = u;
         m2[2 * i + 1] = v;
         const T s_max = std::log(std::max(T(1), op[i] / T(kAlphaThreshold)));
@@ -194,36 +217,20 @@ std::vector<at::Tensor> project_backward(const at::Tensor& means, const at::Tens
     T* os = v_scales.data_ptr<T>();
     at::parallel_for(0, n, 4096, [&](int64_t begin, int64_t end) {
       for (int64_t i = begin; i < end; ++i) {
-        const T* m = mp + 3 * i;
-        T p[3];
-        for (int r = 0; r < 3; ++r) p[r] = cam.R.m[r][0] * m[0] + cam.R.m[r][1] * m[1] + cam.R.m[r][2] * m[2] + cam.t[r];
+        const Ewa<T> e = ewa(cam, mp + 3 * i, qp + 4 * i, sp + 3 * i, near, far, eps2d);
+        const T* s = sp + 3 * i;
+        const T* p = e.p;
         T v_p[3] = {0, 0, gde[i]};
-        const bool in_depth = p[2] > T(near) && p[2] < T(far);
-        if (in_depth) {
+        if (e.in_depth) {
           const T z = p[2];
-          const T xz = p[0] / z, yz = p[1] / z;
-          const T cx_clamped = std::min(cam.lim_x_pos, std::max(-cam.lim_x_neg, xz));
-          const T cy_clamped = std::min(cam.lim_y_pos, std::max(-cam.lim_y_neg, yz));
-          const bool x_free = xz == cx_clamped, y_free = yz == cy_clamped;
-          const T tx = z * cx_clamped, ty = z * cy_clamped;
-          const T J00 = cam.fx / z, J02 = -cam.fx * tx / (z * z), J11 = cam.fy / z, J12 = -cam.fy * ty / (z * z);
-          T qn[4], qnorm;
-          Mat3<T> Rq;
-          const bool q_ok = quat_rotmat(qp + 4 * i, qn, qnorm, Rq);
-          const T* s = sp + 3 * i;
-          Mat3<T> M;
-          for (int r = 0; r < 3; ++r)
-            for (int c = 0; c < 3; ++c) M.m[r][c] = Rq.m[r][c] * s[c];
-          const Mat3<T> W = mul(cam.R, M);
-          T A[3], B[3];
-          for (int c = 0; c < 3; ++c) {
-            A[c] = J00 * W.m[0][c] + J02 * W.m[2][c];
-            B[c] = J11 * W.m[1][c] + J12 * W.m[2][c];
-          }
-          const T a = A[0] * A[0] + A[1] * A[1] + A[2] * A[2] + T(eps2d);
-          const T b = A[0] * B[0] + A[1] * B[1] + A[2] * B[2];
-          const T c = B[0] * B[0] + B[1] * B[1] + B[2] * B[2] + T(eps2d);
-          const T det = a * c - b * b;
+          const T tx = e.tx, ty = e.ty, cx_clamped = e.cx_clamped, cy_clamped = e.cy_clamped;
+          const bool x_free = e.xz == cx_clamped, y_free = e.yz == cy_clamped;
+          const T J00 = e.J00, J02 = e.J02, J11 = e.J11, J12 = e.J12;
+          const T *A = e.A, *B = e.B, *qn = e.qn;
+          const T a = e.a, b = e.b, c = e.c, det = e.det, qnorm = e.qnorm;
+          const bool q_ok = e.q_ok;
+          const Mat3<T>& Rq = e.Rq;
+          const Mat3<T>& W = e.W;
           if (det > T(1e-12)) {
             // conic = (c, -b, a) / det
             const T g0 = gco[3 * i], g1 = gco[3 * i + 1], g2 = gco[3 * i + 2];

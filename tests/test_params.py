@@ -1,0 +1,92 @@
+"""params.yaml schema: the shipped file validates; typos and wrong types fail with the key's path and the
+allowed keys/values; cross-references (experiments → scenes/styles) are checked; stages exit 2 with the
+message instead of a traceback."""
+
+from __future__ import annotations
+
+import copy
+import subprocess
+import sys
+
+import pytest
+import yaml
+
+from abcgs.errors import ParamsError
+from abcgs.params import load_params, validate_params
+from conftest import REPO_ROOT
+
+
+@pytest.fixture(scope="module")
+def raw() -> dict:
+    return yaml.safe_load((REPO_ROOT / "params.yaml").read_text())
+
+
+def _error(raw: dict) -> str:
+    with pytest.raises(ParamsError) as exc:
+        validate_params(raw)
+    return str(exc.value)
+
+
+def test_shipped_params_validate() -> None:
+    params = load_params(REPO_ROOT / "params.yaml")
+    assert "tiny" in params.data.scenes
+    assert {"tiny_single", "tiny_compositional", "tiny_semantic"} <= set(params.experiments)
+
+
+def test_unknown_key_names_path_and_allowed_keys(raw) -> None:
+    bad = copy.deepcopy(raw)
+    bad["fit"]["iteratons"] = 10
+    msg = _error(bad)
+    assert "fit.iteratons: unknown key" in msg
+    assert "iterations" in msg and "sh_degree" in msg  # the allowed keys are listed
+
+
+def test_nested_unknown_key(raw) -> None:
+    bad = copy.deepcopy(raw)
+    bad["stylize"]["fast"] = {"kk": 3}
+    assert "stylize.fast.kk: unknown key; allowed keys here: k, eps" in _error(bad)
+
+
+def test_wrong_type_and_literal_values(raw) -> None:
+    bad = copy.deepcopy(raw)
+    bad["fit"]["sh_degree"] = "two"
+    bad["isolation"]["method"] = "blur"
+    msg = _error(bad)
+    assert "fit.sh_degree" in msg and "'two'" in msg
+    assert "isolation.method" in msg and "mirror" in msg and "translate" in msg and "fill" in msg
+
+
+def test_out_of_range_value(raw) -> None:
+    bad = copy.deepcopy(raw)
+    bad["fit"]["sh_degree"] = 7
+    assert "fit.sh_degree" in _error(bad)
+
+
+def test_experiment_must_name_known_scene_and_styles(raw) -> None:
+    bad = copy.deepcopy(raw)
+    bad["experiments"]["x"] = {"scene": "nope", "transfer": "single", "style": "tiny_paint"}
+    assert "not in data.scenes" in _error(bad)
+    bad["experiments"]["x"] = {"scene": "tiny", "transfer": "single", "style": "nope"}
+    assert "not in data.styles" in _error(bad)
+    bad["experiments"]["x"] = {"scene": "tiny", "transfer": "compositional"}
+    assert "needs 'styles'" in _error(bad)
+
+
+def test_missing_section_and_non_mapping() -> None:
+    assert "data: required key is missing" in _error({})
+    with pytest.raises(ParamsError, match="mapping"):
+        validate_params([1, 2])
+
+
+def test_stage_reports_schema_error_without_traceback(tmp_path, raw) -> None:
+    bad = copy.deepcopy(raw)
+    bad["reconstruct"]["matcher"] = "vocab"
+    path = tmp_path / "params.yaml"
+    path.write_text(yaml.safe_dump(bad))
+    proc = subprocess.run(
+        [sys.executable, str(REPO_ROOT / "stages" / "fit.py"), "--params", str(path), "--colmap", "x", "--out", "y"],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert proc.returncode == 2
+    assert "reconstruct.matcher" in proc.stderr and "exhaustive" in proc.stderr
+    assert "Traceback" not in proc.stderr
