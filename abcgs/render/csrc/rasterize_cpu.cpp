@@ -195,6 +195,32 @@ struct GaussianView {
   int64_t channels;
 };
 
+// Visit, row by row, the pixels of the tile [x0, x1) x [y0, y1) where Gaussian g can reach alpha >= 1/255:
+// its box clipped to the tile, each row narrowed to the ellipse's span, alpha (0 = skipped) and exp(-sigma)
+// of the row computed in one vectorised pass. fn(p, x, dy, alpha, vis) gets the tile-local pixel index.
+template <typename scalar_t, typename F>
+inline void for_each_covered_pixel(const GaussianView<scalar_t>& gv, int64_t g, int64_t x0, int64_t x1, int64_t y0,
+                                   int64_t y1, int64_t tw, scalar_t* abuf, scalar_t* ebuf, F&& fn) {
+  const scalar_t mx = gv.means2d[2 * g], my = gv.means2d[2 * g + 1];
+  const scalar_t ca = gv.conics[3 * g], cb = gv.conics[3 * g + 1], cc = gv.conics[3 * g + 2];
+  const scalar_t o = gv.opac[g];
+  int64_t xa, xb, ya, yb;
+  box_in_tile<scalar_t>(mx, gv.extents[2 * g], x0, x1, xa, xb);
+  box_in_tile<scalar_t>(my, gv.extents[2 * g + 1], y0, y1, ya, yb);
+  const scalar_t s_max = sigma_limit(o);
+  for (int64_t y = ya; y < yb; ++y) {
+    const scalar_t dy = scalar_t(y) + scalar_t(0.5) - my;
+    int64_t xs, xe;
+    if (!row_span<scalar_t>(mx, dy, ca, cb, cc, s_max, xa, xb, xs, xe)) continue;
+    row_alpha<scalar_t>(xs, xe, mx, dy, ca, cb, cc, o, abuf, ebuf);
+    const int64_t row = (y - y0) * tw - x0;
+    for (int64_t x = xs; x < xe; ++x) {
+      const scalar_t alpha = abuf[x - xs];
+      if (alpha != scalar_t(0)) fn(row + x, x, dy, alpha, ebuf[x - xs]);
+    }
+  }
+}
+
 // Forward pass for one tile. Writes image (H, W, C), transmittance (H, W) and, per pixel, the number
 // of tile-list entries up to and including the last Gaussian blended (0 = none).
 template <typename scalar_t>
@@ -213,37 +239,23 @@ void forward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t 
   const int64_t start = bin.tile_offsets[tile], end = bin.tile_offsets[tile + 1];
   for (int64_t k = start; k < end && remaining > 0; ++k) {
     const int64_t g = bin.ids[k];
-    const scalar_t mx = gv.means2d[2 * g], my = gv.means2d[2 * g + 1];
-    const scalar_t ca = gv.conics[3 * g], cb = gv.conics[3 * g + 1], cc = gv.conics[3 * g + 2];
-    const scalar_t o = gv.opac[g];
     const scalar_t* col = gv.colors + g * C;
-    int64_t xa, xb, ya, yb;
-    box_in_tile<scalar_t>(mx, gv.extents[2 * g], x0, x1, xa, xb);
-    box_in_tile<scalar_t>(my, gv.extents[2 * g + 1], y0, y1, ya, yb);
-    const scalar_t s_max = sigma_limit(o);
-    for (int64_t y = ya; y < yb; ++y) {
-      const scalar_t dy = scalar_t(y) + scalar_t(0.5) - my;
-      int64_t xs, xe;
-      if (!row_span<scalar_t>(mx, dy, ca, cb, cc, s_max, xa, xb, xs, xe)) continue;
-      row_alpha<scalar_t>(xs, xe, mx, dy, ca, cb, cc, o, abuf.data(), ebuf.data());
-      const int64_t row = (y - y0) * tw - x0;
-      for (int64_t x = xs; x < xe; ++x) {
-        const scalar_t alpha = abuf[x - xs];
-        const int64_t p = row + x;
-        if (alpha == scalar_t(0) || done[p]) continue;
-        const scalar_t next_T = T[p] * (scalar_t(1) - alpha);
-        if (next_T <= scalar_t(kTransmittanceEps)) {
-          done[p] = 1;
-          --remaining;
-          continue;
-        }
-        const scalar_t w = alpha * T[p];
-        scalar_t* a = acc.data() + p * C;
-        for (int64_t c = 0; c < C; ++c) a[c] += w * col[c];
-        T[p] = next_T;
-        lst[p] = static_cast<int32_t>(k - start + 1);
+    const int32_t order = static_cast<int32_t>(k - start + 1);
+    for_each_covered_pixel(gv, g, x0, x1, y0, y1, tw, abuf.data(), ebuf.data(),
+                           [&](int64_t p, int64_t, scalar_t, scalar_t alpha, scalar_t) {
+      if (done[p]) return;
+      const scalar_t next_T = T[p] * (scalar_t(1) - alpha);
+      if (next_T <= scalar_t(kTransmittanceEps)) {
+        done[p] = 1;
+        --remaining;
+        return;
       }
-    }
+      const scalar_t w = alpha * T[p];
+      scalar_t* a = acc.data() + p * C;
+      for (int64_t c = 0; c < C; ++c) a[c] += w * col[c];
+      T[p] = next_T;
+      lst[p] = order;
+    });
   }
   for (int64_t y = y0; y < y1; ++y)
     for (int64_t x = x0; x < x1; ++x) {
@@ -283,52 +295,39 @@ void backward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t
   for (int64_t kk = max_last - 1; kk >= 0; --kk) {
     const int64_t k = start + kk;
     const int64_t g = bin.ids[k];
-    const scalar_t mx = gv.means2d[2 * g], my = gv.means2d[2 * g + 1];
+    const scalar_t mx = gv.means2d[2 * g];
     const scalar_t ca = gv.conics[3 * g], cb = gv.conics[3 * g + 1], cc = gv.conics[3 * g + 2];
     const scalar_t o = gv.opac[g];
     const scalar_t* col = gv.colors + g * C;
     scalar_t g_mx = 0, g_my = 0, g_a = 0, g_b = 0, g_c = 0, g_o = 0;
     std::fill(gcol.begin(), gcol.end(), scalar_t(0));
-    int64_t xa, xb, ya, yb;
-    box_in_tile<scalar_t>(mx, gv.extents[2 * g], x0, x1, xa, xb);
-    box_in_tile<scalar_t>(my, gv.extents[2 * g + 1], y0, y1, ya, yb);
-    const scalar_t s_max = sigma_limit(o);
-    for (int64_t y = ya; y < yb; ++y) {
-      const scalar_t dy = scalar_t(y) + scalar_t(0.5) - my;
-      int64_t xs, xe;
-      if (!row_span<scalar_t>(mx, dy, ca, cb, cc, s_max, xa, xb, xs, xe)) continue;
-      row_alpha<scalar_t>(xs, xe, mx, dy, ca, cb, cc, o, abuf.data(), ebuf.data());
-      const int64_t row = (y - y0) * tw - x0;
-      for (int64_t x = xs; x < xe; ++x) {
-        const scalar_t alpha = abuf[x - xs];
-        const int64_t p = row + x;
-        if (alpha == scalar_t(0) || kk >= lst[p]) continue;
-        const scalar_t dx = scalar_t(x) + scalar_t(0.5) - mx;
-        const scalar_t vis = ebuf[x - xs];
-        const scalar_t raw = o * vis;
-        const scalar_t ra = scalar_t(1) / (scalar_t(1) - alpha);
-        const scalar_t Ti = T[p] * ra;
-        T[p] = Ti;
-        const scalar_t fac = alpha * Ti;
-        const scalar_t* vi = vimg.data() + p * C;
-        scalar_t* s = S.data() + p * C;
-        scalar_t v_al = vA[p] * Tfin[p] * ra;
-        for (int64_t c = 0; c < C; ++c) {
-          gcol[c] += fac * vi[c];
-          v_al += (col[c] * Ti - s[c] * ra) * vi[c];
-          s[c] += col[c] * fac;
-        }
-        if (raw < scalar_t(kMaxAlpha)) {
-          const scalar_t v_sigma = -raw * v_al;
-          g_o += vis * v_al;
-          g_a += scalar_t(0.5) * dx * dx * v_sigma;
-          g_b += dx * dy * v_sigma;
-          g_c += scalar_t(0.5) * dy * dy * v_sigma;
-          g_mx -= (ca * dx + cb * dy) * v_sigma;
-          g_my -= (cb * dx + cc * dy) * v_sigma;
-        }
+    for_each_covered_pixel(gv, g, x0, x1, y0, y1, tw, abuf.data(), ebuf.data(),
+                           [&](int64_t p, int64_t x, scalar_t dy, scalar_t alpha, scalar_t vis) {
+      if (kk >= lst[p]) return;
+      const scalar_t dx = scalar_t(x) + scalar_t(0.5) - mx;
+      const scalar_t raw = o * vis;
+      const scalar_t ra = scalar_t(1) / (scalar_t(1) - alpha);
+      const scalar_t Ti = T[p] * ra;
+      T[p] = Ti;
+      const scalar_t fac = alpha * Ti;
+      const scalar_t* vi = vimg.data() + p * C;
+      scalar_t* s = S.data() + p * C;
+      scalar_t v_al = vA[p] * Tfin[p] * ra;
+      for (int64_t c = 0; c < C; ++c) {
+        gcol[c] += fac * vi[c];
+        v_al += (col[c] * Ti - s[c] * ra) * vi[c];
+        s[c] += col[c] * fac;
       }
-    }
+      if (raw < scalar_t(kMaxAlpha)) {
+        const scalar_t v_sigma = -raw * v_al;
+        g_o += vis * v_al;
+        g_a += scalar_t(0.5) * dx * dx * v_sigma;
+        g_b += dx * dy * v_sigma;
+        g_c += scalar_t(0.5) * dy * dy * v_sigma;
+        g_mx -= (ca * dx + cb * dy) * v_sigma;
+        g_my -= (cb * dx + cc * dy) * v_sigma;
+      }
+    });
     scalar_t* out = isect_grads + k * row;
     out[0] = g_mx;
     out[1] = g_my;
