@@ -15,12 +15,13 @@ STAMP := $(VENV)/.installed-$(INSTALL_KEY)
 export PYTHONUNBUFFERED := 1
 export HF_HUB_OFFLINE := 1
 
-.PHONY: install run test bench bench-rasterizer fern clean-out help
+.PHONY: install run test bench-rasterizer bench-fern help
 
 help:
 	@echo "make run    - run the DVC pipeline on the embedded tiny scene (installs first)"
 	@echo "make test   - run the test suite (installs first)"
 	@echo "make bench-rasterizer - rasterizer backend benchmark (eval/bench_rasterizer.py)"
+	@echo "make bench-fern - DVC experiment: LLFF fern x paintings x {fast, nnfm} (needs ../shared/data)"
 
 $(STAMP): pyproject.toml Makefile
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -48,3 +49,21 @@ test: install
 
 bench-rasterizer: install
 	$(BIN)/python eval/bench_rasterizer.py --json out/bench/rasterizer.json
+
+# Real-data benchmark: a DVC experiment in a temporary copy (`dvc exp show` lists it, `dvc exp apply fern-bench`
+# brings its params and outputs into the workspace). Absolute paths: the copy is not next to ../shared.
+SHARED ?= $(abspath ../shared/data)
+FERN_SET = -S "+data.scenes.fern=$(SHARED)/scenes/fern" \
+  -S "+data.styles.starry=$(SHARED)/styles/starry_night.jpg" -S "+data.styles.udnie=$(SHARED)/styles/udnie.jpg" \
+  -S "+experiments.fern_starry_fast={scene: fern, style: starry, method: fast}" \
+  -S "+experiments.fern_starry_nnfm={scene: fern, style: starry, method: nnfm}" \
+  -S "+experiments.fern_udnie_fast={scene: fern, style: udnie, method: fast}" \
+  -S "+experiments.fern_udnie_nnfm={scene: fern, style: udnie, method: nnfm}" \
+  -S fit.iterations=3000 -S fit.max_gaussians=150000 -S fit.strategy.refine_start=300 \
+  -S fit.strategy.refine_stop=1800 -S fit.strategy.reset_every=1500 \
+  -S colormatch.refit_iterations=200 -S stylize.iterations=300
+
+bench-fern: install
+	@test -d "$(SHARED)/scenes/fern" || (echo "bench-fern needs $(SHARED)/scenes/fern" && exit 1)
+	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/dvc exp run --temp -n fern-bench $(FERN_SET)
+	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/dvc exp show --only-changed

@@ -85,7 +85,8 @@ def main(argv=None) -> dict:
     cm = color_match_and_refit(original, scene, labels, view_labels, groups,
                                ColorMatchParams(refit_iterations=args.refit_iterations))
     t_cm = time.perf_counter() - t0
-    res = stylize(cm.model, scene.cameras, view_labels, labels, groups, vgg, sp, method=args.method)
+    res = stylize(cm.model, scene.cameras, view_labels, labels, groups, vgg, sp, method=args.method,
+                  depth_model=original)
 
     style_img = load_style(str(args.style), sp.style_height)
     g_start = gram_distance(cm.model, scene.cameras, vgg, style_img, sp.layers)

@@ -50,7 +50,7 @@ def main(args, params) -> None:
 
         labels = [cv2.resize(v.astype(np.int32), (c.width, c.height), interpolation=cv2.INTER_NEAREST).astype(np.int64)
                   for v, c in zip(labels, cams)]
-    res = stylize(matched, cams, labels, masks.gaussian_labels, groups, vgg, sp, method=exp.method)
+    res = stylize(matched, cams, labels, masks.gaussian_labels, groups, vgg, sp, method=exp.method, depth_model=original)
 
     with atomic_path(args.out, is_dir=True) as tmp:
         write_ply(tmp / "point_cloud.ply", res.model)

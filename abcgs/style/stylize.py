@@ -262,6 +262,7 @@ def stylize(
     *,
     method: str = "fast",
     progress: bool = True,
+    depth_model: GaussianModel | None = None,
 ) -> StylizeResult:
     """Run the stylization passes on a (colour-matched) model.
 
@@ -270,6 +271,8 @@ def stylize(
         cameras: the views to stylize from.
         label_maps: per view ``(H, W)`` rendered content labels (ignored by single transfer).
         gaussian_labels: ``(N,)`` lifted content label of each Gaussian (for the second colour match).
+        depth_model: the original (pre-colour-match) scene whose depth the depth loss keeps (paper: "we use
+            the original Gaussians to render the initial depth map"); default ``model``.
         groups: matching groups with style features (:func:`abcgs.style.matching.build_groups`).
     """
     if not cameras:
@@ -279,7 +282,7 @@ def stylize(
     history: list[dict] = []
     timings: dict[str, float] = {}
     stats = FastStats()
-    targets = prepare_targets(model, model, cameras, label_maps, groups, vgg, params)
+    targets = prepare_targets(model, depth_model or model, cameras, label_maps, groups, vgg, params)
     for g, z in enumerate(groups):
         if not any(bool(t.group_masks[g].any()) for t in targets):
             raise InputError(f"matching group for content label {z.content_label} covers no pixel in any view")
