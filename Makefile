@@ -59,8 +59,8 @@ FERN_SET = -S "+data.scenes.fern=$(SHARED)/scenes/fern" \
   -S "+experiments.fern_starry_nnfm={scene: fern, style: starry, method: nnfm}" \
   -S "+experiments.fern_udnie_fast={scene: fern, style: udnie, method: fast}" \
   -S "+experiments.fern_udnie_nnfm={scene: fern, style: udnie, method: nnfm}" \
-  -S fit.iterations=3000 -S fit.max_gaussians=150000 -S fit.strategy.refine_start=300 \
-  -S fit.strategy.refine_stop=1800 -S fit.strategy.reset_every=1500 \
+  -S fit.iterations=3000 -S ++fit.max_gaussians=150000 -S ++fit.strategy.refine_start=300 \
+  -S ++fit.strategy.refine_stop=1800 -S ++fit.strategy.reset_every=1500 \
   -S colormatch.refit_iterations=200 -S stylize.iterations=300
 
 bench-fern: install
