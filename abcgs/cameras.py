@@ -53,8 +53,10 @@ class Camera:
         return torch.as_tensor(self.K, dtype=torch.float32, device=device)
 
 
-def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0, -1.0, 0.0])) -> np.ndarray:
-    """World→camera ``(4, 4)`` matrix for a camera at ``eye`` looking at ``target`` (OpenCV axes, y down)."""
+def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:
+    """World→camera ``(4, 4)`` matrix for a camera at ``eye`` looking at ``target`` (OpenCV axes, y down;
+    ``up`` defaults to world -y)."""
+    up = np.array([0.0, -1.0, 0.0]) if up is None else np.asarray(up, float)
     z = np.asarray(target, float) - np.asarray(eye, float)
     z /= np.linalg.norm(z)
     x = np.cross(up, z)

