@@ -38,11 +38,14 @@ install: $(STAMP)
 run: install
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/dvc repro
 	@echo
-	@echo "Results (per scene under out/<scene>/):"
-	@echo "  out/tiny/reconstruct.json      COLMAP registration metrics"
-	@echo "  out/tiny/gs/point_cloud.ply    fitted 3DGS scene (INRIA layout)"
-	@echo "  out/tiny/gs/metrics.json       held-out PSNR/SSIM; heldout_grid.png: ground truth | render"
-	@PATH="$(abspath $(BIN)):$$PATH" $(BIN)/dvc metrics show
+	@echo "Results:"
+	@echo "  out/<scene>/gs/            fitted 3DGS (point_cloud.ply, INRIA layout), held-out metrics.json, heldout_grid.png"
+	@echo "  out/<scene>/masks/         lifted content labels, overlay.png"
+	@echo "  out/<experiment>/stylize/  stylized PLY, renders/, grid.png, turntable.mp4"
+	@echo "  out/<experiment>/eval.json metrics (proxy names where official weights are unavailable)"
+	@echo "  reports/report.html        everything on one page; dvc metrics show / dvc plots show for the rest"
+	@echo
+	@$(BIN)/python -m eval.report
 
 test: install
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python -m pytest -q

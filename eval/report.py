@@ -138,3 +138,19 @@ def summary_png(runs: list[Run], path: Path) -> None:
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png")
     plt.close(fig)
+
+
+def format_table(runs: list[Run]) -> str:
+    """The report's table as aligned plain text (for terminals and logs)."""
+    cols, rows = table_rows(runs)
+    widths = [max(len(c), *(len(r[i]) for r in rows)) for i, c in enumerate(cols)]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(cols, widths))]
+    lines += ["  ".join(v.ljust(w) for v, w in zip(r, widths)) for r in rows]
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":  # python -m eval.report: print the table of the runs in out/
+    from abcgs.params import load_params
+
+    params = load_params("params.yaml")
+    print(format_table(load_runs(Path("out"), {k: v.model_dump() for k, v in params.experiments.items()})))
