@@ -423,7 +423,9 @@ def _fit(
         )
         if progress and (step % 10 == 0 or step == params.iterations):
             bar.set_postfix_str(f"loss={loss:.4f} psnr={psnr:.2f} n_gaussians={model.num_gaussians}", refresh=False)
-        if params.eval_every and test_cams and step % params.eval_every == 0 and step != params.iterations:
+        # An evaluation right after an opacity reset would only measure the reset (opacities clamped to 0.01).
+        just_reset = report is not None and report.opacity_reset
+        if params.eval_every and test_cams and step % params.eval_every == 0 and step != params.iterations and not just_reset:
             ev = evaluate(model, test_cams, test_imgs, backend, background=fixed_bg)
             eval_history.append({"step": step, "seconds": train_seconds, "psnr": ev.psnr, "ssim": ev.ssim})
     bar.close()
