@@ -18,7 +18,7 @@ import torch
 from render_scenes import blend_margins, finite_difference_check, random_scene
 
 from abcgs.render import rasterize
-from abcgs.render.cpu import _RasterizeCPUAlpha, is_available
+from abcgs.render.cpu import _RasterizeCPU, is_available
 from abcgs.render.projection import project_gaussians
 from abcgs.render.sh import sh_to_color
 
@@ -135,7 +135,7 @@ def test_gradcheck_cpu_kernel_full_jacobian():
     assert bool(proj.visible.all())
 
     def kernel(means2d, conics, colors, opacities):
-        return _RasterizeCPUAlpha.apply(means2d, conics, colors, opacities, proj.depths, proj.extents, W, H, TILE)
+        return _RasterizeCPU.apply(means2d, conics, colors, opacities, proj.depths, proj.extents, W, H, TILE)
 
     raw = (proj.means2d, proj.conics, scene.colors, scene.opacities)
     inputs = tuple(t.detach().clone().requires_grad_(True) for t in raw)

@@ -100,11 +100,11 @@ def rasterize_cpu(
     width: int, height: int, *, tile_size: int = 16,
 ) -> tuple[Tensor, Tensor]:
     """Fast-backend twin of :func:`abcgs.render.reference.rasterize_reference` (same arguments and outputs)."""
-    image, alpha = _RasterizeCPUAlpha.apply(means2d, conics, colors, opacities, depths, extents, width, height, tile_size)
+    image, alpha = _RasterizeCPU.apply(means2d, conics, colors, opacities, depths, extents, width, height, tile_size)
     return image, alpha[..., None]
 
 
-class _RasterizeCPUAlpha(torch.autograd.Function):
+class _RasterizeCPU(torch.autograd.Function):
     """Forward returns (image, alpha); backward passes both output gradients to the C++ kernel."""
 
     @staticmethod

@@ -137,8 +137,10 @@ def prepare_targets(
     targets = []
     with torch.no_grad():
         for cam, lab in zip(cameras, label_maps):
-            img, _, _ = render(model_content, cam, backend=params.backend)
-            _, _, meta = render(model_original, cam, backend=params.backend, render_depth=True)
+            # one render gives both when the depth comes from the content scene itself
+            img, _, meta = render(model_content, cam, backend=params.backend, render_depth=model_original is model_content)
+            if model_original is not model_content:
+                _, _, meta = render(model_original, cam, backend=params.backend, render_depth=True)
             feats = _features(vgg, img.clamp(0, 1), params)
             hw = tuple(feats.shape[-2:])
             masks = [downsample_mask(m, hw) if m.any() else torch.zeros(hw, dtype=torch.bool)
