@@ -21,7 +21,6 @@ import torch
 from torch import Tensor
 
 from abcgs.render.projection import Projected
-from abcgs.render.reference import tile_ranges
 
 _SOURCES = [Path(__file__).parent / "csrc" / n for n in ("rasterize_cpu.cpp", "projection_cpu.cpp")]
 _FLAGS = ["-O3", "-march=native", "-ffp-contract=off", "-std=c++17"]
@@ -111,13 +110,11 @@ class _RasterizeCPU(torch.autograd.Function):
     def forward(ctx, means2d, conics, colors, opacities, depths, extents, width, height, tile_size):
         ext = load_extension()
         means2d, conics, colors = means2d.contiguous(), conics.contiguous(), colors.contiguous()
-        opacities, extents = opacities.contiguous(), extents.contiguous().to(colors.dtype)
-        with torch.no_grad():
-            vis = torch.nonzero(extents[:, 0] > 0).squeeze(1)
-            order = vis[torch.argsort(depths.detach()[vis], stable=True)].contiguous()
-            ranges = tile_ranges(means2d, extents, width, height, tile_size).contiguous()
+        opacities, extents = opacities.contiguous(), extents.detach().contiguous().to(colors.dtype)
+        depths = depths.detach().contiguous().to(colors.dtype)
+        # depth sort (stable radix) and tile binning happen in C++, same order/boxes as the reference backend
         image, trans, last, toff, ids, goff, gisect = ext.rasterize_forward(
-            means2d, conics, colors, opacities, extents, order, ranges, width, height, tile_size
+            means2d, conics, colors, opacities, depths, extents, width, height, tile_size
         )
         ctx.save_for_backward(means2d, conics, colors, opacities, extents, trans, last, toff, ids, goff, gisect)
         ctx.dims = (width, height, tile_size)

@@ -19,7 +19,9 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <cstdint>
 #include <cstring>
+#include <type_traits>
 #include <vector>
 
 namespace {
@@ -55,27 +57,94 @@ struct Binning {
   }
 };
 
-// Bin visible Gaussians (given front-to-back in `order`) into tiles. `ranges` is (N, 4) inclusive
-// tile boxes (tx0, ty0, tx1, ty1); an empty box has tx0 > tx1.
-Binning bin_gaussians(const at::Tensor& order, const at::Tensor& ranges, int64_t n, int64_t width,
-                      int64_t height, int64_t tile) {
+// Front-to-back order of the Gaussians with a positive extent: a stable LSD radix sort (8-bit digits) of
+// the depth bits mapped to order-preserving unsigned keys. Ties keep index order and NaN depths go last,
+// i.e. the same permutation as `torch.argsort(depths[extents[:, 0] > 0], stable=True)`.
+template <typename scalar_t>
+std::vector<int64_t> depth_order(const scalar_t* depth, const scalar_t* ext, int64_t n) {
+  using key_t = std::conditional_t<sizeof(scalar_t) == 4, uint32_t, uint64_t>;
+  constexpr key_t kSign = key_t(1) << (8 * sizeof(key_t) - 1);
+  std::vector<key_t> keys, keys_tmp;
+  std::vector<int64_t> idx, idx_tmp;
+  keys.reserve(n);
+  idx.reserve(n);
+  for (int64_t g = 0; g < n; ++g) {
+    if (!(ext[2 * g] > 0)) continue;
+    const scalar_t d = depth[g];
+    key_t k = ~key_t(0);
+    if (!std::isnan(d)) {
+      std::memcpy(&k, &d, sizeof(k));
+      k = (k & kSign) ? ~k : (k | kSign);
+    }
+    keys.push_back(k);
+    idx.push_back(g);
+  }
+  const int64_t m = static_cast<int64_t>(keys.size());
+  keys_tmp.resize(m);
+  idx_tmp.resize(m);
+  for (int shift = 0; shift < static_cast<int>(8 * sizeof(key_t)); shift += 8) {
+    int64_t count[257] = {0};
+    for (int64_t i = 0; i < m; ++i) count[((keys[i] >> shift) & 0xff) + 1]++;
+    if (std::find(count + 1, count + 257, m) != count + 257) continue;  // one bucket: order unchanged
+    for (int b = 0; b < 256; ++b) count[b + 1] += count[b];
+    for (int64_t i = 0; i < m; ++i) {
+      const int64_t pos = count[(keys[i] >> shift) & 0xff]++;
+      keys_tmp[pos] = keys[i];
+      idx_tmp[pos] = idx[i];
+    }
+    keys.swap(keys_tmp);
+    idx.swap(idx_tmp);
+  }
+  return idx;
+}
+
+// Inclusive tile box (tx0, ty0, tx1, ty1) of a Gaussian's pixel box `mean ± ext`: the tiles whose pixel
+// centres (x + 0.5) it overlaps. Same arithmetic as `tile_ranges` in abcgs/render/reference.py; returns
+// false for an empty box (no pixel centre inside, zero or non-finite extent).
+template <typename scalar_t>
+inline bool tile_box(scalar_t mx, scalar_t my, scalar_t ex, scalar_t ey, int64_t width, int64_t height, int64_t tile,
+                     int32_t box[4]) {
+  const scalar_t h = scalar_t(0.5);
+  if (!(ex > 0) || !std::isfinite(mx) || !std::isfinite(my) || !std::isfinite(ex) || !std::isfinite(ey)) return false;
+  const scalar_t wmax = scalar_t(width - 1), hmax = scalar_t(height - 1), zero = scalar_t(0);
+  const scalar_t x0 = std::min(std::max(std::ceil(mx - ex - h), zero), wmax);
+  const scalar_t x1 = std::min(std::max(std::floor(mx + ex - h), zero), wmax);
+  const scalar_t y0 = std::min(std::max(std::ceil(my - ey - h), zero), hmax);
+  const scalar_t y1 = std::min(std::max(std::floor(my + ey - h), zero), hmax);
+  if (mx + ex - h < x0 || my + ey - h < y0 || mx - ex - h > x1 || my - ey - h > y1) return false;
+  box[0] = static_cast<int32_t>(static_cast<int64_t>(x0) / tile);
+  box[1] = static_cast<int32_t>(static_cast<int64_t>(y0) / tile);
+  box[2] = static_cast<int32_t>(static_cast<int64_t>(x1) / tile);
+  box[3] = static_cast<int32_t>(static_cast<int64_t>(y1) / tile);
+  return true;
+}
+
+// Sort the Gaussians front to back and bin them into tiles (see `depth_order` and `tile_box`).
+template <typename scalar_t>
+Binning bin_gaussians(const scalar_t* means2d, const scalar_t* extents, const scalar_t* depths, int64_t n,
+                      int64_t width, int64_t height, int64_t tile) {
   const int64_t tiles_x = (width + tile - 1) / tile, tiles_y = (height + tile - 1) / tile;
   const int64_t n_tiles = tiles_x * tiles_y;
-  const int64_t* ord = order.data_ptr<int64_t>();
-  const int64_t n_vis = order.numel();
-  const int64_t* rg = ranges.data_ptr<int64_t>();
+  const std::vector<int64_t> ord = depth_order(depths, extents, n);
+  const int64_t n_vis = static_cast<int64_t>(ord.size());
+  std::vector<int32_t> boxes(4 * n_vis);
+  std::vector<uint8_t> hit(n_vis);
+  for (int64_t k = 0; k < n_vis; ++k) {
+    const int64_t g = ord[k];
+    hit[k] = tile_box(means2d[2 * g], means2d[2 * g + 1], extents[2 * g], extents[2 * g + 1], width, height, tile,
+                      &boxes[4 * k]);
+  }
 
   at::Tensor tile_offsets = at::zeros({n_tiles + 1}, at::kLong);
   at::Tensor gauss_offsets = at::zeros({n + 1}, at::kLong);
   int64_t* toff = tile_offsets.data_ptr<int64_t>();
   int64_t* goff = gauss_offsets.data_ptr<int64_t>();
   for (int64_t k = 0; k < n_vis; ++k) {
-    const int64_t g = ord[k];
-    const int64_t* r = rg + 4 * g;
-    if (r[0] > r[2] || r[1] > r[3]) continue;
+    if (!hit[k]) continue;
+    const int32_t* r = &boxes[4 * k];
     for (int64_t ty = r[1]; ty <= r[3]; ++ty)
       for (int64_t tx = r[0]; tx <= r[2]; ++tx) toff[ty * tiles_x + tx + 1]++;
-    goff[g + 1] = (r[2] - r[0] + 1) * (r[3] - r[1] + 1);
+    goff[ord[k] + 1] = int64_t(r[2] - r[0] + 1) * (r[3] - r[1] + 1);
   }
   for (int64_t t = 0; t < n_tiles; ++t) toff[t + 1] += toff[t];
   for (int64_t g = 0; g < n; ++g) goff[g + 1] += goff[g];
@@ -86,9 +155,9 @@ Binning bin_gaussians(const at::Tensor& order, const at::Tensor& ranges, int64_t
   int64_t* gi = gauss_isect.data_ptr<int64_t>();
   std::vector<int64_t> cursor(toff, toff + n_tiles);
   for (int64_t k = 0; k < n_vis; ++k) {
+    if (!hit[k]) continue;
     const int64_t g = ord[k];
-    const int64_t* r = rg + 4 * g;
-    if (r[0] > r[2] || r[1] > r[3]) continue;
+    const int32_t* r = &boxes[4 * k];
     int64_t j = goff[g];
     for (int64_t ty = r[1]; ty <= r[3]; ++ty)
       for (int64_t tx = r[0]; tx <= r[2]; ++tx) {
@@ -356,16 +425,21 @@ void check_inputs(const at::Tensor& means2d, const at::Tensor& conics, const at:
 
 }  // namespace
 
-// Returns (image (H, W, C), transmittance (H, W), last (H, W) int32,
+// Sorts by `depths`, bins and blends. Returns (image (H, W, C), transmittance (H, W), last (H, W) int32,
 //          tile_offsets, ids, gauss_offsets, gauss_isect) — the last four are saved for backward.
 std::vector<at::Tensor> rasterize_forward(const at::Tensor& means2d, const at::Tensor& conics, const at::Tensor& colors,
-                                          const at::Tensor& opacities, const at::Tensor& extents,
-                                          const at::Tensor& order, const at::Tensor& ranges, int64_t width,
-                                          int64_t height, int64_t tile_size) {
+                                          const at::Tensor& opacities, const at::Tensor& depths,
+                                          const at::Tensor& extents, int64_t width, int64_t height,
+                                          int64_t tile_size) {
   check_inputs(means2d, conics, colors, opacities, extents);
-  TORCH_CHECK(order.scalar_type() == at::kLong && ranges.scalar_type() == at::kLong, "order/ranges must be int64");
+  TORCH_CHECK(depths.dim() == 1 && depths.size(0) == means2d.size(0) && depths.is_contiguous() &&
+                  depths.scalar_type() == colors.scalar_type(),
+              "depths must be a contiguous (N,) tensor of the colours' dtype");
   const int64_t n = means2d.size(0), C = colors.size(1);
-  Binning bin = bin_gaussians(order.contiguous(), ranges.contiguous(), n, width, height, tile_size);
+  Binning bin = AT_DISPATCH_FLOATING_TYPES(colors.scalar_type(), "abcgs_bin_gaussians", [&] {
+    return bin_gaussians<scalar_t>(means2d.data_ptr<scalar_t>(), extents.data_ptr<scalar_t>(),
+                                   depths.data_ptr<scalar_t>(), n, width, height, tile_size);
+  });
   auto opts = colors.options();
   at::Tensor image = at::zeros({height, width, C}, opts);
   at::Tensor trans = at::ones({height, width}, opts);
