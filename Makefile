@@ -48,6 +48,7 @@ run: install
 	@$(BIN)/python -m eval.report
 
 test: install
+	$(BIN)/ruff check abcgs stages eval tests
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python -m pytest -q
 
 bench-rasterizer: install

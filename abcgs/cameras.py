@@ -37,7 +37,7 @@ class Camera:
         R, t = self.viewmat[:3, :3], self.viewmat[:3, 3]
         return -R.T @ t
 
-    def scaled(self, factor: float) -> "Camera":
+    def scaled(self, factor: float) -> Camera:
         """The same view at ``factor`` × resolution (intrinsics scaled, pixel-centre convention kept)."""
         w, h = max(1, round(self.width * factor)), max(1, round(self.height * factor))
         sx, sy = w / self.width, h / self.height

@@ -20,8 +20,8 @@ dataclass fields (``setattr``) when they add or remove Gaussians; nothing else h
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, fields
-from typing import Iterator
 
 import numpy as np
 import torch
@@ -70,7 +70,7 @@ class GaussianModel:
         init_opacity: float = 0.1,
         *,
         device: torch.device | str = "cpu",
-    ) -> "GaussianModel":
+    ) -> GaussianModel:
         """Initial Gaussians at SfM points (3DGS initialisation).
 
         Args:
@@ -175,22 +175,22 @@ class GaussianModel:
     def params(self) -> dict[str, Tensor]:
         return dict(self.items())
 
-    def map(self, fn) -> "GaussianModel":
+    def map(self, fn) -> GaussianModel:
         """A new model with ``fn(tensor)`` applied to every parameter."""
         return GaussianModel(**{name: fn(t) for name, t in self.items()})
 
-    def detach(self) -> "GaussianModel":
+    def detach(self) -> GaussianModel:
         """A copy of the values without autograd history (new storage)."""
         return self.map(lambda t: t.detach().clone())
 
-    def to(self, device: torch.device | str) -> "GaussianModel":
+    def to(self, device: torch.device | str) -> GaussianModel:
         return self.map(lambda t: t.to(device))
 
-    def as_parameters(self) -> "GaussianModel":
+    def as_parameters(self) -> GaussianModel:
         """A copy whose fields are leaf ``torch.nn.Parameter`` s (what the optimiser updates)."""
         return self.map(lambda t: torch.nn.Parameter(t.detach().clone().contiguous()))
 
-    def index(self, mask_or_idx: Tensor) -> "GaussianModel":
+    def index(self, mask_or_idx: Tensor) -> GaussianModel:
         """The Gaussians selected by a bool mask or index tensor (detached copies)."""
         return self.map(lambda t: t.detach()[mask_or_idx].clone())
 

@@ -20,6 +20,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from abcgs.errors import ParamsError
+from abcgs.eval_params import EvalParams
 from abcgs.fit.trainer import FitParams
 from abcgs.scene.synthetic import TinySceneParams
 from abcgs.sfm.colmap import ReconstructParams
@@ -28,7 +29,6 @@ from abcgs.style.content_masks import MaskParams
 from abcgs.style.matching import ExperimentParams, IsolationParams
 from abcgs.style.stylize import StylizeParams
 from abcgs.style.weights import VggWeightsParams
-from abcgs.eval_params import EvalParams
 
 
 class DataParams(BaseModel):
@@ -75,7 +75,7 @@ class Params(BaseModel):
     )
 
     @model_validator(mode="after")
-    def _cross_check(self) -> "Params":
+    def _cross_check(self) -> Params:
         for name, exp in self.experiments.items():
             if exp.scene not in self.data.scenes:
                 raise ValueError(f"experiments.{name}.scene {exp.scene!r} is not in data.scenes ({', '.join(self.data.scenes)})")

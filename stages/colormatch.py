@@ -12,12 +12,12 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from abcgs.io.atomic import atomic_path, write_json  # noqa: E402
+from abcgs.io.images import save_image  # noqa: E402
 from abcgs.io.ply import write_ply  # noqa: E402
 from abcgs.pipeline import run_stage, stage_parser  # noqa: E402
 from abcgs.style.colormatch import color_match_and_refit  # noqa: E402
 from abcgs.style.experiment import experiment, load_groups, load_scene, load_scene_masks, load_vgg  # noqa: E402
 from abcgs.viz import image_grid  # noqa: E402
-from abcgs.io.images import save_image  # noqa: E402
 
 
 def main(args, params) -> None:

@@ -16,7 +16,6 @@ import cv2  # noqa: F401  (load before anything imports pycolmap; see abcgs/sfm/
 import pytest
 
 from abcgs.fit.trainer import torch_threads
-
 from abcgs.scene.synthetic import TinySceneParams, make_tiny_scene
 
 REPO_ROOT = Path(__file__).resolve().parents[1]

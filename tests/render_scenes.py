@@ -16,8 +16,8 @@ from dataclasses import dataclass, fields, replace
 import torch
 from torch import Tensor
 
-from abcgs.render.projection import ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_EPS, project_gaussians
 from abcgs.fit.trainer import torch_threads  # noqa: F401  (re-exported for the tests)
+from abcgs.render.projection import ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_EPS, project_gaussians
 from abcgs.render.sh import num_sh_bases
 
 GRAD_FIELDS = ("means", "quats", "scales", "opacities", "colors")
@@ -43,11 +43,11 @@ class Scene:
             self.means, self.quats, self.scales, self.opacities, self.colors, self.viewmat, self.K, self.width, self.height
         )
 
-    def leaves(self, names=GRAD_FIELDS) -> "Scene":
+    def leaves(self, names=GRAD_FIELDS) -> Scene:
         """A copy whose ``names`` fields are fresh leaf tensors requiring grad."""
         return replace(self, **{n: getattr(self, n).detach().clone().requires_grad_(True) for n in names})
 
-    def to(self, dtype: torch.dtype) -> "Scene":
+    def to(self, dtype: torch.dtype) -> Scene:
         kw = {}
         for f in fields(self):
             v = getattr(self, f.name)

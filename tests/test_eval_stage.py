@@ -13,12 +13,12 @@ import torch
 
 from abcgs.cameras import Camera, intrinsics, look_at
 from abcgs.errors import InputError
+from abcgs.eval_params import EvalParams
 from abcgs.fit.trainer import torch_threads
 from abcgs.gaussians import GaussianModel
 from abcgs.render.sh import rgb_to_sh0
 from eval.metrics.content import PerceptualDistance
 from eval.metrics.evaluate import evaluate_images, evaluate_scene
-from abcgs.eval_params import EvalParams
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -13,7 +13,6 @@ from abcgs.fit import metrics
 from abcgs.fit.losses import dssim, l1, reconstruction_loss, ssim, ssim_map
 
 
-
 def ssim_3dgs_2d(img1: torch.Tensor, img2: torch.Tensor) -> torch.Tensor:
     """The reference code's SSIM (utils/loss_utils.py) written independently: 2-D window, zero padding."""
     x = img1.permute(2, 0, 1)[None]

@@ -22,7 +22,6 @@ from abcgs.gaussians import PARAM_NAMES, GaussianModel
 from abcgs.render import RenderMeta, quat_to_rotmat
 
 
-
 def make_model(n: int, degree: int = 1, seed: int = 0) -> GaussianModel:
     g = torch.Generator().manual_seed(seed)
     return GaussianModel(

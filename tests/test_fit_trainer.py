@@ -19,7 +19,6 @@ from abcgs.io.images import load_image, save_image
 from abcgs.io.ply import read_ply
 from abcgs.sfm.colmap import SceneData
 
-
 W, H = 48, 36
 
 

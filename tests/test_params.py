@@ -10,10 +10,10 @@ import sys
 
 import pytest
 import yaml
+from conftest import REPO_ROOT
 
 from abcgs.errors import ParamsError
 from abcgs.params import load_params, validate_params
-from conftest import REPO_ROOT
 
 
 @pytest.fixture(scope="module")

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import pytest
-from pydantic import ValidationError
 import torch
+from pydantic import ValidationError
 
 from abcgs.errors import InputError, NumericalError
 from abcgs.style import fast, knn
-
 
 
 def _feats(c: int, n_r: int, n_s: int, seed: int = 0, dtype=torch.float64):

@@ -10,7 +10,6 @@ from abcgs.style import losses
 from abcgs.style.fast import FastParams, FastStats, fast_loss
 
 
-
 def _feats(c=12, n_r=40, n_s=33, seed=0, dtype=torch.float64):
     g = torch.Generator().manual_seed(seed)
     return (

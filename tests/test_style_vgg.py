@@ -6,14 +6,13 @@ import os
 import time
 
 import pytest
-from pydantic import ValidationError
 import torch
 import torch.nn.functional as F
+from pydantic import ValidationError
 
 from abcgs.errors import InputError
 from abcgs.style import vgg as V
 from abcgs.style import weights as W
-
 
 
 @pytest.fixture

@@ -22,8 +22,9 @@ per-parameter state (Adam's ``exp_avg``/``exp_avg_sq``) the same length as its p
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable, Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import torch
 from pydantic import BaseModel, Field, model_validator
@@ -235,7 +236,7 @@ class StrategyParams(BaseModel, extra="forbid"):
     reset_opacity: float = Field(0.01, gt=0.0, lt=1.0, description="opacity cap applied at each reset")
 
     @model_validator(mode="after")
-    def _check(self) -> "StrategyParams":
+    def _check(self) -> StrategyParams:
         if self.prune_opacity >= self.reset_opacity:
             raise ValueError(
                 f"prune_opacity ({self.prune_opacity}) must be below reset_opacity ({self.reset_opacity}), "
@@ -243,7 +244,7 @@ class StrategyParams(BaseModel, extra="forbid"):
             )
         return self
 
-    def scaled(self, factor: float) -> "StrategyParams":
+    def scaled(self, factor: float) -> StrategyParams:
         """The same schedule with every step count multiplied by ``factor`` (e.g. ``iterations / 30000``)."""
         step = lambda s: max(1, int(round(s * factor)))  # noqa: E731
         return self.model_copy(

@@ -9,7 +9,7 @@ non-float input). Colours are RGB, any range (the pipeline uses [0, 1]).
 
 from __future__ import annotations
 
-from typing import Mapping
+from collections.abc import Mapping
 
 import numpy as np
 import torch

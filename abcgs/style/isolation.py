@@ -17,7 +17,8 @@ Output depends only on ``(mask, image[mask])``: changing pixels outside the regi
 
 from __future__ import annotations
 
-from typing import Literal, Sequence
+from collections.abc import Sequence
+from typing import Literal
 
 import cv2
 import numpy as np

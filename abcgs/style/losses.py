@@ -14,7 +14,8 @@ style ``F_s`` without); group losses are summed, like FAST's.
 
 from __future__ import annotations
 
-from typing import Literal, Sequence
+from collections.abc import Sequence
+from typing import Literal
 
 import torch
 

@@ -44,7 +44,7 @@ class ExperimentParams(BaseModel):
     method: Literal["fast", "nnfm", "knnfm", "gram"] = Field("fast", description="style loss (fast = ABC-GS)")
 
     @model_validator(mode="after")
-    def _check(self) -> "ExperimentParams":
+    def _check(self) -> ExperimentParams:
         if self.transfer in ("single", "semantic") and not self.style:
             raise ValueError(f"transfer {self.transfer!r} needs 'style' (a key of data.styles)")
         if self.transfer == "compositional" and not self.styles:

@@ -16,7 +16,7 @@ activations of different weight sources have comparable magnitudes (1.0 for torc
 
 from __future__ import annotations
 
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import torch
 import torch.nn.functional as F
@@ -125,7 +125,7 @@ class VGG16Features(nn.Module):
         self._take = {LAYER_INDEX[n]: n for n in self.layers}
         self.eval()
 
-    def train(self, mode: bool = True) -> "VGG16Features":  # always eval: no dropout/BN anyway
+    def train(self, mode: bool = True) -> VGG16Features:  # always eval: no dropout/BN anyway
         return super().train(False)
 
     def forward(self, img: torch.Tensor) -> dict[str, torch.Tensor]:

@@ -22,6 +22,7 @@ import torch
 
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
+from abcgs.eval_params import EvalParams
 from abcgs.gaussians import GaussianModel, render
 from eval.metrics.artfid import ArtInception, artfid_formula, find_art_inception
 from eval.metrics.consistency import (
@@ -44,7 +45,6 @@ from eval.metrics.fid import (
     random_patches,
     resize_short_side,
 )
-from abcgs.eval_params import EvalParams
 
 log = logging.getLogger(__name__)
 
