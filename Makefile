@@ -42,7 +42,7 @@ run: install
 	@echo "  out/<scene>/gs/            fitted 3DGS (point_cloud.ply, INRIA layout), held-out metrics.json, heldout_grid.png"
 	@echo "  out/<scene>/masks/         lifted content labels, overlay.png"
 	@echo "  out/<experiment>/stylize/  stylized PLY, renders/, grid.png, turntable.mp4"
-	@echo "  out/<experiment>/eval.json metrics (proxy names where official weights are unavailable)"
+	@echo "  out/<experiment>/eval.json metrics (proxy names where official weights are unavailable); eval_info.json provenance"
 	@echo "  reports/report.html        everything on one page; dvc metrics show / dvc plots show for the rest"
 	@echo
 	@$(BIN)/python -m eval.report

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from abcgs.errors import InputError
+from abcgs.io.metrics import read_record
 
 
 @dataclass
@@ -36,7 +37,7 @@ def load_runs(root: Path, experiments: dict[str, dict]) -> list[Run]:
             raise InputError(f"run {name!r} has no {sty}; run `dvc repro` first")
         images = {k: p for k, p in (("grid", d / "stylize" / "grid.png"), ("consistency", d / "eval_consistency.png"))
                   if p.is_file()}
-        runs.append(Run(name, spec, json.loads(sty.read_text()), json.loads(ev.read_text()) if ev.is_file() else {}, images))
+        runs.append(Run(name, spec, read_record(sty), read_record(ev) if ev.is_file() else {}, images))
     if not runs:
         raise InputError("no experiments to report; add some under params.yaml experiments")
     return runs

@@ -10,15 +10,15 @@ named as proxies (``lpips_proxy_vgg``, ``artfid_proxy``); see ``eval/metrics/__i
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from abcgs.errors import InputError  # noqa: E402
-from abcgs.io.atomic import write_json, write_text  # noqa: E402
+from abcgs.io.atomic import write_text  # noqa: E402
 from abcgs.io.images import load_image, save_image  # noqa: E402
+from abcgs.io.metrics import read_record, write_metrics  # noqa: E402
 from abcgs.io.ply import read_ply  # noqa: E402
 from abcgs.pipeline import run_stage, stage_parser  # noqa: E402
 from abcgs.style.experiment import experiment, load_scene  # noqa: E402
@@ -51,7 +51,7 @@ def load_stylize_run(root: Path, name: str, n_views: int, view_stems: list[str])
     missing = [s for s in view_stems if s not in by_stem]
     if missing:
         raise InputError(f"{renders} has no render for views {missing[:5]}: names do not match the scene's cameras")
-    return ply, json.loads(info_path.read_text()), [by_stem[s] for s in view_stems]
+    return ply, read_record(info_path), [by_stem[s] for s in view_stems]
 
 
 def main(args, params) -> None:
@@ -73,7 +73,7 @@ def main(args, params) -> None:
     heat = Path(args.heatmap) if args.heatmap else out.with_name("eval_consistency.png")
     save_image(heat, image_grid([res.heatmap], res.heatmap_captions, height=max(160, res.heatmap[0].shape[0])))
     write_text(views, views_csv(res.per_view))
-    write_json(out, metrics)
+    write_metrics(out, metrics)
 
 
 if __name__ == "__main__":

@@ -16,8 +16,9 @@ import torch  # noqa: E402
 
 from abcgs.camera_paths import spiral_path  # noqa: E402
 from abcgs.gaussians import render  # noqa: E402
-from abcgs.io.atomic import atomic_path, write_json, write_text  # noqa: E402
+from abcgs.io.atomic import atomic_path, write_text  # noqa: E402
 from abcgs.io.images import save_image  # noqa: E402
+from abcgs.io.metrics import write_metrics  # noqa: E402
 from abcgs.io.ply import read_ply, write_ply  # noqa: E402
 from abcgs.pipeline import run_stage, stage_parser  # noqa: E402
 from abcgs.style.content_masks import colorize_labels  # noqa: E402
@@ -71,7 +72,7 @@ def main(args, params) -> None:
         write_video(tmp / "turntable.mp4", frames, fps=24)
     write_text(args.history, history_csv(res.history))
     n_it = max(1, res.timings.get("iterations", 1))
-    write_json(args.metrics, {
+    write_metrics(args.metrics, {
         "experiment": args.experiment, "method": exp.method, "transfer": exp.transfer,
         "stylize_seconds": res.seconds, "iterations": int(res.timings.get("iterations", 0)),
         "seconds_per_iteration": {k: v / n_it for k, v in res.timings.items() if k != "iterations"},

@@ -86,7 +86,11 @@ def test_all_stages_write_their_artifacts(repo: Path, first_repro) -> None:
         assert len(list((d / "renders").glob("*.png"))) == 16
         metrics = json.loads((out / exp / "stylize.json").read_text())
         assert metrics["iterations"] == REDUCED[("stylize", "iterations")]
-        assert metrics["vgg_weights"]["sha256"]
+        assert "vgg_weights" not in metrics  # provenance strings live in the info file, not in the DVC metric
+        info = json.loads((out / exp / "stylize_info.json").read_text())
+        assert info["vgg_weights"]["sha256"] and info["iterations"] == metrics["iterations"]
+        ev_info = json.loads((out / exp / "eval_info.json").read_text())
+        assert ev_info["provenance"]["fid_kid"]["inception"]["sha256"]
         history = (out / exp / "stylize_history.csv").read_text().splitlines()
         assert history[0].startswith("step,") and len(history) >= 3
 
