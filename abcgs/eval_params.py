@@ -28,9 +28,15 @@ class EvalParams(BaseModel):
     )
     proxy_layers: list[str] = Field(default_factory=lambda: list(LPIPS_VGG_LAYERS), description="VGG taps of the proxy")
     # consistency
-    flow: Literal["dis", "deepflow", "dualtvl1"] = Field(
-        "dis", description="optical flow on the original renders (deepflow/dualtvl1 need opencv-contrib's cv2.optflow)"
+    flow: Literal["auto", "raft", "dis", "deepflow", "dualtvl1"] = Field(
+        "auto",
+        description="optical flow on the original renders: auto = RAFT when torchvision and its weights are on disk, "
+        "else OpenCV DIS; deepflow/dualtvl1 need opencv-contrib's cv2.optflow",
     )
+    raft_weights: str | None = Field(
+        None, description="torchvision RAFT-large state dict (None: Raft_Large_Weights.DEFAULT in the torch hub cache)"
+    )
+    raft_iterations: int = Field(12, ge=1, description="RAFT refinement updates")
     short_term_gap: int = Field(1, ge=1, description="view distance of the short-term pairs (i, i+gap)")
     long_term_gap: int = Field(7, ge=1, description="view distance of the long-term pairs; clipped to n_views-1")
     heatmap_pair: Literal["short", "long"] = Field("short", description="which pair kind eval_consistency.png shows")

@@ -20,6 +20,8 @@ from eval.metrics.consistency import (
     consistency,
     fb_consistency_mask,
     in_frame_mask,
+    make_flow_estimator,
+    raft_default_weights_file,
     view_pairs,
 )
 from eval.metrics.content import (
@@ -151,6 +153,37 @@ def test_contrib_flows_when_present(method) -> None:
     img1, img2 = shifted_pair(3, 2, 60, 80)
     flow = FlowEstimator(method)(img1, img2)
     assert np.median(np.linalg.norm(flow[10:-10, 10:-10] - np.array([3.0, 2.0]), axis=-1)) < 0.5
+
+
+def test_flow_auto_falls_back_to_dis_and_says_why(tmp_path) -> None:
+    missing = str(tmp_path / "no_raft.pth")
+    est = make_flow_estimator("auto", raft_weights=missing)
+    assert est.method == "dis"
+    prov = est.provenance()
+    assert prov["method"] == "dis" and ("torchvision" in prov["why_not_raft"] or missing in prov["why_not_raft"])
+    with pytest.raises(InputError, match="'raft' is not available"):
+        make_flow_estimator("raft", raft_weights=missing)
+    assert make_flow_estimator("dis").provenance().get("why_not_raft") is None
+
+
+@pytest.mark.skipif(raft_default_weights_file() is None, reason="torchvision (RAFT) does not import in this environment")
+def test_raft_flow_loads_a_state_dict_and_keeps_the_frame(tmp_path) -> None:
+    """Plumbing only (random weights: no download here): load, pad to /8 and ≥ 128 px, crop back, provenance."""
+    from torchvision.models.optical_flow import raft_large
+
+    torch.manual_seed(0)
+    path = tmp_path / "raft_random.pth"
+    torch.save(raft_large(weights=None).state_dict(), path)
+    est = make_flow_estimator("raft", raft_weights=str(path), raft_iterations=2)
+    for h, w in ((61, 83), (120, 161)):  # smaller than RAFT's minimum; the tiny scene's size
+        img1, img2 = shifted_pair(3, 2, h, w)
+        flow = est(img1, img2)
+        assert flow.shape == (h, w, 2) and flow.dtype == np.float32 and np.isfinite(flow).all()
+    assert est.provenance()["weights_sha256"] and est.provenance()["method"] == "raft"
+    assert make_flow_estimator("auto", raft_weights=str(path)).method == "raft"
+    torch.save({"not": torch.zeros(1)}, path)
+    with pytest.raises(InputError, match="not a torchvision RAFT-large state dict"):
+        make_flow_estimator("raft", raft_weights=str(path))
 
 
 def test_view_pairs_clip_gap() -> None:

@@ -4,8 +4,9 @@ What is comparable to the ABC-GS paper's table and what is a named proxy:
 
 - ``ssim`` — standard Wang et al. SSIM between original and stylized renders: comparable in definition
   (view set, resolution and SSIM implementation details may differ; ``ssim_impl`` says which ran).
-- ``short_rmse`` / ``long_rmse`` — masked warp RMSE: comparable in definition; the flow (OpenCV DIS by
-  default, RAFT in the authors' later code) and the view pairs differ.
+- ``short_rmse`` / ``long_rmse`` — masked warp RMSE: comparable in definition; the flow is RAFT (as the
+  authors' later code) only where torchvision and its weights are on disk, else OpenCV DIS (provenance says
+  which), and the view pairs differ.
 - ``short_lpips`` / ``long_lpips`` / ``artfid`` — only when the real LPIPS-alex and ArtFID's art-trained
   Inception ran. Offline they cannot, and the keys are ``*_lpips_proxy_vgg`` / ``artfid_proxy``: proxies on a
   different scale, for comparing runs of this project only.

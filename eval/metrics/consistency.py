@@ -15,18 +15,27 @@ distance (:class:`eval.metrics.content.PerceptualDistance`: real LPIPS-alex or t
 short-term pairs are (i, i + 1), long-term pairs (i, i + gap) with gap clipped to n − 1 (training views
 in capture order, as for forward-facing LLFF scenes).
 
+Flow (``evaluate.flow``): ``raft`` = torchvision's RAFT-large (Teed & Deng 2020; weights from
+``evaluate.raft_weights`` or torchvision's ``Raft_Large_Weights.DEFAULT`` file in the torch hub cache, which
+torchvision downloads when online), ``dis`` = OpenCV DIS (PRESET_MEDIUM), ``deepflow`` / ``dualtvl1`` =
+opencv-contrib; ``auto`` = RAFT when torchvision imports and its weights are on disk, else DIS. The method
+used is recorded in the provenance.
+
 Comparability with the paper: the paper's consistency numbers use RAFT flow (authors' later code) or
 similar, LPIPS-alex, and the LLFF test views. The RMSE here follows the same definition, so it is
-comparable in kind (flow method and view set differ; RMSE is not sensitive to the network); the
-perceptual column is comparable only when it is named ``lpips``.
+comparable in kind (the view set differs, and the flow method unless RAFT ran); the perceptual column is
+comparable only when it is named ``lpips``.
 """
 
 from __future__ import annotations
 
+import importlib.util
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import cv2
 import numpy as np
+import torch
 
 from abcgs.errors import InputError
 from eval.metrics.content import (
@@ -47,7 +56,87 @@ def flow_status(method: str) -> tuple[bool, str]:
         if not hasattr(cv2, "optflow"):
             return False, "cv2.optflow is missing: install opencv-contrib-python(-headless) with a matching version"
         return True, {"deepflow": "cv2.optflow.createOptFlow_DeepFlow()", "dualtvl1": "cv2.optflow.DualTVL1OpticalFlow_create()"}[method]
-    return False, f"unknown flow method {method!r} (dis | deepflow | dualtvl1)"
+    return False, f"unknown flow method {method!r} (auto | raft | dis | deepflow | dualtvl1)"
+
+
+def raft_default_weights_file() -> Path | None:
+    """Where torchvision keeps ``Raft_Large_Weights.DEFAULT`` in the torch hub cache (None: no torchvision)."""
+    try:
+        from torchvision.models.optical_flow import Raft_Large_Weights
+    except Exception:  # not installed, or a torchvision built for another torch
+        return None
+    return Path(torch.hub.get_dir()) / "checkpoints" / Path(Raft_Large_Weights.DEFAULT.url).name
+
+
+def raft_status(weights_path: str | None = None) -> tuple[bool, str]:
+    """Whether RAFT can run here without a download: ``(ok, weights file or the reason it cannot)``."""
+    if importlib.util.find_spec("torchvision") is None:
+        return False, "torchvision is not installed (RAFT comes from torchvision; see README 'Evaluation metrics')"
+    default = raft_default_weights_file()
+    if default is None:
+        return False, "torchvision does not import beside this torch build (see README 'Evaluation metrics')"
+    f = Path(weights_path) if weights_path else default
+    if not f.is_file():
+        return False, f"RAFT weights not found at {f} (set evaluate.raft_weights, or run once online)"
+    return True, str(f)
+
+
+class RaftFlow:
+    """Dense optical flow ``a → b`` by torchvision's RAFT-large, same convention as :class:`FlowEstimator`.
+
+    Images in [0, 1] are mapped to [−1, 1] (torchvision's RAFT transforms), padded by edge replication to
+    sides that are multiples of 8 and at least 128 px, and the last of ``iterations`` refinement steps is
+    returned, cropped back.
+    """
+
+    def __init__(self, weights_path: str | None = None, iterations: int = 12) -> None:
+        ok, what = raft_status(weights_path)
+        if not ok:
+            raise InputError(f"optical flow 'raft' is not available: {what}")
+        from torchvision.models.optical_flow import raft_large
+
+        from abcgs.style.weights import sha256_file
+
+        self.weights, self.iterations, self.method = Path(what), iterations, "raft"
+        self.model = raft_large(weights=None, progress=False).eval()
+        try:
+            self.model.load_state_dict(torch.load(self.weights, map_location="cpu", weights_only=True))
+        except Exception as exc:
+            raise InputError(f"{self.weights} is not a torchvision RAFT-large state dict: {exc}") from exc
+        self.sha256 = sha256_file(self.weights)
+        self.implementation = f"torchvision.models.optical_flow.raft_large, {iterations} updates"
+
+    @torch.no_grad()
+    def __call__(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        check_pair(a, b, "flow inputs")
+        h, w = np.asarray(a).shape[:2]
+        # RAFT needs sides that are multiples of 8 and at least 128 px (its 4-level correlation pyramid at 1/8)
+        ph, pw = max(128, h + (-h) % 8) - h, max(128, w + (-w) % 8) - w
+
+        def prep(img: np.ndarray) -> torch.Tensor:
+            t = torch.from_numpy(np.ascontiguousarray(img, dtype=np.float32)[..., :3]).permute(2, 0, 1)[None]
+            t = t.clamp(0, 1) * 2 - 1
+            return torch.nn.functional.pad(t, (0, pw, 0, ph), mode="replicate") if ph or pw else t
+
+        flow = self.model(prep(a), prep(b), num_flow_updates=self.iterations)[-1]
+        return flow[0, :, :h, :w].permute(1, 2, 0).contiguous().numpy().astype(np.float32)
+
+    def provenance(self) -> dict:
+        import torchvision
+
+        return {"method": "raft", "implementation": self.implementation, "weights": str(self.weights),
+                "weights_sha256": self.sha256, "torchvision_version": torchvision.__version__,
+                "computed_on": "original (pre-stylization) renders, RGB in [-1, 1]"}
+
+
+def make_flow_estimator(method: str = "auto", raft_weights: str | None = None, raft_iterations: int = 12):
+    """The flow estimator for ``evaluate.flow``; ``auto`` picks RAFT when :func:`raft_status` allows, else DIS."""
+    if method == "raft" or (method == "auto" and raft_status(raft_weights)[0]):
+        return RaftFlow(raft_weights, raft_iterations)
+    est = FlowEstimator("dis" if method == "auto" else method)
+    if method == "auto":
+        est.why_not_raft = raft_status(raft_weights)[1]
+    return est
 
 
 def _gray_u8(img: np.ndarray) -> np.ndarray:
@@ -65,6 +154,7 @@ class FlowEstimator:
         if not ok:
             raise InputError(f"optical flow {method!r} is not available: {what}")
         self.method, self.implementation = method, what
+        self.why_not_raft: str | None = None
         if method == "dis":
             self._algo = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
         elif method == "deepflow":
@@ -77,8 +167,11 @@ class FlowEstimator:
         return self._algo.calc(_gray_u8(a), _gray_u8(b), None).astype(np.float32)
 
     def provenance(self) -> dict:
-        return {"method": self.method, "implementation": self.implementation, "opencv_version": cv2.__version__,
-                "computed_on": "original (pre-stylization) renders, 8-bit grey"}
+        out = {"method": self.method, "implementation": self.implementation, "opencv_version": cv2.__version__,
+               "computed_on": "original (pre-stylization) renders, 8-bit grey"}
+        if self.why_not_raft:
+            out["why_not_raft"] = self.why_not_raft
+        return out
 
 
 def _grid(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
@@ -136,7 +229,7 @@ def view_pairs(n: int, gap: int) -> list[tuple[int, int]]:
 class FlowCache:
     """Flows between original renders, computed once per ordered pair."""
 
-    def __init__(self, originals: list[np.ndarray], estimator: FlowEstimator) -> None:
+    def __init__(self, originals: list[np.ndarray], estimator: FlowEstimator | RaftFlow) -> None:
         self.originals, self.estimator, self._c = originals, estimator, {}
 
     def __call__(self, i: int, j: int) -> np.ndarray:

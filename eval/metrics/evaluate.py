@@ -27,9 +27,9 @@ from abcgs.gaussians import GaussianModel, render
 from eval.metrics.artfid import ArtInception, artfid_formula, find_art_inception
 from eval.metrics.consistency import (
     FlowCache,
-    FlowEstimator,
     consistency,
     heatmap_panel,
+    make_flow_estimator,
 )
 from eval.metrics.content import (
     SSIM,
@@ -127,7 +127,7 @@ def evaluate_images(
     timings["content_s"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    flows = FlowCache(originals, FlowEstimator(params.flow))
+    flows = FlowCache(originals, make_flow_estimator(params.flow, params.raft_weights, params.raft_iterations))
     short, short_pairs = consistency(originals, stylized, params.short_term_gap, flows, perceptual)
     long, long_pairs = consistency(originals, stylized, params.long_term_gap, flows, perceptual)
     timings["consistency_s"] = time.perf_counter() - t
