@@ -126,6 +126,8 @@ def test_eval_params_reject_unknown_keys() -> None:
     from abcgs.params import validate_params
 
     p = validate_params({"data": {"scenes": {"s": "x"}}, "evaluate": {"long_term_gap": 3}})
-    assert p.evaluate.long_term_gap == 3 and p.evaluate.flow == "dis"
+    assert p.evaluate.long_term_gap == 3 and p.evaluate.flow == "auto"
+    with pytest.raises(ParamsError, match="evaluate.flow"):
+        validate_params({"data": {"scenes": {"s": "x"}}, "evaluate": {"flow": "raf"}})
     with pytest.raises(ParamsError, match="evaluate.long_gap: unknown key"):
         validate_params({"data": {"scenes": {"s": "x"}}, "evaluate": {"long_gap": 3}})
