@@ -55,7 +55,8 @@ bench-rasterizer: install
 	$(BIN)/python eval/bench_rasterizer.py --json out/bench/rasterizer.json
 
 # Real-data benchmark: a DVC experiment in a temporary copy (`dvc exp show` lists it, `dvc exp apply fern-bench`
-# brings its params and outputs into the workspace). Absolute paths: the copy is not next to ../shared.
+# brings its params and outputs into the workspace; eval/show_exp.py prints its table and copies its report and
+# grids to out/bench/fern-bench/ without touching the workspace). Absolute paths: the copy is not next to ../shared.
 SHARED ?= $(abspath ../shared/data)
 FERN_SET = -S "+data.scenes.fern=$(SHARED)/scenes/fern" \
   -S "+data.styles.starry=$(SHARED)/styles/starry_night.jpg" -S "+data.styles.udnie=$(SHARED)/styles/udnie.jpg" \
@@ -70,4 +71,4 @@ FERN_SET = -S "+data.scenes.fern=$(SHARED)/scenes/fern" \
 bench-fern: install
 	@test -d "$(SHARED)/scenes/fern" || (echo "bench-fern needs $(SHARED)/scenes/fern" && exit 1)
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/dvc exp run --temp -n fern-bench $(FERN_SET)
-	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/dvc exp show --only-changed
+	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python eval/show_exp.py fern-bench --only '^fern_' --out out/bench/fern-bench

@@ -150,8 +150,30 @@ def format_table(runs: list[Run]) -> str:
     return "\n".join(lines)
 
 
-if __name__ == "__main__":  # python -m eval.report: print the table of the runs in out/
+def format_markdown(runs: list[Run]) -> str:
+    """The report's table as GitHub markdown (for README and issue notes)."""
+    cols, rows = table_rows(runs)
+    lines = ["| " + " | ".join(cols) + " |", "|" + " --- |" * len(cols)]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":  # python -m eval.report [--markdown]: print the table of the runs in out/
+    import argparse
+
     from abcgs.params import load_params
 
-    params = load_params("params.yaml")
-    print(format_table(load_runs(Path("out"), {k: v.model_dump() for k, v in params.experiments.items()})))
+    ap = argparse.ArgumentParser(description="Print the results table of the experiments in params.yaml.")
+    ap.add_argument("--params", default="params.yaml")
+    ap.add_argument("--root", type=Path, default=Path("out"))
+    ap.add_argument("--markdown", action="store_true", help="GitHub markdown instead of aligned text")
+    ap.add_argument("--only", help="regular expression: report only the experiments whose name matches")
+    a = ap.parse_args()
+    params = load_params(a.params)
+    specs = {k: v.model_dump() for k, v in params.experiments.items()}
+    if a.only:
+        import re
+
+        specs = {k: v for k, v in specs.items() if re.search(a.only, k)}
+    runs = load_runs(a.root, specs)
+    print(format_markdown(runs) if a.markdown else format_table(runs))

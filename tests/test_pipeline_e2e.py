@@ -93,6 +93,9 @@ def test_all_stages_write_their_artifacts(repo: Path, first_repro) -> None:
         assert ev_info["provenance"]["fid_kid"]["inception"]["sha256"]
         history = (out / exp / "stylize_history.csv").read_text().splitlines()
         assert history[0].startswith("step,") and len(history) >= 3
+    page = (repo / "reports" / "report.html").read_text()
+    assert all(exp in page for exp in ("tiny_single", "tiny_compositional", "tiny_semantic"))
+    assert (repo / "reports" / "report.png").stat().st_size > 0
 
 
 def test_second_repro_is_a_no_op(repo: Path, first_repro) -> None:

@@ -1,0 +1,75 @@
+"""The cross-run report: names metrics as written, groups the ablation, embeds its images."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from abcgs.errors import InputError
+from abcgs.io.images import save_image
+from abcgs.io.metrics import write_metrics
+from eval.report import ablation_groups, format_markdown, format_table, load_runs, render_html, summary_png
+
+SPECS = {
+    "a_fast": {"scene": "s", "transfer": "single", "style": "p", "method": "fast"},
+    "a_nnfm": {"scene": "s", "transfer": "single", "style": "p", "method": "nnfm"},
+    "b_fast": {"scene": "s", "transfer": "single", "style": "q", "method": "fast"},
+}
+
+
+def make_run(root, name, official: bool, ssim: float) -> None:
+    d = root / name
+    write_metrics(d / "stylize.json", {"experiment": name, "stylize_seconds": 90.0, "render_fps": 12.5,
+                                       "vgg_weights": {"sha256": "ab"}})
+    ev = {"experiment": name, "ssim": ssim, "short_rmse": 0.05, "long_rmse": 0.08, "fid_tf_inception": 300.0,
+          "kid_tf_inception": 0.25, "provenance": {"seed": 0}}
+    if official:
+        ev |= {"artfid": 40.0, "short_lpips": 0.06, "long_lpips": 0.09}
+    else:
+        ev |= {"artfid_proxy": 900.0, "short_lpips_proxy_vgg": 0.3, "long_lpips_proxy_vgg": 0.7}
+    write_metrics(d / "eval.json", ev)
+    save_image(d / "stylize" / "grid.png", np.full((8, 12, 3), 0.5, np.float32))
+
+
+def test_proxy_runs_are_reported_under_proxy_names(tmp_path) -> None:
+    for name in SPECS:
+        make_run(tmp_path, name, official=False, ssim=0.5)
+    runs = load_runs(tmp_path, SPECS)
+    md = format_markdown(runs).splitlines()
+    assert len(md) == 2 + len(SPECS)
+    assert "artfid_proxy ↓" in md[0] and "short_lpips_proxy_vgg ↓" in md[0]
+    assert "| artfid " not in md[0] and "short_lpips ↓" not in md[0]
+    assert "900.00" in md[2] and "1.50" in md[2]  # stylize minutes from the info record
+    assert runs[0].stylize["vgg_weights"]["sha256"] == "ab"  # the full record, not only the numeric metric
+    assert format_table(runs).splitlines()[0].startswith("run")
+
+
+def test_official_names_only_with_official_values(tmp_path) -> None:
+    make_run(tmp_path, "a_fast", official=True, ssim=0.6)
+    cols = format_markdown(load_runs(tmp_path, {"a_fast": SPECS["a_fast"]})).splitlines()[0]
+    assert "artfid ↓" in cols and "short_lpips ↓" in cols and "proxy" not in cols
+
+
+def test_ablation_groups_runs_that_differ_only_in_method(tmp_path) -> None:
+    for name in SPECS:
+        make_run(tmp_path, name, official=False, ssim=0.5)
+    groups = ablation_groups(load_runs(tmp_path, SPECS))
+    assert [[r.name for r in g] for g in groups] == [["a_fast", "a_nnfm"]]
+
+
+def test_html_is_self_contained_and_png_summary_written(tmp_path) -> None:
+    for name in SPECS:
+        make_run(tmp_path, name, official=False, ssim=0.4)
+    runs = load_runs(tmp_path, SPECS)
+    page = render_html(runs)
+    assert page.count("data:image/png;base64,") >= len(SPECS) and "src=\"http" not in page
+    assert all(name in page for name in SPECS) and "Ablation: fast, nnfm" in page
+    summary_png(runs, tmp_path / "summary.png")
+    assert (tmp_path / "summary.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_missing_run_is_a_clear_error(tmp_path) -> None:
+    with pytest.raises(InputError, match="run `dvc repro` first"):
+        load_runs(tmp_path, {"nope": SPECS["a_fast"]})
+    with pytest.raises(InputError, match="no experiments"):
+        load_runs(tmp_path, {})
