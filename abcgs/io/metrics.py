@@ -4,7 +4,8 @@
 a metric that also carries provenance (weights paths, hashes, versions, notes) becomes an unreadable table.
 A stage therefore writes one record twice: the metrics file keeps only its numeric leaves (ints, floats,
 bools; nested dicts kept, lists and strings dropped) and ``<stem>_info.json`` keeps the complete record.
-Readers that need names or provenance read the info file (:func:`read_record` merges both).
+Readers that need names or provenance read the info file (:func:`read_record`: the info file when present,
+else the metrics file itself, e.g. for runs written before this split).
 """
 
 from __future__ import annotations
