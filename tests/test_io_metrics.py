@@ -1,4 +1,4 @@
-"""DVC metrics files keep numbers; the complete record goes to ``*_info.json``."""
+"""DVC metrics files keep numbers; the complete record goes to ``*_info.json`` (read back by read_record)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ def test_numeric_leaves_drop_strings_lists_none_and_nonfinite() -> None:
     assert numeric_leaves(rec) == {"ssim": 0.5, "n": 3, "ok": True, "speed": {"fps": 20.0}}
 
 
-def test_write_metrics_splits_and_read_record_merges(tmp_path) -> None:
+def test_write_metrics_splits_and_read_record_prefers_the_info_file(tmp_path) -> None:
     rec = {"experiment": "e", "ssim": 0.25, "provenance": {"weights": {"sha256": "00ff"}}, "inf": float("inf")}
     path = tmp_path / "eval.json"
     info = write_metrics(path, rec)
