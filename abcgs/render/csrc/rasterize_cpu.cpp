@@ -59,7 +59,8 @@ struct Binning {
 
 // Front-to-back order of the Gaussians with a positive extent: a stable LSD radix sort (8-bit digits) of
 // the depth bits mapped to order-preserving unsigned keys. Ties keep index order and NaN depths go last,
-// i.e. the same permutation as `torch.argsort(depths[extents[:, 0] > 0], stable=True)`.
+// i.e. the same permutation as `torch.argsort(depths[extents[:, 0] > 0], stable=True)` (one exception: -0.0
+// sorts before +0.0, which torch treats as a tie; projected Gaussians have depth > near > 0).
 template <typename scalar_t>
 std::vector<int64_t> depth_order(const scalar_t* depth, const scalar_t* ext, int64_t n) {
   using key_t = std::conditional_t<sizeof(scalar_t) == 4, uint32_t, uint64_t>;
