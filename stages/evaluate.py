@@ -37,8 +37,8 @@ def views_csv(rows: list[dict]) -> str:
 def load_stylize_run(root: Path, name: str, n_views: int, view_stems: list[str]) -> tuple[Path, dict, list]:
     """The stylize stage's outputs for experiment ``name``, checked against the scene's views."""
     run = root / name
-    ply, info_path, renders = run / "stylize" / "point_cloud.ply", run / "stylize.json", run / "stylize" / "renders"
-    for p in (ply, info_path, renders):
+    ply, metrics, renders = run / "stylize" / "point_cloud.ply", run / "stylize.json", run / "stylize" / "renders"
+    for p in (ply, metrics, renders):
         if not p.exists():
             raise InputError(f"{p} is missing: run the stylize stage for experiment {name!r} first (dvc repro stylize@{name})")
     pngs = sorted(renders.glob("*.png"))
@@ -51,7 +51,7 @@ def load_stylize_run(root: Path, name: str, n_views: int, view_stems: list[str])
     missing = [s for s in view_stems if s not in by_stem]
     if missing:
         raise InputError(f"{renders} has no render for views {missing[:5]}: names do not match the scene's cameras")
-    return ply, read_record(info_path), [by_stem[s] for s in view_stems]
+    return ply, read_record(metrics), [by_stem[s] for s in view_stems]
 
 
 def main(args, params) -> None:

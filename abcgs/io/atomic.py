@@ -81,10 +81,14 @@ def _finite(obj: Any) -> Any:
     return obj
 
 
+def jsonable(data: Any) -> Any:
+    """``data`` as plain JSON types (numpy/torch scalars and arrays, paths converted; NaN/inf → None)."""
+    return _finite(json.loads(json.dumps(data, default=_json_default)))
+
+
 def write_json(path: str | os.PathLike, data: Any) -> None:
-    """Write ``data`` as indented JSON, atomically."""
-    text = json.dumps(_finite(json.loads(json.dumps(data, default=_json_default))), indent=2, sort_keys=False)
-    write_text(path, text + "\n")
+    """Write ``data`` (see :func:`jsonable`) as indented JSON, atomically."""
+    write_text(path, json.dumps(jsonable(data), indent=2, sort_keys=False) + "\n")
 
 
 def write_text(path: str | os.PathLike, text: str) -> None:

@@ -16,7 +16,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from abcgs.io.atomic import _finite, _json_default, write_json
+from abcgs.io.atomic import jsonable, write_json
 
 
 def info_path(metrics_path: str | os.PathLike) -> Path:
@@ -46,7 +46,7 @@ def write_metrics(path: str | os.PathLike, record: dict[str, Any]) -> Path:
 
     Both writes are atomic. Returns the info file's path.
     """
-    plain = _finite(json.loads(json.dumps(record, default=_json_default)))
+    plain = jsonable(record)
     info = info_path(path)
     write_json(info, plain)
     write_json(path, numeric_leaves(plain))

@@ -131,12 +131,10 @@ class RaftFlow:
 
 def make_flow_estimator(method: str = "auto", raft_weights: str | None = None, raft_iterations: int = 12):
     """The flow estimator for ``evaluate.flow``; ``auto`` picks RAFT when :func:`raft_status` allows, else DIS."""
-    if method == "raft" or (method == "auto" and raft_status(raft_weights)[0]):
-        return RaftFlow(raft_weights, raft_iterations)
-    est = FlowEstimator("dis" if method == "auto" else method)
-    if method == "auto":
-        est.why_not_raft = raft_status(raft_weights)[1]
-    return est
+    if method != "auto":
+        return RaftFlow(raft_weights, raft_iterations) if method == "raft" else FlowEstimator(method)
+    ok, why = raft_status(raft_weights)
+    return RaftFlow(raft_weights, raft_iterations) if ok else FlowEstimator("dis", why_not_raft=why)
 
 
 def _gray_u8(img: np.ndarray) -> np.ndarray:
@@ -149,12 +147,12 @@ def _gray_u8(img: np.ndarray) -> np.ndarray:
 class FlowEstimator:
     """Dense optical flow ``a → b`` (``(H, W, 2)`` float32, a(x) ≈ b(x + f(x))) by one OpenCV method."""
 
-    def __init__(self, method: str = "dis") -> None:
+    def __init__(self, method: str = "dis", *, why_not_raft: str | None = None) -> None:
         ok, what = flow_status(method)
         if not ok:
             raise InputError(f"optical flow {method!r} is not available: {what}")
         self.method, self.implementation = method, what
-        self.why_not_raft: str | None = None
+        self.why_not_raft = why_not_raft  # set when `auto` fell back from RAFT; recorded in the provenance
         if method == "dis":
             self._algo = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
         elif method == "deepflow":
