@@ -15,13 +15,14 @@ STAMP := $(VENV)/.installed-$(INSTALL_KEY)
 export PYTHONUNBUFFERED := 1
 export HF_HUB_OFFLINE := 1
 
-.PHONY: install run test bench-rasterizer bench-fern help
+.PHONY: install run test bench-rasterizer bench-fern quality help
 
 help:
 	@echo "make run    - run the DVC pipeline on the embedded tiny scene (installs first)"
 	@echo "make test   - run the test suite (installs first)"
 	@echo "make bench-rasterizer - rasterizer backend benchmark (eval/bench_rasterizer.py)"
 	@echo "make bench-fern - DVC experiment: LLFF fern x paintings x {fast, nnfm} (needs ../shared/data)"
+	@echo "make quality - quality study: fern x 3 paintings x style losses, figures + table (eval/quality_study.py)"
 
 $(STAMP): pyproject.toml Makefile
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -72,3 +73,9 @@ bench-fern: install
 	@test -d "$(SHARED)/scenes/fern" || (echo "bench-fern needs $(SHARED)/scenes/fern" && exit 1)
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/dvc exp run --temp -n fern-bench $(FERN_SET)
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python eval/show_exp.py fern-bench --only '^fern_' --out out/bench/fern-bench
+
+# Quality study (README "Quality", docs/FIDELITY.md): fern × three paintings × {FAST, NNFM} + the authors' FAST
+# variant, KNNFM and Gram on Starry Night; resumable (its own cache in out/quality/fern). ~2 h on 2 cores.
+quality: install
+	@test -d "$(SHARED)/scenes/fern" || (echo "quality needs $(SHARED)/scenes/fern" && exit 1)
+	$(BIN)/python eval/quality_study.py --scene $(SHARED)/scenes/fern --style-dir $(SHARED)/styles --jobs 2 --threads 1

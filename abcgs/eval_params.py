@@ -50,6 +50,10 @@ class EvalParams(BaseModel):
     fid_batch: int = Field(16, ge=1)
     kid_subsets: int = Field(100, ge=1, description="random subsets averaged for KID")
     kid_subset_size: int = Field(1000, ge=2, description="KID subset size (clipped to the smaller set)")
+    # Gram style distance (eval/metrics/style_distance.py)
+    gram_layers: list[str] = Field(default_factory=lambda: ["relu1_2", "relu2_2", "relu3_3"],
+                                   description="VGG taps of the Gram style distance")
+    gram_style_height: int = Field(256, ge=16, description="style images are resized to this height (as for stylization)")
     # ArtFID (official only with both official components)
     art_inception_path: str | None = Field(
         None, description="TorchScript export of ArtFID's art-trained Inception (art_inception.pth); None: not available"

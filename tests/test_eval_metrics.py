@@ -269,3 +269,34 @@ def test_tf_inception_features_and_self_fid() -> None:
 def test_artfid_formula() -> None:
     assert artfid_formula(0.5, 10.0) == pytest.approx(16.5)
     assert artfid_formula(0.0, 0.0) == 1.0
+
+
+# ---------------------------------------------------------------------------------------------- Gram distance
+def test_gram_distance_zero_for_the_style_and_ordered() -> None:
+    from abcgs.style.vgg import random_state_dict
+    from eval.metrics.style_distance import GramDistance
+
+    sd = random_state_dict(1, "relu3_3")
+    style = texture(64, 80, seed=3, sigma=1.0)
+    g = GramDistance(sd, [style], downsample_renders=False)
+    assert g([style]) < 1e-9
+    # a crop of the same texture is close; a flat grey image and another texture are farther
+    near = g([style[8:56, 8:72]])
+    other = g([texture(64, 80, seed=9, sigma=4.0)])
+    flat = g([np.full((64, 80, 3), 0.5, np.float32)])
+    assert 0 < near < other < flat
+    # relative errors: scaling the weights of the last conv (every relu3_3 activation × 3) changes nothing
+    sd3 = dict(sd)
+    sd3["features.14.weight"] = sd["features.14.weight"] * 3
+    sd3["features.14.bias"] = sd["features.14.bias"] * 3
+    g3 = GramDistance(sd3, [style], downsample_renders=False)
+    assert abs(g3([style[8:56, 8:72]]) - near) < 1e-6 * near  # float32 features
+    # two style images pool their positions: the distance to either alone is larger than to both
+    a, b = texture(64, 80, seed=4, sigma=1.0), texture(64, 80, seed=5, sigma=6.0)
+    both = GramDistance(sd, [a, b], downsample_renders=False)
+    assert both.per_image(np.concatenate([a, b], axis=1)) < min(GramDistance(sd, [a], downsample_renders=False).per_image(
+        np.concatenate([a, b], axis=1)), GramDistance(sd, [b], downsample_renders=False).per_image(np.concatenate([a, b], axis=1)))
+    with pytest.raises(InputError):
+        GramDistance(sd, [])
+    with pytest.raises(InputError):
+        g([np.zeros((8, 8), np.float32)])

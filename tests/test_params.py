@@ -44,7 +44,7 @@ def test_unknown_key_names_path_and_allowed_keys(raw) -> None:
 def test_nested_unknown_key(raw) -> None:
     bad = copy.deepcopy(raw)
     bad["stylize"]["fast"] = {"kk": 3}
-    assert "stylize.fast.kk: unknown key; allowed keys here: k, eps" in _error(bad)
+    assert "stylize.fast.kk: unknown key; allowed keys here: cosine, k, eps" in _error(bad)
 
 
 def test_wrong_type_and_literal_values(raw) -> None:

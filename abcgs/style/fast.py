@@ -10,7 +10,15 @@ For one matching group with rendered features ``F_r`` ``(C, N_r)`` (carrying gra
   (``ε = 1e-12``); on a failed solve or a non-finite ``P`` the identity is used and counted in
   :class:`FastStats`;
 - target ``F_rs = Pᵀ F_r`` computed without grad;
-- loss = mean over columns of ``1 − cos(F_r[:, i], F_rs[:, i])``; groups are summed.
+- loss = ``1 − cos(F_r, F_rs)`` averaged, groups summed. The cosine runs along one of two axes
+  (:attr:`FastParams.cosine`):
+
+  - ``"pixel"`` (default, the paper's Eq. 7 read per feature vector): for each rendered feature
+    (pixel) ``i``, the cosine across channels of ``F_r[:, i]`` and ``F_rs[:, i]``, averaged over pixels —
+    the same axis as NNFM's;
+  - ``"channel"`` (the authors' code, ``abcgs/loss/fast_loss.py``: ``F.cosine_similarity(a, b, dim=1)``
+    on ``(C, N)``): for each channel ``c``, the cosine across the group's pixels of ``F_r[c, :]`` and
+    ``F_rs[c, :]``, averaged over channels. Each channel's spatial map is compared up to its scale.
 
 ``P`` is formed from the raw (un-normalised) features, the neighbours from cosine similarity. The
 products ``F_r D_r F_rᵀ`` and ``F_r U F_sᵀ`` are accumulated in the features' dtype and solved in
@@ -32,11 +40,17 @@ from pydantic import BaseModel, ConfigDict, Field
 from abcgs.errors import InputError, NumericalError
 from abcgs.style.knn import DEFAULT_MAX_BLOCK_ELEMS, check_feature_pair, mutual_knn_pairs, normalize_columns
 
+CosineAxis = Literal["pixel", "channel"]
+
 
 class FastParams(BaseModel):
     """Knobs of the FAST loss."""
 
     model_config = ConfigDict(extra="forbid")
+
+    cosine: CosineAxis = "pixel"
+    """Axis of the cosine between ``F_r`` and ``F_rs``: ``pixel`` (per feature vector, across channels) or
+    ``channel`` (per channel, across the group's pixels: the authors' code). See the module docstring."""
 
     k: int = Field(5, ge=1)
     """Neighbours per feature in each direction."""
@@ -63,16 +77,24 @@ class FastStats:
         return asdict(self)
 
 
-def cosine_distance_loss(f: torch.Tensor, target: torch.Tensor, eps: float = 1e-8) -> torch.Tensor:
-    """Mean over columns of ``1 − cos(f[:, i], target[:, i])``; ``f``, ``target`` ``(C, N)`` → scalar.
+def cosine_distance_loss(
+    f: torch.Tensor, target: torch.Tensor, eps: float = 1e-8, axis: CosineAxis = "pixel"
+) -> torch.Tensor:
+    """Mean of ``1 − cos`` between ``f`` and ``target``, both ``(C, N)`` → scalar.
 
-    Norms get ``+ eps`` (ARF's convention), so zero columns give distance 1 with finite gradients.
+    ``axis="pixel"``: per column (feature vector of one pixel, cosine across the ``C`` channels), mean
+    over the ``N`` columns. ``axis="channel"``: per row (one channel's values across the ``N`` pixels),
+    mean over the ``C`` rows. Norms get ``+ eps`` (ARF's convention), so zero vectors give distance 1
+    with finite gradients.
     """
     if f.shape != target.shape:
         raise InputError(f"cosine_distance_loss: shapes differ {tuple(f.shape)} vs {tuple(target.shape)}")
-    a = f / (f.norm(dim=0, keepdim=True) + eps)
-    b = target / (target.norm(dim=0, keepdim=True) + eps)
-    return (1.0 - (a * b).sum(dim=0)).mean()
+    if axis not in ("pixel", "channel"):
+        raise InputError(f"cosine axis must be 'pixel' or 'channel', got {axis!r}")
+    dim = 0 if axis == "pixel" else 1
+    a = f / (f.norm(dim=dim, keepdim=True) + eps)
+    b = target / (target.norm(dim=dim, keepdim=True) + eps)
+    return (1.0 - (a * b).sum(dim=dim)).mean()
 
 
 @torch.no_grad()
@@ -171,13 +193,14 @@ def fast_loss_group(
     params: FastParams | None = None,
     stats: FastStats | None = None,
 ) -> torch.Tensor:
-    """FAST loss of one group: mean over rendered features of ``1 − cos(F_r, F_rs)``; grad flows to ``F_r``."""
+    """FAST loss of one group: ``1 − cos(F_r, F_rs)`` along ``params.cosine``, averaged; grad flows to ``F_r``."""
     if not bool(torch.isfinite(f_r).all()):
         raise NumericalError("FAST: rendered features contain NaN/Inf (the render or the optimiser diverged)")
     if not bool(torch.isfinite(f_s).all()):
         raise InputError("FAST: style features contain NaN/Inf")
+    params = params or FastParams()
     target = fast_target(f_r, f_s, params, stats)
-    return cosine_distance_loss(f_r, target)
+    return cosine_distance_loss(f_r, target, axis=params.cosine)
 
 
 def fast_loss(
@@ -205,7 +228,9 @@ def affinity_dense(f_r: torch.Tensor, f_s: torch.Tensor, k: int = 5) -> torch.Te
     return torch.maximum(a, b)
 
 
-def fast_loss_dense(f_r: torch.Tensor, f_s: torch.Tensor, k: int = 5, eps: float = 1e-12) -> torch.Tensor:
+def fast_loss_dense(
+    f_r: torch.Tensor, f_s: torch.Tensor, k: int = 5, eps: float = 1e-12, cosine: CosineAxis = "pixel"
+) -> torch.Tensor:
     """Dense FAST loss for one group, written directly from the formulas. Reference for tests only."""
     with torch.no_grad():
         a = affinity_dense(f_r, f_s, k)
@@ -215,4 +240,4 @@ def fast_loss_dense(f_r: torch.Tensor, f_s: torch.Tensor, k: int = 5, eps: float
         m = fr @ d @ fr.t() + eps * torch.eye(fr.shape[0], dtype=torch.float64, device=fr.device)
         p = torch.linalg.solve(m, fr @ u.double() @ f_s.detach().double().t())
         target = (p.t() @ fr).to(f_r.dtype)
-    return cosine_distance_loss(f_r, target)
+    return cosine_distance_loss(f_r, target, axis=cosine)

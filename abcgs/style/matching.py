@@ -73,15 +73,20 @@ class MatchingGroup:
     style_image: np.ndarray = field(repr=False, default=None)  # isolated region image (for reports)
 
 
+def resize_to_height(img: np.ndarray, height: int) -> np.ndarray:
+    """``(H, W, 3)`` → height ``height``, aspect kept (area filter when shrinking, as the authors' cv2.INTER_AREA)."""
+    if height <= 0 or img.shape[0] == height:
+        return img
+    width = max(8, round(img.shape[1] * height / img.shape[0]))
+    return cv2.resize(img, (width, height), interpolation=cv2.INTER_AREA if img.shape[0] > height else cv2.INTER_CUBIC)
+
+
 def load_style(path: str, height: int) -> np.ndarray:
     """A style image resized to ``height`` (aspect kept); a 1×1 or unreadable image is an error."""
     img = load_image(path)
     if min(img.shape[:2]) < 8:
         raise InputError(f"style image {path} is {img.shape[1]}x{img.shape[0]}; it must be at least 8x8 pixels")
-    if height > 0 and img.shape[0] != height:
-        width = max(8, round(img.shape[1] * height / img.shape[0]))
-        img = cv2.resize(img, (width, height), interpolation=cv2.INTER_AREA if img.shape[0] > height else cv2.INTER_CUBIC)
-    return img
+    return resize_to_height(img, height)
 
 
 def build_groups(

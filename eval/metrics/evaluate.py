@@ -45,6 +45,7 @@ from eval.metrics.fid import (
     random_patches,
     resize_short_side,
 )
+from eval.metrics.style_distance import GramDistance
 
 log = logging.getLogger(__name__)
 
@@ -146,6 +147,16 @@ def evaluate_images(
     kid_mean, kid_std, kid_m = kid(f_s, f_r, params.kid_subsets, params.kid_subset_size, params.seed)
     timings["fid_s"] = time.perf_counter() - t
 
+    t = time.perf_counter()
+    from abcgs.style.matching import resize_to_height
+    from abcgs.style.weights import resolve_vgg16
+
+    vgg_state, vgg_info = resolve_vgg16(vgg_params)
+    gram = GramDistance(vgg_state, [resize_to_height(s, params.gram_style_height) for s in style_images],
+                        params.gram_layers)
+    gram_per_view = [gram.per_image(s) for s in stylized]
+    timings["gram_s"] = time.perf_counter() - t
+
     # ArtFID: official only with real LPIPS and the art-trained Inception
     art_path, art_why = find_art_inception(params.art_inception_path)
     content_mean = _mean(content)
@@ -172,6 +183,7 @@ def evaluate_images(
             "view": i, "name": names[i], "ssim": ssims[i], f"content_{pname}": content[i],
             "short_rmse": sp[i].rmse if i in sp else None, f"short_{pname}": sp[i].perceptual if i in sp else None,
             "long_rmse": lp[i].rmse if i in lp else None, f"long_{pname}": lp[i].perceptual if i in lp else None,
+            "gram_distance": gram_per_view[i],
         })
 
     pairs = short_pairs if params.heatmap_pair == "short" else long_pairs
@@ -190,6 +202,7 @@ def evaluate_images(
         "short_term_gap": short["gap"], "long_term_gap": long["gap"],
         "short_valid_fraction": short["valid_fraction"], "long_valid_fraction": long["valid_fraction"],
         "fid_tf_inception": fid, "kid_tf_inception": kid_mean, "kid_tf_inception_std": kid_std,
+        "gram_distance": _mean(gram_per_view),
         art_key: art_val,
         "artfid_components": {**components, "note": art_note},
         "provenance": {
@@ -204,6 +217,8 @@ def evaluate_images(
                 "protocol": "seeded random square crops resized to 299x299; style images first resized to the renders' short side; "
                             "FID with n << 2048 is biased upwards and depends on n; KID = unbiased MMD^2, cubic polynomial kernel",
             },
+            "gram_distance": {**gram.info, "style_height": params.gram_style_height,
+                              "vgg_weights": vgg_info.model_dump()},
             "seed": params.seed, "versions": _versions(),
         },
         "eval_timings_s": timings,

@@ -1,0 +1,392 @@
+"""Quality study: one real scene × several paintings × style losses, same schedule and seed; figures + table.
+
+    python eval/quality_study.py --scene ../shared/data/scenes/fern \
+        --styles starry_night,woman_with_hat_matisse,shipwreck --ablation-style starry_night --jobs 2
+
+What runs (single-image transfer, the library's default stylization schedule unless ``--set`` changes it):
+
+- every painting: FAST with this project's defaults (``fast``) and NNFM (``nnfm``);
+- the ablation painting also: the authors' FAST variant (``fast_authors``: per-channel cosine and the authors'
+  learning rates, :data:`VARIANTS`), KNNFM and Gram.
+
+Every run uses the same fitted scene, the same colour-matched start per painting, the same seed and schedule.
+Work is cached under ``--work`` (default ``out/quality/<scene>``) keyed by a hash of everything that
+determines it (params, painting file, method), so an interrupted or extended study only runs what is
+missing; ``--force`` redoes the runs. The fitted scene is shared with ``eval/bench_fit.py``
+(``out/bench/<scene>/{colmap,gs}``) and made with its settings when absent.
+
+Outputs in ``--work``: ``figure_<painting>.png`` (two views, every method side by side, the painting, and
+a 2× crop row), ``table.md`` / ``table.csv`` / ``study.json`` (per run: SSIM, short/long warp RMSE and VGG
+proxy consistency, Gram style distance, patch FID/KID proxy, stylization wall time), and it prints the
+table and the issue-11 acceptance checks. Metric definitions: ``eval/metrics`` and README
+"Evaluation metrics"; ``gram_distance``: ``eval/metrics/style_distance.py``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import platform
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+import yaml  # noqa: E402
+
+from abcgs.errors import InputError  # noqa: E402
+from abcgs.eval_params import EvalParams  # noqa: E402
+from abcgs.io.atomic import write_json, write_text  # noqa: E402
+from abcgs.io.images import save_image  # noqa: E402
+from abcgs.io.ply import read_ply, write_ply  # noqa: E402
+from abcgs.sfm.colmap import ReconstructParams, read_colmap_scene, reconstruct  # noqa: E402
+from abcgs.style.colormatch import ColorMatchParams, color_match_and_refit  # noqa: E402
+from abcgs.style.matching import ExperimentParams, build_groups, load_style  # noqa: E402
+from abcgs.style.stylize import StylizeParams, stylize  # noqa: E402
+from abcgs.style.vgg import VGG16Features  # noqa: E402
+from abcgs.style.weights import VggWeightsParams, resolve_vgg16  # noqa: E402
+
+STUDY_VERSION = 1
+"""Bump when the study's own procedure changes (invalidates the cache)."""
+
+VARIANTS: dict[str, dict] = {
+    "default": {},
+    # the authors' code (vpx-ecnu/ABC-GS): cosine per channel across pixels, INRIA learning rates with xyz frozen
+    "authors": {"fast": {"cosine": "channel"}, "lr_preset": "authors_code"},
+}
+METHOD_LABELS = {("fast", "default"): "FAST (ours, default)", ("nnfm", "default"): "NNFM (ARF)",
+                 ("fast", "authors"): "FAST (authors' code)", ("knnfm", "default"): "KNNFM", ("gram", "default"): "Gram"}
+FIT_SETTINGS = {"iterations": 3000, "max_gaussians": 150_000, "refine_start": 300, "refine_every": 100,
+                "refine_stop": 1800, "reset_every": 1500}
+"""The fit of eval/bench_fit.py and `make bench-fern` (README "Fern benchmark")."""
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    style: str
+    method: str
+    variant: str = "default"
+
+    @property
+    def name(self) -> str:
+        return f"{self.style}__{self.method}" + ("" if self.variant == "default" else f"_{self.variant}")
+
+    @property
+    def label(self) -> str:
+        return METHOD_LABELS.get((self.method, self.variant), f"{self.method} ({self.variant})")
+
+
+def _merge(base: dict, over: dict) -> dict:
+    out = dict(base)
+    for k, v in over.items():
+        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def _set(d: dict, dotted: str, value) -> None:
+    keys = dotted.split(".")
+    for k in keys[:-1]:
+        d = d.setdefault(k, {})
+    d[keys[-1]] = value
+
+
+def _digest(obj) -> str:
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:12]
+
+
+def _file_sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+
+
+# ------------------------------------------------------------------------------------------- the scene
+def ensure_scene(scene_dir: Path, bench_root: Path, threads: int, fit_iterations: int = 3000) -> tuple[Path, Path, dict]:
+    """COLMAP model + fitted 3DGS of ``scene_dir`` in ``bench_root/<scene>/{colmap,gs}`` (made if missing).
+
+    The fit uses :data:`FIT_SETTINGS`, its step counts scaled by ``fit_iterations / 3000``.
+    """
+    base = bench_root / scene_dir.name
+    colmap, ply = base / "colmap", base / "gs" / "point_cloud.ply"
+    if not (colmap / "sparse").is_dir():
+        print(f"[study] reconstructing {scene_dir} → {colmap}", flush=True)
+        reconstruct(scene_dir / "images", colmap, ReconstructParams())
+    if not ply.is_file():
+        from abcgs.fit.strategy import StrategyParams
+        from abcgs.fit.trainer import FitParams, fit
+
+        s = FIT_SETTINGS
+        f = fit_iterations / s["iterations"]
+        fp = FitParams(iterations=fit_iterations, max_gaussians=s["max_gaussians"], threads=threads,
+                       strategy=StrategyParams(refine_start=s["refine_start"], refine_every=s["refine_every"],
+                                               refine_stop=s["refine_stop"], reset_every=s["reset_every"]).scaled(f))
+        print(f"[study] fitting {scene_dir.name}: {fp.iterations} steps, {fp.strategy.model_dump()}", flush=True)
+        scene = read_colmap_scene(colmap / "sparse", colmap / "images")
+        res = fit(scene, fp, progress=True)
+        write_ply(ply, res.model)
+    return colmap, ply, {"colmap": str(colmap), "ply": str(ply), "ply_sha": _file_sha(ply)}
+
+
+# ------------------------------------------------------------------------------------------- workers
+def _setup(threads: int) -> None:
+    torch.set_num_threads(threads)
+    os.environ.setdefault("HF_HUB_OFFLINE", "1")
+
+
+def _vgg(params: dict, layers) -> tuple[VGG16Features, dict, dict]:
+    sd, info = resolve_vgg16(VggWeightsParams(**params.get("vgg", {})))
+    return VGG16Features(sd, layers, feature_scale=info.feature_scale), sd, info.model_dump()
+
+
+def _groups(style_path: str, method: str, sp: StylizeParams, vgg: VGG16Features):
+    exp = ExperimentParams(scene="scene", transfer="single", style="style", method=method)
+    return build_groups(exp, {"style": style_path}, {}, set(), vgg, style_height=sp.style_height, layers=sp.layers)
+
+
+def colormatch_job(job: dict) -> dict:
+    """Colour match + re-fit of the fitted scene to one painting; writes ``job['out']`` (PLY)."""
+    _setup(job["threads"])
+    out = Path(job["out"])
+    if out.is_file():
+        return {"path": str(out), "cached": True}
+    scene = read_colmap_scene(Path(job["colmap"]) / "sparse", Path(job["colmap"]) / "images")
+    original = read_ply(job["ply"])
+    sp = StylizeParams(**job["stylize"])
+    vgg, _, _ = _vgg(job, sp.layers)
+    groups = _groups(job["style_path"], "fast", sp, vgg)
+    labels = torch.zeros(original.num_gaussians, dtype=torch.long)
+    view_labels = [np.zeros((c.height, c.width), np.int64) for c in scene.cameras]
+    t0 = time.perf_counter()
+    res = color_match_and_refit(original, scene, labels, view_labels, groups, ColorMatchParams(**job["colormatch"]),
+                                progress=False)
+    write_ply(out, res.model)
+    return {"path": str(out), "cached": False, "seconds": time.perf_counter() - t0}
+
+
+def run_job(job: dict) -> dict:
+    """Stylize the colour-matched scene with one method, evaluate it, write ``<run dir>/{point_cloud.ply,run.json}``."""
+    _setup(job["threads"])
+    run_dir = Path(job["run_dir"])
+    record = run_dir / "run.json"
+    if record.is_file():
+        return json.loads(record.read_text())
+    from eval.metrics.evaluate import evaluate_images, render_views
+
+    scene = read_colmap_scene(Path(job["colmap"]) / "sparse", Path(job["colmap"]) / "images")
+    original = read_ply(job["ply"])
+    matched = read_ply(job["colormatch_ply"])
+    sp = StylizeParams(**job["stylize"])
+    vgg, _, vgg_info = _vgg(job, sp.layers)
+    groups = _groups(job["style_path"], job["method"], sp, vgg)
+    labels = torch.zeros(matched.num_gaussians, dtype=torch.long)
+    view_labels = [np.zeros((c.height, c.width), np.int64) for c in scene.cameras]
+    res = stylize(matched, scene.cameras, view_labels, labels, groups, vgg, sp, method=job["method"],
+                  depth_model=original, progress=False)
+    ep = EvalParams(**job["evaluate"])
+    originals, _ = render_views(original, scene.cameras, ep.backend)
+    styled, _ = render_views(res.model, scene.cameras, ep.backend)
+    style_img = load_style(job["style_path"], 0)
+    t0 = time.perf_counter()
+    ev = evaluate_images(originals, styled, [style_img], ep, vgg_params=VggWeightsParams(**job.get("vgg", {})))
+    m = ev.metrics
+    n_it = max(1, res.timings.get("iterations", 1))
+    out = {
+        "name": job["name"], "style": job["style"], "method": job["method"], "variant": job["variant"],
+        "key": job["key"], "stylize_params": sp.model_dump(), "n_gaussians": res.model.num_gaussians,
+        "stylize_seconds": res.seconds, "color_pass_seconds": res.color_pass_seconds,
+        "seconds_per_iteration": {k: v / n_it for k, v in res.timings.items() if k != "iterations"},
+        "eval_seconds": time.perf_counter() - t0, "threads": job["threads"], "fast_stats": res.fast_stats,
+        "metrics": {k: v for k, v in m.items() if not isinstance(v, dict)},
+        "provenance": m.get("provenance", {}), "vgg_weights": vgg_info,
+        "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine(),
+                    "torch": torch.__version__},
+    }
+    run_dir.mkdir(parents=True, exist_ok=True)
+    write_ply(run_dir / "point_cloud.ply", res.model)
+    write_json(record, out)  # last: its presence marks the run as done
+    return out
+
+
+# ------------------------------------------------------------------------------------------- outputs
+COLUMNS = [("ssim", "SSIM ↑", 3), ("short_rmse", "short RMSE ↓", 4), ("long_rmse", "long RMSE ↓", 4),
+           ("short_lpips_proxy_vgg", "short LPIPS-proxy ↓", 3), ("long_lpips_proxy_vgg", "long LPIPS-proxy ↓", 3),
+           ("gram_distance", "Gram dist. ↓", 3), ("kid_tf_inception", "KID proxy ↓", 4),
+           ("fid_tf_inception", "FID proxy ↓", 1)]
+
+
+def table(results: list[dict], specs: list[RunSpec]) -> tuple[str, str]:
+    head = ["painting", "method"] + [c[1] for c in COLUMNS] + ["stylize min"]
+    md = ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
+    csv = [",".join(["painting", "method"] + [c[0] for c in COLUMNS] + ["stylize_minutes"])]
+    by = {r["name"]: r for r in results}
+    for s in specs:
+        r = by[s.name]
+        m = r["metrics"]
+        vals = [("nan" if m.get(k) is None else f"{m[k]:.{d}f}") for k, _, d in COLUMNS]
+        md.append("| " + " | ".join([s.style, s.label, *vals, f"{r['stylize_seconds'] / 60:.1f}"]) + " |")
+        csv.append(",".join([s.style, s.name, *[str(m.get(k)) for k, _, _ in COLUMNS], f"{r['stylize_seconds'] / 60:.3f}"]))
+    return "\n".join(md) + "\n", "\n".join(csv) + "\n"
+
+
+def acceptance(results: list[dict], styles: list[str]) -> list[str]:
+    """Issue 11's acceptance checks on this study's numbers (printed, also stored in study.json)."""
+    by = {(r["style"], r["method"], r["variant"]): r["metrics"] for r in results}
+    fast = [by[(s, "fast", "default")] for s in styles]
+    nnfm = [by[(s, "nnfm", "default")] for s in styles]
+    mean = lambda k, rows: float(np.mean([r[k] for r in rows]))  # noqa: E731
+    lines = [
+        f"mean SSIM, FAST default over {len(styles)} paintings: {mean('ssim', fast):.3f} (target ≤ 0.60)",
+        f"mean short RMSE {mean('short_rmse', fast):.4f} (≤ 0.048), long RMSE {mean('long_rmse', fast):.4f} (≤ 0.077)",
+    ]
+    wins_gram = sum(f["gram_distance"] < n["gram_distance"] for f, n in zip(fast, nnfm))
+    wins_kid = sum(f["kid_tf_inception"] < n["kid_tf_inception"] for f, n in zip(fast, nnfm))
+    both = sum(f["gram_distance"] < n["gram_distance"] and f["kid_tf_inception"] < n["kid_tf_inception"]
+               for f, n in zip(fast, nnfm))
+    ssim_gap = max(n["ssim"] - f["ssim"] for f, n in zip(fast, nnfm))
+    lines.append(f"FAST beats NNFM on Gram distance for {wins_gram}/{len(styles)}, on KID for {wins_kid}/{len(styles)}, "
+                 f"on both for {both}/{len(styles)} paintings (target ≥ 2 on both)")
+    lines.append(f"largest SSIM deficit of FAST vs NNFM: {ssim_gap:+.3f} (target ≤ 0.03)")
+    return lines
+
+
+def figure(results: dict[str, dict], specs: list[RunSpec], style: str, style_path: str, colmap: Path, ply: Path,
+           run_dirs: dict[str, Path], views: tuple[int, ...], crop: tuple[int, int, int, int]) -> np.ndarray:
+    """Rows: the chosen views (original, each method, painting), then a 2× crop of the first view."""
+    import cv2
+
+    from abcgs.gaussians import render
+    from abcgs.viz import image_grid
+
+    scene = read_colmap_scene(colmap / "sparse", colmap / "images")
+    mine = [s for s in specs if s.style == style]
+    models = [read_ply(ply)] + [read_ply(run_dirs[s.name] / "point_cloud.ply") for s in mine]
+    captions = ["original"] + [s.label for s in mine] + ["painting"]
+    painting = load_style(style_path, 0)
+    rows = []
+    with torch.no_grad():
+        for v in views:
+            cam = scene.cameras[v]
+            rows.append([render(m, cam)[0].clamp(0, 1).numpy() for m in models] + [painting])
+        x0, y0, x1, y1 = crop
+        crop_row = []
+        for img in rows[0][:-1]:
+            c = img[y0:y1, x0:x1]
+            crop_row.append(cv2.resize(c, (2 * c.shape[1], 2 * c.shape[0]), interpolation=cv2.INTER_CUBIC))
+        rows.append(crop_row)
+    return image_grid(rows, captions, height=rows[0][0].shape[0])
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scene", type=Path, required=True, help="scene folder with images/")
+    ap.add_argument("--style-dir", type=Path, default=Path("../shared/data/styles"))
+    ap.add_argument("--styles", default="starry_night,woman_with_hat_matisse,shipwreck",
+                    help="comma-separated painting names (files <name>.jpg in --style-dir)")
+    ap.add_argument("--ablation-style", default="starry_night", help="painting that also gets the ablation runs")
+    ap.add_argument("--params", type=Path, default=None,
+                    help="YAML with stylize/colormatch/evaluate/vgg sections (default: the library defaults)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override, e.g. stylize.iterations=300 (YAML value)")
+    ap.add_argument("--work", type=Path, default=None, help="cache and outputs (default out/quality/<scene>)")
+    ap.add_argument("--bench-root", type=Path, default=Path("out/bench"), help="shared COLMAP + fit cache")
+    ap.add_argument("--jobs", type=int, default=1, help="runs in parallel (processes)")
+    ap.add_argument("--threads", type=int, default=0, help="torch threads per job (0: cores / jobs)")
+    ap.add_argument("--views", default="2,13", help="views shown in the figures")
+    ap.add_argument("--crop", default="240,180,480,360", help="x0,y0,x1,y1 of the 2x crop row (first view)")
+    ap.add_argument("--force", action="store_true", help="redo the stylization runs")
+    ap.add_argument("--fit-iterations", type=int, default=FIT_SETTINGS["iterations"],
+                    help="fit steps when the scene has no fit in --bench-root yet")
+    args = ap.parse_args(argv)
+
+    threads = args.threads or max(1, (os.cpu_count() or 1) // max(1, args.jobs))
+    styles = [s.strip() for s in args.styles.split(",") if s.strip()]
+    if args.ablation_style not in styles:
+        raise InputError(f"--ablation-style {args.ablation_style!r} must be one of --styles ({', '.join(styles)})")
+    style_paths = {s: (args.style_dir / f"{s}.jpg").resolve() for s in styles}
+    for s, p in style_paths.items():
+        if not p.is_file():
+            raise InputError(f"painting {s!r}: {p} does not exist (give --style-dir and names of its .jpg files)")
+    cfg = yaml.safe_load(args.params.read_text()) if args.params else {}
+    cfg = {k: cfg.get(k, {}) for k in ("stylize", "colormatch", "evaluate", "vgg")}
+    for item in args.set:
+        key, _, val = item.partition("=")
+        _set(cfg, key, yaml.safe_load(val))
+    # validate once, up front (typos fail before any work)
+    StylizeParams(**cfg["stylize"])
+    ColorMatchParams(**cfg["colormatch"])
+    EvalParams(**cfg["evaluate"])
+    VggWeightsParams(**cfg["vgg"])
+
+    work = args.work or Path("out/quality") / args.scene.name
+    work.mkdir(parents=True, exist_ok=True)
+    colmap, ply, scene_info = ensure_scene(args.scene, args.bench_root, threads * max(1, args.jobs), args.fit_iterations)
+
+    specs = [RunSpec(s, m) for s in styles for m in ("fast", "nnfm")]
+    specs += [RunSpec(args.ablation_style, "fast", "authors"), RunSpec(args.ablation_style, "knnfm"),
+              RunSpec(args.ablation_style, "gram")]
+    specs.sort(key=lambda s: (styles.index(s.style), s.method != "fast", s.variant != "default", s.method))
+
+    base = {"threads": threads, "colmap": str(colmap), "ply": str(ply), "vgg": cfg["vgg"]}
+    cm_jobs, cm_path = [], {}
+    for s in styles:
+        key = _digest([STUDY_VERSION, scene_info["ply_sha"], _file_sha(style_paths[s]), cfg["colormatch"],
+                       cfg["stylize"].get("style_height"), cfg["vgg"]])
+        cm_path[s] = work / "colormatch" / f"{s}-{key}.ply"
+        cm_jobs.append({**base, "style_path": str(style_paths[s]), "out": str(cm_path[s]),
+                        "colormatch": cfg["colormatch"], "stylize": cfg["stylize"]})
+    run_jobs, run_dirs = [], {}
+    for spec in specs:
+        sp = _merge(cfg["stylize"], VARIANTS[spec.variant])
+        key = _digest([STUDY_VERSION, scene_info["ply_sha"], _file_sha(style_paths[spec.style]), cfg["colormatch"], sp,
+                       cfg["evaluate"], cfg["vgg"], spec.method])
+        run_dirs[spec.name] = work / "runs" / f"{spec.name}-{key}"
+        if args.force and (run_dirs[spec.name] / "run.json").is_file():
+            (run_dirs[spec.name] / "run.json").unlink()
+        run_jobs.append({**base, "name": spec.name, "style": spec.style, "method": spec.method, "variant": spec.variant,
+                         "key": key, "style_path": str(style_paths[spec.style]), "colormatch_ply": str(cm_path[spec.style]),
+                         "run_dir": str(run_dirs[spec.name]), "stylize": sp, "evaluate": cfg["evaluate"]})
+
+    todo = [j for j in run_jobs if not (Path(j["run_dir"]) / "run.json").is_file()]
+    print(f"[study] {len(specs)} runs ({len(specs) - len(todo)} cached), {len(styles)} paintings, "
+          f"{args.jobs} job(s) × {threads} thread(s); work dir {work}", flush=True)
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
+        for r in pool.map(colormatch_job, cm_jobs):
+            how = "cached" if r["cached"] else "{:.0f} s".format(r["seconds"])
+            print(f"[study] colour match ({how}): {r['path']}", flush=True)
+        results = []
+        for r in pool.map(run_job, run_jobs):
+            results.append(r)
+            m = r["metrics"]
+            print(f"[study] {r['name']}: SSIM {m['ssim']:.3f}, Gram {m['gram_distance']:.3f}, KID {m['kid_tf_inception']:.4f}, "
+                  f"short/long RMSE {m['short_rmse']:.4f}/{m['long_rmse']:.4f}, {r['stylize_seconds'] / 60:.1f} min", flush=True)
+    md, csv = table(results, specs)
+    checks = acceptance(results, styles)
+    views = tuple(int(v) for v in args.views.split(","))
+    crop = tuple(int(v) for v in args.crop.split(","))
+    by_name = {r["name"]: r for r in results}
+    for s in styles:
+        save_image(work / f"figure_{s}.png", figure(by_name, specs, s, str(style_paths[s]), colmap, ply, run_dirs, views, crop))
+    first = results[0]
+    header = (f"# Quality study: {args.scene.name} × {', '.join(styles)}\n\n"
+              f"Schedule: {first['stylize_params']['iterations']} stylization steps + "
+              f"{first['stylize_params']['color_pass_iterations']} colour-pass steps, seed {first['stylize_params']['seed']}; "
+              f"{first['n_gaussians']} Gaussians; {first['machine']['cpus']} CPUs, {threads} torch thread(s) per run, "
+              f"{args.jobs} run(s) at a time; VGG weights: {first['vgg_weights']['source']}.\n\n")
+    write_text(work / "table.md", header + md + "\n" + "\n".join(f"- {c}" for c in checks) + "\n")
+    write_text(work / "table.csv", csv)
+    summary = {"scene": str(args.scene), "scene_fit": scene_info, "styles": {s: str(p) for s, p in style_paths.items()},
+               "config": cfg, "runs": results, "acceptance": checks, "wall_seconds_this_call": time.perf_counter() - t0}
+    write_json(work / "study.json", summary)
+    print("\n" + header + md)
+    print("\n".join(checks))
+    return summary
+
+
+if __name__ == "__main__":
+    main()
