@@ -138,9 +138,9 @@ def _setup(threads: int) -> None:
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
 
-def _vgg(params: dict, layers) -> tuple[VGG16Features, dict, dict]:
+def _vgg(params: dict, layers) -> tuple[VGG16Features, dict]:
     sd, info = resolve_vgg16(VggWeightsParams(**params.get("vgg", {})))
-    return VGG16Features(sd, layers, feature_scale=info.feature_scale), sd, info.model_dump()
+    return VGG16Features(sd, layers, feature_scale=info.feature_scale), info.model_dump()
 
 
 def _groups(style_path: str, method: str, sp: StylizeParams, vgg: VGG16Features):
@@ -157,7 +157,7 @@ def colormatch_job(job: dict) -> dict:
     scene = read_colmap_scene(Path(job["colmap"]) / "sparse", Path(job["colmap"]) / "images")
     original = read_ply(job["ply"])
     sp = StylizeParams(**job["stylize"])
-    vgg, _, _ = _vgg(job, sp.layers)
+    vgg, _ = _vgg(job, sp.layers)
     groups = _groups(job["style_path"], "fast", sp, vgg)
     labels = torch.zeros(original.num_gaussians, dtype=torch.long)
     view_labels = [np.zeros((c.height, c.width), np.int64) for c in scene.cameras]
@@ -181,7 +181,7 @@ def run_job(job: dict) -> dict:
     original = read_ply(job["ply"])
     matched = read_ply(job["colormatch_ply"])
     sp = StylizeParams(**job["stylize"])
-    vgg, _, vgg_info = _vgg(job, sp.layers)
+    vgg, vgg_info = _vgg(job, sp.layers)
     groups = _groups(job["style_path"], job["method"], sp, vgg)
     labels = torch.zeros(matched.num_gaussians, dtype=torch.long)
     view_labels = [np.zeros((c.height, c.width), np.int64) for c in scene.cameras]

@@ -41,7 +41,6 @@ from abcgs.style.vgg import VGG16Features, downsample_half, extract_features
 log = logging.getLogger(__name__)
 
 
-LR_NAMES = ("lr_sh0", "lr_means", "lr_scales", "lr_opacity", "lr_quats")
 LR_PRESETS: dict[str, dict[str, float]] = {
     "default": {"lr_sh0": 0.01, "lr_means": 1.6e-5, "lr_scales": 1e-3, "lr_opacity": 1e-2, "lr_quats": 1e-3},
     # INRIA 3DGS ``training_setup`` as the authors' StyleTrainer uses it: f_dc 0.0025, opacity 0.05, scaling 0.005,
@@ -210,6 +209,12 @@ def _check_finite(value: Tensor, name: str, step: int) -> None:
         )
 
 
+@torch.no_grad()
+def _renormalize_quats(model: GaussianModel) -> None:
+    """Project the rotations back onto unit quaternions after an optimiser step (in place)."""
+    model.quats.data = model.quats.data / model.quats.data.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+
 def _random_views(n: int, seed: int):
     """Endless view indices: a seeded random permutation of ``range(n)``, drawn again when used up."""
     gen = torch.Generator().manual_seed(seed)
@@ -275,8 +280,7 @@ def style_pass(
         loss.backward()
         t4 = time.perf_counter()
         opt.step()
-        with torch.no_grad():
-            m.quats.data = m.quats.data / m.quats.data.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+        _renormalize_quats(m)
         t5 = time.perf_counter()
         for key, dt in (("render", t1 - t0), ("vgg", t2 - t1), ("style_loss", t3 - t2), ("backward", t4 - t3),
                         ("step", t5 - t4)):
@@ -348,8 +352,7 @@ def color_pass(
         opt.zero_grad(set_to_none=True)
         terms.total.backward()
         opt.step()
-        with torch.no_grad():
-            m.quats.data = m.quats.data / m.quats.data.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+        _renormalize_quats(m)
         if it % params.log_every == 0 or it == iterations - 1:
             history.append({"step": start_step + it, "seconds": time.perf_counter() - t_start, "pass": "color",
                             "loss": float(terms.total.detach()), "l1": float(terms.l1.detach())})

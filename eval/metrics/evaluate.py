@@ -24,6 +24,8 @@ from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.eval_params import EvalParams
 from abcgs.gaussians import GaussianModel, render
+from abcgs.style.matching import resize_to_height
+from abcgs.style.weights import resolve_vgg16
 from eval.metrics.artfid import ArtInception, artfid_formula, find_art_inception
 from eval.metrics.consistency import (
     FlowCache,
@@ -120,8 +122,11 @@ def evaluate_images(
     timings: dict[str, float] = {}
     t = time.perf_counter()
 
+    # one VGG-16 resolution for the perceptual proxy and the Gram distance
+    vgg_state, vgg_info = resolve_vgg16(vgg_params)
     ssim = SSIM(params.ssim_impl)
-    perceptual = perceptual or PerceptualDistance(params.perceptual, layers=params.proxy_layers, vgg_params=vgg_params)
+    perceptual = perceptual or PerceptualDistance(params.perceptual, layers=params.proxy_layers, vgg_state=vgg_state,
+                                                  vgg_info=vgg_info.model_dump())
     pname = perceptual.name
     ssims = [ssim(o, s) for o, s in zip(originals, stylized)]
     content = [perceptual(o, s) for o, s in zip(originals, stylized)]
@@ -148,10 +153,6 @@ def evaluate_images(
     timings["fid_s"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    from abcgs.style.matching import resize_to_height
-    from abcgs.style.weights import resolve_vgg16
-
-    vgg_state, vgg_info = resolve_vgg16(vgg_params)
     gram = GramDistance(vgg_state, [resize_to_height(s, params.gram_style_height) for s in style_images],
                         params.gram_layers)
     gram_per_view = [gram.per_image(s) for s in stylized]

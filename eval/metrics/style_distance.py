@@ -34,6 +34,12 @@ def _bchw(img: np.ndarray) -> torch.Tensor:
     return torch.from_numpy(np.ascontiguousarray(a)).permute(2, 0, 1)[None].clamp(0, 1)
 
 
+def _gram_sum(f: torch.Tensor) -> tuple[torch.Tensor, int]:
+    """``(1, C, h, w)`` features → unnormalised Gram ``F Fᵀ`` ``(C, C)`` in float64 and the position count ``h·w``."""
+    f2 = f[0].reshape(f.shape[1], -1).double()
+    return f2 @ f2.t(), f2.shape[1]
+
+
 class GramDistance:
     """``gram_distance(renders)`` against fixed style image(s); see the module docstring.
 
@@ -55,10 +61,9 @@ class GramDistance:
             counts = dict.fromkeys(self.layers, 0)
             for img in style_images:
                 for k, f in self._vgg(_bchw(img)).items():
-                    f2 = f[0].reshape(f.shape[1], -1).double()
-                    g = f2 @ f2.t()
+                    g, n = _gram_sum(f)
                     sums[k] = g if sums[k] is None else sums[k] + g
-                    counts[k] += f2.shape[1]
+                    counts[k] += n
             self._style = {k: sums[k] / counts[k] for k in self.layers}
 
     @torch.no_grad()
@@ -68,8 +73,8 @@ class GramDistance:
             x = downsample_half(x)
         d = []
         for k, f in self._vgg(x).items():
-            f2 = f[0].reshape(f.shape[1], -1).double()
-            g = f2 @ f2.t() / f2.shape[1]
+            g, n = _gram_sum(f)
+            g = g / n
             d.append(float((g - self._style[k]).norm() / self._style[k].norm()))
         return float(np.mean(d))
 
