@@ -112,7 +112,11 @@ def format_validation_error(exc: ValidationError, source: str, model: type[BaseM
         elif err["type"] == "missing":
             lines.append(f"  {path}: required key is missing")
         else:
-            lines.append(f"  {path}: {err['msg']} (got {err.get('input')!r})")
+            got = err.get("input")
+            shown = repr(got)
+            # a whole section (e.g. the top-level mapping behind a cross-check) is noise, not the culprit
+            tail = "" if isinstance(got, (dict, list)) or len(shown) > 120 else f" (got {shown})"
+            lines.append(f"  {path}: {err['msg']}{tail}")
     return "\n".join(lines)
 
 

@@ -1,7 +1,9 @@
 """Shared plumbing of the DVC stage scripts in ``stages/``: argument parsing, params, logging, errors.
 
 A stage script is a short ``main(args, params)`` that calls the library; :func:`run_stage` validates the
-whole ``params.yaml`` first (so a typo fails before any work), sets up logging, and turns an
+whole ``params.yaml`` first (so a typo fails before any work), then runs :func:`abcgs.preflight.preflight`
+(every key ``dvc.yaml`` tracks is in the file; style files and scene folders exist and decode), sets up
+logging, and turns an
 :class:`abcgs.errors.AbcgsError` into a one-paragraph message and exit status 2 instead of a traceback.
 """
 
@@ -16,6 +18,7 @@ from pathlib import Path
 
 from abcgs.errors import AbcgsError
 from abcgs.params import Params, load_params
+from abcgs.preflight import preflight
 
 log = logging.getLogger("abcgs")
 
@@ -34,6 +37,7 @@ def run_stage(
     t0 = time.perf_counter()
     try:
         params = load_params(args.params)
+        preflight(params, args.params)
         main(args, params)
     except AbcgsError as exc:
         print(f"\n[{name}] error: {exc}", file=sys.stderr)

@@ -49,7 +49,7 @@ from abcgs.io.ply import read_ply, write_ply  # noqa: E402
 from abcgs.sfm.colmap import ReconstructParams, read_colmap_scene, reconstruct  # noqa: E402
 from abcgs.style.colormatch import ColorMatchParams, color_match_and_refit  # noqa: E402
 from abcgs.style.matching import ExperimentParams, build_groups, load_style  # noqa: E402
-from abcgs.style.stylize import StylizeParams, stylize  # noqa: E402
+from abcgs.style.stylize import StylizeParams, StylizeResult, stylize  # noqa: E402
 from abcgs.style.vgg import VGG16Features  # noqa: E402
 from abcgs.style.weights import VggWeightsParams, resolve_vgg16  # noqa: E402
 
@@ -62,7 +62,12 @@ VARIANTS: dict[str, dict] = {
     "authors": {"fast": {"cosine": "channel"}, "lr_preset": "authors_code"},
 }
 METHOD_LABELS = {("fast", "default"): "FAST (ours, default)", ("nnfm", "default"): "NNFM (ARF)",
-                 ("fast", "authors"): "FAST (authors' code)", ("knnfm", "default"): "KNNFM", ("gram", "default"): "Gram"}
+                 ("fast", "authors"): "FAST (authors' code)", ("knnfm", "default"): "KNNFM", ("gram", "default"): "Gram",
+                 ("colormatch", "default"): "colour match only (the start)",
+                 ("original", "default"): "original scene (no stylization)"}
+REFERENCE_METHODS = ("colormatch", "original")
+"""Rows that stylize nothing: the colour-matched start (what a recolouring alone gives) and the fitted scene
+itself (its consistency numbers are the floor of the flow-based measurement: flow error, view-dependent colour)."""
 FIT_SETTINGS = {"iterations": 3000, "max_gaussians": 150_000, "refine_start": 300, "refine_every": 100,
                 "refine_stop": 1800, "reset_every": 1500}
 """The fit of eval/bench_fit.py and `make bench-fern` (README "Fern benchmark")."""
@@ -182,11 +187,15 @@ def run_job(job: dict) -> dict:
     matched = read_ply(job["colormatch_ply"])
     sp = StylizeParams(**job["stylize"])
     vgg, vgg_info = _vgg(job, sp.layers)
-    groups = _groups(job["style_path"], job["method"], sp, vgg)
-    labels = torch.zeros(matched.num_gaussians, dtype=torch.long)
-    view_labels = [np.zeros((c.height, c.width), np.int64) for c in scene.cameras]
-    res = stylize(matched, scene.cameras, view_labels, labels, groups, vgg, sp, method=job["method"],
-                  depth_model=original, progress=False)
+    if job["method"] in REFERENCE_METHODS:  # nothing to stylize: evaluate the start or the scene itself
+        model = matched if job["method"] == "colormatch" else original
+        res = StylizeResult(model=model, history=[], timings={}, fast_stats={}, seconds=0.0)
+    else:
+        groups = _groups(job["style_path"], job["method"], sp, vgg)
+        labels = torch.zeros(matched.num_gaussians, dtype=torch.long)
+        view_labels = [np.zeros((c.height, c.width), np.int64) for c in scene.cameras]
+        res = stylize(matched, scene.cameras, view_labels, labels, groups, vgg, sp, method=job["method"],
+                      depth_model=original, progress=False)
     ep = EvalParams(**job["evaluate"])
     originals, _ = render_views(original, scene.cameras, ep.backend)
     styled, _ = render_views(res.model, scene.cameras, ep.backend)
@@ -207,7 +216,8 @@ def run_job(job: dict) -> dict:
                     "torch": torch.__version__},
     }
     run_dir.mkdir(parents=True, exist_ok=True)
-    write_ply(run_dir / "point_cloud.ply", res.model)
+    if job["method"] not in REFERENCE_METHODS:  # the reference scenes already lie in the cache
+        write_ply(run_dir / "point_cloud.ply", res.model)
     write_json(record, out)  # last: its presence marks the run as done
     return out
 
@@ -251,11 +261,21 @@ def acceptance(results: list[dict], styles: list[str]) -> list[str]:
     lines.append(f"FAST beats NNFM on Gram distance for {wins_gram}/{len(styles)}, on KID for {wins_kid}/{len(styles)}, "
                  f"on both for {both}/{len(styles)} paintings (target ≥ 2 on both)")
     lines.append(f"largest SSIM deficit of FAST vs NNFM: {ssim_gap:+.3f} (target ≤ 0.03)")
+    floor = [r for (s, meth, _), r in by.items() if meth == "original"]
+    if floor:
+        f = floor[0]
+        lines.append(f"measurement floor — the unstylized scene under the same flow: short/long RMSE "
+                     f"{f['short_rmse']:.4f}/{f['long_rmse']:.4f}; FAST's mean excess over it "
+                     f"{mean('short_rmse', fast) - f['short_rmse']:+.4f}/{mean('long_rmse', fast) - f['long_rmse']:+.4f}")
+    starts = {s: by.get((s, "colormatch", "default")) for s in styles}
+    if all(starts.values()):
+        moved = ", ".join(f"{s} {starts[s]['gram_distance']:.3f} → {f['gram_distance']:.3f}" for s, f in zip(styles, fast))
+        lines.append(f"Gram distance, colour match only → FAST: {moved} (beyond recolouring when it drops)")
     return lines
 
 
 def figure(results: dict[str, dict], specs: list[RunSpec], style: str, style_path: str, colmap: Path, ply: Path,
-           run_dirs: dict[str, Path], views: tuple[int, ...], crop: tuple[int, int, int, int]) -> np.ndarray:
+           model_paths: dict[str, Path], views: tuple[int, ...], crop: tuple[int, int, int, int]) -> np.ndarray:
     """Rows: the chosen views (original, each method, painting), then a 2× crop of the first view."""
     import cv2
 
@@ -263,8 +283,8 @@ def figure(results: dict[str, dict], specs: list[RunSpec], style: str, style_pat
     from abcgs.viz import image_grid
 
     scene = read_colmap_scene(colmap / "sparse", colmap / "images")
-    mine = [s for s in specs if s.style == style]
-    models = [read_ply(ply)] + [read_ply(run_dirs[s.name] / "point_cloud.ply") for s in mine]
+    mine = [s for s in specs if s.style == style and s.method != "original"]
+    models = [read_ply(ply)] + [read_ply(model_paths[s.name]) for s in mine]
     captions = ["original"] + [s.label for s in mine] + ["painting"]
     painting = load_style(style_path, 0)
     rows = []
@@ -279,6 +299,27 @@ def figure(results: dict[str, dict], specs: list[RunSpec], style: str, style_pat
             crop_row.append(cv2.resize(c, (2 * c.shape[1], 2 * c.shape[0]), interpolation=cv2.INTER_CUBIC))
         rows.append(crop_row)
     return image_grid(rows, captions, height=rows[0][0].shape[0])
+
+
+def overview_figure(specs: list[RunSpec], styles: list[str], style_paths: dict[str, Path], colmap: Path, ply: Path,
+                    model_paths: dict[str, Path], view: int) -> np.ndarray:
+    """One row per painting at one view: original, colour match only, FAST, NNFM, the painting."""
+    from abcgs.gaussians import render
+    from abcgs.viz import image_grid
+
+    scene = read_colmap_scene(colmap / "sparse", colmap / "images")
+    cam = scene.cameras[view]
+    by = {(s.style, s.method, s.variant): s for s in specs}
+    order = [("colormatch", "default"), ("fast", "default"), ("nnfm", "default")]
+    with torch.no_grad():
+        original = render(read_ply(ply), cam)[0].clamp(0, 1).numpy()
+        rows = []
+        for style in styles:
+            cells = [original] + [render(read_ply(model_paths[by[(style, m, v)].name]), cam)[0].clamp(0, 1).numpy()
+                                  for m, v in order if (style, m, v) in by]
+            rows.append(cells + [load_style(str(style_paths[style]), 0)])
+    captions = ["original", "colour match only", "FAST (default)", "NNFM (ARF)", "painting"]
+    return image_grid(rows, captions, height=original.shape[0])
 
 
 def main(argv=None) -> dict:
@@ -329,7 +370,9 @@ def main(argv=None) -> dict:
     specs = [RunSpec(s, m) for s in styles for m in ("fast", "nnfm")]
     specs += [RunSpec(args.ablation_style, "fast", "authors"), RunSpec(args.ablation_style, "knnfm"),
               RunSpec(args.ablation_style, "gram")]
-    specs.sort(key=lambda s: (styles.index(s.style), s.method != "fast", s.variant != "default", s.method))
+    specs += [RunSpec(s, "colormatch") for s in styles] + [RunSpec(args.ablation_style, "original")]
+    specs.sort(key=lambda s: (styles.index(s.style), s.method in REFERENCE_METHODS, s.method != "fast",
+                              s.variant != "default", s.method))
 
     base = {"threads": threads, "colmap": str(colmap), "ply": str(ply), "vgg": cfg["vgg"]}
     cm_jobs, cm_path = [], {}
@@ -351,6 +394,8 @@ def main(argv=None) -> dict:
                          "key": key, "style_path": str(style_paths[spec.style]), "colormatch_ply": str(cm_path[spec.style]),
                          "run_dir": str(run_dirs[spec.name]), "stylize": sp, "evaluate": cfg["evaluate"]})
 
+    model_paths = {spec.name: (cm_path[spec.style] if spec.method == "colormatch" else ply if spec.method == "original"
+                               else run_dirs[spec.name] / "point_cloud.ply") for spec in specs}
     todo = [j for j in run_jobs if not (Path(j["run_dir"]) / "run.json").is_file()]
     print(f"[study] {len(specs)} runs ({len(specs) - len(todo)} cached), {len(styles)} paintings, "
           f"{args.jobs} job(s) × {threads} thread(s); work dir {work}", flush=True)
@@ -371,7 +416,8 @@ def main(argv=None) -> dict:
     crop = tuple(int(v) for v in args.crop.split(","))
     by_name = {r["name"]: r for r in results}
     for s in styles:
-        save_image(work / f"figure_{s}.png", figure(by_name, specs, s, str(style_paths[s]), colmap, ply, run_dirs, views, crop))
+        save_image(work / f"figure_{s}.png", figure(by_name, specs, s, str(style_paths[s]), colmap, ply, model_paths, views, crop))
+    save_image(work / "figure_overview.png", overview_figure(specs, styles, style_paths, colmap, ply, model_paths, views[0]))
     first = results[0]
     header = (f"# Quality study: {args.scene.name} × {', '.join(styles)}\n\n"
               f"Schedule: {first['stylize_params']['iterations']} stylization steps + "

@@ -1,9 +1,12 @@
 """Stage ``evaluate``: content preservation (SSIM, perceptual), multi-view consistency, FID/KID, ArtFID, speed.
 
-    python stages/evaluate.py --experiment tiny_single --out out/tiny_single/eval.json
+    python stages/evaluate.py --experiment tiny_single --out out/tiny_single/eval.json \
+        --headline out/tiny_single/metrics.json
 
 Renders the original scene (``out/S/gs``) and the stylized one (``out/E/stylize``) for the training views,
-writes the metrics JSON (a DVC metric), per-view scores ``eval_views.csv`` (a DVC plot) and
+writes the full numeric record ``eval.json`` (+ ``eval_info.json`` with provenance), the headline numbers
+``--headline`` (the DVC metric: :data:`abcgs.io.metrics.EXPERIMENT_HEADLINE`), per-view scores
+``eval_views.csv`` (a DVC plot) and
 ``eval_consistency.png`` (one warped pair: error map with the occlusion mask in cyan). Proxy metrics are
 named as proxies (``lpips_proxy_vgg``, ``artfid_proxy``); see ``eval/metrics/__init__.py``.
 """
@@ -18,7 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from abcgs.errors import InputError  # noqa: E402
 from abcgs.io.atomic import write_text  # noqa: E402
 from abcgs.io.images import load_image, save_image  # noqa: E402
-from abcgs.io.metrics import read_record, write_metrics  # noqa: E402
+from abcgs.io.metrics import experiment_headline, read_record, write_headline, write_metrics  # noqa: E402
 from abcgs.io.ply import read_ply  # noqa: E402
 from abcgs.pipeline import run_stage, stage_parser  # noqa: E402
 from abcgs.style.experiment import experiment, load_scene  # noqa: E402
@@ -74,13 +77,16 @@ def main(args, params) -> None:
     save_image(heat, image_grid([res.heatmap], res.heatmap_captions, height=max(160, res.heatmap[0].shape[0])))
     write_text(views, views_csv(res.per_view))
     write_metrics(out, metrics)
+    if args.headline:
+        write_headline(args.headline, experiment_headline(res.metrics))
 
 
 if __name__ == "__main__":
     ap = stage_parser(__doc__.strip().splitlines()[0])
     ap.add_argument("--experiment", required=True)
     ap.add_argument("--root", type=Path, default=Path("out"))
-    ap.add_argument("--out", type=Path, required=True, help="metrics JSON (a DVC metric)")
+    ap.add_argument("--out", type=Path, required=True, help="full metrics record JSON (+ *_info.json)")
+    ap.add_argument("--headline", type=Path, default=None, help="headline metrics JSON (the DVC metric)")
     ap.add_argument("--views", type=Path, default=None, help="per-view CSV (default: eval_views.csv next to --out)")
     ap.add_argument("--heatmap", type=Path, default=None, help="consistency PNG (default: eval_consistency.png next to --out)")
     sys.exit(run_stage("evaluate", ap, main))

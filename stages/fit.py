@@ -1,6 +1,10 @@
 """Stage ``fit``: baseline 3DGS (Kerbl et al. 2023) from a COLMAP reconstruction.
 
-    python stages/fit.py --colmap out/<scene>/colmap --out out/<scene>/gs
+    python stages/fit.py --colmap out/<scene>/colmap --out out/<scene>/gs --headline out/<scene>/fit_metrics.json
+
+Writes ``point_cloud.ply``, ``metrics.json`` (the full record: per-view scores, evaluation history),
+``history.csv`` and ``heldout_grid.png`` into ``--out``, and the scene's headline numbers (the DVC metric) to
+``--headline``.
 """
 
 from __future__ import annotations
@@ -11,17 +15,21 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from abcgs.fit.trainer import fit_and_save  # noqa: E402
+from abcgs.io.metrics import fit_headline, write_headline  # noqa: E402
 from abcgs.pipeline import run_stage, stage_parser  # noqa: E402
 from abcgs.sfm.colmap import read_colmap_scene  # noqa: E402
 
 
 def main(args, params) -> None:
     scene = read_colmap_scene(args.colmap / "sparse", args.colmap / "images")
-    fit_and_save(scene, params.fit, args.out)
+    result = fit_and_save(scene, params.fit, args.out)
+    if args.headline:
+        write_headline(args.headline, fit_headline(result.metrics()))
 
 
 if __name__ == "__main__":
     ap = stage_parser(__doc__.strip().splitlines()[0])
     ap.add_argument("--colmap", type=Path, required=True, help="reconstruct stage output (sparse/ + images/)")
     ap.add_argument("--out", type=Path, required=True, help="output folder for point_cloud.ply, metrics, plots")
+    ap.add_argument("--headline", type=Path, default=None, help="headline metrics JSON (the DVC metric)")
     sys.exit(run_stage("fit", ap, main))

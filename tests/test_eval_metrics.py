@@ -18,6 +18,7 @@ from eval.metrics.consistency import (
     FlowEstimator,
     backward_warp,
     consistency,
+    depth_correspondence,
     fb_consistency_mask,
     in_frame_mask,
     make_flow_estimator,
@@ -184,6 +185,32 @@ def test_raft_flow_loads_a_state_dict_and_keeps_the_frame(tmp_path) -> None:
     torch.save({"not": torch.zeros(1)}, path)
     with pytest.raises(InputError, match="not a torchvision RAFT-large state dict"):
         make_flow_estimator("raft", raft_weights=str(path))
+
+
+def test_depth_correspondence_matches_the_plane_homography_and_masks_occlusion() -> None:
+    """A fronto-parallel plane at z = 5 seen by two cameras 0.5 apart along x: the flow is −f·0.5/5 px."""
+    h, w, f = 40, 60, 50.0
+    K = np.array([[f, 0, w / 2], [0, f, h / 2], [0, 0, 1.0]])
+    vi = np.eye(4)
+    vj = np.eye(4)
+    vj[0, 3] = -0.5  # camera j sits at x = +0.5
+    depth = np.full((h, w), 5.0)
+    flow, mask = depth_correspondence(depth, depth, K, vi, K, vj)
+    np.testing.assert_allclose(flow[..., 0], -f * 0.5 / 5.0, atol=1e-4)
+    np.testing.assert_allclose(flow[..., 1], 0.0, atol=1e-4)
+    assert not mask[:, :5].any() and mask[:, 10:].all()  # the left 5 columns leave view j's frame
+    # a texture that moves with the plane warps back exactly
+    xs = np.arange(w, dtype=np.float32)
+    tex_i = np.repeat(np.sin(xs / 3.0)[None, :, None], h, 0).repeat(3, 2)
+    tex_j = np.repeat(np.sin((xs + 5.0) / 3.0)[None, :, None], h, 0).repeat(3, 2)
+    assert masked_rmse(tex_i, backward_warp(tex_j, flow), mask) < 1e-5
+    # something closer in view j hides the plane there; an invalid source pixel is dropped
+    depth_j = depth.copy()
+    depth_j[:, 30:40] = 2.0
+    valid = np.ones((h, w), bool)
+    valid[0] = False
+    _, mask2 = depth_correspondence(depth, depth_j, K, vi, K, vj, valid_i=valid)
+    assert not mask2[1:, 36:44].any() and mask2[1:, 20:30].all() and not mask2[0].any()
 
 
 def test_view_pairs_clip_gap() -> None:

@@ -102,6 +102,40 @@ def test_all_stages_write_their_artifacts(repo: Path, first_repro) -> None:
     assert (repo / "reports" / "report.png").stat().st_size > 0
 
 
+def _leaf_keys(d: dict, prefix: str = "") -> set[str]:
+    keys: set[str] = set()
+    for k, v in d.items():
+        keys |= _leaf_keys(v, f"{prefix}{k}.") if isinstance(v, dict) else {prefix + k}
+    return keys
+
+
+def test_dvc_metrics_show_is_a_short_headline_table(repo: Path, first_repro) -> None:
+    """Issue 15: at most 15 distinct keys across `dvc metrics show`; per-view numbers and timings are records."""
+    proc = _run(["dvc", "metrics", "show", "--json"], repo)
+    assert proc.returncode == 0, proc.stderr
+    files = json.loads(proc.stdout)[""]["data"]
+    assert sorted(files) == ["out/tiny/fit_metrics.json", "out/tiny_compositional/metrics.json",
+                             "out/tiny_semantic/metrics.json", "out/tiny_single/metrics.json"], sorted(files)
+    keys = set().union(*(_leaf_keys(f["data"]) for f in files.values()))
+    assert len(keys) <= 15, sorted(keys)
+    assert {"psnr", "ssim", "n_gaussians", "fit_minutes", "short_rmse", "long_rmse", "gram_distance",
+            "stylize_minutes"} <= keys, sorted(keys)
+    assert not any("per_view" in k or "seconds_per_iteration" in k or "provenance" in k for k in keys)
+    ev = json.loads((repo / "out" / "tiny_single" / "eval.json").read_text())
+    head = files["out/tiny_single/metrics.json"]["data"]
+    assert head["ssim"] == ev["ssim"] and head["short_rmse"] == ev["short_rmse"]  # the same numbers, fewer of them
+    table = _run(["dvc", "metrics", "show"], repo).stdout
+    assert max(len(line) for line in table.splitlines()) < 400, table
+
+
+def test_dvc_plots_show_writes_the_loss_curves(repo: Path, first_repro, tmp_path: Path) -> None:
+    proc = _run(["dvc", "plots", "show", "-o", str(tmp_path / "plots")], repo)
+    assert proc.returncode == 0, proc.stderr
+    page = (tmp_path / "plots" / "index.html").read_text()
+    for name in ("out/tiny/gs/history.csv", "out/tiny_single/stylize_history.csv", "out/tiny_single/eval_views.csv"):
+        assert name in page, name
+
+
 def test_second_repro_is_a_no_op(repo: Path, first_repro) -> None:
     proc = _run(["dvc", "repro"], repo)
     assert proc.returncode == 0, proc.stderr

@@ -38,25 +38,36 @@ def test_quality_study_runs_every_method_and_caches(tiny_scene: Path, study_inpu
     work = study_inputs["work"]
     names = sorted(r["name"] for r in out["runs"])
     assert names == sorted(["paint__fast", "paint__nnfm", "paint2__fast", "paint2__nnfm", "paint2__fast_authors",
-                            "paint2__knnfm", "paint2__gram"])
+                            "paint2__knnfm", "paint2__gram", "paint__colormatch", "paint2__colormatch",
+                            "paint2__original"])
     authors = next(r for r in out["runs"] if r["name"] == "paint2__fast_authors")
     assert authors["stylize_params"]["fast"]["cosine"] == "channel"
     assert authors["stylize_params"]["lr_preset"] == "authors_code" and authors["stylize_params"]["lr_means"] == 0.0
+    by = {r["name"]: r for r in out["runs"]}
+    # the reference rows stylize nothing; the unstylized scene compared with itself has SSIM 1
+    assert by["paint2__original"]["metrics"]["ssim"] == pytest.approx(1.0, abs=1e-6)
+    assert by["paint2__colormatch"]["stylize_seconds"] == 0.0 and by["paint2__colormatch"]["metrics"]["ssim"] < 1.0
+    ref_dirs = list((work / "runs").glob("paint2__colormatch-*"))
+    assert len(ref_dirs) == 1 and (ref_dirs[0] / "run.json").is_file()
+    assert not (ref_dirs[0] / "point_cloud.ply").exists()  # the start already lies in the colour-match cache
     for r in out["runs"]:
         m = r["metrics"]
         assert 0.0 < m["ssim"] <= 1.0 and np.isfinite(m["gram_distance"]) and np.isfinite(m["kid_tf_inception"])
         assert r["stylize_params"]["iterations"] == 3 and r["stylize_params"]["color_pass_iterations"] == 2
     table = (work / "table.md").read_text()
-    assert table.count("| paint2 |") == 5 and table.count("| paint |") == 2
+    assert table.count("| paint2 |") == 7 and table.count("| paint |") == 3
     assert "FAST beats NNFM" in table and "mean SSIM" in table
+    assert "measurement floor" in table and "colour match only → FAST" in table
     fig = load_image(work / "figure_paint2.png")
     fig1 = load_image(work / "figure_paint.png")
-    assert fig.shape[1] > fig1.shape[1]  # 5 methods vs 2, same height per row
+    assert fig.shape[1] > fig1.shape[1]  # 5 methods + the start vs 2 + the start, same height per row
+    overview = load_image(work / "figure_overview.png")  # one row per painting: original, start, FAST, NNFM, painting
+    assert overview.shape[0] >= 2 * 120 and overview.shape[1] > overview.shape[0]
     assert json.loads((work / "study.json").read_text())["acceptance"] == out["acceptance"]
     # a second call finds every run in the cache and does no stylization
     capsys.readouterr()
     again = quality_study.main(_argv(tiny_scene, study_inputs))
-    assert "7 runs (7 cached)" in capsys.readouterr().out
+    assert "10 runs (10 cached)" in capsys.readouterr().out
     assert [r["metrics"]["ssim"] for r in again["runs"]] == [r["metrics"]["ssim"] for r in out["runs"]]
 
 

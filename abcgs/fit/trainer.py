@@ -29,7 +29,6 @@ import numpy as np
 import torch
 from pydantic import BaseModel, Field, field_validator
 from torch import Tensor
-from tqdm.auto import tqdm
 
 from abcgs.cameras import Camera
 from abcgs.errors import InputError, NumericalError
@@ -40,6 +39,7 @@ from abcgs.gaussians import PARAM_NAMES, GaussianModel, render
 from abcgs.io.atomic import write_json, write_text
 from abcgs.io.images import load_image, save_image
 from abcgs.io.ply import write_ply
+from abcgs.progress import progress as progress_bar
 from abcgs.render import select_backend
 
 log = logging.getLogger(__name__)
@@ -385,7 +385,7 @@ def _fit(
     refinements: list[RefineReport] = []
     order: list[int] = []
     train_seconds = 0.0
-    bar = tqdm(range(1, params.iterations + 1), desc="fit", disable=not progress, dynamic_ncols=True)
+    bar = progress_bar(range(1, params.iterations + 1), "fit", enabled=progress)
     for step in bar:
         t0 = time.perf_counter()
         for group in optimizers["means"].param_groups:

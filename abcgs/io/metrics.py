@@ -6,6 +6,11 @@ A stage therefore writes one record twice: the metrics file keeps only its numer
 bools; nested dicts kept, lists and strings dropped) and ``<stem>_info.json`` keeps the complete record.
 Readers that need names or provenance read the info file (:func:`read_record`: the info file when present,
 else the metrics file itself, e.g. for runs written before this split).
+
+What DVC declares as metrics is smaller still: a few headline numbers per scene (:data:`FIT_HEADLINE`) and per
+experiment (:data:`EXPERIMENT_HEADLINE`), written by :func:`write_headline` to ``out/<scene>/fit_metrics.json``
+and ``out/<exp>/metrics.json``. The full numeric records (per-view scores, timings, counters) stay beside them
+as plain outputs, so that ``dvc metrics show`` / ``dvc exp show`` print one readable table.
 """
 
 from __future__ import annotations
@@ -51,6 +56,47 @@ def write_metrics(path: str | os.PathLike, record: dict[str, Any]) -> Path:
     write_json(info, plain)
     write_json(path, numeric_leaves(plain))
     return info
+
+
+FIT_HEADLINE = ("psnr", "ssim", "n_gaussians", "fit_minutes")
+"""Per scene: held-out PSNR/SSIM of the baseline fit, its size and wall time."""
+EXPERIMENT_HEADLINE = ("ssim", "short_rmse", "long_rmse", "short_lpips", "long_lpips", "gram_distance", "kid",
+                       "artfid", "stylize_minutes")
+"""Per experiment: content (SSIM), consistency (warp RMSE and the perceptual distance), style (Gram distance,
+KID, ArtFID) and stylization wall time. ``short_lpips``/``long_lpips``/``kid``/``artfid`` stand for whichever
+variant was computed (``lpips`` or ``lpips_proxy_vgg``, ``kid_tf_inception``, ``artfid`` or ``artfid_proxy``):
+:func:`experiment_headline` keeps the full name, so a proxy never appears under the official one."""
+
+
+def fit_headline(record: dict[str, Any]) -> dict[str, Any]:
+    """The scene's headline numbers from a fit ``metrics.json`` record (``seconds`` → ``fit_minutes``)."""
+    out = {"psnr": record.get("psnr"), "ssim": record.get("ssim"), "n_gaussians": record.get("n_gaussians"),
+           "fit_minutes": record["seconds"] / 60.0 if record.get("seconds") is not None else None}
+    return {k: v for k, v in out.items() if v is not None}
+
+
+def experiment_headline(record: dict[str, Any]) -> dict[str, Any]:
+    """The experiment's headline numbers from an evaluate record, under the names that were computed.
+
+    Picks each of :data:`EXPERIMENT_HEADLINE` by exact key, or for ``short_lpips``/``long_lpips``/``kid``/
+    ``artfid`` the first key of the record that starts with it (e.g. ``short_lpips_proxy_vgg``,
+    ``kid_tf_inception``, ``artfid_proxy``; the ``_std`` companions are left out)."""
+    out: dict[str, Any] = {}
+    for want in EXPERIMENT_HEADLINE:
+        if want in record:
+            key = want
+        else:
+            key = next((k for k in record if k.startswith(want + "_") and not k.endswith("_std")
+                        and isinstance(record[k], (int, float)) and not isinstance(record[k], bool)), None)
+        if key is not None and isinstance(record[key], (int, float)) and math.isfinite(record[key]):
+            out[key] = record[key]
+    return out
+
+
+def write_headline(path: str | os.PathLike, values: dict[str, Any]) -> Path:
+    """Write headline numbers as the DVC metric at ``path`` (atomic; numbers only)."""
+    write_json(path, numeric_leaves(jsonable(values)))
+    return Path(path)
 
 
 def read_record(metrics_path: str | os.PathLike) -> dict[str, Any]:

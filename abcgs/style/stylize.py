@@ -24,12 +24,12 @@ import torch
 import torch.nn.functional as F
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from torch import Tensor
-from tqdm.auto import tqdm
 
 from abcgs.cameras import Camera
 from abcgs.errors import InputError, NumericalError
 from abcgs.fit.losses import reconstruction_loss
 from abcgs.gaussians import GaussianModel, render
+from abcgs.progress import progress as progress_bar
 from abcgs.render import rgb_to_sh0, sh0_to_rgb
 from abcgs.style.color import apply_color_transform, fit_color_transform, preserve_color
 from abcgs.style.fast import FastParams, FastStats
@@ -246,7 +246,7 @@ def style_pass(
     opt = _optimizer(m, lrs)
     views = _random_views(len(targets), params.seed)
     style_feats = [g.features for g in groups]
-    bar = tqdm(range(iterations), desc="stylize", disable=not progress, dynamic_ncols=True, mininterval=1.0)
+    bar = progress_bar(range(iterations), "stylize", enabled=progress)
     t_start = time.perf_counter()
     for step in bar:
         tgt = targets[next(views)]
@@ -342,7 +342,7 @@ def color_pass(
     opt = _optimizer(m, {"sh0": params.lr_sh0, "quats": params.lr_quats, "means": 0.0, "log_scales": 0.0,
                          "opacity_logits": 0.0})
     views = _random_views(len(targets), params.seed + 1)
-    bar = tqdm(range(iterations), desc="colour pass", disable=not progress, dynamic_ncols=True, mininterval=1.0)
+    bar = progress_bar(range(iterations), "colour pass", enabled=progress)
     t_start = time.perf_counter()
     for it in bar:
         i = next(views)

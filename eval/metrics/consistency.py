@@ -202,6 +202,43 @@ def fb_consistency_mask(flow_fw: np.ndarray, flow_bw: np.ndarray, alpha: float =
     return (lhs < rhs) & in_frame_mask(flow_fw)
 
 
+def depth_correspondence(
+    depth_i: np.ndarray, depth_j: np.ndarray, K_i: np.ndarray, viewmat_i: np.ndarray, K_j: np.ndarray,
+    viewmat_j: np.ndarray, *, valid_i: np.ndarray | None = None, rel_tol: float = 0.02,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Correspondence ``i → j`` from a scene's own geometry instead of optical flow (a diagnostic).
+
+    Every pixel centre of view ``i`` (``x + 0.5``, the renderer's convention) is lifted with its rendered
+    depth ``depth_i`` ``(H, W)`` (camera z, world units), moved by the world→camera matrices ``viewmat_*``
+    ``(4, 4)`` and projected with ``K_j`` ``(3, 3)``. Returns ``(flow, mask)``: ``flow`` ``(H, W, 2)`` float32
+    in the :func:`backward_warp` convention, ``mask`` ``(H, W)`` bool — in front of camera ``j``, inside its
+    frame, ``valid_i`` (e.g. alpha > 0.95), and visible in ``j`` (its depth there within ``rel_tol`` of the
+    projected depth: occlusion test). Exact where the depth is (inside surfaces); what remains on the
+    unstylized scene is depth blur at occlusion edges and resampling, so it bounds how much of a flow-based
+    error is measurement.
+    """
+    check_pair(depth_i, depth_j, "depth maps")
+    h, w = depth_i.shape[:2]
+    z = np.asarray(depth_i, np.float64).reshape(h, w)
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    cam_i = np.stack([(xs + 0.5 - K_i[0, 2]) / K_i[0, 0] * z, (ys + 0.5 - K_i[1, 2]) / K_i[1, 1] * z, z,
+                      np.ones_like(z)], -1)
+    cam_j = cam_i @ (np.asarray(viewmat_j, np.float64) @ np.linalg.inv(np.asarray(viewmat_i, np.float64))).T
+    zj = cam_j[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = cam_j[..., 0] / zj * K_j[0, 0] + K_j[0, 2] - 0.5
+        v = cam_j[..., 1] / zj * K_j[1, 1] + K_j[1, 2] - 0.5
+    front = (z > 0) & (zj > 1e-9) & np.isfinite(u) & np.isfinite(v)
+    u, v = np.where(front, u, -1.0), np.where(front, v, -1.0)
+    flow = np.stack([u - xs, v - ys], -1).astype(np.float32)
+    seen = cv2.remap(np.asarray(depth_j, np.float32).reshape(h, w), u.astype(np.float32), v.astype(np.float32),
+                     interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    mask = front & in_frame_mask(flow) & (np.abs(seen - zj) <= rel_tol * np.abs(zj))
+    if valid_i is not None:
+        mask &= np.asarray(valid_i, bool).reshape(h, w)
+    return flow, mask
+
+
 @dataclass
 class PairResult:
     i: int
