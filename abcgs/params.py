@@ -130,13 +130,17 @@ def validate_params(raw: Any, source: str = "params.yaml") -> Params:
         raise ParamsError(format_validation_error(exc, source)) from None
 
 
-def load_params(path: str | os.PathLike = "params.yaml") -> Params:
-    """Read and validate ``params.yaml``."""
+def read_params_file(path: str | os.PathLike = "params.yaml") -> Any:
+    """The parsed YAML of a params file (not validated), with a clear error when it is missing or not YAML."""
     path = Path(path)
     if not path.is_file():
         raise ParamsError(f"{path} not found; run from the repository root or pass --params")
     try:
-        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
+        return yaml.safe_load(path.read_text(encoding="utf-8"))
     except yaml.YAMLError as exc:
         raise ParamsError(f"{path} is not valid YAML: {exc}") from None
-    return validate_params(raw, str(path))
+
+
+def load_params(path: str | os.PathLike = "params.yaml") -> Params:
+    """Read and validate ``params.yaml``."""
+    return validate_params(read_params_file(path), str(path))

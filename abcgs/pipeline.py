@@ -17,7 +17,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from abcgs.errors import AbcgsError
-from abcgs.params import Params, load_params
+from abcgs.params import Params, read_params_file, validate_params
 from abcgs.preflight import preflight
 
 log = logging.getLogger("abcgs")
@@ -36,8 +36,9 @@ def run_stage(
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s", datefmt="%H:%M:%S")
     t0 = time.perf_counter()
     try:
-        params = load_params(args.params)
-        preflight(params, args.params)
+        raw = read_params_file(args.params)
+        params = validate_params(raw, str(args.params))
+        preflight(params, raw, args.params)
         main(args, params)
     except AbcgsError as exc:
         print(f"\n[{name}] error: {exc}", file=sys.stderr)

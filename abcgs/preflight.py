@@ -131,12 +131,11 @@ def check_input_files(params, root: Path, produced: Iterable[str] = ()) -> None:
                              f"{' …' if len(bad) > 5 else ''}; remove or replace them")
 
 
-def preflight(params, params_path: str | os.PathLike) -> None:
-    """Both checks for validated ``params`` read from ``params_path``; ``dvc.yaml`` and the repository root are
-    taken from the params file's folder. Without a ``dvc.yaml`` there (a params file used outside the pipeline)
-    only the files are checked."""
+def preflight(params, raw: dict, params_path: str | os.PathLike) -> None:
+    """Both checks for ``params`` validated from ``raw``, the parsed ``params_path``; ``dvc.yaml`` and the
+    repository root are taken from the params file's folder. Without a ``dvc.yaml`` there (a params file used
+    outside the pipeline) only the files are checked."""
     params_path = Path(params_path)
-    raw = yaml.safe_load(params_path.read_text(encoding="utf-8")) or {}
     root = params_path.resolve().parent
     dvc_yaml = root / "dvc.yaml"
     produced: list[str] = []

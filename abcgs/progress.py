@@ -48,5 +48,6 @@ def progress(iterable: Iterable, desc: str, *, enabled: bool = True, stream: IO[
     interactive = bool(getattr(stream, "isatty", lambda: False)())
     if interactive:
         return tqdm(iterable, desc=desc, disable=not enabled, dynamic_ncols=True, mininterval=1.0, file=stream, **kwargs)
-    return tqdm(iterable, desc=desc, disable=not enabled, file=_LineWriter(stream), mininterval=log_interval_s(),
-                maxinterval=max(log_interval_s(), 10.0), ncols=120, ascii=True, **kwargs)
+    interval = log_interval_s()
+    return tqdm(iterable, desc=desc, disable=not enabled, file=_LineWriter(stream), mininterval=interval,
+                maxinterval=max(interval, 10.0), ncols=120, ascii=True, **kwargs)

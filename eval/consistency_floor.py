@@ -32,13 +32,12 @@ from abcgs.io.ply import read_ply  # noqa: E402
 from abcgs.sfm.colmap import read_colmap_scene  # noqa: E402
 from eval.metrics.consistency import (  # noqa: E402
     FlowCache,
-    backward_warp,
     consistency,
     depth_correspondence,
     make_flow_estimator,
     view_pairs,
+    warp_error,
 )
-from eval.metrics.content import masked_rmse  # noqa: E402
 from eval.metrics.evaluate import render_views  # noqa: E402
 
 
@@ -53,10 +52,7 @@ def _resolve(spec: str) -> tuple[str, Path]:
 
 
 def depth_rmse(stylized: list[np.ndarray], corr: dict, gap: int) -> float:
-    errs = []
-    for i, j in view_pairs(len(stylized), gap):
-        flow, mask = corr[(i, j)]
-        errs.append(masked_rmse(stylized[i], backward_warp(stylized[j], flow), mask))
+    errs = [warp_error(i, j, stylized, *corr[(i, j)], None).rmse for i, j in view_pairs(len(stylized), gap)]
     return float(np.nanmean(errs))
 
 

@@ -41,8 +41,10 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 import yaml  # noqa: E402
 
+from abcgs.cameras import Camera  # noqa: E402
 from abcgs.errors import InputError  # noqa: E402
 from abcgs.eval_params import EvalParams  # noqa: E402
+from abcgs.gaussians import GaussianModel  # noqa: E402
 from abcgs.io.atomic import write_json, write_text  # noqa: E402
 from abcgs.io.images import save_image  # noqa: E402
 from abcgs.io.ply import read_ply, write_ply  # noqa: E402
@@ -274,50 +276,47 @@ def acceptance(results: list[dict], styles: list[str]) -> list[str]:
     return lines
 
 
-def figure(results: dict[str, dict], specs: list[RunSpec], style: str, style_path: str, colmap: Path, ply: Path,
-           model_paths: dict[str, Path], views: tuple[int, ...], crop: tuple[int, int, int, int]) -> np.ndarray:
+def _render(model: GaussianModel, camera: Camera) -> np.ndarray:
+    """``(H, W, 3)`` float render in [0, 1] for the figures."""
+    from abcgs.gaussians import render
+
+    with torch.no_grad():
+        return render(model, camera)[0].clamp(0, 1).numpy()
+
+
+def figure(specs: list[RunSpec], style: str, style_path: str, cameras: list[Camera], ply: Path, model_paths: dict[str, Path],
+           views: tuple[int, ...], crop: tuple[int, int, int, int]) -> np.ndarray:
     """Rows: the chosen views (original, each method, painting), then a 2× crop of the first view."""
     import cv2
 
-    from abcgs.gaussians import render
     from abcgs.viz import image_grid
 
-    scene = read_colmap_scene(colmap / "sparse", colmap / "images")
     mine = [s for s in specs if s.style == style and s.method != "original"]
     models = [read_ply(ply)] + [read_ply(model_paths[s.name]) for s in mine]
     captions = ["original"] + [s.label for s in mine] + ["painting"]
     painting = load_style(style_path, 0)
-    rows = []
-    with torch.no_grad():
-        for v in views:
-            cam = scene.cameras[v]
-            rows.append([render(m, cam)[0].clamp(0, 1).numpy() for m in models] + [painting])
-        x0, y0, x1, y1 = crop
-        crop_row = []
-        for img in rows[0][:-1]:
-            c = img[y0:y1, x0:x1]
-            crop_row.append(cv2.resize(c, (2 * c.shape[1], 2 * c.shape[0]), interpolation=cv2.INTER_CUBIC))
-        rows.append(crop_row)
+    rows = [[_render(m, cameras[v]) for m in models] + [painting] for v in views]
+    x0, y0, x1, y1 = crop
+    crop_row = []
+    for img in rows[0][:-1]:
+        c = img[y0:y1, x0:x1]
+        crop_row.append(cv2.resize(c, (2 * c.shape[1], 2 * c.shape[0]), interpolation=cv2.INTER_CUBIC))
+    rows.append(crop_row)
     return image_grid(rows, captions, height=rows[0][0].shape[0])
 
 
-def overview_figure(specs: list[RunSpec], styles: list[str], style_paths: dict[str, Path], colmap: Path, ply: Path,
+def overview_figure(styles: list[str], style_paths: dict[str, Path], cameras: list[Camera], ply: Path,
                     model_paths: dict[str, Path], view: int) -> np.ndarray:
     """One row per painting at one view: original, colour match only, FAST, NNFM, the painting."""
-    from abcgs.gaussians import render
     from abcgs.viz import image_grid
 
-    scene = read_colmap_scene(colmap / "sparse", colmap / "images")
-    cam = scene.cameras[view]
-    by = {(s.style, s.method, s.variant): s for s in specs}
-    order = [("colormatch", "default"), ("fast", "default"), ("nnfm", "default")]
-    with torch.no_grad():
-        original = render(read_ply(ply), cam)[0].clamp(0, 1).numpy()
-        rows = []
-        for style in styles:
-            cells = [original] + [render(read_ply(model_paths[by[(style, m, v)].name]), cam)[0].clamp(0, 1).numpy()
-                                  for m, v in order if (style, m, v) in by]
-            rows.append(cells + [load_style(str(style_paths[style]), 0)])
+    cam = cameras[view]
+    original = _render(read_ply(ply), cam)
+    rows = []
+    for style in styles:
+        names = [RunSpec(style, m).name for m in ("colormatch", "fast", "nnfm")]
+        rows.append([original] + [_render(read_ply(model_paths[n]), cam) for n in names if n in model_paths]
+                    + [load_style(str(style_paths[style]), 0)])
     captions = ["original", "colour match only", "FAST (default)", "NNFM (ARF)", "painting"]
     return image_grid(rows, captions, height=original.shape[0])
 
@@ -414,10 +413,10 @@ def main(argv=None) -> dict:
     checks = acceptance(results, styles)
     views = tuple(int(v) for v in args.views.split(","))
     crop = tuple(int(v) for v in args.crop.split(","))
-    by_name = {r["name"]: r for r in results}
+    cameras = read_colmap_scene(colmap / "sparse", colmap / "images").cameras
     for s in styles:
-        save_image(work / f"figure_{s}.png", figure(by_name, specs, s, str(style_paths[s]), colmap, ply, model_paths, views, crop))
-    save_image(work / "figure_overview.png", overview_figure(specs, styles, style_paths, colmap, ply, model_paths, views[0]))
+        save_image(work / f"figure_{s}.png", figure(specs, s, str(style_paths[s]), cameras, ply, model_paths, views, crop))
+    save_image(work / "figure_overview.png", overview_figure(styles, style_paths, cameras, ply, model_paths, views[0]))
     first = results[0]
     header = (f"# Quality study: {args.scene.name} × {', '.join(styles)}\n\n"
               f"Schedule: {first['stylize_params']['iterations']} stylization steps + "

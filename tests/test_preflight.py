@@ -94,7 +94,11 @@ def test_run_stage_stops_before_work_and_says_why(tmp_path, capsys) -> None:
                                                           "colormatch": {}}))
     assert run_stage("colormatch", stage_parser("t"), lambda a, p: called.append(1),
                      ["--params", str(tmp_path / "params.yaml")]) == 0 and called == [1]
-    preflight(validate_params({"data": {"scenes": {"s": "scene"}}}), tmp_path / "params.yaml")  # reads the raw file
+    complete = yaml.safe_load((tmp_path / "params.yaml").read_text())
+    preflight(validate_params(complete), complete, tmp_path / "params.yaml")
+    raw = {"data": {"scenes": {"s": "scene"}}}
+    with pytest.raises(ParamsError, match="data.style_masks"):  # the raw mapping, not the filled-in defaults
+        preflight(validate_params(raw), raw, tmp_path / "params.yaml")
 
 
 def test_schema_errors_do_not_print_the_whole_params(tmp_path) -> None:

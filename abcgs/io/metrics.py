@@ -70,9 +70,10 @@ variant was computed (``lpips`` or ``lpips_proxy_vgg``, ``kid_tf_inception``, ``
 
 def fit_headline(record: dict[str, Any]) -> dict[str, Any]:
     """The scene's headline numbers from a fit ``metrics.json`` record (``seconds`` → ``fit_minutes``)."""
-    out = {"psnr": record.get("psnr"), "ssim": record.get("ssim"), "n_gaussians": record.get("n_gaussians"),
-           "fit_minutes": record["seconds"] / 60.0 if record.get("seconds") is not None else None}
-    return {k: v for k, v in out.items() if v is not None}
+    values = dict(record)
+    if record.get("seconds") is not None:
+        values["fit_minutes"] = record["seconds"] / 60.0
+    return {k: values[k] for k in FIT_HEADLINE if values.get(k) is not None}
 
 
 def experiment_headline(record: dict[str, Any]) -> dict[str, Any]:
@@ -81,15 +82,14 @@ def experiment_headline(record: dict[str, Any]) -> dict[str, Any]:
     Picks each of :data:`EXPERIMENT_HEADLINE` by exact key, or for ``short_lpips``/``long_lpips``/``kid``/
     ``artfid`` the first key of the record that starts with it (e.g. ``short_lpips_proxy_vgg``,
     ``kid_tf_inception``, ``artfid_proxy``; the ``_std`` companions are left out)."""
+    numbers = {k: v for k, v in record.items()
+               if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)}
     out: dict[str, Any] = {}
     for want in EXPERIMENT_HEADLINE:
-        if want in record:
-            key = want
-        else:
-            key = next((k for k in record if k.startswith(want + "_") and not k.endswith("_std")
-                        and isinstance(record[k], (int, float)) and not isinstance(record[k], bool)), None)
-        if key is not None and isinstance(record[key], (int, float)) and math.isfinite(record[key]):
-            out[key] = record[key]
+        key = want if want in numbers else next(
+            (k for k in numbers if k.startswith(want + "_") and not k.endswith("_std")), None)
+        if key is not None:
+            out[key] = numbers[key]
     return out
 
 

@@ -273,13 +273,18 @@ class FlowCache:
         return self._c[(i, j)]
 
 
-def evaluate_pair(i: int, j: int, stylized: list[np.ndarray], flows: FlowCache, perceptual: PerceptualDistance | None) -> PairResult:
-    f_ij, f_ji = flows(i, j), flows(j, i)
-    mask = fb_consistency_mask(f_ij, f_ji)
-    warped = backward_warp(stylized[j], f_ij)
+def warp_error(i: int, j: int, stylized: list[np.ndarray], flow: np.ndarray, mask: np.ndarray,
+               perceptual: PerceptualDistance | None) -> PairResult:
+    """Stylized view ``j`` warped into ``i`` by ``flow`` (``i → j``), compared with view ``i`` where ``mask``."""
+    warped = backward_warp(stylized[j], flow)
     rmse = masked_rmse(stylized[i], warped, mask)
     perc = perceptual(stylized[i], warped, mask) if perceptual is not None else float("nan")
     return PairResult(i, j, rmse, perc, float(mask.mean()), warped, mask)
+
+
+def evaluate_pair(i: int, j: int, stylized: list[np.ndarray], flows: FlowCache, perceptual: PerceptualDistance | None) -> PairResult:
+    f_ij, f_ji = flows(i, j), flows(j, i)
+    return warp_error(i, j, stylized, f_ij, fb_consistency_mask(f_ij, f_ji), perceptual)
 
 
 def consistency(
