@@ -15,11 +15,12 @@ STAMP := $(VENV)/.installed-$(INSTALL_KEY)
 export PYTHONUNBUFFERED := 1
 export HF_HUB_OFFLINE := 1
 
-.PHONY: install run test bench-rasterizer bench-fern quality help
+.PHONY: install run test browser viewer bench-rasterizer bench-fern quality help
 
 help:
 	@echo "make run    - run the DVC pipeline on the embedded tiny scene (installs first)"
-	@echo "make test   - run the test suite (installs first)"
+	@echo "make test   - run the test suite (installs first; chromium too, for the browser tests, when root)"
+	@echo "make viewer - rebuild the splat viewer bundle abcgs/view/static/abcgs-viewer.js from viewer/ (needs npm)"
 	@echo "make bench-rasterizer - rasterizer backend benchmark (eval/bench_rasterizer.py)"
 	@echo "make bench-fern - DVC experiment: LLFF fern x paintings x {fast, nnfm} (needs ../shared/data)"
 	@echo "make quality - quality study: fern x 3 paintings x style losses, figures + table (eval/quality_study.py)"
@@ -48,9 +49,22 @@ run: install
 	@echo
 	@$(BIN)/python -m eval.report
 
-test: install
+test: install browser
 	$(BIN)/ruff check abcgs stages eval tests
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python -m pytest -q
+
+# Debian's chromium for the browser tests (tests/test_viewer_browser.py drive it through playwright; no browser
+# download). Installed when missing and we are root; otherwise say how.
+browser:
+	@command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1 || { \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    echo "installing chromium (apt) for the browser tests"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; \
+	  else echo "chromium is missing: 'sudo apt-get install -y chromium' to run the browser tests"; fi; }
+
+# The viewer bundle is committed (make run never needs Node); this rebuilds it from viewer/package-lock.json.
+viewer:
+	cd viewer && npm ci --no-audit --no-fund && npm run build
 
 bench-rasterizer: install
 	$(BIN)/python eval/bench_rasterizer.py --json out/bench/rasterizer.json

@@ -29,6 +29,7 @@ from abcgs.style.content_masks import MaskParams
 from abcgs.style.matching import ExperimentParams, IsolationParams
 from abcgs.style.stylize import StylizeParams
 from abcgs.style.weights import VggWeightsParams
+from abcgs.view import ViewerParams
 
 
 class DataParams(BaseModel):
@@ -70,6 +71,7 @@ class Params(BaseModel):
     colormatch: ColorMatchParams = Field(default_factory=ColorMatchParams)
     stylize: StylizeParams = Field(default_factory=StylizeParams)
     evaluate: EvalParams = Field(default_factory=EvalParams)
+    viewer: ViewerParams = Field(default_factory=ViewerParams)
     experiments: dict[str, ExperimentParams] = Field(
         default_factory=dict, description="stylization runs: name → scene, transfer type, style(s), loss method"
     )

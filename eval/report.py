@@ -86,7 +86,8 @@ def ablation_groups(runs: list[Run]) -> list[list[Run]]:
     return [g for g in groups.values() if len({r.spec.get("method") for r in g}) > 1]
 
 
-def render_html(runs: list[Run], title: str = "abcgs report") -> str:
+def render_html(runs: list[Run], title: str = "abcgs report", viewer: str | None = None) -> str:
+    """The report page; ``viewer``: an :func:`abcgs.view.viewer_fragment` to place under the table."""
     cols, rows = table_rows(runs)
     head = "".join(f"<th>{html.escape(c)}</th>" for c in cols)
     body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in rows)
@@ -102,6 +103,9 @@ def render_html(runs: list[Run], title: str = "abcgs report") -> str:
         "SSIM 0.54, short LPIPS 0.057 / RMSE 0.048, long LPIPS 0.093 / RMSE 0.077.</p>",
         f"<table><tr>{head}</tr>{body}</table>",
     ]
+    if viewer:
+        parts += ["<h2>The scenes in 3-D</h2>", "<p class='note'>Original, stylized and content labels over the same "
+                  "Gaussians; the training cameras are the viewpoints ◀ ▶ step through.</p>", viewer]
     for group in ablation_groups(runs):
         parts.append(f"<h2>Ablation: {html.escape(', '.join(r.spec.get('method', '') for r in group))}</h2>")
         parts.append("<div style='display:flex;gap:8px;flex-wrap:wrap'>")

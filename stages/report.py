@@ -12,12 +12,20 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from abcgs.io.atomic import write_text  # noqa: E402
 from abcgs.pipeline import run_stage, stage_parser  # noqa: E402
+from abcgs.view import viewer_fragment  # noqa: E402
+from abcgs.view.outputs import load_experiment  # noqa: E402
 from eval.report import load_runs, render_html, summary_png  # noqa: E402
 
 
 def main(args, params) -> None:
     runs = load_runs(args.root, {k: v.model_dump() for k, v in params.experiments.items()})
-    write_text(args.out, render_html(runs))
+    viewer = None
+    if params.viewer.enabled:
+        exps = [load_experiment(args.root / name, scene=exp.scene, root=args.root,
+                                max_gaussians=params.viewer.max_gaussians)
+                for name, exp in params.experiments.items()]
+        viewer = viewer_fragment(exps, max_width=params.viewer.max_width)
+    write_text(args.out, render_html(runs, viewer=viewer))
     summary_png(runs, args.out.with_suffix(".png"))
 
 

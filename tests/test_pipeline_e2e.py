@@ -97,9 +97,49 @@ def test_all_stages_write_their_artifacts(repo: Path, first_repro) -> None:
         assert ev_info["provenance"]["fid_kid"]["inception"]["sha256"]
         history = (out / exp / "stylize_history.csv").read_text().splitlines()
         assert history[0].startswith("step,") and len(history) >= 3
+        spz = json.loads((out / exp / "point_cloud.spz.json").read_text())
+        assert spz["n_gaussians"] > 1000 and spz["ply_over_spz"] > 3, spz
+    assert json.loads((out / "tiny" / "point_cloud.spz.json").read_text())["colour_clipped_share"] < 0.05
     page = (repo / "reports" / "report.html").read_text()
     assert all(exp in page for exp in ("tiny_single", "tiny_compositional", "tiny_semantic"))
+    assert page.count('id="abcgs-splat-') == 9  # original, stylized, labels for each experiment
     assert (repo / "reports" / "report.png").stat().st_size > 0
+
+
+@pytest.mark.browser
+def test_report_viewer_renders_every_experiment(repo: Path, first_repro) -> None:
+    """Issue 12: reports/report.html from `dvc repro` opens from file:// in chromium, with no network, and
+    shows each tiny experiment's stylized scene close to our own render of its first training camera."""
+    import cv2
+    import numpy as np
+    from test_viewer_browser import CHROMIUM_ARGS, _chromium, _shot
+
+    from abcgs.gaussians import render
+    from abcgs.io.ply import read_ply
+    from abcgs.sfm.colmap import read_colmap_scene
+
+    playwright = pytest.importorskip("playwright.sync_api")
+    cams = read_colmap_scene(repo / "out/tiny/colmap/sparse", repo / "out/tiny/colmap/images").cameras
+    with playwright.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=_chromium(), args=CHROMIUM_ARGS)
+        page = browser.new_page(viewport={"width": 400, "height": 700})
+        remote = []
+        page.on("request", lambda r: remote.append(r.url) if not r.url.startswith(("file:", "data:", "blob:")) else None)
+        page.goto((repo / "reports" / "report.html").resolve().as_uri())
+        page.wait_for_function("window.abcgsViewer && window.abcgsViewer.ready", timeout=180_000)
+        page.evaluate("window.abcgsViewer.ready")
+        for i, exp in enumerate(("tiny_single", "tiny_compositional", "tiny_semantic")):
+            page.evaluate(f"window.abcgsViewer.setExperiment({i}).then(() => window.abcgsViewer.settle(10))")
+            assert page.evaluate("window.abcgsViewer.state.error") is None
+            assert page.evaluate("window.abcgsViewer.state.experiment") == exp
+            shot = _shot(page)
+            img, alpha, _ = render(read_ply(repo / "out" / exp / "stylize" / "point_cloud.ply"), cams[0])
+            ours = (img + (1 - alpha)).clamp(0, 1).numpy()
+            ours = cv2.resize(ours, (shot.shape[1], shot.shape[0]), interpolation=cv2.INTER_LINEAR)
+            r = np.corrcoef(shot.reshape(-1), ours.reshape(-1))[0, 1]
+            assert r > 0.8, f"{exp}: viewer vs our rasterizer, correlation {r:.3f}"
+        browser.close()
+    assert remote == []
 
 
 def _leaf_keys(d: dict, prefix: str = "") -> set[str]:

@@ -1,0 +1,48 @@
+"""Look at one experiment in 3-D without the report:
+
+    python -m abcgs.view out/tiny_single            # writes out/tiny_single/viewer.html and opens it
+    python -m abcgs.view out/tiny_single --no-open --max-gaussians 20000
+
+The page is self-contained (viewer bundle and splats inline) and works from file:// with no network.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import webbrowser
+from pathlib import Path
+
+from abcgs.errors import AbcgsError
+from abcgs.io.atomic import write_text
+from abcgs.view import viewer_page
+from abcgs.view.outputs import experiment_scene, load_experiment
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m abcgs.view", description=__doc__.strip().splitlines()[0])
+    ap.add_argument("run_dir", type=Path, help="an experiment's output folder, e.g. out/tiny_single")
+    ap.add_argument("--scene", help="scene key (default: from --params, else the only fitted scene beside it)")
+    ap.add_argument("--params", type=Path, default=Path("params.yaml"))
+    ap.add_argument("--max-gaussians", type=int, default=150_000)
+    ap.add_argument("--out", type=Path, help="page to write (default: <run_dir>/viewer.html)")
+    ap.add_argument("--no-open", action="store_true", help="only write the page")
+    args = ap.parse_args(argv)
+    try:
+        scene = args.scene or experiment_scene(args.run_dir, args.params)
+        exp = load_experiment(args.run_dir, scene=scene, max_gaussians=args.max_gaussians)
+        out = args.out or args.run_dir / "viewer.html"
+        write_text(out, viewer_page([exp], title=f"abcgs: {exp.name}"))
+    except AbcgsError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    size = out.stat().st_size / 1e6
+    print(f"wrote {out} ({size:.1f} MB; {exp.layers['stylized'].num_gaussians} of {exp.n_gaussians_full} Gaussians "
+          f"per layer; layers: {', '.join(exp.layers)})")
+    if not args.no_open:
+        webbrowser.open(out.resolve().as_uri())
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
