@@ -45,7 +45,9 @@ run: install
 	@echo "  out/<scene>/masks/         lifted content labels, overlay.png"
 	@echo "  out/<experiment>/stylize/  stylized PLY, renders/, grid.png, turntable.mp4"
 	@echo "  out/<experiment>/eval.json metrics (proxy names where official weights are unavailable); eval_info.json provenance"
-	@echo "  reports/report.html        everything on one page; dvc metrics show / dvc plots show for the rest"
+	@echo "  out/<scene|experiment>/point_cloud.spz   the scenes as .spz (Spark, SuperSplat, Scaniverse read it)"
+	@echo "  reports/report.html        everything on one page, with a 3-D viewer of every scene (open it from disk);"
+	@echo "                             python -m abcgs.view out/<experiment> for one; dvc metrics/plots show for the rest"
 	@echo
 	@$(BIN)/python -m eval.report
 

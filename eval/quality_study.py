@@ -339,6 +339,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--views", default="2,13", help="views shown in the figures")
     ap.add_argument("--crop", default="240,180,480,360", help="x0,y0,x1,y1 of the 2x crop row (first view)")
     ap.add_argument("--force", action="store_true", help="redo the stylization runs")
+    ap.add_argument("--core-only", action="store_true",
+                    help="only FAST and NNFM per painting (no ablation runs, no reference rows): for probing a setting")
     ap.add_argument("--fit-iterations", type=int, default=FIT_SETTINGS["iterations"],
                     help="fit steps when the scene has no fit in --bench-root yet")
     args = ap.parse_args(argv)
@@ -367,9 +369,10 @@ def main(argv=None) -> dict:
     colmap, ply, scene_info = ensure_scene(args.scene, args.bench_root, threads * max(1, args.jobs), args.fit_iterations)
 
     specs = [RunSpec(s, m) for s in styles for m in ("fast", "nnfm")]
-    specs += [RunSpec(args.ablation_style, "fast", "authors"), RunSpec(args.ablation_style, "knnfm"),
-              RunSpec(args.ablation_style, "gram")]
-    specs += [RunSpec(s, "colormatch") for s in styles] + [RunSpec(args.ablation_style, "original")]
+    if not args.core_only:
+        specs += [RunSpec(args.ablation_style, "fast", "authors"), RunSpec(args.ablation_style, "knnfm"),
+                  RunSpec(args.ablation_style, "gram")]
+        specs += [RunSpec(s, "colormatch") for s in styles] + [RunSpec(args.ablation_style, "original")]
     specs.sort(key=lambda s: (styles.index(s.style), s.method in REFERENCE_METHODS, s.method != "fast",
                               s.variant != "default", s.method))
 
@@ -395,6 +398,7 @@ def main(argv=None) -> dict:
 
     model_paths = {spec.name: (cm_path[spec.style] if spec.method == "colormatch" else ply if spec.method == "original"
                                else run_dirs[spec.name] / "point_cloud.ply") for spec in specs}
+    model_paths.update({RunSpec(s, "colormatch").name: cm_path[s] for s in styles})  # the overview's start column
     todo = [j for j in run_jobs if not (Path(j["run_dir"]) / "run.json").is_file()]
     print(f"[study] {len(specs)} runs ({len(specs) - len(todo)} cached), {len(styles)} paintings, "
           f"{args.jobs} job(s) × {threads} thread(s); work dir {work}", flush=True)
