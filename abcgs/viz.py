@@ -49,6 +49,39 @@ def image_grid(rows: list[list[np.ndarray]], captions: list[str] | None = None, 
     return grid
 
 
+def style_legend(entries: list[tuple[np.ndarray | None, np.ndarray, np.ndarray | None]], height: int = 160) -> np.ndarray:
+    """One panel pairing each content label's colour with its painting: ``entries`` = ``[(rgb (3,) uint8 or None,
+    painting (H, W, 3), region (H, W) bool or None), …]``. A region dims the painting outside it (semantic
+    transfer: the part of one painting bound to that label); ``rgb`` None draws no swatch (single transfer).
+    Stacked top to bottom, ``uint8`` ``(height, w, 3)``.
+    """
+    if not entries:
+        raise ValueError("style_legend: no entries")
+    n = len(entries)
+    pad = 2
+    cell_h = max(8, (height - pad * (n - 1)) // n)
+    tiles = []
+    for rgb, painting, region in entries:
+        img = painting if painting.dtype == np.uint8 else to_uint8(painting)
+        if region is not None:
+            dim = (img.astype(np.float32) * 0.25 + 191).astype(np.uint8)
+            img = np.where(region[..., None], img, dim)
+        img = _fit(img, cell_h)
+        if rgb is None:
+            tiles.append(img)
+            continue
+        swatch = np.empty((cell_h, max(8, cell_h // 3), 3), np.uint8)
+        swatch[:] = np.asarray(rgb, np.uint8)
+        tiles.append(np.concatenate([swatch, np.full((cell_h, pad, 3), 255, np.uint8), img], axis=1))
+    width = max(t.shape[1] for t in tiles)
+    panel = np.full((height, width, 3), 255, np.uint8)
+    y = 0
+    for t in tiles:
+        panel[y:y + cell_h, :t.shape[1]] = t
+        y += cell_h + pad
+    return panel
+
+
 def write_video(path: str | os.PathLike, frames: list[np.ndarray], fps: int = 24) -> None:
     """Write RGB frames as an mp4 (H.264 via imageio-ffmpeg; MJPEG .avi via OpenCV if that is missing), atomically."""
     path = Path(path)

@@ -12,6 +12,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from abcgs.camera_paths import spiral_path  # noqa: E402
@@ -23,8 +24,9 @@ from abcgs.io.ply import read_ply, write_ply  # noqa: E402
 from abcgs.pipeline import run_stage, stage_parser  # noqa: E402
 from abcgs.style.content_masks import colorize_labels  # noqa: E402
 from abcgs.style.experiment import experiment, load_groups, load_scene, load_scene_masks, load_vgg  # noqa: E402
+from abcgs.style.matching import ALL_PIXELS  # noqa: E402
 from abcgs.style.stylize import stylize  # noqa: E402
-from abcgs.viz import image_grid, write_video  # noqa: E402
+from abcgs.viz import image_grid, style_legend, write_video  # noqa: E402
 
 
 def history_csv(rows: list[dict]) -> str:
@@ -47,7 +49,6 @@ def main(args, params) -> None:
     labels = masks.view_labels
     if sp.resolution_scale != 1.0:
         import cv2
-        import numpy as np
 
         labels = [cv2.resize(v.astype(np.int32), (c.width, c.height), interpolation=cv2.INTER_NEAREST).astype(np.int64)
                   for v, c in zip(labels, cams)]
@@ -63,12 +64,16 @@ def main(args, params) -> None:
             fps = len(renders) / (time.perf_counter() - t0)
             for cam, img in zip(scene.cameras, renders):
                 save_image(tmp / "renders" / f"{Path(cam.name).stem}.png", img)
+            legend = style_legend(
+                [(None if g.content_label == ALL_PIXELS else colorize_labels(np.array([g.content_label]))[0],
+                  g.style_image, g.style_region) for g in groups],
+                height=scene.cameras[0].height)
             for i in range(min(3, len(renders))):
                 content = render(original, scene.cameras[i], backend=sp.backend)[0].clamp(0, 1).numpy()
-                rows.append([content, colorize_labels(masks.view_labels[i]), groups[0].style_image, renders[i]])
+                rows.append([content, colorize_labels(masks.view_labels[i]), legend, renders[i]])
             frames = [render(res.model, c, backend=sp.backend)[0].clamp(0, 1).numpy()
                       for c in spiral_path(scene.cameras, n_frames=args.frames)]
-        save_image(tmp / "grid.png", image_grid(rows, ["content", "labels", "style", "stylized"]))
+        save_image(tmp / "grid.png", image_grid(rows, ["content", "labels", "label: painting", "stylized"]))
         write_video(tmp / "turntable.mp4", frames, fps=24)
     write_text(args.history, history_csv(res.history))
     n_it = max(1, res.timings.get("iterations", 1))

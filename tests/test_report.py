@@ -73,3 +73,31 @@ def test_missing_run_is_a_clear_error(tmp_path) -> None:
         load_runs(tmp_path, {"nope": SPECS["a_fast"]})
     with pytest.raises(InputError, match="no experiments"):
         load_runs(tmp_path, {})
+
+
+def test_style_legend_pairs_each_label_colour_with_its_painting():
+    """Issue 14: compositional/semantic grids show every label's painting (or painting region), not the first."""
+    import numpy as np
+
+    from abcgs.viz import style_legend
+
+    red = np.zeros((40, 60, 3), np.uint8)
+    red[..., 0] = 255
+    blue = np.zeros((40, 60, 3), np.uint8)
+    blue[..., 2] = 255
+    region = np.zeros((40, 60), bool)
+    region[:, :30] = True
+    panel = style_legend([(np.array([0, 255, 0], np.uint8), red, None), (np.array([255, 255, 0], np.uint8), blue, region)],
+                         height=100)
+    assert panel.shape[0] == 100 and panel.dtype == np.uint8
+    top, bottom = panel[:49], panel[51:]
+    assert (top[5, 2] == [0, 255, 0]).all() and (bottom[5, 2] == [255, 255, 0]).all()  # swatches
+    pure_red = lambda a: (a[..., 0] > 250) & (a[..., 1] < 5) & (a[..., 2] < 5)  # noqa: E731
+    pure_blue = lambda a: (a[..., 2] > 250) & (a[..., 0] < 5) & (a[..., 1] < 5)  # noqa: E731
+    assert pure_red(top).any() and not pure_blue(top).any()  # first painting only above
+    assert pure_blue(bottom).any() and not pure_red(bottom).any()
+    # the region half of the second painting is kept, the rest dimmed (greyish blue)
+    row = bottom[10, 20:]
+    assert pure_blue(row).sum() > 5 and ((row[:, 0] > 150) & (row[:, 0] < 250) & (row[:, 2] > 200)).sum() > 5
+    no_swatch = style_legend([(None, red, None)], height=40)
+    assert (no_swatch[5, 2] == [255, 0, 0]).all()

@@ -70,7 +70,8 @@ class MatchingGroup:
     style_name: str
     style_pixels: np.ndarray  # (M, 3) float32 RGB of the style region (colour match)
     features: torch.Tensor  # (C, N_s) style features of the region
-    style_image: np.ndarray = field(repr=False, default=None)  # isolated region image (for reports)
+    style_image: np.ndarray = field(repr=False, default=None)  # the painting (for reports)
+    style_region: np.ndarray | None = field(repr=False, default=None)  # (H, W) bool: the region of a semantic group
 
 
 def resize_to_height(img: np.ndarray, height: int) -> np.ndarray:
@@ -144,5 +145,5 @@ def build_groups(
         feats = region_features(
             vgg, img, region, isolation.method, erode_px=isolation.erode_px, label=s_label, layers=layers
         )
-        groups.append(MatchingGroup(c_label, f"{key}:{s_label}", img[region], feats, img))
+        groups.append(MatchingGroup(c_label, f"{key}:{s_label}", img[region], feats, img, region))
     return groups
