@@ -3,8 +3,9 @@
 The table mirrors the paper's Table 1 (ArtFID, SSIM, time, FPS, short/long-range consistency) and uses
 whatever names the evaluate stage wrote: official metric names only where official weights were used,
 proxy names (``artfid_proxy``, ``lpips_proxy_vgg``, ``fid_tf_inception``) otherwise. Below it: per run the
-content | labels | style | stylized grid and the consistency heat map, and the loss-method ablation
-(FAST / NNFM / KNNFM / Gram) side by side for runs that differ only in the method.
+content | labels | label → painting | stylized grid and the consistency heat map, and the loss-method ablation
+(FAST / NNFM / KNNFM / Gram) side by side for runs that differ only in the method; and, given an
+:func:`abcgs.view.viewer_fragment`, the splat viewer of every experiment.
 """
 
 from __future__ import annotations
@@ -116,7 +117,8 @@ def render_html(runs: list[Run], title: str = "abcgs report", viewer: str | None
         parts.append("</div>")
     for r in runs:
         parts.append(f"<h2>{html.escape(r.name)}</h2>")
-        for key, caption in (("grid", "content | labels | style | stylized"), ("consistency", "consistency: warped error")):
+        for key, caption in (("grid", "content | labels | each label beside its painting (region) | stylized"),
+                             ("consistency", "consistency: warped error")):
             if key in r.images:
                 parts.append(f"<figure>{_img(r.images[key])}<figcaption>{caption}</figcaption></figure>")
     parts.append("</body></html>")
