@@ -20,7 +20,7 @@ export HF_HUB_OFFLINE := 1
 help:
 	@echo "make run    - run the DVC pipeline on the embedded tiny scene (installs first)"
 	@echo "make test   - run the test suite (installs first; chromium too, for the browser tests, when root)"
-	@echo "make viewer - rebuild the splat viewer bundle abcgs/view/static/abcgs-viewer.js from viewer/ (needs npm)"
+	@echo "make viewer - rebuild the splat viewer bundle abcgs/view/static/abcgs-viewer.js.gz from viewer/ (needs npm)"
 	@echo "make bench-rasterizer - rasterizer backend benchmark (eval/bench_rasterizer.py)"
 	@echo "make bench-fern - DVC experiment: LLFF fern x paintings x {fast, nnfm} (needs ../shared/data)"
 	@echo "make quality - quality study: fern x 3 paintings x style losses, figures + table (eval/quality_study.py)"
