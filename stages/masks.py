@@ -42,6 +42,10 @@ def main(args, params) -> None:
             "source": result.source, "input_views": result.input_views, "n_labels": result.n_labels,
             "gaussians_per_label": {k: int(v) for k, v in counts.items()},
             "agreement_with_input_masks": result.agreement,
+            "heldout_views": result.heldout_views,
+            "heldout_iou_per_label": {str(k): v for k, v in result.heldout_iou.items()},
+            "heldout_agreement": result.heldout_agreement,
+            "colour_palette": {str(k): list(v) for k, v in result.palette.items()},
         })
 
 

@@ -22,7 +22,8 @@ def main(args, params) -> None:
     viewer = None
     if params.viewer.enabled:
         exps = [load_experiment(args.root / name, scene=exp.scene, root=args.root,
-                                max_gaussians=params.viewer.max_gaussians)
+                                max_gaussians=params.viewer.max_gaussians, path_kind=params.viewer.camera_path,
+                                path_frames=params.viewer.path_frames)
                 for name, exp in params.experiments.items()]
         viewer = viewer_fragment(exps, max_width=params.viewer.max_width)
     write_text(args.out, render_html(runs, viewer=viewer))

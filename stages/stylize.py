@@ -1,5 +1,6 @@
 """Stage ``stylize``: optimise the colour-matched Gaussians with FAST (or a baseline) + content, TV, depth,
-scale and opacity terms; write the stylized PLY, renders, a grid, a turntable video and the loss curves.
+scale and opacity terms; write the stylized PLY, renders, a grid, a turntable video (the camera path of
+``viewer.camera_path``: an orbit for object-centred captures, else a spiral) and the loss curves.
 
     python stages/stylize.py --experiment tiny_single --out out/tiny_single/stylize
 """
@@ -15,7 +16,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from abcgs.camera_paths import spiral_path  # noqa: E402
+from abcgs.camera_paths import camera_path  # noqa: E402
 from abcgs.gaussians import render  # noqa: E402
 from abcgs.io.atomic import atomic_path, write_text  # noqa: E402
 from abcgs.io.images import save_image  # noqa: E402
@@ -71,8 +72,8 @@ def main(args, params) -> None:
             for i in range(min(3, len(renders))):
                 content = render(original, scene.cameras[i], backend=sp.backend)[0].clamp(0, 1).numpy()
                 rows.append([content, colorize_labels(masks.view_labels[i]), legend, renders[i]])
-            frames = [render(res.model, c, backend=sp.backend)[0].clamp(0, 1).numpy()
-                      for c in spiral_path(scene.cameras, n_frames=args.frames)]
+            path, path_kind = camera_path(scene.cameras, params.viewer.camera_path, params.viewer.path_frames)
+            frames = [render(res.model, c, backend=sp.backend)[0].clamp(0, 1).numpy() for c in path]
         save_image(tmp / "grid.png", image_grid(rows, ["content", "labels", "label: painting", "stylized"]))
         write_video(tmp / "turntable.mp4", frames, fps=24)
     write_text(args.history, history_csv(res.history))
@@ -82,7 +83,7 @@ def main(args, params) -> None:
         "stylize_seconds": res.seconds, "iterations": int(res.timings.get("iterations", 0)),
         "seconds_per_iteration": {k: v / n_it for k, v in res.timings.items() if k != "iterations"},
         "render_fps": fps, "fast": res.fast_stats, "n_gaussians": res.model.num_gaussians,
-        "vgg_weights": info.model_dump(), "seed": sp.seed,
+        "vgg_weights": info.model_dump(), "seed": sp.seed, "camera_path": path_kind,
     })
 
 
@@ -93,5 +94,4 @@ if __name__ == "__main__":
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--metrics", type=Path, required=True, help="metrics JSON (a DVC metric)")
     ap.add_argument("--history", type=Path, required=True, help="per-iteration loss terms CSV (a DVC plot)")
-    ap.add_argument("--frames", type=int, default=48, help="turntable frames")
     sys.exit(run_stage("stylize", ap, main))

@@ -22,6 +22,7 @@ from eval.metrics.consistency import (
     fb_consistency_mask,
     in_frame_mask,
     make_flow_estimator,
+    on_grid,
     raft_default_weights_file,
     view_pairs,
 )
@@ -224,6 +225,29 @@ def test_consistency_of_a_static_stylization_is_zero(proxy) -> None:
     views = [shifted_pair(2 * k, k)[1] for k in range(3)]  # a camera panning over one texture
     summary, _ = consistency(views, views, 1, FlowCache(views, FlowEstimator("dis")), proxy)
     assert summary["n_pairs"] == 2 and summary["rmse"] < 0.02 and summary["valid_fraction"] > 0.8
+
+
+def test_consistency_pairs_views_of_different_sizes_on_one_grid(proxy) -> None:
+    """Two cameras whose views differ by a pixel (COLMAP's per-camera undistorted sizes): every pair is compared
+    on its first view's grid, the other resampled; a static stylization still scores ~0 and the count is reported."""
+    views = [shifted_pair(2 * k, k)[1] for k in range(4)]
+    views = [v if k % 2 == 0 else np.ascontiguousarray(v[:, :-1]) for k, v in enumerate(views)]  # odd views 159 px
+    summary, pairs = consistency(views, views, 1, FlowCache(views, FlowEstimator("dis")), proxy)
+    assert summary["n_pairs"] == 3 and summary["n_pairs_resampled"] == 3
+    assert summary["rmse"] < 0.03 and summary["valid_fraction"] > 0.8
+    assert all(p.warped.shape == views[p.i].shape for p in pairs)
+    # stylizing one view differently is still seen as an inconsistency across the size change
+    changed = [v.copy() for v in views]
+    changed[1] = 1.0 - changed[1]
+    worse, _ = consistency(views, changed, 1, FlowCache(views, FlowEstimator("dis")), proxy)
+    assert worse["rmse"] > 5 * summary["rmse"]
+
+
+def test_on_grid_keeps_matching_images_and_resamples_others() -> None:
+    img = texture(30, 40, 1)
+    assert on_grid(img, (30, 40)) is img
+    assert on_grid(img, (30, 39)).shape == (30, 39, 3)
+    assert on_grid(img[..., 0], (31, 40)).shape == (31, 40)
 
 
 def test_mismatched_view_counts_are_an_error(proxy) -> None:

@@ -9,15 +9,12 @@ few minutes on two cores.
 from __future__ import annotations
 
 import json
-import os
-import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import yaml
-from conftest import REPO_ROOT
+from conftest import REPO_ROOT, copy_repo, run_in
 
 from abcgs.io.metrics import numeric_leaves
 from abcgs.io.ply import read_ply
@@ -34,37 +31,18 @@ REDUCED = {
 }
 
 
-def _run(args: list[str], cwd: Path, timeout: int = 900) -> subprocess.CompletedProcess:
-    env = dict(os.environ)
-    env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}"
-    env["PYTHONUNBUFFERED"] = "1"
-    return subprocess.run(args, cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
+_run = run_in
+
+
+def _reduce(params: dict) -> None:
+    for (section, key), value in REDUCED.items():
+        params[section][key] = value
 
 
 @pytest.fixture(scope="module")
 def repo(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A git+DVC copy of the working tree (tracked and untracked-not-ignored files) with reduced params."""
-    files = subprocess.run(
-        ["git", "ls-files", "--cached", "--others", "--exclude-standard", "-z"], cwd=REPO_ROOT,
-        capture_output=True, check=True,
-    ).stdout.decode().split("\0")
-    dst = tmp_path_factory.mktemp("e2e") / "repo"
-    outputs = ("out/", "data/", "reports/")  # pipeline outputs: the copy starts like a clean clone without a cache
-    for rel in filter(None, files):
-        if rel.startswith(outputs):
-            continue
-        src = REPO_ROOT / rel
-        if src.is_file():
-            (dst / rel).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(src, dst / rel)
-    params = yaml.safe_load((dst / "params.yaml").read_text())
-    for (section, key), value in REDUCED.items():
-        params[section][key] = value
-    (dst / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
-    git = ["git", "-c", "user.name=ci", "-c", "user.email=ci@example.invalid"]
-    for cmd in (["git", "init", "-q"], ["git", "add", "-A"], git + ["commit", "-qm", "copy"]):
-        subprocess.run(cmd, cwd=dst, check=True, capture_output=True)
-    return dst
+    """A git+DVC copy of the working tree with reduced params (:func:`conftest.copy_repo`)."""
+    return copy_repo(tmp_path_factory.mktemp("e2e") / "repo", _reduce)
 
 
 @pytest.fixture(scope="module")

@@ -126,6 +126,27 @@ def test_loads_from_file_without_network(viewer):
     assert "all 2,328 Gaussians" in page.locator("#abcgs-note").inner_text()  # says how many Gaussians it shows
 
 
+
+def test_camera_path_frames_match_our_rasterizer_and_play(viewer):
+    """Issue 14: the viewer's ▷ path is the turntable video's path (spiral here: a forward-facing layout)."""
+    page, exp, _, _ = viewer
+    assert exp.path_kind == "spiral" and len(exp.path) == 48
+    page.evaluate("window.abcgsViewer.setMode('stylized'); window.abcgsViewer.setPathFrame(12)")
+    page.evaluate("window.abcgsViewer.settle(10)")
+    assert page.evaluate("window.abcgsViewer.state.pathFrame") == 12
+    assert "spiral path 13/48" in page.locator("#abcgs-camera").inner_text()
+    shot = _shot(page)
+    img, alpha, _ = render(exp.layers["stylized"], exp.path[12])
+    ours = (img + (1 - alpha) * 1.0).clamp(0, 1).numpy()
+    r = np.corrcoef(shot.reshape(-1), ours.reshape(-1))[0, 1]
+    assert r > 0.95, f"path frame 12: viewer vs our rasterizer, correlation {r:.3f}"
+    page.evaluate("window.abcgsViewer.play(true)")
+    page.wait_for_function("window.abcgsViewer.state.pathFrame !== 12 && window.abcgsViewer.state.pathFrame !== null",
+                           timeout=30_000)
+    page.evaluate("window.abcgsViewer.play(false)")
+    assert page.evaluate("window.abcgsViewer.state.playing") is False
+    page.evaluate("window.abcgsViewer.setCamera(0)")
+
 def test_stylized_render_matches_our_rasterizer(viewer):
     page, exp, _, _ = viewer
     page.evaluate("window.abcgsViewer.setMode('stylized'); window.abcgsViewer.setCamera(1)")

@@ -50,6 +50,11 @@ class TinySceneParams(BaseModel, extra="forbid"):
     wall_depth: float = Field(6.0, gt=1.0, description="distance of the back wall from the camera plane")
     supersample: int = Field(2, ge=1, le=4, description="rays per pixel along each axis (anti-aliasing)")
     style_height: int = Field(256, ge=32, le=2048, description="height of the generated paintings in pixels")
+    odd_view_width_delta: int = Field(
+        0, ge=0, le=64,
+        description="odd-numbered views are this many pixels narrower (a second camera with the same lens and a "
+                    "cropped sensor, as COLMAP gives each camera its own undistorted size); 0: one camera",
+    )
 
 
 @dataclass
@@ -276,7 +281,7 @@ def grid_cameras(p: TinySceneParams, rng: np.random.Generator) -> list[Camera]:
     rows = math.ceil(p.n_views / cols)
     xs = np.linspace(-0.5, 0.5, cols) * p.baseline
     ys = np.linspace(-0.5, 0.5, rows) * p.baseline * 0.75 if rows > 1 else np.zeros(1)
-    K = intrinsics(p.focal_factor * p.width, p.width, p.height)
+    focal = p.focal_factor * p.width
     target = np.array([0.0, 0.0, p.wall_depth * 0.66])
     cams = []
     for i in range(p.n_views):
@@ -285,7 +290,8 @@ def grid_cameras(p: TinySceneParams, rng: np.random.Generator) -> list[Camera]:
         jitter = rng.normal(0.0, 0.04 * p.baseline, size=3)
         eye = np.array([xs[c], ys[r], 0.0]) + jitter
         view = look_at(eye, target, up=np.array([0.0, 1.0, 0.0]))  # world y is down: camera y = world +y
-        cams.append(Camera(f"{i:03d}.png", K.copy(), view, p.width, p.height))
+        width = p.width - (p.odd_view_width_delta if i % 2 else 0)
+        cams.append(Camera(f"{i:03d}.png", intrinsics(focal, width, p.height), view, width, p.height))
     return cams
 
 

@@ -1,21 +1,36 @@
 """Content masks: the user's label PNGs for any subset of views, or automatic ones, lifted onto Gaussians.
 
-Automatic masks need no downloaded network: k-means (OpenCV) on the CIELAB colour and the rendered depth
-of a reference view, followed by a small morphological clean-up. (SAM checkpoints cannot be fetched on
-the project's machines; a user with SAM masks saves them as label PNGs under ``<scene>/masks/``.)
+The user's path (``masks.source: given``, or ``auto`` when ``<scene>/masks/`` has files): label PNGs named
+like the views they label, for one view or several. A PNG may hold label numbers (single channel: 0 =
+unassigned, 1, 2, …) or colours painted in any paint program (black = unassigned; each other colour is a
+label, numbered in the order of the colours' RGB values across all the mask files; colours covering less
+than :data:`MIN_COLOUR_SHARE` of a file, such as a soft brush's edge blends, count as unassigned). Eq. 2
+lifts them to every view. With ``masks.holdout_every: k`` every k-th given mask is kept out of the lifting
+and only scored: the per-label IoU of the lifted masks against the user's on those views is the honest
+measure of how well one view's labels carry to the others.
+
+Automatic masks need no downloaded network (SAM-class checkpoints cannot be fetched on the project's
+machines; PyPI packages that wrap them ship no weights):
+
+- ``clustering``: k-means (OpenCV) on CIELAB colour + rendered depth of a reference view — view-consistent
+  after lifting, but clusters of colour, not objects;
+- ``grabcut``: OpenCV's GrabCut (iterated graph cuts over colour GMMs, Rother et al. 2004) on the reference
+  view's render, seeded by a box (``masks.grabcut.box``, fractions of the view; default the central region,
+  where an object-centred capture keeps its object) and by depth (the nearest pixels inside the box are
+  probable object, the farthest probable background): label 1 = the object, 2 = the rest.
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
 import cv2
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
@@ -24,6 +39,31 @@ from abcgs.io.images import load_labels
 from abcgs.style.lifting import LiftParams, lift_labels, render_label_map
 
 log = logging.getLogger(__name__)
+
+
+MIN_COLOUR_SHARE = 0.005
+"""In a colour label PNG, colours covering less than this share of the file's pixels are unassigned (0)."""
+
+
+class GrabCutParams(BaseModel):
+    """``masks.grabcut``: the object mask of the reference view by GrabCut."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    box: tuple[float, float, float, float] = Field(
+        (0.2, 0.15, 0.8, 0.85), description="x0, y0, x1, y1 as fractions of the view: outside is background")
+    depth_seed: bool = Field(
+        True, description="split the box's depths at Otsu's threshold: nearer = probable object (its eroded core "
+                          "certain), farther = probable background; false: colour only")
+    iterations: int = Field(5, ge=1, le=50)
+    reference_view: int = Field(0, ge=0, description="index of the view that is segmented")
+
+    @model_validator(mode="after")
+    def _box_inside(self):
+        x0, y0, x1, y1 = self.box
+        if not (0.0 <= x0 < x1 <= 1.0 and 0.0 <= y0 < y1 <= 1.0):
+            raise ValueError(f"masks.grabcut.box must be 0 <= x0 < x1 <= 1 and 0 <= y0 < y1 <= 1, got {self.box}")
+        return self
 
 
 class AutoMaskParams(BaseModel):
@@ -40,11 +80,16 @@ class MaskParams(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    source: Literal["auto", "given", "clustering"] = Field(
-        "auto", description="given: the scene's masks/ (error if none); clustering: k-means; auto: given if present"
+    source: Literal["auto", "given", "clustering", "grabcut"] = Field(
+        "auto", description="given: the scene's masks/ (error if none); clustering: k-means of colour + depth; "
+                            "grabcut: object vs rest by GrabCut; auto: given if present, else clustering"
     )
     lift: LiftParams = Field(default_factory=LiftParams)
     clustering: AutoMaskParams = Field(default_factory=AutoMaskParams)
+    grabcut: GrabCutParams = Field(default_factory=GrabCutParams)
+    holdout_every: int = Field(
+        0, ge=0, description="given masks: every k-th (k ≥ 2) is left out of the lifting and only scored (per-label "
+                             "IoU on held-out views); 0 lifts from all of them")
     backend: str = "auto"
 
 
@@ -58,21 +103,76 @@ class ContentMasks:
     source: str
     input_views: list[str]
     agreement: float | None  # pixel agreement of re-rendered vs given masks on the masked views
+    heldout_views: list[str] = field(default_factory=list)
+    heldout_iou: dict[int, float] = field(default_factory=dict)  # per label, lifted vs given on held-out views
+    heldout_agreement: float | None = None  # pixel agreement on the held-out views' labelled pixels
+    palette: dict[int, tuple[int, int, int]] = field(default_factory=dict)  # colour label PNGs: label → RGB
+
+
+def read_label_files(paths: list[Path], sizes: list[tuple[int, int]]) -> tuple[list[np.ndarray], dict]:
+    """Label PNGs → ``(H, W) int64`` maps and the colour palette used (empty for numbered PNGs).
+
+    Numbered (single-channel or grey) files are read as they are. If any file holds colours, every file's
+    colours are numbered together (see the module docstring) so one colour is one label in every view.
+    ``sizes`` are the views' ``(H, W)``; a size mismatch is an :class:`InputError`.
+    """
+    raws = []
+    for p, hw in zip(paths, sizes):
+        img = cv2.imdecode(np.fromfile(str(p), dtype=np.uint8), cv2.IMREAD_UNCHANGED) if p.is_file() else None
+        if img is None:
+            raise InputError(f"label map {p} does not exist or could not be decoded (a PNG of label numbers or colours)")
+        if tuple(img.shape[:2]) != tuple(hw):
+            raise InputError(f"label map {p} is {img.shape[1]}x{img.shape[0]} but its view is {hw[1]}x{hw[0]}; "
+                             "masks must have the same size as the view they label")
+        if img.ndim == 3 and img.shape[2] == 4:
+            img = img[..., :3]
+        raws.append(img)
+    coloured = [r.ndim == 3 and not (np.all(r[..., 0] == r[..., 1]) and np.all(r[..., 1] == r[..., 2])) for r in raws]
+    if not any(coloured):
+        return [load_labels(p, expect_hw=hw) for p, hw in zip(paths, sizes)], {}
+    keep: set[tuple[int, int, int]] = set()
+    for r in raws:
+        rgb = (r if r.ndim == 3 else np.repeat(r[..., None], 3, -1))[..., ::-1].reshape(-1, 3)  # BGR → RGB
+        cols, counts = np.unique(rgb, axis=0, return_counts=True)
+        keep |= {tuple(int(v) for v in c) for c, n in zip(cols, counts) if n >= MIN_COLOUR_SHARE * len(rgb) and c.any()}
+    if len(keep) > 255:
+        raise InputError(f"the colour label PNGs hold {len(keep)} colours; paint each label in one flat colour")
+    palette = {i + 1: c for i, c in enumerate(sorted(keep))}
+    lut = {c: i for i, c in palette.items()}
+    maps = []
+    for r in raws:
+        rgb = (r if r.ndim == 3 else np.repeat(r[..., None], 3, -1))[..., ::-1]
+        code = (rgb[..., 0].astype(np.int64) << 16) | (rgb[..., 1].astype(np.int64) << 8) | rgb[..., 2]
+        out = np.zeros(code.shape, np.int64)
+        for c, i in lut.items():
+            out[code == ((c[0] << 16) | (c[1] << 8) | c[2])] = i
+        maps.append(out)
+    return maps, palette
 
 
 def find_given_masks(masks_dir: Path, cameras: list[Camera]) -> dict[int, np.ndarray]:
     """Label PNGs in ``masks_dir`` whose stem matches a camera's image stem → {camera index: labels}."""
     if not masks_dir.is_dir():
         return {}
+    return find_given_masks_with_palette(masks_dir, cameras)[0]
+
+
+def find_given_masks_with_palette(masks_dir: Path, cameras: list[Camera]) -> tuple[dict[int, np.ndarray], dict]:
+    """:func:`find_given_masks` and the colour palette of colour label PNGs (see :func:`read_label_files`)."""
+    if not masks_dir.is_dir():
+        return {}, {}
     by_stem = {Path(c.name).stem: i for i, c in enumerate(cameras)}
-    out = {}
+    found = []
     for p in sorted(masks_dir.glob("*.png")):
         i = by_stem.get(p.stem)
         if i is None:
             log.warning("mask %s matches no registered view; ignored", p.name)
             continue
-        out[i] = load_labels(p, expect_hw=(cameras[i].height, cameras[i].width))
-    return out
+        found.append((i, p))
+    if not found:
+        return {}, {}
+    maps, palette = read_label_files([p for _, p in found], [(cameras[i].height, cameras[i].width) for i, _ in found])
+    return {i: m for (i, _), m in zip(found, maps)}, palette
 
 
 def cluster_view(model: GaussianModel, camera: Camera, params: AutoMaskParams, backend: str = "auto") -> np.ndarray:
@@ -96,24 +196,89 @@ def cluster_view(model: GaussianModel, camera: Camera, params: AutoMaskParams, b
     return cv2.medianBlur(out.astype(np.uint8), 5).astype(np.int64)
 
 
+def grabcut_view(model: GaussianModel, camera: Camera, params: GrabCutParams, backend: str = "auto") -> np.ndarray:
+    """Object (1) vs rest (2) of one rendered view by GrabCut seeded with a box and depth ``(H, W) int64``
+    (0 where nothing is rendered)."""
+    with torch.no_grad():
+        img, alpha, meta = render(model, camera, backend=backend, render_depth=True, normalize_depth=True)
+    rgb = (img.clamp(0, 1).numpy() * 255 + 0.5).astype(np.uint8)
+    depth = meta.depth[..., 0].numpy()
+    valid = alpha[..., 0].numpy() > 0.5
+    h, w = depth.shape
+    x0, y0, x1, y1 = params.box
+    bx0, by0 = int(round(x0 * w)), int(round(y0 * h))
+    bx1, by1 = max(bx0 + 1, int(round(x1 * w))), max(by0 + 1, int(round(y1 * h)))
+    mask = np.full((h, w), cv2.GC_BGD, np.uint8)
+    mask[by0:by1, bx0:bx1] = cv2.GC_PR_FGD
+    inside = np.zeros((h, w), bool)
+    inside[by0:by1, bx0:bx1] = True
+    inside &= valid
+    if inside.sum() < 16:
+        raise InputError(f"grabcut: the box {params.box} covers almost nothing rendered in view {camera.name}")
+    if params.depth_seed:
+        # inverse depth, clipped to its 2nd–98th percentiles in the box: a few far floaters must not set the scale
+        disp = 1.0 / np.maximum(depth, 1e-6)
+        lo, hi = (float(v) for v in np.percentile(disp[inside], [2, 98]))
+        if hi > lo:
+            d8 = (255.0 - np.clip((disp - lo) / (hi - lo) * 255.0, 0, 255)).astype(np.uint8)  # 0 = nearest
+            thr, _ = cv2.threshold(d8[inside], 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+            near = inside & (d8 <= thr)
+            mask[inside & ~near] = cv2.GC_PR_BGD
+            core = cv2.erode(near.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+            mask[core] = cv2.GC_FGD
+    mask[~valid] = cv2.GC_BGD
+    bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
+    cv2.setRNGSeed(0)
+    cv2.grabCut(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), mask, None, bgd, fgd, params.iterations, cv2.GC_INIT_WITH_MASK)
+    obj = (mask == cv2.GC_FGD) | (mask == cv2.GC_PR_FGD)
+    out = np.where(obj, 1, 2).astype(np.int64)
+    out[~valid] = 0
+    if not (out == 1).any():
+        raise InputError(f"grabcut found no object in view {camera.name}; move masks.grabcut.box onto it")
+    return out
+
+
+def label_iou(pred: np.ndarray, truth: np.ndarray, n_labels: int) -> dict[int, float]:
+    """Per label 1..n: IoU of ``pred`` and ``truth`` over pixels where ``truth`` is assigned (> 0); labels absent
+    from both are left out."""
+    keep = truth > 0
+    out = {}
+    for k in range(1, n_labels + 1):
+        a, b = (pred == k) & keep, truth == k
+        union = int((a | b).sum())
+        if union:
+            out[k] = float((a & b).sum() / union)
+    return out
+
+
 def make_content_masks(
     model: GaussianModel, cameras: list[Camera], masks_dir: Path | None, params: MaskParams
 ) -> ContentMasks:
     """Given or automatic masks → per-Gaussian labels → re-rendered masks for every view."""
-    given = find_given_masks(masks_dir, cameras) if masks_dir is not None else {}
+    given, palette = find_given_masks_with_palette(masks_dir, cameras) if masks_dir is not None else ({}, {})
     if params.source == "given" and not given:
         raise InputError(f"masks.source is 'given' but no label PNG in {masks_dir} matches a view")
+    heldout: list[int] = []
     if given and params.source in ("auto", "given"):
         source = "given"
         idx = sorted(given)
+        if params.holdout_every >= 2 and len(idx) >= 2:
+            heldout = idx[params.holdout_every - 1 :: params.holdout_every]
+            idx = [i for i in idx if i not in heldout]
         maps = [given[i] for i in idx]
+    elif params.source == "grabcut":
+        source = "grabcut"
+        i = params.grabcut.reference_view
+        if i >= len(cameras):
+            raise InputError(f"masks.grabcut.reference_view {i} is out of range (scene has {len(cameras)} views)")
+        idx, maps = [i], [grabcut_view(model, cameras[i], params.grabcut, params.backend)]
     else:
         source = "clustering"
         i = params.clustering.reference_view
         if i >= len(cameras):
             raise InputError(f"masks.clustering.reference_view {i} is out of range (scene has {len(cameras)} views)")
         idx, maps = [i], [cluster_view(model, cameras[i], params.clustering, params.backend)]
-    n_labels = int(max(m.max() for m in maps))
+    n_labels = int(max([m.max() for m in maps] + [given[i].max() for i in heldout]))
     if n_labels == 0:
         raise InputError("the content masks contain no label > 0 (0 means unassigned); nothing to lift")
     lifted = lift_labels(model, [cameras[i] for i in idx], maps, n_labels, params.lift, backend=params.backend)
@@ -122,10 +287,23 @@ def make_content_masks(
         for c in cameras
     ]
     agree = [float((views[i] == m)[m > 0].mean()) for i, m in zip(idx, maps) if (m > 0).any()]
+    ho_iou: dict[int, list[float]] = {}
+    ho_agree = []
+    for i in heldout:
+        truth = given[i]
+        for k, v in label_iou(views[i], truth, n_labels).items():
+            ho_iou.setdefault(k, []).append(v)
+        if (truth > 0).any():
+            ho_agree.append(float((views[i] == truth)[truth > 0].mean()))
     counts = lifted.counts()
     log.info("lifted %s masks of %d view(s) onto %d Gaussians: %s", source, len(idx), len(lifted.labels), counts)
+    if heldout:
+        log.info("held-out views %d: per-label IoU %s", len(heldout),
+                 {k: round(float(np.mean(v)), 3) for k, v in sorted(ho_iou.items())})
     return ContentMasks(lifted.labels, n_labels, views, source, [cameras[i].name for i in idx],
-                        float(np.mean(agree)) if agree else None)
+                        float(np.mean(agree)) if agree else None, [cameras[i].name for i in heldout],
+                        {k: float(np.mean(v)) for k, v in sorted(ho_iou.items())},
+                        float(np.mean(ho_agree)) if ho_agree else None, palette)
 
 
 def colorize_labels(labels: np.ndarray) -> np.ndarray:

@@ -23,6 +23,7 @@ import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
+from abcgs.camera_paths import PathKind, camera_path, capture_layout
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
@@ -49,6 +50,10 @@ class ViewerParams(BaseModel):
     max_gaussians: int = Field(150_000, ge=100, description="Gaussians per layer on the page (most visible kept; "
                                "fern × Starry Night: 60k of 94k → 34.2 dB against the full render, 80k → 49.3 dB)")
     max_width: int = Field(960, ge=64, description="largest canvas width in CSS pixels")
+    camera_path: PathKind = Field(
+        "auto", description="path of the turntable video and the viewer's ▷ button: orbit (object-centred "
+                            "captures), spiral (forward-facing) or auto (detected from the camera layout)")
+    path_frames: int = Field(48, ge=2, le=1000, description="cameras on the path (the video plays 24 per second)")
 
 
 @dataclass
@@ -61,6 +66,8 @@ class ViewerExperiment:
     n_gaussians_full: int
     full_artifact: str = "the PLY beside the experiment"
     target: np.ndarray | None = None
+    path: list[Camera] = field(default_factory=list)
+    path_kind: str = ""
     spz_bytes: dict[str, int] = field(default_factory=dict)
 
 
@@ -149,8 +156,13 @@ def prepare_experiment(
     labels: np.ndarray | None = None,
     max_gaussians: int = 150_000,
     full_artifact: str = "the PLY beside the experiment",
+    path_kind: PathKind = "auto",
+    path_frames: int = 48,
 ) -> ViewerExperiment:
     """Subsample (the same Gaussians in every layer) and build the layers of one experiment.
+
+    The camera path is :func:`abcgs.camera_paths.camera_path` (the turntable video's); the orbit target is
+    the capture's look-at point for an orbit, else a point on the first camera's axis (:func:`orbit_target`).
 
     ``original`` and ``labels`` share the stylized scene's Gaussians when they have as many; otherwise the
     original layer is subsampled on its own and the labels layer is left out (with a reason in the log).
@@ -164,8 +176,9 @@ def prepare_experiment(
         layers["original"] = original.index(idx if same else subsample_indices(original, max_gaussians))
     if labels is not None and len(labels) == stylized.num_gaussians:
         layers["labels"] = label_colored(layers["stylized"], np.asarray(labels)[idx.numpy()])
-    return ViewerExperiment(name, layers, list(cameras), stylized.num_gaussians, full_artifact,
-                            orbit_target(layers["stylized"], cameras[0]))
+    path, used = camera_path(list(cameras), path_kind, path_frames) if len(cameras) > 1 else ([], "")
+    target = capture_layout(list(cameras)).center if used == "orbit" else orbit_target(layers["stylized"], cameras[0])
+    return ViewerExperiment(name, layers, list(cameras), stylized.num_gaussians, full_artifact, target, path, used)
 
 
 def _b64(data: bytes) -> str:
@@ -188,7 +201,9 @@ def viewer_fragment(experiments: list[ViewerExperiment], *, max_width: int = 960
             blobs.append(f'<script type="application/octet-stream" id="{ids[layer]}">{_b64(spz)}</script>')
         data["experiments"].append({
             "name": exp.name, "layers": ids, "cameras": [three_camera(c) for c in exp.cameras],
-            "target": [float(v) for v in exp.target], "n_gaussians_page": exp.layers["stylized"].num_gaussians,
+            "target": [float(v) for v in exp.target],
+            "path": [three_camera(c) for c in exp.path], "path_kind": exp.path_kind,
+            "n_gaussians_page": exp.layers["stylized"].num_gaussians,
             "n_gaussians_full": exp.n_gaussians_full, "full_artifact": exp.full_artifact, "max_width": max_width,
         })
     payload = json.dumps(data).replace("</", "<\\/")

@@ -9,6 +9,7 @@ import numpy as np
 from abcgs.errors import InputError
 from abcgs.io.ply import read_ply
 from abcgs.sfm.colmap import read_colmap_scene
+from abcgs.camera_paths import PathKind
 from abcgs.view import ViewerExperiment, prepare_experiment
 
 
@@ -29,7 +30,8 @@ def experiment_scene(run_dir: Path, params_path: Path | None = Path("params.yaml
 
 
 def load_experiment(run_dir: Path, *, scene: str | None = None, root: Path | None = None,
-                    max_gaussians: int = 150_000) -> ViewerExperiment:
+                    max_gaussians: int = 150_000, path_kind: PathKind = "auto",
+                    path_frames: int = 48) -> ViewerExperiment:
     """Layers and cameras of the experiment in ``run_dir`` (``out/<experiment>``); the scene's outputs are
     looked up in ``root`` (default: ``run_dir``'s parent) as ``<scene>/{gs,masks,colmap}``."""
     run_dir = Path(run_dir)
@@ -45,4 +47,5 @@ def load_experiment(run_dir: Path, *, scene: str | None = None, root: Path | Non
     labels_path = scene_dir / "masks" / "gaussian_labels.npy"
     labels = np.load(labels_path) if labels_path.is_file() else None
     return prepare_experiment(run_dir.name, read_ply(ply), cams, original=original, labels=labels,
-                              max_gaussians=max_gaussians, full_artifact=str(ply))
+                              max_gaussians=max_gaussians, full_artifact=str(ply), path_kind=path_kind,
+                              path_frames=path_frames)

@@ -10,6 +10,10 @@ the stylized render of view i on the pixels where the correspondence is trustwor
   |f_{i→j} + f_b|² < 0.01·(|f_{i→j}|² + |f_b|²) + 0.5;
 - the target x + f_{i→j}(x) must lie inside view j (out-of-frame pixels are invalid).
 
+Views may differ in size (COLMAP gives each camera its own undistorted size): a pair is compared on the
+grid of its first view ``i``, view ``j`` resampled onto it (:func:`on_grid`) before the flow and the warp;
+the number of resampled pairs is reported.
+
 Reported per pair: masked RMSE (images in [0, 1], averaged over the 3 channels) and a masked perceptual
 distance (:class:`eval.metrics.content.PerceptualDistance`: real LPIPS-alex or the named VGG proxy);
 short-term pairs are (i, i + 1), long-term pairs (i, i + gap) with gap clipped to n − 1 (training views
@@ -217,8 +221,10 @@ def depth_correspondence(
     unstylized scene is depth blur at occlusion edges and resampling, so it bounds how much of a flow-based
     error is measurement.
     """
-    check_pair(depth_i, depth_j, "depth maps")
+    if np.ndim(depth_i) < 2 or np.ndim(depth_j) < 2:
+        raise InputError(f"depth maps must be (H, W); got {np.shape(depth_i)} and {np.shape(depth_j)}")
     h, w = depth_i.shape[:2]
+    hj, wj = depth_j.shape[:2]
     z = np.asarray(depth_i, np.float64).reshape(h, w)
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
     cam_i = np.stack([(xs + 0.5 - K_i[0, 2]) / K_i[0, 0] * z, (ys + 0.5 - K_i[1, 2]) / K_i[1, 1] * z, z,
@@ -231,9 +237,10 @@ def depth_correspondence(
     front = (z > 0) & (zj > 1e-9) & np.isfinite(u) & np.isfinite(v)
     u, v = np.where(front, u, -1.0), np.where(front, v, -1.0)
     flow = np.stack([u - xs, v - ys], -1).astype(np.float32)
-    seen = cv2.remap(np.asarray(depth_j, np.float32).reshape(h, w), u.astype(np.float32), v.astype(np.float32),
+    seen = cv2.remap(np.asarray(depth_j, np.float32).reshape(hj, wj), u.astype(np.float32), v.astype(np.float32),
                      interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    mask = front & in_frame_mask(flow) & (np.abs(seen - zj) <= rel_tol * np.abs(zj))
+    inside = (u >= 0) & (u <= wj - 1) & (v >= 0) & (v <= hj - 1)
+    mask = front & inside & (np.abs(seen - zj) <= rel_tol * np.abs(zj))
     if valid_i is not None:
         mask &= np.asarray(valid_i, bool).reshape(h, w)
     return flow, mask
@@ -248,6 +255,7 @@ class PairResult:
     valid_fraction: float
     warped: np.ndarray = field(repr=False)  # stylized j warped into i
     mask: np.ndarray = field(repr=False)  # (H, W) bool, True = counted
+    resampled: bool = False  # view j differed in size and was resampled onto view i's grid
 
     def error_map(self, stylized_i: np.ndarray) -> np.ndarray:
         return np.sqrt(((np.asarray(stylized_i, np.float64) - self.warped) ** 2).mean(-1))
@@ -261,29 +269,55 @@ def view_pairs(n: int, gap: int) -> list[tuple[int, int]]:
     return [(i, i + g) for i in range(n - g)]
 
 
+def on_grid(img: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
+    """``img`` resampled to ``hw = (H, W)`` (bilinear; area averaging when shrinking), unchanged if it fits.
+
+    Views of one scene may differ in size (COLMAP gives every camera its own undistorted size); a pair is
+    compared on the grid of its first view, the second view is resampled onto it before flow and warping.
+    """
+    a = np.asarray(img)
+    if a.shape[:2] == tuple(hw):
+        return a
+    shrink = a.shape[0] * a.shape[1] > hw[0] * hw[1]
+    out = cv2.resize(np.ascontiguousarray(a, dtype=np.float32), (int(hw[1]), int(hw[0])),
+                     interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
+    return out.reshape(*hw, *a.shape[2:])
+
+
 class FlowCache:
-    """Flows between original renders, computed once per ordered pair."""
+    """Flows between original renders, computed once per ordered pair and grid.
+
+    ``flows(i, j, hw)``: flow from view ``i`` to view ``j``, both first put on the grid ``hw`` (the grid of
+    the pair's reference view; :func:`on_grid`).
+    """
 
     def __init__(self, originals: list[np.ndarray], estimator: FlowEstimator | RaftFlow) -> None:
         self.originals, self.estimator, self._c = originals, estimator, {}
 
-    def __call__(self, i: int, j: int) -> np.ndarray:
-        if (i, j) not in self._c:
-            self._c[(i, j)] = self.estimator(self.originals[i], self.originals[j])
-        return self._c[(i, j)]
+    def __call__(self, i: int, j: int, hw: tuple[int, int] | None = None) -> np.ndarray:
+        hw = tuple(hw) if hw is not None else tuple(np.shape(self.originals[i])[:2])
+        if (i, j, hw) not in self._c:
+            self._c[(i, j, hw)] = self.estimator(on_grid(self.originals[i], hw), on_grid(self.originals[j], hw))
+        return self._c[(i, j, hw)]
 
 
 def warp_error(i: int, j: int, stylized: list[np.ndarray], flow: np.ndarray, mask: np.ndarray,
                perceptual: PerceptualDistance | None) -> PairResult:
-    """Stylized view ``j`` warped into ``i`` by ``flow`` (``i → j``), compared with view ``i`` where ``mask``."""
-    warped = backward_warp(stylized[j], flow)
+    """Stylized view ``j`` warped into ``i`` by ``flow`` (``i → j``), compared with view ``i`` where ``mask``.
+
+    ``flow`` is on view ``i``'s grid; view ``j`` is resampled onto that grid first when its size differs.
+    """
+    hw = flow.shape[:2]
+    warped = backward_warp(on_grid(stylized[j], hw), flow)
     rmse = masked_rmse(stylized[i], warped, mask)
     perc = perceptual(stylized[i], warped, mask) if perceptual is not None else float("nan")
-    return PairResult(i, j, rmse, perc, float(mask.mean()), warped, mask)
+    return PairResult(i, j, rmse, perc, float(mask.mean()), warped, mask,
+                      resampled=tuple(np.shape(stylized[j])[:2]) != tuple(hw))
 
 
 def evaluate_pair(i: int, j: int, stylized: list[np.ndarray], flows: FlowCache, perceptual: PerceptualDistance | None) -> PairResult:
-    f_ij, f_ji = flows(i, j), flows(j, i)
+    hw = tuple(np.shape(stylized[i])[:2])
+    f_ij, f_ji = flows(i, j, hw), flows(j, i, hw)
     return warp_error(i, j, stylized, f_ij, fb_consistency_mask(f_ij, f_ji), perceptual)
 
 
@@ -303,6 +337,7 @@ def consistency(
         "rmse": float(np.nanmean(rm)) if np.isfinite(rm).any() else float("nan"),
         "perceptual": float(np.nanmean(pc)) if np.isfinite(pc).any() else float("nan"),
         "valid_fraction": float(np.mean([r.valid_fraction for r in results])),
+        "n_pairs_resampled": sum(r.resampled for r in results),
     }
     return summary, results
 

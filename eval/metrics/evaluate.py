@@ -195,13 +195,15 @@ def evaluate_images(
                 f"error (cyan: occluded) rmse {pr.rmse:.3f}"]
 
     metrics = {
-        "n_views": n, "resolution": [int(w), int(h)],
+        "n_views": n, "resolution": [int(w), int(h)],  # of the first view; views may differ (n_view_sizes)
         "ssim": _mean(ssims), "ssim_impl": ssim.provenance()["ssim_impl"],
         f"content_{pname}": content_mean,
         "short_rmse": short["rmse"], f"short_{pname}": short["perceptual"],
         "long_rmse": long["rmse"], f"long_{pname}": long["perceptual"],
         "short_term_gap": short["gap"], "long_term_gap": long["gap"],
         "short_valid_fraction": short["valid_fraction"], "long_valid_fraction": long["valid_fraction"],
+        "n_view_sizes": len({tuple(np.shape(o)[:2]) for o in originals}),
+        "short_pairs_resampled": short["n_pairs_resampled"], "long_pairs_resampled": long["n_pairs_resampled"],
         "fid_tf_inception": fid, "kid_tf_inception": kid_mean, "kid_tf_inception_std": kid_std,
         "gram_distance": _mean(gram_per_view),
         art_key: art_val,

@@ -4,9 +4,12 @@
 //   <script type="application/octet-stream" id="...">base64 of a .spz file</script>
 // and a container <div id="abcgs-viewer">. Each experiment names one splat element per layer
 // ("original", "stylized", "labels"), its training cameras (three.js convention: position, quaternion
-// xyzw, vertical fov in degrees, aspect) and an orbit target. All splats share one world frame
-// (the COLMAP frame of the scene; no axis conversion).
-// Test hooks: window.abcgsViewer = {ready, setExperiment, setMode, setCamera, orbit, settle, state}.
+// xyzw, vertical fov in degrees, aspect), an orbit target and a camera path (`path`: cameras of the
+// video path, `path_kind`: "orbit" around an object-centred capture or "spiral" through a forward-facing
+// one; the same path as the turntable video). All splats share one world frame (the COLMAP frame of the
+// scene; no axis conversion).
+// Test hooks: window.abcgsViewer = {ready, setExperiment, setMode, setCamera, setPathFrame, play, orbit,
+// settle, state}.
 import * as THREE from "three";
 import { OrbitControls } from "three/examples/jsm/controls/OrbitControls.js";
 import { SparkRenderer, SplatFileType, SplatMesh, defines } from "@sparkjsdev/spark";
@@ -58,6 +61,9 @@ class Viewer {
     prev.addEventListener("click", () => this.setCamera(this.cameraIndex - 1));
     next.addEventListener("click", () => this.setCamera(this.cameraIndex + 1));
     bar.append(prev, this.camLabel, next);
+    this.playButton = el("button", { type: "button", id: "abcgs-play" }, "▷ path");
+    this.playButton.addEventListener("click", () => this.play(!this._playing));
+    bar.appendChild(this.playButton);
     this.note = el("div", { class: "abcgs-note", id: "abcgs-note" });
     this.error = el("div", { class: "abcgs-error", id: "abcgs-error", role: "alert" });
     this.error.style.display = "none";
@@ -85,7 +91,12 @@ class Viewer {
     this.camera = new THREE.PerspectiveCamera(50, 4 / 3, 0.01, 1000);
     this.controls = new OrbitControls(this.camera, this.canvas);
     this.controls.enableDamping = false;
-    this.renderer.setAnimationLoop(() => {
+    this.renderer.setAnimationLoop((t) => {
+      if (this._playing && this.exp?.path?.length) {
+        // 24 path frames per second, as the turntable video
+        const frame = Math.floor(((t - this._playStart) / 1000) * 24) % this.exp.path.length;
+        if (frame !== this.state.pathFrame) this.setPathFrame(frame);
+      }
       this.controls.update();
       this.renderer.render(this.scene, this.camera);
       this.frames++;
@@ -153,9 +164,13 @@ class Viewer {
         "(the most visible, subsampled for the page)";
     this.note.textContent =
       `${exp.name}: showing ${shown}; the full scene is ${exp.full_artifact}. Drag to orbit, right-drag to ` +
-      "pan, wheel to zoom; ◀ ▶ step through the training cameras.";
+      "pan, wheel to zoom; ◀ ▶ step through the training cameras; ▷ plays the " +
+      `${exp.path_kind || "video"} path.`;
     await Promise.all(loads);
     this.setMode(this.meshes[this.mode] ? this.mode : Object.keys(this.meshes)[0] || this.mode);
+    this.play(false);
+    this.playButton.disabled = !exp.path?.length;
+    this.playButton.title = exp.path?.length ? `play the ${exp.path_kind} path (${exp.path.length} frames)` : "";
     this.setCamera(0);
     this.state.experiment = exp.name;
   }
@@ -168,11 +183,7 @@ class Viewer {
     this.state.mode = mode;
   }
 
-  setCamera(i) {
-    const cams = this.exp.cameras;
-    const n = cams.length;
-    this.cameraIndex = ((i % n) + n) % n;
-    const c = cams[this.cameraIndex];
+  _applyCamera(c) {
     this.camera.fov = c.fov_y_deg;
     this.camera.aspect = c.aspect;
     this.camera.near = c.near || 0.01;
@@ -185,8 +196,37 @@ class Viewer {
     const dist = this.camera.position.distanceTo(new THREE.Vector3().fromArray(this.exp.target));
     this.controls.target.copy(this.camera.position).addScaledVector(forward, dist);
     this.controls.update();
+  }
+
+  setCamera(i) {
+    const cams = this.exp.cameras;
+    const n = cams.length;
+    this.cameraIndex = ((i % n) + n) % n;
+    const c = cams[this.cameraIndex];
+    this._applyCamera(c);
     this.camLabel.textContent = ` camera ${this.cameraIndex + 1}/${n} (${c.name}) `;
     this.state.camera = this.cameraIndex;
+    this.state.pathFrame = null;
+  }
+
+  // Show frame i of the experiment's camera path (the turntable video's cameras).
+  setPathFrame(i) {
+    const path = this.exp.path || [];
+    if (!path.length) throw new Error(`experiment ${this.exp.name} has no camera path`);
+    const n = path.length;
+    const k = ((i % n) + n) % n;
+    this._applyCamera(path[k]);
+    this.camLabel.textContent = ` ${this.exp.path_kind} path ${k + 1}/${n} `;
+    this.state.pathFrame = k;
+  }
+
+  // Start (true) or stop (false) playing the camera path.
+  play(on) {
+    this._playing = Boolean(on) && Boolean(this.exp?.path?.length);
+    this._playStart = performance.now();
+    this.playButton.textContent = this._playing ? "❚❚ path" : "▷ path";
+    this.playButton.classList.toggle("active", this._playing);
+    this.state.playing = this._playing;
   }
 
   // Rotate the view about the orbit target by `radians` (azimuth), as a drag would.
@@ -266,6 +306,8 @@ function boot() {
     setExperiment: (i) => viewer.setExperiment(i),
     setMode: (m) => viewer.setMode(m),
     setCamera: (i) => viewer.setCamera(i),
+    setPathFrame: (i) => viewer.setPathFrame(i),
+    play: (on) => viewer.play(on),
     orbit: (r) => viewer.orbit(r),
     settle: (n) => viewer.settle(n),
   });
