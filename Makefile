@@ -38,6 +38,7 @@ $(STAMP): pyproject.toml Makefile
 install: $(STAMP)
 
 run: install
+	$(BIN)/python -m abcgs.preflight params.yaml
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/dvc repro
 	@echo
 	@echo "Results:"
@@ -75,14 +76,13 @@ bench-rasterizer: install
 # brings its params and outputs into the workspace; eval/show_exp.py prints its table and copies its report and
 # grids to out/bench/fern-bench/ without touching the workspace). Absolute paths: the copy is not next to ../shared.
 SHARED ?= $(abspath ../shared/data)
-FERN_SET = -S "+data.scenes.fern=$(SHARED)/scenes/fern" \
+FERN_FIT = {iterations: 3000, max_gaussians: 150000, strategy: {refine_start: 300, refine_stop: 1800, reset_every: 1500}}
+FERN_SET = -S "+data.scenes.fern={path: $(SHARED)/scenes/fern, fit: $(FERN_FIT)}" \
   -S "+data.styles.starry=$(SHARED)/styles/starry_night.jpg" -S "+data.styles.udnie=$(SHARED)/styles/udnie.jpg" \
   -S "+experiments.fern_starry_fast={scene: fern, style: starry, method: fast}" \
   -S "+experiments.fern_starry_nnfm={scene: fern, style: starry, method: nnfm}" \
   -S "+experiments.fern_udnie_fast={scene: fern, style: udnie, method: fast}" \
   -S "+experiments.fern_udnie_nnfm={scene: fern, style: udnie, method: nnfm}" \
-  -S fit.iterations=3000 -S ++fit.max_gaussians=150000 -S ++fit.strategy.refine_start=300 \
-  -S ++fit.strategy.refine_stop=1800 -S ++fit.strategy.reset_every=1500 \
   -S colormatch.refit_iterations=200 -S stylize.iterations=300
 
 bench-fern: install

@@ -13,6 +13,7 @@ Each section's model lives next to the code it configures (``TinySceneParams`` i
 from __future__ import annotations
 
 import os
+import typing
 from pathlib import Path
 from typing import Any
 
@@ -31,14 +32,49 @@ from abcgs.style.stylize import StylizeParams
 from abcgs.style.weights import VggWeightsParams
 from abcgs.view import ViewerParams
 
+SCENE_SECTIONS = ("reconstruct", "fit", "masks")
+"""Sections a scene may override in ``data.scenes.<name>``: the stages that run once per scene."""
+
+
+class SceneParams(BaseModel):
+    """``data.scenes.<name>``: the scene's folder and its overrides of the per-scene sections.
+
+    ``{path: data/fern, fit: {iterations: 3000}}`` fits this scene for 3000 steps and every other scene with
+    the global ``fit``. An override is a partial section, merged key by key (nested mappings too) over the
+    global one and validated as a whole: :meth:`Params.scene_section`. DVC tracks ``data.scenes.<name>`` for
+    that scene's stages only, so changing one scene's override re-runs that scene's branch alone.
+    A plain path is accepted as short for ``{path: ...}`` by the library; ``dvc.yaml`` reads ``${item.path}``,
+    so ``params.yaml`` writes the mapping (checked before any stage: :mod:`abcgs.preflight`).
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    path: str = Field(description="folder holding images/ (and optional masks/ with label PNGs of the same stem)")
+    reconstruct: dict[str, Any] = Field(default_factory=dict, description="overrides of `reconstruct` for this scene")
+    fit: dict[str, Any] = Field(default_factory=dict, description="overrides of `fit` for this scene")
+    masks: dict[str, Any] = Field(default_factory=dict, description="overrides of `masks` for this scene")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _path_shorthand(cls, data: Any) -> Any:
+        return {"path": data} if isinstance(data, str) else data
+
+
+def deep_merge(base: dict, override: dict) -> dict:
+    """``base`` with ``override``'s keys put in, recursing into mappings present in both (neither is changed)."""
+    out = dict(base)
+    for k, v in override.items():
+        out[k] = deep_merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
 
 class DataParams(BaseModel):
     """Where the scenes and style images are. Paths are relative to the repository root."""
 
     model_config = ConfigDict(extra="forbid")
 
-    scenes: dict[str, str] = Field(
-        description="scene name → folder holding images/ (and optional masks/ with label PNGs of the same stem)"
+    scenes: dict[str, SceneParams] = Field(
+        description="scene name → {path: folder with images/ (and optional masks/), reconstruct/fit/masks: overrides}"
     )
     styles: dict[str, str] = Field(default_factory=dict, description="style name → painting image file")
     style_masks: dict[str, str] = Field(
@@ -47,7 +83,7 @@ class DataParams(BaseModel):
 
     @field_validator("scenes")
     @classmethod
-    def _some_scene(cls, v: dict[str, str]) -> dict[str, str]:
+    def _some_scene(cls, v: dict[str, SceneParams]) -> dict[str, SceneParams]:
         if not v:
             raise ValueError("at least one scene is needed")
         for name in v:
@@ -76,8 +112,36 @@ class Params(BaseModel):
         default_factory=dict, description="stylization runs: name → scene, transfer type, style(s), loss method"
     )
 
+    def scene_section(self, scene: str, section: str) -> BaseModel:
+        """The ``section`` (``reconstruct`` | ``fit`` | ``masks``) that ``scene``'s stages use: the global section
+        with the scene's override merged in (:func:`deep_merge`) and validated."""
+        if section not in SCENE_SECTIONS:
+            raise ValueError(f"{section!r} is not a per-scene section ({', '.join(SCENE_SECTIONS)})")
+        if scene not in self.data.scenes:
+            raise ParamsError(f"scene {scene!r} is not in data.scenes ({', '.join(self.data.scenes)})")
+        base = getattr(self, section)
+        override = getattr(self.data.scenes[scene], section)
+        if not override:
+            return base
+        return type(base).model_validate(deep_merge(base.model_dump(), override))
+
+    def scene_path(self, scene: str) -> str:
+        return self.data.scenes[scene].path
+
     @model_validator(mode="after")
     def _cross_check(self) -> Params:
+        for name, scene in self.data.scenes.items():
+            for section in SCENE_SECTIONS:
+                if not getattr(scene, section):
+                    continue
+                try:
+                    self.scene_section(name, section)
+                except ValidationError as exc:
+                    prefix = f"data.scenes.{name}.{section}"
+                    body = format_validation_error(exc, prefix, type(getattr(self, section)))
+                    lines = body.splitlines()[1:]
+                    raise ValueError(f"{prefix}: the override does not fit `{section}`:\n" + "\n".join(
+                        f"    {prefix}.{line.strip()}" for line in lines)) from None
         for name, exp in self.experiments.items():
             if exp.scene not in self.data.scenes:
                 raise ValueError(f"experiments.{name}.scene {exp.scene!r} is not in data.scenes ({', '.join(self.data.scenes)})")
@@ -90,15 +154,22 @@ class Params(BaseModel):
 
 
 def _model_at(model: type[BaseModel], loc: tuple[Any, ...]) -> type[BaseModel] | None:
-    """The pydantic model class that owns the key at ``loc`` (for listing allowed keys)."""
+    """The pydantic model class that owns the key at ``loc`` (for listing allowed keys); ``dict[str, Model]``
+    fields (``data.scenes``, ``experiments``) are followed through their keys."""
     current: Any = model
-    for part in loc[:-1]:
+    parts = list(loc[:-1])
+    while parts:
+        part = parts.pop(0)
         if isinstance(part, int) or not (isinstance(current, type) and issubclass(current, BaseModel)):
             return None
         field = current.model_fields.get(part)
         if field is None:
             return None
         current = field.annotation
+        if typing.get_origin(current) is dict and parts:
+            value = typing.get_args(current)[1]
+            parts.pop(0)  # the mapping's key (a scene or experiment name)
+            current = value
     return current if isinstance(current, type) and issubclass(current, BaseModel) else None
 
 
@@ -118,7 +189,8 @@ def format_validation_error(exc: ValidationError, source: str, model: type[BaseM
             shown = repr(got)
             # a whole section (e.g. the top-level mapping behind a cross-check) is noise, not the culprit
             tail = "" if isinstance(got, (dict, list)) or len(shown) > 120 else f" (got {shown})"
-            lines.append(f"  {path}: {err['msg']}{tail}")
+            msg = err["msg"].removeprefix("Value error, ")
+            lines.append(f"  {msg}" if not loc else f"  {path}: {msg}{tail}")
     return "\n".join(lines)
 
 

@@ -10,7 +10,10 @@ checks the params against the two other things a run depends on:
   exists and holds readable images, unless a ``dvc.yaml`` stage produces it (the embedded tiny scene is made by
   ``make_tiny``). :func:`check_input_files`.
 
-:func:`preflight` runs both; :func:`abcgs.pipeline.run_stage` calls it for every stage.
+:func:`check_scene_entries`: scenes are mappings when ``dvc.yaml`` reads ``${item.path}``.
+
+:func:`preflight` runs them all; :func:`abcgs.pipeline.run_stage` calls it for every stage, and
+``python -m abcgs.preflight params.yaml`` (``make run`` does) before ``dvc repro``.
 """
 
 from __future__ import annotations
@@ -78,6 +81,23 @@ def check_dvc_tracked_keys(raw: dict, dvc_yaml: Path, source: str = "params.yaml
         raise ParamsError("\n".join(lines))
 
 
+def check_scene_entries(raw: dict, dvc_yaml: Path, source: str = "params.yaml") -> None:
+    """Every ``data.scenes`` entry is a mapping when a ``dvc.yaml`` stage reads ``${item.path}`` from it (DVC
+    would stop with "Could not find 'item.path'" before any stage runs)."""
+    reads_path = any(
+        isinstance(stage, dict) and stage.get("foreach") == "${data.scenes}" and "${item.path}" in yaml.safe_dump(stage)
+        for stage in _stages(dvc_yaml).values()
+    )
+    scenes = ((raw.get("data") or {}).get("scenes") or {}) if isinstance(raw, dict) else {}
+    plain = [name for name, v in scenes.items() if isinstance(v, str)] if isinstance(scenes, dict) else []
+    if reads_path and plain:
+        name = plain[0]
+        raise ParamsError(
+            f"{source}: data.scenes.{', data.scenes.'.join(plain)}: a plain path; {dvc_yaml.name} reads "
+            f"${{item.path}}, so write e.g. `{name}: {{path: {scenes[name]}}}` (a scene is a mapping so that it can "
+            "carry per-scene overrides: fit, reconstruct, masks)")
+
+
 def dvc_outputs(dvc_yaml: Path) -> list[str]:
     """Paths a ``dvc.yaml`` stage writes (``outs``; templated ones left out)."""
     paths = []
@@ -114,7 +134,8 @@ def check_input_files(params, root: Path, produced: Iterable[str] = ()) -> None:
         for name, rel in entries.items():
             if not _produced(Path(rel), produced, root):  # e.g. the tiny scene's paintings, made by make_tiny
                 _check_image(root / rel, f"data.{section}.{name}")
-    for name, rel in params.data.scenes.items():
+    for name, scene in params.data.scenes.items():
+        rel = scene.path
         folder = root / rel
         if _produced(Path(rel), produced, root):
             continue
@@ -141,5 +162,29 @@ def preflight(params, raw: dict, params_path: str | os.PathLike) -> None:
     produced: list[str] = []
     if dvc_yaml.is_file():
         check_dvc_tracked_keys(raw, dvc_yaml, str(params_path))
+        check_scene_entries(raw, dvc_yaml, str(params_path))
         produced = dvc_outputs(dvc_yaml)
     check_input_files(params, root, produced)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m abcgs.preflight [params.yaml]``: validate the params and run the checks, before ``dvc repro``
+    (DVC reads ``dvc.yaml`` templates before any stage, so some mistakes are best caught here)."""
+    import sys
+
+    from abcgs.errors import AbcgsError
+    from abcgs.params import read_params_file, validate_params
+
+    path = (argv if argv is not None else sys.argv[1:]) or ["params.yaml"]
+    try:
+        raw = read_params_file(path[0])
+        preflight(validate_params(raw, path[0]), raw, path[0])
+    except AbcgsError as exc:
+        print(f"[preflight] error: {exc}", file=sys.stderr)
+        return 2
+    print(f"[preflight] {path[0]}: ok")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -112,11 +112,20 @@ def main(argv: list[str] | None = None) -> list[Row]:
     ap.add_argument("--channels", type=int, nargs="+", default=[3, 16])
     ap.add_argument("--cases", default="all", help="'all' or comma list of indices into the case list")
     ap.add_argument("--skip-reference", action="store_true", help="time only the fast backend")
+    ap.add_argument("--kernel-threads", type=int, default=0,
+                    help="threads of the compiled kernels' own loops (0 = every core; csrc/parallel.h)")
+    ap.add_argument("--torch-threads", type=int, default=0, help="torch intra-op threads (0 = torch's default)")
     args = ap.parse_args(argv)
+    from abcgs.render.cpu import set_kernel_threads
+
+    set_kernel_threads(args.kernel_threads)
+    if args.torch_threads:
+        torch.set_num_threads(args.torch_threads)
     cases = CASES if args.cases == "all" else [CASES[int(i)] for i in args.cases.split(",")]
     torch.set_grad_enabled(True)
     print(
-        f"# torch {torch.__version__}, {torch.get_num_threads()} threads, {platform.processor() or platform.machine()}, "
+        f"# torch {torch.__version__}, {torch.get_num_threads()} torch threads, kernel threads "
+        f"{args.kernel_threads or 'all'}, {platform.processor() or platform.machine()}, load {os.getloadavg()[0]:.2f}, "
         f"{os.cpu_count()} CPUs; median of {args.repeats} (fast) / {args.reference_repeats} (reference) after a warm-up",
         flush=True,
     )
@@ -146,6 +155,7 @@ def main(argv: list[str] | None = None) -> list[Row]:
         from abcgs.io.atomic import write_json
 
         write_json(args.json, {"machine": {"cpus": os.cpu_count(), "threads": torch.get_num_threads(),
+                                           "kernel_threads": args.kernel_threads, "loadavg": os.getloadavg(),
                                            "torch": torch.__version__, "python": sys.version.split()[0]},
                                "rows": [r.__dict__ for r in rows]})
     return rows

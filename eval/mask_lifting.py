@@ -38,7 +38,7 @@ from abcgs.style.content_masks import (  # noqa: E402
     grabcut_view,
     label_iou,
 )
-from abcgs.style.lifting import LiftParams, lift_labels, render_label_map  # noqa: E402
+from abcgs.style.lifting import LiftParams, LiftResult, lift_labels, propagate_labels, render_label_map  # noqa: E402
 from abcgs.viz import image_grid  # noqa: E402
 
 
@@ -60,6 +60,7 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--grabcut-box", default=None,
                     help="x0,y0,x1,y1 (fractions): first write a GrabCut mask of every view into --masks")
     ap.add_argument("--show", default=None, help="comma-separated view stems for the figure (default: three spread out)")
+    ap.add_argument("--no-propagate", action="store_true", help="leave Gaussians no lifted view sees unlabelled")
     ap.add_argument("--figure", type=Path, default=None)
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
@@ -84,7 +85,11 @@ def main(argv: list[str] | None = None) -> dict:
     lift_idx = [stems.index(s) for s in lift_stems]
     held = [i for i in sorted(given) if i not in lift_idx]
     n_labels = int(max(m.max() for m in given.values()))
-    lifted = lift_labels(model, [cams[i] for i in lift_idx], [given[i] for i in lift_idx], n_labels, LiftParams())
+    lp = LiftParams()
+    lifted = lift_labels(model, [cams[i] for i in lift_idx], [given[i] for i in lift_idx], n_labels, lp)
+    if not args.no_propagate:  # Gaussians no lifted view sees take their 3-D neighbours' label (LiftParams.propagate)
+        unseen = lifted.weights.sum(1) < lp.min_weight
+        lifted = LiftResult(propagate_labels(model.means, lifted.labels, unseen, lp.propagate_k), lifted.weights)
     views = {i: render_label_map(model, lifted.labels, n_labels, cams[i]) for i in range(len(cams))}
     per_label: dict[int, list[float]] = {}
     agree = []
@@ -100,7 +105,8 @@ def main(argv: list[str] | None = None) -> dict:
                           for k, v in sorted(per_label.items())},
         "pixel_agreement": float(np.mean(agree)) if agree else None,
         "gaussians_per_label": {str(k): int(v) for k, v in lifted.counts().items()},
-        "masks": str(args.masks), "grabcut_box": args.grabcut_box, "seconds": time.perf_counter() - t0,
+        "masks": str(args.masks), "grabcut_box": args.grabcut_box, "propagated": not args.no_propagate,
+        "seconds": time.perf_counter() - t0,
     }
     print(f"lifted {len(lift_idx)} view(s) onto {model.num_gaussians:,} Gaussians; scored on {len(held)} held-out view(s)")
     for k, v in result["iou_per_label"].items():
@@ -122,8 +128,10 @@ def main(argv: list[str] | None = None) -> dict:
             img = load_image(scene.image_paths[i])
             ref = overlay(img, given[i]) if i in given else np.ones_like(img)
             rows.append([img, ref, overlay(img, views[i])])
-        save_image(args.figure, image_grid(rows, ["view", "given mask (held out below row 1)",
-                                                  "lifted from row 1's mask alone"], height=180))
+        source = f"{cams[src].name}'s mask alone" if len(lift_idx) == 1 else "the masks of " + ", ".join(
+            cams[i].name for i in lift_idx)
+        save_image(args.figure, image_grid(rows, ["view", "given mask (held out below row 1)", f"lifted from {source}"],
+                                           height=180))
     if args.json:
         write_json(args.json, result)
     return result

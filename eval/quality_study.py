@@ -55,16 +55,17 @@ from abcgs.style.stylize import StylizeParams, StylizeResult, stylize  # noqa: E
 from abcgs.style.vgg import VGG16Features  # noqa: E402
 from abcgs.style.weights import VggWeightsParams, resolve_vgg16  # noqa: E402
 
-STUDY_VERSION = 1
-"""Bump when the study's own procedure changes (invalidates the cache)."""
+STUDY_VERSION = 2
+"""Bump when the study's own procedure changes (invalidates the cache). 2: runs are keyed by the validated
+sections (library defaults included), so a changed default invalidates what it changes."""
 
 VARIANTS: dict[str, dict] = {
     "default": {},
     # the authors' code (vpx-ecnu/ABC-GS): cosine per channel across pixels, INRIA learning rates with xyz frozen
     "authors": {"fast": {"cosine": "channel"}, "lr_preset": "authors_code"},
 }
-METHOD_LABELS = {("fast", "default"): "FAST (ours, default)", ("nnfm", "default"): "NNFM (ARF)",
-                 ("fast", "authors"): "FAST (authors' code)", ("knnfm", "default"): "KNNFM", ("gram", "default"): "Gram",
+METHOD_LABELS = {("fast", "default"): "FAST (default)", ("nnfm", "default"): "NNFM (ARF)",
+                 ("fast", "authors"): "FAST (authors' code: channel cosine)", ("knnfm", "default"): "KNNFM", ("gram", "default"): "Gram",
                  ("colormatch", "default"): "colour match only (the start)",
                  ("original", "default"): "original scene (no stylization)"}
 REFERENCE_METHODS = ("colormatch", "original")
@@ -102,6 +103,14 @@ def _set(d: dict, dotted: str, value) -> None:
     for k in keys[:-1]:
         d = d.setdefault(k, {})
     d[keys[-1]] = value
+
+
+RUNTIME_KEYS = ("threads", "backend", "log_every", "num_threads")
+"""How a run executes, not what it computes: left out of the cache keys."""
+
+
+def _semantic(section: dict) -> dict:
+    return {k: v for k, v in section.items() if k not in RUNTIME_KEYS}
 
 
 def _digest(obj) -> str:
@@ -341,6 +350,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--force", action="store_true", help="redo the stylization runs")
     ap.add_argument("--core-only", action="store_true",
                     help="only FAST and NNFM per painting (no ablation runs, no reference rows): for probing a setting")
+    ap.add_argument("--plan", action="store_true", help="list the runs (cached or to run) and their folders; run nothing")
     ap.add_argument("--fit-iterations", type=int, default=FIT_SETTINGS["iterations"],
                     help="fit steps when the scene has no fit in --bench-root yet")
     args = ap.parse_args(argv)
@@ -358,11 +368,10 @@ def main(argv=None) -> dict:
     for item in args.set:
         key, _, val = item.partition("=")
         _set(cfg, key, yaml.safe_load(val))
-    # validate once, up front (typos fail before any work)
-    StylizeParams(**cfg["stylize"])
-    ColorMatchParams(**cfg["colormatch"])
-    EvalParams(**cfg["evaluate"])
-    VggWeightsParams(**cfg["vgg"])
+    # validate once, up front (typos fail before any work); cache keys use the validated sections, defaults included
+    valid = {"stylize": _semantic(StylizeParams(**cfg["stylize"]).model_dump()),
+             "colormatch": _semantic(ColorMatchParams(**cfg["colormatch"]).model_dump()),
+             "evaluate": _semantic(EvalParams(**cfg["evaluate"]).model_dump()), "vgg": VggWeightsParams(**cfg["vgg"]).model_dump()}
 
     work = args.work or Path("out/quality") / args.scene.name
     work.mkdir(parents=True, exist_ok=True)
@@ -379,16 +388,16 @@ def main(argv=None) -> dict:
     base = {"threads": threads, "colmap": str(colmap), "ply": str(ply), "vgg": cfg["vgg"]}
     cm_jobs, cm_path = [], {}
     for s in styles:
-        key = _digest([STUDY_VERSION, scene_info["ply_sha"], _file_sha(style_paths[s]), cfg["colormatch"],
-                       cfg["stylize"].get("style_height"), cfg["vgg"]])
+        key = _digest([STUDY_VERSION, scene_info["ply_sha"], _file_sha(style_paths[s]), valid["colormatch"],
+                       valid["stylize"]["style_height"], valid["vgg"]])
         cm_path[s] = work / "colormatch" / f"{s}-{key}.ply"
         cm_jobs.append({**base, "style_path": str(style_paths[s]), "out": str(cm_path[s]),
                         "colormatch": cfg["colormatch"], "stylize": cfg["stylize"]})
     run_jobs, run_dirs = [], {}
     for spec in specs:
         sp = _merge(cfg["stylize"], VARIANTS[spec.variant])
-        key = _digest([STUDY_VERSION, scene_info["ply_sha"], _file_sha(style_paths[spec.style]), cfg["colormatch"], sp,
-                       cfg["evaluate"], cfg["vgg"], spec.method])
+        key = _digest([STUDY_VERSION, scene_info["ply_sha"], _file_sha(style_paths[spec.style]), valid["colormatch"],
+                       _semantic(StylizeParams(**sp).model_dump()), valid["evaluate"], valid["vgg"], spec.method])
         run_dirs[spec.name] = work / "runs" / f"{spec.name}-{key}"
         if args.force and (run_dirs[spec.name] / "run.json").is_file():
             (run_dirs[spec.name] / "run.json").unlink()
@@ -402,6 +411,13 @@ def main(argv=None) -> dict:
     todo = [j for j in run_jobs if not (Path(j["run_dir"]) / "run.json").is_file()]
     print(f"[study] {len(specs)} runs ({len(specs) - len(todo)} cached), {len(styles)} paintings, "
           f"{args.jobs} job(s) × {threads} thread(s); work dir {work}", flush=True)
+    if args.plan:
+        for j in cm_jobs:
+            print(f"  colour match {'cached' if Path(j['out']).is_file() else 'to run'}: {j['out']}")
+        for j in run_jobs:
+            print(f"  {j['name']:40s} {'cached' if j not in todo else 'to run'}: {j['run_dir']}")
+        return {"colormatch": [j["out"] for j in cm_jobs], "runs": {j["name"]: j["run_dir"] for j in run_jobs},
+                "todo": [j["name"] for j in todo]}
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
         for r in pool.map(colormatch_job, cm_jobs):

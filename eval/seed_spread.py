@@ -11,9 +11,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import shutil
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -22,31 +19,27 @@ import numpy as np
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 from test_pipeline_e2e import GATED, REDUCED  # noqa: E402
+
+from eval.repo_copy import copy_repo, run_in  # noqa: E402
 
 SEEDED = ("fit", "colormatch", "stylize", "evaluate")
 
 
 def run_once(seed: int, work: Path) -> dict[str, dict[str, float]]:
-    files = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard", "-z"], cwd=ROOT,
-                           capture_output=True, check=True).stdout.decode().split("\0")
-    repo = work / f"seed{seed}"
-    for rel in filter(None, files):
-        if (ROOT / rel).is_file():
-            (repo / rel).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(ROOT / rel, repo / rel)
+    def edit(params: dict) -> None:
+        for (section, key), value in REDUCED.items():
+            params[section][key] = value
+        for section in SEEDED:
+            params.setdefault(section, {})["seed"] = seed
+
+    repo = copy_repo(work / f"seed{seed}", edit)
+    proc = run_in(["dvc", "repro"], repo, timeout=None)
+    if proc.returncode != 0:
+        raise RuntimeError(f"dvc repro failed for seed {seed}:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
     params = yaml.safe_load((repo / "params.yaml").read_text())
-    for (section, key), value in REDUCED.items():
-        params[section][key] = value
-    for section in SEEDED:
-        params.setdefault(section, {})["seed"] = seed
-    (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
-    git = ["git", "-c", "user.name=ci", "-c", "user.email=ci@example.invalid"]
-    for cmd in (["git", "init", "-q"], ["git", "add", "-A"], git + ["commit", "-qm", "copy"]):
-        subprocess.run(cmd, cwd=repo, check=True, capture_output=True)
-    env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}")
-    subprocess.run(["dvc", "repro"], cwd=repo, check=True, env=env, capture_output=True)
     out = {}
     for exp in params["experiments"]:
         ev = json.loads((repo / "out" / exp / "eval.json").read_text())

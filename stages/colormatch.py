@@ -11,6 +11,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from abcgs.fit.trainer import torch_threads  # noqa: E402
 from abcgs.io.atomic import atomic_path, write_json  # noqa: E402
 from abcgs.io.images import save_image  # noqa: E402
 from abcgs.io.ply import write_ply  # noqa: E402
@@ -26,7 +27,8 @@ def main(args, params) -> None:
     masks = load_scene_masks(args.root / exp.scene / "masks", scene, model.num_gaussians)
     vgg, info = load_vgg(params)
     groups = load_groups(params, exp, vgg, masks.gaussian_labels)
-    res = color_match_and_refit(model, scene, masks.gaussian_labels, masks.view_labels, groups, params.colormatch)
+    with torch_threads(params.colormatch.threads):
+        res = color_match_and_refit(model, scene, masks.gaussian_labels, masks.view_labels, groups, params.colormatch)
     with atomic_path(args.out, is_dir=True) as tmp:
         write_ply(tmp / "point_cloud.ply", res.model)
         write_json(tmp / "colormatch.json", {

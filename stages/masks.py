@@ -24,7 +24,7 @@ from abcgs.viz import image_grid  # noqa: E402
 def main(args, params) -> None:
     scene, model = load_scene(args.root, args.scene_name)
     masks_dir = args.root / args.scene_name / "colmap" / "masks"
-    result = make_content_masks(model, scene.cameras, masks_dir, params.masks)
+    result = make_content_masks(model, scene.cameras, masks_dir, params.scene_section(args.scene_name, "masks"))
     with atomic_path(args.out, is_dir=True) as tmp:
         np.save(tmp / "gaussian_labels.npy", result.gaussian_labels.numpy().astype(np.int64))
         (tmp / "views").mkdir()
@@ -46,6 +46,7 @@ def main(args, params) -> None:
             "heldout_iou_per_label": {str(k): v for k, v in result.heldout_iou.items()},
             "heldout_agreement": result.heldout_agreement,
             "colour_palette": {str(k): list(v) for k, v in result.palette.items()},
+            "gaussians_propagated": result.propagated,
         })
 
 

@@ -17,6 +17,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from abcgs.camera_paths import camera_path  # noqa: E402
+from abcgs.fit.trainer import torch_threads  # noqa: E402
 from abcgs.gaussians import render  # noqa: E402
 from abcgs.io.atomic import atomic_path, write_text  # noqa: E402
 from abcgs.io.images import save_image  # noqa: E402
@@ -39,6 +40,11 @@ def history_csv(rows: list[dict]) -> str:
 
 
 def main(args, params) -> None:
+    with torch_threads(params.stylize.threads):
+        _main(args, params)
+
+
+def _main(args, params) -> None:
     exp = experiment(params, args.experiment)
     sp = params.stylize
     scene, original = load_scene(args.root, exp.scene)

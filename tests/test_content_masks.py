@@ -150,3 +150,86 @@ def test_mask_lifting_script_scores_held_out_views(tiny_colmap, tmp_path) -> Non
     with pytest.raises(InputError, match="without a mask"):
         mask_lifting.main(["--colmap", str(tiny_colmap), "--ply", str(tmp_path / "scene.ply"),
                            "--masks", str(tiny_colmap / "masks"), "--lift", "nope"])
+
+
+def test_lift_views_lifts_from_one_mask_and_scores_the_rest(tmp_path) -> None:
+    model, truth = wall_and_ball(2)
+    cams = cameras(5)
+    for c in cams:
+        save_labels(tmp_path / f"{c.name[:-4]}.png", render_label_map(model, truth, 2, c))
+    res = make_content_masks(model, cams, tmp_path, MaskParams(source="given", lift_views=["002"]))
+    assert res.input_views == ["002.png"] and len(res.heldout_views) == 4
+    assert min(res.heldout_iou.values()) > 0.6
+    with pytest.raises(InputError, match=r"lift_views names view\(s\) \['009'\] without a mask"):
+        make_content_masks(model, cams, tmp_path, MaskParams(source="given", lift_views=["009"]))
+
+
+def test_propagation_labels_the_unseen_side_and_keeps_unpainted_pixels_unpainted() -> None:
+    from abcgs.style.lifting import LiftParams
+
+    model, truth = wall_and_ball(3)
+    cams = cameras(3)
+    ball_only = [np.where(render_label_map(model, truth, 2, c) == 1, 1, 0) for c in cams]  # the user paints the ball
+    never = make_content_masks_from(model, cams, ball_only[:1], "never")
+    auto = make_content_masks_from(model, cams, ball_only[:1], "always")
+    assert make_content_masks_from(model, cams, ball_only[:1], "auto").propagated == 0  # forward-facing: off
+    ball, wall = truth == 1, truth == 2
+    # the ball's far half is unseen from view 0: propagation gives it the ball's label
+    assert (auto.gaussian_labels[ball] == 1).float().mean() > (never.gaussian_labels[ball] == 1).float().mean() + 0.2
+    assert (auto.gaussian_labels[ball] == 1).float().mean() > 0.9 and auto.propagated > 0
+    # wall Gaussians seen in pixels the user left at 0 stay unassigned: only never-seen Gaussians are filled
+    from abcgs.style.lifting import lift_labels
+
+    seen = lift_labels(model, cams[:1], ball_only[:1], 1).weights.sum(1) >= LiftParams().min_weight
+    assert int((wall & seen).sum()) > 100 and int((never.gaussian_labels[wall & seen] == 0).sum()) > 100
+    assert torch.equal(auto.gaussian_labels[seen], never.gaussian_labels[seen])
+    assert LiftParams().propagate == "auto"  # on for orbit captures: test_orbit_capture_propagates_by_default
+
+
+def make_content_masks_from(model, cams, maps, propagate: str):
+    """make_content_masks with the given maps as the first views' user masks (written to a temp folder)."""
+    import tempfile
+    from pathlib import Path
+
+    from abcgs.style.lifting import LiftParams
+
+    with tempfile.TemporaryDirectory() as tmp:
+        for c, m in zip(cams, maps):
+            save_labels(Path(tmp) / f"{c.name[:-4]}.png", m)
+        return make_content_masks(model, cams, Path(tmp),
+                                  MaskParams(source="given", lift=LiftParams(propagate=propagate)))
+
+
+def test_orbit_capture_propagates_by_default(tmp_path) -> None:
+    """An object-centred capture lifted from one view: the far side, seen by no masked view, gets the label."""
+    from abcgs.camera_paths import capture_layout
+
+    model, truth = wall_and_ball(4)
+    ball = truth == 1
+    ball_model = model.index(torch.nonzero(ball)[:, 0])
+    centre = np.array([0.0, 0.0, 3.5])
+    ring = [Camera(f"{i:03d}.png", intrinsics(80.0, W, H),
+                   look_at(centre + 2.5 * np.array([np.sin(a), -0.2, -np.cos(a)]), centre, up=np.array([0.0, 1.0, 0.0])), W, H)
+            for i, a in enumerate(np.linspace(0, 2 * np.pi, 8, endpoint=False))]
+    assert capture_layout(ring).kind == "orbit"
+    ones = torch.ones(ball_model.num_gaussians, dtype=torch.long)
+    save_labels(tmp_path / "000.png", render_label_map(ball_model, ones, 1, ring[0]))
+    res = make_content_masks(ball_model, ring, tmp_path, MaskParams(source="given"))
+    assert res.propagated > 0.2 * ball_model.num_gaussians
+    assert (res.gaussian_labels == 1).float().mean() > 0.95
+    back = render_label_map(ball_model, res.gaussian_labels, 1, ring[4])  # the opposite view
+    assert (back == 1).sum() >= 0.95 * (render_label_map(ball_model, ones, 1, ring[4]) == 1).sum()
+
+
+def test_the_orbit_tiny_scene_is_object_centred(tmp_path) -> None:
+    from abcgs.camera_paths import capture_layout
+    from abcgs.scene.synthetic import TinySceneParams, make_tiny_scene
+
+    p = TinySceneParams(layout="orbit", n_views=8, width=64, height=48, supersample=1, mask_views=1)
+    out = make_tiny_scene(tmp_path / "orbit", p)
+    assert sorted(f.name for f in (out / "masks").glob("*.png")) == ["000.png"]  # one user mask
+    from abcgs.scene.synthetic import generate_tiny_scene
+
+    scene = generate_tiny_scene(p)
+    assert capture_layout(scene.cameras).kind == "orbit"
+    assert all({1, 2, 3} <= set(np.unique(lab)) for lab in scene.labels[:1])

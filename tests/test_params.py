@@ -90,3 +90,39 @@ def test_stage_reports_schema_error_without_traceback(tmp_path, raw) -> None:
     assert proc.returncode == 2
     assert "reconstruct.matcher" in proc.stderr and "exhaustive" in proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+# ------------------------------------------------------------------------------------------------ per-scene overrides
+def test_scene_overrides_merge_over_the_global_sections(raw) -> None:
+    """Issue 15: data.scenes.<name> carries reconstruct/fit/masks overrides for that scene alone."""
+    p = copy.deepcopy(raw)
+    p["data"]["scenes"]["big"] = {"path": "data/big", "fit": {"iterations": 3000, "strategy": {"refine_start": 300}},
+                                  "masks": {"source": "grabcut", "grabcut": {"box": [0.1, 0.1, 0.9, 0.9]}}}
+    params = validate_params(p)
+    tiny_fit, big_fit = params.scene_section("tiny", "fit"), params.scene_section("big", "fit")
+    assert tiny_fit is params.fit and tiny_fit.iterations == raw["fit"]["iterations"]
+    assert big_fit.iterations == 3000 and big_fit.strategy.refine_start == 300
+    assert big_fit.strategy.refine_stop == params.fit.strategy.refine_stop  # nested keys merge one by one
+    assert big_fit.sh_degree == params.fit.sh_degree and params.fit.iterations == raw["fit"]["iterations"]
+    big_masks = params.scene_section("big", "masks")
+    assert big_masks.source == "grabcut" and big_masks.grabcut.box == (0.1, 0.1, 0.9, 0.9)
+    assert big_masks.lift == params.masks.lift
+    assert params.scene_section("big", "reconstruct") is params.reconstruct
+    assert params.scene_path("big") == "data/big"
+    with pytest.raises(ParamsError, match="not in data.scenes"):
+        params.scene_section("nope", "fit")
+
+
+def test_scene_override_errors_name_the_key_path(raw) -> None:
+    p = copy.deepcopy(raw)
+    p["data"]["scenes"]["big"] = {"path": "data/big", "fit": {"iteratons": 3000}}
+    msg = _error(p)
+    assert "data.scenes.big.fit.iteratons: unknown key; allowed keys here: iterations" in msg
+    p["data"]["scenes"]["big"] = {"path": "data/big", "fit": {"iterations": "many"}}
+    assert "data.scenes.big.fit.iterations: Input should be a valid integer" in _error(p)
+    p["data"]["scenes"]["big"] = {"path": "data/big", "stylize": {"iterations": 1}}
+    assert "data.scenes.big.stylize: unknown key; allowed keys here: path, reconstruct, fit, masks" in _error(p)
+    p["data"]["scenes"]["big"] = {"fit": {}}
+    assert "data.scenes.big.path: required key is missing" in _error(p)
+    p["data"]["scenes"]["big"] = "data/big"  # the library's shorthand
+    assert validate_params(p).scene_path("big") == "data/big"

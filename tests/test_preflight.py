@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import shutil
+
 import numpy as np
 import pytest
 import yaml
@@ -112,3 +114,23 @@ def test_schema_errors_do_not_print_the_whole_params(tmp_path) -> None:
     assert "experiments.e uses style 'missing'" in msg
     assert "'scenes'" not in msg and "{'data'" not in msg  # the mapping behind a cross-check is not printed
 
+
+
+def test_a_bare_scene_path_is_caught_before_dvc_reads_item_path(tmp_path, capsys) -> None:
+    """dvc.yaml reads ${item.path}; DVC itself would stop with "Could not find 'item.path'" before any stage."""
+    from abcgs.preflight import main
+
+    shutil.copy(REPO_ROOT / "dvc.yaml", tmp_path / "dvc.yaml")
+    raw = yaml.safe_load((REPO_ROOT / "params.yaml").read_text())
+    raw["data"]["scenes"]["fern"] = "scenes/fern"
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(raw))
+    assert main([str(tmp_path / "params.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert "data.scenes.fern: a plain path" in err and "`fern: {path: scenes/fern}`" in err
+    raw["data"]["scenes"]["fern"] = {"path": "scenes/fern"}
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(raw))
+    assert main([str(tmp_path / "params.yaml")]) == 2  # now the next check: the folder does not exist
+    assert "data.scenes.fern:" in capsys.readouterr().err
+    del raw["data"]["scenes"]["fern"]
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(raw))
+    assert main([str(tmp_path / "params.yaml")]) == 0

@@ -171,12 +171,13 @@ def test_tile_size_invariance_full_pipeline():
 
 @needs_cpu
 def test_cpu_deterministic_across_calls_and_threads():
-    """Bit-identical images and gradients: repeated calls, 1 vs 2 intra-op threads (float32, many tiles)."""
+    """Bit-identical images and gradients: repeated calls, 1 vs 2 vs 3 kernel threads (the kernels' own, csrc/
+    parallel.h) and 1 vs 2 torch intra-op threads (float32, many tiles)."""
     scene = random_scene(1500, 128, 96, torch.float32, 5, scale_range=(0.02, 0.1), channels=8)
     weights = [torch.randn(96, 128, c, generator=torch.Generator().manual_seed(1)) for c in (8, 1, 1)]
     runs = []
-    for threads in (1, 2, 2, 1):
-        with torch_threads(threads):
+    for threads, kernel in ((1, 1), (2, 2), (1, 2), (1, 3), (2, 1)):
+        with torch_threads(threads), cpu_backend.kernel_threads(kernel):
             out, grads, _ = _render_and_grads(scene, "cpu", weights)
         runs.append((out, grads))
     out0, grads0 = runs[0]

@@ -150,7 +150,9 @@ def test_lr_preset_fills_unset_rates_and_explicit_keys_win() -> None:
     assert authors.lr_means == 0.0
     mixed = StylizeParams(lr_preset="authors_code", lr_sh0=0.02)
     assert mixed.lr_sh0 == 0.02 and mixed.lr_opacity == LR_PRESETS["authors_code"]["lr_opacity"]
-    assert StylizeParams().lr_sh0 == LR_PRESETS["default"]["lr_sh0"]
+    assert StylizeParams().lr_sh0 == LR_PRESETS["authors_code"]["lr_sh0"] and StylizeParams().lr_means == 0.0
+    ours = StylizeParams(lr_preset="ours")
+    assert {k: getattr(ours, k) for k in LR_PRESETS["ours"]} == LR_PRESETS["ours"]
     with pytest.raises(ValueError):
         StylizeParams(lr_preset="inria")
 

@@ -41,6 +41,7 @@ from abcgs.io.images import load_image, save_image
 from abcgs.io.ply import write_ply
 from abcgs.progress import progress as progress_bar
 from abcgs.render import select_backend
+from abcgs.render.cpu import kernel_threads
 
 log = logging.getLogger(__name__)
 
@@ -90,6 +91,11 @@ class FitParams(BaseModel, extra="forbid"):
         1, ge=0,
         description="torch CPU threads during the fit (0 = torch's default, all cores). 1 is the default: with "
         "other processes on the cores, intra-op threads spin and a step runs up to ~15x slower",
+    )
+    rasterizer_threads: int = Field(
+        0, ge=0,
+        description="threads of the C++ rasterizer's own loops (0 = every core), independent of `threads`: they are "
+        "plain threads joined after each loop, so they do not spin; results are bit-identical for any count",
     )
 
     @field_validator("test_every")
@@ -349,7 +355,7 @@ def fit(
         NumericalError: a loss term became NaN/Inf (message names the step, term and view).
     """
     params = params or FitParams()
-    with torch_threads(params.threads):
+    with torch_threads(params.threads), kernel_threads(params.rasterizer_threads):
         return _fit(scene, params, progress, views, initial, strategy)
 
 
@@ -510,7 +516,7 @@ def fit_and_save(
         pairs = [(v.target, v.render) for v in result.heldout.views]
     else:
         idx = result.views.train[:3]
-        with torch_threads(params.threads):
+        with torch_threads(params.threads), kernel_threads(params.rasterizer_threads):
             ev = evaluate(
                 result.model, [result.views.cameras[i] for i in idx], [result.views.images[i] for i in idx],
                 result.backend, background=torch.tensor(params.background, dtype=torch.float32, device=result.model.device),

@@ -10,6 +10,7 @@ warning.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import platform
@@ -23,6 +24,7 @@ from torch import Tensor
 from abcgs.render.projection import Projected
 
 _SOURCES = [Path(__file__).parent / "csrc" / n for n in ("rasterize_cpu.cpp", "projection_cpu.cpp")]
+_HEADERS = [Path(__file__).parent / "csrc" / "parallel.h"]
 _FLAGS = ["-O3", "-march=native", "-ffp-contract=off", "-std=c++17"]
 _lock = threading.Lock()
 _module = None
@@ -39,7 +41,7 @@ def cache_dir() -> Path:
 
 def _build_dir() -> Path:
     key = hashlib.sha256()
-    for src in _SOURCES:
+    for src in _SOURCES + _HEADERS:
         key.update(src.read_bytes())
     key.update(" ".join(_FLAGS).encode())
     key.update(torch.__version__.encode())
@@ -84,6 +86,27 @@ def load_extension(verbose: bool = False):
             )
             raise BackendUnavailable(_error) from exc
         return _module
+
+
+def set_kernel_threads(n: int) -> int:
+    """Threads of the C++ kernels' own loops (0 = every hardware thread), independent of torch's intra-op
+    setting; returns the previous setting. Results are bit-identical for any count (``csrc/parallel.h``)."""
+    return int(load_extension().set_kernel_threads(int(n)))
+
+
+@contextlib.contextmanager
+def kernel_threads(n: int):
+    """Run the block with :func:`set_kernel_threads` ``(n)``, restoring the previous setting; a no-op where
+    the extension is unavailable (the reference backend has no threads of its own)."""
+    try:
+        old = set_kernel_threads(n)
+    except BackendUnavailable:
+        yield
+        return
+    try:
+        yield
+    finally:
+        set_kernel_threads(old)
 
 
 def is_available() -> bool:

@@ -4,6 +4,9 @@ A textured back wall, an oriented box and a sphere at different depths, seen fro
 forward-facing grid of cameras (LLFF-like). Everything is generated from a seed, so the same
 :class:`TinySceneParams` always gives byte-identical files. Nothing is downloaded.
 
+``layout: orbit`` makes the object-centred variant: the same box and sphere inside a textured dome
+(label 1, the background), seen from a ring of cameras all around them (a turntable capture).
+
 World frame (OpenCV-like): x right, y down, z forward (away from the cameras); units are arbitrary
 "metres"; the cameras sit near ``z = 0`` and the wall at ``z = wall_depth``.
 
@@ -23,6 +26,7 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -50,6 +54,11 @@ class TinySceneParams(BaseModel, extra="forbid"):
     wall_depth: float = Field(6.0, gt=1.0, description="distance of the back wall from the camera plane")
     supersample: int = Field(2, ge=1, le=4, description="rays per pixel along each axis (anti-aliasing)")
     style_height: int = Field(256, ge=32, le=2048, description="height of the generated paintings in pixels")
+    layout: Literal["forward", "orbit"] = Field(
+        "forward", description="forward: a wall behind the objects, cameras on a forward-facing grid; orbit: the "
+                               "objects inside a textured dome, cameras on a ring all around them")
+    mask_views: int = Field(0, ge=0, description="write label maps for the first this many views only (0: all); "
+                                                 "e.g. 1 = one user mask to lift")
     odd_view_width_delta: int = Field(
         0, ge=0, le=64,
         description="odd-numbered views are this many pixels narrower (a second camera with the same lens and a "
@@ -157,6 +166,7 @@ class _Layout:
     box: _Box
     sphere: _Sphere
     light: np.ndarray  # (3,) unit vector towards the light
+    dome: _Sphere | None = None  # orbit layout: the background seen from inside (replaces the wall)
 
 
 def _rot_y(deg: float) -> np.ndarray:
@@ -176,7 +186,14 @@ def scene_layout(p: TinySceneParams) -> _Layout:
     box = _Box(center=np.array([-0.17 * d, 0.05 * d, 0.62 * d]), half=np.full(3, 0.085 * d), R=_rot_y(35.0) @ _rot_x(-20.0))
     sphere = _Sphere(center=np.array([0.14 * d, -0.02 * d, 0.45 * d]), radius=0.08 * d)
     light = np.array([-0.4, -0.6, -0.7])
-    return _Layout(wall, box, sphere, light / np.linalg.norm(light))
+    dome = _Sphere(center=orbit_center(p), radius=0.9 * d) if p.layout == "orbit" else None
+    return _Layout(wall, box, sphere, light / np.linalg.norm(light), dome)
+
+
+def orbit_center(p: TinySceneParams) -> np.ndarray:
+    """The point the orbit cameras circle and look at: between the box and the sphere."""
+    d = p.wall_depth
+    return np.array([-0.015 * d, 0.015 * d, 0.535 * d])
 
 
 def _rays(cam: Camera) -> tuple[np.ndarray, np.ndarray]:
@@ -235,6 +252,18 @@ def _hit_sphere(o: np.ndarray, d: np.ndarray, s: _Sphere) -> tuple[np.ndarray, n
     return np.where(ok, t, _FAR), uv, n
 
 
+def _hit_dome(o: np.ndarray, d: np.ndarray, s: _Sphere) -> tuple[np.ndarray, np.ndarray]:
+    """A sphere seen from inside (the far root): distance and longitude/latitude texture coords ``(N, 2)``."""
+    oc = o - s.center
+    b = d @ oc
+    disc = b**2 - (oc @ oc - s.radius**2)
+    t = -b + np.sqrt(np.maximum(disc, 0.0))
+    ok = (disc > 0) & (t > 0)
+    n = (oc + t[:, None] * d) / s.radius
+    uv = np.stack([np.arctan2(n[:, 0], -n[:, 2]) / (2 * np.pi) + 0.5, np.arccos(np.clip(n[:, 1], -1, 1)) / np.pi], axis=1)
+    return np.where(ok, t, _FAR), uv
+
+
 def _sample(tex: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Bilinear texture lookup: ``tex (h, w, 3)``, ``uv (N, 2)`` in ``[0, 1]`` → ``(N, 3)``."""
     h, w = tex.shape[:2]
@@ -249,7 +278,7 @@ def _sample(tex: np.ndarray, uv: np.ndarray) -> np.ndarray:
 def _cast(cam: Camera, lay: _Layout, tex: dict[int, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """Render one camera: RGB ``(H, W, 3) float32`` and labels ``(H, W) int64``."""
     o, d = _rays(cam)
-    t_wall, uv_wall = _hit_wall(o, d, lay.wall)
+    t_wall, uv_wall = _hit_wall(o, d, lay.wall) if lay.dome is None else _hit_dome(o, d, lay.dome)
     t_box, uv_box, n_box = _hit_box(o, d, lay.box)
     t_sph, uv_sph, n_sph = _hit_sphere(o, d, lay.sphere)
     ts = np.stack([np.full_like(t_wall, _FAR), t_wall, t_box, t_sph], axis=1)
@@ -269,6 +298,21 @@ def _cast(cam: Camera, lay: _Layout, tex: dict[int, np.ndarray]) -> tuple[np.nda
 # ----------------------------------------------------------------------------------------------
 # Cameras
 # ----------------------------------------------------------------------------------------------
+
+
+def ring_cameras(p: TinySceneParams, rng: np.random.Generator) -> list[Camera]:
+    """``n_views`` cameras on a full ring around :func:`orbit_center`, slightly above it, looking at it
+    (consecutive views are neighbours); a small seeded jitter breaks the regularity."""
+    c = orbit_center(p)
+    radius, lift = 0.45 * p.wall_depth, 0.12 * p.wall_depth
+    cams = []
+    for i in range(p.n_views):
+        a = 2 * math.pi * i / p.n_views
+        eye = c + np.array([radius * math.sin(a), -lift, -radius * math.cos(a)]) + rng.normal(0.0, 0.01 * radius, size=3)
+        width = p.width - (p.odd_view_width_delta if i % 2 else 0)
+        K = intrinsics(p.focal_factor * p.width, width, p.height)
+        cams.append(Camera(f"{i:03d}.png", K, look_at(eye, c, up=np.array([0.0, 1.0, 0.0])), width, p.height))
+    return cams
 
 
 def grid_cameras(p: TinySceneParams, rng: np.random.Generator) -> list[Camera]:
@@ -392,7 +436,7 @@ def generate_tiny_scene(p: TinySceneParams | None = None) -> TinyScene:
     p = p or TinySceneParams()
     rng = np.random.default_rng(p.seed)
     layout, textures = scene_layout(p), _textures(rng, p)
-    cams = grid_cameras(p, rng)
+    cams = ring_cameras(p, rng) if p.layout == "orbit" else grid_cameras(p, rng)
     images, labels = [], []
     for cam in cams:
         rgb, lab = render_view(cam, layout, textures, p.supersample)
@@ -423,10 +467,11 @@ def cameras_from_json(data: dict) -> list[Camera]:
 def write_tiny_scene(scene: TinyScene, out_dir: str | os.PathLike, params: TinySceneParams) -> None:
     """Write ``scene`` into ``out_dir`` (the layout in the module docstring). Not atomic by itself."""
     out = Path(out_dir)
-    for cam, rgb, lab in zip(scene.cameras, scene.images, scene.labels):
+    for i, (cam, rgb, lab) in enumerate(zip(scene.cameras, scene.images, scene.labels)):
         stem = Path(cam.name).stem
         save_image(out / "images" / f"{stem}.png", rgb)
-        save_labels(out / "masks" / f"{stem}.png", lab)
+        if params.mask_views == 0 or i < params.mask_views:
+            save_labels(out / "masks" / f"{stem}.png", lab)
     for name, img in scene.styles.items():
         save_image(out / "styles" / f"{name}.png", img)
     save_labels(out / "styles" / "paint_labels.png", scene.style_labels)

@@ -32,6 +32,8 @@ class ColorMatchParams(BaseModel):
     resolution_scale: float = Field(1.0, gt=0, le=1.0)
     seed: int = 0
     backend: str = "auto"
+    threads: int = Field(0, ge=0, description="torch CPU threads for this stage (0: torch's default, all cores); "
+                         "with `dvc queue start -j N` on C cores, C // N (README 'Benchmarks at scale')")
 
 
 @dataclass

@@ -7,7 +7,8 @@ label, numbered in the order of the colours' RGB values across all the mask file
 than :data:`MIN_COLOUR_SHARE` of a file, such as a soft brush's edge blends, count as unassigned). Eq. 2
 lifts them to every view. With ``masks.holdout_every: k`` every k-th given mask is kept out of the lifting
 and only scored: the per-label IoU of the lifted masks against the user's on those views is the honest
-measure of how well one view's labels carry to the others.
+measure of how well one view's labels carry to the others; ``masks.lift_views: ['000']`` lifts from the named
+views only and scores all the other given masks.
 
 Automatic masks need no downloaded network (SAM-class checkpoints cannot be fetched on the project's
 machines; PyPI packages that wrap them ship no weights):
@@ -32,11 +33,12 @@ import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from abcgs.camera_paths import capture_layout
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel, render
 from abcgs.io.images import load_labels
-from abcgs.style.lifting import LiftParams, lift_labels, render_label_map
+from abcgs.style.lifting import LiftParams, LiftResult, lift_labels, propagate_labels, render_label_map
 
 log = logging.getLogger(__name__)
 
@@ -90,6 +92,9 @@ class MaskParams(BaseModel):
     holdout_every: int = Field(
         0, ge=0, description="given masks: every k-th (k ≥ 2) is left out of the lifting and only scored (per-label "
                              "IoU on held-out views); 0 lifts from all of them")
+    lift_views: list[str] = Field(
+        default_factory=list, description="given masks: lift from these views only (image stems, e.g. ['000']); the "
+                                          "other given masks are held out and scored. Empty: see holdout_every")
     backend: str = "auto"
 
 
@@ -107,6 +112,7 @@ class ContentMasks:
     heldout_iou: dict[int, float] = field(default_factory=dict)  # per label, lifted vs given on held-out views
     heldout_agreement: float | None = None  # pixel agreement on the held-out views' labelled pixels
     palette: dict[int, tuple[int, int, int]] = field(default_factory=dict)  # colour label PNGs: label → RGB
+    propagated: int = 0  # Gaussians no masked view saw, labelled from their 3-D neighbours
 
 
 def read_label_files(paths: list[Path], sizes: list[tuple[int, int]]) -> tuple[list[np.ndarray], dict]:
@@ -262,7 +268,16 @@ def make_content_masks(
     if given and params.source in ("auto", "given"):
         source = "given"
         idx = sorted(given)
-        if params.holdout_every >= 2 and len(idx) >= 2:
+        if params.lift_views:
+            stems = {Path(cameras[i].name).stem: i for i in idx}
+            missing = [v for v in params.lift_views if v not in stems]
+            if missing:
+                raise InputError(f"masks.lift_views names view(s) {missing} without a mask in {masks_dir} "
+                                 f"(masks found for: {', '.join(sorted(stems)) or 'none'})")
+            chosen = sorted(stems[v] for v in params.lift_views)
+            heldout = [i for i in idx if i not in chosen]
+            idx = chosen
+        elif params.holdout_every >= 2 and len(idx) >= 2:
             heldout = idx[params.holdout_every - 1 :: params.holdout_every]
             idx = [i for i in idx if i not in heldout]
         maps = [given[i] for i in idx]
@@ -282,6 +297,16 @@ def make_content_masks(
     if n_labels == 0:
         raise InputError("the content masks contain no label > 0 (0 means unassigned); nothing to lift")
     lifted = lift_labels(model, [cameras[i] for i in idx], maps, n_labels, params.lift, backend=params.backend)
+    propagated = 0
+    if params.lift.propagate == "always" or (
+        params.lift.propagate == "auto" and len(idx) < len(cameras) and len(cameras) > 1
+        and capture_layout(cameras).kind == "orbit"
+    ):
+        unseen = lifted.weights.sum(1) < params.lift.min_weight
+        labels = propagate_labels(model.means, lifted.labels, unseen, params.lift.propagate_k)
+        propagated = int((labels != lifted.labels).sum())
+        lifted = LiftResult(labels, lifted.weights)
+        log.info("propagated labels to %d Gaussians no masked view sees", propagated)
     views = [
         render_label_map(model, lifted.labels, n_labels, c, threshold=params.lift.render_threshold, backend=params.backend)
         for c in cameras
@@ -303,7 +328,7 @@ def make_content_masks(
     return ContentMasks(lifted.labels, n_labels, views, source, [cameras[i].name for i in idx],
                         float(np.mean(agree)) if agree else None, [cameras[i].name for i in heldout],
                         {k: float(np.mean(v)) for k, v in sorted(ho_iou.items())},
-                        float(np.mean(ho_agree)) if ho_agree else None, palette)
+                        float(np.mean(ho_agree)) if ho_agree else None, palette, propagated)
 
 
 def colorize_labels(labels: np.ndarray) -> np.ndarray:

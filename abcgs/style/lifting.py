@@ -15,6 +15,7 @@ including views that had no mask. (The authors' public code keeps per-view 2-D m
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 import torch
@@ -37,6 +38,12 @@ class LiftParams(BaseModel):
     render_threshold: float = Field(
         0.5, ge=0.0, le=1.0, description="re-rendered masks: a pixel takes a label when the label's alpha share ≥ this"
     )
+    propagate: Literal["auto", "always", "never"] = Field(
+        "auto", description="Gaussians no masked view sees (the far side of an object lifted from one view) take the "
+        "majority label of their nearest labelled Gaussians in 3-D; auto: for object-centred (orbit) captures with "
+        "views that have no mask (measured: orbit pixel agreement 0.28 → 0.81 from one mask; on a forward-facing "
+        "scene it guessed occluded surfaces wrong, object IoU on the farthest view 0.68 → 0.57)")
+    propagate_k: int = Field(8, ge=1, description="neighbours in the propagation vote")
 
 
 @dataclass
@@ -96,6 +103,35 @@ def lift_labels(
     ok = (best_w >= params.min_weight) & (best_w >= params.min_share * total.clamp_min(1e-12))
     labels = torch.where(ok, best, torch.zeros_like(best))
     return LiftResult(labels, weights)
+
+
+def propagate_labels(means: Tensor, labels: Tensor, unseen: Tensor, k: int = 8) -> Tensor:
+    """Labels of the ``unseen`` Gaussians (``(N,)`` bool) from their ``k`` nearest *labelled* Gaussians (label > 0,
+    world-space distance; majority vote, ties to the nearest); the others keep theirs. ``means (N, 3)``.
+
+    Only Gaussians that no masked view saw are filled: one that was seen in unassigned (0) pixels stays 0, so
+    what the user left unpainted stays unpainted.
+    """
+    from scipy.spatial import cKDTree
+
+    labelled = labels > 0
+    out = labels.clone()
+    if not bool(unseen.any()) or not bool(labelled.any()):
+        return out
+    pts = means.detach().cpu().double().numpy()
+    src = np.flatnonzero(labelled.numpy())
+    kk = min(k, len(src))
+    _, nn = cKDTree(pts[src]).query(pts[unseen.numpy()], k=kk)
+    nn = np.asarray(nn).reshape(-1, kk)
+    votes = labels.numpy()[src][nn]  # (M, kk), nearest first
+    n_labels = int(labels.max())
+    counts = np.stack([(votes == j).sum(1) for j in range(1, n_labels + 1)], 1)
+    best = counts.max(1, keepdims=True)
+    # ties: the label of the nearest neighbour among the tied ones
+    tied = counts == best
+    pick = np.array([next(v for v in row if tied[i, v - 1]) for i, row in enumerate(votes)])
+    out[unseen] = torch.as_tensor(pick, dtype=out.dtype)
+    return out
 
 
 def render_label_map(

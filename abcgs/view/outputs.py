@@ -6,10 +6,10 @@ from pathlib import Path
 
 import numpy as np
 
+from abcgs.camera_paths import PathKind
 from abcgs.errors import InputError
 from abcgs.io.ply import read_ply
 from abcgs.sfm.colmap import read_colmap_scene
-from abcgs.camera_paths import PathKind
 from abcgs.view import ViewerExperiment, prepare_experiment
 
 

@@ -7,7 +7,8 @@
 // normalisation) and scales; the camera is treated as constant.
 
 #include <torch/extension.h>
-#include <ATen/Parallel.h>
+
+#include "parallel.h"
 
 #include <algorithm>
 #include <cmath>
@@ -165,7 +166,7 @@ std::vector<at::Tensor> project_forward(const at::Tensor& means, const at::Tenso
     T* ex = extents.data_ptr<T>();
     int32_t* ra = radii.data_ptr<int32_t>();
     bool* vi = visible.data_ptr<bool>();
-    at::parallel_for(0, n, 4096, [&](int64_t begin, int64_t end) {
+    abcgs::parallel_range(n, 4096, [&](int64_t begin, int64_t end) {
       for (int64_t i = begin; i < end; ++i) {
         const Ewa<T> e = ewa(cam, mp + 3 * i, qp + 4 * i, sp + 3 * i, near, far, eps2d);
         de[i] = e.p[2];
@@ -215,7 +216,7 @@ std::vector<at::Tensor> project_backward(const at::Tensor& means, const at::Tens
     T* om = v_means.data_ptr<T>();
     T* oq = v_quats.data_ptr<T>();
     T* os = v_scales.data_ptr<T>();
-    at::parallel_for(0, n, 4096, [&](int64_t begin, int64_t end) {
+    abcgs::parallel_range(n, 4096, [&](int64_t begin, int64_t end) {
       for (int64_t i = begin; i < end; ++i) {
         const Ewa<T> e = ewa(cam, mp + 3 * i, qp + 4 * i, sp + 3 * i, near, far, eps2d);
         const T* s = sp + 3 * i;

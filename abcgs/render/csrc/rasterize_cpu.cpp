@@ -1,5 +1,6 @@
 // Fast CPU backend of the abcgs Gaussian rasterizer: tile binning, forward alpha blending and a
-// hand-written backward pass, multi-threaded over 16x16 tiles on PyTorch's intra-op thread pool.
+// hand-written backward pass, multi-threaded over 16x16 tiles on the kernels' own threads (parallel.h:
+// set_kernel_threads, independent of torch's intra-op setting).
 //
 // The blending rule is the one in abcgs/render/reference.py (the test oracle):
 //   sigma = 0.5 (a dx^2 + c dy^2) + b dx dy ; alpha = min(0.99, o exp(-sigma))
@@ -14,7 +15,8 @@
 // rounding and therefore make the same skip/stop decisions.
 
 #include <torch/extension.h>
-#include <ATen/Parallel.h>
+
+#include "parallel.h"
 
 #include <algorithm>
 #include <atomic>
@@ -170,16 +172,10 @@ Binning bin_gaussians(const scalar_t* means2d, const scalar_t* extents, const sc
   return Binning(tile_offsets, ids, gauss_offsets, gauss_isect, width, height, tile);
 }
 
-// Run `fn(tile)` for every tile with dynamic scheduling on PyTorch's thread pool.
+// Run `fn(tile)` for every tile with dynamic scheduling on the kernels' threads (parallel.h).
 template <typename F>
 void for_each_tile(int64_t n_tiles, const F& fn) {
-  std::atomic<int64_t> next{0};
-  const int64_t workers = std::max<int64_t>(1, std::min<int64_t>(at::get_num_threads(), n_tiles));
-  at::parallel_for(0, workers, 1, [&](int64_t begin, int64_t end) {
-    for (int64_t w = begin; w < end; ++w) {
-      for (int64_t t = next.fetch_add(1); t < n_tiles; t = next.fetch_add(1)) fn(t);
-    }
-  });
+  abcgs::parallel_items(n_tiles, fn);
 }
 
 // Pixel-column range [x_lo, x_hi) of a Gaussian's box inside one tile (same for rows).
@@ -491,7 +487,7 @@ std::vector<at::Tensor> rasterize_backward(const at::Tensor& means2d, const at::
     scalar_t* vc = v_conics.data_ptr<scalar_t>();
     scalar_t* vcol = v_colors.data_ptr<scalar_t>();
     scalar_t* vo = v_opac.data_ptr<scalar_t>();
-    at::parallel_for(0, n, 2048, [&](int64_t begin, int64_t end) {
+    abcgs::parallel_range(n, 2048, [&](int64_t begin, int64_t end) {
       for (int64_t g = begin; g < end; ++g) {
         for (int64_t j = bin.gauss_offsets[g]; j < bin.gauss_offsets[g + 1]; ++j) {
           const scalar_t* r = ig + bin.gauss_isect[j] * row;
@@ -523,4 +519,6 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("project_backward", &project_backward, "abcgs fused EWA projection backward (CPU)");
   m.def("rasterize_forward", &rasterize_forward, "abcgs tile rasterizer forward (CPU)");
   m.def("rasterize_backward", &rasterize_backward, "abcgs tile rasterizer backward (CPU)");
+  m.def("set_kernel_threads", &abcgs::set_kernel_threads, "threads of the CPU kernels (0 = all hardware threads)");
+  m.def("kernel_threads", &abcgs::kernel_threads, "threads the CPU kernels use now");
 }
