@@ -68,6 +68,14 @@ def deep_merge(base: dict, override: dict) -> dict:
     return out
 
 
+def set_dotted(params: dict, dotted: str, value: Any) -> None:
+    """``params[a][b][c] = value`` for ``dotted = "a.b.c"``, creating mappings on the way (``--set`` overrides)."""
+    *parents, leaf = dotted.split(".")
+    for key in parents:
+        params = params.setdefault(key, {})
+    params[leaf] = value
+
+
 class DataParams(BaseModel):
     """Where the scenes and style images are. Paths are relative to the repository root."""
 

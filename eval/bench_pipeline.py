@@ -33,6 +33,8 @@ sys.path.insert(0, str(ROOT))
 
 import yaml  # noqa: E402
 
+from abcgs.io.atomic import write_json  # noqa: E402
+from abcgs.params import set_dotted  # noqa: E402
 from eval.repo_copy import copy_repo, run_in  # noqa: E402
 
 WRAPPER = r"""
@@ -45,15 +47,6 @@ print(json.dumps({"rc": proc.returncode, "wall_s": wall, "cpu_s": ru.ru_utime + 
                   "peak_rss_mib": ru.ru_maxrss / 1024.0, "tail": (proc.stdout + proc.stderr)[-3000:]}))
 """
 """Runs one command and reports its children's resource use (a fresh process per stage: ru_maxrss is a max)."""
-
-
-def set_key(params: dict, dotted: str, value) -> None:
-    """``params[a][b][c] = value`` for ``a.b.c``, creating mappings on the way."""
-    node = params
-    *parents, leaf = dotted.split(".")
-    for p in parents:
-        node = node.setdefault(p, {})
-    node[leaf] = value
 
 
 def stage_order(repo: Path, targets: list[str] | None = None) -> list[str]:
@@ -117,7 +110,7 @@ def main(argv: list[str] | None = None) -> dict:
             params.update(yaml.safe_load(args.params.read_text()))
         for item in args.set:
             key, _, value = item.partition("=")
-            set_key(params, key, yaml.safe_load(value))
+            set_dotted(params, key, yaml.safe_load(value))
 
     with tempfile.TemporaryDirectory() as tmp:
         work = args.work or Path(tmp)
@@ -142,8 +135,7 @@ def main(argv: list[str] | None = None) -> dict:
     print(f"[bench_pipeline] total {total_wall / 60:.1f} min wall, cpu/wall {result['core_use']:.2f}, "
           f"peak RSS {result['peak_rss_mib']:.0f} MiB")
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result, indent=2) + "\n")
+        write_json(args.json, result)
     return result
 
 

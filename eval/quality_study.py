@@ -48,6 +48,7 @@ from abcgs.gaussians import GaussianModel  # noqa: E402
 from abcgs.io.atomic import write_json, write_text  # noqa: E402
 from abcgs.io.images import save_image  # noqa: E402
 from abcgs.io.ply import read_ply, write_ply  # noqa: E402
+from abcgs.params import deep_merge, set_dotted  # noqa: E402
 from abcgs.sfm.colmap import ReconstructParams, read_colmap_scene, reconstruct  # noqa: E402
 from abcgs.style.colormatch import ColorMatchParams, color_match_and_refit  # noqa: E402
 from abcgs.style.matching import ExperimentParams, build_groups, load_style  # noqa: E402
@@ -89,20 +90,6 @@ class RunSpec:
     @property
     def label(self) -> str:
         return METHOD_LABELS.get((self.method, self.variant), f"{self.method} ({self.variant})")
-
-
-def _merge(base: dict, over: dict) -> dict:
-    out = dict(base)
-    for k, v in over.items():
-        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
-    return out
-
-
-def _set(d: dict, dotted: str, value) -> None:
-    keys = dotted.split(".")
-    for k in keys[:-1]:
-        d = d.setdefault(k, {})
-    d[keys[-1]] = value
 
 
 RUNTIME_KEYS = ("threads", "backend", "log_every", "num_threads")
@@ -367,7 +354,7 @@ def main(argv=None) -> dict:
     cfg = {k: cfg.get(k, {}) for k in ("stylize", "colormatch", "evaluate", "vgg")}
     for item in args.set:
         key, _, val = item.partition("=")
-        _set(cfg, key, yaml.safe_load(val))
+        set_dotted(cfg, key, yaml.safe_load(val))
     # validate once, up front (typos fail before any work); cache keys use the validated sections, defaults included
     valid = {"stylize": _semantic(StylizeParams(**cfg["stylize"]).model_dump()),
              "colormatch": _semantic(ColorMatchParams(**cfg["colormatch"]).model_dump()),
@@ -395,7 +382,7 @@ def main(argv=None) -> dict:
                         "colormatch": cfg["colormatch"], "stylize": cfg["stylize"]})
     run_jobs, run_dirs = [], {}
     for spec in specs:
-        sp = _merge(cfg["stylize"], VARIANTS[spec.variant])
+        sp = deep_merge(cfg["stylize"], VARIANTS[spec.variant])
         key = _digest([STUDY_VERSION, scene_info["ply_sha"], _file_sha(style_paths[spec.style]), valid["colormatch"],
                        _semantic(StylizeParams(**sp).model_dump()), valid["evaluate"], valid["vgg"], spec.method])
         run_dirs[spec.name] = work / "runs" / f"{spec.name}-{key}"

@@ -23,6 +23,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 from test_pipeline_e2e import GATED, REDUCED  # noqa: E402
 
+from abcgs.io.atomic import write_json  # noqa: E402
 from eval.repo_copy import copy_repo, run_in  # noqa: E402
 
 SEEDED = ("fit", "colormatch", "stylize", "evaluate")
@@ -64,8 +65,7 @@ def main(argv=None) -> dict:
             print(f"{exp:22s} {k:12s} mean {vals.mean():.4f} std {summary[exp][k]['std']:.4f} {vals.round(4).tolist()}")
     result = {"seeds": args.seeds, "reduced": {f"{a}.{b}": v for (a, b), v in REDUCED.items()}, "metrics": summary}
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result, indent=2) + "\n")
+        write_json(args.json, result)
     return result
 
 
