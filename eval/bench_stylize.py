@@ -17,6 +17,7 @@ transfer: colour match + re-fit, then the stylization passes with ``params.yaml`
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -120,8 +121,12 @@ def main(argv=None) -> dict:
     print(f"SSIM(original, stylized) = {out['ssim_mean']:.3f} over {len(ssims)} views")
     print(f"Gram distance: original {g_orig:.4g}, colour-matched {g_start:.4g}, stylized {g_end:.4g} "
           f"(drop {100 * out['gram_distance']['drop_from_color_matched']:.1f}% from the colour-matched start)")
+    step_s = sum(split.values())
+    out["style_loss_share_of_step"] = split.get("style_loss", 0.0) / step_s if step_s > 0 else float("nan")
     print(f"time: colour match + re-fit {t_cm:.1f} s, stylize {res.seconds:.1f} s for {out['iterations']} iterations; "
           "per iteration: " + ", ".join(f"{k} {1000 * v:.0f} ms" for k, v in split.items()))
+    print(f"{args.method} style loss: {100 * out['style_loss_share_of_step']:.1f}% of a main-pass step "
+          f"({1000 * step_s:.0f} ms; {torch.get_num_threads()} torch threads, load {os.getloadavg()[0]:.2f})")
     if args.json:
         write_json(args.json, out)
         save_image(args.json.with_suffix(".png"), image_grid(rows, ["original", "style", "colour-matched", "stylized"], height=200))

@@ -92,12 +92,13 @@ class RunSpec:
         return METHOD_LABELS.get((self.method, self.variant), f"{self.method} ({self.variant})")
 
 
-RUNTIME_KEYS = ("threads", "backend", "log_every", "num_threads")
-"""How a run executes, not what it computes: left out of the cache keys."""
+RUNTIME_KEYS = ("threads", "backend", "log_every", "num_threads", "max_block_elems")
+"""How a run executes, not what it computes: left out of the cache keys, at any depth (``stylize.fast.max_block_elems``
+is the similarity tile size: the same neighbours, up to float summation order)."""
 
 
 def _semantic(section: dict) -> dict:
-    return {k: v for k, v in section.items() if k not in RUNTIME_KEYS}
+    return {k: _semantic(v) if isinstance(v, dict) else v for k, v in section.items() if k not in RUNTIME_KEYS}
 
 
 def _digest(obj) -> str:

@@ -3,8 +3,9 @@
     python stages/evaluate.py --experiment tiny_single --out out/tiny_single/eval.json \
         --headline out/tiny_single/metrics.json
 
-Renders the original scene (``out/S/gs``) and the stylized one (``out/E/stylize``) for the training views,
-writes the full numeric record ``eval.json`` (+ ``eval_info.json`` with provenance), the headline numbers
+Reads the scene's evaluation reference (``out/S/reference``: the original scene's renders and the optical
+flows between them, made once per scene by ``stages/reference.py``), renders the stylized scene
+(``out/E/stylize``) for the same views, writes the full numeric record ``eval.json`` (+ ``eval_info.json`` with provenance), the headline numbers
 ``--headline`` (the DVC metric: :data:`abcgs.io.metrics.EXPERIMENT_HEADLINE`), per-view scores
 ``eval_views.csv`` (a DVC plot) and
 ``eval_consistency.png`` (one warped pair: error map with the occlusion mask in cyan). Proxy metrics are
@@ -27,6 +28,7 @@ from abcgs.pipeline import run_stage, stage_parser  # noqa: E402
 from abcgs.style.experiment import experiment, load_scene  # noqa: E402
 from abcgs.viz import image_grid  # noqa: E402
 from eval.metrics.evaluate import evaluate_scene  # noqa: E402
+from eval.metrics.reference import load_reference, model_digest  # noqa: E402
 
 
 def views_csv(rows: list[dict]) -> str:
@@ -67,8 +69,11 @@ def main(args, params) -> None:
     n = min(len(scene.cameras), ep.max_views or len(scene.cameras))
     saved = [load_image(p) for p in pngs[:n]]
     styles = [load_image(params.data.styles[k]) for k in exp.style_keys()]
+    ref_dir = args.reference or args.root / exp.scene / "reference"
+    reference = load_reference(ref_dir, scene.cameras, ep, scene=exp.scene,
+                               model_digest=model_digest(args.root / exp.scene / "gs" / "point_cloud.ply"))
     res = evaluate_scene(scene.cameras, original, stylized, styles, ep, stylize_info=info, saved_renders=saved,
-                         vgg_params=params.vgg)
+                         vgg_params=params.vgg, reference=reference)
     metrics = {"experiment": args.experiment, "scene": exp.scene, "transfer": exp.transfer, "method": exp.method,
                "styles": {k: params.data.styles[k] for k in exp.style_keys()}, **res.metrics}
     out = Path(args.out)
@@ -89,4 +94,5 @@ if __name__ == "__main__":
     ap.add_argument("--headline", type=Path, default=None, help="headline metrics JSON (the DVC metric)")
     ap.add_argument("--views", type=Path, default=None, help="per-view CSV (default: eval_views.csv next to --out)")
     ap.add_argument("--heatmap", type=Path, default=None, help="consistency PNG (default: eval_consistency.png next to --out)")
+    ap.add_argument("--reference", type=Path, default=None, help="the scene's evaluation reference (default: ROOT/SCENE/reference)")
     sys.exit(run_stage("evaluate", ap, main))

@@ -131,3 +131,41 @@ def test_eval_params_reject_unknown_keys() -> None:
         validate_params({"data": {"scenes": {"s": "x"}}, "evaluate": {"flow": "raf"}})
     with pytest.raises(ParamsError, match="evaluate.long_gap: unknown key"):
         validate_params({"data": {"scenes": {"s": "x"}}, "evaluate": {"long_gap": 3}})
+
+
+def _numbers(m: dict, prefix: str = "") -> dict:
+    """Every numeric leaf of a metrics record except timings/speed (they differ run to run)."""
+    out = {}
+    for k, v in m.items():
+        if k in ("eval_timings_s", "speed", "render_fps", "provenance"):
+            continue
+        if isinstance(v, dict):
+            out.update(_numbers(v, f"{prefix}{k}."))
+        elif isinstance(v, (int, float)) and not isinstance(v, bool):
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def test_stored_reference_gives_the_same_metrics(scene, proxy, tmp_path) -> None:
+    """The per-scene reference (original renders + flows, saved and loaded) changes no metric; it is checked
+    against the views, the evaluate settings and the fitted scene it was made from."""
+    from eval.metrics.reference import compute_reference, load_reference, save_reference
+
+    cams, model, styl, style = scene
+    direct = evaluate_scene(cams, model, styl, [style], PARAMS, perceptual=proxy)
+    ref = compute_reference(cams, model, PARAMS, model_digest="abc")
+    assert ref.info["n_flows"] == 2 * (4 + 1)  # short pairs (i, i+1) and the long pair (0, 4), both directions
+    save_reference(tmp_path / "ref", ref)
+    loaded = load_reference(tmp_path / "ref", cams, PARAMS, model_digest="abc")
+    stored = evaluate_scene(cams, model, styl, [style], PARAMS, perceptual=proxy, reference=loaded)
+    assert _numbers(stored.metrics) == _numbers(direct.metrics)
+    assert stored.metrics["provenance"]["flow"] == direct.metrics["provenance"]["flow"]
+    assert stored.metrics["provenance"]["reference"]["n_flows"] == 10
+    with pytest.raises(InputError, match="other evaluate settings.*long_term_gap"):
+        load_reference(tmp_path / "ref", cams, PARAMS.model_copy(update={"long_term_gap": 2}))
+    with pytest.raises(InputError, match="other views"):
+        load_reference(tmp_path / "ref", cams[:4], PARAMS)
+    with pytest.raises(InputError, match="another fit"):
+        load_reference(tmp_path / "ref", cams, PARAMS, model_digest="def")
+    with pytest.raises(InputError, match="no evaluation reference"):
+        load_reference(tmp_path / "nothing", cams, PARAMS, scene="tiny")

@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import re
 import shutil
 import subprocess
 import time
@@ -64,6 +65,8 @@ def test_all_stages_write_their_artifacts(repo: Path, first_repro) -> None:
     assert fit["psnr"] > 18.0, fit  # 300 steps on 160×120; ~22 dB seen
     masks = json.loads((out / "tiny" / "masks" / "masks.json").read_text())
     assert masks["source"] == "given" and masks["agreement_with_input_masks"] > 0.9
+    reference = json.loads((out / "tiny" / "reference" / "reference.json").read_text())
+    assert len(reference["view_names"]) == 16 and reference["n_flows"] == 2 * (15 + 9)  # (i, i+1), (i, i+7), both ways
     for exp in ("tiny_single", "tiny_compositional", "tiny_semantic"):
         d = out / exp / "stylize"
         for name in ("point_cloud.ply", "grid.png", "turntable.mp4"):
@@ -226,6 +229,33 @@ def test_a_scene_override_reruns_only_that_scenes_branch(repo: Path, first_repro
         # the extra scene's outputs go too: the report stage depends on all of out/, so leftovers committed to
         # git would make a clone's out/ differ from the locked one (seen: clone B re-ran `report`)
         shutil.rmtree(repo / "out" / "tiny2", ignore_errors=True)
+
+
+def test_experiments_of_one_scene_share_its_stages(repo: Path, first_repro) -> None:
+    """Issue 13: a second experiment on the tiny scene (same painting, NNFM) runs its own colormatch, stylize and
+    evaluate, but not the scene's stages (fit, masks, and the evaluation reference of original renders and
+    flows); the reference follows the flow settings, not the metric settings."""
+    original = (repo / "params.yaml").read_text()
+    params = yaml.safe_load(original)
+    params["experiments"]["tiny_single_nnfm"] = {**params["experiments"]["tiny_single"], "method": "nnfm"}
+    (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    try:
+        proc = _run(["dvc", "repro", "evaluate@tiny_single_nnfm"], repo)
+        assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+        ran = set(re.findall(r"Running stage '([^']+)'", proc.stdout))
+        assert ran == {"colormatch@tiny_single_nnfm", "stylize@tiny_single_nnfm", "evaluate@tiny_single_nnfm"}, ran
+        info = json.loads((repo / "out/tiny_single_nnfm/eval_info.json").read_text())
+        assert info["method"] == "nnfm" and info["provenance"]["reference"]["n_flows"] > 0
+        params["evaluate"]["fid_patch_size"] += 8  # a metric setting: every evaluate, not the reference
+        (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+        changed = _changed_stages(repo)
+        assert "evaluate@tiny_single" in changed and "reference@tiny" not in changed, changed
+        params["evaluate"]["long_term_gap"] += 1  # a flow setting: the reference too
+        (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+        assert "reference@tiny" in _changed_stages(repo)
+    finally:
+        (repo / "params.yaml").write_text(original)
+        shutil.rmtree(repo / "out" / "tiny_single_nnfm", ignore_errors=True)  # see the scene-override test
 
 
 def _exp_rows(repo: Path) -> dict[str, dict[str, str]]:

@@ -246,3 +246,24 @@ def test_invalid_image_size():
     s = _tiny_scene()
     with pytest.raises(ValueError):
         rasterize(s.means, s.quats, s.scales, s.opacities, s.colors, s.viewmat, s.K, 0, 5)
+
+
+def test_a_stale_build_lock_is_removed_and_a_fresh_one_waited_for(tmp_path) -> None:
+    """A lock left by a process killed mid-compile would make torch's loader wait forever: old locks go."""
+    import os
+    import threading
+    import time
+
+    from abcgs.render.cpu import _clear_stale_build_lock
+
+    lock = tmp_path / "lock"
+    lock.touch()
+    old = time.time() - 3600
+    os.utime(lock, (old, old))
+    _clear_stale_build_lock(tmp_path, stale_s=600)
+    assert not lock.exists()
+    lock.touch()  # fresh: a live build; wait until its holder removes it
+    threading.Timer(0.3, lock.unlink).start()
+    t0 = time.perf_counter()
+    _clear_stale_build_lock(tmp_path, stale_s=600, poll_s=0.05)
+    assert not lock.exists() and time.perf_counter() - t0 >= 0.25

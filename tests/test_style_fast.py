@@ -7,7 +7,7 @@ import torch
 from pydantic import ValidationError
 
 from abcgs.errors import InputError, NumericalError
-from abcgs.style import fast, knn
+from abcgs.style import fast, knn, losses
 
 
 def _feats(c: int, n_r: int, n_s: int, seed: int = 0, dtype=torch.float64):
@@ -219,3 +219,40 @@ def test_cosine_axes_differ_and_channel_axis_is_per_row():
         fast.cosine_distance_loss(f_r, t, axis="row")
     with pytest.raises(ValidationError):
         fast.FastParams(cosine="row")
+
+
+@pytest.mark.parametrize("n_rows, k", [(1000, 5), (1003, 3), (161, 5), (40, 5)])
+def test_topk_rows_of_columns_matches_torch_topk(n_rows, k):
+    """The block pre-selection gives exactly torch.topk along dim 0 (padding and the small-matrix path too)."""
+    g = torch.Generator().manual_seed(n_rows)
+    sim = torch.rand(n_rows, 37, generator=g) * 2 - 1
+    vals, idx = knn.topk_rows_of_columns(sim, k)
+    ref = sim.topk(k, dim=0)
+    assert torch.equal(vals, ref.values) and torch.equal(idx, ref.indices)
+
+
+def test_prepared_style_features_give_the_same_loss_and_gradient():
+    """StyleFeatures (prepared once per run) is only a cache: loss and gradient equal the plain-tensor path."""
+    g = torch.Generator().manual_seed(3)
+    f_s = (torch.randn(24, 90, generator=g) + 0.2).relu()
+    f_r1 = (torch.randn(24, 70, generator=g) + 0.2).relu().requires_grad_(True)
+    f_r2 = f_r1.detach().clone().requires_grad_(True)
+    style = knn.StyleFeatures.of(f_s)
+    for method in ("fast", "nnfm", "knnfm", "gram"):
+        a = losses.style_loss(method, [(f_r1, f_s)])
+        b = losses.style_loss(method, [(f_r2, style)])
+        ga, = torch.autograd.grad(a, f_r1)
+        gb, = torch.autograd.grad(b, f_r2)
+        assert torch.equal(a, b) and torch.equal(ga, gb), method
+    with pytest.raises(InputError, match="NaN/Inf"):
+        knn.StyleFeatures.of(torch.full((4, 5), float("nan")))
+
+
+def test_solve_alignment_falls_back_to_lu_when_cholesky_fails():
+    """An indefinite system (not a Gram matrix) is not Cholesky-factorable: LU solves it, and it is counted."""
+    m = torch.tensor([[1.0, 2.0], [2.0, 1.0]])  # eigenvalues 3 and -1
+    rhs = torch.tensor([[1.0, 0.0], [0.0, 1.0]])
+    stats = fast.FastStats()
+    p = fast.solve_alignment(m, rhs, eps=0.0, stats=stats)
+    assert torch.allclose(p, torch.linalg.inv(m), atol=1e-6)
+    assert stats.lu_solves == 1 and stats.fallbacks == 0

@@ -12,10 +12,12 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import logging
 import os
 import platform
 import sys
 import threading
+import time
 from pathlib import Path
 
 import torch
@@ -26,6 +28,7 @@ from abcgs.render.projection import Projected
 _SOURCES = [Path(__file__).parent / "csrc" / n for n in ("rasterize_cpu.cpp", "projection_cpu.cpp")]
 _HEADERS = [Path(__file__).parent / "csrc" / "parallel.h"]
 _FLAGS = ["-O3", "-march=native", "-ffp-contract=off", "-std=c++17"]
+log = logging.getLogger(__name__)
 _lock = threading.Lock()
 _module = None
 _error: str | None = None
@@ -51,6 +54,34 @@ def _build_dir() -> Path:
     return cache_dir() / "ext" / f"rasterize_cpu_{key.hexdigest()[:16]}"
 
 
+STALE_BUILD_LOCK_S = 600.0
+"""A build lock older than this is left by a process killed while compiling (a build takes about a minute)."""
+
+
+def _clear_stale_build_lock(build: Path, *, stale_s: float = STALE_BUILD_LOCK_S, poll_s: float = 2.0) -> None:
+    """Wait while another process holds the build lock; remove the lock once it is older than ``stale_s``.
+
+    ``torch.utils.cpp_extension.load`` guards a build with a ``lock`` file that only its holder deletes, and
+    waits for it without a time limit: after a stage was killed mid-compile (Ctrl-C in ``dvc repro``), every
+    later process would hang there.
+    """
+    lock = build / "lock"
+    warned = False
+    while lock.exists():
+        try:
+            age = time.time() - lock.stat().st_mtime
+        except FileNotFoundError:
+            return
+        if age > stale_s:
+            log.warning("removing a stale build lock %s (%.0f s old: a compile was interrupted)", lock, age)
+            lock.unlink(missing_ok=True)
+            return
+        if not warned:
+            log.info("waiting for another process compiling the rasterizer (%s)", lock)
+            warned = True
+        time.sleep(poll_s)
+
+
 def load_extension(verbose: bool = False):
     """Compile (first time) and import the C++ extension; raise :class:`BackendUnavailable` on failure."""
     global _module, _error
@@ -72,6 +103,7 @@ def load_extension(verbose: bool = False):
 
             build = _build_dir()
             build.mkdir(parents=True, exist_ok=True)
+            _clear_stale_build_lock(build)
             _module = load(
                 name="abcgs_rasterize_cpu",
                 sources=[str(s) for s in _SOURCES],

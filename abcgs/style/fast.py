@@ -7,8 +7,9 @@ For one matching group with rendered features ``F_r`` ``(C, N_r)`` (carrying gra
   similarity, ``k = 5`` (:func:`abcgs.style.knn.mutual_knn_pairs`, chunked, sparse index lists);
 - ``U = A / ΣA`` (``ΣA = N_pair``), ``D_r = diag(row sums of U)``;
 - ``P = (F_r D_r F_rᵀ + εI)⁻¹ F_r U F_sᵀ`` — the minimiser of ``Σ_ij A_ij ‖Pᵀ v_i − s_j‖²``
-  (``ε = 1e-12``); on a failed solve or a non-finite ``P`` the identity is used and counted in
-  :class:`FastStats`;
+  (``ε = 1e-12``), solved by Cholesky (the system is symmetric positive semi-definite plus ``εI``), by LU
+  where Cholesky finds it not positive definite (counted), and replaced by the identity on a failed solve
+  or a non-finite ``P`` (counted in :class:`FastStats`);
 - target ``F_rs = Pᵀ F_r`` computed without grad;
 - loss = ``1 − cos(F_r, F_rs)`` averaged, groups summed. The cosine runs along one of two axes
   (:attr:`FastParams.cosine`):
@@ -24,7 +25,8 @@ For one matching group with rendered features ``F_r`` ``(C, N_r)`` (carrying gra
 products ``F_r D_r F_rᵀ`` and ``F_r U F_sᵀ`` are accumulated in the features' dtype and solved in
 ``solve_dtype`` (float64 by default: with ``N_r < C`` or dead ReLU channels the system is singular up to
 ``ε`` and float32 loses the decoupling). No dense ``N_r × N_s`` matrix larger than ``max_block_elems``
-is ever built.
+is ever built. The style side may be passed as :class:`abcgs.style.knn.StyleFeatures`, prepared once per
+run (unit columns and a row-major copy), so that a step prepares only the rendered side.
 """
 
 from __future__ import annotations
@@ -38,7 +40,14 @@ import torch.nn.functional as F
 from pydantic import BaseModel, ConfigDict, Field
 
 from abcgs.errors import InputError, NumericalError
-from abcgs.style.knn import DEFAULT_MAX_BLOCK_ELEMS, check_feature_pair, mutual_knn_pairs, normalize_columns
+from abcgs.style.knn import (
+    DEFAULT_MAX_BLOCK_ELEMS,
+    StyleFeatures,
+    as_style_features,
+    check_feature_pair,
+    mutual_knn_pairs,
+    normalize_columns,
+)
 
 CosineAxis = Literal["pixel", "channel"]
 
@@ -66,6 +75,8 @@ class FastStats:
     """Running counters of FAST solves (pass one in to see fallbacks)."""
 
     solves: int = 0
+    lu_solves: int = 0
+    """Systems Cholesky found not positive definite (numerically), solved by LU instead."""
     fallbacks: int = 0
     """Solves that failed or gave a non-finite ``P`` and used the identity instead."""
     last_pairs: int = 0
@@ -99,7 +110,7 @@ def cosine_distance_loss(
 
 @torch.no_grad()
 def pair_statistics(
-    f_r: torch.Tensor, f_s: torch.Tensor, rows: torch.Tensor, cols: torch.Tensor
+    f_r: torch.Tensor, f_s: torch.Tensor | StyleFeatures, rows: torch.Tensor, cols: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """From sparse pairs, return ``(F_r D_r F_rᵀ, F_r U F_sᵀ)``, both ``(C, C)``, with ``U = A / N_pair``.
 
@@ -111,7 +122,7 @@ def pair_statistics(
     if n_pair == 0 or cols.numel() != n_pair:
         raise InputError(f"FAST: need equally long, non-empty pair lists (got {n_pair} rows, {cols.numel()} cols)")
     f_r = f_r.detach()
-    f_s = f_s.detach()
+    style_rows = f_s.rows if isinstance(f_s, StyleFeatures) else f_s.detach().t().contiguous()  # (N_s, C)
     n_r = f_r.shape[1]
     if n_pair > 1 and not bool((rows[1:] >= rows[:-1]).all()):
         order = torch.argsort(rows, stable=True)
@@ -119,7 +130,7 @@ def pair_statistics(
     counts = torch.bincount(rows, minlength=n_r)  # row sums of A
     offsets = torch.zeros(n_r, dtype=torch.long, device=rows.device)
     offsets[1:] = counts.cumsum(0)[:-1]
-    g = F.embedding_bag(cols, f_s.t().contiguous(), offsets, mode="sum")  # (N_r, C) = A F_sᵀ
+    g = F.embedding_bag(cols, style_rows, offsets, mode="sum")  # (N_r, C) = A F_sᵀ
     m = (f_r * (counts.to(f_r.dtype) / n_pair)) @ f_r.t()
     rhs = (f_r @ g) / n_pair
     return m, rhs
@@ -134,12 +145,23 @@ def solve_alignment(
     solve_dtype: torch.dtype = torch.float64,
     stats: FastStats | None = None,
 ) -> torch.Tensor:
-    """``P = (m + εI)⁻¹ rhs`` ``(C, C)`` in ``solve_dtype``, returned in ``m``'s dtype; identity on failure."""
+    """``P = (m + εI)⁻¹ rhs`` ``(C, C)`` in ``solve_dtype``, returned in ``m``'s dtype; identity on failure.
+
+    ``m`` is symmetric positive semi-definite (``F_r D_r F_rᵀ``), so Cholesky is tried first (a third of LU's
+    factorisation work); a system it finds not positive definite in ``solve_dtype`` is solved by LU.
+    """
     c = m.shape[0]
     eye = torch.eye(c, dtype=solve_dtype, device=m.device)
     reason = None
     try:
-        p, info = torch.linalg.solve_ex(m.to(solve_dtype) + eps * eye, rhs.to(solve_dtype))
+        a, b = m.to(solve_dtype) + eps * eye, rhs.to(solve_dtype)
+        chol, info = torch.linalg.cholesky_ex(a)
+        if int(info) == 0:
+            p = torch.cholesky_solve(b, chol)
+        else:
+            if stats is not None:
+                stats.lu_solves += 1
+            p, info = torch.linalg.solve_ex(a, b)
         if int(info) != 0:
             reason = f"singular system (info={int(info)})"
         elif not bool(torch.isfinite(p).all()):
@@ -160,25 +182,26 @@ def solve_alignment(
 @torch.no_grad()
 def alignment_matrix(
     f_r: torch.Tensor,
-    f_s: torch.Tensor,
+    f_s: torch.Tensor | StyleFeatures,
     params: FastParams | None = None,
     stats: FastStats | None = None,
 ) -> torch.Tensor:
     """The FAST alignment ``P`` ``(C, C)`` for one group (see module docstring)."""
     params = params or FastParams()
-    check_feature_pair(f_r, f_s, "FAST")
-    rows, cols = mutual_knn_pairs(f_r, f_s, params.k, max_block_elems=params.max_block_elems)
+    style = as_style_features(f_s)
+    check_feature_pair(f_r, style.raw, "FAST")
+    rows, cols = mutual_knn_pairs(f_r, style, params.k, max_block_elems=params.max_block_elems)
     if stats is not None:
         stats.last_pairs = rows.numel()
         stats.pairs_total += rows.numel()
-    m, rhs = pair_statistics(f_r, f_s, rows, cols)
+    m, rhs = pair_statistics(f_r, style, rows, cols)
     return solve_alignment(m, rhs, eps=params.eps, solve_dtype=getattr(torch, params.solve_dtype), stats=stats)
 
 
 @torch.no_grad()
 def fast_target(
     f_r: torch.Tensor,
-    f_s: torch.Tensor,
+    f_s: torch.Tensor | StyleFeatures,
     params: FastParams | None = None,
     stats: FastStats | None = None,
 ) -> torch.Tensor:
@@ -189,26 +212,25 @@ def fast_target(
 
 def fast_loss_group(
     f_r: torch.Tensor,
-    f_s: torch.Tensor,
+    f_s: torch.Tensor | StyleFeatures,
     params: FastParams | None = None,
     stats: FastStats | None = None,
 ) -> torch.Tensor:
     """FAST loss of one group: ``1 − cos(F_r, F_rs)`` along ``params.cosine``, averaged; grad flows to ``F_r``."""
     if not bool(torch.isfinite(f_r).all()):
         raise NumericalError("FAST: rendered features contain NaN/Inf (the render or the optimiser diverged)")
-    if not bool(torch.isfinite(f_s).all()):
-        raise InputError("FAST: style features contain NaN/Inf")
     params = params or FastParams()
-    target = fast_target(f_r, f_s, params, stats)
+    target = fast_target(f_r, as_style_features(f_s), params, stats)  # the style side is checked when prepared
     return cosine_distance_loss(f_r, target, axis=params.cosine)
 
 
 def fast_loss(
-    groups: Sequence[tuple[torch.Tensor, torch.Tensor]],
+    groups: Sequence[tuple[torch.Tensor, torch.Tensor | StyleFeatures]],
     params: FastParams | None = None,
     stats: FastStats | None = None,
 ) -> torch.Tensor:
-    """Sum over matching groups ``[(F_r^z (C, N_r^z), F_s^z (C, N_s^z)), …]`` of :func:`fast_loss_group`."""
+    """Sum over matching groups ``[(F_r^z (C, N_r^z), F_s^z (C, N_s^z) or StyleFeatures), …]`` of
+    :func:`fast_loss_group`."""
     if len(groups) == 0:
         raise InputError("FAST: no matching groups")
     return torch.stack([fast_loss_group(f_r, f_s, params, stats) for f_r, f_s in groups]).sum()

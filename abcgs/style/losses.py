@@ -1,7 +1,8 @@
 """Style-transfer losses besides FAST: ablation baselines, content and total variation, and a dispatcher.
 
 All feature inputs are per matching group, ``(C, N)`` column matrices (rendered ``F_r`` with grad,
-style ``F_s`` without); group losses are summed, like FAST's.
+style ``F_s`` without, or the style side prepared once as :class:`abcgs.style.knn.StyleFeatures`); group
+losses are summed, like FAST's.
 
 - :func:`nnfm_loss` — ARF's nearest-neighbour feature matching: mean over rendered features of
   ``1 − max_j cos(F_r[:, i], F_s[:, j])`` (target gathered without grad).
@@ -21,27 +22,28 @@ import torch
 
 from abcgs.errors import InputError
 from abcgs.style.fast import FastParams, FastStats, cosine_distance_loss, fast_loss
-from abcgs.style.knn import DEFAULT_MAX_BLOCK_ELEMS, check_feature_pair, cosine_topk
+from abcgs.style.knn import DEFAULT_MAX_BLOCK_ELEMS, StyleFeatures, as_style_features, check_feature_pair, cosine_topk
 
 StyleMethod = Literal["fast", "nnfm", "knnfm", "gram"]
-Groups = Sequence[tuple[torch.Tensor, torch.Tensor]]
+Groups = Sequence[tuple[torch.Tensor, "torch.Tensor | StyleFeatures"]]
 
 
 def _check_groups(groups: Groups, what: str) -> None:
     if len(groups) == 0:
         raise InputError(f"{what}: no matching groups")
     for f_r, f_s in groups:
-        check_feature_pair(f_r, f_s, what)
+        check_feature_pair(f_r, f_s.raw if isinstance(f_s, StyleFeatures) else f_s, what)
 
 
 def knn_average_target(
-    f_r: torch.Tensor, f_s: torch.Tensor, k: int, *, max_block_elems: int = DEFAULT_MAX_BLOCK_ELEMS
+    f_r: torch.Tensor, f_s: torch.Tensor | StyleFeatures, k: int, *, max_block_elems: int = DEFAULT_MAX_BLOCK_ELEMS
 ) -> torch.Tensor:
     """``(C, N_r)``: for each rendered feature, the mean of its k most cosine-similar style features (no grad)."""
-    nn_rs, _ = cosine_topk(f_r, f_s, k, 0, max_block_elems=max_block_elems)
+    style = as_style_features(f_s)
+    nn_rs, _ = cosine_topk(f_r, style, k, 0, max_block_elems=max_block_elems)
     assert nn_rs is not None
     with torch.no_grad():
-        return f_s.detach()[:, nn_rs].mean(dim=2)  # (C, N_r, k) → (C, N_r)
+        return style.raw[:, nn_rs].mean(dim=2)  # (C, N_r, k) → (C, N_r)
 
 
 def nnfm_loss(groups: Groups, *, max_block_elems: int = DEFAULT_MAX_BLOCK_ELEMS) -> torch.Tensor:
@@ -71,7 +73,7 @@ def gram_matrix(f: torch.Tensor) -> torch.Tensor:
 def gram_loss(groups: Groups) -> torch.Tensor:
     """Gatys' style loss summed over groups: ``mean((G(F_r) − G(F_s))²)``."""
     _check_groups(groups, "Gram")
-    return torch.stack([((gram_matrix(f_r) - gram_matrix(f_s.detach())) ** 2).mean() for f_r, f_s in groups]).sum()
+    return torch.stack([((gram_matrix(f_r) - gram_matrix(as_style_features(f_s).raw)) ** 2).mean() for f_r, f_s in groups]).sum()
 
 
 def content_loss(f_render: torch.Tensor, f_content: torch.Tensor) -> torch.Tensor:

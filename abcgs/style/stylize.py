@@ -34,6 +34,7 @@ from abcgs.render import rgb_to_sh0, sh0_to_rgb
 from abcgs.style.color import apply_color_transform, fit_color_transform, preserve_color
 from abcgs.style.fast import FastParams, FastStats
 from abcgs.style.isolation import downsample_mask
+from abcgs.style.knn import StyleFeatures
 from abcgs.style.losses import content_loss, style_loss, tv_loss
 from abcgs.style.matching import ALL_PIXELS, MatchingGroup
 from abcgs.style.vgg import VGG16Features, downsample_half, extract_features
@@ -250,7 +251,7 @@ def style_pass(
     lrs = main_pass_lrs(params)
     opt = _optimizer(m, lrs)
     views = _random_views(len(targets), params.seed)
-    style_feats = [g.features for g in groups]
+    style_feats = [StyleFeatures.of(g.features) for g in groups]  # fixed for the run: prepared once
     bar = progress_bar(range(iterations), "stylize", enabled=progress)
     t_start = time.perf_counter()
     for step in bar:

@@ -93,6 +93,9 @@ class VGG16Features(nn.Module):
     ``forward(img)`` takes RGB ``(B, 3, H, W)`` in ``[0, 1]`` and returns ``{layer: (B, C_l, h_l, w_l)}``
     for every requested layer, each multiplied by ``feature_scale``. Parameters do not require grad, but
     gradients flow to the input.
+
+    The convolutions run in channels-last memory layout unless ``channels_last=False`` (oneDNN's faster
+    path on CPU; ``eval/bench_vgg.py`` times both); the returned maps are in the usual contiguous layout.
     """
 
     def __init__(
@@ -101,9 +104,11 @@ class VGG16Features(nn.Module):
         layers: Sequence[str] = DEFAULT_LAYERS,
         *,
         feature_scale: float = 1.0,
+        channels_last: bool = True,
     ) -> None:
         super().__init__()
         _check_layers(layers)
+        self.memory_format = torch.channels_last if channels_last else torch.contiguous_format
         self.layers = tuple(layers)
         self.feature_scale = float(feature_scale)
         last = max(LAYER_INDEX[n] for n in self.layers)
@@ -120,6 +125,7 @@ class VGG16Features(nn.Module):
         self.features.load_state_dict({k[len("features."):]: state_dict[k].float() for k in wanted})
         for p in self.parameters():
             p.requires_grad_(False)
+        self.features.to(memory_format=self.memory_format)
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
         self._take = {LAYER_INDEX[n]: n for n in self.layers}
@@ -133,12 +139,13 @@ class VGG16Features(nn.Module):
             raise InputError(f"VGG input must be (B, 3, H, W) RGB in [0, 1]; got shape {tuple(img.shape)}")
         if img.shape[2] < 4 or img.shape[3] < 4:
             raise InputError(f"VGG input {img.shape[3]}x{img.shape[2]} is too small (need at least 4x4)")
-        x = (img.to(self.mean.dtype) - self.mean) / self.std
+        x = ((img.to(self.mean.dtype) - self.mean) / self.std).contiguous(memory_format=self.memory_format)
         out: dict[str, torch.Tensor] = {}
         for i, mod in enumerate(self.features):
             x = mod(x)
             if i in self._take:
-                out[self._take[i]] = x * self.feature_scale if self.feature_scale != 1.0 else x
+                f = x.contiguous()
+                out[self._take[i]] = f * self.feature_scale if self.feature_scale != 1.0 else f
         return out
 
 

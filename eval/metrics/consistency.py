@@ -288,15 +288,29 @@ class FlowCache:
     """Flows between original renders, computed once per ordered pair and grid.
 
     ``flows(i, j, hw)``: flow from view ``i`` to view ``j``, both first put on the grid ``hw`` (the grid of
-    the pair's reference view; :func:`on_grid`).
+    the pair's reference view; :func:`on_grid`). :meth:`precomputed` serves stored flows only (the
+    per-scene evaluation reference, :mod:`eval.metrics.reference`).
     """
 
-    def __init__(self, originals: list[np.ndarray], estimator: FlowEstimator | RaftFlow) -> None:
-        self.originals, self.estimator, self._c = originals, estimator, {}
+    def __init__(self, originals: list[np.ndarray], estimator: FlowEstimator | RaftFlow | None,
+                 flows: dict | None = None, provenance: dict | None = None) -> None:
+        self.originals, self.estimator, self._c = originals, estimator, dict(flows or {})
+        self._provenance = provenance
+
+    @classmethod
+    def precomputed(cls, originals: list[np.ndarray], flows: dict, provenance: dict) -> FlowCache:
+        """Stored flows ``{(i, j, (H, W)): (H, W, 2)}`` made by the estimator that ``provenance`` describes."""
+        return cls(originals, None, flows, provenance)
+
+    def provenance(self) -> dict:
+        return self._provenance if self.estimator is None else self.estimator.provenance()
 
     def __call__(self, i: int, j: int, hw: tuple[int, int] | None = None) -> np.ndarray:
         hw = tuple(hw) if hw is not None else tuple(np.shape(self.originals[i])[:2])
         if (i, j, hw) not in self._c:
+            if self.estimator is None:
+                raise InputError(f"no stored flow from view {i} to view {j} on the grid {hw}: the evaluation "
+                                 "reference was made for other pairs; re-run the reference stage")
             self._c[(i, j, hw)] = self.estimator(on_grid(self.originals[i], hw), on_grid(self.originals[j], hw))
         return self._c[(i, j, hw)]
 

@@ -47,6 +47,7 @@ from eval.metrics.fid import (
     random_patches,
     resize_short_side,
 )
+from eval.metrics.reference import SceneReference, evaluated_cameras, render_views
 from eval.metrics.style_distance import GramDistance
 
 log = logging.getLogger(__name__)
@@ -67,16 +68,6 @@ def _versions() -> dict:
         except importlib.metadata.PackageNotFoundError:
             pass
     return out
-
-
-@torch.no_grad()
-def render_views(model: GaussianModel, cameras: list[Camera], backend: str) -> tuple[list[np.ndarray], str]:
-    imgs, used = [], None
-    for cam in cameras:
-        img, _, meta = render(model, cam, backend=backend)
-        imgs.append(img.clamp(0, 1).cpu().numpy().astype(np.float32))
-        used = meta.backend
-    return imgs, used
 
 
 @torch.no_grad()
@@ -108,8 +99,13 @@ def evaluate_images(
     inception: TFInception | None = None,
     view_names: list[str] | None = None,
     vgg_params=None,
+    flows: FlowCache | None = None,
 ) -> EvalResult:
-    """All image metrics for matched lists of original/stylized renders (channels-last, [0, 1])."""
+    """All image metrics for matched lists of original/stylized renders (channels-last, [0, 1]).
+
+    ``flows``: flows between the original renders (e.g. a stored :class:`~eval.metrics.reference.SceneReference`'s);
+    estimated here with ``params.flow`` when not given.
+    """
     check_same_count(originals, stylized)
     for k, (o, s) in enumerate(zip(originals, stylized)):
         check_pair(o, s, f"original and stylized render of view {k}")
@@ -133,7 +129,8 @@ def evaluate_images(
     timings["content_s"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    flows = FlowCache(originals, make_flow_estimator(params.flow, params.raft_weights, params.raft_iterations))
+    if flows is None:
+        flows = FlowCache(originals, make_flow_estimator(params.flow, params.raft_weights, params.raft_iterations))
     short, short_pairs = consistency(originals, stylized, params.short_term_gap, flows, perceptual)
     long, long_pairs = consistency(originals, stylized, params.long_term_gap, flows, perceptual)
     timings["consistency_s"] = time.perf_counter() - t
@@ -211,7 +208,7 @@ def evaluate_images(
         "provenance": {
             "ssim": ssim.provenance(),
             "perceptual": perceptual.info,
-            "flow": flows.estimator.provenance(),
+            "flow": flows.provenance(),
             "occlusion": "forward-backward check |f_fw + f_bw(x+f_fw)|^2 < 0.01(|f_fw|^2+|f_bw|^2) + 0.5 (Sundaram et al. 2010) and target inside the frame",
             "fid_kid": {
                 "inception": inception.provenance(),
@@ -238,27 +235,37 @@ def evaluate_scene(
     *,
     stylize_info: dict | None = None,
     saved_renders: list[np.ndarray] | None = None,
+    reference: SceneReference | None = None,
     **kwargs,
 ) -> EvalResult:
-    """Render both scenes for ``cameras`` (first ``params.max_views``), compute all metrics, time rendering."""
+    """Render both scenes for ``cameras`` (first ``params.max_views``), compute all metrics, time rendering.
+
+    ``reference``: the original scene's stored renders and flows (the per-scene ``reference`` stage; see
+    :mod:`eval.metrics.reference`), used instead of rendering ``original`` and estimating flows here.
+    """
     if params.num_threads is not None:
         old = torch.get_num_threads()
         torch.set_num_threads(params.num_threads)
         try:
             return _evaluate_scene(cameras, original, stylized, style_images, params, stylize_info=stylize_info,
-                                   saved_renders=saved_renders, **kwargs)
+                                   saved_renders=saved_renders, reference=reference, **kwargs)
         finally:
             torch.set_num_threads(old)
     return _evaluate_scene(cameras, original, stylized, style_images, params, stylize_info=stylize_info,
-                           saved_renders=saved_renders, **kwargs)
+                           saved_renders=saved_renders, reference=reference, **kwargs)
 
 
-def _evaluate_scene(cameras, original, stylized, style_images, params, *, stylize_info=None, saved_renders=None, **kwargs):
-    cams = cameras[: params.max_views] if params.max_views else list(cameras)
-    if len(cams) < 2:
-        raise InputError(f"evaluation needs at least 2 views, the scene has {len(cams)}")
+def _evaluate_scene(cameras, original, stylized, style_images, params, *, stylize_info=None, saved_renders=None,
+                    reference=None, **kwargs):
+    cams = evaluated_cameras(cameras, params)
     t = time.perf_counter()
-    originals, backend = render_views(original, cams, params.backend)
+    if reference is not None:
+        if reference.view_names != [c.name for c in cams]:
+            raise InputError("the evaluation reference was made for other views; re-run the reference stage")
+        originals, backend = reference.originals, reference.info.get("render_backend", "stored")
+        kwargs["flows"] = reference.flow_cache()
+    else:
+        originals, backend = render_views(original, cams, params.backend)
     styl, backend_s = render_views(stylized, cams, params.backend)
     render_s = time.perf_counter() - t
     saved_rmse = None
@@ -283,4 +290,6 @@ def _evaluate_scene(cameras, original, stylized, style_images, params, *, styliz
         m["saved_renders_rmse"] = saved_rmse  # re-render vs stylize's 8-bit PNGs: ~quantisation noise expected
     m["eval_timings_s"]["render_s"] = render_s
     m["provenance"]["render_backend"] = {"original": backend, "stylized": backend_s}
+    if reference is not None:
+        m["provenance"]["reference"] = {k: reference.info.get(k) for k in ("model_digest", "n_flows", "timings_s")}
     return res
