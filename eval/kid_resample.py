@@ -33,6 +33,16 @@ from eval.metrics.evaluate import render_views  # noqa: E402
 from eval.metrics.fid import TFInception, mmd2_unbiased, random_patches, resize_short_side  # noqa: E402
 
 
+def _run_dir(runs: Path, record: dict) -> Path | None:
+    """The folder of the study's run ``record``: ``<name>-<digest>`` whose run.json has the record's key (the
+    folder's digest is the study's cache key, which differs from the record's ``key``)."""
+    for d in sorted(runs.glob(f"{record['name']}-*")):
+        rec = d / "run.json"
+        if rec.is_file() and json.loads(rec.read_text()).get("key") == record["key"]:
+            return d
+    return None
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--study", type=Path, required=True, help="the quality study's work folder (with study.json)")
@@ -61,7 +71,7 @@ def main(argv=None) -> dict:
             continue
         renders = {}
         for m, r in mine.items():
-            run_dir = next((args.study / "runs").glob(f"{r['name']}-{r['key']}"), None)
+            run_dir = _run_dir(args.study / "runs", r)
             if run_dir is None or not (run_dir / "point_cloud.ply").is_file():
                 raise InputError(f"run {r['name']} has no point_cloud.ply under {args.study / 'runs'}")
             renders[m], _ = render_views(read_ply(run_dir / "point_cloud.ply"), scene.cameras, "auto")
