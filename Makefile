@@ -79,10 +79,11 @@ SHARED ?= $(abspath ../shared/data)
 FERN_FIT = {iterations: 3000, max_gaussians: 150000, strategy: {refine_start: 300, refine_stop: 1800, reset_every: 1500}}
 FERN_SET = -S "+data.scenes.fern={path: $(SHARED)/scenes/fern, fit: $(FERN_FIT)}" \
   -S "+data.styles.starry=$(SHARED)/styles/starry_night.jpg" -S "+data.styles.udnie=$(SHARED)/styles/udnie.jpg" \
-  -S "+experiments.fern_starry_fast={scene: fern, style: starry, method: fast}" \
-  -S "+experiments.fern_starry_nnfm={scene: fern, style: starry, method: nnfm}" \
-  -S "+experiments.fern_udnie_fast={scene: fern, style: udnie, method: fast}" \
-  -S "+experiments.fern_udnie_nnfm={scene: fern, style: udnie, method: nnfm}" \
+  -S "+colormatches.fern_starry={scene: fern, style: starry}" -S "+colormatches.fern_udnie={scene: fern, style: udnie}" \
+  -S "+experiments.fern_starry_fast={scene: fern, colormatch: fern_starry, method: fast}" \
+  -S "+experiments.fern_starry_nnfm={scene: fern, colormatch: fern_starry, method: nnfm}" \
+  -S "+experiments.fern_udnie_fast={scene: fern, colormatch: fern_udnie, method: fast}" \
+  -S "+experiments.fern_udnie_nnfm={scene: fern, colormatch: fern_udnie, method: nnfm}" \
   -S colormatch.refit_iterations=200 -S stylize.iterations=300
 
 bench-fern: install

@@ -27,7 +27,7 @@ from abcgs.scene.synthetic import TinySceneParams
 from abcgs.sfm.colmap import ReconstructParams
 from abcgs.style.colormatch import ColorMatchParams
 from abcgs.style.content_masks import MaskParams
-from abcgs.style.matching import ExperimentParams, IsolationParams
+from abcgs.style.matching import ExperimentParams, IsolationParams, TransferSpec
 from abcgs.style.stylize import StylizeParams
 from abcgs.style.weights import VggWeightsParams
 from abcgs.view import ViewerParams
@@ -116,9 +116,23 @@ class Params(BaseModel):
     stylize: StylizeParams = Field(default_factory=StylizeParams)
     evaluate: EvalParams = Field(default_factory=EvalParams)
     viewer: ViewerParams = Field(default_factory=ViewerParams)
-    experiments: dict[str, ExperimentParams] = Field(
-        default_factory=dict, description="stylization runs: name → scene, transfer type, style(s), loss method"
+    colormatches: dict[str, TransferSpec] = Field(
+        default_factory=dict,
+        description="colour-matched starts: name → scene, transfer type, painting(s); shared by the experiments naming it",
     )
+    experiments: dict[str, ExperimentParams] = Field(
+        default_factory=dict, description="stylization runs: name → scene, colormatch (a key of colormatches), loss method"
+    )
+
+    def transfer_of(self, experiment: str) -> TransferSpec:
+        """The colour match (scene, transfer type, painting(s)) that ``experiment`` stylizes."""
+        return self.colormatches[self.experiments[experiment].colormatch]
+
+    def experiment_specs(self) -> dict[str, dict]:
+        """Every experiment as one flat record: its colour match's scene/transfer/style(s) and its own fields
+        (what reports and tables show)."""
+        return {name: {**self.transfer_of(name).model_dump(), **exp.model_dump()}
+                for name, exp in self.experiments.items()}
 
     def scene_section(self, scene: str, section: str) -> BaseModel:
         """The ``section`` (``reconstruct`` | ``fit`` | ``masks``) that ``scene``'s stages use: the global section
@@ -150,20 +164,31 @@ class Params(BaseModel):
                     lines = body.splitlines()[1:]
                     raise ValueError(f"{prefix}: the override does not fit `{section}`:\n" + "\n".join(
                         f"    {prefix}.{line.strip()}" for line in lines)) from None
-        for name, exp in self.experiments.items():
-            if exp.scene not in self.data.scenes:
-                raise ValueError(f"experiments.{name}.scene {exp.scene!r} is not in data.scenes ({', '.join(self.data.scenes)})")
-            for key in exp.style_keys():
+        scenes = ", ".join(self.data.scenes)
+        for name, spec in self.colormatches.items():
+            if not name.replace("_", "").replace("-", "").isalnum():
+                raise ValueError(f"colormatches.{name}: the name must be letters, digits, '-' or '_' (it becomes a folder name)")
+            if spec.scene not in self.data.scenes:
+                raise ValueError(f"colormatches.{name}.scene {spec.scene!r} is not in data.scenes ({scenes})")
+            for key in spec.style_keys():
                 if key not in self.data.styles:
-                    raise ValueError(f"experiments.{name} uses style {key!r}, not in data.styles ({', '.join(self.data.styles)})")
-            if exp.transfer == "semantic" and exp.style not in self.data.style_masks:
-                raise ValueError(f"experiments.{name} is semantic but data.style_masks has no label map for {exp.style!r}")
+                    raise ValueError(f"colormatches.{name} uses style {key!r}, not in data.styles ({', '.join(self.data.styles)})")
+            if spec.transfer == "semantic" and spec.style not in self.data.style_masks:
+                raise ValueError(f"colormatches.{name} is semantic but data.style_masks has no label map for {spec.style!r}")
+        for name, exp in self.experiments.items():
+            if exp.colormatch not in self.colormatches:
+                raise ValueError(f"experiments.{name}.colormatch {exp.colormatch!r} is not in colormatches "
+                                 f"({', '.join(self.colormatches) or 'none'})")
+            start = self.colormatches[exp.colormatch]
+            if exp.scene != start.scene:
+                raise ValueError(f"experiments.{name}.scene is {exp.scene!r} but its colour match colormatches."
+                                 f"{exp.colormatch} is on scene {start.scene!r}; make them the same")
         return self
 
 
 def _model_at(model: type[BaseModel], loc: tuple[Any, ...]) -> type[BaseModel] | None:
     """The pydantic model class that owns the key at ``loc`` (for listing allowed keys); ``dict[str, Model]``
-    fields (``data.scenes``, ``experiments``) are followed through their keys."""
+    fields (``data.scenes``, ``colormatches``, ``experiments``) are followed through their keys."""
     current: Any = model
     parts = list(loc[:-1])
     while parts:

@@ -36,7 +36,7 @@ from abcgs.params import load_params  # noqa: E402
 from abcgs.sfm.colmap import read_colmap_scene  # noqa: E402
 from abcgs.style.colormatch import ColorMatchParams, color_match_and_refit  # noqa: E402
 from abcgs.style.losses import gram_matrix  # noqa: E402
-from abcgs.style.matching import ExperimentParams, build_groups, load_style  # noqa: E402
+from abcgs.style.matching import TransferSpec, build_groups, load_style  # noqa: E402
 from abcgs.style.stylize import stylize  # noqa: E402
 from abcgs.style.vgg import VGG16Features, downsample_half, extract_features  # noqa: E402
 from abcgs.style.weights import resolve_vgg16  # noqa: E402
@@ -81,7 +81,7 @@ def main(argv=None) -> dict:
     original = read_ply(base / "gs" / "point_cloud.ply")
     sd, info = resolve_vgg16(params.vgg)
     vgg = VGG16Features(sd, sp.layers, feature_scale=info.feature_scale)
-    exp = ExperimentParams(scene=args.scene.name, transfer="single", style="style", method=args.method)
+    exp = TransferSpec(scene=args.scene.name, transfer="single", style="style")
     groups = build_groups(exp, {"style": str(args.style)}, {}, set(), vgg, style_height=sp.style_height, layers=sp.layers)
     labels = torch.zeros(original.num_gaussians, dtype=torch.long)
     view_labels = [np.zeros((c.height, c.width), np.int64) for c in scene.cameras]

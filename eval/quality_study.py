@@ -51,7 +51,7 @@ from abcgs.io.ply import read_ply, write_ply  # noqa: E402
 from abcgs.params import deep_merge, set_dotted  # noqa: E402
 from abcgs.sfm.colmap import ReconstructParams, read_colmap_scene, reconstruct  # noqa: E402
 from abcgs.style.colormatch import ColorMatchParams, color_match_and_refit  # noqa: E402
-from abcgs.style.matching import ExperimentParams, build_groups, load_style  # noqa: E402
+from abcgs.style.matching import TransferSpec, build_groups, load_style  # noqa: E402
 from abcgs.style.stylize import StylizeParams, StylizeResult, stylize  # noqa: E402
 from abcgs.style.vgg import VGG16Features  # noqa: E402
 from abcgs.style.weights import VggWeightsParams, resolve_vgg16  # noqa: E402
@@ -147,8 +147,8 @@ def _vgg(params: dict, layers) -> tuple[VGG16Features, dict]:
     return VGG16Features(sd, layers, feature_scale=info.feature_scale), info.model_dump()
 
 
-def _groups(style_path: str, method: str, sp: StylizeParams, vgg: VGG16Features):
-    exp = ExperimentParams(scene="scene", transfer="single", style="style", method=method)
+def _groups(style_path: str, sp: StylizeParams, vgg: VGG16Features):
+    exp = TransferSpec(scene="scene", transfer="single", style="style")
     return build_groups(exp, {"style": style_path}, {}, set(), vgg, style_height=sp.style_height, layers=sp.layers)
 
 
@@ -162,7 +162,7 @@ def colormatch_job(job: dict) -> dict:
     original = read_ply(job["ply"])
     sp = StylizeParams(**job["stylize"])
     vgg, _ = _vgg(job, sp.layers)
-    groups = _groups(job["style_path"], "fast", sp, vgg)
+    groups = _groups(job["style_path"], sp, vgg)
     labels = torch.zeros(original.num_gaussians, dtype=torch.long)
     view_labels = [np.zeros((c.height, c.width), np.int64) for c in scene.cameras]
     t0 = time.perf_counter()
@@ -190,7 +190,7 @@ def run_job(job: dict) -> dict:
         model = matched if job["method"] == "colormatch" else original
         res = StylizeResult(model=model, history=[], timings={}, fast_stats={}, seconds=0.0)
     else:
-        groups = _groups(job["style_path"], job["method"], sp, vgg)
+        groups = _groups(job["style_path"], sp, vgg)
         labels = torch.zeros(matched.num_gaussians, dtype=torch.long)
         view_labels = [np.zeros((c.height, c.width), np.int64) for c in scene.cameras]
         res = stylize(matched, scene.cameras, view_labels, labels, groups, vgg, sp, method=job["method"],

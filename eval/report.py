@@ -176,7 +176,7 @@ if __name__ == "__main__":  # python -m eval.report [--markdown]: print the tabl
     ap.add_argument("--only", help="regular expression: report only the experiments whose name matches")
     a = ap.parse_args()
     params = load_params(a.params)
-    specs = {k: v.model_dump() for k, v in params.experiments.items()}
+    specs = params.experiment_specs()
     if a.only:
         import re
 

@@ -25,7 +25,7 @@ from abcgs.io.images import load_image, save_image  # noqa: E402
 from abcgs.io.metrics import experiment_headline, read_record, write_headline, write_metrics  # noqa: E402
 from abcgs.io.ply import read_ply  # noqa: E402
 from abcgs.pipeline import run_stage, stage_parser  # noqa: E402
-from abcgs.style.experiment import experiment, load_scene  # noqa: E402
+from abcgs.style.experiment import colormatch_spec, experiment, load_scene  # noqa: E402
 from abcgs.viz import image_grid  # noqa: E402
 from eval.metrics.evaluate import evaluate_scene  # noqa: E402
 from eval.metrics.reference import load_reference, model_digest  # noqa: E402
@@ -62,20 +62,22 @@ def load_stylize_run(root: Path, name: str, n_views: int, view_stems: list[str])
 def main(args, params) -> None:
     ep = params.evaluate
     exp = experiment(params, args.experiment)
+    spec = colormatch_spec(params, exp.colormatch)
     scene, original = load_scene(args.root, exp.scene)
     stems = [Path(c.name).stem for c in scene.cameras]
     ply, info, pngs = load_stylize_run(args.root, args.experiment, len(scene.cameras), stems)
     stylized = read_ply(ply)
     n = min(len(scene.cameras), ep.max_views or len(scene.cameras))
     saved = [load_image(p) for p in pngs[:n]]
-    styles = [load_image(params.data.styles[k]) for k in exp.style_keys()]
+    styles = [load_image(params.data.styles[k]) for k in spec.style_keys()]
     ref_dir = args.reference or args.root / exp.scene / "reference"
     reference = load_reference(ref_dir, scene.cameras, ep, scene=exp.scene,
                                model_digest=model_digest(args.root / exp.scene / "gs" / "point_cloud.ply"))
     res = evaluate_scene(scene.cameras, original, stylized, styles, ep, stylize_info=info, saved_renders=saved,
                          vgg_params=params.vgg, reference=reference)
-    metrics = {"experiment": args.experiment, "scene": exp.scene, "transfer": exp.transfer, "method": exp.method,
-               "styles": {k: params.data.styles[k] for k in exp.style_keys()}, **res.metrics}
+    metrics = {"experiment": args.experiment, "scene": exp.scene, "colormatch": exp.colormatch,
+               "transfer": spec.transfer, "method": exp.method,
+               "styles": {k: params.data.styles[k] for k in spec.style_keys()}, **res.metrics}
     out = Path(args.out)
     views = Path(args.views) if args.views else out.with_name("eval_views.csv")
     heat = Path(args.heatmap) if args.heatmap else out.with_name("eval_consistency.png")

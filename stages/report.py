@@ -18,7 +18,7 @@ from eval.report import load_runs, render_html, summary_png  # noqa: E402
 
 
 def main(args, params) -> None:
-    runs = load_runs(args.root, {k: v.model_dump() for k, v in params.experiments.items()})
+    runs = load_runs(args.root, params.experiment_specs())
     viewer = None
     if params.viewer.enabled:
         exps = [load_experiment(args.root / name, scene=exp.scene, root=args.root,

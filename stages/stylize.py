@@ -17,6 +17,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from abcgs.camera_paths import camera_path  # noqa: E402
+from abcgs.errors import InputError  # noqa: E402
 from abcgs.fit.trainer import torch_threads  # noqa: E402
 from abcgs.gaussians import render  # noqa: E402
 from abcgs.io.atomic import atomic_path, write_text  # noqa: E402
@@ -25,7 +26,15 @@ from abcgs.io.metrics import write_metrics  # noqa: E402
 from abcgs.io.ply import read_ply, write_ply  # noqa: E402
 from abcgs.pipeline import run_stage, stage_parser  # noqa: E402
 from abcgs.style.content_masks import colorize_labels  # noqa: E402
-from abcgs.style.experiment import experiment, load_groups, load_scene, load_scene_masks, load_vgg  # noqa: E402
+from abcgs.style.experiment import (  # noqa: E402
+    colormatch_dir,
+    colormatch_spec,
+    experiment,
+    load_groups,
+    load_scene,
+    load_scene_masks,
+    load_vgg,
+)
 from abcgs.style.matching import ALL_PIXELS  # noqa: E402
 from abcgs.style.stylize import stylize  # noqa: E402
 from abcgs.viz import image_grid, style_legend, write_video  # noqa: E402
@@ -39,6 +48,14 @@ def history_csv(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def read_colormatch(folder: Path, name: str):
+    """The colour-matched Gaussians of stage ``colormatch@<name>``, with a clear error when it has not run."""
+    ply = folder / "point_cloud.ply"
+    if not ply.is_file():
+        raise InputError(f"{ply} is missing: run the colour match first (dvc repro colormatch@{name})")
+    return read_ply(ply)
+
+
 def main(args, params) -> None:
     with torch_threads(params.stylize.threads):
         _main(args, params)
@@ -47,11 +64,12 @@ def main(args, params) -> None:
 def _main(args, params) -> None:
     exp = experiment(params, args.experiment)
     sp = params.stylize
+    spec = colormatch_spec(params, exp.colormatch)
     scene, original = load_scene(args.root, exp.scene)
-    matched = read_ply(args.root / args.experiment / "colormatch" / "point_cloud.ply")
+    matched = read_colormatch(colormatch_dir(args.root, exp.scene, exp.colormatch), exp.colormatch)
     masks = load_scene_masks(args.root / exp.scene / "masks", scene, original.num_gaussians)
     vgg, info = load_vgg(params)
-    groups = load_groups(params, exp, vgg, masks.gaussian_labels)
+    groups = load_groups(params, spec, vgg, masks.gaussian_labels)
     cams = [c.scaled(sp.resolution_scale) if sp.resolution_scale != 1.0 else c for c in scene.cameras]
     labels = masks.view_labels
     if sp.resolution_scale != 1.0:
@@ -85,7 +103,7 @@ def _main(args, params) -> None:
     write_text(args.history, history_csv(res.history))
     n_it = max(1, res.timings.get("iterations", 1))
     write_metrics(args.metrics, {
-        "experiment": args.experiment, "method": exp.method, "transfer": exp.transfer,
+        "experiment": args.experiment, "method": exp.method, "colormatch": exp.colormatch, "transfer": spec.transfer,
         "stylize_seconds": res.seconds, "iterations": int(res.timings.get("iterations", 0)),
         "seconds_per_iteration": {k: v / n_it for k, v in res.timings.items() if k != "iterations"},
         "render_fps": fps, "fast": res.fast_stats, "n_gaussians": res.model.num_gaussians,

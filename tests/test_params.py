@@ -62,14 +62,44 @@ def test_out_of_range_value(raw) -> None:
     assert "fit.sh_degree" in _error(bad)
 
 
-def test_experiment_must_name_known_scene_and_styles(raw) -> None:
+def test_colormatch_must_name_known_scene_and_styles(raw) -> None:
     bad = copy.deepcopy(raw)
-    bad["experiments"]["x"] = {"scene": "nope", "transfer": "single", "style": "tiny_paint"}
-    assert "not in data.scenes" in _error(bad)
-    bad["experiments"]["x"] = {"scene": "tiny", "transfer": "single", "style": "nope"}
+    bad["colormatches"]["x"] = {"scene": "nope", "transfer": "single", "style": "tiny_paint"}
+    assert "colormatches.x.scene 'nope' is not in data.scenes" in _error(bad)
+    bad["colormatches"]["x"] = {"scene": "tiny", "transfer": "single", "style": "nope"}
     assert "not in data.styles" in _error(bad)
-    bad["experiments"]["x"] = {"scene": "tiny", "transfer": "compositional"}
+    bad["colormatches"]["x"] = {"scene": "tiny", "transfer": "compositional"}
     assert "needs 'styles'" in _error(bad)
+    del bad["colormatches"]["x"]
+    bad["colormatches"]["x y"] = {"scene": "tiny", "transfer": "single", "style": "tiny_paint"}
+    assert "becomes a folder name" in _error(bad)
+
+
+def test_experiment_names_a_known_colormatch_on_its_scene(raw) -> None:
+    bad = copy.deepcopy(raw)
+    bad["experiments"]["x"] = {"scene": "tiny", "colormatch": "nope", "method": "nnfm"}
+    assert "experiments.x.colormatch 'nope' is not in colormatches" in _error(bad)
+    bad["data"]["scenes"]["other"] = {"path": "data/tiny"}
+    bad["experiments"]["x"] = {"scene": "other", "colormatch": "tiny_single", "method": "nnfm"}
+    assert "is on scene 'tiny'; make them the same" in _error(bad)
+    bad["experiments"]["x"] = {"scene": "tiny", "colormatch": "tiny_single", "method": "adain"}
+    assert "experiments.x.method" in _error(bad)
+
+
+def test_the_old_experiment_layout_says_where_its_keys_went(raw) -> None:
+    bad = copy.deepcopy(raw)
+    bad["experiments"]["x"] = {"scene": "tiny", "transfer": "single", "style": "tiny_paint", "method": "fast"}
+    msg = _error(bad)
+    assert "moved to a `colormatches` entry" in msg and "colormatch: NAME" in msg
+
+
+def test_experiments_differing_in_method_share_one_colormatch(raw) -> None:
+    ok = copy.deepcopy(raw)
+    ok["experiments"]["tiny_single_nnfm"] = {**ok["experiments"]["tiny_single"], "method": "nnfm"}
+    params = validate_params(ok)
+    assert params.transfer_of("tiny_single_nnfm") is params.transfer_of("tiny_single")
+    spec = params.experiment_specs()["tiny_single_nnfm"]
+    assert spec["transfer"] == "single" and spec["style"] == "tiny_paint" and spec["method"] == "nnfm"
 
 
 def test_missing_section_and_non_mapping() -> None:

@@ -232,9 +232,10 @@ def test_a_scene_override_reruns_only_that_scenes_branch(repo: Path, first_repro
 
 
 def test_experiments_of_one_scene_share_its_stages(repo: Path, first_repro) -> None:
-    """Issue 13: a second experiment on the tiny scene (same painting, NNFM) runs its own colormatch, stylize and
-    evaluate, but not the scene's stages (fit, masks, and the evaluation reference of original renders and
-    flows); the reference follows the flow settings, not the metric settings."""
+    """Issue 13: a second experiment on the tiny scene (same painting, NNFM) runs only its own stylize and
+    evaluate: not the scene's stages (fit, masks, the evaluation reference of original renders and flows) and
+    not the colour match of its painting, which it shares with the FAST experiment. The reference follows the
+    flow settings, not the metric settings; the colour match follows the fit, not `stylize`."""
     original = (repo / "params.yaml").read_text()
     params = yaml.safe_load(original)
     params["experiments"]["tiny_single_nnfm"] = {**params["experiments"]["tiny_single"], "method": "nnfm"}
@@ -243,7 +244,7 @@ def test_experiments_of_one_scene_share_its_stages(repo: Path, first_repro) -> N
         proc = _run(["dvc", "repro", "evaluate@tiny_single_nnfm"], repo)
         assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
         ran = set(re.findall(r"Running stage '([^']+)'", proc.stdout))
-        assert ran == {"colormatch@tiny_single_nnfm", "stylize@tiny_single_nnfm", "evaluate@tiny_single_nnfm"}, ran
+        assert ran == {"stylize@tiny_single_nnfm", "evaluate@tiny_single_nnfm"}, ran
         info = json.loads((repo / "out/tiny_single_nnfm/eval_info.json").read_text())
         assert info["method"] == "nnfm" and info["provenance"]["reference"]["n_flows"] > 0
         params["evaluate"]["fid_patch_size"] += 8  # a metric setting: every evaluate, not the reference
@@ -253,6 +254,16 @@ def test_experiments_of_one_scene_share_its_stages(repo: Path, first_repro) -> N
         params["evaluate"]["long_term_gap"] += 1  # a flow setting: the reference too
         (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
         assert "reference@tiny" in _changed_stages(repo)
+        params["stylize"]["lambda_style"] *= 2  # a stylization setting: the stylize runs, not their colour match
+        (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+        changed = _changed_stages(repo)
+        assert "stylize@tiny_single_nnfm" in changed and "colormatch@tiny_single" not in changed, changed
+        params["fit"]["iterations"] += 1  # the fit: re-run, and the colour matches of its scene downstream of it
+        (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+        assert "fit@tiny" in _changed_stages(repo)
+        dag = _run(["dvc", "dag", "--dot", "stylize@tiny_single_nnfm"], repo).stdout
+        assert '"fit@tiny" -> "colormatch@tiny_single";' in dag, dag
+        assert '"colormatch@tiny_single" -> "stylize@tiny_single_nnfm";' in dag, dag
     finally:
         (repo / "params.yaml").write_text(original)
         shutil.rmtree(repo / "out" / "tiny_single_nnfm", ignore_errors=True)  # see the scene-override test

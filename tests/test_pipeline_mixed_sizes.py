@@ -19,6 +19,7 @@ def _mixed(params: dict) -> None:
     params["fit"]["iterations"] = 200
     params["colormatch"]["refit_iterations"] = 10
     params["stylize"].update(iterations=10, color_pass_iterations=5)
+    params["colormatches"] = {"tiny_single": params["colormatches"]["tiny_single"]}
     params["experiments"] = {"tiny_single": params["experiments"]["tiny_single"]}
 
 

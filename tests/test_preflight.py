@@ -17,7 +17,7 @@ from abcgs.preflight import check_dvc_tracked_keys, check_input_files, dvc_outpu
 
 DVC = {"stages": {
     "make": {"cmd": "x", "outs": ["data/made"]},
-    "colormatch": {"foreach": "${experiments}", "do": {"cmd": "x", "params": ["experiments.${key}", "data.styles",
+    "colormatch": {"foreach": "${colormatches}", "do": {"cmd": "x", "params": ["colormatches.${key}", "data.styles",
                                                                                 "data.style_masks", "colormatch"],
                                                           "outs": ["out/${key}/colormatch", {"out/rec.json": {"cache": False}}]}},
 }}
@@ -107,11 +107,11 @@ def test_schema_errors_do_not_print_the_whole_params(tmp_path) -> None:
     with pytest.raises(ParamsError, match=r"stylize\.iterations: .*\(got 'many'\)"):  # a scalar culprit is shown
         validate_params({"data": {"scenes": {"s": "scene"}}, "stylize": {"iterations": "many"}})
     raw = {"data": {"scenes": {"s": "scene"}, "styles": {}},
-           "experiments": {"e": {"scene": "s", "transfer": "single", "style": "missing", "method": "fast"}}}
+           "colormatches": {"e": {"scene": "s", "transfer": "single", "style": "missing"}}}
     with pytest.raises(ParamsError) as exc:
         validate_params(raw)
     msg = str(exc.value)
-    assert "experiments.e uses style 'missing'" in msg
+    assert "colormatches.e uses style 'missing'" in msg
     assert "'scenes'" not in msg and "{'data'" not in msg  # the mapping behind a cross-check is not printed
 
 

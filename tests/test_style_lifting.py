@@ -12,7 +12,7 @@ from abcgs.gaussians import GaussianModel
 from abcgs.io.images import save_image, save_labels
 from abcgs.render import rgb_to_sh0
 from abcgs.style.lifting import LiftParams, lift_labels, one_hot_labels, render_label_map
-from abcgs.style.matching import ALL_PIXELS, ExperimentParams, build_groups, load_style
+from abcgs.style.matching import ALL_PIXELS, TransferSpec, build_groups, load_style
 from abcgs.style.stylize import StylizeParams, stylize
 from abcgs.style.vgg import VGG16Features, random_state_dict
 
@@ -98,12 +98,12 @@ def styles(tmp_path):
 
 
 def test_build_groups_for_each_transfer_type(vgg, styles) -> None:
-    single = build_groups(ExperimentParams(scene="s", style="paint"), styles, {}, {1, 2}, vgg, style_height=64)
+    single = build_groups(TransferSpec(scene="s", style="paint"), styles, {}, {1, 2}, vgg, style_height=64)
     assert len(single) == 1 and single[0].content_label == ALL_PIXELS and single[0].features.shape[0] == 768
-    comp = build_groups(ExperimentParams(scene="s", transfer="compositional", styles={1: "paint", 2: "paint"}),
+    comp = build_groups(TransferSpec(scene="s", transfer="compositional", styles={1: "paint", 2: "paint"}),
                         styles, {}, {1, 2}, vgg, style_height=64)
     assert [g.content_label for g in comp] == [1, 2]
-    sem = build_groups(ExperimentParams(scene="s", transfer="semantic", style="paint"), styles,
+    sem = build_groups(TransferSpec(scene="s", transfer="semantic", style="paint"), styles,
                        {"paint": styles["labels"]}, {1, 2}, vgg, style_height=64)
     assert [g.content_label for g in sem] == [1, 2]
     # the region's pixels only: colour statistics come from that half of the painting
@@ -116,18 +116,18 @@ def test_build_groups_errors(vgg, styles) -> None:
     with pytest.raises(InputError, match="could not be decoded"):
         load_style(styles["broken"], 64)
     with pytest.raises(InputError, match="not in data.styles"):
-        build_groups(ExperimentParams(scene="s", style="nope"), styles, {}, {1}, vgg)
+        build_groups(TransferSpec(scene="s", style="nope"), styles, {}, {1}, vgg)
     with pytest.raises(InputError, match=r"content label\(s\) \[7\]"):
-        build_groups(ExperimentParams(scene="s", transfer="compositional", styles={7: "paint"}), styles, {}, {1, 2}, vgg)
+        build_groups(TransferSpec(scene="s", transfer="compositional", styles={7: "paint"}), styles, {}, {1, 2}, vgg)
     with pytest.raises(InputError, match="style label 5 .* has no pixels"):
-        build_groups(ExperimentParams(scene="s", transfer="semantic", style="paint", binding={1: 5}), styles,
+        build_groups(TransferSpec(scene="s", transfer="semantic", style="paint", binding={1: 5}), styles,
                      {"paint": styles["labels"]}, {1, 2}, vgg, style_height=64)
 
 
 def test_stylize_reduces_style_loss_and_stops_on_nan(vgg, styles) -> None:
     model, truth = _two_blob_scene(2)
     cams = _cameras(3)
-    groups = build_groups(ExperimentParams(scene="s", style="paint"), styles, {}, {1, 2}, vgg, style_height=64)
+    groups = build_groups(TransferSpec(scene="s", style="paint"), styles, {}, {1, 2}, vgg, style_height=64)
     labels = [np.zeros((H, W), np.int64)] * len(cams)
     params = StylizeParams(iterations=12, log_every=1, downsample_render=False, lambda_depth=0.0, lr_sh0=0.05,
                            color_pass_iterations=3)
@@ -161,7 +161,7 @@ def test_authors_preset_freezes_means_and_color_pass_freezes_geometry(vgg, style
     """lr 0 leaves a field bit-identical; the colour pass moves colours toward the style palette only."""
     model, truth = _two_blob_scene(3)
     cams = _cameras(3)
-    groups = build_groups(ExperimentParams(scene="s", style="paint"), styles, {}, {1, 2}, vgg, style_height=64)
+    groups = build_groups(TransferSpec(scene="s", style="paint"), styles, {}, {1, 2}, vgg, style_height=64)
     labels = [np.zeros((H, W), np.int64)] * len(cams)
     params = StylizeParams(iterations=4, lr_preset="authors_code", downsample_render=False, lambda_depth=0.0,
                            color_pass_iterations=0)

@@ -1,11 +1,11 @@
 """Glue for the stylization stages: load what an experiment needs and write what it produces.
 
-Layout (per scene ``S`` and experiment ``E``):
+Layout (per scene ``S``, colour match ``M`` = ``colormatches.M`` and experiment ``E``):
 
     out/S/colmap/{sparse,images,masks}        reconstruct
     out/S/gs/point_cloud.ply                   fit
     out/S/masks/{gaussian_labels.npy, views/*.png, overlay.png, masks.json}   masks
-    out/E/colormatch/{point_cloud.ply, colormatch.json}                       colormatch
+    out/S/colormatch/M/{point_cloud.ply, colormatch.json, recolored.png}     colormatch (shared by E's naming M)
     out/E/stylize/{point_cloud.ply, renders/, grid.png, turntable.mp4, ...}   stylize
 """
 
@@ -24,7 +24,7 @@ from abcgs.io.images import load_labels
 from abcgs.io.ply import read_ply
 from abcgs.params import Params
 from abcgs.sfm.colmap import SceneData, read_colmap_scene
-from abcgs.style.matching import ExperimentParams, MatchingGroup, build_groups
+from abcgs.style.matching import ExperimentParams, MatchingGroup, TransferSpec, build_groups
 from abcgs.style.vgg import VGG16Features
 from abcgs.style.weights import WeightsInfo, resolve_vgg16
 
@@ -38,6 +38,20 @@ def experiment(params: Params, name: str) -> ExperimentParams:
     if exp.scene not in params.data.scenes:
         raise InputError(f"experiment {name!r} names scene {exp.scene!r}, not in data.scenes ({', '.join(params.data.scenes)})")
     return exp
+
+
+def colormatch_spec(params: Params, name: str) -> TransferSpec:
+    """``colormatches.<name>``: the scene, transfer type and painting(s) of a colour-matched start."""
+    if name not in params.colormatches:
+        raise InputError(f"colour match {name!r} is not in params.yaml colormatches "
+                         f"(known: {', '.join(params.colormatches) or 'none'})")
+    return params.colormatches[name]
+
+
+def colormatch_dir(out_root: Path, scene: str, name: str) -> Path:
+    """Where stage ``colormatch@<name>`` writes: ``out/<scene>/colormatch/<name>`` (a per-scene output, shared by
+    every experiment that names it)."""
+    return out_root / scene / "colormatch" / name
 
 
 def load_vgg(params: Params) -> tuple[VGG16Features, WeightsInfo]:
@@ -64,10 +78,10 @@ def load_scene_masks(masks_dir: Path, scene: SceneData, n_gaussians: int) -> Sce
     return SceneMasks(labels, views)
 
 
-def load_groups(params: Params, exp: ExperimentParams, vgg: VGG16Features, labels: torch.Tensor) -> list[MatchingGroup]:
+def load_groups(params: Params, spec: TransferSpec, vgg: VGG16Features, labels: torch.Tensor) -> list[MatchingGroup]:
     present = {int(v) for v in torch.unique(labels)} - {0}
     return build_groups(
-        exp, params.data.styles, params.data.style_masks, present, vgg,
+        spec, params.data.styles, params.data.style_masks, present, vgg,
         style_height=params.stylize.style_height, isolation=params.isolation, layers=params.stylize.layers,
     )
 

@@ -29,8 +29,10 @@ ALL_PIXELS = -1
 """Content label of the single-image group: every pixel."""
 
 
-class ExperimentParams(BaseModel):
-    """One stylization experiment (``params.yaml``: ``experiments.<name>``)."""
+class TransferSpec(BaseModel):
+    """What a colour-matched start is made from (``params.yaml``: ``colormatches.<name>``): a scene, a transfer
+    type and its painting(s). Experiments that differ only in the loss method name the same one and share its
+    colour match (stage ``colormatch@<name>``)."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -41,10 +43,9 @@ class ExperimentParams(BaseModel):
     binding: dict[int, int] | Literal["auto"] = Field(
         "auto", description="semantic: content label → style label of the painting's label map (auto: same number)"
     )
-    method: Literal["fast", "nnfm", "knnfm", "gram"] = Field("fast", description="style loss (fast = ABC-GS)")
 
     @model_validator(mode="after")
-    def _check(self) -> ExperimentParams:
+    def _check(self) -> TransferSpec:
         if self.transfer in ("single", "semantic") and not self.style:
             raise ValueError(f"transfer {self.transfer!r} needs 'style' (a key of data.styles)")
         if self.transfer == "compositional" and not self.styles:
@@ -53,6 +54,33 @@ class ExperimentParams(BaseModel):
 
     def style_keys(self) -> list[str]:
         return sorted(set(self.styles.values())) if self.transfer == "compositional" else [self.style]
+
+
+StyleLossMethod = Literal["fast", "nnfm", "knnfm", "gram"]
+
+
+class ExperimentParams(BaseModel):
+    """One stylization run (``params.yaml``: ``experiments.<name>``): a colour-matched start × a style loss.
+
+    ``scene`` repeats the start's scene because ``dvc.yaml`` needs it for the experiment's dependencies (DVC
+    cannot look one params entry up through another); the schema checks that the two agree.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    scene: str = Field(description="a key of data.scenes (the colour match's scene)")
+    colormatch: str = Field(description="a key of colormatches: the scene, transfer type and painting(s)")
+    method: StyleLossMethod = Field("fast", description="style loss (fast = ABC-GS)")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _old_layout(cls, data):
+        if isinstance(data, dict) and "colormatch" not in data and {"transfer", "style", "styles"} & set(data):
+            raise ValueError(
+                "the scene, transfer type and painting(s) of an experiment moved to a `colormatches` entry, which "
+                "experiments differing only in `method` share: write e.g. colormatches: {NAME: {scene: S, transfer: "
+                "single, style: P}} and experiments.E: {scene: S, colormatch: NAME, method: fast}")
+        return data
 
 
 class IsolationParams(BaseModel):
@@ -91,7 +119,7 @@ def load_style(path: str, height: int) -> np.ndarray:
 
 
 def build_groups(
-    exp: ExperimentParams,
+    exp: TransferSpec,
     style_paths: dict[str, str],
     style_mask_paths: dict[str, str],
     content_labels: set[int],
@@ -101,7 +129,8 @@ def build_groups(
     isolation: IsolationParams | None = None,
     layers: list[str] | None = None,
 ) -> list[MatchingGroup]:
-    """Resolve an experiment into matching groups, with clear errors for unknown styles/labels."""
+    """Resolve a transfer (scene × type × painting(s)) into matching groups, with clear errors for unknown
+    styles/labels."""
     isolation = isolation or IsolationParams()
     for key in exp.style_keys():
         if key not in style_paths:
