@@ -67,6 +67,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--refit-iterations", type=int, default=200)
     ap.add_argument("--method", default="fast", choices=["fast", "nnfm", "knnfm", "gram"])
     ap.add_argument("--threads", type=int, default=0)
+    ap.add_argument("--knn-search", choices=["auto", "exact", "bf16"], default=None,
+                    help="override stylize.fast.knn_search (the neighbour search of FAST/NNFM/KNNFM)")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     if args.threads:
@@ -76,6 +78,8 @@ def main(argv=None) -> dict:
     update = {k: v for k, v in (("iterations", args.iterations), ("color_pass_iterations", args.color_pass_iterations))
               if v is not None}
     sp = params.stylize.model_copy(update=update)
+    if args.knn_search is not None:
+        sp = sp.model_copy(update={"fast": sp.fast.model_copy(update={"knn_search": args.knn_search})})
     base = args.work / args.scene.name
     scene = read_colmap_scene(base / "colmap" / "sparse", base / "colmap" / "images")
     original = read_ply(base / "gs" / "point_cloud.ply")

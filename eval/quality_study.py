@@ -92,7 +92,7 @@ class RunSpec:
         return METHOD_LABELS.get((self.method, self.variant), f"{self.method} ({self.variant})")
 
 
-RUNTIME_KEYS = ("threads", "backend", "log_every", "num_threads", "max_block_elems")
+RUNTIME_KEYS = ("threads", "backend", "log_every", "num_threads", "max_block_elems", "knn_search")
 """How a run executes, not what it computes: left out of the cache keys, at any depth (``stylize.fast.max_block_elems``
 is the similarity tile size: the same neighbours, up to float summation order)."""
 

@@ -221,11 +221,13 @@ def test_cosine_axes_differ_and_channel_axis_is_per_row():
         fast.FastParams(cosine="row")
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 @pytest.mark.parametrize("n_rows, k", [(1000, 5), (1003, 3), (161, 5), (40, 5)])
-def test_topk_rows_of_columns_matches_torch_topk(n_rows, k):
-    """The block pre-selection gives exactly torch.topk along dim 0 (padding and the small-matrix path too)."""
+def test_topk_rows_of_columns_matches_torch_topk(n_rows, k, dtype):
+    """Exactly torch.topk along dim 0: float32 through the CPU kernels' one-pass column top-k (where built), float64
+    through the block pre-selection (padding and the small-matrix path too)."""
     g = torch.Generator().manual_seed(n_rows)
-    sim = torch.rand(n_rows, 37, generator=g) * 2 - 1
+    sim = (torch.rand(n_rows, 37, generator=g, dtype=torch.float64) * 2 - 1).to(dtype)
     vals, idx = knn.topk_rows_of_columns(sim, k)
     ref = sim.topk(k, dim=0)
     assert torch.equal(vals, ref.values) and torch.equal(idx, ref.indices)

@@ -5,7 +5,9 @@ and ninja, both installed by ``make``) and cached under ``$ABCGS_CACHE`` (defaul
 in a folder keyed by the source hash, the torch version and the compiler flags, so later processes load it
 in well under a second. If the build fails, :func:`load_extension` raises :class:`BackendUnavailable` with
 the compiler's message; ``rasterize(backend="auto")`` then falls back to the reference backend with a
-warning.
+warning. The same extension carries two similarity-search helpers of the style losses (``csrc/knn_cpu.cpp``:
+``topk_columns``, ``pair_dots``; used by :mod:`abcgs.style.knn`, which has torch fallbacks for both), so that
+they share its build and its threads.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from torch import Tensor
 
 from abcgs.render.projection import Projected
 
-_SOURCES = [Path(__file__).parent / "csrc" / n for n in ("rasterize_cpu.cpp", "projection_cpu.cpp")]
+_SOURCES = [Path(__file__).parent / "csrc" / n for n in ("rasterize_cpu.cpp", "projection_cpu.cpp", "knn_cpu.cpp")]
 _HEADERS = [Path(__file__).parent / "csrc" / "parallel.h"]
 _FLAGS = ["-O3", "-march=native", "-ffp-contract=off", "-std=c++17"]
 log = logging.getLogger(__name__)

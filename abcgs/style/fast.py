@@ -42,6 +42,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from abcgs.errors import InputError, NumericalError
 from abcgs.style.knn import (
     DEFAULT_MAX_BLOCK_ELEMS,
+    KnnSearch,
     StyleFeatures,
     as_style_features,
     check_feature_pair,
@@ -67,6 +68,10 @@ class FastParams(BaseModel):
     """Ridge added to ``F_r D_r F_rᵀ`` before solving (the authors' value)."""
     max_block_elems: int = Field(DEFAULT_MAX_BLOCK_ELEMS, ge=1)
     """Largest number of similarities held at once (tile size of the N_r × N_s similarity)."""
+    knn_search: KnnSearch = "auto"
+    """Neighbour search: ``exact`` (float32), ``bf16`` (certified: the same neighbours from a bfloat16 product and
+    exact re-ranking) or ``auto`` (bf16 on CPUs with native bf16 for large searches); see :mod:`abcgs.style.knn`.
+    A runtime knob: it does not change the result (up to ties within float32 rounding)."""
     solve_dtype: Literal["float64", "float32"] = "float64"
 
 
@@ -190,7 +195,9 @@ def alignment_matrix(
     params = params or FastParams()
     style = as_style_features(f_s)
     check_feature_pair(f_r, style.raw, "FAST")
-    rows, cols = mutual_knn_pairs(f_r, style, params.k, max_block_elems=params.max_block_elems)
+    rows, cols = mutual_knn_pairs(
+        f_r, style, params.k, max_block_elems=params.max_block_elems, search=params.knn_search
+    )
     if stats is not None:
         stats.last_pairs = rows.numel()
         stats.pairs_total += rows.numel()

@@ -22,7 +22,14 @@ import torch
 
 from abcgs.errors import InputError
 from abcgs.style.fast import FastParams, FastStats, cosine_distance_loss, fast_loss
-from abcgs.style.knn import DEFAULT_MAX_BLOCK_ELEMS, StyleFeatures, as_style_features, check_feature_pair, cosine_topk
+from abcgs.style.knn import (
+    DEFAULT_MAX_BLOCK_ELEMS,
+    KnnSearch,
+    StyleFeatures,
+    as_style_features,
+    check_feature_pair,
+    cosine_topk,
+)
 
 StyleMethod = Literal["fast", "nnfm", "knnfm", "gram"]
 Groups = Sequence[tuple[torch.Tensor, "torch.Tensor | StyleFeatures"]]
@@ -36,31 +43,49 @@ def _check_groups(groups: Groups, what: str) -> None:
 
 
 def knn_average_target(
-    f_r: torch.Tensor, f_s: torch.Tensor | StyleFeatures, k: int, *, max_block_elems: int = DEFAULT_MAX_BLOCK_ELEMS
+    f_r: torch.Tensor,
+    f_s: torch.Tensor | StyleFeatures,
+    k: int,
+    *,
+    max_block_elems: int = DEFAULT_MAX_BLOCK_ELEMS,
+    search: KnnSearch = "exact",
 ) -> torch.Tensor:
-    """``(C, N_r)``: for each rendered feature, the mean of its k most cosine-similar style features (no grad)."""
+    """``(C, N_r)``: for each rendered feature, the mean of its k most cosine-similar style features (no grad).
+
+    ``search``: :func:`abcgs.style.knn.cosine_topk`'s (``exact``, certified ``bf16`` or ``auto``; same neighbours).
+    """
     style = as_style_features(f_s)
-    nn_rs, _ = cosine_topk(f_r, style, k, 0, max_block_elems=max_block_elems)
+    nn_rs, _ = cosine_topk(f_r, style, k, 0, max_block_elems=max_block_elems, search=search)
     assert nn_rs is not None
     with torch.no_grad():
         return style.raw[:, nn_rs].mean(dim=2)  # (C, N_r, k) → (C, N_r)
 
 
-def nnfm_loss(groups: Groups, *, max_block_elems: int = DEFAULT_MAX_BLOCK_ELEMS) -> torch.Tensor:
+def nnfm_loss(
+    groups: Groups, *, max_block_elems: int = DEFAULT_MAX_BLOCK_ELEMS, search: KnnSearch = "exact"
+) -> torch.Tensor:
     """ARF's NNFM loss summed over groups (chunked nearest-neighbour search)."""
     _check_groups(groups, "NNFM")
     return torch.stack(
-        [cosine_distance_loss(f_r, knn_average_target(f_r, f_s, 1, max_block_elems=max_block_elems)) for f_r, f_s in groups]
+        [
+            cosine_distance_loss(f_r, knn_average_target(f_r, f_s, 1, max_block_elems=max_block_elems, search=search))
+            for f_r, f_s in groups
+        ]
     ).sum()
 
 
-def knnfm_loss(groups: Groups, k: int = 5, *, max_block_elems: int = DEFAULT_MAX_BLOCK_ELEMS) -> torch.Tensor:
+def knnfm_loss(
+    groups: Groups, k: int = 5, *, max_block_elems: int = DEFAULT_MAX_BLOCK_ELEMS, search: KnnSearch = "exact"
+) -> torch.Tensor:
     """KNNFM loss summed over groups: cosine distance to the mean of the k nearest style features."""
     if k < 1:
         raise InputError(f"KNNFM: k must be >= 1, got {k}")
     _check_groups(groups, "KNNFM")
     return torch.stack(
-        [cosine_distance_loss(f_r, knn_average_target(f_r, f_s, k, max_block_elems=max_block_elems)) for f_r, f_s in groups]
+        [
+            cosine_distance_loss(f_r, knn_average_target(f_r, f_s, k, max_block_elems=max_block_elems, search=search))
+            for f_r, f_s in groups
+        ]
     ).sum()
 
 
@@ -104,15 +129,18 @@ def style_loss(
     """Style loss by name over matching groups ``[(F_r^z (C, N_r), F_s^z (C, N_s)), …]`` → scalar.
 
     ``fast``: ABC-GS's FAST (``fast_params``, default k=5, ε=1e-12; its ``k``/``max_block_elems`` win over
-    the arguments here); ``nnfm``: ARF; ``knnfm``: k-NN average; ``gram``: Gatys.
+    the arguments here); ``nnfm``: ARF; ``knnfm``: k-NN average; ``gram``: Gatys. The neighbour searches
+    of all three use ``fast_params.knn_search`` (default ``auto``: certified bf16 where it pays; the same
+    neighbours as the exact search).
     """
+    search = fast_params.knn_search if fast_params is not None else "auto"
     if method == "fast":
         params = fast_params or FastParams(k=k, max_block_elems=max_block_elems)
         return fast_loss(groups, params, stats)
     if method == "nnfm":
-        return nnfm_loss(groups, max_block_elems=max_block_elems)
+        return nnfm_loss(groups, max_block_elems=max_block_elems, search=search)
     if method == "knnfm":
-        return knnfm_loss(groups, k, max_block_elems=max_block_elems)
+        return knnfm_loss(groups, k, max_block_elems=max_block_elems, search=search)
     if method == "gram":
         return gram_loss(groups)
     raise InputError(f"unknown style loss {method!r}; choose one of fast, nnfm, knnfm, gram")

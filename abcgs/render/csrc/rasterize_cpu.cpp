@@ -514,11 +514,17 @@ std::vector<at::Tensor> project_backward(const at::Tensor& means, const at::Tens
                                          double near, double far, double eps2d, const at::Tensor& v_means2d,
                                          const at::Tensor& v_conics, const at::Tensor& v_depths);
 
+// knn_cpu.cpp
+at::Tensor pair_dots(const at::Tensor& a, const at::Tensor& b, const at::Tensor& ia, const at::Tensor& ib);
+std::vector<at::Tensor> topk_columns(const at::Tensor& s, int64_t k);
+
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("project_forward", &project_forward, "abcgs fused EWA projection forward (CPU)");
   m.def("project_backward", &project_backward, "abcgs fused EWA projection backward (CPU)");
   m.def("rasterize_forward", &rasterize_forward, "abcgs tile rasterizer forward (CPU)");
   m.def("rasterize_backward", &rasterize_backward, "abcgs tile rasterizer backward (CPU)");
+  m.def("pair_dots", &pair_dots, "dot products of selected row pairs of two float32 matrices (CPU)");
+  m.def("topk_columns", &topk_columns, "top-k of every column of a row-major matrix, one pass over rows (CPU)");
   m.def("set_kernel_threads", &abcgs::set_kernel_threads, "threads of the CPU kernels (0 = all hardware threads)");
   m.def("kernel_threads", &abcgs::kernel_threads, "threads the CPU kernels use now");
 }

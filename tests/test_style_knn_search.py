@@ -1,0 +1,144 @@
+"""Neighbour search: the certified bf16 search equals the exact one, its error bound holds, the CPU kernels'
+column top-k and pair dot products equal their torch definitions."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from pydantic import ValidationError
+
+from abcgs.errors import InputError
+from abcgs.render import cpu as cpu_kernels
+from abcgs.style import fast, knn, losses
+
+needs_kernels = pytest.mark.skipif(
+    not cpu_kernels.is_available(), reason="the CPU kernels' extension did not build here (make install builds it)"
+)
+
+
+def _feats(c: int, n_r: int, n_s: int, seed: int = 0, near_ties: bool = False):
+    """float32 ReLU-like features with a shared component (as VGG's); ``near_ties``: style columns come in
+    nearly equal pairs, so many similarities differ by less than the bf16 error bound."""
+    g = torch.Generator().manual_seed(seed)
+    f_r = (torch.randn(c, n_r, generator=g) + 0.5).relu()
+    f_s = (torch.randn(c, n_s, generator=g) + 0.5).relu() * 2.0
+    if near_ties:
+        half = f_s[:, : n_s // 2]
+        f_s[:, n_s // 2 : n_s // 2 * 2] = half + 1e-4 * torch.rand(half.shape, generator=g)
+    return f_r, f_s
+
+
+def _same_sets(a: torch.Tensor, b: torch.Tensor, dim: int) -> bool:
+    return torch.equal(a.sort(dim=dim).values, b.sort(dim=dim).values)
+
+
+@pytest.mark.parametrize("candidates", [16, 6])
+@pytest.mark.parametrize("k_rs, k_sr", [(5, 5), (1, 0), (0, 3), (20, 20)])
+@pytest.mark.parametrize("near_ties", [False, True])
+def test_bf16_search_gives_the_exact_neighbour_sets(monkeypatch, candidates, k_rs, k_sr, near_ties):
+    monkeypatch.setattr(knn, "BF16_CANDIDATES", candidates)
+    certified: list[float] = []
+    original = knn._certified_topk
+
+    def spy(*args, **kwargs):
+        out = original(*args, **kwargs)
+        certified.append(float(out[1].float().mean()))
+        return out
+
+    monkeypatch.setattr(knn, "_certified_topk", spy)
+    f_r, f_s = _feats(96, 300, 500, seed=candidates + k_rs, near_ties=near_ties)
+    for budget in (2**22, 5000):
+        a_rs, a_sr = knn.cosine_topk(f_r, f_s, k_rs, k_sr, search="bf16", max_block_elems=budget)
+        b_rs, b_sr = knn.cosine_topk(f_r, f_s, k_rs, k_sr, search="exact", max_block_elems=budget)
+        assert (a_rs is None) == (b_rs is None) and (a_sr is None) == (b_sr is None)
+        if b_rs is not None:
+            assert a_rs.shape == b_rs.shape and _same_sets(a_rs, b_rs, 1)
+        if b_sr is not None:
+            assert a_sr.shape == b_sr.shape and _same_sets(a_sr, b_sr, 0)
+    if near_ties and candidates == 6 and k_rs == 5:
+        # the pairs of nearly equal style columns defeat the gap test for some features: the exact
+        # fallback ran, and the sets still agree
+        assert min(certified) < 1.0
+
+
+def test_bf16_search_with_fewer_features_than_candidates():
+    """Every feature of the other side is a candidate: nothing to certify, still the exact sets."""
+    f_r, f_s = _feats(32, 7, 11, seed=1)
+    a_rs, a_sr = knn.cosine_topk(f_r, f_s, 5, 5, search="bf16")
+    b_rs, b_sr = knn.cosine_topk(f_r, f_s, 5, 5, search="exact")
+    assert _same_sets(a_rs, b_rs, 1) and _same_sets(a_sr, b_sr, 0)
+
+
+def test_bf16_similarity_bound_holds():
+    """The proven bound covers the actual error of oneDNN's bf16 product (and is not vacuous)."""
+    f_r, f_s = _feats(768, 400, 600, seed=4)
+    u_r, u_s = knn.normalize_columns(f_r), knn.normalize_columns(f_s)
+    lo_r, lo_s = u_r.bfloat16(), u_s.bfloat16()
+    e_r = (u_r - lo_r.float()).norm(dim=0)
+    e_s = (u_s - lo_s.float()).norm(dim=0)
+    err = ((lo_r.t() @ lo_s).float() - u_r.t() @ u_s).abs()
+    bound = knn.bf16_similarity_bound(e_r, float(e_s.max()), 768)
+    assert bool((err <= bound[:, None]).all())
+    assert float(bound.max()) < 0.02  # tight enough to certify most features
+
+
+def test_fast_loss_is_the_same_with_either_search():
+    f_r, f_s = _feats(64, 400, 700, seed=5)
+    style = knn.StyleFeatures.of(f_s)
+    exact = fast.fast_loss([(f_r, style)], fast.FastParams(knn_search="exact"))
+    low = fast.fast_loss([(f_r, style)], fast.FastParams(knn_search="bf16"))
+    assert torch.equal(exact, low)
+    nn_exact = losses.style_loss("nnfm", [(f_r, style)], fast_params=fast.FastParams(knn_search="exact"))
+    nn_low = losses.style_loss("nnfm", [(f_r, style)], fast_params=fast.FastParams(knn_search="bf16"))
+    assert torch.equal(nn_exact, nn_low)
+
+
+def test_search_choice_and_errors():
+    cpu = torch.device("cpu")
+    assert knn.resolve_search("exact", 10**4, 10**4, cpu) == "exact"
+    assert knn.resolve_search("bf16", 3, 3, cpu) == "bf16"
+    assert knn.resolve_search("auto", 10, 10, cpu) == "exact"  # small: the float32 product is cheap
+    expected = "bf16" if knn.bf16_matmul_is_native() else "exact"
+    assert knn.resolve_search("auto", 4096, 4096, cpu) == expected
+    with pytest.raises(InputError, match="knn search"):
+        knn.resolve_search("fast", 10, 10, cpu)
+    with pytest.raises(ValidationError):
+        fast.FastParams(knn_search="approximate")
+
+
+@needs_kernels
+@pytest.mark.parametrize("dtype", [torch.float32, torch.bfloat16])
+@pytest.mark.parametrize("n_rows, k", [(1000, 5), (161, 17), (17, 17), (40, 1)])
+def test_kernel_column_topk_matches_torch_topk(dtype, n_rows, k):
+    g = torch.Generator().manual_seed(n_rows + k)
+    sim = (torch.rand(n_rows, 203, generator=g) * 2 - 1).to(dtype)
+    vals, idx = knn.topk_rows_of_columns(sim, k)
+    ref = sim.topk(k, dim=0)
+    assert vals.dtype == dtype and idx.shape == (k, 203)
+    assert torch.equal(vals, ref.values) and torch.equal(sim.gather(0, idx), vals)
+    if dtype == torch.float32:  # distinct values: the indices are defined (bf16 rounding makes ties)
+        assert torch.equal(idx, ref.indices)
+
+
+@needs_kernels
+def test_kernel_column_topk_is_the_same_for_any_thread_count():
+    sim = torch.rand(500, 1001, generator=torch.Generator().manual_seed(0))
+    with cpu_kernels.kernel_threads(1):
+        one = knn.topk_rows_of_columns(sim, 9)
+    with cpu_kernels.kernel_threads(2):
+        two = knn.topk_rows_of_columns(sim, 9)
+    assert torch.equal(one[0], two[0]) and torch.equal(one[1], two[1])
+
+
+@pytest.mark.parametrize("use_kernels", [True, False])
+def test_pair_dots_equal_row_dot_products(monkeypatch, use_kernels):
+    if use_kernels and not cpu_kernels.is_available():
+        pytest.skip("the CPU kernels' extension did not build here (make install builds it)")
+    if not use_kernels:
+        monkeypatch.setattr(knn, "_cpu_kernels", lambda: None)
+    g = torch.Generator().manual_seed(2)
+    a, b = torch.randn(50, 37, generator=g), torch.randn(80, 37, generator=g)
+    ia, ib = torch.randint(0, 50, (999,), generator=g), torch.randint(0, 80, (999,), generator=g)
+    got = knn.pair_dots(a, b, ia, ib)
+    ref = (a.double()[ia] * b.double()[ib]).sum(1)
+    assert got.shape == (999,) and torch.allclose(got.double(), ref, atol=1e-5)
