@@ -57,11 +57,13 @@ _BF16_ROUNDING = 2.0**-8
 
 @functools.lru_cache(maxsize=1)
 def bf16_matmul_is_native() -> bool:
-    """Whether this CPU's oneDNN runs bfloat16 matrix products natively (AVX512-BF16/AMX); else they are emulated
-    and slower than float32."""
+    """Whether this CPU has bfloat16 dot-product instructions (AVX512-BF16 or AMX) for oneDNN's bf16 products;
+    without them oneDNN emulates bf16 and the product is no faster than float32."""
+    probes = ("_is_avx512_bf16_supported", "_is_amx_tile_supported")
     try:
-        return bool(torch.backends.mkldnn.is_available() and torch.ops.mkldnn._is_mkldnn_bf16_supported())
-    except (AttributeError, RuntimeError):
+        native = any(bool(getattr(torch.cpu, name)()) for name in probes if hasattr(torch.cpu, name))
+        return native and torch.backends.mkldnn.is_available()
+    except RuntimeError:
         return False
 
 
