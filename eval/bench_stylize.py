@@ -21,6 +21,7 @@ import os
 import sys
 import time
 from pathlib import Path
+from typing import get_args
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -35,6 +36,7 @@ from abcgs.io.ply import read_ply, write_ply  # noqa: E402
 from abcgs.params import load_params  # noqa: E402
 from abcgs.sfm.colmap import read_colmap_scene  # noqa: E402
 from abcgs.style.colormatch import ColorMatchParams, color_match_and_refit  # noqa: E402
+from abcgs.style.knn import KnnSearch  # noqa: E402
 from abcgs.style.losses import gram_matrix  # noqa: E402
 from abcgs.style.matching import TransferSpec, build_groups, load_style  # noqa: E402
 from abcgs.style.stylize import stylize  # noqa: E402
@@ -67,7 +69,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--refit-iterations", type=int, default=200)
     ap.add_argument("--method", default="fast", choices=["fast", "nnfm", "knnfm", "gram"])
     ap.add_argument("--threads", type=int, default=0)
-    ap.add_argument("--knn-search", choices=["auto", "exact", "bf16"], default=None,
+    ap.add_argument("--knn-search", choices=get_args(KnnSearch), default=None,
                     help="override stylize.fast.knn_search (the neighbour search of FAST/NNFM/KNNFM)")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)

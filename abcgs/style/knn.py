@@ -174,10 +174,13 @@ _COLUMN_BLOCK = 8
 
 
 def _cpu_kernels():
-    """The CPU kernels' extension when it is available here, else None."""
+    """The CPU kernels' extension when it is available here, else None (one cached load, no second attempt)."""
     from abcgs.render import cpu as cpu_kernels
 
-    return cpu_kernels.load_extension() if cpu_kernels.is_available() else None
+    try:
+        return cpu_kernels.load_extension()
+    except cpu_kernels.BackendUnavailable:
+        return None
 
 
 def topk_rows_of_columns(sim: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:

@@ -133,7 +133,7 @@ def style_loss(
     of all three use ``fast_params.knn_search`` (default ``auto``: certified bf16 where it pays; the same
     neighbours as the exact search).
     """
-    search = fast_params.knn_search if fast_params is not None else "auto"
+    search = (fast_params or FastParams()).knn_search
     if method == "fast":
         params = fast_params or FastParams(k=k, max_block_elems=max_block_elems)
         return fast_loss(groups, params, stats)
