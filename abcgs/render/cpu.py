@@ -6,8 +6,9 @@ in a folder keyed by the source hash, the torch version and the compiler flags, 
 in well under a second. If the build fails, :func:`load_extension` raises :class:`BackendUnavailable` with
 the compiler's message; ``rasterize(backend="auto")`` then falls back to the reference backend with a
 warning. The same extension carries two similarity-search helpers of the style losses (``csrc/knn_cpu.cpp``:
-``topk_columns``, ``pair_dots``; used by :mod:`abcgs.style.knn`, which has torch fallbacks for both), so that
-they share its build and its threads.
+``topk_columns``, ``pair_dots``; used by :mod:`abcgs.style.knn`, which has torch fallbacks for both) and the
+fit's fused L1 + SSIM loss (``csrc/image_loss_cpu.cpp``: ``l1_ssim_forward``; used by :mod:`abcgs.fit.losses`,
+whose torch code is its reference), so that they share its build and its threads.
 """
 
 from __future__ import annotations
@@ -27,9 +28,14 @@ from torch import Tensor
 
 from abcgs.render.projection import Projected
 
-_SOURCES = [Path(__file__).parent / "csrc" / n for n in ("rasterize_cpu.cpp", "projection_cpu.cpp", "knn_cpu.cpp")]
+_SOURCES = [
+    Path(__file__).parent / "csrc" / n
+    for n in ("rasterize_cpu.cpp", "projection_cpu.cpp", "knn_cpu.cpp", "image_loss_cpu.cpp")
+]
 _HEADERS = [Path(__file__).parent / "csrc" / "parallel.h"]
-_FLAGS = ["-O3", "-march=native", "-ffp-contract=off", "-std=c++17"]
+# -fno-trapping-math: lets GCC if-convert float compares (the rasterizer's per-row alpha loop only vectorises with
+# it); FP exception flags are never read here, and values are unchanged (no reassociation, no contraction).
+_FLAGS = ["-O3", "-march=native", "-ffp-contract=off", "-fno-trapping-math", "-std=c++17"]
 log = logging.getLogger(__name__)
 _lock = threading.Lock()
 _module = None

@@ -232,21 +232,27 @@ inline float exp_fast(float x) {
 inline float exp_neg(float s) { return exp_fast(-s); }
 inline double exp_neg(double s) { return std::exp(-s); }
 
-// Alpha (0 where skipped: sigma < 0 or alpha < 1/255) and exp(-sigma) for pixels x in [xa, xb) of one
-// row at offset dy from the mean: the branch-free part of blending, vectorised by the compiler.
+// Pixels per call of row_alpha: a fixed trip count, so that the loop compiles to whole vectors (one AVX-512
+// or two AVX2 iterations) with no scalar remainder. A Gaussian's span in a tile row is typically 2-8 pixels,
+// which a loop over [xa, xb) ran entirely in its scalar remainder (measured on fern: 3 of every 10 forward
+// cycles in scalar exp). Lanes outside the span are computed and ignored.
+constexpr int64_t kRowChunk = 16;
+
+// Alpha (0 where skipped: sigma < 0 or alpha < 1/255) and exp(-sigma) for the kRowChunk pixels
+// x = xa + first + i (i < kRowChunk) of one row at offset dy from the mean: the branch-free part of blending.
+// dx is formed as (xa + 0.5 - mx) + (first + i), the same rounding for every chunk of a span.
 template <typename scalar_t>
-inline void row_alpha(int64_t xa, int64_t xb, scalar_t mx, scalar_t dy, scalar_t ca, scalar_t cb, scalar_t cc,
+inline void row_alpha(int64_t xa, int64_t first, scalar_t mx, scalar_t dy, scalar_t ca, scalar_t cb, scalar_t cc,
                       scalar_t o, scalar_t* __restrict alpha, scalar_t* __restrict vis) {
-  const int64_t n = xb - xa;
   const scalar_t half_cdy2 = scalar_t(0.5) * cc * dy * dy, cbdy = cb * dy;
   const scalar_t x0 = scalar_t(xa) + scalar_t(0.5) - mx;
-  for (int64_t i = 0; i < n; ++i) {
-    const scalar_t dx = x0 + scalar_t(i);
+  for (int64_t i = 0; i < kRowChunk; ++i) {
+    const scalar_t dx = x0 + (scalar_t(first) + scalar_t(int32_t(i)));  // = x0 + (first + i): exact sums
     const scalar_t sigma = scalar_t(0.5) * ca * dx * dx + half_cdy2 + cbdy * dx;
     const scalar_t e = exp_neg(sigma);
     const scalar_t a = std::min(scalar_t(kMaxAlpha), o * e);
-    const bool keep = (sigma >= scalar_t(0)) & (a >= scalar_t(kAlphaThreshold));
-    alpha[i] = keep ? a : scalar_t(0);
+    const scalar_t a_kept = a >= scalar_t(kAlphaThreshold) ? a : scalar_t(0);  // selects, not a bool mask:
+    alpha[i] = sigma >= scalar_t(0) ? a_kept : scalar_t(0);                    // GCC vectorises these
     vis[i] = e;
   }
 }
@@ -266,7 +272,8 @@ struct GaussianView {
 // of the row computed in one vectorised pass. fn(p, x, dy, alpha, vis) gets the tile-local pixel index.
 template <typename scalar_t, typename F>
 inline void for_each_covered_pixel(const GaussianView<scalar_t>& gv, int64_t g, int64_t x0, int64_t x1, int64_t y0,
-                                   int64_t y1, int64_t tw, scalar_t* abuf, scalar_t* ebuf, F&& fn) {
+                                   int64_t y1, int64_t tw, F&& fn) {
+  alignas(64) scalar_t abuf[kRowChunk], ebuf[kRowChunk];
   const scalar_t mx = gv.means2d[2 * g], my = gv.means2d[2 * g + 1];
   const scalar_t ca = gv.conics[3 * g], cb = gv.conics[3 * g + 1], cc = gv.conics[3 * g + 2];
   const scalar_t o = gv.opac[g];
@@ -278,11 +285,14 @@ inline void for_each_covered_pixel(const GaussianView<scalar_t>& gv, int64_t g, 
     const scalar_t dy = scalar_t(y) + scalar_t(0.5) - my;
     int64_t xs, xe;
     if (!row_span<scalar_t>(mx, dy, ca, cb, cc, s_max, xa, xb, xs, xe)) continue;
-    row_alpha<scalar_t>(xs, xe, mx, dy, ca, cb, cc, o, abuf, ebuf);
     const int64_t row = (y - y0) * tw - x0;
-    for (int64_t x = xs; x < xe; ++x) {
-      const scalar_t alpha = abuf[x - xs];
-      if (alpha != scalar_t(0)) fn(row + x, x, dy, alpha, ebuf[x - xs]);
+    for (int64_t first = 0; xs + first < xe; first += kRowChunk) {
+      row_alpha<scalar_t>(xs, first, mx, dy, ca, cb, cc, o, abuf, ebuf);
+      const int64_t xb = xs + first, n = std::min(kRowChunk, xe - xb);
+      for (int64_t i = 0; i < n; ++i) {
+        const scalar_t alpha = abuf[i];
+        if (alpha != scalar_t(0)) fn(row + xb + i, xb + i, dy, alpha, ebuf[i]);
+      }
     }
   }
 }
@@ -300,14 +310,13 @@ void forward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t 
   std::vector<scalar_t> T(npix, scalar_t(1)), acc(npix * C, scalar_t(0));
   std::vector<int32_t> lst(npix, 0);
   std::vector<uint8_t> done(npix, 0);
-  std::vector<scalar_t> abuf(tile_size), ebuf(tile_size);
   int64_t remaining = npix;
   const int64_t start = bin.tile_offsets[tile], end = bin.tile_offsets[tile + 1];
   for (int64_t k = start; k < end && remaining > 0; ++k) {
     const int64_t g = bin.ids[k];
     const scalar_t* col = gv.colors + g * C;
     const int32_t order = static_cast<int32_t>(k - start + 1);
-    for_each_covered_pixel(gv, g, x0, x1, y0, y1, tw, abuf.data(), ebuf.data(),
+    for_each_covered_pixel(gv, g, x0, x1, y0, y1, tw,
                            [&](int64_t p, int64_t, scalar_t, scalar_t alpha, scalar_t) {
       if (done[p]) return;
       const scalar_t next_T = T[p] * (scalar_t(1) - alpha);
@@ -357,7 +366,7 @@ void backward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t
       vA[p] = v_alpha[q];
       for (int64_t c = 0; c < C; ++c) vimg[p * C + c] = v_image[q * C + c];
     }
-  std::vector<scalar_t> gcol(C), abuf(tile_size), ebuf(tile_size);
+  std::vector<scalar_t> gcol(C);
   for (int64_t kk = max_last - 1; kk >= 0; --kk) {
     const int64_t k = start + kk;
     const int64_t g = bin.ids[k];
@@ -367,7 +376,7 @@ void backward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t
     const scalar_t* col = gv.colors + g * C;
     scalar_t g_mx = 0, g_my = 0, g_a = 0, g_b = 0, g_c = 0, g_o = 0;
     std::fill(gcol.begin(), gcol.end(), scalar_t(0));
-    for_each_covered_pixel(gv, g, x0, x1, y0, y1, tw, abuf.data(), ebuf.data(),
+    for_each_covered_pixel(gv, g, x0, x1, y0, y1, tw,
                            [&](int64_t p, int64_t x, scalar_t dy, scalar_t alpha, scalar_t vis) {
       if (kk >= lst[p]) return;
       const scalar_t dx = scalar_t(x) + scalar_t(0.5) - mx;
@@ -518,6 +527,10 @@ std::vector<at::Tensor> project_backward(const at::Tensor& means, const at::Tens
 at::Tensor pair_dots(const at::Tensor& a, const at::Tensor& b, const at::Tensor& ia, const at::Tensor& ib);
 std::vector<at::Tensor> topk_columns(const at::Tensor& s, int64_t k);
 
+// image_loss_cpu.cpp
+std::vector<at::Tensor> l1_ssim_forward(const at::Tensor& render, const at::Tensor& target, const at::Tensor& window,
+                                        double c1, double c2);
+
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("project_forward", &project_forward, "abcgs fused EWA projection forward (CPU)");
   m.def("project_backward", &project_backward, "abcgs fused EWA projection backward (CPU)");
@@ -525,6 +538,7 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("rasterize_backward", &rasterize_backward, "abcgs tile rasterizer backward (CPU)");
   m.def("pair_dots", &pair_dots, "dot products of selected row pairs of two float32 matrices (CPU)");
   m.def("topk_columns", &topk_columns, "top-k of every column of a row-major matrix, one pass over rows (CPU)");
+  m.def("l1_ssim_forward", &l1_ssim_forward, "mean L1 and SSIM of two images and their gradients (CPU)");
   m.def("set_kernel_threads", &abcgs::set_kernel_threads, "threads of the CPU kernels (0 = all hardware threads)");
   m.def("kernel_threads", &abcgs::kernel_threads, "threads the CPU kernels use now");
 }
