@@ -8,8 +8,8 @@ Loads the scene's reconstruction and a fitted model (``--ply``; default: what ``
 thread setting (torch at ``--threads`` threads, the C++ kernels at ``--kernel-threads``) and prints the mean
 milliseconds of each phase per step. ``--loss fused|torch`` picks the L1 + SSIM implementation
 (``abcgs.fit.losses.l1_ssim``), so both can be compared in one process. ``--json`` writes the table.
-The model is optimised as in a fit (Adam with the 3DGS learning rates), so later steps see slightly different
-parameters; densification is off (this times a step, not a schedule).
+The model is optimised as in a fit (Adam with the 3DGS learning rates; the means' rate is not scaled by the scene
+extent), so later steps see slightly different parameters; densification is off (this times a step, not a schedule).
 """
 
 from __future__ import annotations
