@@ -149,12 +149,17 @@ def kernel_threads(n: int):
         set_kernel_threads(old)
 
 
-def is_available() -> bool:
+def extension_or_none():
+    """The extension (:func:`load_extension`), or None where it cannot be built here; the reason stays in the
+    :class:`BackendUnavailable` that :func:`load_extension` raises."""
     try:
-        load_extension()
-        return True
+        return load_extension()
     except BackendUnavailable:
-        return False
+        return None
+
+
+def is_available() -> bool:
+    return extension_or_none() is not None
 
 
 def rasterize_cpu(

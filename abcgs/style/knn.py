@@ -67,6 +67,12 @@ def bf16_matmul_is_native() -> bool:
         return False
 
 
+def bf16_with_residuals(x: torch.Tensor, dim: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """``x`` rounded to bfloat16, and the norm of each vector's rounding residual ``‖x − bf16(x)‖`` along ``dim``."""
+    low = x.to(torch.bfloat16)
+    return low, (x - low.float()).norm(dim=dim)
+
+
 def resolve_search(search: KnnSearch, n_r: int, n_s: int, device: torch.device) -> Literal["exact", "bf16"]:
     """The search ``search`` means for ``n_r × n_s`` similarities on ``device`` (see the module docstring)."""
     if search not in ("auto", "exact", "bf16"):
@@ -151,8 +157,7 @@ class StyleFeatures:
     @functools.cached_property
     def unit_bf16(self) -> tuple[torch.Tensor, torch.Tensor]:
         """``(unit`` in bfloat16 ``(C, N_s)``, each column's rounding residual ``‖u − bf16(u)‖`` ``(N_s,))``."""
-        low = self.unit.to(torch.bfloat16)
-        return low, (self.unit - low.float()).norm(dim=0)
+        return bf16_with_residuals(self.unit, dim=0)
 
 
 def as_style_features(f_s: torch.Tensor | StyleFeatures) -> StyleFeatures:
@@ -175,12 +180,9 @@ _COLUMN_BLOCK = 8
 
 def _cpu_kernels():
     """The CPU kernels' extension when it is available here, else None (one cached load, no second attempt)."""
-    from abcgs.render import cpu as cpu_kernels
+    from abcgs.render.cpu import extension_or_none
 
-    try:
-        return cpu_kernels.load_extension()
-    except cpu_kernels.BackendUnavailable:
-        return None
+    return extension_or_none()
 
 
 def topk_rows_of_columns(sim: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -302,8 +304,7 @@ def _bf16_topk(u_r: torch.Tensor, style: StyleFeatures, k_rs: int, k_sr: int, ma
     u_s = style.unit
     s_low, e_s = style.unit_bf16
     ur_rows = u_r.t().contiguous()  # (N_r, C) float32
-    r_low = ur_rows.to(torch.bfloat16)
-    e_r = (ur_rows - r_low.float()).norm(dim=1)
+    r_low, e_r = bf16_with_residuals(ur_rows, dim=1)
     kc_rs, kc_sr = max(BF16_CANDIDATES, k_rs), max(BF16_CANDIDATES, k_sr)
     v_rs, i_rs, v_sr, i_sr = _tiled_topk(
         r_low, s_low, min(kc_rs + 1, n_s) if k_rs > 0 else 0, min(kc_sr + 1, n_r) if k_sr > 0 else 0, max_block_elems
