@@ -63,5 +63,10 @@ class EvalParams(BaseModel):
         None, ge=1, description="torch intra-op threads during evaluation (None: torch's default); 1 avoids "
         "oversubscription on a shared machine"
     )
+    workers: int = Field(
+        0, ge=0, description="threads over the image pairs of the content and consistency distances, each running "
+        "torch ops on num_threads (eval/metrics/parallel.py; same numbers for any count); 0 = one per core left by "
+        "num_threads"
+    )
     fps_passes: int = Field(3, ge=1, description="full render passes over the views; FPS is their median")
     seed: int = 0

@@ -4,6 +4,8 @@
     python eval/bench_pipeline.py --set fit.iterations=300 --json out/bench/pipeline_tiny.json
     python eval/bench_pipeline.py --params my_params.yaml   # e.g. a real scene × paintings (absolute paths)
     python eval/bench_pipeline.py --targets fit@tiny        # one stage and what it needs
+    python eval/bench_pipeline.py --compare before.json after.json   # two runs' JSON side by side, no run
+    python eval/bench_pipeline.py --baseline 0a3aad0 --baseline-params old.yaml --params new.yaml --json ba.json
 
 How it measures: the working tree is copied into a fresh git + DVC repository (``eval/repo_copy.py``: no
 outputs, empty cache, as a clean clone), ``--params`` replaces its ``params.yaml`` and ``--set`` changes keys
@@ -14,6 +16,13 @@ resident set size. Per stage it prints wall seconds, CPU seconds / wall (core us
 peak RSS, then the totals (peak = the largest stage's), and writes everything to ``--json`` with the machine
 (``os.cpu_count()``, load average before the run) so that figures from different days can be compared. Run on
 an idle machine for figures you quote: other work shows up as lower core use and longer walls.
+
+Before/after: ``--baseline REV`` copies that git revision as a second clean repository (``git archive``; its
+params from ``--baseline-params``, since an older revision may read another schema) and runs both pipelines'
+stages interleaved — one stage of each in turn, which goes first alternating — so that a change of the
+machine's speed during the hours this takes reaches both runs alike. This machine's speed does drift: on
+2026-11-25 the same stages' code ran 1.3–1.9× slower an hour apart, and a before run and an after run made one
+after the other could not be compared. Both copies build their C++ extension before anything is timed.
 """
 
 from __future__ import annotations
@@ -35,7 +44,7 @@ import yaml  # noqa: E402
 
 from abcgs.io.atomic import write_json  # noqa: E402
 from abcgs.params import set_dotted  # noqa: E402
-from eval.repo_copy import copy_repo, run_in  # noqa: E402
+from eval.repo_copy import copy_repo, copy_revision, run_in  # noqa: E402
 
 WRAPPER = r"""
 import json, resource, subprocess, sys, time
@@ -78,20 +87,99 @@ def stage_order(repo: Path, targets: list[str] | None = None) -> list[str]:
     return order
 
 
+SIMD_FLAGS = ("avx2", "fma", "avx512f", "avx512_bf16", "amx_bf16")
+"""CPU flags that change the figures: torch's kernels, the extension's ``-march=native`` build and the bf16 search."""
+
+
+def cpu_description() -> dict:
+    """The CPU's model name and which of :data:`SIMD_FLAGS` it has (``/proc/cpuinfo``; empty elsewhere)."""
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return {}
+    model = re.search(r"^model name\s*:\s*(.+)$", text, re.M)
+    flags = re.search(r"^flags\s*:\s*(.+)$", text, re.M)
+    have = set(flags.group(1).split()) if flags else set()
+    return {"model": model.group(1).strip() if model else None, "simd": [f for f in SIMD_FLAGS if f in have]}
+
+
+def run_stage(repo: Path, name: str, label: str = "") -> dict:
+    """Run one stage alone in ``repo`` (``dvc repro --single-item``) in a fresh wrapper process; print and return
+    its wall seconds, CPU seconds, core use and peak RSS."""
+    proc = run_in([sys.executable, "-c", WRAPPER, "dvc", "repro", "--single-item", name], repo, timeout=None)
+    rec = json.loads(proc.stdout.strip().splitlines()[-1])
+    if rec["rc"] != 0:
+        raise RuntimeError(f"stage {name} failed{f' ({label})' if label else ''}:\n{rec['tail']}")
+    rec.pop("tail")
+    rec["stage"] = name
+    rec["core_use"] = rec["cpu_s"] / max(rec["wall_s"], 1e-9)
+    print(f"  {label}{name:34s} {rec['wall_s']:8.1f} s  cpu/wall {rec['core_use']:4.2f}  "
+          f"peak RSS {rec['peak_rss_mib']:7.0f} MiB", flush=True)
+    return rec
+
+
 def bench(repo: Path, stages: list[str]) -> list[dict]:
+    return [run_stage(repo, name) for name in stages]
+
+
+def warm_up(repo: Path) -> None:
+    """Build (or load) the copy's C++ extension before anything is timed, as an installed checkout has it; a
+    revision without one just fails this step."""
+    run_in([sys.executable, "-c", "import abcgs.render.cpu as c; c.load_extension()"], repo, timeout=1800)
+
+
+def bench_interleaved(base: Path, base_stages: list[str], cur: Path, cur_stages: list[str]) -> tuple[list, list]:
+    """Both pipelines' stages in lockstep, the order alternating (baseline, current), (current, baseline), …, so
+    that a machine whose speed drifts during the hours this takes slows both runs alike."""
+    rows_b: list[dict] = []
+    rows_c: list[dict] = []
+    for i in range(max(len(base_stages), len(cur_stages))):
+        pair = [(base, base_stages, rows_b, "baseline "), (cur, cur_stages, rows_c, "current  ")]
+        for repo, stages, rows, label in pair if i % 2 == 0 else pair[::-1]:
+            if i < len(stages):
+                rows.append(run_stage(repo, stages[i], label))
+    return rows_b, rows_c
+
+
+def _summary(rows: list[dict], wall: float | None = None) -> dict:
+    total_wall = sum(r["wall_s"] for r in rows) if wall is None else wall
+    total_cpu = sum(r["cpu_s"] for r in rows)
+    return {"stages": rows, "total_wall_s": total_wall, "total_cpu_s": total_cpu,
+            "core_use": total_cpu / max(total_wall, 1e-9), "peak_rss_mib": max(r["peak_rss_mib"] for r in rows)}
+
+
+def compare(before: dict, after: dict) -> dict:
+    """Two runs' figures side by side, by stage kind (``fit``, ``stylize``, … the part of a stage name before
+    ``@``, summed over its instances: a per-scene stage and per-experiment copies compare as one line), with the
+    ratio ``before / after`` of each kind's wall seconds and of the totals. Printed, and returned as a dict."""
+
+    def by_kind(run: dict) -> dict[str, dict]:
+        kinds: dict[str, dict] = {}
+        for r in run["stages"]:
+            k = kinds.setdefault(r["stage"].split("@")[0], {"wall_s": 0.0, "cpu_s": 0.0, "n": 0, "peak_rss_mib": 0.0})
+            k["wall_s"] += r["wall_s"]
+            k["cpu_s"] += r["cpu_s"]
+            k["n"] += 1
+            k["peak_rss_mib"] = max(k["peak_rss_mib"], r["peak_rss_mib"])
+        return kinds
+
+    a, b = by_kind(before), by_kind(after)
     rows = []
-    for name in stages:
-        proc = run_in([sys.executable, "-c", WRAPPER, "dvc", "repro", "--single-item", name], repo, timeout=None)
-        rec = json.loads(proc.stdout.strip().splitlines()[-1])
-        if rec["rc"] != 0:
-            raise RuntimeError(f"stage {name} failed:\n{rec['tail']}")
-        rec.pop("tail")
-        rec["stage"] = name
-        rec["core_use"] = rec["cpu_s"] / max(rec["wall_s"], 1e-9)
-        rows.append(rec)
-        print(f"  {name:34s} {rec['wall_s']:8.1f} s  cpu/wall {rec['core_use']:4.2f}  peak RSS {rec['peak_rss_mib']:7.0f} MiB",
-              flush=True)
-    return rows
+    print(f"{'stage kind':14s} {'before s':>9s} {'n':>3s} {'after s':>9s} {'n':>3s} {'ratio':>6s}")
+    for kind in list(a) + [k for k in b if k not in a]:
+        wa, wb = a.get(kind, {}).get("wall_s"), b.get(kind, {}).get("wall_s")
+        ratio = wa / wb if wa and wb else None
+        rows.append({"kind": kind, "before_s": wa, "after_s": wb, "before_n": a.get(kind, {}).get("n", 0),
+                     "after_n": b.get(kind, {}).get("n", 0), "ratio": ratio})
+        fmt = lambda v: f"{v:9.1f}" if v is not None else f"{'-':>9s}"  # noqa: E731
+        print(f"{kind:14s} {fmt(wa)} {rows[-1]['before_n']:3d} {fmt(wb)} {rows[-1]['after_n']:3d} "
+              f"{(f'{ratio:6.2f}' if ratio else '     -')}")
+    total = before["total_wall_s"] / after["total_wall_s"]
+    print(f"{'total':14s} {before['total_wall_s']:9.1f}     {after['total_wall_s']:9.1f}     {total:6.2f}"
+          f"   ({before['total_wall_s'] / 60:.1f} → {after['total_wall_s'] / 60:.1f} min; peak RSS "
+          f"{before['peak_rss_mib']:.0f} → {after['peak_rss_mib']:.0f} MiB)")
+    return {"kinds": rows, "total_ratio": total, "before_total_s": before["total_wall_s"],
+            "after_total_s": after["total_wall_s"]}
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -102,7 +190,24 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--targets", nargs="*", default=None, help="only these stages and the ones they need")
     ap.add_argument("--work", type=Path, default=None, help="where the copy goes (default: a temporary folder)")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--baseline", default=None, metavar="REV",
+                    help="also run this git revision's pipeline, its stages interleaved with the working tree's "
+                    "(a before/after comparison that machine-speed drift affects alike)")
+    ap.add_argument("--baseline-params", type=Path, default=None,
+                    help="params file for the baseline (default: --params; an older revision may need its own schema)")
+    ap.add_argument("--compare", nargs=2, type=Path, default=None, metavar=("BEFORE", "AFTER"),
+                    help="print two earlier runs' JSON side by side (per stage kind and total) instead of running")
     args = ap.parse_args(argv)
+    if args.compare is not None:
+        runs = []
+        for path in args.compare:
+            try:
+                runs.append(json.loads(path.read_text()))
+            except (OSError, ValueError) as exc:
+                raise SystemExit(f"--compare: cannot read {path} as a bench_pipeline JSON ({exc})") from exc
+            if "stages" not in runs[-1] or "total_wall_s" not in runs[-1]:
+                raise SystemExit(f"--compare: {path} is not a bench_pipeline JSON (no 'stages' / 'total_wall_s')")
+        return compare(*runs)
 
     def edit(params: dict) -> None:
         if args.params is not None:
@@ -112,26 +217,55 @@ def main(argv: list[str] | None = None) -> dict:
             key, _, value = item.partition("=")
             set_dotted(params, key, yaml.safe_load(value))
 
+    how = ("each stage alone (dvc repro --single-item) in a fresh wrapper process; CPU and peak RSS from "
+           "getrusage(RUSAGE_CHILDREN); a clean copy of the working tree with an empty DVC cache")
+    machine = {"cpus": os.cpu_count(), "cpu": cpu_description(), "platform": platform.platform(),
+               "python": platform.python_version()}
+    print(f"[bench_pipeline] CPU {machine['cpu'].get('model')} ({', '.join(machine['cpu'].get('simd', []))})",
+          flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         work = args.work or Path(tmp)
         repo = copy_repo(work / "repo", edit)
         stages = stage_order(repo, args.targets)
-        load = os.getloadavg()
-        print(f"[bench_pipeline] {len(stages)} stages in {repo}; {os.cpu_count()} CPUs, load average {load[0]:.2f}",
-              flush=True)
+        if args.baseline is not None:
+            base_params = args.baseline_params or args.params
+
+            def edit_base(params: dict) -> None:
+                if base_params is not None:
+                    params.clear()
+                    params.update(yaml.safe_load(base_params.read_text()))
+                for item in args.set:  # the same changes to both runs
+                    key, _, value = item.partition("=")
+                    set_dotted(params, key, yaml.safe_load(value))
+
+            base = copy_revision(work / "baseline", args.baseline, edit_base)
+            base_stages = stage_order(base, args.targets)
+            warm_up(base)
+            warm_up(repo)
+            machine["loadavg_before"] = os.getloadavg()
+            print(f"[bench_pipeline] baseline {args.baseline} ({len(base_stages)} stages, {base}) and the working "
+                  f"tree ({len(stages)} stages, {repo}) interleaved; {os.cpu_count()} CPUs, load average "
+                  f"{machine['loadavg_before'][0]:.2f}", flush=True)
+            rows_b, rows_c = bench_interleaved(base, base_stages, repo, stages)
+            result = {
+                "baseline": {**_summary(rows_b), "revision": args.baseline, "params": str(base_params or "params.yaml")},
+                "current": {**_summary(rows_c), "params": str(args.params or "params.yaml"), "set": args.set},
+                "machine": machine,
+                "how": how + "; the two pipelines' stages alternate (baseline first on even steps, current first on "
+                       "odd ones) and each total is the sum of its stages' walls",
+            }
+            result["comparison"] = compare(result["baseline"], result["current"])
+            if args.json:
+                write_json(args.json, result)
+            return result
+        machine["loadavg_before"] = os.getloadavg()
+        print(f"[bench_pipeline] {len(stages)} stages in {repo}; {os.cpu_count()} CPUs, load average "
+              f"{machine['loadavg_before'][0]:.2f}", flush=True)
         t0 = time.perf_counter()
         rows = bench(repo, stages)
         total_wall = time.perf_counter() - t0
-    total_cpu = sum(r["cpu_s"] for r in rows)
-    result = {
-        "stages": rows, "total_wall_s": total_wall, "total_cpu_s": total_cpu,
-        "core_use": total_cpu / max(total_wall, 1e-9), "peak_rss_mib": max(r["peak_rss_mib"] for r in rows),
-        "params": str(args.params or "params.yaml"), "set": args.set,
-        "machine": {"cpus": os.cpu_count(), "loadavg_before": load, "platform": platform.platform(),
-                    "python": platform.python_version()},
-        "how": "each stage alone (dvc repro --single-item) in a fresh wrapper process; CPU and peak RSS from "
-               "getrusage(RUSAGE_CHILDREN); a clean copy of the working tree with an empty DVC cache",
-    }
+    result = {**_summary(rows, total_wall), "params": str(args.params or "params.yaml"), "set": args.set,
+              "machine": machine, "how": how}
     print(f"[bench_pipeline] total {total_wall / 60:.1f} min wall, cpu/wall {result['core_use']:.2f}, "
           f"peak RSS {result['peak_rss_mib']:.0f} MiB")
     if args.json:

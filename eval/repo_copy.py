@@ -29,8 +29,6 @@ def run_in(args: list[str], cwd: Path, timeout: int | None = 900, env: dict | No
 def copy_repo(dst: Path, edit_params: Callable[[dict], None] | None = None, root: Path = ROOT) -> Path:
     """Copy ``root``'s working tree to ``dst`` and commit it in a new git repository; ``edit_params`` may change
     the parsed ``params.yaml`` first (it is written back with ``yaml.safe_dump``)."""
-    import yaml
-
     files = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard", "-z"], cwd=root,
                            capture_output=True, check=True).stdout.decode().split("\0")
     for rel in filter(None, files):
@@ -39,6 +37,32 @@ def copy_repo(dst: Path, edit_params: Callable[[dict], None] | None = None, root
             continue
         (dst / rel).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(src, dst / rel)
+    return _commit_copy(dst, edit_params)
+
+
+def copy_revision(dst: Path, rev: str, edit_params: Callable[[dict], None] | None = None, root: Path = ROOT) -> Path:
+    """Like :func:`copy_repo`, for the files of the git revision ``rev`` of ``root`` (``git archive``): a clean
+    copy of an earlier state of the project, e.g. the baseline of a before/after benchmark."""
+    import io
+    import tarfile
+
+    proc = subprocess.run(["git", "archive", "--format=tar", rev], cwd=root, capture_output=True)
+    if proc.returncode != 0:
+        raise ValueError(f"git archive {rev!r} failed: {proc.stderr.decode(errors='replace').strip()}")
+    dst.mkdir(parents=True, exist_ok=True)
+    with tarfile.open(fileobj=io.BytesIO(proc.stdout)) as tar:
+        members = [m for m in tar.getmembers() if m.isfile() and not m.name.startswith(OUTPUTS)]
+        try:
+            tar.extractall(dst, members=members, filter="data")
+        except TypeError:  # Python < 3.10.12 / 3.11.4: no extraction filters (the archive is this repository's)
+            tar.extractall(dst, members=members)
+    return _commit_copy(dst, edit_params)
+
+
+def _commit_copy(dst: Path, edit_params: Callable[[dict], None] | None) -> Path:
+    """Apply ``edit_params`` to ``dst/params.yaml`` and commit ``dst`` as a new git repository."""
+    import yaml
+
     if edit_params is not None:
         params = yaml.safe_load((dst / "params.yaml").read_text())
         edit_params(params)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import platform
 
 import pytest
 
@@ -20,9 +21,51 @@ def test_bench_runs_the_stages_a_target_needs_in_order(tmp_path) -> None:
         assert r["peak_rss_mib"] > 100  # python + torch, measured as the stage's own processes
     assert out["total_wall_s"] >= sum(r["wall_s"] for r in out["stages"]) * 0.99
     assert out["peak_rss_mib"] == max(r["peak_rss_mib"] for r in out["stages"])
-    assert json.loads((tmp_path / "b.json").read_text())["machine"]["cpus"] >= 1
+    machine = json.loads((tmp_path / "b.json").read_text())["machine"]
+    assert machine["cpus"] >= 1
+    if platform.system() == "Linux":  # the CPU's flags go beside the figures (they change them)
+        assert machine["cpu"]["model"] and isinstance(machine["cpu"]["simd"], list)
 
 
 def test_unknown_target_is_an_error_that_lists_the_stages(tmp_path) -> None:
     with pytest.raises(SystemExit, match="unknown stage"):
         bench_pipeline.main(["--targets", "fitt@tiny", "--work", str(tmp_path)])
+
+
+def _run(stages: dict[str, float]) -> dict:
+    rows = [{"stage": k, "wall_s": v, "cpu_s": v, "peak_rss_mib": 100.0 + v} for k, v in stages.items()]
+    return {"stages": rows, "total_wall_s": sum(stages.values()), "peak_rss_mib": max(r["peak_rss_mib"] for r in rows)}
+
+
+def test_compare_sums_stage_kinds_and_gives_the_ratio(tmp_path, capsys) -> None:
+    before = _run({"fit@fern": 1000.0, "colormatch@a": 150.0, "colormatch@b": 150.0, "evaluate@a": 300.0})
+    after = _run({"fit@fern": 500.0, "colormatch@a": 75.0, "reference@fern": 10.0, "evaluate@a": 165.0})
+    (tmp_path / "b.json").write_text(json.dumps(before))
+    (tmp_path / "a.json").write_text(json.dumps(after))
+    out = bench_pipeline.main(["--compare", str(tmp_path / "b.json"), str(tmp_path / "a.json")])
+    kinds = {r["kind"]: r for r in out["kinds"]}
+    assert kinds["colormatch"]["before_s"] == 300.0 and kinds["colormatch"]["before_n"] == 2
+    assert kinds["colormatch"]["ratio"] == pytest.approx(4.0)
+    assert kinds["reference"]["before_s"] is None and kinds["reference"]["ratio"] is None
+    assert out["total_ratio"] == pytest.approx(1600.0 / 750.0)
+    assert "2.13" in capsys.readouterr().out
+    (tmp_path / "x.json").write_text("{}")
+    with pytest.raises(SystemExit, match="not a bench_pipeline JSON"):
+        bench_pipeline.main(["--compare", str(tmp_path / "x.json"), str(tmp_path / "a.json")])
+
+
+def test_baseline_runs_interleave_with_the_working_tree(tmp_path, capsys) -> None:
+    """--baseline: a clean copy of a git revision runs beside the working tree's copy, one stage of each in turn,
+    which goes first alternating; both totals and the comparison are written."""
+    out = bench_pipeline.main(["--baseline", "HEAD", "--targets", "reconstruct@tiny", "--json", str(tmp_path / "ab.json")])
+    assert [r["stage"] for r in out["baseline"]["stages"]] == ["make_tiny", "reconstruct@tiny"]
+    assert [r["stage"] for r in out["current"]["stages"]] == ["make_tiny", "reconstruct@tiny"]
+    assert out["baseline"]["revision"] == "HEAD"
+    assert out["baseline"]["total_wall_s"] == pytest.approx(sum(r["wall_s"] for r in out["baseline"]["stages"]))
+    printed = [line.split()[:2] for line in capsys.readouterr().out.splitlines() if line.startswith("  ")]
+    assert printed[:4] == [["baseline", "make_tiny"], ["current", "make_tiny"], ["current", "reconstruct@tiny"],
+                           ["baseline", "reconstruct@tiny"]]
+    assert out["comparison"]["total_ratio"] > 0
+    assert json.loads((tmp_path / "ab.json").read_text())["comparison"]["kinds"][0]["kind"] == "make_tiny"
+    with pytest.raises(ValueError, match="git archive"):
+        bench_pipeline.main(["--baseline", "no-such-revision", "--targets", "make_tiny", "--work", str(tmp_path / "w")])

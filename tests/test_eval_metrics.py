@@ -351,3 +351,56 @@ def test_gram_distance_zero_for_the_style_and_ordered() -> None:
         GramDistance(sd, [])
     with pytest.raises(InputError):
         g([np.zeros((8, 8), np.float32)])
+
+
+# ------------------------------------------------------------------------------------------------ workers
+def test_ordered_map_keeps_order_and_raises_the_first_error() -> None:
+    import threading
+    import time
+
+    from eval.metrics.parallel import ordered_map
+
+    seen = set()
+
+    def slow_square(x: int) -> int:
+        seen.add(threading.current_thread().name)
+        time.sleep(0.02 * (5 - x))  # later items finish first
+        return x * x
+
+    assert ordered_map(slow_square, range(5), 3) == [0, 1, 4, 9, 16]
+    assert len(seen) > 1  # more than one thread did the work
+    assert ordered_map(slow_square, [], 3) == []
+
+    def fail_on_two(x: int) -> int:
+        if x == 2:
+            raise InputError("bad pair 2")
+        return x
+
+    with pytest.raises(InputError, match="bad pair 2"):
+        ordered_map(fail_on_two, range(4), 2)
+
+
+def test_resolve_workers_counts_cores_left_by_torch_threads() -> None:
+    from eval.metrics.parallel import available_cores, resolve_workers
+
+    assert resolve_workers(3) == 3
+    with torch_threads(1):
+        assert resolve_workers(0) == available_cores()
+    with torch_threads(available_cores()):
+        assert resolve_workers(0) == 1
+    with pytest.raises(InputError, match="evaluate.workers"):
+        resolve_workers(-1)
+
+
+def test_consistency_and_content_are_the_same_numbers_on_several_workers(proxy) -> None:
+    """Pairs spread over threads give bit-identical distances (each pair runs on one torch thread either way);
+    the flows are estimated before the workers start (one OpenCV DIS object is not shared across threads)."""
+    views = [shifted_pair(2 * k, k)[1] for k in range(5)]
+    stylized = [np.clip(v * 0.8 + 0.1 * texture(*v.shape[:2], 10 + k), 0, 1).astype(np.float32) for k, v in enumerate(views)]
+    runs = []
+    for workers in (1, 2, 3):
+        flows = FlowCache(views, FlowEstimator("dis"))
+        summary, pairs = consistency(views, stylized, 1, flows, proxy, workers=workers)
+        runs.append((summary, [(p.i, p.j, p.rmse, p.perceptual) for p in pairs]))
+    assert runs[0][0]["n_pairs"] == 4 and np.isfinite(runs[0][0]["perceptual"])
+    assert runs[1] == runs[0] and runs[2] == runs[0]

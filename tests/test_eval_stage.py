@@ -169,3 +169,13 @@ def test_stored_reference_gives_the_same_metrics(scene, proxy, tmp_path) -> None
         load_reference(tmp_path / "ref", cams, PARAMS, model_digest="def")
     with pytest.raises(InputError, match="no evaluation reference"):
         load_reference(tmp_path / "nothing", cams, PARAMS, scene="tiny")
+
+
+def test_pair_workers_give_the_same_metrics(scene, proxy) -> None:
+    """``evaluate.workers`` spreads the content and consistency pairs over threads: every metric is the same
+    number as on one worker (each pair runs on the stage's torch threads either way)."""
+    cams, model, styl, style = scene
+    one = evaluate_scene(cams, model, styl, [style], PARAMS.model_copy(update={"workers": 1}), perceptual=proxy)
+    two = evaluate_scene(cams, model, styl, [style], PARAMS.model_copy(update={"workers": 2}), perceptual=proxy)
+    assert _numbers(two.metrics) == _numbers(one.metrics)
+    assert one.metrics["speed"]["pair_workers"] == 1 and two.metrics["speed"]["pair_workers"] == 2

@@ -267,3 +267,31 @@ def test_a_stale_build_lock_is_removed_and_a_fresh_one_waited_for(tmp_path) -> N
     t0 = time.perf_counter()
     _clear_stale_build_lock(tmp_path, stale_s=600, poll_s=0.05)
     assert not lock.exists() and time.perf_counter() - t0 >= 0.25
+
+
+def test_another_checkout_loads_the_built_extension_without_recompiling(tmp_path) -> None:
+    """The build compiles copies of the sources inside its content-keyed folder, so a checkout elsewhere (a
+    benchmark's clean copy, a dvc queue's temp folder) with the same sources reuses the build: ninja would
+    recompile everything if the build commands named each checkout's own paths."""
+    import os
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    if not cpu_backend.is_available():
+        pytest.skip("the CPU extension cannot be built here (no compiler)")
+    build = cpu_backend._build_dir()
+    so = build / "abcgs_rasterize_cpu.so"
+    staged = cpu_backend.staged_sources(build)
+    assert [p.parent for p in staged] == [build / "src"] * len(staged)
+    assert all(p.read_bytes() == s.read_bytes() for p, s in zip(staged, cpu_backend._SOURCES))
+    before = so.stat().st_mtime_ns
+    shutil.copytree(Path(cpu_backend.__file__).parents[1], tmp_path / "abcgs",
+                    ignore=shutil.ignore_patterns("__pycache__", "*.gz"))
+    env = {**os.environ, "PYTHONPATH": str(tmp_path)}
+    proc = subprocess.run([sys.executable, "-c", "import abcgs.render.cpu as c; c.load_extension(); print(c.__file__)"],
+                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.strip() == str(tmp_path / "abcgs" / "render" / "cpu.py")  # the copy was imported
+    assert so.stat().st_mtime_ns == before, "the copy recompiled the extension"

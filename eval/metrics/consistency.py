@@ -48,6 +48,7 @@ from eval.metrics.content import (
     check_same_count,
     masked_rmse,
 )
+from eval.metrics.parallel import ordered_map
 
 FB_ALPHA = 0.01
 FB_BETA = 0.5
@@ -337,13 +338,21 @@ def evaluate_pair(i: int, j: int, stylized: list[np.ndarray], flows: FlowCache, 
 
 def consistency(
     originals: list[np.ndarray], stylized: list[np.ndarray], gap: int, flows: FlowCache,
-    perceptual: PerceptualDistance | None,
+    perceptual: PerceptualDistance | None, *, workers: int = 1,
 ) -> tuple[dict, list[PairResult]]:
-    """Mean masked RMSE / perceptual distance over the pairs ``(i, i + gap)``; per-pair results."""
+    """Mean masked RMSE / perceptual distance over the pairs ``(i, i + gap)``; per-pair results.
+
+    ``workers``: threads over the pairs (:func:`eval.metrics.parallel.ordered_map`; the same results for any
+    count). The flows are looked up (estimated, when ``flows`` has an estimator) first, in this thread.
+    """
     check_same_count(originals, stylized)
     for k, (o, s) in enumerate(zip(originals, stylized)):
         check_pair(o, s, f"original and stylized render of view {k}")
-    results = [evaluate_pair(i, j, stylized, flows, perceptual) for i, j in view_pairs(len(originals), gap)]
+    pairs = view_pairs(len(originals), gap)
+    for i, j in pairs:  # an estimator (one OpenCV object, or RAFT on torch's threads) runs here, not in the workers
+        hw = tuple(np.shape(stylized[i])[:2])
+        flows(i, j, hw), flows(j, i, hw)
+    results = ordered_map(lambda ij: evaluate_pair(ij[0], ij[1], stylized, flows, perceptual), pairs, workers)
     rm = np.array([r.rmse for r in results])
     pc = np.array([r.perceptual for r in results])
     summary = {

@@ -30,6 +30,7 @@ to that tap's resolution.
 
 from __future__ import annotations
 
+import copy
 import importlib.metadata
 import importlib.util
 import logging
@@ -197,6 +198,10 @@ class PerceptualDistance:
             import lpips
 
             self._lpips = lpips.LPIPS(net="alex", verbose=False).eval()
+            # the masked distance needs LPIPS's per-pixel map: a shallow copy sharing the network, so that no
+            # call toggles a flag another thread's call reads (eval/metrics/parallel.py)
+            self._lpips_spatial = copy.copy(self._lpips)
+            self._lpips_spatial.spatial = True
             self.name = "lpips"
             self.info = {"name": "lpips", "implementation": "lpips.LPIPS(net='alex') v0.1, inputs in [-1, 1]",
                          "lpips_version": _version("lpips"), "backbone": str(lpips_backbone_file())}
@@ -234,9 +239,7 @@ class PerceptualDistance:
             x, y = as_bchw(a).clamp(0, 1), as_bchw(b).clamp(0, 1)
             if mask is None:
                 return float(self._lpips(x * 2 - 1, y * 2 - 1).mean())
-            self._lpips.spatial = True
-            dmap = self._lpips(x * 2 - 1, y * 2 - 1)  # (1, 1, H, W), upsampled to the input size
-            self._lpips.spatial = False
+            dmap = self._lpips_spatial(x * 2 - 1, y * 2 - 1)  # (1, 1, H, W), upsampled to the input size
             mt = torch.from_numpy(m)[None, None]
             return float((dmap * mt).sum() / mt.sum())
         x, y = as_bchw(a).clamp(0, 1), as_bchw(b).clamp(0, 1)

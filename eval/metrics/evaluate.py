@@ -47,6 +47,7 @@ from eval.metrics.fid import (
     random_patches,
     resize_short_side,
 )
+from eval.metrics.parallel import ordered_map, resolve_workers
 from eval.metrics.reference import SceneReference, evaluated_cameras, render_views
 from eval.metrics.style_distance import GramDistance
 
@@ -124,15 +125,16 @@ def evaluate_images(
     perceptual = perceptual or PerceptualDistance(params.perceptual, layers=params.proxy_layers, vgg_state=vgg_state,
                                                   vgg_info=vgg_info.model_dump())
     pname = perceptual.name
+    workers = resolve_workers(params.workers)
     ssims = [ssim(o, s) for o, s in zip(originals, stylized)]
-    content = [perceptual(o, s) for o, s in zip(originals, stylized)]
+    content = ordered_map(lambda pair: perceptual(*pair), zip(originals, stylized), workers)
     timings["content_s"] = time.perf_counter() - t
 
     t = time.perf_counter()
     if flows is None:
         flows = FlowCache(originals, make_flow_estimator(params.flow, params.raft_weights, params.raft_iterations))
-    short, short_pairs = consistency(originals, stylized, params.short_term_gap, flows, perceptual)
-    long, long_pairs = consistency(originals, stylized, params.long_term_gap, flows, perceptual)
+    short, short_pairs = consistency(originals, stylized, params.short_term_gap, flows, perceptual, workers=workers)
+    long, long_pairs = consistency(originals, stylized, params.long_term_gap, flows, perceptual, workers=workers)
     timings["consistency_s"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -152,7 +154,7 @@ def evaluate_images(
     t = time.perf_counter()
     gram = GramDistance(vgg_state, [resize_to_height(s, params.gram_style_height) for s in style_images],
                         params.gram_layers)
-    gram_per_view = [gram.per_image(s) for s in stylized]
+    gram_per_view = ordered_map(gram.per_image, stylized, workers)
     timings["gram_s"] = time.perf_counter() - t
 
     # ArtFID: official only with real LPIPS and the art-trained Inception
@@ -281,7 +283,7 @@ def _evaluate_scene(cameras, original, stylized, style_images, params, *, styliz
     m["render_fps"] = fps
     m["speed"] = {"render_fps": fps, "fps_passes_s": pass_times, "fps_views_per_pass": len(cams), "backend": backend_s,
                   "device": str(stylized.device), "resolution": m["resolution"],
-                  "torch_threads": torch.get_num_threads()}
+                  "torch_threads": torch.get_num_threads(), "pair_workers": resolve_workers(params.workers)}
     if stylize_info is not None:
         m["stylize_seconds"] = stylize_info.get("stylize_seconds")
         m["stylize_minutes"] = stylize_info["stylize_seconds"] / 60.0 if stylize_info.get("stylize_seconds") is not None else None
