@@ -8,8 +8,8 @@
     python eval/bench_pipeline.py --baseline 0a3aad0 --baseline-params old.yaml --params new.yaml --json ba.json
 
 How it measures: the working tree is copied into a fresh git + DVC repository (``eval/repo_copy.py``: no
-outputs, empty cache, as a clean clone), ``--params`` replaces its ``params.yaml`` and ``--set`` changes keys
-in it. ``dvc dag`` gives the stages in an order that respects their edges; then each stage runs alone
+outputs, empty cache, as a clean clone after ``make install``: the C++ extension is built, or loaded, before
+anything is timed), ``--params`` replaces its ``params.yaml`` and ``--set`` changes keys in it. ``dvc dag`` gives the stages in an order that respects their edges; then each stage runs alone
 (``dvc repro --single-item <stage>``) inside a fresh Python wrapper process that reports, from
 ``getrusage(RUSAGE_CHILDREN)``, the CPU seconds (user + system) of the stage's processes and their peak
 resident set size. Per stage it prints wall seconds, CPU seconds / wall (core use: 1.0 = one core busy) and
@@ -258,6 +258,7 @@ def main(argv: list[str] | None = None) -> dict:
             if args.json:
                 write_json(args.json, result)
             return result
+        warm_up(repo)
         machine["loadavg_before"] = os.getloadavg()
         print(f"[bench_pipeline] {len(stages)} stages in {repo}; {os.cpu_count()} CPUs, load average "
               f"{machine['loadavg_before'][0]:.2f}", flush=True)
