@@ -182,6 +182,21 @@ def compare(before: dict, after: dict) -> dict:
             "after_total_s": after["total_wall_s"]}
 
 
+def params_editor(params_file: Path | None, sets: list[str]):
+    """An ``edit_params`` for :func:`eval.repo_copy.copy_repo`: replace ``params.yaml`` by ``params_file`` (when
+    given), then apply the ``KEY=VALUE`` changes (YAML values) of ``sets``."""
+
+    def edit(params: dict) -> None:
+        if params_file is not None:
+            params.clear()
+            params.update(yaml.safe_load(params_file.read_text()))
+        for item in sets:
+            key, _, value = item.partition("=")
+            set_dotted(params, key, yaml.safe_load(value))
+
+    return edit
+
+
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
@@ -209,14 +224,6 @@ def main(argv: list[str] | None = None) -> dict:
                 raise SystemExit(f"--compare: {path} is not a bench_pipeline JSON (no 'stages' / 'total_wall_s')")
         return compare(*runs)
 
-    def edit(params: dict) -> None:
-        if args.params is not None:
-            params.clear()
-            params.update(yaml.safe_load(args.params.read_text()))
-        for item in args.set:
-            key, _, value = item.partition("=")
-            set_dotted(params, key, yaml.safe_load(value))
-
     how = ("each stage alone (dvc repro --single-item) in a fresh wrapper process; CPU and peak RSS from "
            "getrusage(RUSAGE_CHILDREN); a clean copy of the working tree with an empty DVC cache")
     machine = {"cpus": os.cpu_count(), "cpu": cpu_description(), "platform": platform.platform(),
@@ -225,23 +232,15 @@ def main(argv: list[str] | None = None) -> dict:
           flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         work = args.work or Path(tmp)
-        repo = copy_repo(work / "repo", edit)
+        repo = copy_repo(work / "repo", params_editor(args.params, args.set))
         stages = stage_order(repo, args.targets)
+        warm_up(repo)
         if args.baseline is not None:
             base_params = args.baseline_params or args.params
-
-            def edit_base(params: dict) -> None:
-                if base_params is not None:
-                    params.clear()
-                    params.update(yaml.safe_load(base_params.read_text()))
-                for item in args.set:  # the same changes to both runs
-                    key, _, value = item.partition("=")
-                    set_dotted(params, key, yaml.safe_load(value))
-
-            base = copy_revision(work / "baseline", args.baseline, edit_base)
+            # the same --set changes to both runs
+            base = copy_revision(work / "baseline", args.baseline, params_editor(base_params, args.set))
             base_stages = stage_order(base, args.targets)
             warm_up(base)
-            warm_up(repo)
             machine["loadavg_before"] = os.getloadavg()
             print(f"[bench_pipeline] baseline {args.baseline} ({len(base_stages)} stages, {base}) and the working "
                   f"tree ({len(stages)} stages, {repo}) interleaved; {os.cpu_count()} CPUs, load average "
@@ -258,7 +257,6 @@ def main(argv: list[str] | None = None) -> dict:
             if args.json:
                 write_json(args.json, result)
             return result
-        warm_up(repo)
         machine["loadavg_before"] = os.getloadavg()
         print(f"[bench_pipeline] {len(stages)} stages in {repo}; {os.cpu_count()} CPUs, load average "
               f"{machine['loadavg_before'][0]:.2f}", flush=True)
