@@ -6,9 +6,10 @@ features; a style image resized to height 256 (4:3) → 64×85 = 5440 style feat
 
     python eval/bench_fast.py [--render 504x378] [--style 341x256] [--budgets 16777216,4194304] [--repeats 3] [--device cpu]
 
-Prints per-stage times of the chunked implementation (kNN, pair statistics, solve, loss+backward) with
-the style side prepared once (:class:`abcgs.style.knn.StyleFeatures`, as a stylization run does), its total
-for several ``max_block_elems`` budgets, and the dense reference's total. The share of FAST in a real
+Prints per-stage times of the chunked implementation with the exact search (kNN, pair statistics, solve,
+loss+backward) with the style side prepared once (:class:`abcgs.style.knn.StyleFeatures`, as a stylization run
+does), its total for several ``max_block_elems`` budgets, the total with the default projected (approximate) search,
+and the dense reference's total. The share of FAST in a real
 stylization step is printed by ``eval/bench_stylize.py``.
 """
 
@@ -83,10 +84,11 @@ def main() -> None:
     print(f"chunked stages: knn {t_knn:.3f}s  pair-stats {t_stats:.3f}s  solve(f64, Cholesky) {t_solve:.3f}s  "
           f"loss+bw {t_loss:.3f}s")
 
-    def run_chunked(budget: int):
+    def run_chunked(budget: int, projection_rank: int = 0):
         def f():
             f_r.grad = None
-            fast.fast_loss([(f_r, style)], fast.FastParams(max_block_elems=budget)).backward()
+            params = fast.FastParams(max_block_elems=budget, projection_rank=projection_rank)
+            fast.fast_loss([(f_r, style)], params).backward()
 
         return f
 
@@ -96,9 +98,13 @@ def main() -> None:
 
     for b in (int(x) for x in args.budgets.split(",")):
         print(f"chunked total (max_block_elems={b:>9,}): {_best(run_chunked(b), args.repeats):.3f}s")
+    rank = fast.FastParams().projection_rank
+    print(f"projected search (rank {rank}, the default; approximate): "
+          f"{_best(run_chunked(knn.DEFAULT_MAX_BLOCK_ELEMS, rank), args.repeats):.3f}s "
+          "(random features: its recall on real ones is eval/bench_knn_recall.py's)")
     print(f"dense reference total:                     {_best(run_dense, args.repeats):.3f}s")
     with torch.no_grad():
-        lc = float(fast.fast_loss([(f_r, f_s)], fast.FastParams(max_block_elems=1 << 20)))
+        lc = float(fast.fast_loss([(f_r, f_s)], fast.FastParams(max_block_elems=1 << 20, projection_rank=0)))
         ld = float(fast.fast_loss_dense(f_r, f_s))
     print(f"loss chunked {lc:.7f} dense {ld:.7f} |diff| {abs(lc - ld):.2e}")
 

@@ -71,6 +71,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--knn-search", choices=get_args(KnnSearch), default=None,
                     help="override stylize.fast.knn_search (the neighbour search of FAST/NNFM/KNNFM)")
+    ap.add_argument("--projection-rank", type=int, default=None,
+                    help="override stylize.fast.projection_rank (0: exact search; r > 0: the projected search)")
+    ap.add_argument("--projection-candidates", type=int, default=None, help="override stylize.fast.projection_candidates")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     if args.threads:
@@ -80,8 +83,10 @@ def main(argv=None) -> dict:
     update = {k: v for k, v in (("iterations", args.iterations), ("color_pass_iterations", args.color_pass_iterations))
               if v is not None}
     sp = params.stylize.model_copy(update=update)
-    if args.knn_search is not None:
-        sp = sp.model_copy(update={"fast": sp.fast.model_copy(update={"knn_search": args.knn_search})})
+    fast_update = {key: value for key, value in (("knn_search", args.knn_search), ("projection_rank", args.projection_rank),
+                                                 ("projection_candidates", args.projection_candidates)) if value is not None}
+    if fast_update:
+        sp = sp.model_copy(update={"fast": sp.fast.model_copy(update=fast_update)})
     base = args.work / args.scene.name
     scene = read_colmap_scene(base / "colmap" / "sparse", base / "colmap" / "images")
     original = read_ply(base / "gs" / "point_cloud.ply")
@@ -137,6 +142,7 @@ def main(argv=None) -> dict:
         write_json(args.json, out)
         save_image(args.json.with_suffix(".png"), image_grid(rows, ["original", "style", "colour-matched", "stylized"], height=200))
         write_ply(args.json.with_suffix(".ply"), res.model)
+        write_ply(args.json.with_suffix(".colormatch.ply"), cm.model)  # the start (e.g. for eval/bench_knn_recall.py)
     return out
 
 

@@ -102,11 +102,37 @@ def test_gradient_only_through_rendered_features():
     assert torch.allclose(f_r.grad, f_r2.grad)
 
 
-def test_cosine_distance_gradcheck():
+@pytest.mark.parametrize("axis", ["pixel", "channel"])
+def test_cosine_distance_gradcheck(axis):
+    """The hand-written gradient of the cosine distance against finite differences (float64)."""
     f_r, f_s = _feats(5, 7, 6, seed=1)
     target = fast.fast_target(f_r, f_s)
     x = f_r.clone().requires_grad_(True)
-    assert torch.autograd.gradcheck(lambda t: fast.cosine_distance_loss(t, target), (x,))
+    assert torch.autograd.gradcheck(lambda t: fast.cosine_distance_loss(t, target, axis=axis), (x,))
+
+
+@pytest.mark.parametrize("axis", ["pixel", "channel"])
+def test_cosine_distance_matches_its_autograd_reference(axis):
+    """Value and gradient equal the torch-ops formula with autograd, including zero vectors (distance 1, finite
+    gradient) and float32 features of a realistic size."""
+    g = torch.Generator().manual_seed(4)
+    for dtype, c, n in ((torch.float64, 9, 13), (torch.float32, 768, 300)):
+        f = (torch.randn(c, n, generator=g, dtype=dtype) + 0.3).relu()
+        t = (torch.randn(c, n, generator=g, dtype=dtype) + 0.3).relu()
+        f[:, 2] = 0.0
+        f[3, :] = 0.0
+        t[:, 5] = 0.0
+        grads, values = [], []
+        for fn in (fast.cosine_distance_loss, fast.cosine_distance_loss_reference):
+            x = f.clone().requires_grad_(True)
+            value = fn(x, t, axis=axis)
+            value.backward()
+            values.append(value.detach())
+            grads.append(x.grad)
+        tol = 1e-12 if dtype == torch.float64 else 1e-6
+        assert torch.allclose(values[0], values[1], atol=tol, rtol=tol)
+        assert torch.isfinite(grads[0]).all()
+        assert torch.allclose(grads[0], grads[1], atol=tol * float(grads[1].abs().max()), rtol=1e-5)
 
 
 def test_groups_are_summed():

@@ -85,11 +85,11 @@ def test_bf16_similarity_bound_holds():
 def test_fast_loss_is_the_same_with_either_search():
     f_r, f_s = _feats(64, 400, 700, seed=5)
     style = knn.StyleFeatures.of(f_s)
-    exact = fast.fast_loss([(f_r, style)], fast.FastParams(knn_search="exact"))
-    low = fast.fast_loss([(f_r, style)], fast.FastParams(knn_search="bf16"))
+    exact = fast.fast_loss([(f_r, style)], fast.FastParams(knn_search="exact", projection_rank=0))
+    low = fast.fast_loss([(f_r, style)], fast.FastParams(knn_search="bf16", projection_rank=0))
     assert torch.equal(exact, low)
-    nn_exact = losses.style_loss("nnfm", [(f_r, style)], fast_params=fast.FastParams(knn_search="exact"))
-    nn_low = losses.style_loss("nnfm", [(f_r, style)], fast_params=fast.FastParams(knn_search="bf16"))
+    nn_exact = losses.style_loss("nnfm", [(f_r, style)], fast_params=fast.FastParams(knn_search="exact", projection_rank=0))
+    nn_low = losses.style_loss("nnfm", [(f_r, style)], fast_params=fast.FastParams(knn_search="bf16", projection_rank=0))
     assert torch.equal(nn_exact, nn_low)
 
 
@@ -142,3 +142,121 @@ def test_pair_dots_equal_row_dot_products(monkeypatch, use_kernels):
     got = knn.pair_dots(a, b, ia, ib)
     ref = (a.double()[ia] * b.double()[ib]).sum(1)
     assert got.shape == (999,) and torch.allclose(got.double(), ref, atol=1e-5)
+
+
+def _rank_topk(s: torch.Tensor, k: int, dim: int) -> torch.Tensor:
+    """Indices of the k largest along ``dim``, ties to the lower index (the kernel's order), largest first."""
+    n = s.shape[dim]
+    pos = torch.arange(n, dtype=torch.float64).view(*([-1, 1] if dim == 0 else [1, -1]))
+    key = s.double() - pos * 1e-12  # values here differ by far more than 1e-12 unless equal
+    return key.topk(k, dim=dim).indices
+
+
+@needs_kernels
+@pytest.mark.parametrize("n_a, n_b, r, ka, kb", [(301, 517, 24, 5, 7), (6, 16, 8, 16, 6), (7, 40, 3, 1, 0),
+                                                 (50, 9, 130, 0, 4), (1, 1, 5, 1, 1)])
+def test_kernel_topk_dots_both_matches_torch_topk(n_a, n_b, r, ka, kb):
+    g = torch.Generator().manual_seed(n_a + r)
+    a, b = torch.randn(n_a, r, generator=g), torch.randn(n_b, r, generator=g)
+    a_idx, a_val, b_idx, b_val = cpu_kernels.load_extension().topk_dots_both(a, b, ka, kb)
+    s = a.double() @ b.double().t()
+    assert a_idx.shape == (n_a, ka) and b_idx.shape == (n_b, kb)
+    if ka:
+        assert torch.equal(a_idx, s.topk(ka, dim=1).indices)
+        assert torch.allclose(a_val.double(), s.gather(1, a_idx), atol=1e-5)
+    if kb:
+        assert torch.equal(b_idx, s.topk(kb, dim=0).indices.t())
+        assert torch.allclose(b_val.double(), s.t().gather(1, b_idx), atol=1e-5)
+
+
+@needs_kernels
+def test_kernel_topk_dots_both_ties_and_thread_counts():
+    """Ties keep the lower index in both directions, and any thread count gives the same lists."""
+    g = torch.Generator().manual_seed(5)
+    a = torch.randint(-2, 3, (400, 6), generator=g).float()  # small integers: many exactly equal products
+    b = torch.randint(-2, 3, (700, 6), generator=g).float()
+    ext = cpu_kernels.load_extension()
+    outs = []
+    for threads in (1, 2, 3):
+        with cpu_kernels.kernel_threads(threads):
+            outs.append(ext.topk_dots_both(a, b, 9, 11))
+    for other in outs[1:]:
+        assert all(torch.equal(x, y) for x, y in zip(outs[0], other))
+    s = a @ b.t()  # exact in float32 (small integers)
+    assert torch.equal(outs[0][0], _rank_topk(s, 9, 1))
+    assert torch.equal(outs[0][2], _rank_topk(s, 11, 0).t())
+
+
+@needs_kernels
+def test_kernel_topk_dots_both_rejects_bad_input():
+    ext = cpu_kernels.load_extension()
+    a, b = torch.randn(5, 4), torch.randn(6, 4)
+    with pytest.raises(RuntimeError, match="need 0 <= ka <= Nb"):
+        ext.topk_dots_both(a, b, 7, 1)
+    with pytest.raises(RuntimeError, match="not both 0"):
+        ext.topk_dots_both(a, b, 0, 0)
+    with pytest.raises(RuntimeError, match="a \\(Na, R\\), b \\(Nb, R\\)"):
+        ext.topk_dots_both(a, torch.randn(6, 3), 1, 1)
+
+
+@pytest.mark.parametrize("use_kernels", [True, False])
+def test_projected_search_is_exact_where_the_projection_loses_nothing(monkeypatch, use_kernels):
+    """Features in a 12-dimensional subspace: a rank-12 projection keeps every similarity, so the projected search
+    returns the exact neighbour sets (the candidates hold the true neighbours, the exact re-ranking orders them)."""
+    if use_kernels and not cpu_kernels.is_available():
+        pytest.skip("the CPU kernels' extension did not build here (make install builds it)")
+    if not use_kernels:
+        monkeypatch.setattr(knn, "_cpu_kernels", lambda: None)
+    g = torch.Generator().manual_seed(3)
+    basis = torch.randn(64, 12, generator=g)
+    f_r = (basis @ torch.randn(12, 250, generator=g)).relu() + 1e-3
+    f_s = (basis @ torch.randn(12, 400, generator=g)).relu() + 1e-3
+    style = knn.StyleFeatures.of(f_s)
+    f_r = basis @ torch.linalg.lstsq(basis, f_r).solution  # back into the subspace after the ReLU
+    style = knn.StyleFeatures.of(basis @ torch.linalg.lstsq(basis, style.raw).solution)
+    proj = knn.Projection(rank=12, candidates=8)
+    for k_rs, k_sr in [(5, 5), (1, 0), (0, 3)]:
+        a_rs, a_sr = knn.cosine_topk(f_r, style, k_rs, k_sr, projection=proj)
+        b_rs, b_sr = knn.cosine_topk(f_r, style, k_rs, k_sr, search="exact")
+        assert (a_rs is None) == (b_rs is None) and (a_sr is None) == (b_sr is None)
+        if b_rs is not None:
+            assert _same_sets(a_rs, b_rs, 1)
+        if b_sr is not None:
+            assert a_sr.shape == b_sr.shape and _same_sets(a_sr, b_sr, 0)
+
+
+def test_projected_search_in_the_losses():
+    """FAST, NNFM and KNNFM take the projected search from FastParams: with candidates covering every feature the
+    result equals the exact search's (how close it is otherwise depends on the features: eval/bench_knn_recall.py)."""
+    f_r, f_s = _feats(96, 300, 120, seed=7)
+    style = knn.StyleFeatures.of(f_s)
+    exact = fast.FastParams(knn_search="exact", projection_rank=0)
+    # every feature is a candidate both ways, and the size threshold is off
+    full = fast.FastParams(projection_rank=8, projection_candidates=300, projection_min_similarities=0)
+    assert full.projection() == knn.Projection(8, 300, 0) and exact.projection() is None
+    for method in ("fast", "nnfm", "knnfm"):
+        a = losses.style_loss(method, [(f_r, style)], fast_params=exact)
+        b = losses.style_loss(method, [(f_r, style)], fast_params=full)
+        assert torch.allclose(a, b, rtol=1e-5, atol=1e-7), method
+    with pytest.raises(ValidationError):
+        fast.FastParams(projection_rank=-1)
+    with pytest.raises(InputError, match="projection search"):
+        knn.Projection(rank=0)
+
+
+def test_projected_search_runs_only_where_it_applies(monkeypatch):
+    """The default FastParams ask for the projected search, but below ``projection_min_similarities`` (the tiny scene's
+    searches), at a rank not below the channel count and on a GPU the exact search runs."""
+    proj = fast.FastParams().projection()
+    assert proj is not None and proj.rank == 128 and proj.min_similarities == 2**22
+    cpu, gpu = torch.device("cpu"), torch.device("cuda")
+    assert proj.applies(2852, 6528, 768, cpu) and not proj.applies(300, 1000, 768, cpu)
+    assert not proj.applies(2852, 6528, 96, cpu) and not proj.applies(2852, 6528, 768, gpu)
+    calls = []
+    monkeypatch.setattr(knn, "_projected_topk", lambda *a: calls.append(a) or (None, None))
+    f_r, f_s = _feats(96, 300, 500, seed=1)
+    nn_default, _ = knn.cosine_topk(f_r, f_s, 5, 0, projection=proj)
+    nn_exact, _ = knn.cosine_topk(f_r, f_s, 5, 0, search="exact")
+    assert not calls and torch.equal(nn_default, nn_exact)
+    knn.cosine_topk(f_r, f_s, 5, 0, projection=knn.Projection(16, 8, 0))
+    assert len(calls) == 1

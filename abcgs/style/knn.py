@@ -23,17 +23,25 @@ Two searches give the same neighbour sets (``search``):
 
 ``auto`` picks ``bf16`` on a CPU whose oneDNN runs bf16 natively and for at least :data:`BF16_MIN_ELEMS`
 similarities, else ``exact``.
+
+A third search is approximate and therefore a separate setting (:class:`Projection`, ``stylize.fast.projection_rank``),
+not a value of ``search``: each feature's candidates come from the similarities of the features projected onto the
+``rank`` principal directions of the painting's unit features (computed once per run), ``candidates`` per feature in
+each direction, found in one pass over the ``N_r × N_s`` projected products without storing them
+(``topk_dots_both`` in ``abcgs/render/csrc/knn_cpu.cpp``); the candidates are then re-ranked by their exact
+similarities. A true neighbour is missed only when it falls outside the candidates; ``eval/bench_knn_recall.py``
+measures how often on real stylization features (the recall is printed and recorded in docs/SCALING.md).
 """
 
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import torch
 
-from abcgs.errors import InputError
+from abcgs.errors import InputError, NumericalError
 
 DEFAULT_MAX_BLOCK_ELEMS = 2**22
 """16 MiB of float32 similarities per tile. Below glibc's 32 MiB mmap ceiling, the tile's memory is reused
@@ -71,6 +79,26 @@ def bf16_with_residuals(x: torch.Tensor, dim: int) -> tuple[torch.Tensor, torch.
     """``x`` rounded to bfloat16, and the norm of each vector's rounding residual ``‖x − bf16(x)‖`` along ``dim``."""
     low = x.to(torch.bfloat16)
     return low, (x - low.float()).norm(dim=dim)
+
+
+@dataclass(frozen=True)
+class Projection:
+    """The approximate neighbour search (module docstring): candidates from ``rank``-dimensional projections onto the
+    painting's principal feature directions, ``candidates`` per feature and direction, re-ranked exactly."""
+
+    rank: int
+    candidates: int = 16
+    min_similarities: int = 0
+    """Searches of fewer ``N_r · N_s`` similarities run exactly instead (cheap there)."""
+
+    def __post_init__(self) -> None:
+        if self.rank < 1 or self.candidates < 1:
+            raise InputError(f"projection search: rank and candidates must be >= 1, got {self.rank}, {self.candidates}")
+
+    def applies(self, n_r: int, n_s: int, channels: int, device: torch.device) -> bool:
+        """Whether the projected search runs for an ``n_r × n_s`` search over ``channels``-dimensional features on
+        ``device``: on the CPU only (a GPU runs the exact product quickly; there the approximation buys nothing)."""
+        return device.type == "cpu" and self.rank < channels and n_r * n_s >= self.min_similarities
 
 
 def resolve_search(search: KnnSearch, n_r: int, n_s: int, device: torch.device) -> Literal["exact", "bf16"]:
@@ -134,6 +162,7 @@ class StyleFeatures:
     raw: torch.Tensor
     unit: torch.Tensor
     rows: torch.Tensor
+    _projections: dict = field(default_factory=dict, compare=False, repr=False)
 
     @classmethod
     def of(cls, f_s: torch.Tensor) -> StyleFeatures:
@@ -153,6 +182,17 @@ class StyleFeatures:
     def unit_rows(self) -> torch.Tensor:
         """``unit.T`` contiguous ``(N_s, C)`` float32 (exact re-ranking of the bf16 search)."""
         return self.unit.t().contiguous()
+
+    def projection(self, rank: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(basis (rank, C), projected rows (N_s, rank))``: the ``rank`` leading eigenvectors of ``unit unitᵀ`` (the
+        directions that keep most of the unit features' energy, so that projected dot products approximate the
+        cosine similarities best) and the unit features in that basis. Computed once per rank."""
+        if rank not in self._projections:
+            unit = self.unit.double()
+            _, vecs = torch.linalg.eigh(unit @ unit.t())  # ascending eigenvalues
+            basis = vecs[:, -rank:].flip(1).t().to(self.unit.dtype).contiguous()
+            self._projections[rank] = (basis, (basis @ self.unit).t().contiguous())
+        return self._projections[rank]
 
     @functools.cached_property
     def unit_bf16(self) -> tuple[torch.Tensor, torch.Tensor]:
@@ -327,6 +367,40 @@ def _bf16_topk(u_r: torch.Tensor, style: StyleFeatures, k_rs: int, k_sr: int, ma
     return nn_rs, nn_sr
 
 
+def _rerank(own: torch.Tensor, other: torch.Tensor, cand: torch.Tensor, k: int) -> torch.Tensor:
+    """Of each row's candidates ``cand`` ``(N, K)`` (rows of ``other`` ``(M, C)``), the ``k`` with the largest exact
+    dot products with ``own`` ``(N, C)``: ``(N, k)``, largest first (the kernels' ``rerank_topk``, else torch)."""
+    if bool((cand < 0).any()):
+        raise NumericalError("projected neighbour search: a feature found no candidates (non-finite features?)")
+    ext = _cpu_kernels() if own.device.type == "cpu" and own.dtype == torch.float32 else None
+    if ext is not None:
+        return ext.rerank_topk(own, other, cand, k)
+    rows = torch.arange(cand.shape[0], device=cand.device)[:, None].expand_as(cand).reshape(-1)
+    exact = pair_dots(own, other, rows, cand.reshape(-1)).view(cand.shape)
+    return cand.gather(1, exact.topk(k, dim=1).indices)
+
+
+def _projected_topk(f_r: torch.Tensor, style: StyleFeatures, k_rs: int, k_sr: int, projection: Projection):
+    """The approximate search (module docstring) on ``f_r`` ``(C, N_r)`` (any scale):
+    ``(nn_rs (N_r, k_rs), nn_sr (N_s, k_sr))``, None for a direction with k = 0."""
+    n_r, n_s = f_r.shape[1], style.shape[1]
+    basis, s_proj = style.projection(projection.rank)
+    ur_rows = f_r.t().contiguous()  # (N_r, C), scaled to unit rows in place (zero rows stay zero)
+    ur_rows.mul_((ur_rows * ur_rows).sum(dim=1, keepdim=True).sqrt_().clamp_min_(1e-8).reciprocal_())
+    r_proj = ur_rows @ basis.t()  # (N_r, rank)
+    kc_rs = min(max(projection.candidates, k_rs), n_s) if k_rs > 0 else 0
+    kc_sr = min(max(projection.candidates, k_sr), n_r) if k_sr > 0 else 0
+    ext = _cpu_kernels() if f_r.device.type == "cpu" and f_r.dtype == torch.float32 else None
+    if ext is not None:
+        cand_rs, _, cand_sr, _ = ext.topk_dots_both(r_proj, s_proj, kc_rs, kc_sr)
+    else:
+        _, cand_rs, _, cand_sr_t = _tiled_topk(r_proj, s_proj.t(), kc_rs, kc_sr, DEFAULT_MAX_BLOCK_ELEMS)
+        cand_sr = cand_sr_t.t() if cand_sr_t is not None else None
+    nn_rs = _rerank(ur_rows, style.unit_rows, cand_rs, k_rs) if k_rs > 0 else None
+    nn_sr = _rerank(style.unit_rows, ur_rows, cand_sr, k_sr) if k_sr > 0 else None
+    return nn_rs, nn_sr
+
+
 @torch.no_grad()
 def cosine_topk(
     f_r: torch.Tensor,
@@ -337,6 +411,7 @@ def cosine_topk(
     max_block_elems: int = DEFAULT_MAX_BLOCK_ELEMS,
     normalized: bool = False,
     search: KnnSearch = "exact",
+    projection: Projection | None = None,
 ) -> tuple[torch.Tensor | None, torch.Tensor | None]:
     """k nearest neighbours by cosine similarity in both directions.
 
@@ -346,14 +421,20 @@ def cosine_topk(
     direction with ``k = 0`` returns None. ``normalized=True`` skips normalising columns (already unit;
     a :class:`StyleFeatures` brings its own unit columns). At most ``max_block_elems`` similarities exist
     at a time. ``search``: ``exact``, ``bf16`` (certified, same sets) or ``auto`` (module docstring).
+    ``projection``: the approximate search instead (module docstring; ``search`` is then unused) on the CPU, where it
+    has fewer dimensions than the features and the search is large enough (:meth:`Projection.applies`).
     """
     style = f_s if isinstance(f_s, StyleFeatures) else None
     check_feature_pair(f_r, style.raw if style is not None else f_s, "cosine_topk")
     f_r = f_r.detach()
-    if not normalized:
-        f_r = normalize_columns(f_r)
     n_r, n_s = f_r.shape[1], f_s.shape[1]
     k_rs, k_sr = min(k_rs, n_s), min(k_sr, n_r)
+    if projection is not None and projection.applies(n_r, n_s, f_r.shape[0], f_r.device):  # normalises rows itself
+        style = style if style is not None else StyleFeatures.of(f_s)
+        nn_rs, nn_sr = _projected_topk(f_r, style, k_rs, k_sr, projection)
+        return nn_rs, (nn_sr.t().contiguous() if nn_sr is not None else None)
+    if not normalized:
+        f_r = normalize_columns(f_r)
     if resolve_search(search, n_r, n_s, f_r.device) == "bf16" and f_r.dtype == torch.float32:
         if style is None:
             style = StyleFeatures.of(f_s)
@@ -374,16 +455,17 @@ def mutual_knn_pairs(
     *,
     max_block_elems: int = DEFAULT_MAX_BLOCK_ELEMS,
     search: KnnSearch = "exact",
+    projection: Projection | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Nonzero entries of the FAST affinity ``A`` as index lists ``(rows, cols)``, each ``(N_pair,)`` int64.
 
     ``A_ij = 1`` iff style ``j`` is among rendered ``i``'s k nearest style features OR rendered ``i`` is
     among style ``j``'s k nearest rendered features (cosine similarity). Pairs found in both directions
-    appear once; sorted by ``(i, j)``. ``search``: see :func:`cosine_topk`.
+    appear once; sorted by ``(i, j)``. ``search``, ``projection``: see :func:`cosine_topk`.
     """
     if k < 1:
         raise InputError(f"k must be >= 1, got {k}")
-    nn_rs, nn_sr = cosine_topk(f_r, f_s, k, k, max_block_elems=max_block_elems, search=search)
+    nn_rs, nn_sr = cosine_topk(f_r, f_s, k, k, max_block_elems=max_block_elems, search=search, projection=projection)
     assert nn_rs is not None and nn_sr is not None
     n_r, n_s = f_r.shape[1], nn_sr.shape[1]
     dev = nn_rs.device

@@ -25,6 +25,7 @@ from abcgs.style.fast import FastParams, FastStats, cosine_distance_loss, fast_l
 from abcgs.style.knn import (
     DEFAULT_MAX_BLOCK_ELEMS,
     KnnSearch,
+    Projection,
     StyleFeatures,
     as_style_features,
     check_feature_pair,
@@ -49,41 +50,49 @@ def knn_average_target(
     *,
     max_block_elems: int = DEFAULT_MAX_BLOCK_ELEMS,
     search: KnnSearch = "exact",
+    projection: Projection | None = None,
 ) -> torch.Tensor:
     """``(C, N_r)``: for each rendered feature, the mean of its k most cosine-similar style features (no grad).
 
-    ``search``: :func:`abcgs.style.knn.cosine_topk`'s (``exact``, certified ``bf16`` or ``auto``; same neighbours).
+    ``search``: :func:`abcgs.style.knn.cosine_topk`'s (``exact``, certified ``bf16`` or ``auto``; same neighbours);
+    ``projection``: the approximate search instead.
     """
     style = as_style_features(f_s)
-    nn_rs, _ = cosine_topk(f_r, style, k, 0, max_block_elems=max_block_elems, search=search)
+    nn_rs, _ = cosine_topk(f_r, style, k, 0, max_block_elems=max_block_elems, search=search, projection=projection)
     assert nn_rs is not None
     with torch.no_grad():
         return style.raw[:, nn_rs].mean(dim=2)  # (C, N_r, k) → (C, N_r)
 
 
 def nnfm_loss(
-    groups: Groups, *, max_block_elems: int = DEFAULT_MAX_BLOCK_ELEMS, search: KnnSearch = "exact"
+    groups: Groups,
+    *,
+    max_block_elems: int = DEFAULT_MAX_BLOCK_ELEMS,
+    search: KnnSearch = "exact",
+    projection: Projection | None = None,
 ) -> torch.Tensor:
     """ARF's NNFM loss summed over groups (chunked nearest-neighbour search)."""
-    _check_groups(groups, "NNFM")
-    return torch.stack(
-        [
-            cosine_distance_loss(f_r, knn_average_target(f_r, f_s, 1, max_block_elems=max_block_elems, search=search))
-            for f_r, f_s in groups
-        ]
-    ).sum()
+    return knnfm_loss(groups, 1, max_block_elems=max_block_elems, search=search, projection=projection, what="NNFM")
 
 
 def knnfm_loss(
-    groups: Groups, k: int = 5, *, max_block_elems: int = DEFAULT_MAX_BLOCK_ELEMS, search: KnnSearch = "exact"
+    groups: Groups,
+    k: int = 5,
+    *,
+    max_block_elems: int = DEFAULT_MAX_BLOCK_ELEMS,
+    search: KnnSearch = "exact",
+    projection: Projection | None = None,
+    what: str = "KNNFM",
 ) -> torch.Tensor:
     """KNNFM loss summed over groups: cosine distance to the mean of the k nearest style features."""
     if k < 1:
-        raise InputError(f"KNNFM: k must be >= 1, got {k}")
-    _check_groups(groups, "KNNFM")
+        raise InputError(f"{what}: k must be >= 1, got {k}")
+    _check_groups(groups, what)
     return torch.stack(
         [
-            cosine_distance_loss(f_r, knn_average_target(f_r, f_s, k, max_block_elems=max_block_elems, search=search))
+            cosine_distance_loss(
+                f_r, knn_average_target(f_r, f_s, k, max_block_elems=max_block_elems, search=search, projection=projection)
+            )
             for f_r, f_s in groups
         ]
     ).sum()
@@ -131,16 +140,17 @@ def style_loss(
     ``fast``: ABC-GS's FAST (``fast_params``, default k=5, ε=1e-12; its ``k``/``max_block_elems`` win over
     the arguments here); ``nnfm``: ARF; ``knnfm``: k-NN average; ``gram``: Gatys. The neighbour searches
     of all three use ``fast_params.knn_search`` (default ``auto``: certified bf16 where it pays; the same
-    neighbours as the exact search).
+    neighbours as the exact search), or the approximate projected search where ``fast_params.projection_rank > 0``.
     """
     search = (fast_params or FastParams()).knn_search
+    projection = (fast_params or FastParams()).projection()
     if method == "fast":
         params = fast_params or FastParams(k=k, max_block_elems=max_block_elems)
         return fast_loss(groups, params, stats)
     if method == "nnfm":
-        return nnfm_loss(groups, max_block_elems=max_block_elems, search=search)
+        return nnfm_loss(groups, max_block_elems=max_block_elems, search=search, projection=projection)
     if method == "knnfm":
-        return knnfm_loss(groups, k, max_block_elems=max_block_elems, search=search)
+        return knnfm_loss(groups, k, max_block_elems=max_block_elems, search=search, projection=projection)
     if method == "gram":
         return gram_loss(groups)
     raise InputError(f"unknown style loss {method!r}; choose one of fast, nnfm, knnfm, gram")

@@ -1,0 +1,162 @@
+"""Recall and speed of the approximate (projected) neighbour search against the exact one, on real features.
+
+    python eval/bench_knn_recall.py --colmap out/bench/fern/colmap \
+        --ply start=out/bench/fern/colormatch.ply --ply end=out/bench/sty_exact_starry.ply \
+        --style ../shared/data/styles/starry_night.jpg --json out/bench/knn_recall_starry.json
+
+For every given scene (a colour-matched start and a stylized end bracket a stylization run) and every view, the
+rendered relu3_1..3 features (the stylization's: render ×0.5, 768 channels) are searched against the painting's
+(height 256) exactly and with the projected search (:class:`abcgs.style.knn.Projection`) for every
+``--ranks`` × ``--candidates``. Printed per setting, over all views and scenes:
+
+- ``recall rs`` / ``recall sr``: the fraction of the exact k nearest style features of each rendered feature (and of
+  the exact k nearest rendered features of each style feature) that the projected search returns (k = ``--k``,
+  FAST's 5); ``recall nn``: NNFM's nearest style feature (k = 1) found;
+- ``pairs``: |A_proj ∩ A_exact| / |A_exact ∪ A_proj| for FAST's affinity A;
+- ``target``: the relative difference ‖F_rs(proj) − F_rs(exact)‖ / ‖F_rs(exact)‖ of FAST's aligned features, and
+  ``loss``: the largest |FAST loss difference| over the views;
+- ``ms``: the median time of FAST's pair search (both directions) per view, against the exact search's
+  (``--knn-search``, default ``auto``), on ``--threads`` torch threads and the C++ kernels on all cores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import torch  # noqa: E402
+
+from abcgs.gaussians import render  # noqa: E402
+from abcgs.io.atomic import write_json  # noqa: E402
+from abcgs.io.ply import read_ply  # noqa: E402
+from abcgs.params import load_params  # noqa: E402
+from abcgs.sfm.colmap import read_colmap_scene  # noqa: E402
+from abcgs.style import fast, knn  # noqa: E402
+from abcgs.style.matching import load_style  # noqa: E402
+from abcgs.style.vgg import VGG16Features, downsample_half, extract_features  # noqa: E402
+from abcgs.style.weights import resolve_vgg16  # noqa: E402
+
+
+def _median_ms(fn, repeats: int) -> float:
+    fn()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return 1000.0 * statistics.median(times)
+
+
+def _found(approx: torch.Tensor, exact: torch.Tensor) -> float:
+    """Fraction of the entries of each row of ``exact`` ``(N, k)`` that appear in the same row of ``approx``."""
+    return float((exact[:, :, None] == approx[:, None, :]).any(-1).float().mean())
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--colmap", type=Path, required=True, help="folder with sparse/ and images/ (the cameras)")
+    ap.add_argument("--ply", action="append", required=True, help="NAME=PATH of a scene to render (repeatable)")
+    ap.add_argument("--style", type=Path, required=True)
+    ap.add_argument("--params", type=Path, default=Path("params.yaml"), help="for the VGG weights and layers")
+    ap.add_argument("--ranks", default="64,96,128")
+    ap.add_argument("--candidates", default="8,16,32")
+    ap.add_argument("--k", type=int, default=5)
+    ap.add_argument("--views", type=int, default=0, help="first N views (0 = all)")
+    ap.add_argument("--time-views", type=int, default=3, help="views timed per setting")
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--knn-search", default="auto", choices=["auto", "exact", "bf16"])
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args(argv)
+    torch.set_num_threads(args.threads)
+
+    params = load_params(args.params)
+    sp = params.stylize
+    sd, info = resolve_vgg16(params.vgg)
+    vgg = VGG16Features(sd, sp.layers, feature_scale=info.feature_scale)
+    style_img = load_style(str(args.style), sp.style_height)
+    with torch.no_grad():
+        f_s = extract_features(vgg, torch.from_numpy(style_img).permute(2, 0, 1)[None], sp.layers)[0]
+    style = knn.StyleFeatures.of(f_s.reshape(f_s.shape[0], -1))
+    scene = read_colmap_scene(args.colmap / "sparse", args.colmap / "images")
+    cameras = scene.cameras[: args.views] if args.views else scene.cameras
+
+    features: list[tuple[str, torch.Tensor]] = []
+    for item in args.ply:
+        name, _, path = item.partition("=")
+        model = read_ply(path)
+        with torch.no_grad():
+            for cam in cameras:
+                img = render(model, cam)[0].clamp(0, 1).permute(2, 0, 1)[None]
+                f = extract_features(vgg, downsample_half(img), sp.layers)[0]
+                features.append((name, f.reshape(f.shape[0], -1).contiguous()))
+    n_r, n_s = features[0][1].shape[1], style.shape[1]
+    print(f"{len(features)} feature sets ({len(args.ply)} scenes x {len(cameras)} views), N_r={n_r} N_s={n_s} "
+          f"C={style.shape[0]}, k={args.k}; {platform.machine()}, {os.cpu_count()} CPUs, torch threads {args.threads}")
+
+    exact_params = fast.FastParams(k=args.k, knn_search=args.knn_search, projection_rank=0)
+    exact = []
+    for _, f in features:
+        nn_rs, nn_sr = knn.cosine_topk(f, style, args.k, args.k, search=args.knn_search)
+        nn1, _ = knn.cosine_topk(f, style, 1, 0, search=args.knn_search)
+        rows, cols = knn.mutual_knn_pairs(f, style, args.k, search=args.knn_search)
+        target = fast.fast_target(f, style, exact_params)
+        exact.append((nn_rs, nn_sr.t(), nn1, set((rows * n_s + cols).tolist()), target,
+                      float(fast.cosine_distance_loss(f, target))))
+    timed = features[: args.time_views]
+    ms_exact = statistics.median(
+        _median_ms(lambda f=f: knn.mutual_knn_pairs(f, style, args.k, search=args.knn_search), args.repeats)
+        for _, f in timed
+    )
+    print(f"exact search ({args.knn_search}): {ms_exact:.1f} ms per view for FAST's pairs")
+    header = f"{'rank':>5} {'cand':>5} {'recall rs':>10} {'recall sr':>10} {'recall nn':>10} {'pairs':>8} " \
+             f"{'target':>9} {'loss':>9} {'ms':>7}"
+    print(header)
+    rows_out = []
+    for rank in (int(r) for r in args.ranks.split(",")):
+        for cand in (int(c) for c in args.candidates.split(",")):
+            proj = knn.Projection(rank, cand)
+            fp = fast.FastParams(k=args.k, projection_rank=rank, projection_candidates=cand, projection_min_similarities=0)
+            rec_rs, rec_sr, rec_nn, jac, tdiff, ldiff = [], [], [], [], [], []
+            for (_, f), (ex_rs, ex_sr, ex_nn, ex_pairs, ex_target, ex_loss) in zip(features, exact):
+                nn_rs, nn_sr = knn.cosine_topk(f, style, args.k, args.k, projection=proj)
+                nn1, _ = knn.cosine_topk(f, style, 1, 0, projection=proj)
+                rows, cols = knn.mutual_knn_pairs(f, style, args.k, projection=proj)
+                pairs = set((rows * n_s + cols).tolist())
+                target = fast.fast_target(f, style, fp)
+                rec_rs.append(_found(nn_rs, ex_rs))
+                rec_sr.append(_found(nn_sr.t(), ex_sr))
+                rec_nn.append(_found(nn1, ex_nn))
+                jac.append(len(pairs & ex_pairs) / len(pairs | ex_pairs))
+                tdiff.append(float((target - ex_target).norm() / ex_target.norm()))
+                ldiff.append(abs(float(fast.cosine_distance_loss(f, target)) - ex_loss))
+            ms = statistics.median(
+                _median_ms(lambda f=f, p=proj: knn.mutual_knn_pairs(f, style, args.k, projection=p), args.repeats)
+                for _, f in timed
+            )
+            row = {"rank": rank, "candidates": cand, "recall_rs": statistics.mean(rec_rs),
+                   "recall_sr": statistics.mean(rec_sr), "recall_nn": statistics.mean(rec_nn),
+                   "recall_rs_worst_view": min(rec_rs), "recall_sr_worst_view": min(rec_sr),
+                   "pairs_jaccard": statistics.mean(jac), "target_rel_diff_max": max(tdiff),
+                   "loss_abs_diff_max": max(ldiff), "ms": ms}
+            rows_out.append(row)
+            print(f"{rank:>5} {cand:>5} {row['recall_rs']:>10.5f} {row['recall_sr']:>10.5f} {row['recall_nn']:>10.5f} "
+                  f"{row['pairs_jaccard']:>8.5f} {row['target_rel_diff_max']:>9.2e} {row['loss_abs_diff_max']:>9.2e} "
+                  f"{ms:>7.1f}")
+    out = {"scenes": args.ply, "style": str(args.style), "views": len(cameras), "n_r": n_r, "n_s": n_s, "k": args.k,
+           "exact_search": args.knn_search, "exact_ms": ms_exact, "threads": args.threads,
+           "machine": platform.machine(), "cpus": os.cpu_count(), "results": rows_out}
+    if args.json:
+        write_json(args.json, out)
+    return out
+
+
+if __name__ == "__main__":
+    main()
