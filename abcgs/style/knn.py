@@ -27,7 +27,7 @@ similarities, else ``exact``.
 A third search is approximate and therefore a separate setting (:class:`Projection`, ``stylize.fast.projection_rank``),
 not a value of ``search``: each feature's candidates come from the similarities of the features projected onto the
 ``rank`` principal directions of the painting's unit features (computed once per run), ``candidates`` per feature in
-each direction, found in one pass over the ``N_r × N_s`` projected products without storing them
+each direction, found from the ``N_r × N_s`` projected products without storing them
 (``topk_dots_both`` in ``abcgs/render/csrc/knn_cpu.cpp``); the candidates are then re-ranked by their exact
 similarities. A true neighbour is missed only when it falls outside the candidates; ``eval/bench_knn_recall.py``
 measures how often on real stylization features (the recall is printed and recorded in docs/SCALING.md).
@@ -300,14 +300,22 @@ def _tiled_topk(a_rows: torch.Tensor, b: torch.Tensor, k_rs: int, k_sr: int, max
 
 
 def _certified_topk(
-    v: torch.Tensor, cand: torch.Tensor, delta: torch.Tensor, k: int, n_cand: int, exact_scores, exact_rows
+    v: torch.Tensor,
+    cand: torch.Tensor,
+    delta: torch.Tensor,
+    k: int,
+    n_cand: int,
+    own: torch.Tensor,
+    other: torch.Tensor,
+    exact_rows,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Resolve one direction of the bf16 search (one row per feature searched for).
 
     ``v`` ``(N, K')`` float32 approximate similarities of each feature's ``K'`` best candidates ``cand``
     (largest first; ``K' = n_cand + 1``, or every feature of the other side when it has no more), ``delta``
-    ``(N,)`` the error bound. ``exact_scores(rows, cand_flat)`` → exact similarities of pairs;
-    ``exact_rows(idx)`` → the exact top-k indices ``(len(idx), k)`` of whole features. Returns
+    ``(N,)`` the error bound. ``own`` ``(N, C)`` and ``other`` ``(M, C)``: the float32 unit rows of the two sides
+    (the candidates are re-ranked by their exact products, :func:`_rerank`); ``exact_rows(idx)`` → the exact top-k
+    indices ``(len(idx), k)`` of whole features. Returns
     ``(top-k indices (N, k), certified (N,))``; uncertified features got ``exact_rows``.
     """
     n, kk = cand.shape
@@ -316,9 +324,7 @@ def _certified_topk(
         cand = cand[:, : kk - 1]
     else:  # every feature of the other side is a candidate: nothing outside them to miss
         certified = torch.ones(n, dtype=torch.bool, device=v.device)
-    rows = torch.arange(n, device=cand.device)[:, None].expand_as(cand)
-    exact = exact_scores(rows.reshape(-1), cand.reshape(-1)).view(cand.shape)
-    out = cand.gather(1, exact.topk(k, dim=1).indices)
+    out = _rerank(own, other, cand.contiguous(), k)
     bad = (~certified).nonzero()[:, 0]
     if bad.numel() > 0:
         out[bad] = exact_rows(bad)
@@ -354,14 +360,12 @@ def _bf16_topk(u_r: torch.Tensor, style: StyleFeatures, k_rs: int, k_sr: int, ma
     if k_rs > 0:
         nn_rs, _ = _certified_topk(
             v_rs.float(), i_rs, bf16_similarity_bound(e_r, float(e_s.max()), c), k_rs, kc_rs,
-            lambda r, j: pair_dots(ur_rows, s_rows, r, j),
-            lambda idx: _tiled_topk(ur_rows[idx], u_s, k_rs, 0, max_block_elems)[1],
+            ur_rows, s_rows, lambda idx: _tiled_topk(ur_rows[idx], u_s, k_rs, 0, max_block_elems)[1],
         )  # fmt: skip
     if k_sr > 0:
         nn_sr_t, _ = _certified_topk(
             v_sr.float().t(), i_sr.t(), bf16_similarity_bound(e_s, float(e_r.max()), c), k_sr, kc_sr,
-            lambda j, r: pair_dots(s_rows, ur_rows, j, r),
-            lambda idx: _tiled_topk(s_rows[idx], u_r, k_sr, 0, max_block_elems)[1],
+            s_rows, ur_rows, lambda idx: _tiled_topk(s_rows[idx], u_r, k_sr, 0, max_block_elems)[1],
         )  # fmt: skip
         nn_sr = nn_sr_t.t().contiguous()
     return nn_rs, nn_sr

@@ -118,8 +118,8 @@ std::vector<at::Tensor> topk_columns(const at::Tensor& s, int64_t k) {
 //     a-row's panel maxima is a lower bound on its ka-th largest product (ka distinct panels hold a product at least
 //     that large), so only panels whose maximum reaches it can hold the row's ka best; likewise for b-rows.
 //  2. the tiles that can hold a row's best are computed again (the same arithmetic, so the same values), and only
-//     products at or above the bound enter the rows' lists. On fern x Starry Night features (rank 128, 16
-//     candidates) about a quarter of the tiles are computed twice.
+//     products at or above the bound enter the rows' lists. On fern's photos x Starry Night (rank 128, 16
+//     candidates) 14 % of the tiles are computed again for the a-rows and 22 % for the b-rows.
 // Returns {a_idx (Na, ka) int64, a_val (Na, ka) float32, b_idx (Nb, kb), b_val (Nb, kb)}, largest first; ka or kb
 // may be 0 (that direction is skipped and its outputs are empty).
 //
