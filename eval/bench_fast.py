@@ -16,28 +16,19 @@ stylization step is printed by ``eval/bench_stylize.py``.
 from __future__ import annotations
 
 import argparse
-import time
+import sys
+from pathlib import Path
 
-import torch
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from abcgs.style import fast, knn
+import torch  # noqa: E402
 
-
-def _sync() -> None:
-    if torch.cuda.is_available():
-        torch.cuda.synchronize()
+from abcgs.style import fast, knn  # noqa: E402
+from eval.timing import repeat_seconds  # noqa: E402
 
 
 def _best(fn, repeats: int) -> float:
-    fn()  # warm-up (allocator, kernels)
-    times = []
-    for _ in range(repeats):
-        _sync()
-        t0 = time.perf_counter()
-        fn()
-        _sync()
-        times.append(time.perf_counter() - t0)
-    return min(times)
+    return min(repeat_seconds(fn, repeats))
 
 
 def main() -> None:

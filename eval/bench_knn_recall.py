@@ -26,7 +26,6 @@ import os
 import platform
 import statistics
 import sys
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -42,16 +41,11 @@ from abcgs.style import fast, knn  # noqa: E402
 from abcgs.style.matching import load_style  # noqa: E402
 from abcgs.style.vgg import VGG16Features, downsample_half, extract_features  # noqa: E402
 from abcgs.style.weights import resolve_vgg16  # noqa: E402
+from eval.timing import repeat_seconds  # noqa: E402
 
 
 def _median_ms(fn, repeats: int) -> float:
-    fn()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return 1000.0 * statistics.median(times)
+    return 1000.0 * statistics.median(repeat_seconds(fn, repeats))
 
 
 def _found(approx: torch.Tensor, exact: torch.Tensor) -> float:

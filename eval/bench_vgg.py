@@ -12,26 +12,20 @@ from __future__ import annotations
 
 import argparse
 import os
-import time
+import sys
+from pathlib import Path
 
-import torch
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from abcgs.style.vgg import VGG16Features, random_state_dict
+import torch  # noqa: E402
+
+from abcgs.style.vgg import VGG16Features, random_state_dict  # noqa: E402
+from eval.timing import repeat_seconds  # noqa: E402
 
 CASES = [
     ("stylize relu3 fwd+bwd", ("relu3_1", "relu3_2", "relu3_3"), (1, 189, 252), True),
     ("eval proxy relu5_3 fwd", ("relu1_2", "relu2_2", "relu3_3", "relu4_3", "relu5_3"), (2, 373, 497), False),
 ]
-
-
-def _best(fn, repeats: int) -> float:
-    fn()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
 
 
 def run_case(vgg: VGG16Features, shape: tuple[int, int, int], backward: bool, repeats: int) -> float:
@@ -46,7 +40,7 @@ def run_case(vgg: VGG16Features, shape: tuple[int, int, int], backward: bool, re
             with torch.no_grad():
                 vgg(x)
 
-    return _best(once, repeats)
+    return min(repeat_seconds(once, repeats))
 
 
 def main(argv: list[str] | None = None) -> list[dict]:

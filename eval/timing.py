@@ -1,0 +1,29 @@
+"""Timing helper shared by the micro-benchmarks in ``eval/``."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import torch
+
+
+def repeat_seconds(fn: Callable[[], object], repeats: int) -> list[float]:
+    """Wall seconds of ``repeats`` calls of ``fn`` after one untimed warm-up call (allocator, kernels, caches).
+
+    CUDA work is synchronised before and after each call, so the times cover the device's work too.
+    """
+
+    def sync() -> None:
+        if torch.cuda.is_available():
+            torch.cuda.synchronize()
+
+    fn()
+    times = []
+    for _ in range(repeats):
+        sync()
+        t0 = time.perf_counter()
+        fn()
+        sync()
+        times.append(time.perf_counter() - t0)
+    return times
