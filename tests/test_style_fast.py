@@ -219,10 +219,10 @@ def test_both_cosine_axes_equal_dense_rederivation(cosine, dim, shape):
     ref = _dense_fast_rederived(f_r2, f_s, 5, dim)
     (g_ref,) = torch.autograd.grad(ref, f_r2)
     # tolerance: only the cosine's eps convention differs (ours adds 1e-8 to each norm, torch clamps the product)
-    assert abs(float(got) - float(ref)) < 1e-7
+    assert abs(got.item() - ref.item()) < 1e-7
     assert float((g_got - g_ref).abs().max()) < 1e-6 * float(g_ref.abs().max())
     # and the library's own dense reference agrees on the axis
-    assert abs(float(fast.fast_loss_dense(f_r0, f_s, cosine=cosine)) - float(ref)) < 1e-7
+    assert abs(fast.fast_loss_dense(f_r0, f_s, cosine=cosine).item() - ref.item()) < 1e-7
 
 
 def test_cosine_axes_differ_and_channel_axis_is_per_row():

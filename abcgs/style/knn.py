@@ -375,7 +375,7 @@ def _rerank(own: torch.Tensor, other: torch.Tensor, cand: torch.Tensor, k: int) 
     """Of each row's candidates ``cand`` ``(N, K)`` (rows of ``other`` ``(M, C)``), the ``k`` with the largest exact
     dot products with ``own`` ``(N, C)``: ``(N, k)``, largest first (the kernels' ``rerank_topk``, else torch)."""
     if bool((cand < 0).any()):
-        raise NumericalError("projected neighbour search: a feature found no candidates (non-finite features?)")
+        raise NumericalError("neighbour search: a feature found no candidates (non-finite features?)")
     ext = _cpu_kernels() if own.device.type == "cpu" and own.dtype == torch.float32 else None
     if ext is not None:
         return ext.rerank_topk(own, other, cand, k)
