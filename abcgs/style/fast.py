@@ -76,11 +76,12 @@ class FastParams(BaseModel):
     solve_dtype: Literal["float64", "float32"] = "float64"
     projection_rank: int = Field(128, ge=0)
     """0: the exact neighbour search (``knn_search`` says how). ``r > 0``: the approximate search for CPU searches of at
-    least ``projection_min_similarities`` (on CUDA the exact search runs) — candidates from the features projected onto the painting's ``r``
-    principal feature directions, re-ranked by their exact similarities (:class:`abcgs.style.knn.Projection`); used by
-    FAST, NNFM and KNNFM. Measured on fern × Starry Night (``eval/bench_knn_recall.py``, docs/SCALING.md): rank 128
-    with 16 candidates finds 99.8 % of FAST's neighbours (99.97 % of NNFM's), FAST's aligned features within 1.2 %,
-    at a third of the exact search's time on this 2-core AVX2 CPU."""
+    least ``projection_min_similarities`` (on CUDA the exact search runs) — candidates from the features projected onto
+    the painting's ``r`` principal feature directions, re-ranked by their exact similarities
+    (:class:`abcgs.style.knn.Projection`); used by FAST, NNFM and KNNFM. Measured on fern × Starry Night
+    (``eval/bench_knn_recall.py``, docs/SCALING.md): rank 128 with 16 candidates finds 99.8 % of FAST's neighbours
+    (99.98 % of NNFM's), FAST's aligned features within 1.3 %, in 141 ms against the exact search's 358–526 ms on a
+    2-core AVX2 CPU."""
     projection_candidates: int = Field(16, ge=1)
     """Candidates per feature and direction of the approximate search (at least ``k``)."""
     projection_min_similarities: int = Field(2**22, ge=0)

@@ -180,7 +180,7 @@ class StyleFeatures:
 
     @functools.cached_property
     def unit_rows(self) -> torch.Tensor:
-        """``unit.T`` contiguous ``(N_s, C)`` float32 (exact re-ranking of the bf16 search)."""
+        """``unit.T`` contiguous ``(N_s, C)`` float32 (exact re-ranking of the bf16 and the projected searches)."""
         return self.unit.t().contiguous()
 
     def projection(self, rank: int) -> tuple[torch.Tensor, torch.Tensor]:

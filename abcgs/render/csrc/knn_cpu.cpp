@@ -20,6 +20,21 @@
 
 #include "parallel.h"
 
+// <x, y> over C floats, summed in 16 interleaved partial sums (vectorisable without reassociation) and then the tail:
+// one summation order for pair_dots and rerank_topk, so both give the same value for the same pair.
+static inline float row_dot(const float* __restrict x, const float* __restrict y, int64_t C) {
+  constexpr int64_t L = 16;
+  float acc[L] = {0.f};
+  int64_t c = 0;
+  for (; c + L <= C; c += L) {
+    for (int64_t l = 0; l < L; ++l) acc[l] += x[c + l] * y[c + l];
+  }
+  float s = 0.f;
+  for (; c < C; ++c) s += x[c] * y[c];
+  for (int64_t l = 0; l < L; ++l) s += acc[l];
+  return s;
+}
+
 at::Tensor pair_dots(const at::Tensor& a, const at::Tensor& b, const at::Tensor& ia, const at::Tensor& ib) {
   TORCH_CHECK(a.dim() == 2 && b.dim() == 2 && a.size(1) == b.size(1), "pair_dots: a (Na, C) and b (Nb, C) expected");
   TORCH_CHECK(a.scalar_type() == at::kFloat && b.scalar_type() == at::kFloat, "pair_dots: float32 rows expected");
@@ -36,20 +51,9 @@ at::Tensor pair_dots(const at::Tensor& a, const at::Tensor& b, const at::Tensor&
   for (int64_t p = 0; p < P; ++p) {
     TORCH_CHECK(pia[p] >= 0 && pia[p] < n_a && pib[p] >= 0 && pib[p] < n_b, "pair_dots: index out of range");
   }
-  constexpr int64_t L = 16;
   abcgs::parallel_range(P, 1024, [&](int64_t begin, int64_t end) {
     for (int64_t p = begin; p < end; ++p) {
-      const float* x = pa + pia[p] * C;
-      const float* y = pb + pib[p] * C;
-      float acc[L] = {0.f};
-      int64_t c = 0;
-      for (; c + L <= C; c += L) {
-        for (int64_t l = 0; l < L; ++l) acc[l] += x[c + l] * y[c + l];
-      }
-      float s = 0.f;
-      for (; c < C; ++c) s += x[c] * y[c];
-      for (int64_t l = 0; l < L; ++l) s += acc[l];
-      po[p] = s;
+      po[p] = row_dot(pa + pia[p] * C, pb + pib[p] * C, C);
     }
   });
   return out;
@@ -230,20 +234,16 @@ struct KLargest {
   int64_t k, n = 0;
   void add(float x) {
     if (n < k) {
-      int64_t p = n++;
-      while (p > 0 && top[p - 1] < x) {
-        top[p] = top[p - 1];
-        --p;
-      }
-      top[p] = x;
-    } else if (x > top[k - 1]) {
-      int64_t p = k - 1;
-      while (p > 0 && top[p - 1] < x) {
-        top[p] = top[p - 1];
-        --p;
-      }
-      top[p] = x;
+      ++n;  // a free slot at the end
+    } else if (!(x > top[k - 1])) {
+      return;
     }
+    int64_t p = n - 1;  // insert into the last slot (free, or the dropped k-th) and move x up to its place
+    while (p > 0 && top[p - 1] < x) {
+      top[p] = top[p - 1];
+      --p;
+    }
+    top[p] = x;
   }
   float kth() const { return top[k - 1]; }
 };
@@ -410,7 +410,7 @@ std::vector<at::Tensor> topk_dots_both(const at::Tensor& a, const at::Tensor& b,
 
 // Exact re-ranking of candidates: for every row i of own (N, C), the k candidates cand[i] (indices into the rows of
 // other (M, C)) with the largest dot products <own[i], other[cand[i][q]]>, largest first, ties to the lower index.
-// The dot products are summed as in pair_dots. Rows are split between workers; results do not depend on the thread
+// The dot products are pair_dots' (row_dot). Rows are split between workers; results do not depend on the thread
 // count. Used by the projected nearest-neighbour search after topk_dots_both (abcgs/style/knn.py).
 at::Tensor rerank_topk(const at::Tensor& own, const at::Tensor& other, const at::Tensor& cand, int64_t k) {
   TORCH_CHECK(own.dim() == 2 && other.dim() == 2 && own.size(1) == other.size(1),
@@ -430,23 +430,13 @@ at::Tensor rerank_topk(const at::Tensor& own, const at::Tensor& other, const at:
   }
   at::Tensor out = at::empty({N, k}, cc.options());
   int64_t* pout = out.data_ptr<int64_t>();
-  constexpr int64_t L = 16;
   abcgs::parallel_range(N, 64, [&](int64_t i0, int64_t i1) {
     std::vector<std::pair<float, int64_t>> scored(static_cast<size_t>(K));
     for (int64_t i = i0; i < i1; ++i) {
       const float* x = po + i * C;
       for (int64_t q = 0; q < K; ++q) {
         const int64_t j = pc[i * K + q];
-        const float* y = pt + j * C;
-        float acc[L] = {0.f};
-        int64_t c = 0;
-        for (; c + L <= C; c += L) {
-          for (int64_t l = 0; l < L; ++l) acc[l] += x[c + l] * y[c + l];
-        }
-        float s = 0.f;
-        for (; c < C; ++c) s += x[c] * y[c];
-        for (int64_t l = 0; l < L; ++l) s += acc[l];
-        scored[q] = {s, j};
+        scored[q] = {row_dot(x, pt + j * C, C), j};
       }
       std::partial_sort(scored.begin(), scored.begin() + k, scored.end(), [](const auto& a, const auto& b) {
         return a.first > b.first || (a.first == b.first && a.second < b.second);
