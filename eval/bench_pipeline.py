@@ -5,6 +5,7 @@
     python eval/bench_pipeline.py --params my_params.yaml   # e.g. a real scene × paintings (absolute paths)
     python eval/bench_pipeline.py --targets fit@tiny        # one stage and what it needs
     python eval/bench_pipeline.py --compare before.json after.json   # two runs' JSON side by side, no run
+    python eval/bench_pipeline.py --compare ab.json --paintings 3   # a --baseline run, projected to 3 paintings
     python eval/bench_pipeline.py --baseline 0a3aad0 --baseline-params old.yaml --params new.yaml --json ba.json
 
 How it measures: the working tree is copied into a fresh git + DVC repository (``eval/repo_copy.py``: no
@@ -118,8 +119,14 @@ def run_stage(repo: Path, name: str, label: str = "") -> dict:
     return rec
 
 
-def bench(repo: Path, stages: list[str]) -> list[dict]:
-    return [run_stage(repo, name) for name in stages]
+def bench(repo: Path, stages: list[str], on_stage=None) -> list[dict]:
+    """Every stage in turn; ``on_stage(rows)`` after each (e.g. to save the stages measured so far)."""
+    rows: list[dict] = []
+    for name in stages:
+        rows.append(run_stage(repo, name))
+        if on_stage is not None:
+            on_stage(rows)
+    return rows
 
 
 def warm_up(repo: Path) -> None:
@@ -128,9 +135,11 @@ def warm_up(repo: Path) -> None:
     run_in([sys.executable, "-c", "import abcgs.render.cpu as c; c.load_extension()"], repo, timeout=1800)
 
 
-def bench_interleaved(base: Path, base_stages: list[str], cur: Path, cur_stages: list[str]) -> tuple[list, list]:
+def bench_interleaved(base: Path, base_stages: list[str], cur: Path, cur_stages: list[str],
+                      on_stage=None) -> tuple[list, list]:
     """Both pipelines' stages in lockstep, the order alternating (baseline, current), (current, baseline), …, so
-    that a machine whose speed drifts during the hours this takes slows both runs alike."""
+    that a machine whose speed drifts during the hours this takes slows both runs alike. ``on_stage(rows_b,
+    rows_c)`` after each stage (e.g. to save what is measured so far: a run of hours may be cut off)."""
     rows_b: list[dict] = []
     rows_c: list[dict] = []
     for i in range(max(len(base_stages), len(cur_stages))):
@@ -138,6 +147,8 @@ def bench_interleaved(base: Path, base_stages: list[str], cur: Path, cur_stages:
         for repo, stages, rows, label in pair if i % 2 == 0 else pair[::-1]:
             if i < len(stages):
                 rows.append(run_stage(repo, stages[i], label))
+                if on_stage is not None:
+                    on_stage(rows_b, rows_c)
     return rows_b, rows_c
 
 
@@ -145,7 +156,8 @@ def _summary(rows: list[dict], wall: float | None = None) -> dict:
     total_wall = sum(r["wall_s"] for r in rows) if wall is None else wall
     total_cpu = sum(r["cpu_s"] for r in rows)
     return {"stages": rows, "total_wall_s": total_wall, "total_cpu_s": total_cpu,
-            "core_use": total_cpu / max(total_wall, 1e-9), "peak_rss_mib": max(r["peak_rss_mib"] for r in rows)}
+            "core_use": total_cpu / max(total_wall, 1e-9),
+            "peak_rss_mib": max((r["peak_rss_mib"] for r in rows), default=0.0)}
 
 
 def compare(before: dict, after: dict) -> dict:
@@ -182,6 +194,60 @@ def compare(before: dict, after: dict) -> dict:
             "after_total_s": after["total_wall_s"]}
 
 
+#: Stage kinds that a painting brings (its colour match(es), and per method a stylization, an evaluation and an
+#: export); the others (make_tiny, reconstruct, fit, masks, reference, export_scene, report) run once per scene.
+PER_PAINTING_KINDS = ("colormatch", "stylize", "evaluate", "export")
+
+
+def project_paintings(before: dict, after: dict, paintings: int, measured: int = 1) -> dict:
+    """The totals of ``before`` and ``after`` projected from ``measured`` paintings to ``paintings``: the
+    per-scene stages as measured, the per-painting kinds (:data:`PER_PAINTING_KINDS`) scaled by
+    ``paintings / measured``. An extrapolation from measured stages (it assumes every painting costs what the
+    measured ones did), printed and returned as such."""
+    if paintings < 1 or measured < 1:
+        raise SystemExit(f"--paintings and --measured-paintings must be >= 1 (got {paintings}, {measured})")
+    out = {}
+    for name, run in (("before", before), ("after", after)):
+        per_painting = sum(r["wall_s"] for r in run["stages"] if r["stage"].split("@")[0] in PER_PAINTING_KINDS)
+        per_scene = sum(r["wall_s"] for r in run["stages"]) - per_painting
+        out[name] = {"per_scene_s": per_scene, "per_painting_s": per_painting / measured,
+                     "projected_s": per_scene + per_painting * paintings / measured}
+    out["ratio"] = out["before"]["projected_s"] / out["after"]["projected_s"]
+    out["paintings"], out["measured_paintings"] = paintings, measured
+    print(f"projected to {paintings} painting(s) from {measured} measured (per-scene stages once, "
+          f"{'/'.join(PER_PAINTING_KINDS)} × {paintings}/{measured}; an extrapolation):")
+    for name in ("before", "after"):
+        o = out[name]
+        print(f"  {name:6s} per scene {o['per_scene_s']:8.1f} s + per painting {o['per_painting_s']:8.1f} s "
+              f"→ {o['projected_s']:8.1f} s ({o['projected_s'] / 60:.1f} min)")
+    print(f"  ratio before / after {out['ratio']:.2f}")
+    return out
+
+
+def _read_runs(paths: list[Path]) -> tuple[dict, dict]:
+    """(before, after) from two single-run JSONs, or from one ``--baseline`` run's JSON (baseline, current)."""
+    runs = []
+    for path in paths:
+        try:
+            runs.append(json.loads(path.read_text()))
+        except (OSError, ValueError) as exc:
+            raise SystemExit(f"--compare: cannot read {path} as a bench_pipeline JSON ({exc})") from exc
+    if len(runs) == 1:
+        if not {"baseline", "current"} <= set(runs[0]):
+            raise SystemExit(f"--compare: {paths[0]} is not a --baseline run's JSON (no 'baseline' / 'current'); "
+                             "give two runs' JSON files instead")
+        complete = runs[0].get("complete")
+        runs = [{**runs[0]["baseline"], "complete": complete}, {**runs[0]["current"], "complete": complete}]
+    sources = [paths[0]] * 2 if len(paths) == 1 else paths
+    for path, run in zip(sources, runs):
+        if "stages" not in run or "total_wall_s" not in run:
+            raise SystemExit(f"--compare: {path} is not a bench_pipeline JSON (no 'stages' / 'total_wall_s')")
+        if run.get("complete") is False:  # saved after each stage of a run that did not finish
+            print(f"[bench_pipeline] {path}: an unfinished run, {len(run['stages'])} of {run.get('stage_count', '?')} "
+                  "stages measured; its totals are the measured stages' only")
+    return runs[0], runs[1]
+
+
 def params_editor(params_file: Path | None, sets: list[str]):
     """An ``edit_params`` for :func:`eval.repo_copy.copy_repo`: replace ``params.yaml`` by ``params_file`` (when
     given), then apply the ``KEY=VALUE`` changes (YAML values) of ``sets``."""
@@ -210,19 +276,25 @@ def main(argv: list[str] | None = None) -> dict:
                     "(a before/after comparison that machine-speed drift affects alike)")
     ap.add_argument("--baseline-params", type=Path, default=None,
                     help="params file for the baseline (default: --params; an older revision may need its own schema)")
-    ap.add_argument("--compare", nargs=2, type=Path, default=None, metavar=("BEFORE", "AFTER"),
-                    help="print two earlier runs' JSON side by side (per stage kind and total) instead of running")
+    ap.add_argument("--compare", nargs="+", type=Path, default=None, metavar="JSON",
+                    help="print two earlier runs' JSON (BEFORE AFTER), or one --baseline run's JSON, side by side "
+                    "(per stage kind and total) instead of running")
+    ap.add_argument("--paintings", type=int, default=None, metavar="K",
+                    help="with --compare: also project both totals to K paintings (per-scene stages once, "
+                    "per-painting stages scaled)")
+    ap.add_argument("--measured-paintings", type=int, default=1, metavar="M",
+                    help="with --paintings: how many paintings the compared runs had (default 1)")
     args = ap.parse_args(argv)
     if args.compare is not None:
-        runs = []
-        for path in args.compare:
-            try:
-                runs.append(json.loads(path.read_text()))
-            except (OSError, ValueError) as exc:
-                raise SystemExit(f"--compare: cannot read {path} as a bench_pipeline JSON ({exc})") from exc
-            if "stages" not in runs[-1] or "total_wall_s" not in runs[-1]:
-                raise SystemExit(f"--compare: {path} is not a bench_pipeline JSON (no 'stages' / 'total_wall_s')")
-        return compare(*runs)
+        if len(args.compare) > 2:
+            raise SystemExit("--compare takes BEFORE AFTER, or one --baseline run's JSON")
+        before, after = _read_runs(args.compare)
+        result = compare(before, after)
+        if args.paintings is not None:
+            result["projection"] = project_paintings(before, after, args.paintings, args.measured_paintings)
+        return result
+    if args.paintings is not None:
+        raise SystemExit("--paintings projects earlier runs: use it with --compare")
 
     how = ("each stage alone (dvc repro --single-item) in a fresh wrapper process; CPU and peak RSS from "
            "getrusage(RUSAGE_CHILDREN); a clean copy of the working tree with an empty DVC cache")
@@ -245,14 +317,23 @@ def main(argv: list[str] | None = None) -> dict:
             print(f"[bench_pipeline] baseline {args.baseline} ({len(base_stages)} stages, {base}) and the working "
                   f"tree ({len(stages)} stages, {repo}) interleaved; {os.cpu_count()} CPUs, load average "
                   f"{machine['loadavg_before'][0]:.2f}", flush=True)
-            rows_b, rows_c = bench_interleaved(base, base_stages, repo, stages)
-            result = {
-                "baseline": {**_summary(rows_b), "revision": args.baseline, "params": str(base_params or "params.yaml")},
-                "current": {**_summary(rows_c), "params": str(args.params or "params.yaml"), "set": args.set},
-                "machine": machine,
-                "how": how + "; the two pipelines' stages alternate (baseline first on even steps, current first on "
-                       "odd ones) and each total is the sum of its stages' walls",
-            }
+            def ab_result(rows_b: list[dict], rows_c: list[dict], complete: bool) -> dict:
+                return {
+                    "baseline": {**_summary(rows_b), "revision": args.baseline,
+                                 "params": str(base_params or "params.yaml"), "stage_count": len(base_stages)},
+                    "current": {**_summary(rows_c), "params": str(args.params or "params.yaml"), "set": args.set,
+                                "stage_count": len(stages)},
+                    "machine": machine, "complete": complete,
+                    "how": how + "; the two pipelines' stages alternate (baseline first on even steps, current first "
+                           "on odd ones) and each total is the sum of its stages' walls",
+                }
+
+            def save_partial(rows_b: list[dict], rows_c: list[dict]) -> None:
+                if args.json:
+                    write_json(args.json, ab_result(rows_b, rows_c, complete=False))
+
+            rows_b, rows_c = bench_interleaved(base, base_stages, repo, stages, on_stage=save_partial)
+            result = ab_result(rows_b, rows_c, complete=True)
             result["comparison"] = compare(result["baseline"], result["current"])
             if args.json:
                 write_json(args.json, result)
@@ -261,10 +342,17 @@ def main(argv: list[str] | None = None) -> dict:
         print(f"[bench_pipeline] {len(stages)} stages in {repo}; {os.cpu_count()} CPUs, load average "
               f"{machine['loadavg_before'][0]:.2f}", flush=True)
         t0 = time.perf_counter()
-        rows = bench(repo, stages)
+
+        def save_partial(rows: list[dict]) -> None:
+            if args.json:
+                write_json(args.json, {**_summary(rows), "params": str(args.params or "params.yaml"), "set": args.set,
+                                       "machine": machine, "how": how, "complete": False,
+                                       "stage_count": len(stages)})
+
+        rows = bench(repo, stages, on_stage=save_partial)
         total_wall = time.perf_counter() - t0
     result = {**_summary(rows, total_wall), "params": str(args.params or "params.yaml"), "set": args.set,
-              "machine": machine, "how": how}
+              "machine": machine, "how": how, "complete": True, "stage_count": len(stages)}
     print(f"[bench_pipeline] total {total_wall / 60:.1f} min wall, cpu/wall {result['core_use']:.2f}, "
           f"peak RSS {result['peak_rss_mib']:.0f} MiB")
     if args.json:

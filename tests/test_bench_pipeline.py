@@ -54,6 +54,59 @@ def test_compare_sums_stage_kinds_and_gives_the_ratio(tmp_path, capsys) -> None:
         bench_pipeline.main(["--compare", str(tmp_path / "x.json"), str(tmp_path / "a.json")])
 
 
+def test_compare_projects_a_baseline_run_to_more_paintings(tmp_path, capsys) -> None:
+    """One --baseline run's JSON compares its two runs; --paintings K keeps the per-scene stages once and scales
+    the per-painting ones (colour match, stylize, evaluate, export; not export_scene) by K."""
+    before = _run({"fit@fern": 1000.0, "colormatch@a_fast": 150.0, "colormatch@a_nnfm": 150.0,
+                   "stylize@a_fast": 800.0, "evaluate@a_fast": 300.0, "export_scene@fern": 20.0, "export@a_fast": 5.0})
+    after = _run({"fit@fern": 700.0, "reference@fern": 10.0, "colormatch@a": 75.0, "stylize@a_fast": 600.0,
+                  "evaluate@a_fast": 150.0, "export_scene@fern": 20.0, "export@a_fast": 5.0})
+    (tmp_path / "ab.json").write_text(json.dumps({"baseline": before, "current": after, "machine": {}}))
+    out = bench_pipeline.main(["--compare", str(tmp_path / "ab.json"), "--paintings", "3"])
+    assert out["total_ratio"] == pytest.approx(2425.0 / 1560.0)
+    proj = out["projection"]
+    assert proj["before"]["per_scene_s"] == pytest.approx(1020.0)
+    assert proj["before"]["projected_s"] == pytest.approx(1020.0 + 3 * 1405.0)
+    assert proj["after"]["projected_s"] == pytest.approx(730.0 + 3 * 830.0)
+    assert proj["ratio"] == pytest.approx((1020.0 + 3 * 1405.0) / (730.0 + 3 * 830.0))
+    assert "an extrapolation" in capsys.readouterr().out
+    two = bench_pipeline.main(["--compare", str(tmp_path / "ab.json"), "--paintings", "6", "--measured-paintings", "2"])
+    assert two["projection"]["ratio"] == pytest.approx(proj["ratio"])
+    with pytest.raises(SystemExit, match="not a --baseline run's JSON"):
+        (tmp_path / "one.json").write_text(json.dumps(after))
+        bench_pipeline.main(["--compare", str(tmp_path / "one.json")])
+    with pytest.raises(SystemExit, match="use it with --compare"):
+        bench_pipeline.main(["--paintings", "3"])
+    with pytest.raises(SystemExit, match=">= 1"):
+        bench_pipeline.main(["--compare", str(tmp_path / "ab.json"), "--paintings", "0"])
+
+
+def test_an_interleaved_run_saves_each_stage_as_it_ends(tmp_path, monkeypatch, capsys) -> None:
+    """A run of hours may be cut off: after every stage the JSON holds the stages measured so far, marked
+    unfinished, and --compare reads such a file (saying so)."""
+    saved: list[tuple[int, int]] = []
+
+    def fake_stage(repo, name, label=""):
+        return {"stage": name, "wall_s": 10.0 if "baseline" in label else 5.0, "cpu_s": 1.0, "peak_rss_mib": 50.0,
+                "core_use": 0.1, "rc": 0}
+
+    monkeypatch.setattr(bench_pipeline, "run_stage", fake_stage)
+
+    def on_stage(rows_b, rows_c):
+        saved.append((len(rows_b), len(rows_c)))
+        partial = {"baseline": {**bench_pipeline._summary(rows_b), "stage_count": 3},
+                   "current": {**bench_pipeline._summary(rows_c), "stage_count": 2}, "complete": False}
+        (tmp_path / "ab.json").write_text(json.dumps(partial))
+
+    rows_b, rows_c = bench_pipeline.bench_interleaved(tmp_path, ["a", "b", "c"], tmp_path, ["a", "b"], on_stage=on_stage)
+    assert saved == [(1, 0), (1, 1), (1, 2), (2, 2), (3, 2)]  # baseline first on even steps, current on odd ones
+    assert [r["stage"] for r in rows_b] == ["a", "b", "c"] and [r["stage"] for r in rows_c] == ["a", "b"]
+    out = bench_pipeline.main(["--compare", str(tmp_path / "ab.json")])
+    assert out["total_ratio"] == pytest.approx(30.0 / 10.0)
+    assert "an unfinished run, 3 of 3 stages" in capsys.readouterr().out
+    assert bench_pipeline._summary([])["peak_rss_mib"] == 0.0  # a file saved before any stage ended
+
+
 def test_baseline_runs_interleave_with_the_working_tree(tmp_path, capsys) -> None:
     """--baseline: a clean copy of a git revision runs beside the working tree's copy, one stage of each in turn,
     which goes first alternating; both totals and the comparison are written."""
