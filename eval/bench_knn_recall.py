@@ -61,6 +61,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--params", type=Path, default=Path("params.yaml"), help="for the VGG weights and layers")
     ap.add_argument("--ranks", default="64,96,128")
     ap.add_argument("--candidates", default="8,16,32")
+    ap.add_argument("--products", default="float32",
+                    help="comma-separated projected products to compare: float32, bfloat16 (the AVX512-BF16 kernel where "
+                    "this CPU has it, else the same rounding in torch), auto")
     ap.add_argument("--k", type=int, default=5)
     ap.add_argument("--views", type=int, default=0, help="first N views (0 = all)")
     ap.add_argument("--time-views", type=int, default=3, help="views timed per setting")
@@ -110,43 +113,47 @@ def main(argv=None) -> dict:
         for _, f in timed
     )
     print(f"exact search ({args.knn_search}): {ms_exact:.1f} ms per view for FAST's pairs")
-    header = f"{'rank':>5} {'cand':>5} {'recall rs':>10} {'recall sr':>10} {'recall nn':>10} {'pairs':>8} " \
+    header = f"{'rank':>5} {'cand':>5} {'products':>9} {'recall rs':>10} {'recall sr':>10} {'recall nn':>10} {'pairs':>8} " \
              f"{'target':>9} {'loss':>9} {'ms':>7}"
     print(header)
     rows_out = []
-    for rank in (int(r) for r in args.ranks.split(",")):
-        for cand in (int(c) for c in args.candidates.split(",")):
-            proj = knn.Projection(rank, cand)
-            fp = fast.FastParams(k=args.k, projection_rank=rank, projection_candidates=cand, projection_min_similarities=0)
-            rec_rs, rec_sr, rec_nn, jac, tdiff, ldiff = [], [], [], [], [], []
-            for (_, f), (ex_rs, ex_sr, ex_nn, ex_pairs, ex_target, ex_loss) in zip(features, exact):
-                nn_rs, nn_sr = knn.cosine_topk(f, style, args.k, args.k, projection=proj)
-                nn1, _ = knn.cosine_topk(f, style, 1, 0, projection=proj)
-                rows, cols = knn.mutual_knn_pairs(f, style, args.k, projection=proj)
-                pairs = set((rows * n_s + cols).tolist())
-                target = fast.fast_target(f, style, fp)
-                rec_rs.append(_found(nn_rs, ex_rs))
-                rec_sr.append(_found(nn_sr.t(), ex_sr))
-                rec_nn.append(_found(nn1, ex_nn))
-                jac.append(len(pairs & ex_pairs) / len(pairs | ex_pairs))
-                tdiff.append(float((target - ex_target).norm() / ex_target.norm()))
-                ldiff.append(abs(float(fast.cosine_distance_loss(f, target)) - ex_loss))
-            ms = statistics.median(
-                _median_ms(lambda f=f, p=proj: knn.mutual_knn_pairs(f, style, args.k, projection=p), args.repeats)
-                for _, f in timed
-            )
-            row = {"rank": rank, "candidates": cand, "recall_rs": statistics.mean(rec_rs),
-                   "recall_sr": statistics.mean(rec_sr), "recall_nn": statistics.mean(rec_nn),
-                   "recall_rs_worst_view": min(rec_rs), "recall_sr_worst_view": min(rec_sr),
-                   "pairs_jaccard": statistics.mean(jac), "target_rel_diff_max": max(tdiff),
-                   "loss_abs_diff_max": max(ldiff), "ms": ms}
-            rows_out.append(row)
-            print(f"{rank:>5} {cand:>5} {row['recall_rs']:>10.5f} {row['recall_sr']:>10.5f} {row['recall_nn']:>10.5f} "
-                  f"{row['pairs_jaccard']:>8.5f} {row['target_rel_diff_max']:>9.2e} {row['loss_abs_diff_max']:>9.2e} "
-                  f"{ms:>7.1f}")
+    settings = [(int(r), int(c), prod) for r in args.ranks.split(",") for c in args.candidates.split(",")
+                for prod in args.products.split(",")]
+    for rank, cand, products in settings:
+        proj = knn.Projection(rank, cand, products=products)
+        fp = fast.FastParams(k=args.k, projection_rank=rank, projection_candidates=cand, projection_min_similarities=0,
+                             projection_products=products)
+        rec_rs, rec_sr, rec_nn, jac, tdiff, ldiff = [], [], [], [], [], []
+        for (_, f), (ex_rs, ex_sr, ex_nn, ex_pairs, ex_target, ex_loss) in zip(features, exact):
+            nn_rs, nn_sr = knn.cosine_topk(f, style, args.k, args.k, projection=proj)
+            nn1, _ = knn.cosine_topk(f, style, 1, 0, projection=proj)
+            rows, cols = knn.mutual_knn_pairs(f, style, args.k, projection=proj)
+            pairs = set((rows * n_s + cols).tolist())
+            target = fast.fast_target(f, style, fp)
+            rec_rs.append(_found(nn_rs, ex_rs))
+            rec_sr.append(_found(nn_sr.t(), ex_sr))
+            rec_nn.append(_found(nn1, ex_nn))
+            jac.append(len(pairs & ex_pairs) / len(pairs | ex_pairs))
+            tdiff.append(float((target - ex_target).norm() / ex_target.norm()))
+            ldiff.append(abs(float(fast.cosine_distance_loss(f, target)) - ex_loss))
+        ms = statistics.median(
+            _median_ms(lambda f=f, p=proj: knn.mutual_knn_pairs(f, style, args.k, projection=p), args.repeats)
+            for _, f in timed
+        )
+        row = {"rank": rank, "candidates": cand, "products": products,
+               "bf16_products": proj.bf16_products(), "recall_rs": statistics.mean(rec_rs),
+               "recall_sr": statistics.mean(rec_sr), "recall_nn": statistics.mean(rec_nn),
+               "recall_rs_worst_view": min(rec_rs), "recall_sr_worst_view": min(rec_sr),
+               "pairs_jaccard": statistics.mean(jac), "target_rel_diff_max": max(tdiff),
+               "loss_abs_diff_max": max(ldiff), "ms": ms}
+        rows_out.append(row)
+        print(f"{rank:>5} {cand:>5} {products:>9} {row['recall_rs']:>10.5f} {row['recall_sr']:>10.5f} {row['recall_nn']:>10.5f} "
+              f"{row['pairs_jaccard']:>8.5f} {row['target_rel_diff_max']:>9.2e} {row['loss_abs_diff_max']:>9.2e} "
+              f"{ms:>7.1f}")
     out = {"scenes": args.ply, "style": str(args.style), "views": len(cameras), "n_r": n_r, "n_s": n_s, "k": args.k,
            "exact_search": args.knn_search, "exact_ms": ms_exact, "threads": args.threads,
-           "machine": platform.machine(), "cpus": os.cpu_count(), "results": rows_out}
+           "machine": platform.machine(), "cpus": os.cpu_count(), "bf16_dot_available": knn.bf16_dot_available(),
+           "results": rows_out}
     if args.json:
         write_json(args.json, out)
     return out

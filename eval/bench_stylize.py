@@ -36,7 +36,7 @@ from abcgs.io.ply import read_ply, write_ply  # noqa: E402
 from abcgs.params import load_params  # noqa: E402
 from abcgs.sfm.colmap import read_colmap_scene  # noqa: E402
 from abcgs.style.colormatch import ColorMatchParams, color_match_and_refit  # noqa: E402
-from abcgs.style.knn import KnnSearch  # noqa: E402
+from abcgs.style.knn import CandidateProducts, KnnSearch  # noqa: E402
 from abcgs.style.losses import gram_matrix  # noqa: E402
 from abcgs.style.matching import TransferSpec, build_groups, load_style  # noqa: E402
 from abcgs.style.stylize import stylize  # noqa: E402
@@ -74,6 +74,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--projection-rank", type=int, default=None,
                     help="override stylize.fast.projection_rank (0: exact search; r > 0: the projected search)")
     ap.add_argument("--projection-candidates", type=int, default=None, help="override stylize.fast.projection_candidates")
+    ap.add_argument("--projection-products", choices=get_args(CandidateProducts), default=None,
+                    help="override stylize.fast.projection_products (the candidates' products: float32 or bfloat16)")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     if args.threads:
@@ -84,7 +86,8 @@ def main(argv=None) -> dict:
               if v is not None}
     sp = params.stylize.model_copy(update=update)
     fast_update = {key: value for key, value in (("knn_search", args.knn_search), ("projection_rank", args.projection_rank),
-                                                 ("projection_candidates", args.projection_candidates)) if value is not None}
+                                                 ("projection_candidates", args.projection_candidates),
+                                                 ("projection_products", args.projection_products)) if value is not None}
     if fast_update:
         sp = sp.model_copy(update={"fast": sp.fast.model_copy(update=fast_update)})
     base = args.work / args.scene.name

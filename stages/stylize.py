@@ -108,7 +108,18 @@ def _main(args, params) -> None:
         "seconds_per_iteration": {k: v / n_it for k, v in res.timings.items() if k != "iterations"},
         "render_fps": fps, "fast": res.fast_stats, "n_gaussians": res.model.num_gaussians,
         "vgg_weights": info.model_dump(), "seed": sp.seed, "camera_path": path_kind,
+        "projected_search": _projected_search_record(sp.fast),
     })
+
+
+def _projected_search_record(fast_params) -> dict | None:
+    """The approximate neighbour search as it ran here (``projection_products: auto`` resolved on this CPU), or None
+    when it is off; it applies to CPU searches of at least ``min_similarities`` only."""
+    proj = fast_params.projection()
+    if proj is None:
+        return None
+    return {"rank": proj.rank, "candidates": proj.candidates, "min_similarities": proj.min_similarities,
+            "products": "bfloat16" if proj.bf16_products() else "float32"}
 
 
 if __name__ == "__main__":

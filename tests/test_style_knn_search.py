@@ -187,6 +187,41 @@ def test_kernel_topk_dots_both_ties_and_thread_counts():
     assert torch.equal(outs[0][2], _rank_topk(s, 11, 0).t())
 
 
+needs_bf16_dot = pytest.mark.skipif(
+    not (cpu_kernels.is_available() and knn.bf16_dot_available()),
+    reason="this CPU has no AVX512-BF16 (the bf16 candidate products are built only where it has; the torch path "
+    "with the same rounding is tested on every CPU)",
+)
+
+
+@needs_bf16_dot
+@pytest.mark.parametrize("n_a, n_b, r, ka, kb", [(301, 517, 24, 5, 7), (6, 16, 8, 16, 6), (7, 40, 3, 1, 0),
+                                                 (50, 9, 130, 0, 4), (1, 1, 5, 1, 1), (40, 70, 129, 3, 3)])
+def test_kernel_bf16_products_are_the_rounded_features_products(n_a, n_b, r, ka, kb):
+    """bf16_products: the lists of the products of a and b rounded to bfloat16 (odd R too: the pair is zero-padded),
+    for any thread count."""
+    g = torch.Generator().manual_seed(n_a + r)
+    a, b = torch.randn(n_a, r, generator=g), torch.randn(n_b, r, generator=g)
+    ext = cpu_kernels.load_extension()
+    outs = []
+    for threads in (1, 2, 3):
+        with cpu_kernels.kernel_threads(threads):
+            outs.append(ext.topk_dots_both(a, b, ka, kb, True))
+    for other in outs[1:]:
+        assert all(torch.equal(x, y) for x, y in zip(outs[0], other))
+    a_idx, a_val, b_idx, b_val = outs[0]
+    s = a.bfloat16().double() @ b.bfloat16().double().t()  # bf16 x bf16 is exact in float32; sums in float32
+    if ka:
+        assert torch.equal(a_idx, s.topk(ka, dim=1).indices)
+        assert torch.allclose(a_val.double(), s.gather(1, a_idx), atol=1e-5)
+    if kb:
+        assert torch.equal(b_idx, s.topk(kb, dim=0).indices.t())
+        assert torch.allclose(b_val.double(), s.t().gather(1, b_idx), atol=1e-5)
+    exact = ext.topk_dots_both(a, b, max(ka, 1), 0, False)[1]  # the rounding is visible: not the float32 values
+    if r > 8:
+        assert not torch.equal(exact, ext.topk_dots_both(a, b, max(ka, 1), 0, True)[1])
+
+
 @needs_kernels
 def test_kernel_topk_dots_both_rejects_bad_input():
     ext = cpu_kernels.load_extension()
@@ -197,12 +232,17 @@ def test_kernel_topk_dots_both_rejects_bad_input():
         ext.topk_dots_both(a, b, 0, 0)
     with pytest.raises(RuntimeError, match="a \\(Na, R\\), b \\(Nb, R\\)"):
         ext.topk_dots_both(a, torch.randn(6, 3), 1, 1)
+    if not ext.bf16_dot_available():
+        with pytest.raises(RuntimeError, match="AVX512-BF16"):
+            ext.topk_dots_both(a, b, 1, 1, True)
 
 
+@pytest.mark.parametrize("products", ["float32", "bfloat16"])
 @pytest.mark.parametrize("use_kernels", [True, False])
-def test_projected_search_is_exact_where_the_projection_loses_nothing(monkeypatch, use_kernels):
+def test_projected_search_is_exact_where_the_projection_loses_nothing(monkeypatch, use_kernels, products):
     """Features in a 12-dimensional subspace: a rank-12 projection keeps every similarity, so the projected search
-    returns the exact neighbour sets (the candidates hold the true neighbours, the exact re-ranking orders them)."""
+    returns the exact neighbour sets (the candidates hold the true neighbours, the exact re-ranking orders them), also
+    when the candidates come from bf16 products (their rounding reorders candidates, not the exact re-ranking)."""
     if use_kernels and not cpu_kernels.is_available():
         pytest.skip("the CPU kernels' extension did not build here (make install builds it)")
     if not use_kernels:
@@ -214,7 +254,7 @@ def test_projected_search_is_exact_where_the_projection_loses_nothing(monkeypatc
     style = knn.StyleFeatures.of(f_s)
     f_r = basis @ torch.linalg.lstsq(basis, f_r).solution  # back into the subspace after the ReLU
     style = knn.StyleFeatures.of(basis @ torch.linalg.lstsq(basis, style.raw).solution)
-    proj = knn.Projection(rank=12, candidates=8)
+    proj = knn.Projection(rank=12, candidates=8, products=products)
     for k_rs, k_sr in [(5, 5), (1, 0), (0, 3)]:
         a_rs, a_sr = knn.cosine_topk(f_r, style, k_rs, k_sr, projection=proj)
         b_rs, b_sr = knn.cosine_topk(f_r, style, k_rs, k_sr, search="exact")
@@ -233,7 +273,7 @@ def test_projected_search_in_the_losses():
     exact = fast.FastParams(knn_search="exact", projection_rank=0)
     # every feature is a candidate both ways, and the size threshold is off
     full = fast.FastParams(projection_rank=8, projection_candidates=300, projection_min_similarities=0)
-    assert full.projection() == knn.Projection(8, 300, 0) and exact.projection() is None
+    assert full.projection() == knn.Projection(8, 300, 0, "auto") and exact.projection() is None
     for method in ("fast", "nnfm", "knnfm"):
         a = losses.style_loss(method, [(f_r, style)], fast_params=exact)
         b = losses.style_loss(method, [(f_r, style)], fast_params=full)
@@ -242,6 +282,13 @@ def test_projected_search_in_the_losses():
         fast.FastParams(projection_rank=-1)
     with pytest.raises(InputError, match="projection search"):
         knn.Projection(rank=0)
+    with pytest.raises(InputError, match="auto, float32 or bfloat16"):
+        knn.Projection(rank=8, products="float16")
+    with pytest.raises(ValidationError):
+        fast.FastParams(projection_products="bf16")
+    assert fast.FastParams().projection().products == "auto"
+    assert knn.Projection(8, products="auto").bf16_products() == knn.bf16_dot_available()
+    assert knn.Projection(8, products="bfloat16").bf16_products() and not knn.Projection(8).bf16_products()
 
 
 def test_projected_search_runs_only_where_it_applies(monkeypatch):

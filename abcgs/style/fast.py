@@ -42,6 +42,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from abcgs.errors import InputError, NumericalError
 from abcgs.style.knn import (
     DEFAULT_MAX_BLOCK_ELEMS,
+    CandidateProducts,
     KnnSearch,
     Projection,
     StyleFeatures,
@@ -87,12 +88,17 @@ class FastParams(BaseModel):
     projection_min_similarities: int = Field(2**22, ge=0)
     """The approximate search runs for ``N_r · N_s`` at least this (fern: 2852 × 6528 = 18.6 M); smaller searches (the
     embedded tiny scene's) are cheap exactly and stay exact."""
+    projection_products: CandidateProducts = "auto"
+    """The projected products that pick the candidates (:attr:`abcgs.style.knn.Projection.products`): ``float32``,
+    ``bfloat16`` or ``auto`` (bfloat16 where the CPU kernels have AVX512-BF16). The candidates are re-ranked exactly
+    either way; docs/SCALING.md has the measured recall and time of both."""
 
     def projection(self) -> Projection | None:
         """The approximate search these params ask for, or None for the exact one."""
         if self.projection_rank == 0:
             return None
-        return Projection(self.projection_rank, self.projection_candidates, self.projection_min_similarities)
+        return Projection(self.projection_rank, self.projection_candidates, self.projection_min_similarities,
+                          self.projection_products)
 
 
 @dataclass

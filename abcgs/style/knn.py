@@ -30,7 +30,9 @@ not a value of ``search``: each feature's candidates come from the similarities 
 each direction, found from the ``N_r × N_s`` projected products without storing them
 (``topk_dots_both`` in ``abcgs/render/csrc/knn_cpu.cpp``); the candidates are then re-ranked by their exact
 similarities. A true neighbour is missed only when it falls outside the candidates; ``eval/bench_knn_recall.py``
-measures how often on real stylization features (the recall is printed and recorded in docs/SCALING.md).
+measures how often on real stylization features (the recall is printed and recorded in docs/SCALING.md). The
+projected products may be taken in bfloat16 (:attr:`Projection.products`; by default where the CPU has AVX512-BF16):
+that changes which candidates are kept, never the exact re-ranking.
 """
 
 from __future__ import annotations
@@ -81,6 +83,17 @@ def bf16_with_residuals(x: torch.Tensor, dim: int) -> tuple[torch.Tensor, torch.
     return low, (x - low.float()).norm(dim=dim)
 
 
+CandidateProducts = Literal["auto", "float32", "bfloat16"]
+
+
+@functools.lru_cache(maxsize=1)
+def bf16_dot_available() -> bool:
+    """Whether the CPU kernels' extension here has the AVX512-BF16 candidate products (``topk_dots_both``'s
+    ``bf16_products``: built with ``-march=native`` on a CPU with AVX512-BF16 and AVX512-VL)."""
+    ext = _cpu_kernels()
+    return ext is not None and bool(ext.bf16_dot_available())
+
+
 @dataclass(frozen=True)
 class Projection:
     """The approximate neighbour search (module docstring): candidates from ``rank``-dimensional projections onto the
@@ -90,10 +103,21 @@ class Projection:
     candidates: int = 16
     min_similarities: int = 0
     """Searches of fewer ``N_r · N_s`` similarities run exactly instead (cheap there)."""
+    products: CandidateProducts = "float32"
+    """The projected products that pick the candidates: ``float32``, ``bfloat16`` (the projected features rounded to
+    bf16, products summed in float32: the AVX512-BF16 kernel, twice the multiply-adds per instruction; elsewhere the
+    same rounding followed by a float32 product) or ``auto`` (bfloat16 where the kernel has it,
+    :func:`bf16_dot_available`). Only the candidates depend on it: they are re-ranked by exact similarities."""
 
     def __post_init__(self) -> None:
         if self.rank < 1 or self.candidates < 1:
             raise InputError(f"projection search: rank and candidates must be >= 1, got {self.rank}, {self.candidates}")
+        if self.products not in ("auto", "float32", "bfloat16"):
+            raise InputError(f"projection search: products must be auto, float32 or bfloat16, got {self.products!r}")
+
+    def bf16_products(self) -> bool:
+        """Whether the candidates come from bf16 products here (``auto`` resolved on this machine)."""
+        return self.products == "bfloat16" or (self.products == "auto" and bf16_dot_available())
 
     def applies(self, n_r: int, n_s: int, channels: int, device: torch.device) -> bool:
         """Whether the projected search runs for an ``n_r × n_s`` search over ``channels``-dimensional features on
@@ -395,9 +419,12 @@ def _projected_topk(f_r: torch.Tensor, style: StyleFeatures, k_rs: int, k_sr: in
     kc_rs = min(max(projection.candidates, k_rs), n_s) if k_rs > 0 else 0
     kc_sr = min(max(projection.candidates, k_sr), n_r) if k_sr > 0 else 0
     ext = _cpu_kernels() if f_r.device.type == "cpu" and f_r.dtype == torch.float32 else None
-    if ext is not None:
-        cand_rs, _, cand_sr, _ = ext.topk_dots_both(r_proj, s_proj, kc_rs, kc_sr)
-    else:
+    bf16 = projection.bf16_products()
+    if ext is not None and (not bf16 or bf16_dot_available()):
+        cand_rs, _, cand_sr, _ = ext.topk_dots_both(r_proj, s_proj, kc_rs, kc_sr, bf16)
+    else:  # torch: bf16 products as the kernel's, the rounded features multiplied in float32 (another summation order)
+        if bf16:
+            r_proj, s_proj = r_proj.bfloat16().float(), s_proj.bfloat16().float()
         _, cand_rs, _, cand_sr_t = _tiled_topk(r_proj, s_proj.t(), kc_rs, kc_sr, DEFAULT_MAX_BLOCK_ELEMS)
         cand_sr = cand_sr_t.t() if cand_sr_t is not None else None
     nn_rs = _rerank(ur_rows, style.unit_rows, cand_rs, k_rs) if k_rs > 0 else None

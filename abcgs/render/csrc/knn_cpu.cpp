@@ -127,6 +127,13 @@ std::vector<at::Tensor> topk_columns(const at::Tensor& s, int64_t k) {
 // Returns {a_idx (Na, ka) int64, a_val (Na, ka) float32, b_idx (Nb, kb), b_val (Nb, kb)}, largest first; ka or kb
 // may be 0 (that direction is skipped and its outputs are empty).
 //
+// bf16_products: the products are taken of a and b rounded to bfloat16 (round to nearest even), summed in float32 by
+// the AVX512-BF16 pair dot product (vdpbf16ps: two bf16 products per float32 lane and instruction, twice the
+// multiply-adds of a float32 FMA of the same width). Only the candidates' order changes (the values are
+// approximations of float32 dot products either way, and the caller re-ranks the candidates exactly); the tile layout,
+// the bounds and the passes are the same. Available where the extension was compiled for a CPU with AVX512-BF16 and
+// AVX512-VL (bf16_dot_available()).
+//
 // Determinism: every product is summed over R in the same order whatever the thread count; each list is built by one
 // worker (a-rows by blocks, b-rows by panels), and ties keep the lower index, so results do not depend on the
 // thread count.
@@ -225,6 +232,59 @@ __attribute__((noinline)) void dot_tile(const float* __restrict a_blk, const flo
   __builtin_memcpy(out->c, c, sizeof(c));
 }
 
+#if defined(__AVX512BF16__) && defined(__AVX512VL__)
+#define ABCGS_BF16_DOT 1
+// The bf16 tile: a_blk is (R2, kTileA, 2) and panel (R2, kTileB, 2) raw bf16 bits, R2 = ceil(R / 2), the pair
+// (r = 2 r2, 2 r2 + 1) adjacent (zero-padded), so that one 32-bit broadcast of an a-row's pair and one 8-lane load of
+// the panel give vdpbf16ps its operands: lane l of c[i][h] += a[i][2r2] b[8h+l][2r2] + a[i][2r2+1] b[8h+l][2r2+1].
+// Twelve accumulator chains as in dot_tile, half the instructions per r.
+__attribute__((noinline)) void dot_tile_bf16(const uint16_t* __restrict a_blk, const uint16_t* __restrict panel,
+                                             int64_t R2, Tile* __restrict out) {
+  __m256 c[kTileA][2];
+  for (int i = 0; i < kTileA; ++i) c[i][0] = c[i][1] = _mm256_setzero_ps();
+  for (int64_t r = 0; r < R2; ++r) {
+    const __m256bh b0 = (__m256bh)_mm256_loadu_si256(reinterpret_cast<const __m256i*>(panel + r * kTileB * 2));
+    const __m256bh b1 = (__m256bh)_mm256_loadu_si256(reinterpret_cast<const __m256i*>(panel + r * kTileB * 2 + 16));
+    const uint16_t* ar = a_blk + r * kTileA * 2;
+    for (int i = 0; i < kTileA; ++i) {
+      uint32_t pair;
+      __builtin_memcpy(&pair, ar + 2 * i, sizeof(pair));
+      const __m256bh ai = (__m256bh)_mm256_set1_epi32(static_cast<int>(pair));
+      c[i][0] = _mm256_dpbf16_ps(c[i][0], ai, b0);
+      c[i][1] = _mm256_dpbf16_ps(c[i][1], ai, b1);
+    }
+  }
+  __builtin_memcpy(out->c, c, sizeof(c));
+}
+#else
+#define ABCGS_BF16_DOT 0
+#endif
+
+// Rows of x (n, R) packed into groups of `width` rows: (groups, R, width) float32, or with bf16 (groups, R2, width, 2)
+// bfloat16 bits (round to nearest even; R2 = ceil(R / 2), pairs of r adjacent); zero-padded either way.
+void pack_rows(const float* x, int64_t n, int64_t R, int64_t width, bool bf16, std::vector<float>& f32,
+               std::vector<uint16_t>& b16) {
+  const int64_t groups = (n + width - 1) / width;
+  if (!bf16) {
+    f32.assign(static_cast<size_t>(groups * R * width), 0.f);
+    abcgs::parallel_range(n, 512, [&](int64_t i0, int64_t i1) {
+      for (int64_t i = i0; i < i1; ++i) {
+        float* dst = f32.data() + (i / width) * R * width + (i % width);
+        for (int64_t r = 0; r < R; ++r) dst[r * width] = x[i * R + r];
+      }
+    });
+    return;
+  }
+  const int64_t R2 = (R + 1) / 2;
+  b16.assign(static_cast<size_t>(groups * R2 * width * 2), 0);
+  abcgs::parallel_range(n, 512, [&](int64_t i0, int64_t i1) {
+    for (int64_t i = i0; i < i1; ++i) {
+      uint16_t* dst = b16.data() + (i / width) * R2 * width * 2 + (i % width) * 2;
+      for (int64_t r = 0; r < R; ++r) dst[(r / 2) * width * 2 + (r % 2)] = c10::BFloat16(x[i * R + r]).x;
+    }
+  });
+}
+
 inline vf8 vmax(vf8 x, vf8 y) { return x > y ? x : y; }
 
 // The k largest of a stream, kept sorted (largest first) in top[0..k): an entry enters only when it beats top[k-1],
@@ -250,9 +310,15 @@ struct KLargest {
 
 }  // namespace
 
-std::vector<at::Tensor> topk_dots_both(const at::Tensor& a, const at::Tensor& b, int64_t ka, int64_t kb) {
+bool bf16_dot_available() { return ABCGS_BF16_DOT != 0; }
+
+std::vector<at::Tensor> topk_dots_both(const at::Tensor& a, const at::Tensor& b, int64_t ka, int64_t kb,
+                                       bool bf16_products) {
   TORCH_CHECK(a.dim() == 2 && b.dim() == 2 && a.size(1) == b.size(1), "topk_dots_both: a (Na, R), b (Nb, R) expected");
   TORCH_CHECK(a.scalar_type() == at::kFloat && b.scalar_type() == at::kFloat, "topk_dots_both: float32 rows expected");
+  TORCH_CHECK(!bf16_products || bf16_dot_available(),
+              "topk_dots_both: bf16 products need a build for a CPU with AVX512-BF16 and AVX512-VL "
+              "(bf16_dot_available() is false here)");
   const at::Tensor ac = a.contiguous(), bc = b.contiguous();
   const int64_t Na = ac.size(0), Nb = bc.size(0), R = ac.size(1);
   TORCH_CHECK(Na >= 1 && Nb >= 1, "topk_dots_both: empty input");
@@ -263,23 +329,20 @@ std::vector<at::Tensor> topk_dots_both(const at::Tensor& a, const at::Tensor& b,
   const float* pb = bc.data_ptr<float>();
   const float neg_inf = -std::numeric_limits<float>::infinity();
 
-  // Pack a into (blocks, R, kTileA) and b into (panels, R, kTileB), zero-padded.
+  // Pack a into (blocks, R, kTileA) and b into (panels, R, kTileB), zero-padded (bf16: pairs of r, see pack_rows).
   const int64_t n_blocks = (Na + kTileA - 1) / kTileA, n_panels = (Nb + kTileB - 1) / kTileB;
-  std::vector<float> a_pack(static_cast<size_t>(n_blocks * R * kTileA), 0.f);
-  std::vector<float> b_pack(static_cast<size_t>(n_panels * R * kTileB), 0.f);
-  abcgs::parallel_range(Na, 512, [&](int64_t i0, int64_t i1) {
-    for (int64_t i = i0; i < i1; ++i) {
-      float* dst = a_pack.data() + (i / kTileA) * R * kTileA + (i % kTileA);
-      for (int64_t r = 0; r < R; ++r) dst[r * kTileA] = pa[i * R + r];
-    }
-  });
-  abcgs::parallel_range(Nb, 512, [&](int64_t j0, int64_t j1) {
-    for (int64_t j = j0; j < j1; ++j) {
-      float* dst = b_pack.data() + (j / kTileB) * R * kTileB + (j % kTileB);
-      for (int64_t r = 0; r < R; ++r) dst[r * kTileB] = pb[j * R + r];
-    }
-  });
+  std::vector<float> a_pack, b_pack;
+  std::vector<uint16_t> a_pack16, b_pack16;
+  pack_rows(pa, Na, R, kTileA, bf16_products, a_pack, a_pack16);
+  pack_rows(pb, Nb, R, kTileB, bf16_products, b_pack, b_pack16);
+  const int64_t R2 = (R + 1) / 2;
   auto tile = [&](int64_t blk, int64_t p, Tile* t) {
+#if ABCGS_BF16_DOT
+    if (bf16_products) {
+      dot_tile_bf16(a_pack16.data() + blk * R2 * kTileA * 2, b_pack16.data() + p * R2 * kTileB * 2, R2, t);
+      return;
+    }
+#endif
     dot_tile(a_pack.data() + blk * R * kTileA, b_pack.data() + p * R * kTileB, R, t);
   };
 

@@ -526,7 +526,9 @@ std::vector<at::Tensor> project_backward(const at::Tensor& means, const at::Tens
 // knn_cpu.cpp
 at::Tensor pair_dots(const at::Tensor& a, const at::Tensor& b, const at::Tensor& ia, const at::Tensor& ib);
 std::vector<at::Tensor> topk_columns(const at::Tensor& s, int64_t k);
-std::vector<at::Tensor> topk_dots_both(const at::Tensor& a, const at::Tensor& b, int64_t ka, int64_t kb);
+std::vector<at::Tensor> topk_dots_both(const at::Tensor& a, const at::Tensor& b, int64_t ka, int64_t kb,
+                                       bool bf16_products);
+bool bf16_dot_available();
 at::Tensor rerank_topk(const at::Tensor& own, const at::Tensor& other, const at::Tensor& cand, int64_t k);
 
 // image_loss_cpu.cpp
@@ -541,7 +543,10 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("pair_dots", &pair_dots, "dot products of selected row pairs of two float32 matrices (CPU)");
   m.def("topk_columns", &topk_columns, "top-k of every column of a row-major matrix, one pass over rows (CPU)");
   m.def("topk_dots_both", &topk_dots_both,
-        "the largest dot products of each row of a with the rows of b and vice versa, one pass (CPU)");
+        "the largest dot products of each row of a with the rows of b and vice versa, one pass (CPU)",
+        py::arg("a"), py::arg("b"), py::arg("ka"), py::arg("kb"), py::arg("bf16_products") = false);
+  m.def("bf16_dot_available", &bf16_dot_available,
+        "whether this build has the AVX512-BF16 products of topk_dots_both (a CPU with AVX512-BF16 and AVX512-VL)");
   m.def("rerank_topk", &rerank_topk, "the k candidates with the largest exact dot products, per row (CPU)");
   m.def("l1_ssim_forward", &l1_ssim_forward, "mean L1 and SSIM of two images and their gradients (CPU)");
   m.def("set_kernel_threads", &abcgs::set_kernel_threads, "threads of the CPU kernels (0 = all hardware threads)");
