@@ -95,3 +95,22 @@ def test_bad_inputs():
         losses.content_loss(torch.zeros(1, 3, 4, 4), torch.zeros(1, 3, 4, 5))
     with pytest.raises(InputError):
         losses.tv_loss(torch.zeros(3, 4, 4))
+
+
+def test_group_features_equal_boolean_indexing_values_and_gradients():
+    """A mask covering every cell gives a view of all columns (no copy), a partial one the masked columns; both equal
+    ``feats[:, mask]`` in value and gradient, and the full mask's result shares the features' storage."""
+    from abcgs.style.stylize import group_features
+
+    g = torch.Generator().manual_seed(0)
+    base = torch.randn(6, 4, 5, generator=g)
+    for mask in (torch.ones(4, 5, dtype=torch.bool), torch.rand(4, 5, generator=g) > 0.5):
+        a, b = base.clone().requires_grad_(True), base.clone().requires_grad_(True)
+        fa, fb = group_features(a, mask), b[:, mask]
+        assert torch.equal(fa, fb)
+        w = torch.randn(fa.shape, generator=g)
+        (fa * w).sum().backward()
+        (fb * w).sum().backward()
+        assert torch.equal(a.grad, b.grad)
+        if bool(mask.all()):
+            assert fa.data_ptr() == a.data_ptr()

@@ -188,6 +188,13 @@ def prepare_targets(
     return targets
 
 
+def group_features(feats: Tensor, mask: Tensor) -> Tensor:
+    """The ``(C, n)`` columns of ``feats`` ``(C, h, w)`` under ``mask`` ``(h, w)`` bool, in row-major order: a view of
+    all columns when the mask covers every cell (single-image transfer), so that neither the forward nor the backward
+    copies the features through the mask."""
+    return feats.flatten(1) if bool(mask.all()) else feats[:, mask]
+
+
 def _optimizer(model: GaussianModel, lrs: dict[str, float]) -> torch.optim.Adam:
     """Adam (eps 1e-15, as 3DGS) over the fields with a positive learning rate; the others are frozen."""
     groups = []
@@ -261,7 +268,7 @@ def style_pass(
         t1 = time.perf_counter()
         feats = _features(vgg, img, params)
         t2 = time.perf_counter()
-        pairs = [(feats[:, mask], fs) for mask, fs in zip(tgt.group_masks, style_feats) if int(mask.sum()) > 0]
+        pairs = [(group_features(feats, mask), fs) for mask, fs in zip(tgt.group_masks, style_feats) if bool(mask.any())]
         terms: dict[str, Tensor] = {}
         if pairs and params.lambda_style > 0:
             terms["style"] = params.lambda_style * style_loss(
