@@ -12,6 +12,18 @@ The library is organised one module per concept:
 - :mod:`abcgs.style`    — ABC-GS: VGG features, FAST loss, colour match, style isolation, mask lifting.
 """
 
+import os
+import sys
+
+# The CPU path alternates torch's OpenMP regions (VGG, Adam, small tensor ops) with the extension's own
+# kernel threads (abcgs.render.cpu: rasterizer, SSIM, neighbour search). Under GNU OpenMP's default wait
+# policy torch's idle workers spin after each region and take cores from those kernel threads. Passive
+# waiting measured on fern, 2 cores (docs/SCALING.md "Idle OpenMP workers"): a fit 8 % faster, a FAST
+# stylization step 4 %, results identical. libgomp reads the variable when it loads, i.e. at torch's first
+# import, so this only acts when abcgs is imported first; a value set by the user always wins.
+if "torch" not in sys.modules:
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 # Import OpenCV before pycolmap can be imported anywhere: pycolmap's bundled zlib otherwise captures
 # libz's internal calls and the next cv2.imencode of a PNG aborts with "double free or corruption".
 import cv2  # noqa: F401,E402

@@ -23,6 +23,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import abcgs  # noqa: E402,F401  (before torch: abcgs sets OpenMP's wait policy, see abcgs/__init__.py)
+
+# isort: split
 import torch  # noqa: E402
 
 from abcgs.fit.losses import reconstruction_loss  # noqa: E402

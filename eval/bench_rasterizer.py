@@ -23,6 +23,10 @@ import threading
 import time
 from dataclasses import dataclass
 
+import abcgs  # noqa: F401  (before torch: abcgs sets OpenMP's wait policy, see abcgs/__init__.py)
+
+# isort: split
+
 import torch
 
 from abcgs.render import rasterize
