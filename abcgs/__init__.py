@@ -19,7 +19,7 @@ import sys
 # kernel threads (abcgs.render.cpu: rasterizer, SSIM, neighbour search). Under GNU OpenMP's default wait
 # policy torch's idle workers spin after each region and take cores from those kernel threads. Passive
 # waiting measured on fern, 2 cores (docs/SCALING.md "Idle OpenMP workers"): a fit 8 % faster, a FAST
-# stylization step 4 %, results identical. libgomp reads the variable when it loads, i.e. at torch's first
+# stylization step 3–4 %, results identical. libgomp reads the variable when it loads, i.e. at torch's first
 # import, so this only acts when abcgs is imported first; a value set by the user always wins.
 if "torch" not in sys.modules:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
