@@ -3,9 +3,10 @@
     python eval/bench_render_scene.py --work out/bench/fern          # after eval/bench_fit.py --scene .../fern
 
 How it measures: the model ``<work>/gs/point_cloud.ply`` and the cameras of ``<work>/colmap``; for each of
-``--views`` views, ``--rounds`` times: a no-grad render (forward), then a render with every parameter requiring
-a gradient and the backward of a fixed weighted sum of its pixels (forward + backward). The first round is a
-warm-up; the medians of the others are printed, in ms, with the thread count and load. Whether torch's OpenMP
+``--views`` views, ``--repeats`` timed calls after a warm-up (``eval.timing.repeat_seconds``) of a no-grad render
+(forward), then of a render with every parameter requiring a gradient and the backward of a fixed weighted sum of
+its pixels (forward + backward). The medians over all views and calls are printed, in ms, with the thread count
+and load. Whether torch's OpenMP
 workers wait passively (``OMP_WAIT_POLICY``, see ``abcgs/__init__.py``) is printed too: run it with
 ``OMP_WAIT_POLICY=ACTIVE`` or with abcgs imported after torch to compare (docs/SCALING.md "Idle OpenMP workers").
 """
@@ -16,7 +17,6 @@ import argparse
 import os
 import statistics
 import sys
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -29,46 +29,45 @@ import torch  # noqa: E402
 from abcgs.gaussians import render  # noqa: E402
 from abcgs.io.ply import read_ply  # noqa: E402
 from abcgs.sfm.colmap import read_colmap_scene  # noqa: E402
+from eval.timing import repeat_seconds  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--work", type=Path, default=Path("out/bench/fern"), help="bench_fit's folder of one scene")
     ap.add_argument("--views", type=int, default=6)
-    ap.add_argument("--rounds", type=int, default=4, help="rounds over the views; the first is a warm-up")
+    ap.add_argument("--repeats", type=int, default=3, help="timed calls per view, after one warm-up call")
     ap.add_argument("--threads", type=int, default=0, help="torch threads (0 = all cores)")
     args = ap.parse_args(argv)
-    if args.rounds < 2:
-        ap.error("--rounds must be at least 2 (the first round is a warm-up)")
+    if args.repeats < 1:
+        ap.error("--repeats must be at least 1")
     if args.threads:
         torch.set_num_threads(args.threads)
     scene = read_colmap_scene(args.work / "colmap" / "sparse", args.work / "colmap" / "images")
-    model = read_ply(args.work / "gs" / "point_cloud.ply")
-    for t in (model.means, model.quats, model.log_scales, model.opacity_logits, model.sh0, model.shN):
-        t.requires_grad_(True)
+    model = read_ply(args.work / "gs" / "point_cloud.ply").map(lambda t: t.detach().requires_grad_(True))
     cams = scene.cameras[: args.views]
     forward, both = [], []
-    for r in range(args.rounds):
-        for cam in cams:
-            t0 = time.perf_counter()
+    for cam in cams:
+        shape = render(model, cam)[0].shape
+        weights = torch.linspace(0, 1, shape.numel()).reshape(shape)
+
+        def forward_only(cam=cam):
             with torch.no_grad():
                 render(model, cam)
-            t1 = time.perf_counter()
-            img = render(model, cam)[0]
-            weights = torch.linspace(0, 1, img.numel()).reshape(img.shape)
-            (img * weights).sum().backward()
-            t2 = time.perf_counter()
-            if r:
-                forward.append(t1 - t0)
-                both.append(t2 - t1)
+
+        def forward_backward(cam=cam, weights=weights):
+            (render(model, cam)[0] * weights).sum().backward()
+
+        forward += repeat_seconds(forward_only, args.repeats)
+        both += repeat_seconds(forward_backward, args.repeats)
     out = {
         "gaussians": int(model.means.shape[0]), "size": [cams[0].width, cams[0].height], "views": len(cams),
         "forward_ms": 1e3 * statistics.median(forward), "forward_backward_ms": 1e3 * statistics.median(both),
         "torch_threads": torch.get_num_threads(), "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY", "<libgomp default>"),
         "load": os.getloadavg()[0],
     }
-    print(f"{out['gaussians']} Gaussians, {out['size'][0]}x{out['size'][1]}, {len(cams)} views x {args.rounds - 1} rounds "
-          f"(after a warm-up round): forward {out['forward_ms']:.1f} ms, forward + backward "
+    print(f"{out['gaussians']} Gaussians, {out['size'][0]}x{out['size'][1]}, {len(cams)} views x {args.repeats} calls "
+          f"(each after a warm-up call): forward {out['forward_ms']:.1f} ms, forward + backward "
           f"{out['forward_backward_ms']:.1f} ms (medians; {out['torch_threads']} torch threads, "
           f"OMP_WAIT_POLICY {out['omp_wait_policy']}, load {out['load']:.2f})")
     return out
