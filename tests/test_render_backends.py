@@ -70,14 +70,14 @@ def test_cpu_binning_matches_reference_sort_and_tile_boxes(dtype):
     conics = torch.tensor([1.0, 0.0, 1.0], dtype=dtype).repeat(n, 1)
     colors, opacities = torch.rand(n, 3, generator=g, dtype=dtype), torch.full((n,), 0.5, dtype=dtype)
     ext = cpu_backend.load_extension()
-    _, _, _, toff, ids, _, _ = ext.rasterize_forward(means2d, conics, colors, opacities, depths, extents,
+    _, _, _, toff, ids, slots, order, _, _ = ext.rasterize_forward(means2d, conics, colors, opacities, depths, extents,
                                                      width, height, tile)
     vis = torch.nonzero(extents[:, 0] > 0).squeeze(1)
-    order = vis[torch.argsort(depths[vis], stable=True)]
+    order_expected = vis[torch.argsort(depths[vis], stable=True)]
     boxes = tile_ranges(means2d, extents, width, height, tile)
     tiles_x = (width + tile - 1) // tile
     expected: dict[int, list[int]] = {}
-    for gid in order.tolist():
+    for gid in order_expected.tolist():
         tx0, ty0, tx1, ty1 = boxes[gid].tolist()
         for ty in range(ty0, ty1 + 1):
             for tx in range(tx0, tx1 + 1):
@@ -86,6 +86,13 @@ def test_cpu_binning_matches_reference_sort_and_tile_boxes(dtype):
     assert toff.numel() == n_tiles + 1
     for t in range(n_tiles):
         assert ids[toff[t] : toff[t + 1]].tolist() == expected.get(t, []), f"tile {t}"
+    # the packed-parameter slots: `order` is the front-to-back list of Gaussians with a positive extent, and each
+    # intersection's slot is its Gaussian's rank in it (so a tile's slots increase along its list)
+    assert order.tolist() == order_expected.tolist()
+    assert torch.equal(order[slots.long()], ids)
+    for t in range(n_tiles):
+        s = slots[toff[t] : toff[t + 1]]
+        assert bool((s[1:] > s[:-1]).all()), f"tile {t}: slots not increasing"
 
 
 @needs_cpu

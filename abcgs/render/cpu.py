@@ -205,10 +205,10 @@ class _RasterizeCPU(torch.autograd.Function):
         opacities, extents = opacities.contiguous(), extents.detach().contiguous().to(colors.dtype)
         depths = depths.detach().contiguous().to(colors.dtype)
         # depth sort (stable radix) and tile binning happen in C++, same order/boxes as the reference backend
-        image, trans, last, toff, ids, goff, gisect = ext.rasterize_forward(
+        image, trans, last, *binning = ext.rasterize_forward(
             means2d, conics, colors, opacities, depths, extents, width, height, tile_size
         )
-        ctx.save_for_backward(means2d, conics, colors, opacities, extents, trans, last, toff, ids, goff, gisect)
+        ctx.save_for_backward(means2d, conics, colors, opacities, extents, trans, last, *binning)
         ctx.dims = (width, height, tile_size)
         return image, 1.0 - trans
 
@@ -216,13 +216,13 @@ class _RasterizeCPU(torch.autograd.Function):
     def backward(ctx, v_image, v_alpha):
         ext = load_extension()
         width, height, tile_size = ctx.dims
-        (means2d, conics, colors, opacities, extents, trans, last, toff, ids, goff, gisect) = ctx.saved_tensors
+        (means2d, conics, colors, opacities, extents, trans, last, *binning) = ctx.saved_tensors
         if v_image is None:
             v_image = torch.zeros(height, width, colors.shape[1], dtype=colors.dtype)
         if v_alpha is None:
             v_alpha = torch.zeros(height, width, dtype=colors.dtype)
         vm, vc, vcol, vo = ext.rasterize_backward(
-            means2d, conics, colors, opacities, extents, trans, last, toff, ids, goff, gisect,
+            means2d, conics, colors, opacities, extents, trans, last, *binning,
             v_image.contiguous(), v_alpha.contiguous(), width, height, tile_size,
         )
         return vm, vc, vcol, vo, None, None, None, None, None

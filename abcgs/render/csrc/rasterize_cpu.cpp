@@ -13,10 +13,21 @@
 //
 // Built with -ffp-contract=off so that the forward and backward passes evaluate alpha with the same
 // rounding and therefore make the same skip/stop decisions.
+//
+// Layout of the work (docs/SCALING.md, "The tile rows in whole vectors"): a Gaussian's pixels in a tile are
+// visited one 16-pixel tile row at a time, all its rows' alphas first (one vector each, their exp
+// polynomials overlapping), then the rows with a nonzero lane are blended, or differentiated, in whole
+// vectors (GCC/Clang vector extensions: one AVX-512 register, two AVX2 ones); the per-pixel state of a tile
+// is kept by plane. The parameters a tile reads are packed in depth order (GaussianView), so a tile's list
+// walks one array forwards.
 
 #include <torch/extension.h>
 
 #include "parallel.h"
+
+#if defined(__AVX2__) || defined(__AVX512F__)
+#include <immintrin.h>
+#endif
 
 #include <algorithm>
 #include <atomic>
@@ -36,24 +47,32 @@ constexpr double kTransmittanceEps = 1e-4;
 // pass can hand them to autograd for the backward pass without copies.
 struct Binning {
   int64_t tiles_x = 0, tiles_y = 0;
-  at::Tensor tile_offsets_t, ids_t, gauss_offsets_t, gauss_isect_t;
+  at::Tensor tile_offsets_t, ids_t, slots_t, order_t, gauss_offsets_t, gauss_isect_t;
   const int64_t* tile_offsets = nullptr;   // (n_tiles + 1) start of each tile's list in `ids`
   const int32_t* ids = nullptr;            // (M) Gaussian index per intersection, depth-sorted in a tile
+  const int32_t* slots = nullptr;          // (M) depth rank of each intersection's Gaussian: its slot in `order`
+  const int32_t* order = nullptr;          // (V) the Gaussians with a positive extent, front to back
   const int64_t* gauss_offsets = nullptr;  // (N + 1) start of each Gaussian's row in `gauss_isect`
   const int64_t* gauss_isect = nullptr;    // (M) intersection indices of each Gaussian, in tile order
   int64_t num_isects() const { return ids_t.numel(); }
+  int64_t num_slots() const { return order_t.numel(); }
 
-  Binning(at::Tensor tile_offsets_, at::Tensor ids_, at::Tensor gauss_offsets_, at::Tensor gauss_isect_,
-          int64_t width, int64_t height, int64_t tile)
+  Binning(at::Tensor tile_offsets_, at::Tensor ids_, at::Tensor slots_, at::Tensor order_, at::Tensor gauss_offsets_,
+          at::Tensor gauss_isect_, int64_t width, int64_t height, int64_t tile)
       : tiles_x((width + tile - 1) / tile),
         tiles_y((height + tile - 1) / tile),
         tile_offsets_t(tile_offsets_.contiguous()),
         ids_t(ids_.contiguous()),
+        slots_t(slots_.contiguous()),
+        order_t(order_.contiguous()),
         gauss_offsets_t(gauss_offsets_.contiguous()),
         gauss_isect_t(gauss_isect_.contiguous()) {
     TORCH_CHECK(tile_offsets_t.numel() == tiles_x * tiles_y + 1, "binning does not match the image size");
+    TORCH_CHECK(slots_t.numel() == ids_t.numel(), "binning: slots and ids differ in length");
     tile_offsets = tile_offsets_t.data_ptr<int64_t>();
     ids = ids_t.data_ptr<int32_t>();
+    slots = slots_t.data_ptr<int32_t>();
+    order = order_t.data_ptr<int32_t>();
     gauss_offsets = gauss_offsets_t.data_ptr<int64_t>();
     gauss_isect = gauss_isect_t.data_ptr<int64_t>();
   }
@@ -152,9 +171,13 @@ Binning bin_gaussians(const scalar_t* means2d, const scalar_t* extents, const sc
   for (int64_t t = 0; t < n_tiles; ++t) toff[t + 1] += toff[t];
   for (int64_t g = 0; g < n; ++g) goff[g + 1] += goff[g];
   const int64_t m = toff[n_tiles];
-  at::Tensor ids = at::empty({m}, at::kInt);
+  at::Tensor ids = at::empty({m}, at::kInt), slots = at::empty({m}, at::kInt);
+  at::Tensor order = at::empty({n_vis}, at::kInt);
   at::Tensor gauss_isect = at::empty({m}, at::kLong);
   int32_t* id = ids.data_ptr<int32_t>();
+  int32_t* sl = slots.data_ptr<int32_t>();
+  int32_t* od = order.data_ptr<int32_t>();
+  for (int64_t k = 0; k < n_vis; ++k) od[k] = static_cast<int32_t>(ord[k]);
   int64_t* gi = gauss_isect.data_ptr<int64_t>();
   std::vector<int64_t> cursor(toff, toff + n_tiles);
   for (int64_t k = 0; k < n_vis; ++k) {
@@ -166,10 +189,11 @@ Binning bin_gaussians(const scalar_t* means2d, const scalar_t* extents, const sc
       for (int64_t tx = r[0]; tx <= r[2]; ++tx) {
         const int64_t pos = cursor[ty * tiles_x + tx]++;
         id[pos] = static_cast<int32_t>(g);
+        sl[pos] = static_cast<int32_t>(k);
         gi[j++] = pos;
       }
   }
-  return Binning(tile_offsets, ids, gauss_offsets, gauss_isect, width, height, tile);
+  return Binning(tile_offsets, ids, slots, order, gauss_offsets, gauss_isect, width, height, tile);
 }
 
 // Run `fn(tile)` for every tile with dynamic scheduling on the kernels' threads (parallel.h).
@@ -183,34 +207,6 @@ template <typename scalar_t>
 inline void box_in_tile(scalar_t mean, scalar_t ext, int64_t lo, int64_t hi, int64_t& a, int64_t& b) {
   a = std::max<int64_t>(lo, static_cast<int64_t>(std::ceil(mean - ext - scalar_t(0.5))));
   b = std::min<int64_t>(hi, static_cast<int64_t>(std::floor(mean + ext - scalar_t(0.5))) + 1);
-}
-
-// Columns [xa, xb) of one pixel row (offset dy from the mean) inside the level set sigma <= s_max,
-// where s_max = log(255 o) bounds where alpha >= 1/255 can hold. Padded so that rounding can only add
-// columns (each one is then tested exactly), never drop one. Returns false when the row misses it.
-template <typename scalar_t>
-inline bool row_span(scalar_t mx, scalar_t dy, scalar_t ca, scalar_t cb, scalar_t cc, scalar_t s_max, int64_t lo,
-                     int64_t hi, int64_t& xa, int64_t& xb) {
-  const double bdy = double(cb) * dy;
-  const double disc = bdy * bdy - double(ca) * (double(cc) * dy * dy - 2.0 * s_max);
-  if (!(disc >= 0.0) || !(ca > 0)) {
-    if (ca > 0) return false;
-    xa = lo;  // degenerate conic: no pruning, the exact test decides
-    xb = hi;
-    return true;
-  }
-  const double r = std::sqrt(disc);
-  const double pad = 1e-3 * (1.0 + std::abs(double(mx)));
-  const double x0 = double(mx) + (-bdy - r) / ca - 0.5 - pad, x1 = double(mx) + (-bdy + r) / ca - 0.5 + pad;
-  xa = std::max<int64_t>(lo, static_cast<int64_t>(std::ceil(x0)));
-  xb = std::min<int64_t>(hi, static_cast<int64_t>(std::floor(x1)) + 1);
-  return xa < xb;
-}
-
-// Upper bound of the exponent at which alpha = o exp(-sigma) can still reach 1/255 (with margin).
-template <typename scalar_t>
-inline scalar_t sigma_limit(scalar_t o) {
-  return static_cast<scalar_t>(std::log(std::max(1.0, double(o) * 255.0)) + 1e-3);
 }
 
 // e^x for float without a libm call, so that the per-row loop below vectorises (AVX2: 8 lanes).
@@ -232,104 +228,235 @@ inline float exp_fast(float x) {
 inline float exp_neg(float s) { return exp_fast(-s); }
 inline double exp_neg(double s) { return std::exp(-s); }
 
-// Pixels per call of row_alpha: a fixed trip count, so that the loop compiles to whole vectors (one AVX-512
-// or two AVX2 iterations) with no scalar remainder. A Gaussian's span in a tile row is typically 2-8 pixels,
-// which a loop over [xa, xb) ran entirely in its scalar remainder (measured on fern: 3 of every 10 forward
-// cycles in scalar exp). Lanes outside the span are computed and ignored.
+// Pixels per call of row_alpha: one AVX-512 vector (two AVX2 vectors) of float, a whole row of a 16 x 16 tile.
+// A Gaussian covers typically 2-8 pixels of a tile row; evaluating the whole row branch-free and then using
+// only its nonzero lanes costs less than first narrowing each row to the ellipse's span (a double-precision
+// square root and two divides per row, which this replaced).
 constexpr int64_t kRowChunk = 16;
+// Rows of one Gaussian evaluated together (the height of a 16 x 16 tile).
+constexpr int64_t kRowBatch = 16;
 
-// Alpha (0 where skipped: sigma < 0 or alpha < 1/255) and exp(-sigma) for the kRowChunk pixels
-// x = xa + first + i (i < kRowChunk) of one row at offset dy from the mean: the branch-free part of blending.
-// dx is formed as (xa + 0.5 - mx) + (first + i), the same rounding for every chunk of a span.
+// Alpha (0 where skipped: sigma < 0 or alpha < 1/255, and outside lanes [lo, hi)) and exp(-sigma) for the
+// kRowChunk pixels x = xc + i (i < kRowChunk) of one row at offset dy from the mean: the branch-free part of
+// blending. dx is formed as (xc + 0.5 - mx) + i.
 template <typename scalar_t>
-inline void row_alpha(int64_t xa, int64_t first, scalar_t mx, scalar_t dy, scalar_t ca, scalar_t cb, scalar_t cc,
-                      scalar_t o, scalar_t* __restrict alpha, scalar_t* __restrict vis) {
+inline void row_alpha(int64_t xc, int32_t lo, int32_t hi, scalar_t mx, scalar_t dy, scalar_t ca, scalar_t cb,
+                      scalar_t cc, scalar_t o, scalar_t* __restrict alpha, scalar_t* __restrict vis) {
   const scalar_t half_cdy2 = scalar_t(0.5) * cc * dy * dy, cbdy = cb * dy;
-  const scalar_t x0 = scalar_t(xa) + scalar_t(0.5) - mx;
-  for (int64_t i = 0; i < kRowChunk; ++i) {
-    const scalar_t dx = x0 + (scalar_t(first) + scalar_t(int32_t(i)));  // = x0 + (first + i): exact sums
+  const scalar_t x0 = scalar_t(xc) + scalar_t(0.5) - mx;
+  for (int32_t i = 0; i < int32_t(kRowChunk); ++i) {
+    const scalar_t dx = x0 + scalar_t(i);
     const scalar_t sigma = scalar_t(0.5) * ca * dx * dx + half_cdy2 + cbdy * dx;
     const scalar_t e = exp_neg(sigma);
     const scalar_t a = std::min(scalar_t(kMaxAlpha), o * e);
     const scalar_t a_kept = a >= scalar_t(kAlphaThreshold) ? a : scalar_t(0);  // selects, not a bool mask:
-    alpha[i] = sigma >= scalar_t(0) ? a_kept : scalar_t(0);                    // GCC vectorises these
+    const scalar_t a_row = sigma >= scalar_t(0) ? a_kept : scalar_t(0);       // GCC vectorises these
+    alpha[i] = (i >= lo && i < hi) ? a_row : scalar_t(0);
     vis[i] = e;
   }
 }
 
+// Bit i set when lane i of a kRowChunk buffer (64-byte aligned) is not 0.
+template <typename scalar_t>
+inline uint32_t nonzero_lanes(const scalar_t* v) {
+  uint32_t mask = 0;
+  for (int64_t i = 0; i < kRowChunk; ++i) mask |= (v[i] != scalar_t(0) ? 1u : 0u) << i;
+  return mask;
+}
+template <>
+inline uint32_t nonzero_lanes<float>(const float* v) {
+  static_assert(kRowChunk == 16, "the vector paths below test 16 float lanes");
+#if defined(__AVX512F__)
+  return static_cast<uint32_t>(_mm512_cmp_ps_mask(_mm512_load_ps(v), _mm512_setzero_ps(), _CMP_NEQ_UQ));
+#elif defined(__AVX2__)
+  const __m256 zero = _mm256_setzero_ps();
+  const uint32_t lo = static_cast<uint32_t>(_mm256_movemask_ps(_mm256_cmp_ps(_mm256_load_ps(v), zero, _CMP_NEQ_UQ)));
+  const uint32_t hi = static_cast<uint32_t>(_mm256_movemask_ps(_mm256_cmp_ps(_mm256_load_ps(v + 8), zero, _CMP_NEQ_UQ)));
+  return lo | (hi << 8);
+#else
+  uint32_t mask = 0;
+  for (int64_t i = 0; i < kRowChunk; ++i) mask |= (v[i] != 0.0f ? 1u : 0u) << i;
+  return mask;
+#endif
+}
+
+// The visible Gaussians' parameters packed in depth order (slot = depth rank), so that a tile's list, a
+// subsequence of that order, reads them at increasing addresses from one array instead of gathering from
+// five tensors by Gaussian index (a cache miss per intersection on a real scene: docs/SCALING.md).
 template <typename scalar_t>
 struct GaussianView {
-  const scalar_t* means2d;   // (N, 2)
-  const scalar_t* conics;    // (N, 3)
-  const scalar_t* colors;    // (N, C)
-  const scalar_t* opac;      // (N)
-  const scalar_t* extents;   // (N, 2)
-  int64_t channels;
+  static constexpr int64_t kStride = 8;  // mean x, mean y, conic a, b, c, opacity, extent x, extent y
+  std::vector<scalar_t> params;          // (V, kStride)
+  std::vector<scalar_t> colors;          // (V, C)
+  int64_t channels = 0;
+
+  GaussianView(const scalar_t* means2d, const scalar_t* conics, const scalar_t* colors_, const scalar_t* opac,
+               const scalar_t* extents, int64_t C, const Binning& bin)
+      : params(static_cast<size_t>(bin.num_slots() * kStride)),
+        colors(static_cast<size_t>(bin.num_slots() * C)),
+        channels(C) {
+    abcgs::parallel_range(bin.num_slots(), 8192, [&](int64_t begin, int64_t end) {
+      for (int64_t s = begin; s < end; ++s) {
+        const int64_t g = bin.order[s];
+        scalar_t* p = params.data() + s * kStride;
+        p[0] = means2d[2 * g];
+        p[1] = means2d[2 * g + 1];
+        p[2] = conics[3 * g];
+        p[3] = conics[3 * g + 1];
+        p[4] = conics[3 * g + 2];
+        p[5] = opac[g];
+        p[6] = extents[2 * g];
+        p[7] = extents[2 * g + 1];
+        std::copy(colors_ + g * C, colors_ + (g + 1) * C, colors.data() + s * C);
+      }
+    });
+  }
+  const scalar_t* at(int64_t slot) const { return params.data() + slot * kStride; }
+  const scalar_t* color(int64_t slot) const { return colors.data() + slot * channels; }
 };
 
-// Visit, row by row, the pixels of the tile [x0, x1) x [y0, y1) where Gaussian g can reach alpha >= 1/255:
-// its box clipped to the tile, each row narrowed to the ellipse's span, alpha (0 = skipped) and exp(-sigma)
-// of the row computed in one vectorised pass. fn(p, x, dy, alpha, vis) gets the tile-local pixel index.
-template <typename scalar_t, typename F>
-inline void for_each_covered_pixel(const GaussianView<scalar_t>& gv, int64_t g, int64_t x0, int64_t x1, int64_t y0,
-                                   int64_t y1, int64_t tw, F&& fn) {
-  alignas(64) scalar_t abuf[kRowChunk], ebuf[kRowChunk];
-  const scalar_t mx = gv.means2d[2 * g], my = gv.means2d[2 * g + 1];
-  const scalar_t ca = gv.conics[3 * g], cb = gv.conics[3 * g + 1], cc = gv.conics[3 * g + 2];
-  const scalar_t o = gv.opac[g];
+// Visit, row by row, where Gaussian g reaches alpha >= 1/255 (and sigma >= 0) in the tile [x0, x1) x [y0, y1):
+// the rows of its box inside the tile, each in chunks of kRowChunk pixels aligned to the tile's left edge.
+// A chunk's alpha (0 = skipped, and 0 outside the box) and exp(-sigma) are computed in one vectorised pass,
+// kRowBatch rows before their pixels are used: the rows' exp polynomials are independent, so the core overlaps
+// them instead of waiting out one row's dependency chain at a time (docs/SCALING.md, "The tile rows").
+// fn(p0, xc, dy, mask, alpha, vis, inv) gets the tile-local index p0 of the chunk's first pixel (column xc),
+// the bit mask of its lanes with a nonzero alpha (never 0), and kRowChunk-lane buffers; inv = 1 / (1 - alpha)
+// when kInverse (the backward pass: one vector divide per chunk, correctly rounded like a scalar one), else
+// unset. Lanes past the tile's right edge have alpha 0.
+template <bool kInverse, typename scalar_t, typename F>
+inline void for_each_covered_row(const GaussianView<scalar_t>& gv, int64_t slot, int64_t x0, int64_t x1, int64_t y0,
+                                 int64_t y1, int64_t tw, F&& fn) {
+  alignas(64) scalar_t abuf[kRowBatch][kRowChunk], ebuf[kRowBatch][kRowChunk], rbuf[kRowChunk];
+  uint32_t masks[kRowBatch];
+  const scalar_t* gp = gv.at(slot);
+  const scalar_t mx = gp[0], my = gp[1], ca = gp[2], cb = gp[3], cc = gp[4], o = gp[5];
   int64_t xa, xb, ya, yb;
-  box_in_tile<scalar_t>(mx, gv.extents[2 * g], x0, x1, xa, xb);
-  box_in_tile<scalar_t>(my, gv.extents[2 * g + 1], y0, y1, ya, yb);
-  const scalar_t s_max = sigma_limit(o);
-  for (int64_t y = ya; y < yb; ++y) {
-    const scalar_t dy = scalar_t(y) + scalar_t(0.5) - my;
-    int64_t xs, xe;
-    if (!row_span<scalar_t>(mx, dy, ca, cb, cc, s_max, xa, xb, xs, xe)) continue;
-    const int64_t row = (y - y0) * tw - x0;
-    for (int64_t first = 0; xs + first < xe; first += kRowChunk) {
-      row_alpha<scalar_t>(xs, first, mx, dy, ca, cb, cc, o, abuf, ebuf);
-      const int64_t xb = xs + first, n = std::min(kRowChunk, xe - xb);
-      for (int64_t i = 0; i < n; ++i) {
-        const scalar_t alpha = abuf[i];
-        if (alpha != scalar_t(0)) fn(row + xb + i, xb + i, dy, alpha, ebuf[i]);
+  box_in_tile<scalar_t>(mx, gp[6], x0, x1, xa, xb);
+  box_in_tile<scalar_t>(my, gp[7], y0, y1, ya, yb);
+  if (xa >= xb) return;
+  for (int64_t xc = x0 + (xa - x0) / kRowChunk * kRowChunk; xc < xb; xc += kRowChunk) {
+    const int32_t lo = static_cast<int32_t>(xa - xc), hi = static_cast<int32_t>(xb - xc);  // the box's lanes
+    for (int64_t yr = ya; yr < yb; yr += kRowBatch) {
+      const int64_t nr = std::min<int64_t>(kRowBatch, yb - yr);
+      uint32_t any = 0;
+      for (int64_t r = 0; r < nr; ++r) {
+        const scalar_t dy = scalar_t(yr + r) + scalar_t(0.5) - my;
+        scalar_t* a = abuf[r];
+        row_alpha<scalar_t>(xc, lo, hi, mx, dy, ca, cb, cc, o, a, ebuf[r]);
+        masks[r] = nonzero_lanes(a);
+        any |= masks[r];
+      }
+      if (any == 0) continue;
+      for (int64_t r = 0; r < nr; ++r) {
+        if (masks[r] == 0) continue;
+        const int64_t y = yr + r;
+        const scalar_t dy = scalar_t(y) + scalar_t(0.5) - my;
+        if constexpr (kInverse) {
+          for (int64_t i = 0; i < kRowChunk; ++i) rbuf[i] = scalar_t(1) / (scalar_t(1) - abuf[r][i]);
+        }
+        fn((y - y0) * tw + (xc - x0), xc, dy, masks[r], static_cast<const scalar_t*>(abuf[r]),
+           static_cast<const scalar_t*>(ebuf[r]), static_cast<const scalar_t*>(rbuf));
       }
     }
   }
 }
 
+// GCC/Clang vector extensions: one kRowChunk-pixel chunk as one value (one AVX-512 register, two AVX2 ones).
+typedef float f32x16 __attribute__((vector_size(64)));
+typedef int32_t i32x16 __attribute__((vector_size(64)));
+
+// Front-to-back blend of one Gaussian into one chunk of 16 pixels (float): lanes with alpha 0 (skipped, outside
+// the box or the tile), a done pixel, or a blend that would take T to the stop threshold keep their values;
+// the last marks its pixel done. The same operations, in the same order per pixel, as blending one pixel at a
+// time. T, done, last and the colour planes (acc + c * stride) are read and written at 16 consecutive lanes.
+// Returns how many pixels stopped.
+template <int64_t kChannels>
+inline int64_t blend_chunk_f32(const float* alpha, float* T, int32_t* done, int32_t* last, float* acc, int64_t stride,
+                               int64_t channels, const float* col, int32_t order) {
+  f32x16 a, t;
+  i32x16 d, l;
+  std::memcpy(&a, alpha, sizeof(a));
+  std::memcpy(&t, T, sizeof(t));
+  std::memcpy(&d, done, sizeof(d));
+  std::memcpy(&l, last, sizeof(l));
+  const f32x16 next_t = t * (1.0f - a);
+  const i32x16 live = (a != 0.0f) & (d == 0);
+  const i32x16 stop = live & (next_t <= static_cast<float>(kTransmittanceEps));
+  const i32x16 blend = live & ~stop;
+  const i32x16 zero_i = {};
+  const f32x16 zero_f = {};
+  const i32x16 one_i = zero_i + 1, order_i = zero_i + order;
+  d = stop ? one_i : d;
+  l = blend ? order_i : l;
+  const f32x16 w = a * t;
+  t = blend ? next_t : t;
+  std::memcpy(T, &t, sizeof(t));
+  std::memcpy(done, &d, sizeof(d));
+  std::memcpy(last, &l, sizeof(l));
+  const int64_t C = kChannels > 0 ? kChannels : channels;
+  for (int64_t c = 0; c < C; ++c) {
+    f32x16 v;
+    std::memcpy(&v, acc + c * stride, sizeof(v));
+    v = blend ? v + w * col[c] : v;
+    std::memcpy(acc + c * stride, &v, sizeof(v));
+  }
+  alignas(64) float stop_lanes[kRowChunk];
+  const f32x16 one_f = zero_f + 1.0f;
+  const f32x16 stopped = stop ? one_f : zero_f;
+  std::memcpy(stop_lanes, &stopped, sizeof(stopped));
+  return __builtin_popcount(nonzero_lanes(stop_lanes));
+}
+
 // Forward pass for one tile. Writes image (H, W, C), transmittance (H, W) and, per pixel, the number
 // of tile-list entries up to and including the last Gaussian blended (0 = none).
-template <typename scalar_t>
+template <typename scalar_t, int64_t kChannels>
 void forward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t tile, int64_t width, int64_t height,
                   int64_t tile_size, scalar_t* image, scalar_t* trans, int32_t* last) {
-  const int64_t C = gv.channels;
+  const int64_t C = kChannels > 0 ? kChannels : gv.channels;
   const int64_t tx = tile % bin.tiles_x, ty = tile / bin.tiles_x;
   const int64_t x0 = tx * tile_size, y0 = ty * tile_size;
   const int64_t x1 = std::min(width, x0 + tile_size), y1 = std::min(height, y0 + tile_size);
   const int64_t tw = x1 - x0, th = y1 - y0, npix = tw * th;
-  std::vector<scalar_t> T(npix, scalar_t(1)), acc(npix * C, scalar_t(0));
-  std::vector<int32_t> lst(npix, 0);
-  std::vector<uint8_t> done(npix, 0);
+  // Per-pixel state by channel plane (acc[c * stride + p]) with kRowChunk lanes of padding, so that a row chunk
+  // reads and writes 16 consecutive values. A chunk is blended in whole vectors: a lane blends when its alpha
+  // is not 0, its pixel is not done and the blend keeps T above the stop threshold; the other lanes keep their
+  // values (selects, not arithmetic with zeros). Each pixel sees the operations of a one-pixel-at-a-time blend
+  // in the same order, so results do not change.
+  const int64_t stride = npix + kRowChunk;
+  std::vector<scalar_t> T(stride, scalar_t(1)), acc(stride * C, scalar_t(0));
+  std::vector<int32_t> lst(stride, 0), done(stride, 0);
   int64_t remaining = npix;
   const int64_t start = bin.tile_offsets[tile], end = bin.tile_offsets[tile + 1];
   for (int64_t k = start; k < end && remaining > 0; ++k) {
-    const int64_t g = bin.ids[k];
-    const scalar_t* col = gv.colors + g * C;
+    const int64_t slot = bin.slots[k];
+    scalar_t col[kChannels > 0 ? kChannels : 1];
+    const scalar_t* colp = gv.color(slot);
+    if constexpr (kChannels > 0) std::copy(colp, colp + C, col);
     const int32_t order = static_cast<int32_t>(k - start + 1);
-    for_each_covered_pixel(gv, g, x0, x1, y0, y1, tw,
-                           [&](int64_t p, int64_t, scalar_t, scalar_t alpha, scalar_t) {
-      if (done[p]) return;
-      const scalar_t next_T = T[p] * (scalar_t(1) - alpha);
-      if (next_T <= scalar_t(kTransmittanceEps)) {
-        done[p] = 1;
-        --remaining;
-        return;
+    for_each_covered_row<false>(gv, slot, x0, x1, y0, y1, tw,
+                                [&](int64_t p0, int64_t, scalar_t, uint32_t, const scalar_t* __restrict alpha,
+                                    const scalar_t*, const scalar_t*) {
+      if constexpr (std::is_same_v<scalar_t, float>) {
+        remaining -= blend_chunk_f32<kChannels>(alpha, T.data() + p0, done.data() + p0, lst.data() + p0,
+                                                acc.data() + p0, stride, C, kChannels > 0 ? col : colp, order);
+      } else {
+        for (int64_t i = 0; i < kRowChunk; ++i) {
+          const int64_t p = p0 + i;
+          const scalar_t a = alpha[i];
+          if (a == scalar_t(0) || done[p]) continue;
+          const scalar_t next_T = T[p] * (scalar_t(1) - a);
+          if (next_T <= scalar_t(kTransmittanceEps)) {
+            done[p] = 1;
+            --remaining;
+            continue;
+          }
+          const scalar_t w = a * T[p];
+          for (int64_t c = 0; c < C; ++c) acc[c * stride + p] += w * colp[c];
+          T[p] = next_T;
+          lst[p] = order;
+        }
       }
-      const scalar_t w = alpha * T[p];
-      scalar_t* a = acc.data() + p * C;
-      for (int64_t c = 0; c < C; ++c) a[c] += w * col[c];
-      T[p] = next_T;
-      lst[p] = order;
     });
   }
   for (int64_t y = y0; y < y1; ++y)
@@ -337,80 +464,161 @@ void forward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t 
       const int64_t p = (y - y0) * tw + (x - x0), q = y * width + x;
       trans[q] = T[p];
       last[q] = lst[p];
-      for (int64_t c = 0; c < C; ++c) image[q * C + c] = acc[p * C + c];
+      for (int64_t c = 0; c < C; ++c) image[q * C + c] = acc[c * stride + p];
     }
+}
+
+// Horizontal sum of a chunk's lanes, in a fixed order (pairwise halves).
+inline float sum_lanes(f32x16 v) {
+  alignas(64) float x[kRowChunk];
+  std::memcpy(x, &v, sizeof(v));
+  for (int64_t h = kRowChunk / 2; h > 0; h /= 2)
+    for (int64_t i = 0; i < h; ++i) x[i] += x[i + h];
+  return x[0];
 }
 
 // Backward pass for one tile: walks the tile's list back to front, reconstructing each pixel's
 // transmittance from its final value, and writes one gradient row per intersection:
 // [d mean_x, d mean_y, d conic_a, d conic_b, d conic_c, d opacity, d color_0 .. d color_{C-1}].
-template <typename scalar_t>
+//
+// Per-pixel state by plane with kRowChunk lanes of padding (as in forward_tile). For float and a compile-time
+// channel count a row chunk is processed in whole vectors: lanes with alpha 0 or past their pixel's last
+// blended Gaussian are inactive (selects keep their state and add nothing), and the Gaussian's gradient is
+// summed per lane over its rows, then over the lanes (sum_lanes). Other cases visit the active pixels one by
+// one, left to right.
+template <typename scalar_t, int64_t kChannels>
 void backward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t tile, int64_t width,
                    int64_t height, int64_t tile_size, const scalar_t* trans, const int32_t* last,
                    const scalar_t* v_image, const scalar_t* v_alpha, scalar_t* isect_grads) {
-  const int64_t C = gv.channels, row = 6 + C;
+  constexpr bool kVector = std::is_same_v<scalar_t, float> && kChannels > 0;
+  const int64_t C = kChannels > 0 ? kChannels : gv.channels, row = 6 + C;
   const int64_t tx = tile % bin.tiles_x, ty = tile / bin.tiles_x;
   const int64_t x0 = tx * tile_size, y0 = ty * tile_size;
   const int64_t x1 = std::min(width, x0 + tile_size), y1 = std::min(height, y0 + tile_size);
-  const int64_t tw = x1 - x0, th = y1 - y0, npix = tw * th;
+  const int64_t tw = x1 - x0, th = y1 - y0, npix = tw * th, stride = npix + kRowChunk;
   const int64_t start = bin.tile_offsets[tile];
-  std::vector<scalar_t> T(npix), Tfin(npix), S(npix * C, scalar_t(0)), vimg(npix * C), vA(npix);
-  std::vector<int32_t> lst(npix);
+  // TfvA = T_final * dL/d alpha_pixel: d alpha_pixel / d alpha_i = T_final / (1 - alpha_i)
+  std::vector<scalar_t> T(stride, scalar_t(1)), TfvA(stride, scalar_t(0)), S(stride * C, scalar_t(0)),
+      vimg(stride * C, scalar_t(0));
+  std::vector<int32_t> lst(stride, 0);
   int32_t max_last = 0;
   for (int64_t y = y0; y < y1; ++y)
     for (int64_t x = x0; x < x1; ++x) {
       const int64_t p = (y - y0) * tw + (x - x0), q = y * width + x;
-      T[p] = Tfin[p] = trans[q];
+      T[p] = trans[q];
+      TfvA[p] = v_alpha[q] * trans[q];
       lst[p] = last[q];
       max_last = std::max(max_last, last[q]);
-      vA[p] = v_alpha[q];
-      for (int64_t c = 0; c < C; ++c) vimg[p * C + c] = v_image[q * C + c];
+      for (int64_t c = 0; c < C; ++c) vimg[c * stride + p] = v_image[q * C + c];
     }
-  std::vector<scalar_t> gcol(C);
+  constexpr int64_t kCols = kChannels > 0 ? kChannels : 1;
+  std::vector<scalar_t> gcol_heap(kChannels > 0 ? 0 : C);
+  scalar_t gcol_fixed[kCols];
+  scalar_t* gcol = kChannels > 0 ? gcol_fixed : gcol_heap.data();
   for (int64_t kk = max_last - 1; kk >= 0; --kk) {
     const int64_t k = start + kk;
-    const int64_t g = bin.ids[k];
-    const scalar_t mx = gv.means2d[2 * g];
-    const scalar_t ca = gv.conics[3 * g], cb = gv.conics[3 * g + 1], cc = gv.conics[3 * g + 2];
-    const scalar_t o = gv.opac[g];
-    const scalar_t* col = gv.colors + g * C;
-    scalar_t g_mx = 0, g_my = 0, g_a = 0, g_b = 0, g_c = 0, g_o = 0;
-    std::fill(gcol.begin(), gcol.end(), scalar_t(0));
-    for_each_covered_pixel(gv, g, x0, x1, y0, y1, tw,
-                           [&](int64_t p, int64_t x, scalar_t dy, scalar_t alpha, scalar_t vis) {
-      if (kk >= lst[p]) return;
-      const scalar_t dx = scalar_t(x) + scalar_t(0.5) - mx;
-      const scalar_t raw = o * vis;
-      const scalar_t ra = scalar_t(1) / (scalar_t(1) - alpha);
-      const scalar_t Ti = T[p] * ra;
-      T[p] = Ti;
-      const scalar_t fac = alpha * Ti;
-      const scalar_t* vi = vimg.data() + p * C;
-      scalar_t* s = S.data() + p * C;
-      scalar_t v_al = vA[p] * Tfin[p] * ra;
-      for (int64_t c = 0; c < C; ++c) {
-        gcol[c] += fac * vi[c];
-        v_al += (col[c] * Ti - s[c] * ra) * vi[c];
-        s[c] += col[c] * fac;
-      }
-      if (raw < scalar_t(kMaxAlpha)) {
-        const scalar_t v_sigma = -raw * v_al;
-        g_o += vis * v_al;
-        g_a += scalar_t(0.5) * dx * dx * v_sigma;
-        g_b += dx * dy * v_sigma;
-        g_c += scalar_t(0.5) * dy * dy * v_sigma;
-        g_mx -= (ca * dx + cb * dy) * v_sigma;
-        g_my -= (cb * dx + cc * dy) * v_sigma;
-      }
-    });
+    const int64_t slot = bin.slots[k];
+    const scalar_t* gp = gv.at(slot);
+    const scalar_t mx = gp[0], ca = gp[2], cb = gp[3], cc = gp[4], o = gp[5];
+    const scalar_t* col = gv.color(slot);
     scalar_t* out = isect_grads + k * row;
-    out[0] = g_mx;
-    out[1] = g_my;
-    out[2] = g_a;
-    out[3] = g_b;
-    out[4] = g_c;
-    out[5] = g_o;
-    for (int64_t c = 0; c < C; ++c) out[6 + c] = gcol[c];
+    if constexpr (kVector) {
+      const f32x16 zero = {};
+      const i32x16 zero_i = {};
+      const i32x16 order = zero_i + static_cast<int32_t>(kk);
+      f32x16 l_mx = zero, l_my = zero, l_a = zero, l_b = zero, l_c = zero, l_o = zero, l_col[kCols];
+      for (int64_t c = 0; c < C; ++c) l_col[c] = zero;
+      f32x16 lane = zero;
+      for (int64_t i = 0; i < kRowChunk; ++i) lane[i] = static_cast<float>(i);
+      bool touched = false;
+      for_each_covered_row<true>(gv, slot, x0, x1, y0, y1, tw,
+                                 [&](int64_t p0, int64_t xc, float dy, uint32_t, const float* abuf, const float* ebuf,
+                                     const float* rbuf) {
+        f32x16 alpha, vis, ra, t, tva;
+        i32x16 lp;
+        std::memcpy(&alpha, abuf, sizeof(alpha));
+        std::memcpy(&vis, ebuf, sizeof(vis));
+        std::memcpy(&ra, rbuf, sizeof(ra));
+        std::memcpy(&t, T.data() + p0, sizeof(t));
+        std::memcpy(&tva, TfvA.data() + p0, sizeof(tva));
+        std::memcpy(&lp, lst.data() + p0, sizeof(lp));
+        const i32x16 active = (alpha != 0.0f) & (order < lp);
+        touched = true;
+        const f32x16 ti = t * ra;
+        t = active ? ti : t;
+        std::memcpy(T.data() + p0, &t, sizeof(t));
+        const f32x16 fac = alpha * ti;
+        f32x16 v_al = tva * ra;
+        for (int64_t c = 0; c < C; ++c) {
+          f32x16 sv, vi;
+          std::memcpy(&sv, S.data() + c * stride + p0, sizeof(sv));
+          std::memcpy(&vi, vimg.data() + c * stride + p0, sizeof(vi));
+          l_col[c] = active ? l_col[c] + fac * vi : l_col[c];
+          v_al = v_al + (col[c] * ti - sv * ra) * vi;
+          sv = active ? sv + col[c] * fac : sv;
+          std::memcpy(S.data() + c * stride + p0, &sv, sizeof(sv));
+        }
+        const f32x16 raw = o * vis;
+        const i32x16 gate = active & (raw < static_cast<float>(kMaxAlpha));
+        const f32x16 v_sigma = -raw * v_al;
+        const f32x16 dx = (static_cast<float>(xc) + 0.5f - mx) + lane;
+        l_o = gate ? l_o + vis * v_al : l_o;
+        l_a = gate ? l_a + 0.5f * dx * dx * v_sigma : l_a;
+        l_b = gate ? l_b + dx * dy * v_sigma : l_b;
+        l_c = gate ? l_c + 0.5f * dy * dy * v_sigma : l_c;
+        l_mx = gate ? l_mx - (ca * dx + cb * dy) * v_sigma : l_mx;
+        l_my = gate ? l_my - (cb * dx + cc * dy) * v_sigma : l_my;
+      });
+      if (!touched) continue;  // isect_grads starts at zero
+      out[0] = sum_lanes(l_mx);
+      out[1] = sum_lanes(l_my);
+      out[2] = sum_lanes(l_a);
+      out[3] = sum_lanes(l_b);
+      out[4] = sum_lanes(l_c);
+      out[5] = sum_lanes(l_o);
+      for (int64_t c = 0; c < C; ++c) out[6 + c] = sum_lanes(l_col[c]);
+    } else {
+      scalar_t g_mx = 0, g_my = 0, g_a = 0, g_b = 0, g_c = 0, g_o = 0;
+      std::fill(gcol, gcol + C, scalar_t(0));
+      for_each_covered_row<true>(gv, slot, x0, x1, y0, y1, tw,
+                                 [&](int64_t p0, int64_t xc, scalar_t dy, uint32_t mask, const scalar_t* abuf,
+                                     const scalar_t* ebuf, const scalar_t* rbuf) {
+        for (uint32_t m = mask; m != 0; m &= m - 1) {
+          const int64_t i = __builtin_ctz(m), p = p0 + i;
+          if (kk >= lst[p]) continue;
+          const scalar_t alpha = abuf[i], vis = ebuf[i], ra = rbuf[i];
+          const scalar_t dx = scalar_t(xc + i) + scalar_t(0.5) - mx;
+          const scalar_t raw = o * vis;
+          const scalar_t Ti = T[p] * ra;
+          T[p] = Ti;
+          const scalar_t fac = alpha * Ti;
+          scalar_t v_al = TfvA[p] * ra;
+          for (int64_t c = 0; c < C; ++c) {
+            const scalar_t vi = vimg[c * stride + p];
+            scalar_t& sv = S[c * stride + p];
+            gcol[c] += fac * vi;
+            v_al += (col[c] * Ti - sv * ra) * vi;
+            sv += col[c] * fac;
+          }
+          if (raw < scalar_t(kMaxAlpha)) {
+            const scalar_t v_sigma = -raw * v_al;
+            g_o += vis * v_al;
+            g_a += scalar_t(0.5) * dx * dx * v_sigma;
+            g_b += dx * dy * v_sigma;
+            g_c += scalar_t(0.5) * dy * dy * v_sigma;
+            g_mx -= (ca * dx + cb * dy) * v_sigma;
+            g_my -= (cb * dx + cc * dy) * v_sigma;
+          }
+        }
+      });
+      out[0] = g_mx;
+      out[1] = g_my;
+      out[2] = g_a;
+      out[3] = g_b;
+      out[4] = g_c;
+      out[5] = g_o;
+      for (int64_t c = 0; c < C; ++c) out[6 + c] = gcol[c];
+    }
   }
 }
 
@@ -432,7 +640,7 @@ void check_inputs(const at::Tensor& means2d, const at::Tensor& conics, const at:
 }  // namespace
 
 // Sorts by `depths`, bins and blends. Returns (image (H, W, C), transmittance (H, W), last (H, W) int32,
-//          tile_offsets, ids, gauss_offsets, gauss_isect) — the last four are saved for backward.
+//          tile_offsets, ids, slots, order, gauss_offsets, gauss_isect) — the last six are saved for backward.
 std::vector<at::Tensor> rasterize_forward(const at::Tensor& means2d, const at::Tensor& conics, const at::Tensor& colors,
                                           const at::Tensor& opacities, const at::Tensor& depths,
                                           const at::Tensor& extents, int64_t width, int64_t height,
@@ -451,15 +659,22 @@ std::vector<at::Tensor> rasterize_forward(const at::Tensor& means2d, const at::T
   at::Tensor trans = at::ones({height, width}, opts);
   at::Tensor last = at::zeros({height, width}, at::kInt);
   AT_DISPATCH_FLOATING_TYPES(colors.scalar_type(), "abcgs_rasterize_forward", [&] {
-    GaussianView<scalar_t> gv{means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(), colors.data_ptr<scalar_t>(),
-                              opacities.data_ptr<scalar_t>(), extents.data_ptr<scalar_t>(), C};
+    const GaussianView<scalar_t> gv(means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(),
+                                    colors.data_ptr<scalar_t>(), opacities.data_ptr<scalar_t>(),
+                                    extents.data_ptr<scalar_t>(), C, bin);
     scalar_t* im = image.data_ptr<scalar_t>();
     scalar_t* tr = trans.data_ptr<scalar_t>();
     int32_t* ls = last.data_ptr<int32_t>();
     for_each_tile(bin.tiles_x * bin.tiles_y,
-                  [&](int64_t t) { forward_tile<scalar_t>(gv, bin, t, width, height, tile_size, im, tr, ls); });
+                  [&](int64_t t) {
+                    // RGB and RGB + depth with the channel loops unrolled at compile time
+                    if (C == 3) forward_tile<scalar_t, 3>(gv, bin, t, width, height, tile_size, im, tr, ls);
+                    else if (C == 4) forward_tile<scalar_t, 4>(gv, bin, t, width, height, tile_size, im, tr, ls);
+                    else forward_tile<scalar_t, 0>(gv, bin, t, width, height, tile_size, im, tr, ls);
+                  });
   });
-  return {image, trans, last, bin.tile_offsets_t, bin.ids_t, bin.gauss_offsets_t, bin.gauss_isect_t};
+  return {image, trans, last, bin.tile_offsets_t, bin.ids_t, bin.slots_t, bin.order_t, bin.gauss_offsets_t,
+          bin.gauss_isect_t};
 }
 
 // Returns (v_means2d (N, 2), v_conics (N, 3), v_colors (N, C), v_opacities (N)).
@@ -467,13 +682,14 @@ std::vector<at::Tensor> rasterize_backward(const at::Tensor& means2d, const at::
                                            const at::Tensor& colors, const at::Tensor& opacities,
                                            const at::Tensor& extents, const at::Tensor& trans,
                                            const at::Tensor& last, const at::Tensor& tile_offsets,
-                                           const at::Tensor& ids, const at::Tensor& gauss_offsets,
+                                           const at::Tensor& ids, const at::Tensor& slots, const at::Tensor& order,
+                                           const at::Tensor& gauss_offsets,
                                            const at::Tensor& gauss_isect, const at::Tensor& v_image,
                                            const at::Tensor& v_alpha, int64_t width, int64_t height,
                                            int64_t tile_size) {
   check_inputs(means2d, conics, colors, opacities, extents);
   const int64_t n = means2d.size(0), C = colors.size(1), row = 6 + C;
-  Binning bin(tile_offsets, ids, gauss_offsets, gauss_isect, width, height, tile_size);
+  Binning bin(tile_offsets, ids, slots, order, gauss_offsets, gauss_isect, width, height, tile_size);
   const int64_t m = bin.num_isects();
   auto opts = colors.options();
   at::Tensor isect_grads = at::zeros({m, row}, opts);
@@ -482,15 +698,18 @@ std::vector<at::Tensor> rasterize_backward(const at::Tensor& means2d, const at::
   at::Tensor vi = v_image.contiguous().to(colors.scalar_type());
   at::Tensor va = v_alpha.contiguous().to(colors.scalar_type());
   AT_DISPATCH_FLOATING_TYPES(colors.scalar_type(), "abcgs_rasterize_backward", [&] {
-    GaussianView<scalar_t> gv{means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(), colors.data_ptr<scalar_t>(),
-                              opacities.data_ptr<scalar_t>(), extents.data_ptr<scalar_t>(), C};
+    const GaussianView<scalar_t> gv(means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(),
+                                    colors.data_ptr<scalar_t>(), opacities.data_ptr<scalar_t>(),
+                                    extents.data_ptr<scalar_t>(), C, bin);
     const scalar_t* tr = trans.data_ptr<scalar_t>();
     const int32_t* ls = last.data_ptr<int32_t>();
     const scalar_t* vip = vi.data_ptr<scalar_t>();
     const scalar_t* vap = va.data_ptr<scalar_t>();
     scalar_t* ig = isect_grads.data_ptr<scalar_t>();
     for_each_tile(bin.tiles_x * bin.tiles_y, [&](int64_t t) {
-      backward_tile<scalar_t>(gv, bin, t, width, height, tile_size, tr, ls, vip, vap, ig);
+      if (C == 3) backward_tile<scalar_t, 3>(gv, bin, t, width, height, tile_size, tr, ls, vip, vap, ig);
+      else if (C == 4) backward_tile<scalar_t, 4>(gv, bin, t, width, height, tile_size, tr, ls, vip, vap, ig);
+      else backward_tile<scalar_t, 0>(gv, bin, t, width, height, tile_size, tr, ls, vip, vap, ig);
     });
     scalar_t* vm = v_means2d.data_ptr<scalar_t>();
     scalar_t* vc = v_conics.data_ptr<scalar_t>();
