@@ -17,8 +17,8 @@
 // Layout of the work (docs/SCALING.md, "The tile rows in whole vectors"): a Gaussian's pixels in a tile are
 // visited one 16-pixel tile row at a time, all its rows' alphas first (one vector each, their exp
 // polynomials overlapping), then the rows with a nonzero lane are blended, or differentiated, in whole
-// vectors (GCC/Clang vector extensions: one AVX-512 register, two AVX2 ones); the per-pixel state of a tile
-// is kept by plane. The parameters a tile reads are packed in depth order (GaussianView), so a tile's list
+// vectors (GCC/Clang vector extensions at the target's native width: 16 / 8 / 4 float lanes); the per-pixel
+// state of a tile is kept by plane. The parameters a tile reads are packed in depth order (GaussianView), so a tile's list
 // walks one array forwards.
 
 #include <torch/extension.h>
@@ -362,9 +362,32 @@ inline void for_each_covered_row(const GaussianView<scalar_t>& gv, int64_t slot,
   }
 }
 
-// GCC/Clang vector extensions: one kRowChunk-pixel chunk as one value (one AVX-512 register, two AVX2 ones).
-typedef float f32x16 __attribute__((vector_size(64)));
-typedef int32_t i32x16 __attribute__((vector_size(64)));
+// GCC/Clang vector extensions at the target's native width (one AVX-512 register, one AVX2 one, one SSE/NEON
+// one); a kRowChunk-pixel chunk is kParts of them. Wider-than-native vector types would be lowered piecewise to
+// scalar code (GCC's -Wvector-operation-performance), which made an AVX2 build 2x slower than the scalar code.
+#if defined(__AVX512F__)
+#define ABCGS_VEC_BYTES 64
+#elif defined(__AVX__)
+#define ABCGS_VEC_BYTES 32
+#else
+#define ABCGS_VEC_BYTES 16
+#endif
+typedef float f32v __attribute__((vector_size(ABCGS_VEC_BYTES)));
+typedef int32_t i32v __attribute__((vector_size(ABCGS_VEC_BYTES)));
+constexpr int64_t kLanes = ABCGS_VEC_BYTES / 4;
+constexpr int64_t kParts = kRowChunk / kLanes;
+static_assert(kParts * kLanes == kRowChunk, "a row chunk must be whole vectors");
+
+template <typename V>
+inline V load_v(const void* p) {
+  V v;
+  std::memcpy(&v, p, sizeof(v));
+  return v;
+}
+template <typename V>
+inline void store_v(void* p, const V& v) {
+  std::memcpy(p, &v, sizeof(v));
+}
 
 // Front-to-back blend of one Gaussian into one chunk of 16 pixels (float): lanes with alpha 0 (skipped, outside
 // the box or the tile), a done pixel, or a blend that would take T to the stop threshold keep their values;
@@ -374,37 +397,35 @@ typedef int32_t i32x16 __attribute__((vector_size(64)));
 template <int64_t kChannels>
 inline int64_t blend_chunk_f32(const float* alpha, float* T, int32_t* done, int32_t* last, float* acc, int64_t stride,
                                int64_t channels, const float* col, int32_t order) {
-  f32x16 a, t;
-  i32x16 d, l;
-  std::memcpy(&a, alpha, sizeof(a));
-  std::memcpy(&t, T, sizeof(t));
-  std::memcpy(&d, done, sizeof(d));
-  std::memcpy(&l, last, sizeof(l));
-  const f32x16 next_t = t * (1.0f - a);
-  const i32x16 live = (a != 0.0f) & (d == 0);
-  const i32x16 stop = live & (next_t <= static_cast<float>(kTransmittanceEps));
-  const i32x16 blend = live & ~stop;
-  const i32x16 zero_i = {};
-  const f32x16 zero_f = {};
-  const i32x16 one_i = zero_i + 1, order_i = zero_i + order;
-  d = stop ? one_i : d;
-  l = blend ? order_i : l;
-  const f32x16 w = a * t;
-  t = blend ? next_t : t;
-  std::memcpy(T, &t, sizeof(t));
-  std::memcpy(done, &d, sizeof(d));
-  std::memcpy(last, &l, sizeof(l));
   const int64_t C = kChannels > 0 ? kChannels : channels;
-  for (int64_t c = 0; c < C; ++c) {
-    f32x16 v;
-    std::memcpy(&v, acc + c * stride, sizeof(v));
-    v = blend ? v + w * col[c] : v;
-    std::memcpy(acc + c * stride, &v, sizeof(v));
-  }
+  const i32v zero_i = {};
+  const f32v zero_f = {};
+  const i32v one_i = zero_i + 1, order_i = zero_i + order;
+  const f32v one_f = zero_f + 1.0f;
   alignas(64) float stop_lanes[kRowChunk];
-  const f32x16 one_f = zero_f + 1.0f;
-  const f32x16 stopped = stop ? one_f : zero_f;
-  std::memcpy(stop_lanes, &stopped, sizeof(stopped));
+  for (int64_t q = 0; q < kParts; ++q) {
+    const int64_t off = q * kLanes;
+    const f32v a = load_v<f32v>(alpha + off);
+    f32v t = load_v<f32v>(T + off);
+    i32v d = load_v<i32v>(done + off), l = load_v<i32v>(last + off);
+    const f32v next_t = t * (1.0f - a);
+    const i32v live = (a != 0.0f) & (d == 0);
+    const i32v stop = live & (next_t <= static_cast<float>(kTransmittanceEps));
+    const i32v blend = live & ~stop;
+    d = stop ? one_i : d;
+    l = blend ? order_i : l;
+    const f32v w = a * t;
+    t = blend ? next_t : t;
+    store_v(T + off, t);
+    store_v(done + off, d);
+    store_v(last + off, l);
+    for (int64_t c = 0; c < C; ++c) {
+      f32v v = load_v<f32v>(acc + c * stride + off);
+      v = blend ? v + w * col[c] : v;
+      store_v(acc + c * stride + off, v);
+    }
+    store_v(stop_lanes + off, f32v(stop ? one_f : zero_f));
+  }
   return __builtin_popcount(nonzero_lanes(stop_lanes));
 }
 
@@ -468,10 +489,10 @@ void forward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t 
     }
 }
 
-// Horizontal sum of a chunk's lanes, in a fixed order (pairwise halves).
-inline float sum_lanes(f32x16 v) {
+// Sum of a chunk's lanes (kParts vectors), in a fixed order (pairwise halves).
+inline float sum_lanes(const f32v (&v)[kParts]) {
   alignas(64) float x[kRowChunk];
-  std::memcpy(x, &v, sizeof(v));
+  for (int64_t q = 0; q < kParts; ++q) store_v(x + q * kLanes, v[q]);
   for (int64_t h = kRowChunk / 2; h > 0; h /= 2)
     for (int64_t i = 0; i < h; ++i) x[i] += x[i + h];
   return x[0];
@@ -523,51 +544,53 @@ void backward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t
     const scalar_t* col = gv.color(slot);
     scalar_t* out = isect_grads + k * row;
     if constexpr (kVector) {
-      const f32x16 zero = {};
-      const i32x16 zero_i = {};
-      const i32x16 order = zero_i + static_cast<int32_t>(kk);
-      f32x16 l_mx = zero, l_my = zero, l_a = zero, l_b = zero, l_c = zero, l_o = zero, l_col[kCols];
-      for (int64_t c = 0; c < C; ++c) l_col[c] = zero;
-      f32x16 lane = zero;
-      for (int64_t i = 0; i < kRowChunk; ++i) lane[i] = static_cast<float>(i);
+      const f32v zero = {};
+      const i32v zero_i = {};
+      const i32v order = zero_i + static_cast<int32_t>(kk);
+      // per-lane sums of the Gaussian's gradient: mean x, mean y, conic a, b, c, opacity, colours
+      f32v l_mx[kParts], l_my[kParts], l_a[kParts], l_b[kParts], l_c[kParts], l_o[kParts], l_col[kCols][kParts];
+      f32v lane[kParts];
+      for (int64_t q = 0; q < kParts; ++q) {
+        l_mx[q] = l_my[q] = l_a[q] = l_b[q] = l_c[q] = l_o[q] = zero;
+        for (int64_t c = 0; c < C; ++c) l_col[c][q] = zero;
+        for (int64_t i = 0; i < kLanes; ++i) lane[q][i] = static_cast<float>(q * kLanes + i);
+      }
       bool touched = false;
       for_each_covered_row<true>(gv, slot, x0, x1, y0, y1, tw,
                                  [&](int64_t p0, int64_t xc, float dy, uint32_t, const float* abuf, const float* ebuf,
                                      const float* rbuf) {
-        f32x16 alpha, vis, ra, t, tva;
-        i32x16 lp;
-        std::memcpy(&alpha, abuf, sizeof(alpha));
-        std::memcpy(&vis, ebuf, sizeof(vis));
-        std::memcpy(&ra, rbuf, sizeof(ra));
-        std::memcpy(&t, T.data() + p0, sizeof(t));
-        std::memcpy(&tva, TfvA.data() + p0, sizeof(tva));
-        std::memcpy(&lp, lst.data() + p0, sizeof(lp));
-        const i32x16 active = (alpha != 0.0f) & (order < lp);
         touched = true;
-        const f32x16 ti = t * ra;
-        t = active ? ti : t;
-        std::memcpy(T.data() + p0, &t, sizeof(t));
-        const f32x16 fac = alpha * ti;
-        f32x16 v_al = tva * ra;
-        for (int64_t c = 0; c < C; ++c) {
-          f32x16 sv, vi;
-          std::memcpy(&sv, S.data() + c * stride + p0, sizeof(sv));
-          std::memcpy(&vi, vimg.data() + c * stride + p0, sizeof(vi));
-          l_col[c] = active ? l_col[c] + fac * vi : l_col[c];
-          v_al = v_al + (col[c] * ti - sv * ra) * vi;
-          sv = active ? sv + col[c] * fac : sv;
-          std::memcpy(S.data() + c * stride + p0, &sv, sizeof(sv));
+        const float dx0 = static_cast<float>(xc) + 0.5f - mx;
+        for (int64_t q = 0; q < kParts; ++q) {
+          const int64_t off = q * kLanes, p = p0 + off;
+          const f32v alpha = load_v<f32v>(abuf + off), vis = load_v<f32v>(ebuf + off), ra = load_v<f32v>(rbuf + off);
+          f32v t = load_v<f32v>(T.data() + p);
+          const f32v tva = load_v<f32v>(TfvA.data() + p);
+          const i32v active = (alpha != 0.0f) & (order < load_v<i32v>(lst.data() + p));
+          const f32v ti = t * ra;
+          t = active ? ti : t;
+          store_v(T.data() + p, t);
+          const f32v fac = alpha * ti;
+          f32v v_al = tva * ra;
+          for (int64_t c = 0; c < C; ++c) {
+            f32v sv = load_v<f32v>(S.data() + c * stride + p);
+            const f32v vi = load_v<f32v>(vimg.data() + c * stride + p);
+            l_col[c][q] = active ? l_col[c][q] + fac * vi : l_col[c][q];
+            v_al = v_al + (col[c] * ti - sv * ra) * vi;
+            sv = active ? sv + col[c] * fac : sv;
+            store_v(S.data() + c * stride + p, sv);
+          }
+          const f32v raw = o * vis;
+          const i32v gate = active & (raw < static_cast<float>(kMaxAlpha));
+          const f32v v_sigma = -raw * v_al;
+          const f32v dx = dx0 + lane[q];
+          l_o[q] = gate ? l_o[q] + vis * v_al : l_o[q];
+          l_a[q] = gate ? l_a[q] + 0.5f * dx * dx * v_sigma : l_a[q];
+          l_b[q] = gate ? l_b[q] + dx * dy * v_sigma : l_b[q];
+          l_c[q] = gate ? l_c[q] + 0.5f * dy * dy * v_sigma : l_c[q];
+          l_mx[q] = gate ? l_mx[q] - (ca * dx + cb * dy) * v_sigma : l_mx[q];
+          l_my[q] = gate ? l_my[q] - (cb * dx + cc * dy) * v_sigma : l_my[q];
         }
-        const f32x16 raw = o * vis;
-        const i32x16 gate = active & (raw < static_cast<float>(kMaxAlpha));
-        const f32x16 v_sigma = -raw * v_al;
-        const f32x16 dx = (static_cast<float>(xc) + 0.5f - mx) + lane;
-        l_o = gate ? l_o + vis * v_al : l_o;
-        l_a = gate ? l_a + 0.5f * dx * dx * v_sigma : l_a;
-        l_b = gate ? l_b + dx * dy * v_sigma : l_b;
-        l_c = gate ? l_c + 0.5f * dy * dy * v_sigma : l_c;
-        l_mx = gate ? l_mx - (ca * dx + cb * dy) * v_sigma : l_mx;
-        l_my = gate ? l_my - (cb * dx + cc * dy) * v_sigma : l_my;
       });
       if (!touched) continue;  // isect_grads starts at zero
       out[0] = sum_lanes(l_mx);
