@@ -47,30 +47,27 @@ constexpr double kTransmittanceEps = 1e-4;
 // pass can hand them to autograd for the backward pass without copies.
 struct Binning {
   int64_t tiles_x = 0, tiles_y = 0;
-  at::Tensor tile_offsets_t, ids_t, slots_t, order_t, gauss_offsets_t, gauss_isect_t;
-  const int64_t* tile_offsets = nullptr;   // (n_tiles + 1) start of each tile's list in `ids`
-  const int32_t* ids = nullptr;            // (M) Gaussian index per intersection, depth-sorted in a tile
-  const int32_t* slots = nullptr;          // (M) depth rank of each intersection's Gaussian: its slot in `order`
+  at::Tensor tile_offsets_t, slots_t, order_t, gauss_offsets_t, gauss_isect_t;
+  const int64_t* tile_offsets = nullptr;   // (n_tiles + 1) start of each tile's list in `slots`
+  const int32_t* slots = nullptr;          // (M) depth rank of each intersection's Gaussian (its index in
+                                           //     `order`), increasing along a tile's list; order[slots] = ids
   const int32_t* order = nullptr;          // (V) the Gaussians with a positive extent, front to back
   const int64_t* gauss_offsets = nullptr;  // (N + 1) start of each Gaussian's row in `gauss_isect`
   const int64_t* gauss_isect = nullptr;    // (M) intersection indices of each Gaussian, in tile order
-  int64_t num_isects() const { return ids_t.numel(); }
+  int64_t num_isects() const { return slots_t.numel(); }
   int64_t num_slots() const { return order_t.numel(); }
 
-  Binning(at::Tensor tile_offsets_, at::Tensor ids_, at::Tensor slots_, at::Tensor order_, at::Tensor gauss_offsets_,
+  Binning(at::Tensor tile_offsets_, at::Tensor slots_, at::Tensor order_, at::Tensor gauss_offsets_,
           at::Tensor gauss_isect_, int64_t width, int64_t height, int64_t tile)
       : tiles_x((width + tile - 1) / tile),
         tiles_y((height + tile - 1) / tile),
         tile_offsets_t(tile_offsets_.contiguous()),
-        ids_t(ids_.contiguous()),
         slots_t(slots_.contiguous()),
         order_t(order_.contiguous()),
         gauss_offsets_t(gauss_offsets_.contiguous()),
         gauss_isect_t(gauss_isect_.contiguous()) {
     TORCH_CHECK(tile_offsets_t.numel() == tiles_x * tiles_y + 1, "binning does not match the image size");
-    TORCH_CHECK(slots_t.numel() == ids_t.numel(), "binning: slots and ids differ in length");
     tile_offsets = tile_offsets_t.data_ptr<int64_t>();
-    ids = ids_t.data_ptr<int32_t>();
     slots = slots_t.data_ptr<int32_t>();
     order = order_t.data_ptr<int32_t>();
     gauss_offsets = gauss_offsets_t.data_ptr<int64_t>();
@@ -171,10 +168,9 @@ Binning bin_gaussians(const scalar_t* means2d, const scalar_t* extents, const sc
   for (int64_t t = 0; t < n_tiles; ++t) toff[t + 1] += toff[t];
   for (int64_t g = 0; g < n; ++g) goff[g + 1] += goff[g];
   const int64_t m = toff[n_tiles];
-  at::Tensor ids = at::empty({m}, at::kInt), slots = at::empty({m}, at::kInt);
+  at::Tensor slots = at::empty({m}, at::kInt);
   at::Tensor order = at::empty({n_vis}, at::kInt);
   at::Tensor gauss_isect = at::empty({m}, at::kLong);
-  int32_t* id = ids.data_ptr<int32_t>();
   int32_t* sl = slots.data_ptr<int32_t>();
   int32_t* od = order.data_ptr<int32_t>();
   for (int64_t k = 0; k < n_vis; ++k) od[k] = static_cast<int32_t>(ord[k]);
@@ -188,12 +184,11 @@ Binning bin_gaussians(const scalar_t* means2d, const scalar_t* extents, const sc
     for (int64_t ty = r[1]; ty <= r[3]; ++ty)
       for (int64_t tx = r[0]; tx <= r[2]; ++tx) {
         const int64_t pos = cursor[ty * tiles_x + tx]++;
-        id[pos] = static_cast<int32_t>(g);
         sl[pos] = static_cast<int32_t>(k);
         gi[j++] = pos;
       }
   }
-  return Binning(tile_offsets, ids, slots, order, gauss_offsets, gauss_isect, width, height, tile);
+  return Binning(tile_offsets, slots, order, gauss_offsets, gauss_isect, width, height, tile);
 }
 
 // Run `fn(tile)` for every tile with dynamic scheduling on the kernels' threads (parallel.h).
@@ -451,8 +446,9 @@ void forward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t 
   const int64_t start = bin.tile_offsets[tile], end = bin.tile_offsets[tile + 1];
   for (int64_t k = start; k < end && remaining > 0; ++k) {
     const int64_t slot = bin.slots[k];
-    scalar_t col[kChannels > 0 ? kChannels : 1];
     const scalar_t* colp = gv.color(slot);
+    // a local copy: the compiler cannot know that the blend's stores to `acc` leave the colours alone
+    scalar_t col[kChannels > 0 ? kChannels : 1];
     if constexpr (kChannels > 0) std::copy(colp, colp + C, col);
     const int32_t order = static_cast<int32_t>(k - start + 1);
     for_each_covered_row<false>(gv, slot, x0, x1, y0, y1, tw,
@@ -663,7 +659,8 @@ void check_inputs(const at::Tensor& means2d, const at::Tensor& conics, const at:
 }  // namespace
 
 // Sorts by `depths`, bins and blends. Returns (image (H, W, C), transmittance (H, W), last (H, W) int32,
-//          tile_offsets, ids, slots, order, gauss_offsets, gauss_isect) — the last six are saved for backward.
+//          tile_offsets, slots, order, gauss_offsets, gauss_isect) — the last five are saved for backward.
+// Tile t's Gaussians, front to back, are order[slots[tile_offsets[t] : tile_offsets[t + 1]]].
 std::vector<at::Tensor> rasterize_forward(const at::Tensor& means2d, const at::Tensor& conics, const at::Tensor& colors,
                                           const at::Tensor& opacities, const at::Tensor& depths,
                                           const at::Tensor& extents, int64_t width, int64_t height,
@@ -696,8 +693,7 @@ std::vector<at::Tensor> rasterize_forward(const at::Tensor& means2d, const at::T
                     else forward_tile<scalar_t, 0>(gv, bin, t, width, height, tile_size, im, tr, ls);
                   });
   });
-  return {image, trans, last, bin.tile_offsets_t, bin.ids_t, bin.slots_t, bin.order_t, bin.gauss_offsets_t,
-          bin.gauss_isect_t};
+  return {image, trans, last, bin.tile_offsets_t, bin.slots_t, bin.order_t, bin.gauss_offsets_t, bin.gauss_isect_t};
 }
 
 // Returns (v_means2d (N, 2), v_conics (N, 3), v_colors (N, C), v_opacities (N)).
@@ -705,14 +701,14 @@ std::vector<at::Tensor> rasterize_backward(const at::Tensor& means2d, const at::
                                            const at::Tensor& colors, const at::Tensor& opacities,
                                            const at::Tensor& extents, const at::Tensor& trans,
                                            const at::Tensor& last, const at::Tensor& tile_offsets,
-                                           const at::Tensor& ids, const at::Tensor& slots, const at::Tensor& order,
+                                           const at::Tensor& slots, const at::Tensor& order,
                                            const at::Tensor& gauss_offsets,
                                            const at::Tensor& gauss_isect, const at::Tensor& v_image,
                                            const at::Tensor& v_alpha, int64_t width, int64_t height,
                                            int64_t tile_size) {
   check_inputs(means2d, conics, colors, opacities, extents);
   const int64_t n = means2d.size(0), C = colors.size(1), row = 6 + C;
-  Binning bin(tile_offsets, ids, slots, order, gauss_offsets, gauss_isect, width, height, tile_size);
+  Binning bin(tile_offsets, slots, order, gauss_offsets, gauss_isect, width, height, tile_size);
   const int64_t m = bin.num_isects();
   auto opts = colors.options();
   at::Tensor isect_grads = at::zeros({m, row}, opts);
