@@ -6,7 +6,8 @@ How it measures: the model ``<work>/gs/point_cloud.ply`` and the cameras of ``<w
 ``--views`` views, ``--repeats`` timed calls after a warm-up (``eval.timing.repeat_seconds``) of a no-grad render
 (forward), then of a render with every parameter requiring a gradient and the backward of a fixed weighted sum of
 its pixels (forward + backward). The medians over all views and calls are printed, in ms, with the thread count
-and load. Whether torch's OpenMP
+and load. The EWA projection's kernels (``project_forward`` / ``project_backward`` of the C++ extension, called
+directly with fixed random output gradients) are timed the same way and printed on a second line. Whether torch's OpenMP
 workers wait passively (``OMP_WAIT_POLICY``, see ``abcgs/__init__.py``) is printed too: run it with
 ``OMP_WAIT_POLICY=ACTIVE`` or with abcgs imported after torch to compare (docs/SCALING.md "Idle OpenMP workers").
 """
@@ -28,6 +29,7 @@ import torch  # noqa: E402
 
 from abcgs.gaussians import render  # noqa: E402
 from abcgs.io.ply import read_ply  # noqa: E402
+from abcgs.render.cpu import load_extension  # noqa: E402
 from abcgs.sfm.colmap import read_colmap_scene  # noqa: E402
 from eval.timing import repeat_seconds  # noqa: E402
 
@@ -60,7 +62,9 @@ def main(argv: list[str] | None = None) -> dict:
 
         forward += repeat_seconds(forward_only, args.repeats)
         both += repeat_seconds(forward_backward, args.repeats)
+    proj_f, proj_b = projection_kernel_seconds(model, cams, args.repeats)
     out = {
+        "projection_forward_ms": 1e3 * statistics.median(proj_f), "projection_backward_ms": 1e3 * statistics.median(proj_b),
         "gaussians": int(model.means.shape[0]), "size": [cams[0].width, cams[0].height], "views": len(cams),
         "forward_ms": 1e3 * statistics.median(forward), "forward_backward_ms": 1e3 * statistics.median(both),
         "torch_threads": torch.get_num_threads(), "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY", "<libgomp default>"),
@@ -70,7 +74,27 @@ def main(argv: list[str] | None = None) -> dict:
           f"(each after a warm-up call): forward {out['forward_ms']:.1f} ms, forward + backward "
           f"{out['forward_backward_ms']:.1f} ms (medians; {out['torch_threads']} torch threads, "
           f"OMP_WAIT_POLICY {out['omp_wait_policy']}, load {out['load']:.2f})")
+    print(f"projection kernels (medians, kernel threads {load_extension().kernel_threads()}): forward "
+          f"{out['projection_forward_ms']:.2f} ms, backward {out['projection_backward_ms']:.2f} ms")
     return out
+
+
+def projection_kernel_seconds(model, cams, repeats: int) -> tuple[list[float], list[float]]:
+    """Seconds of the C++ projection's forward and backward calls on each view (after a warm-up call each)."""
+    ext = load_extension()
+    means, quats, scales = (t.detach().contiguous() for t in (model.means, model.quats, model.scales))
+    opac = model.opacities.detach().contiguous()
+    gen = torch.Generator().manual_seed(0)
+    n = means.shape[0]
+    grads = [torch.randn(n, 2, generator=gen), torch.randn(n, 3, generator=gen), torch.randn(n, generator=gen)]
+    fwd, bwd = [], []
+    for cam in cams:
+        vm = torch.as_tensor(cam.viewmat, dtype=torch.float32)
+        K = torch.as_tensor(cam.K, dtype=torch.float32)
+        args = (cam.width, cam.height, 0.01, 1e10, 0.3)
+        fwd += repeat_seconds(lambda: ext.project_forward(means, quats, scales, opac, vm, K, *args), repeats)
+        bwd += repeat_seconds(lambda: ext.project_backward(means, quats, scales, vm, K, *args, *grads), repeats)
+    return fwd, bwd
 
 
 if __name__ == "__main__":

@@ -317,6 +317,21 @@ def test_tf_inception_features_and_self_fid() -> None:
     assert fid_from_features(f, f) < 1e-3
 
 
+def test_tf_inception_sets_on_two_workers_equal_one_set_at_a_time() -> None:
+    """The evaluation computes the stylized and the style patches' features on two threads; each set is cut into
+    the batches :meth:`TFInception.features` cuts it into, so the features are bit-identical to one call per set."""
+    inc = TFInception(batch=4)
+    rng = np.random.default_rng(3)
+    a = random_patches([texture(64, 80, 6)], 6, 40, rng)  # batches of 4 and 2
+    b = random_patches([texture(64, 80, 7)], 3, 40, rng)
+    fa, fb = inc.features_of_sets([a, b], workers=2)
+    np.testing.assert_array_equal(fa, inc.features(a))
+    np.testing.assert_array_equal(fb, inc.features(b))
+    assert fa.shape == (6, 2048) and fb.shape == (3, 2048)
+    with pytest.raises(InputError, match="no images"):
+        inc.features_of_sets([a, b[:0]], workers=2)
+
+
 def test_artfid_formula() -> None:
     assert artfid_formula(0.5, 10.0) == pytest.approx(16.5)
     assert artfid_formula(0.0, 0.0) == 1.0

@@ -18,7 +18,6 @@ viewer, gsplat's viewer, antimatter15/splat) read. Raw ``float32`` values are wr
 
 from __future__ import annotations
 
-import io
 import os
 import re
 from pathlib import Path
@@ -111,7 +110,10 @@ def read_ply(path: str | os.PathLike, *, device: torch.device | str = "cpu") -> 
     if not (raw.startswith(b"ply\n") or raw.startswith(b"ply\r\n")):
         raise InputError(f"{path} is not a PLY file (it does not start with the 'ply' magic line)")
     try:
-        data = PlyData.read(io.BytesIO(raw), mmap=False)
+        # Memory-mapped (copy-on-write): plyfile's only bulk path for binary rows. From a byte stream it reads
+        # property by property, row by row: 1.5 s for fern's 92k Gaussians against 20 ms, in every stage that
+        # loads a scene. The columns are copied out below, so nothing keeps the mapping once this returns.
+        data = PlyData.read(str(path), mmap="c")
     except (PlyParseError, ValueError, EOFError, IndexError, UnicodeDecodeError) as exc:
         raise InputError(f"{path} is a malformed or truncated PLY file: {exc}") from exc
     _check_body_size(path, raw, data)

