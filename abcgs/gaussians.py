@@ -25,7 +25,6 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
 from torch import Tensor
 
 from abcgs.cameras import Camera
@@ -95,6 +94,8 @@ class GaussianModel:
         m = pts.shape[0]
         if m > 1:
             k = min(4, m)  # the point itself + up to 3 neighbours
+            from scipy.spatial import cKDTree  # here, not at module level: 0.25 s of every stage's start
+
             dist, _ = cKDTree(pts).query(pts, k=k)
             dist2 = (dist[:, 1:] ** 2).mean(axis=1)
         else:

@@ -126,7 +126,7 @@ def evaluate_images(
                                                   vgg_info=vgg_info.model_dump())
     pname = perceptual.name
     workers = resolve_workers(params.workers)
-    ssims = [ssim(o, s) for o, s in zip(originals, stylized)]
+    ssims = ordered_map(lambda pair: ssim(*pair), zip(originals, stylized), workers)
     content = ordered_map(lambda pair: perceptual(*pair), zip(originals, stylized), workers)
     timings["content_s"] = time.perf_counter() - t
 
