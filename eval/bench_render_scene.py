@@ -92,8 +92,10 @@ def projection_kernel_seconds(model, cams, repeats: int) -> tuple[list[float], l
         vm = torch.as_tensor(cam.viewmat, dtype=torch.float32)
         K = torch.as_tensor(cam.K, dtype=torch.float32)
         args = (cam.width, cam.height, 0.01, 1e10, 0.3)
-        fwd += repeat_seconds(lambda: ext.project_forward(means, quats, scales, opac, vm, K, *args), repeats)
-        bwd += repeat_seconds(lambda: ext.project_backward(means, quats, scales, vm, K, *args, *grads), repeats)
+        fwd += repeat_seconds(lambda vm=vm, K=K, args=args: ext.project_forward(means, quats, scales, opac, vm, K, *args),
+                              repeats)
+        bwd += repeat_seconds(lambda vm=vm, K=K, args=args: ext.project_backward(means, quats, scales, vm, K, *args, *grads),
+                              repeats)
     return fwd, bwd
 
 

@@ -23,9 +23,9 @@ Inception (see :mod:`eval.metrics.artfid`), and not comparable to whole-image FI
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Sequence
 import importlib.metadata
 import importlib.util
+from collections.abc import Sequence
 from functools import lru_cache
 from pathlib import Path
 
