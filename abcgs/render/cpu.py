@@ -32,7 +32,7 @@ _SOURCES = [
     Path(__file__).parent / "csrc" / n
     for n in ("rasterize_cpu.cpp", "projection_cpu.cpp", "knn_cpu.cpp", "image_loss_cpu.cpp")
 ]
-_HEADERS = [Path(__file__).parent / "csrc" / "parallel.h"]
+_HEADERS = [Path(__file__).parent / "csrc" / n for n in ("parallel.h", "vec_width.h")]
 # -fno-trapping-math: lets GCC if-convert float compares (the rasterizer's per-row alpha loop only vectorises with
 # it); FP exception flags are never read here, and values are unchanged (no reassociation, no contraction).
 _FLAGS = ["-O3", "-march=native", "-ffp-contract=off", "-fno-trapping-math", "-std=c++17"]

@@ -19,6 +19,7 @@
 #include <torch/extension.h>
 
 #include "parallel.h"
+#include "vec_width.h"
 
 #if defined(__SSE2__)
 #include <immintrin.h>
@@ -34,26 +35,18 @@ namespace {
 constexpr double kAlphaThreshold = 1.0 / 255.0;
 constexpr double kRadiusSigmas = 3.33;
 
-#if defined(__AVX512F__)
-#define ABCGS_PROJ_VEC_BYTES 64
-#elif defined(__AVX__)
-#define ABCGS_PROJ_VEC_BYTES 32
-#else
-#define ABCGS_PROJ_VEC_BYTES 16
-#endif
-
 // V: a vector of T, M: the integer vector a comparison of two V gives (all ones where true).
 template <typename T>
 struct Lanes;
 template <>
 struct Lanes<float> {
-  typedef float V __attribute__((vector_size(ABCGS_PROJ_VEC_BYTES)));
-  typedef int32_t M __attribute__((vector_size(ABCGS_PROJ_VEC_BYTES)));
+  typedef float V __attribute__((vector_size(ABCGS_VEC_BYTES)));
+  typedef int32_t M __attribute__((vector_size(ABCGS_VEC_BYTES)));
 };
 template <>
 struct Lanes<double> {
-  typedef double V __attribute__((vector_size(ABCGS_PROJ_VEC_BYTES)));
-  typedef int64_t M __attribute__((vector_size(ABCGS_PROJ_VEC_BYTES)));
+  typedef double V __attribute__((vector_size(ABCGS_VEC_BYTES)));
+  typedef int64_t M __attribute__((vector_size(ABCGS_VEC_BYTES)));
 };
 typedef Lanes<float>::V f32x;
 typedef Lanes<double>::V f64x;
@@ -71,9 +64,9 @@ inline V splat(T x) {
 }
 
 inline f32x vsqrt(f32x x) {
-#if ABCGS_PROJ_VEC_BYTES == 64
+#if ABCGS_VEC_BYTES == 64
   return (f32x)_mm512_sqrt_ps((__m512)x);
-#elif ABCGS_PROJ_VEC_BYTES == 32
+#elif ABCGS_VEC_BYTES == 32
   return (f32x)_mm256_sqrt_ps((__m256)x);
 #elif defined(__SSE2__)
   return (f32x)_mm_sqrt_ps((__m128)x);
@@ -84,9 +77,9 @@ inline f32x vsqrt(f32x x) {
 }
 
 inline f64x vsqrt(f64x x) {
-#if ABCGS_PROJ_VEC_BYTES == 64
+#if ABCGS_VEC_BYTES == 64
   return (f64x)_mm512_sqrt_pd((__m512d)x);
-#elif ABCGS_PROJ_VEC_BYTES == 32
+#elif ABCGS_VEC_BYTES == 32
   return (f64x)_mm256_sqrt_pd((__m256d)x);
 #elif defined(__SSE2__)
   return (f64x)_mm_sqrt_pd((__m128d)x);

@@ -24,6 +24,7 @@
 #include <torch/extension.h>
 
 #include "parallel.h"
+#include "vec_width.h"
 
 #if defined(__AVX2__) || defined(__AVX512F__)
 #include <immintrin.h>
@@ -357,16 +358,7 @@ inline void for_each_covered_row(const GaussianView<scalar_t>& gv, int64_t slot,
   }
 }
 
-// GCC/Clang vector extensions at the target's native width (one AVX-512 register, one AVX2 one, one SSE/NEON
-// one); a kRowChunk-pixel chunk is kParts of them. Wider-than-native vector types would be lowered piecewise to
-// scalar code (GCC's -Wvector-operation-performance), which made an AVX2 build 2x slower than the scalar code.
-#if defined(__AVX512F__)
-#define ABCGS_VEC_BYTES 64
-#elif defined(__AVX__)
-#define ABCGS_VEC_BYTES 32
-#else
-#define ABCGS_VEC_BYTES 16
-#endif
+// GCC/Clang vector extensions at the target's native width (vec_width.h); a kRowChunk-pixel chunk is kParts of them.
 typedef float f32v __attribute__((vector_size(ABCGS_VEC_BYTES)));
 typedef int32_t i32v __attribute__((vector_size(ABCGS_VEC_BYTES)));
 constexpr int64_t kLanes = ABCGS_VEC_BYTES / 4;
