@@ -35,15 +35,11 @@ import abcgs  # noqa: E402,F401  (before torch: abcgs sets OpenMP's wait policy,
 # isort: split
 import torch  # noqa: E402
 
-from abcgs.gaussians import render  # noqa: E402
 from abcgs.io.atomic import write_json  # noqa: E402
-from abcgs.io.ply import read_ply  # noqa: E402
 from abcgs.params import load_params  # noqa: E402
 from abcgs.sfm.colmap import read_colmap_scene  # noqa: E402
 from abcgs.style import fast, knn  # noqa: E402
-from abcgs.style.matching import load_style  # noqa: E402
-from abcgs.style.vgg import VGG16Features, downsample_half, extract_features  # noqa: E402
-from abcgs.style.weights import resolve_vgg16  # noqa: E402
+from eval.real_features import rendered_features, style_features, stylization_vgg  # noqa: E402
 from eval.timing import repeat_seconds  # noqa: E402
 
 
@@ -78,25 +74,15 @@ def main(argv=None) -> dict:
     torch.set_num_threads(args.threads)
 
     params = load_params(args.params)
-    sp = params.stylize
-    sd, info = resolve_vgg16(params.vgg)
-    vgg = VGG16Features(sd, sp.layers, feature_scale=info.feature_scale)
-    style_img = load_style(str(args.style), sp.style_height)
-    with torch.no_grad():
-        f_s = extract_features(vgg, torch.from_numpy(style_img).permute(2, 0, 1)[None], sp.layers)[0]
-    style = knn.StyleFeatures.of(f_s.reshape(f_s.shape[0], -1))
+    vgg = stylization_vgg(params)
+    style = style_features(vgg, params, args.style)
     scene = read_colmap_scene(args.colmap / "sparse", args.colmap / "images")
     cameras = scene.cameras[: args.views] if args.views else scene.cameras
 
     features: list[tuple[str, torch.Tensor]] = []
     for item in args.ply:
         name, _, path = item.partition("=")
-        model = read_ply(path)
-        with torch.no_grad():
-            for cam in cameras:
-                img = render(model, cam)[0].clamp(0, 1).permute(2, 0, 1)[None]
-                f = extract_features(vgg, downsample_half(img), sp.layers)[0]
-                features.append((name, f.reshape(f.shape[0], -1).contiguous()))
+        features += [(name, f) for f in rendered_features(vgg, params, path, cameras)]
     n_r, n_s = features[0][1].shape[1], style.shape[1]
     print(f"{len(features)} feature sets ({len(args.ply)} scenes x {len(cameras)} views), N_r={n_r} N_s={n_s} "
           f"C={style.shape[0]}, k={args.k}; {platform.machine()}, {os.cpu_count()} CPUs, torch threads {args.threads}")

@@ -163,6 +163,45 @@ def test_fewer_features_than_channels_is_stable():
     assert torch.isfinite(loss) and stats.fallbacks == 0
 
 
+def _decaying_spectrum(c: int, n: int, g: torch.Generator) -> torch.Tensor:
+    """Features whose singular values fall from ~3e3 to ~0.5, as real relu3 features' do (float32)."""
+    q, _ = torch.linalg.qr(torch.randn(c, c, generator=g, dtype=torch.float64))
+    s = torch.logspace(0, -4, c, dtype=torch.float64) * 3e3
+    return ((q * s) @ torch.randn(c, n, generator=g, dtype=torch.float64) / c**0.5).float()
+
+
+def test_small_group_target_is_the_mean_of_the_paired_style_features():
+    """With N_r < C independent features the least-squares target is exact: each rendered feature's aligned feature
+    is the mean of its paired style features. float32 products miss it on ill-conditioned features (the null space's
+    eigenvalues become ±1e-7·‖M‖ ≫ ε); the small-group path (float64) finds it."""
+    c, n_r, n_s = 64, 48, 80
+    float32_errors = []
+    for seed in range(3):
+        g = torch.Generator().manual_seed(seed)
+        f_r, f_s = _decaying_spectrum(c, n_r, g), _decaying_spectrum(c, n_s, g)
+        assert fast.is_small_group(f_r)
+        rows, cols = knn.mutual_knn_pairs(f_r, f_s, 5)
+        counts, sums = fast.pair_sums(f_s.double(), rows, cols, n_r)
+        mean_paired = (sums / counts[:, None]).t()
+        target = fast.fast_target(f_r, f_s)
+        assert target.dtype == torch.float32
+        assert float((target.double() - mean_paired).norm() / mean_paired.norm()) < 1e-6
+        m, rhs = fast.pair_statistics(f_r, f_s, rows, cols)  # the float32 statistics a large group uses
+        p = fast.solve_alignment(m, rhs)
+        float32_errors.append(float(((p.t() @ f_r).double() - mean_paired).norm() / mean_paired.norm()))
+    assert max(float32_errors) > 1e-2  # the case is hard: float32 products alone are off by percent
+
+
+def test_groups_of_at_least_twice_c_features_keep_the_float32_algebra():
+    c = 16
+    f_r, f_s = _feats(c, 2 * c, 40, seed=3, dtype=torch.float32)
+    assert not fast.is_small_group(f_r) and fast.is_small_group(f_r[:, : 2 * c - 1])
+    rows, cols = knn.mutual_knn_pairs(f_r, f_s, 5)
+    m, rhs = fast.pair_statistics(f_r, f_s, rows, cols)
+    assert m.dtype == torch.float32
+    assert torch.equal(fast.fast_target(f_r, f_s), fast.solve_alignment(m, rhs).t() @ f_r)
+
+
 def test_bad_inputs():
     f_r, f_s = _feats(8, 10, 10)
     with pytest.raises(InputError, match="channel"):

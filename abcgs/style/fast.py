@@ -23,10 +23,22 @@ For one matching group with rendered features ``F_r`` ``(C, N_r)`` (carrying gra
 
 ``P`` is formed from the raw (un-normalised) features, the neighbours from cosine similarity. The
 products ``F_r D_r F_rᵀ`` and ``F_r U F_sᵀ`` are accumulated in the features' dtype and solved in
-``solve_dtype`` (float64 by default: with ``N_r < C`` or dead ReLU channels the system is singular up to
-``ε`` and float32 loses the decoupling). No dense ``N_r × N_s`` matrix larger than ``max_block_elems``
+``solve_dtype`` (float64 by default: with dead ReLU channels the system is singular up to ``ε`` and float32
+loses the decoupling). No dense ``N_r × N_s`` matrix larger than ``max_block_elems``
 is ever built. The style side may be passed as :class:`abcgs.style.knn.StyleFeatures`, prepared once per
 run (unit columns and a row-major copy), so that a step prepares only the rendered side.
+
+Small groups. A group with fewer features than channels (a region of compositional or semantic transfer smaller
+than about a quarter of the view at C = 768) makes ``F_r D_r F_rᵀ`` singular: rank ``N_r < C``. The minimiser is
+then still well defined — with linearly independent features, ``Pᵀ v_i`` equals the mean of feature ``i``'s paired
+style features exactly, and the ``ε``-ridge solution converges to it — but float32 products leave the null
+space's eigenvalues at ±1e-7·‖M‖ instead of 0, far above ``ε``, and the solve amplifies the right-hand side's
+float32 rounding along them. Measured on real features (``eval/bench_fast_precision.py``, fern's colour-matched
+start × Starry Night, 600-feature bands): float32 products put the target up to 259 % (median 1.6 %) away from the
+same formula in float64, and 0.14 % still at ``N_r = 800``; from ``N_r = 2C`` on the difference is ≤ 2·10⁻⁵.
+Groups with ``N_r < SMALL_GROUP_RATIO · C`` (2C) therefore form the statistics, the solve and the target in float64
+(whatever ``solve_dtype``): ``N_r``-sized products, cheap for groups this small. The authors' code (float32
+products and solve) has the same instability.
 """
 
 from __future__ import annotations
@@ -53,6 +65,10 @@ from abcgs.style.knn import (
 )
 
 CosineAxis = Literal["pixel", "channel"]
+
+SMALL_GROUP_RATIO = 2
+"""Groups with ``N_r < SMALL_GROUP_RATIO · C`` features run FAST's algebra in float64 (module docstring, "Small
+groups")."""
 
 
 class FastParams(BaseModel):
@@ -176,28 +192,38 @@ def cosine_distance_loss_reference(
 def pair_statistics(
     f_r: torch.Tensor, f_s: torch.Tensor | StyleFeatures, rows: torch.Tensor, cols: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """From sparse pairs, return ``(F_r D_r F_rᵀ, F_r U F_sᵀ)``, both ``(C, C)``, with ``U = A / N_pair``.
+    """From sparse pairs, return ``(F_r D_r F_rᵀ, F_r U F_sᵀ)``, both ``(C, C)`` in ``f_r``'s dtype, with ``U = A / N_pair``.
 
     ``A`` is the 0/1 matrix with ones at ``(rows[p], cols[p])`` (pairs must be unique). ``U F_sᵀ``
     ``(N_r, C)`` is a sparse-times-dense product done by ``embedding_bag`` (sum over each rendered
     feature's paired style features) — nothing of size ``N_pair × C`` or ``N_r × N_s`` is built.
     """
+    f_r = f_r.detach()
+    counts, g = pair_sums(f_s, rows, cols, f_r.shape[1])
+    n_pair = rows.numel()
+    m = (f_r * (counts.to(f_r.dtype) / n_pair)) @ f_r.t()
+    rhs = (f_r @ g.to(f_r.dtype)) / n_pair
+    return m, rhs
+
+
+@torch.no_grad()
+def pair_sums(
+    f_s: torch.Tensor | StyleFeatures, rows: torch.Tensor, cols: torch.Tensor, n_r: int
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The sparse half of :func:`pair_statistics`: ``(counts, G)`` with ``counts`` ``(N_r,)`` int64 the row sums of
+    ``A`` and ``G = A F_sᵀ`` ``(N_r, C)`` in ``F_s``'s dtype (each rendered feature's paired style features summed,
+    by ``embedding_bag``)."""
     n_pair = rows.numel()
     if n_pair == 0 or cols.numel() != n_pair:
         raise InputError(f"FAST: need equally long, non-empty pair lists (got {n_pair} rows, {cols.numel()} cols)")
-    f_r = f_r.detach()
     style_rows = f_s.rows if isinstance(f_s, StyleFeatures) else f_s.detach().t().contiguous()  # (N_s, C)
-    n_r = f_r.shape[1]
     if n_pair > 1 and not bool((rows[1:] >= rows[:-1]).all()):
         order = torch.argsort(rows, stable=True)
         rows, cols = rows[order], cols[order]
-    counts = torch.bincount(rows, minlength=n_r)  # row sums of A
+    counts = torch.bincount(rows, minlength=n_r)
     offsets = torch.zeros(n_r, dtype=torch.long, device=rows.device)
     offsets[1:] = counts.cumsum(0)[:-1]
-    g = F.embedding_bag(cols, style_rows, offsets, mode="sum")  # (N_r, C) = A F_sᵀ
-    m = (f_r * (counts.to(f_r.dtype) / n_pair)) @ f_r.t()
-    rhs = (f_r @ g) / n_pair
-    return m, rhs
+    return counts, F.embedding_bag(cols, style_rows, offsets, mode="sum")
 
 
 @torch.no_grad()
@@ -261,8 +287,38 @@ def alignment_matrix(
     if stats is not None:
         stats.last_pairs = rows.numel()
         stats.pairs_total += rows.numel()
-    m, rhs = pair_statistics(f_r, style, rows, cols)
+    return alignment_from_pairs(f_r, style, rows, cols, params, stats)
+
+
+@torch.no_grad()
+def alignment_from_pairs(
+    f_r: torch.Tensor,
+    f_s: torch.Tensor | StyleFeatures,
+    rows: torch.Tensor,
+    cols: torch.Tensor,
+    params: FastParams | None = None,
+    stats: FastStats | None = None,
+) -> torch.Tensor:
+    """``P`` ``(C, C)`` from the affinity's pairs: :func:`pair_statistics` and :func:`solve_alignment`, in float64 for a
+    small group (:func:`is_small_group`; ``P`` is then float64), else in ``f_r``'s dtype with ``params.solve_dtype``."""
+    params = params or FastParams()
+    if is_small_group(f_r):  # the whole algebra in float64 (module docstring, "Small groups")
+        m, rhs = pair_statistics(f_r.double(), f_s, rows, cols)
+        return solve_alignment(m, rhs, eps=params.eps, solve_dtype=torch.float64, stats=stats)
+    m, rhs = pair_statistics(f_r, f_s, rows, cols)
     return solve_alignment(m, rhs, eps=params.eps, solve_dtype=getattr(torch, params.solve_dtype), stats=stats)
+
+
+def apply_alignment(p: torch.Tensor, f_r: torch.Tensor) -> torch.Tensor:
+    """``F_rs = Pᵀ F_r`` ``(C, N_r)`` in ``f_r``'s dtype, detached; formed in ``P``'s dtype (float64 for a small group,
+    whose ``P`` may have large components that cancel in ``Pᵀ F_r``)."""
+    return (p.t() @ f_r.detach().to(p.dtype)).to(f_r.dtype)
+
+
+def is_small_group(f_r: torch.Tensor) -> bool:
+    """Whether a group ``(C, N_r)`` has fewer than ``SMALL_GROUP_RATIO · C`` features: its FAST algebra (pair
+    statistics, solve, target) runs in float64 (module docstring, "Small groups")."""
+    return f_r.shape[1] < SMALL_GROUP_RATIO * f_r.shape[0]
 
 
 @torch.no_grad()
@@ -272,9 +328,8 @@ def fast_target(
     params: FastParams | None = None,
     stats: FastStats | None = None,
 ) -> torch.Tensor:
-    """Aligned features ``F_rs = Pᵀ F_r`` ``(C, N_r)``, detached."""
-    p = alignment_matrix(f_r, f_s, params, stats)
-    return p.t() @ f_r.detach()
+    """Aligned features ``F_rs = Pᵀ F_r`` ``(C, N_r)`` in ``f_r``'s dtype, detached (:func:`apply_alignment`)."""
+    return apply_alignment(alignment_matrix(f_r, f_s, params, stats), f_r)
 
 
 def fast_loss_group(
