@@ -13,7 +13,7 @@ differs), ``‖F_rs − F_rs,64‖ / ‖F_rs,64‖`` (median and worst over the 
 loss ``1 − cos``, and how many of its systems Cholesky found not positive definite (solved by LU instead):
 
 - ``library``: :func:`abcgs.style.fast.alignment_from_pairs` — float32 products, float64 solve, float32 target;
-  all three in float64 for a group of fewer than 2C features (``fast.is_small_group``);
+  all three in float64 for a group of fewer than 1.25 C features (``fast.is_small_group``);
 - ``float32 statistics``: float32 products, float64 solve and float32 target for every group (the library before
   small groups went to float64);
 - ``solve float32``: as ``float32 statistics`` with the solve in float32 (``stylize.fast.solve_dtype: float32``);

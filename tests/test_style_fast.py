@@ -192,10 +192,10 @@ def test_small_group_target_is_the_mean_of_the_paired_style_features():
     assert max(float32_errors) > 1e-2  # the case is hard: float32 products alone are off by percent
 
 
-def test_groups_of_at_least_twice_c_features_keep_the_float32_algebra():
+def test_groups_of_at_least_1_25_c_features_keep_the_float32_algebra():
     c = 16
-    f_r, f_s = _feats(c, 2 * c, 40, seed=3, dtype=torch.float32)
-    assert not fast.is_small_group(f_r) and fast.is_small_group(f_r[:, : 2 * c - 1])
+    f_r, f_s = _feats(c, 20, 40, seed=3, dtype=torch.float32)
+    assert not fast.is_small_group(f_r) and fast.is_small_group(f_r[:, :19])
     rows, cols = knn.mutual_knn_pairs(f_r, f_s, 5)
     m, rhs = fast.pair_statistics(f_r, f_s, rows, cols)
     assert m.dtype == torch.float32

@@ -35,10 +35,10 @@ style features exactly, and the ``ε``-ridge solution converges to it — but fl
 space's eigenvalues at ±1e-7·‖M‖ instead of 0, far above ``ε``, and the solve amplifies the right-hand side's
 float32 rounding along them. Measured on real features (``eval/bench_fast_precision.py``, fern's colour-matched
 start × Starry Night, 600-feature bands): float32 products put the target up to 259 % (median 1.6 %) away from the
-same formula in float64, and 0.14 % still at ``N_r = 800``; from ``N_r = 2C`` on the difference is ≤ 2·10⁻⁵.
-Groups with ``N_r < SMALL_GROUP_RATIO · C`` (2C) therefore form the statistics, the solve and the target in float64
-(whatever ``solve_dtype``): ``N_r``-sized products, cheap for groups this small. The authors' code (float32
-products and solve) has the same instability.
+same formula in float64, and 0.14 % still at ``N_r = 800``; at ``N_r = 1.25 C = 960`` the worst over three paintings
+and 40 views each is 3.3·10⁻⁴ (whole views: 1.2·10⁻⁵). Groups with ``N_r < SMALL_GROUP_RATIO · C`` (1.25 C)
+therefore form the statistics, the solve and the target in float64 (whatever ``solve_dtype``): ``N_r``-sized
+products, cheap for groups this small. The authors' code (float32 products and solve) has the same instability.
 """
 
 from __future__ import annotations
@@ -66,7 +66,7 @@ from abcgs.style.knn import (
 
 CosineAxis = Literal["pixel", "channel"]
 
-SMALL_GROUP_RATIO = 2
+SMALL_GROUP_RATIO = 1.25
 """Groups with ``N_r < SMALL_GROUP_RATIO · C`` features run FAST's algebra in float64 (module docstring, "Small
 groups")."""
 
@@ -91,6 +91,8 @@ class FastParams(BaseModel):
     exact re-ranking) or ``auto`` (bf16 on CPUs with native bf16 for large searches); see :mod:`abcgs.style.knn`.
     A runtime knob: it does not change the result (up to ties within float32 rounding)."""
     solve_dtype: Literal["float64", "float32"] = "float64"
+    """Dtype of the C × C solve of a group of at least ``SMALL_GROUP_RATIO · C`` features; smaller groups run their
+    whole algebra in float64 whatever this says (module docstring, "Small groups")."""
     projection_rank: int = Field(128, ge=0)
     """0: the exact neighbour search (``knn_search`` says how). ``r > 0``: the approximate search for CPU searches of at
     least ``projection_min_similarities`` (on CUDA the exact search runs) — candidates from the features projected onto
