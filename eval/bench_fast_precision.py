@@ -49,17 +49,11 @@ import abcgs  # noqa: E402,F401  (before torch: abcgs sets OpenMP's wait policy,
 import torch  # noqa: E402
 
 from abcgs.io.atomic import write_json  # noqa: E402
-from abcgs.params import load_params  # noqa: E402
-from abcgs.sfm.colmap import read_colmap_scene  # noqa: E402
 from abcgs.style import fast, knn  # noqa: E402
-from eval.real_features import rendered_features, style_features, stylization_vgg  # noqa: E402
-from eval.timing import repeat_seconds  # noqa: E402
+from eval.real_features import add_feature_arguments, load_bench_features  # noqa: E402
+from eval.timing import median_ms  # noqa: E402
 
 VARIANTS = ("library", "float32 statistics", "solve float32", "target bfloat16", "statistics bfloat16")
-
-
-def _median_ms(fn, repeats: int) -> float:
-    return 1000.0 * statistics.median(repeat_seconds(fn, repeats))
 
 
 def statistics_bf16(f_r: torch.Tensor, style: knn.StyleFeatures, rows: torch.Tensor, cols: torch.Tensor):
@@ -123,11 +117,7 @@ def part_functions(f_r: torch.Tensor, style: knn.StyleFeatures, fp: fast.FastPar
 
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--colmap", type=Path, required=True, help="folder with sparse/ and images/ (the cameras)")
-    ap.add_argument("--ply", action="append", required=True, help="NAME=PATH of a scene to render (repeatable)")
-    ap.add_argument("--style", type=Path, required=True)
-    ap.add_argument("--params", type=Path, default=Path("params.yaml"), help="VGG weights, layers and FAST's params")
-    ap.add_argument("--views", type=int, default=0, help="first N views (0 = all)")
+    add_feature_arguments(ap)
     ap.add_argument("--group-sizes", default="0,600", help="comma-separated; 0 = the whole view")
     ap.add_argument("--time-views", type=int, default=3)
     ap.add_argument("--repeats", type=int, default=7)
@@ -137,15 +127,9 @@ def main(argv=None) -> dict:
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
 
-    params = load_params(args.params)
-    fp = params.stylize.fast
-    vgg = stylization_vgg(params)
-    style = style_features(vgg, params, args.style)
-    scene = read_colmap_scene(args.colmap / "sparse", args.colmap / "images")
-    cameras = scene.cameras[: args.views] if args.views else scene.cameras
-    views: list[torch.Tensor] = []
-    for item in args.ply:
-        views += rendered_features(vgg, params, item.partition("=")[2], cameras)
+    loaded = load_bench_features(args)
+    fp, style, cameras = loaded.params.stylize.fast, loaded.style, loaded.cameras
+    views = [f for _, f in loaded.rendered]
     c = style.shape[0]
     sizes = [int(s) for s in args.group_sizes.split(",")]
     print(f"{len(views)} views ({len(args.ply)} scenes x {len(cameras)}), N_r={views[0].shape[1]} N_s={style.shape[1]} "
@@ -181,7 +165,7 @@ def main(argv=None) -> dict:
     times: dict[str, list[float]] = {}
     for f_r in timed:
         for name, fn in part_functions(f_r, style, fp).items():
-            times.setdefault(name, []).append(_median_ms(fn, args.repeats))
+            times.setdefault(name, []).append(median_ms(fn, args.repeats))
     ms = {k: statistics.median(v) for k, v in times.items()}
     print(f"times on {len(timed)} whole views, median of {args.repeats} each:")
     for k, v in ms.items():

@@ -36,15 +36,9 @@ import abcgs  # noqa: E402,F401  (before torch: abcgs sets OpenMP's wait policy,
 import torch  # noqa: E402
 
 from abcgs.io.atomic import write_json  # noqa: E402
-from abcgs.params import load_params  # noqa: E402
-from abcgs.sfm.colmap import read_colmap_scene  # noqa: E402
 from abcgs.style import fast, knn  # noqa: E402
-from eval.real_features import rendered_features, style_features, stylization_vgg  # noqa: E402
-from eval.timing import repeat_seconds  # noqa: E402
-
-
-def _median_ms(fn, repeats: int) -> float:
-    return 1000.0 * statistics.median(repeat_seconds(fn, repeats))
+from eval.real_features import add_feature_arguments, load_bench_features  # noqa: E402
+from eval.timing import median_ms  # noqa: E402
 
 
 def _found(approx: torch.Tensor, exact: torch.Tensor) -> float:
@@ -54,17 +48,13 @@ def _found(approx: torch.Tensor, exact: torch.Tensor) -> float:
 
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--colmap", type=Path, required=True, help="folder with sparse/ and images/ (the cameras)")
-    ap.add_argument("--ply", action="append", required=True, help="NAME=PATH of a scene to render (repeatable)")
-    ap.add_argument("--style", type=Path, required=True)
-    ap.add_argument("--params", type=Path, default=Path("params.yaml"), help="for the VGG weights and layers")
+    add_feature_arguments(ap)
     ap.add_argument("--ranks", default="64,96,128")
     ap.add_argument("--candidates", default="8,16,32")
     ap.add_argument("--products", default="float32",
                     help="comma-separated projected products to compare: float32, bfloat16 (the AVX512-BF16 kernel where "
                     "this CPU has it, else the same rounding in torch), auto")
     ap.add_argument("--k", type=int, default=5)
-    ap.add_argument("--views", type=int, default=0, help="first N views (0 = all)")
     ap.add_argument("--time-views", type=int, default=3, help="views timed per setting")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--knn-search", default="auto", choices=["auto", "exact", "bf16"])
@@ -73,16 +63,8 @@ def main(argv=None) -> dict:
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
 
-    params = load_params(args.params)
-    vgg = stylization_vgg(params)
-    style = style_features(vgg, params, args.style)
-    scene = read_colmap_scene(args.colmap / "sparse", args.colmap / "images")
-    cameras = scene.cameras[: args.views] if args.views else scene.cameras
-
-    features: list[tuple[str, torch.Tensor]] = []
-    for item in args.ply:
-        name, _, path = item.partition("=")
-        features += [(name, f) for f in rendered_features(vgg, params, path, cameras)]
+    loaded = load_bench_features(args)
+    style, cameras, features = loaded.style, loaded.cameras, loaded.rendered
     n_r, n_s = features[0][1].shape[1], style.shape[1]
     print(f"{len(features)} feature sets ({len(args.ply)} scenes x {len(cameras)} views), N_r={n_r} N_s={n_s} "
           f"C={style.shape[0]}, k={args.k}; {platform.machine()}, {os.cpu_count()} CPUs, torch threads {args.threads}")
@@ -98,7 +80,7 @@ def main(argv=None) -> dict:
                       float(fast.cosine_distance_loss(f, target))))
     timed = features[: args.time_views]
     ms_exact = statistics.median(
-        _median_ms(lambda f=f: knn.mutual_knn_pairs(f, style, args.k, search=args.knn_search), args.repeats)
+        median_ms(lambda f=f: knn.mutual_knn_pairs(f, style, args.k, search=args.knn_search), args.repeats)
         for _, f in timed
     )
     print(f"exact search ({args.knn_search}): {ms_exact:.1f} ms per view for FAST's pairs")
@@ -126,7 +108,7 @@ def main(argv=None) -> dict:
             tdiff.append(float((target - ex_target).norm() / ex_target.norm()))
             ldiff.append(abs(float(fast.cosine_distance_loss(f, target)) - ex_loss))
         ms = statistics.median(
-            _median_ms(lambda f=f, p=proj: knn.mutual_knn_pairs(f, style, args.k, projection=p), args.repeats)
+            median_ms(lambda f=f, p=proj: knn.mutual_knn_pairs(f, style, args.k, projection=p), args.repeats)
             for _, f in timed
         )
         row = {"rank": rank, "candidates": cand, "products": products,

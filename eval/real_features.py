@@ -6,7 +6,9 @@ relu3_1..3 (``params.stylize.layers``) of the render ×0.5 and of the painting a
 
 from __future__ import annotations
 
+import argparse
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -14,7 +16,8 @@ import torch
 from abcgs.cameras import Camera
 from abcgs.gaussians import render
 from abcgs.io.ply import read_ply
-from abcgs.params import Params
+from abcgs.params import Params, load_params
+from abcgs.sfm.colmap import read_colmap_scene
 from abcgs.style import knn
 from abcgs.style.matching import load_style
 from abcgs.style.vgg import VGG16Features, downsample_half, extract_features
@@ -48,3 +51,39 @@ def rendered_features(
         f = extract_features(vgg, downsample_half(img), params.stylize.layers)[0]
         out.append(f.reshape(f.shape[0], -1).contiguous())
     return out
+
+
+def add_feature_arguments(ap: argparse.ArgumentParser) -> None:
+    """The benchmarks' shared inputs: ``--colmap``, ``--ply NAME=PATH`` (repeatable), ``--style``, ``--params``,
+    ``--views``."""
+    ap.add_argument("--colmap", type=Path, required=True, help="folder with sparse/ and images/ (the cameras)")
+    ap.add_argument("--ply", action="append", required=True, help="NAME=PATH of a scene to render (repeatable)")
+    ap.add_argument("--style", type=Path, required=True)
+    ap.add_argument("--params", type=Path, default=Path("params.yaml"),
+                    help="the VGG weights, the layers and the stylization's params")
+    ap.add_argument("--views", type=int, default=0, help="first N views (0 = all)")
+
+
+@dataclass
+class BenchFeatures:
+    """What :func:`load_bench_features` gives: the params, the painting's features, the cameras used and every
+    (scene name, rendered features) pair, scene by scene and view by view."""
+
+    params: Params
+    style: knn.StyleFeatures
+    cameras: list[Camera]
+    rendered: list[tuple[str, torch.Tensor]]
+
+
+def load_bench_features(args: argparse.Namespace) -> BenchFeatures:
+    """Load the inputs of :func:`add_feature_arguments`: VGG, the painting's features and each scene's renders."""
+    params = load_params(args.params)
+    vgg = stylization_vgg(params)
+    style = style_features(vgg, params, args.style)
+    scene = read_colmap_scene(args.colmap / "sparse", args.colmap / "images")
+    cameras = list(scene.cameras[: args.views] if args.views else scene.cameras)
+    rendered: list[tuple[str, torch.Tensor]] = []
+    for item in args.ply:
+        name, _, path = item.partition("=")
+        rendered += [(name, f) for f in rendered_features(vgg, params, path, cameras)]
+    return BenchFeatures(params, style, cameras, rendered)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import statistics
 import time
 from collections.abc import Callable
 
@@ -27,3 +28,8 @@ def repeat_seconds(fn: Callable[[], object], repeats: int) -> list[float]:
         sync()
         times.append(time.perf_counter() - t0)
     return times
+
+
+def median_ms(fn: Callable[[], object], repeats: int) -> float:
+    """Median milliseconds of ``repeats`` timed calls of ``fn`` (:func:`repeat_seconds`: one warm-up call first)."""
+    return 1000.0 * statistics.median(repeat_seconds(fn, repeats))
