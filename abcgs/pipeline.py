@@ -1,20 +1,34 @@
-"""Shared plumbing of the DVC stage scripts in ``stages/``: argument parsing, params, logging, errors.
+"""Shared plumbing of the DVC stage scripts in ``stages/``: the stage contract, params, logging, errors.
 
-A stage script is a short ``main(args, params)`` that calls the library; :func:`run_stage` validates the
-whole ``params.yaml`` first (so a typo fails before any work), then runs :func:`abcgs.preflight.preflight`
-(every key ``dvc.yaml`` tracks is in the file; style files and scene folders exist and decode), sets up
-logging, and turns an
-:class:`abcgs.errors.AbcgsError` into a one-paragraph message and exit status 2 instead of a traceback.
+A stage script declares a :class:`StageSpec` — its name, the ``foreach`` collection it fans out over, and the
+params keys it reads, written exactly as its ``params:`` list in ``dvc.yaml`` (``experiments.{key}``,
+``colormatches.{item.colormatch}``) — and a short ``main(args, params)`` that calls the library.
+:func:`run_stage` then
+
+1. validates the whole params file (a typo anywhere fails before any work) and runs
+   :func:`abcgs.preflight.preflight` (files exist and decode, every key ``dvc.yaml`` tracks is in the file);
+2. hands ``main`` a *tracked view* of the params (:func:`tracked_view`): only the declared keys can be read, any
+   other raises :class:`UntrackedParamsError`. A stage therefore cannot depend on a value DVC does not track, and
+   ``tests/test_dag.py`` checks that every declaration equals the stage's ``params:`` in ``dvc.yaml``;
+3. sets up logging and turns an :class:`abcgs.errors.AbcgsError` into a one-paragraph message and exit status 2
+   instead of a traceback.
 """
 
 from __future__ import annotations
 
 import argparse
+import inspect
 import logging
+import re
 import sys
 import time
-from collections.abc import Callable
+import types
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel
 
 from abcgs.errors import AbcgsError
 from abcgs.params import Params, read_params_file, validate_params
@@ -22,15 +36,149 @@ from abcgs.preflight import preflight
 
 log = logging.getLogger("abcgs")
 
+Foreach = Literal["data.scenes", "colormatches", "experiments"]
+KEY_OPTION: dict[str, str] = {"data.scenes": "scene", "colormatches": "colormatch", "experiments": "experiment"}
+"""The command-line option that names a ``foreach`` stage's key (``--scene tiny``, ``--experiment tiny_single``)."""
 
-def stage_parser(description: str) -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(description=description)
+
+@dataclass(frozen=True)
+class StageSpec:
+    """What a stage script is to ``dvc.yaml``.
+
+    ``params``: the dotted params keys the stage reads, with ``{key}`` for the ``foreach`` key and ``{item.F}`` for
+    field ``F`` of the ``foreach`` entry — the same strings as ``dvc.yaml``'s ``${key}`` / ``${item.F}``.
+    """
+
+    name: str
+    params: tuple[str, ...] = ()
+    foreach: Foreach | None = None
+
+    def resolved_params(self, raw: Mapping[str, Any], key: str | None) -> tuple[str, ...]:
+        """``params`` with ``{key}`` / ``{item.F}`` filled in from the raw params file, as DVC fills them in."""
+        item = _lookup(raw, self.foreach).get(key, {}) if self.foreach and key is not None else {}
+
+        def fill(m: re.Match) -> str:
+            name = m.group(1)
+            if name == "key":
+                return str(key)
+            value = item.get(name.removeprefix("item.")) if isinstance(item, Mapping) else None
+            return str(value)
+
+        return tuple(re.sub(r"\{(key|item\.[A-Za-z_]+)\}", fill, p) for p in self.params)
+
+
+def _lookup(raw: Mapping[str, Any], dotted: str) -> Mapping[str, Any]:
+    node: Any = raw
+    for part in dotted.split("."):
+        node = node.get(part, {}) if isinstance(node, Mapping) else {}
+    return node if isinstance(node, Mapping) else {}
+
+
+class UntrackedParamsError(AttributeError):
+    """A stage read a params key it does not declare (and so ``dvc.yaml`` does not track)."""
+
+
+def _untracked(path: str, stage: str) -> None:
+    """Raise :class:`UntrackedParamsError` for params key ``path`` read by ``stage``."""
+    raise UntrackedParamsError(
+        f"stage {stage!r} read params key {path!r}, which it does not track: add it to the stage's "
+        f"StageSpec.params in stages/ and to its params: list in dvc.yaml")
+
+
+class _TrackedDict(dict):
+    """A mapping section (``data.scenes``, ``experiments``, …) restricted to its tracked entries."""
+
+    def __init__(self, items: dict, path: str, stage: str, hidden: Sequence[str]) -> None:
+        super().__init__(items)
+        self._path, self._stage, self._hidden = path, stage, set(hidden)
+
+    def __missing__(self, key: str):
+        if key in self._hidden:
+            _untracked(f"{self._path}.{key}", self._stage)
+        raise KeyError(key)
+
+    def _whole(self, *_: Any):
+        _untracked(f"{self._path} (all of it)", self._stage)
+
+    # iterating the whole section would read entries the stage does not track
+    __iter__ = keys = values = items = __len__ = _whole  # type: ignore[assignment]
+
+
+def _tree(paths: Sequence[str]) -> dict:
+    """Dotted paths → nested dict; ``True`` marks a whole subtree."""
+    root: dict = {}
+    for p in paths:
+        node = root
+        parts = p.split(".")
+        for part in parts[:-1]:
+            nxt = node.setdefault(part, {})
+            if nxt is True:
+                break
+            node = nxt
+        else:
+            node[parts[-1]] = True
+    return root
+
+
+class _ModelView:
+    """A params model of which only the tracked fields can be read; its methods run against the view too."""
+
+    __slots__ = ("_model", "_tree", "_path", "_stage")
+
+    def __init__(self, model: BaseModel, tree: dict, path: str, stage: str) -> None:
+        for k, v in (("_model", model), ("_tree", tree), ("_path", path), ("_stage", stage)):
+            object.__setattr__(self, k, v)
+
+    def __getattr__(self, name: str) -> Any:
+        model, tree = object.__getattribute__(self, "_model"), object.__getattribute__(self, "_tree")
+        path, stage = object.__getattribute__(self, "_path"), object.__getattribute__(self, "_stage")
+        cls = type(model)
+        if name in cls.model_fields:
+            here = f"{path}.{name}" if path else name
+            if name not in tree:
+                _untracked(here, stage)
+            return _restrict(getattr(model, name), tree[name], here, stage)
+        attr = inspect.getattr_static(cls, name, None)
+        if isinstance(attr, property):
+            return attr.fget(self)
+        if inspect.isfunction(attr):
+            return types.MethodType(attr, self)
+        return getattr(model, name)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise AttributeError("params are read-only in a stage")
+
+    def __repr__(self) -> str:
+        return f"<tracked view of {type(object.__getattribute__(self, '_model')).__name__}>"
+
+
+def _restrict(value: Any, tree: dict | bool, path: str, stage: str) -> Any:
+    if tree is True:
+        return value
+    if isinstance(value, BaseModel):
+        return _ModelView(value, tree, path, stage)
+    if isinstance(value, dict):
+        kept = {k: _restrict(v, tree[k], f"{path}.{k}", stage) for k, v in value.items() if k in tree}
+        return _TrackedDict(kept, path, stage, [k for k in value if k not in tree])
+    return value
+
+
+def tracked_view(params: Params, tracked: Sequence[str], stage: str = "?") -> Params:  # a view that reads like Params
+    """A copy of ``params`` in which only the dotted keys ``tracked`` (and what lies under them) can be read."""
+    return _restrict(params, _tree(tracked), "", stage)
+
+
+def stage_parser(spec: StageSpec, description: str) -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog=f"stages/{spec.name}.py", description=description)
     ap.add_argument("--params", type=Path, default=Path("params.yaml"), help="the pipeline's params file")
+    if spec.foreach:
+        opt = KEY_OPTION[spec.foreach]
+        ap.add_argument(f"--{opt}", required=True, help=f"a key of {spec.foreach}")
     return ap
 
 
 def run_stage(
-    name: str, parser: argparse.ArgumentParser, main: Callable[[argparse.Namespace, Params], None], argv=None
+    spec: StageSpec, parser: argparse.ArgumentParser, main: Callable[[argparse.Namespace, Params], None], argv=None
 ) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s", datefmt="%H:%M:%S")
@@ -39,9 +187,12 @@ def run_stage(
         raw = read_params_file(args.params)
         params = validate_params(raw, str(args.params))
         preflight(params, raw, args.params)
-        main(args, params)
+        key = getattr(args, KEY_OPTION[spec.foreach]) if spec.foreach else None
+        if spec.foreach and key not in _lookup(raw, spec.foreach):
+            raise AbcgsError(f"{key!r} is not a key of {spec.foreach} in {args.params}")
+        main(args, tracked_view(params, spec.resolved_params(raw, key), spec.name))
     except AbcgsError as exc:
-        print(f"\n[{name}] error: {exc}", file=sys.stderr)
+        print(f"\n[{spec.name}] error: {exc}", file=sys.stderr)
         return 2
-    log.info("[%s] done in %.1f s", name, time.perf_counter() - t0)
+    log.info("[%s] done in %.1f s", spec.name, time.perf_counter() - t0)
     return 0

@@ -11,10 +11,10 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from abcgs.pipeline import StageSpec, run_stage, stage_parser
+from abcgs.scene.synthetic import make_tiny_scene
 
-from abcgs.pipeline import run_stage, stage_parser  # noqa: E402
-from abcgs.scene.synthetic import make_tiny_scene  # noqa: E402
+SPEC = StageSpec("make_tiny", params=("tiny",))
 
 
 def main(args, params) -> None:
@@ -22,6 +22,6 @@ def main(args, params) -> None:
 
 
 if __name__ == "__main__":
-    ap = stage_parser(__doc__.strip().splitlines()[0])
+    ap = stage_parser(SPEC, __doc__.strip().splitlines()[0])
     ap.add_argument("--out", type=Path, default=Path("data/tiny"), help="output scene folder")
-    sys.exit(run_stage("make_tiny", ap, main))
+    sys.exit(run_stage(SPEC, ap, main))

@@ -1,6 +1,7 @@
-"""Stage ``report``: one self-contained HTML page and a PNG summary across all experiments.
+"""Stage ``report``: one self-contained HTML page, a PNG summary, the results table (markdown) and a comparison
+figure across all experiments.
 
-    python stages/report.py --out out/report.html
+    python stages/report.py --out reports/report.html
 """
 
 from __future__ import annotations
@@ -8,13 +9,12 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from abcgs.pipeline import StageSpec, run_stage, stage_parser
+from abcgs.report import load_runs, write_report
+from abcgs.view.outputs import load_experiment
+from abcgs.view.page import viewer_fragment
 
-from abcgs.io.atomic import write_text  # noqa: E402
-from abcgs.pipeline import run_stage, stage_parser  # noqa: E402
-from abcgs.view import viewer_fragment  # noqa: E402
-from abcgs.view.outputs import load_experiment  # noqa: E402
-from eval.report import load_runs, render_html, summary_png  # noqa: E402
+SPEC = StageSpec("report", params=("experiments", "colormatches", "data.styles", "viewer"))
 
 
 def main(args, params) -> None:
@@ -26,12 +26,11 @@ def main(args, params) -> None:
                                 path_frames=params.viewer.path_frames)
                 for name, exp in params.experiments.items()]
         viewer = viewer_fragment(exps, max_width=params.viewer.max_width)
-    write_text(args.out, render_html(runs, viewer=viewer))
-    summary_png(runs, args.out.with_suffix(".png"))
+    write_report(args.out, runs, args.root, dict(params.data.styles), viewer)
 
 
 if __name__ == "__main__":
-    ap = stage_parser(__doc__.strip().splitlines()[0])
+    ap = stage_parser(SPEC, __doc__.strip().splitlines()[0])
     ap.add_argument("--root", type=Path, default=Path("out"))
     ap.add_argument("--out", type=Path, required=True)
-    sys.exit(run_stage("report", ap, main))
+    sys.exit(run_stage(SPEC, ap, main))

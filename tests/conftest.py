@@ -15,9 +15,9 @@ from pathlib import Path
 import cv2  # noqa: F401  (load before anything imports pycolmap; see abcgs/sfm/__init__.py)
 import pytest
 
-from abcgs.fit.trainer import torch_threads
+from abcgs.runtime import torch_threads
 from abcgs.scene.synthetic import TinySceneParams, make_tiny_scene
-from eval.repo_copy import copy_repo, run_in  # noqa: F401  (re-exported for the end-to-end tests)
+from eval.bench.repo_copy import copy_repo, run_in  # noqa: F401  (re-exported for the end-to-end tests)
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO_ROOT.parent / "shared" / "data"

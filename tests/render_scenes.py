@@ -16,9 +16,9 @@ from dataclasses import dataclass, fields, replace
 import torch
 from torch import Tensor
 
-from abcgs.fit.trainer import torch_threads  # noqa: F401  (re-exported for the tests)
 from abcgs.render.projection import ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_EPS, project_gaussians
 from abcgs.render.sh import num_sh_bases
+from abcgs.runtime import torch_threads  # noqa: F401  (re-exported for the tests)
 
 GRAD_FIELDS = ("means", "quats", "scales", "opacities", "colors")
 

@@ -1,4 +1,4 @@
-"""eval/bench_pipeline.py: per-stage wall, core use and peak RSS from a clean copy (issue 13's baseline tool)."""
+"""eval/bench/pipeline.py: per-stage wall, core use and peak RSS from a clean copy."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import platform
 
 import pytest
 
-from eval import bench_pipeline
+from eval.bench import pipeline as bench_pipeline
 
 pytestmark = pytest.mark.slow
 

@@ -1,4 +1,4 @@
-"""eval/consistency_floor.py on the tiny scene: the flow vs depth-correspondence warp error table."""
+"""eval/studies/consistency_floor.py on the tiny scene: the flow vs depth-correspondence warp error table."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
 from abcgs.io.ply import write_ply
 from abcgs.sfm.colmap import read_colmap_scene
-from eval import consistency_floor
+from eval.studies import consistency_floor
 
 
 def test_floor_rows_and_a_view_inconsistent_scene_scores_higher(tiny_colmap: Path, tmp_path: Path) -> None:

@@ -1,4 +1,4 @@
-"""Content masks that follow objects (GrabCut), the user's colour label PNGs, and held-out agreement (issue 14)."""
+"""Content masks that follow objects (GrabCut), the user's colour label PNGs, and held-out agreement."""
 
 from __future__ import annotations
 
@@ -12,8 +12,7 @@ from abcgs.cameras import Camera, intrinsics, look_at
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
 from abcgs.io.images import save_labels
-from abcgs.render import rgb_to_sh0
-from abcgs.style.content_masks import (
+from abcgs.masks.content import (
     GrabCutParams,
     MaskParams,
     find_given_masks_with_palette,
@@ -21,7 +20,8 @@ from abcgs.style.content_masks import (
     label_iou,
     make_content_masks,
 )
-from abcgs.style.lifting import render_label_map
+from abcgs.masks.lifting import render_label_map
+from abcgs.render import rgb_to_sh0
 
 W, H = 96, 72
 
@@ -126,13 +126,13 @@ def test_heldout_views_score_the_lifting(tmp_path) -> None:
 
 
 def test_mask_lifting_script_scores_held_out_views(tiny_colmap, tmp_path) -> None:
-    """eval/mask_lifting.py: the user's mask of one view lifted to every view and scored on the rest."""
+    """eval/studies/mask_lifting.py: the user's mask of one view lifted to every view and scored on the rest."""
     import json
     import math
 
     from abcgs.io.ply import write_ply
     from abcgs.sfm.colmap import read_colmap_scene
-    from eval import mask_lifting
+    from eval.studies import mask_lifting
 
     scene = read_colmap_scene(tiny_colmap / "sparse", tiny_colmap / "images")
     model = GaussianModel.from_points(scene.points, scene.colors, init_opacity=0.95)
@@ -165,7 +165,7 @@ def test_lift_views_lifts_from_one_mask_and_scores_the_rest(tmp_path) -> None:
 
 
 def test_propagation_labels_the_unseen_side_and_keeps_unpainted_pixels_unpainted() -> None:
-    from abcgs.style.lifting import LiftParams
+    from abcgs.masks.lifting import LiftParams
 
     model, truth = wall_and_ball(3)
     cams = cameras(3)
@@ -178,7 +178,7 @@ def test_propagation_labels_the_unseen_side_and_keeps_unpainted_pixels_unpainted
     assert (auto.gaussian_labels[ball] == 1).float().mean() > (never.gaussian_labels[ball] == 1).float().mean() + 0.2
     assert (auto.gaussian_labels[ball] == 1).float().mean() > 0.9 and auto.propagated > 0
     # wall Gaussians seen in pixels the user left at 0 stay unassigned: only never-seen Gaussians are filled
-    from abcgs.style.lifting import lift_labels
+    from abcgs.masks.lifting import lift_labels
 
     seen = lift_labels(model, cams[:1], ball_only[:1], 1).weights.sum(1) >= LiftParams().min_weight
     assert int((wall & seen).sum()) > 100 and int((never.gaussian_labels[wall & seen] == 0).sum()) > 100
@@ -191,7 +191,7 @@ def make_content_masks_from(model, cams, maps, propagate: str):
     import tempfile
     from pathlib import Path
 
-    from abcgs.style.lifting import LiftParams
+    from abcgs.masks.lifting import LiftParams
 
     with tempfile.TemporaryDirectory() as tmp:
         for c, m in zip(cams, maps):

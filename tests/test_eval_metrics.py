@@ -1,4 +1,4 @@
-"""Unit tests of the evaluation metrics (eval/metrics): SSIM, RMSE, flow/warp/occlusion, FID/KID, ArtFID."""
+"""Unit tests of the evaluation metrics (abcgs/evaluation): SSIM, RMSE, flow/warp/occlusion, FID/KID, ArtFID."""
 
 from __future__ import annotations
 
@@ -10,10 +10,8 @@ import scipy.ndimage
 import torch
 
 from abcgs.errors import InputError
-from abcgs.fit.losses import ssim_map as ssim_map_3dgs
-from abcgs.fit.trainer import torch_threads
-from eval.metrics.artfid import artfid_formula
-from eval.metrics.consistency import (
+from abcgs.evaluation.artfid import artfid_formula
+from abcgs.evaluation.consistency import (
     FlowCache,
     FlowEstimator,
     backward_warp,
@@ -26,13 +24,13 @@ from eval.metrics.consistency import (
     raft_default_weights_file,
     view_pairs,
 )
-from eval.metrics.content import (
+from abcgs.evaluation.content import (
     PerceptualDistance,
     masked_rmse,
     ssim_map_wang,
     ssim_wang,
 )
-from eval.metrics.fid import (
+from abcgs.evaluation.fid import (
     TFInception,
     fid_from_features,
     frechet_distance,
@@ -41,6 +39,8 @@ from eval.metrics.fid import (
     mmd2_unbiased,
     random_patches,
 )
+from abcgs.fit.losses import ssim_map as ssim_map_3dgs
+from abcgs.runtime import torch_threads
 
 
 @pytest.fixture(autouse=True)
@@ -59,7 +59,7 @@ def texture(h: int, w: int, seed: int = 0, sigma: float = 2.0) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def proxy() -> PerceptualDistance:
-    from abcgs.style.vgg import random_state_dict
+    from abcgs.features.vgg import random_state_dict
 
     return PerceptualDistance("proxy", vgg_state=random_state_dict(0, "relu5_3"), vgg_info={"source": "random (test)"})
 
@@ -339,8 +339,8 @@ def test_artfid_formula() -> None:
 
 # ---------------------------------------------------------------------------------------------- Gram distance
 def test_gram_distance_zero_for_the_style_and_ordered() -> None:
-    from abcgs.style.vgg import random_state_dict
-    from eval.metrics.style_distance import GramDistance
+    from abcgs.evaluation.style_distance import GramDistance
+    from abcgs.features.vgg import random_state_dict
 
     sd = random_state_dict(1, "relu3_3")
     style = texture(64, 80, seed=3, sigma=1.0)
@@ -373,7 +373,7 @@ def test_ordered_map_keeps_order_and_raises_the_first_error() -> None:
     import threading
     import time
 
-    from eval.metrics.parallel import ordered_map
+    from abcgs.evaluation.parallel import ordered_map
 
     seen = set()
 
@@ -396,7 +396,7 @@ def test_ordered_map_keeps_order_and_raises_the_first_error() -> None:
 
 
 def test_resolve_workers_counts_cores_left_by_torch_threads() -> None:
-    from eval.metrics.parallel import available_cores, resolve_workers
+    from abcgs.evaluation.parallel import available_cores, resolve_workers
 
     assert resolve_workers(3) == 3
     with torch_threads(1):

@@ -3,7 +3,6 @@ bad inputs (missing runs, mismatched view counts) fail with clear errors."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
@@ -13,12 +12,12 @@ import torch
 
 from abcgs.cameras import Camera, intrinsics, look_at
 from abcgs.errors import InputError
-from abcgs.eval_params import EvalParams
-from abcgs.fit.trainer import torch_threads
+from abcgs.evaluation.content import PerceptualDistance
+from abcgs.evaluation.evaluate import evaluate_images, evaluate_scene
+from abcgs.evaluation.params import EvalParams
 from abcgs.gaussians import GaussianModel
 from abcgs.render.sh import rgb_to_sh0
-from eval.metrics.content import PerceptualDistance
-from eval.metrics.evaluate import evaluate_images, evaluate_scene
+from abcgs.runtime import torch_threads
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -29,16 +28,9 @@ def _one_torch_thread():
         yield
 
 
-def load_stage():
-    spec = importlib.util.spec_from_file_location("stage_evaluate", REPO / "stages" / "evaluate.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 @pytest.fixture(scope="module")
 def proxy() -> PerceptualDistance:
-    from abcgs.style.vgg import random_state_dict
+    from abcgs.features.vgg import random_state_dict
 
     return PerceptualDistance("proxy", vgg_state=random_state_dict(0, "relu5_3"), vgg_info={"source": "random (test)"})
 
@@ -103,9 +95,10 @@ def test_mismatched_counts_and_missing_inputs_fail_clearly(scene, proxy, tmp_pat
         evaluate_images(img, img[:2], [img[0]], PARAMS, perceptual=proxy)
     with pytest.raises(InputError, match="no style images"):
         evaluate_images(img, img, [], PARAMS, perceptual=proxy)
-    stage = load_stage()
+    from abcgs.evaluation.evaluate import load_stylize_run
+
     with pytest.raises(InputError, match="run the stylize stage"):
-        stage.load_stylize_run(tmp_path, "exp", 3, ["a", "b", "c"])
+        load_stylize_run(tmp_path, "exp", ["a", "b", "c"])
     run = tmp_path / "exp"
     (run / "stylize" / "renders").mkdir(parents=True)
     (run / "stylize" / "point_cloud.ply").write_bytes(b"")
@@ -113,9 +106,9 @@ def test_mismatched_counts_and_missing_inputs_fail_clearly(scene, proxy, tmp_pat
     for s in ("a", "b"):
         (run / "stylize" / "renders" / f"{s}.png").write_bytes(b"")
     with pytest.raises(InputError, match="holds 2 renders but the scene has 3 views"):
-        stage.load_stylize_run(tmp_path, "exp", 3, ["a", "b", "c"])
+        load_stylize_run(tmp_path, "exp", ["a", "b", "c"])
     with pytest.raises(InputError, match="no render for views"):
-        stage.load_stylize_run(tmp_path, "exp", 2, ["a", "c"])
+        load_stylize_run(tmp_path, "exp", ["a", "c"])
     cams, model, styl, style = scene
     with pytest.raises(InputError, match="saved stylize renders"):
         evaluate_scene(cams[:3], model, styl, [style], PARAMS, perceptual=proxy, saved_renders=[img[0]] * 2)
@@ -149,7 +142,7 @@ def _numbers(m: dict, prefix: str = "") -> dict:
 def test_stored_reference_gives_the_same_metrics(scene, proxy, tmp_path) -> None:
     """The per-scene reference (original renders + flows, saved and loaded) changes no metric; it is checked
     against the views, the evaluate settings and the fitted scene it was made from."""
-    from eval.metrics.reference import compute_reference, load_reference, save_reference
+    from abcgs.evaluation.reference import compute_reference, load_reference, save_reference
 
     cams, model, styl, style = scene
     direct = evaluate_scene(cams, model, styl, [style], PARAMS, perceptual=proxy)

@@ -13,7 +13,8 @@ import torch
 
 from abcgs.cameras import Camera, intrinsics, look_at
 from abcgs.errors import InputError, NumericalError
-from abcgs.fit import FitParams, StrategyParams, evaluate, fit, fit_and_save, load_views
+from abcgs.fit.params import FitParams, StrategyParams
+from abcgs.fit.trainer import evaluate, fit, fit_and_save, load_views
 from abcgs.gaussians import GaussianModel, render
 from abcgs.io.images import load_image, save_image
 from abcgs.io.ply import read_ply

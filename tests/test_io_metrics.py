@@ -35,7 +35,7 @@ def test_headlines_keep_the_computed_names_and_only_headline_numbers(tmp_path) -
           "artfid_components": {"content_distance": {"value": 3.0}}, "stylize_minutes": 5.0, "n_views": 16,
           "short_valid_fraction": 0.8, "speed": {"render_fps": 20.0}, "fid_tf_inception": float("nan")}
     head = experiment_headline(ev)
-    assert head == {"ssim": 0.5, "short_rmse": 0.06, "long_rmse": 0.09, "short_lpips_proxy_vgg": 0.7,
+    assert head == {"content_ssim": 0.5, "short_rmse": 0.06, "long_rmse": 0.09, "short_lpips_proxy_vgg": 0.7,
                     "long_lpips_proxy_vgg": 1.1, "gram_distance": 0.3, "kid_tf_inception": 0.2, "artfid_proxy": 900.0,
                     "stylize_minutes": 5.0}
     assert len(head) == len(EXPERIMENT_HEADLINE)
@@ -43,7 +43,8 @@ def test_headlines_keep_the_computed_names_and_only_headline_numbers(tmp_path) -
     assert "short_lpips" in experiment_headline({"short_lpips": 0.1, "short_lpips_proxy_vgg": 0.7})
     assert "lpips" not in "".join(experiment_headline({"ssim": 1.0}))
     fit = fit_headline({"psnr": 25.0, "ssim": 0.9, "n_gaussians": 1000, "seconds": 120.0, "per_view": {"a": {"psnr": 1}}})
-    assert fit == {"psnr": 25.0, "ssim": 0.9, "n_gaussians": 1000, "fit_minutes": 2.0}
+    assert fit == {"heldout_psnr": 25.0, "heldout_ssim": 0.9, "n_gaussians": 1000, "fit_minutes": 2.0}
+    assert not set(fit) & set(head), "a fit headline name is also an experiment headline name"
     assert fit_headline({"psnr": None, "ssim": None, "n_gaussians": 5, "seconds": 60.0}) == {"n_gaussians": 5,
                                                                                              "fit_minutes": 1.0}
     p = write_headline(tmp_path / "m.json", {**fit, "note": "dropped"})

@@ -51,7 +51,7 @@ def _first_heavy_import(path: Path) -> str | None:
     return None
 
 
-SCRIPTS = sorted(ROOT.glob("stages/*.py")) + sorted(ROOT.glob("eval/bench_*.py")) + [ROOT / "eval/quality_study.py"]
+SCRIPTS = sorted(ROOT.glob("stages/*.py")) + sorted(ROOT.glob("eval/bench/*.py")) + sorted(ROOT.glob("eval/studies/*.py"))
 
 
 @pytest.mark.parametrize("script", SCRIPTS, ids=lambda p: f"{p.parent.name}/{p.name}")

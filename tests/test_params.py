@@ -114,7 +114,8 @@ def test_stage_reports_schema_error_without_traceback(tmp_path, raw) -> None:
     path = tmp_path / "params.yaml"
     path.write_text(yaml.safe_dump(bad))
     proc = subprocess.run(
-        [sys.executable, str(REPO_ROOT / "stages" / "fit.py"), "--params", str(path), "--colmap", "x", "--out", "y"],
+        [sys.executable, str(REPO_ROOT / "stages" / "fit.py"), "--params", str(path), "--scene", "tiny", "--colmap", "x",
+         "--out", "y", "--headline", "z"],
         capture_output=True, text=True, timeout=120,
     )
     assert proc.returncode == 2
@@ -124,7 +125,7 @@ def test_stage_reports_schema_error_without_traceback(tmp_path, raw) -> None:
 
 # ------------------------------------------------------------------------------------------------ per-scene overrides
 def test_scene_overrides_merge_over_the_global_sections(raw) -> None:
-    """Issue 15: data.scenes.<name> carries reconstruct/fit/masks overrides for that scene alone."""
+    """data.scenes.<name> carries reconstruct/fit/masks overrides for that scene alone."""
     p = copy.deepcopy(raw)
     p["data"]["scenes"]["big"] = {"path": "data/big", "fit": {"iterations": 3000, "strategy": {"refine_start": 300}},
                                   "masks": {"source": "grabcut", "grabcut": {"box": [0.1, 0.1, 0.9, 0.9]}}}

@@ -23,18 +23,9 @@ from conftest import REPO_ROOT, copy_repo, run_in
 
 from abcgs.io.metrics import numeric_leaves
 from abcgs.io.ply import read_ply
+from eval.bench.regression import REDUCED
 
 pytestmark = pytest.mark.slow
-
-GATED = ("ssim", "short_rmse", "long_rmse")
-"""Metrics whose regression fails CI; tolerances in tests/baselines/tiny_seed_spread.json (eval/seed_spread.py)."""
-
-REDUCED = {
-    ("fit", "iterations"): 300,
-    ("colormatch", "refit_iterations"): 20,
-    ("stylize", "iterations"): 20,
-}
-
 
 _run = run_in
 
@@ -94,7 +85,7 @@ def test_all_stages_write_their_artifacts(repo: Path, first_repro) -> None:
 
 @pytest.mark.browser
 def test_report_viewer_renders_every_experiment(repo: Path, first_repro) -> None:
-    """Issue 12: reports/report.html from `dvc repro` opens from file:// in chromium, with no network, and
+    """reports/report.html from `dvc repro` opens from file:// in chromium, with no network, and
     shows each tiny experiment's stylized scene close to our own render of its first training camera."""
     import cv2
     import numpy as np
@@ -135,7 +126,7 @@ def _leaf_keys(d: dict, prefix: str = "") -> set[str]:
 
 
 def test_dvc_metrics_show_is_a_short_headline_table(repo: Path, first_repro) -> None:
-    """Issue 15: at most 15 distinct keys across `dvc metrics show`; per-view numbers and timings are records."""
+    """at most 15 distinct keys across `dvc metrics show`; per-view numbers and timings are records."""
     proc = _run(["dvc", "metrics", "show", "--json"], repo)
     assert proc.returncode == 0, proc.stderr
     files = json.loads(proc.stdout)[""]["data"]
@@ -185,7 +176,7 @@ def test_changing_a_fit_param_invalidates_fit_and_downstream_only(repo: Path, fi
 
 def test_quality_has_not_regressed(repo: Path, first_repro) -> None:
     """SSIM and consistency stay within 3 seed-to-seed standard deviations (floor 0.01) of the recorded
-    baseline (tests/baselines/tiny_seed_spread.json, measured with eval/seed_spread.py)."""
+    baseline (tests/baselines/tiny_seed_spread.json, measured with eval/studies/seed_spread.py)."""
     baseline = json.loads((REPO_ROOT / "tests" / "baselines" / "tiny_seed_spread.json").read_text())["metrics"]
     failures = []
     for exp, metrics in baseline.items():
@@ -198,7 +189,7 @@ def test_quality_has_not_regressed(repo: Path, first_repro) -> None:
     assert not failures, "quality regressed:\n" + "\n".join(failures)
 
 
-# ------------------------------------------------------------------------------------------------ issue 15: at scale
+# ------------------------------------------------------------------------------------------------ at scale
 # These run last in this module: they add a scene, commit, queue experiments and push to a remote.
 def _changed_stages(repo: Path) -> set[str]:
     status = _run(["dvc", "status"], repo).stdout
@@ -232,7 +223,7 @@ def test_a_scene_override_reruns_only_that_scenes_branch(repo: Path, first_repro
 
 
 def test_experiments_of_one_scene_share_its_stages(repo: Path, first_repro) -> None:
-    """Issue 13: a second experiment on the tiny scene (same painting, NNFM) runs only its own stylize and
+    """a second experiment on the tiny scene (same painting, NNFM) runs only its own stylize and
     evaluate: not the scene's stages (fit, masks, the evaluation reference of original renders and flows) and
     not the colour match of its painting, which it shares with the FAST experiment. The reference follows the
     flow settings, not the metric settings; the colour match follows the fit, not `stylize`."""

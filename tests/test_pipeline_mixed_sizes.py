@@ -1,4 +1,4 @@
-"""End to end with views of different sizes (issue 14): `dvc repro` of the tiny pipeline on a scene shot with
+"""End to end with views of different sizes: `dvc repro` of the tiny pipeline on a scene shot with
 two cameras whose images differ by a pixel in width. COLMAP undistorts each camera to its own size, so the
 views reach every stage at several sizes; evaluation pairs them on one grid and says how many it resampled."""
 

@@ -12,7 +12,7 @@ from conftest import REPO_ROOT
 from abcgs.errors import InputError, ParamsError
 from abcgs.io.images import save_image
 from abcgs.params import validate_params
-from abcgs.pipeline import run_stage, stage_parser
+from abcgs.pipeline import StageSpec, run_stage, stage_parser
 from abcgs.preflight import check_dvc_tracked_keys, check_input_files, dvc_outputs, dvc_tracked_keys, preflight
 
 DVC = {"stages": {
@@ -83,18 +83,21 @@ def test_scene_folders_must_hold_readable_images_unless_a_stage_makes_them(tmp_p
         check_input_files(params, tmp_path)
 
 
+SPEC = StageSpec("colormatch")
+
+
 def test_run_stage_stops_before_work_and_says_why(tmp_path, capsys) -> None:
     (tmp_path / "dvc.yaml").write_text(yaml.safe_dump(DVC))
     _scene(tmp_path)
     (tmp_path / "params.yaml").write_text(yaml.safe_dump({"data": {"scenes": {"s": "scene"}, "styles": {}}}))
     called = []
-    rc = run_stage("colormatch", stage_parser("t"), lambda a, p: called.append(1), ["--params", str(tmp_path / "params.yaml")])
+    rc = run_stage(SPEC, stage_parser(SPEC, "t"), lambda a, p: called.append(1), ["--params", str(tmp_path / "params.yaml")])
     assert rc == 2 and not called
     err = capsys.readouterr().err
     assert "data.style_masks" in err and "colormatch" in err
     (tmp_path / "params.yaml").write_text(yaml.safe_dump({"data": {"scenes": {"s": "scene"}, "styles": {}, "style_masks": {}},
                                                           "colormatch": {}}))
-    assert run_stage("colormatch", stage_parser("t"), lambda a, p: called.append(1),
+    assert run_stage(SPEC, stage_parser(SPEC, "t"), lambda a, p: called.append(1),
                      ["--params", str(tmp_path / "params.yaml")]) == 0 and called == [1]
     complete = yaml.safe_load((tmp_path / "params.yaml").read_text())
     preflight(validate_params(complete), complete, tmp_path / "params.yaml")

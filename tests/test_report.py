@@ -8,7 +8,7 @@ import pytest
 from abcgs.errors import InputError
 from abcgs.io.images import save_image
 from abcgs.io.metrics import write_metrics
-from eval.report import ablation_groups, format_markdown, format_table, load_runs, render_html, summary_png
+from abcgs.report import ablation_groups, format_markdown, format_table, load_runs, render_html, summary_png
 
 SPECS = {
     "a_fast": {"scene": "s", "transfer": "single", "style": "p", "method": "fast"},
@@ -76,7 +76,7 @@ def test_missing_run_is_a_clear_error(tmp_path) -> None:
 
 
 def test_style_legend_pairs_each_label_colour_with_its_painting():
-    """Issue 14: compositional/semantic grids show every label's painting (or painting region), not the first."""
+    """compositional/semantic grids show every label's painting (or painting region), not the first."""
     import numpy as np
 
     from abcgs.viz import style_legend

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from abcgs.errors import InputError
-from abcgs.style import color
+from abcgs.stylize import color
 
 
 def _pixels(n, seed, scale):

@@ -7,7 +7,9 @@ import torch
 from pydantic import ValidationError
 
 from abcgs.errors import InputError, NumericalError
-from abcgs.style import fast, knn, losses
+from abcgs.features import knn
+from abcgs.losses import fast
+from abcgs.losses import terms as losses
 
 
 def _feats(c: int, n_r: int, n_s: int, seed: int = 0, dtype=torch.float64):
@@ -230,7 +232,7 @@ def _dense_fast_rederived(cf: torch.Tensor, sf: torch.Tensor, k: int, cosine_dim
     ``abcgs/loss/fast_loss.py``) computes it: dense affinity by two ``topk`` + ``scatter_``, ``U = A / ΣA``,
     ``D1 = diag(U 1)``, ``P = solve(cf D1 cfᵀ + 1e-12 I, cf U sfᵀ)``, target ``Pᵀ cf`` without grad, then
     ``1 − F.cosine_similarity(cf, target, dim=cosine_dim)`` averaged. ``cosine_dim = 1`` is their per-channel
-    loss; ``cosine_dim = 0`` the per-pixel reading of the paper's Eq. 7. Independent of ``abcgs.style``."""
+    loss; ``cosine_dim = 0`` the per-pixel reading of the paper's Eq. 7. Independent of the library."""
     with torch.no_grad():
         cf_d, sf_d = cf.detach(), sf.detach()
         dist = torch.nn.functional.normalize(cf_d, 2, 0).t() @ torch.nn.functional.normalize(sf_d, 2, 0)

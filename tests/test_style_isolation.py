@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from abcgs.errors import InputError
-from abcgs.style import isolation as iso
-from abcgs.style.vgg import VGG16Features, random_state_dict
+from abcgs.features import isolation as iso
+from abcgs.features.vgg import VGG16Features, random_state_dict
 
 METHODS = ("mirror", "translate", "fill")
 

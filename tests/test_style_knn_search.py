@@ -8,8 +8,10 @@ import torch
 from pydantic import ValidationError
 
 from abcgs.errors import InputError
+from abcgs.features import knn
+from abcgs.losses import fast
+from abcgs.losses import terms as losses
 from abcgs.render import cpu as cpu_kernels
-from abcgs.style import fast, knn, losses
 
 needs_kernels = pytest.mark.skipif(
     not cpu_kernels.is_available(), reason="the CPU kernels' extension did not build here (make install builds it)"
@@ -267,13 +269,13 @@ def test_projected_search_is_exact_where_the_projection_loses_nothing(monkeypatc
 
 def test_projected_search_in_the_losses():
     """FAST, NNFM and KNNFM take the projected search from FastParams: with candidates covering every feature the
-    result equals the exact search's (how close it is otherwise depends on the features: eval/bench_knn_recall.py)."""
+    result equals the exact search's (how close it is otherwise depends on the features: eval/bench/knn_recall.py)."""
     f_r, f_s = _feats(96, 300, 120, seed=7)
     style = knn.StyleFeatures.of(f_s)
     exact = fast.FastParams(knn_search="exact", projection_rank=0)
     # every feature is a candidate both ways, and the size threshold is off
     full = fast.FastParams(projection_rank=8, projection_candidates=300, projection_min_similarities=0)
-    assert full.projection() == knn.Projection(8, 300, 0, "auto") and exact.projection() is None
+    assert knn.projection_of(full) == knn.Projection(8, 300, 0, "auto") and knn.projection_of(exact) is None
     for method in ("fast", "nnfm", "knnfm"):
         a = losses.style_loss(method, [(f_r, style)], fast_params=exact)
         b = losses.style_loss(method, [(f_r, style)], fast_params=full)
@@ -286,7 +288,7 @@ def test_projected_search_in_the_losses():
         knn.Projection(rank=8, products="float16")
     with pytest.raises(ValidationError):
         fast.FastParams(projection_products="bf16")
-    assert fast.FastParams().projection().products == "auto"
+    assert knn.projection_of(fast.FastParams()).products == "auto"
     assert knn.Projection(8, products="auto").bf16_products() == knn.bf16_dot_available()
     assert knn.Projection(8, products="bfloat16").bf16_products() and not knn.Projection(8).bf16_products()
 
@@ -294,7 +296,7 @@ def test_projected_search_in_the_losses():
 def test_projected_search_runs_only_where_it_applies(monkeypatch):
     """The default FastParams ask for the projected search, but below ``projection_min_similarities`` (the tiny scene's
     searches), at a rank not below the channel count and on a GPU the exact search runs."""
-    proj = fast.FastParams().projection()
+    proj = knn.projection_of(fast.FastParams())
     assert proj is not None and proj.rank == 128 and proj.min_similarities == 2**22
     cpu, gpu = torch.device("cpu"), torch.device("cuda")
     assert proj.applies(2852, 6528, 768, cpu) and not proj.applies(300, 1000, 768, cpu)

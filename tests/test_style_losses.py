@@ -6,8 +6,8 @@ import pytest
 import torch
 
 from abcgs.errors import InputError
-from abcgs.style import losses
-from abcgs.style.fast import FastParams, FastStats, fast_loss
+from abcgs.losses import terms as losses
+from abcgs.losses.fast import FastParams, FastStats, fast_loss
 
 
 def _feats(c=12, n_r=40, n_s=33, seed=0, dtype=torch.float64):
@@ -100,7 +100,7 @@ def test_bad_inputs():
 def test_group_features_equal_boolean_indexing_values_and_gradients():
     """A mask covering every cell gives a view of all columns (no copy), a partial one the masked columns; both equal
     ``feats[:, mask]`` in value and gradient, and the full mask's result shares the features' storage."""
-    from abcgs.style.stylize import group_features
+    from abcgs.stylize.loop import group_features
 
     g = torch.Generator().manual_seed(0)
     base = torch.randn(6, 4, 5, generator=g)

@@ -11,8 +11,8 @@ import torch.nn.functional as F
 from pydantic import ValidationError
 
 from abcgs.errors import InputError
-from abcgs.style import vgg as V
-from abcgs.style import weights as W
+from abcgs.features import vgg as V
+from abcgs.features import weights as W
 
 
 @pytest.fixture

@@ -14,7 +14,7 @@ from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
 from abcgs.io.spz import decode_spz
 from abcgs.render import sh0_to_rgb
-from abcgs.view import (
+from abcgs.view.page import (
     LABEL_PALETTE,
     label_colored,
     orbit_target,

@@ -21,7 +21,7 @@ import torch
 from abcgs.cameras import Camera, intrinsics, look_at
 from abcgs.gaussians import GaussianModel, render
 from abcgs.render import rgb_to_sh0
-from abcgs.view import prepare_experiment, viewer_page
+from abcgs.view.page import prepare_experiment, viewer_page
 
 pytestmark = pytest.mark.browser
 
@@ -128,7 +128,7 @@ def test_loads_from_file_without_network(viewer):
 
 
 def test_camera_path_frames_match_our_rasterizer_and_play(viewer):
-    """Issue 14: the viewer's ▷ path is the turntable video's path (spiral here: a forward-facing layout)."""
+    """the viewer's ▷ path is the turntable video's path (spiral here: a forward-facing layout)."""
     page, exp, _, _ = viewer
     assert exp.path_kind == "spiral" and len(exp.path) == 48
     page.evaluate("window.abcgsViewer.setMode('stylized'); window.abcgsViewer.setPathFrame(12)")

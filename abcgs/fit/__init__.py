@@ -1,34 +1,8 @@
-"""Baseline 3DGS fitting (Kerbl et al. 2023): losses, densification strategies, the trainer and metrics."""
+"""Baseline 3DGS fitting (Kerbl et al. 2023).
 
-from abcgs.fit.losses import LossTerms, dssim, l1, reconstruction_loss, ssim
-from abcgs.fit.strategy import (
-    DefaultStrategy,
-    NoDensification,
-    RefineReport,
-    Strategy,
-    StrategyParams,
-    scene_extent,
-)
-from abcgs.fit.trainer import Evaluation, FitParams, FitResult, Views, evaluate, fit, fit_and_save, load_views
-
-__all__ = [
-    "DefaultStrategy",
-    "Evaluation",
-    "FitParams",
-    "FitResult",
-    "LossTerms",
-    "NoDensification",
-    "RefineReport",
-    "Strategy",
-    "StrategyParams",
-    "Views",
-    "dssim",
-    "evaluate",
-    "fit",
-    "fit_and_save",
-    "l1",
-    "load_views",
-    "reconstruction_loss",
-    "scene_extent",
-    "ssim",
-]
+- :mod:`abcgs.fit.params`   — the ``fit`` section: schedule, learning rates, densification settings.
+- :mod:`abcgs.fit.losses`   — ``0.8·L1 + 0.2·D-SSIM`` with the fused CPU kernel and its torch reference.
+- :mod:`abcgs.fit.strategy` — densification: clone, split, prune, opacity reset.
+- :mod:`abcgs.fit.trainer`  — the training loop, held-out evaluation and the stage's outputs.
+- :mod:`abcgs.fit.metrics`  — PSNR and SSIM of the held-out views.
+"""

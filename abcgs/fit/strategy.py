@@ -27,9 +27,9 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
 import torch
-from pydantic import BaseModel, Field, model_validator
 from torch import Tensor
 
+from abcgs.fit.params import StrategyParams  # noqa: F401  (the section's schema)
 from abcgs.gaussians import PARAM_NAMES, GaussianModel
 from abcgs.render import RenderMeta, quat_to_rotmat
 
@@ -215,46 +215,6 @@ class NoDensification:
         return None
 
 
-class StrategyParams(BaseModel, extra="forbid"):
-    """Knobs of :class:`DefaultStrategy`. Steps count from 1; defaults are the 3DGS values for 30k iterations.
-
-    For short runs scale the schedule with :meth:`scaled` (or set the step fields directly).
-    """
-
-    refine_start: int = Field(500, ge=0, description="no densification at or before this step")
-    refine_stop: int = Field(15000, ge=0, description="statistics, densification and resets stop at this step")
-    refine_every: int = Field(100, ge=1, description="densify every this many steps")
-    reset_every: int = Field(3000, ge=1, description="clamp opacities to reset_opacity every this many steps")
-    grow_grad2d: float = Field(0.0002, gt=0.0, description="mean view-space gradient (NDC units) to densify")
-    grow_scale3d: float = Field(
-        0.01, gt=0.0, description="percent_dense: clone if max scale <= this × scene extent, else split"
-    )
-    split_samples: int = Field(2, ge=2, le=8, description="children per split Gaussian")
-    prune_opacity: float = Field(0.005, gt=0.0, lt=1.0, description="prune below this opacity")
-    prune_scale3d: float = Field(0.1, gt=0.0, description="after the first reset: prune if max scale > this × extent")
-    prune_screen_px: float = Field(20.0, gt=0.0, description="after the first reset: prune if screen radius > this (px)")
-    reset_opacity: float = Field(0.01, gt=0.0, lt=1.0, description="opacity cap applied at each reset")
-
-    @model_validator(mode="after")
-    def _check(self) -> StrategyParams:
-        if self.prune_opacity >= self.reset_opacity:
-            raise ValueError(
-                f"prune_opacity ({self.prune_opacity}) must be below reset_opacity ({self.reset_opacity}), "
-                "or every reset would prune the whole scene"
-            )
-        return self
-
-    def scaled(self, factor: float) -> StrategyParams:
-        """The same schedule with every step count multiplied by ``factor`` (e.g. ``iterations / 30000``)."""
-        step = lambda s: max(1, int(round(s * factor)))  # noqa: E731
-        return self.model_copy(
-            update={
-                "refine_start": int(round(self.refine_start * factor)),
-                "refine_stop": step(self.refine_stop),
-                "refine_every": step(self.refine_every),
-                "reset_every": step(self.reset_every),
-            }
-        )
 
 
 @dataclass

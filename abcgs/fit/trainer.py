@@ -12,9 +12,6 @@ steps, and densification by a pluggable :mod:`strategy <abcgs.fit.strategy>`. Ev
 
 from __future__ import annotations
 
-import contextlib
-import csv
-import io
 import logging
 import math
 import os
@@ -22,31 +19,31 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal, Protocol
+from typing import Protocol
 
 import cv2
 import numpy as np
 import torch
-from pydantic import BaseModel, Field, field_validator
 from torch import Tensor
 
 from abcgs.cameras import Camera
 from abcgs.errors import InputError, NumericalError
 from abcgs.fit import metrics as M
 from abcgs.fit.losses import reconstruction_loss
-from abcgs.fit.strategy import DefaultStrategy, NoDensification, RefineReport, Strategy, StrategyParams, scene_extent
+from abcgs.fit.params import REFERENCE_ITERATIONS, FitParams  # noqa: F401  (the section's schema)
+from abcgs.fit.strategy import DefaultStrategy, NoDensification, RefineReport, Strategy, scene_extent
 from abcgs.gaussians import PARAM_NAMES, GaussianModel, render
-from abcgs.io.atomic import write_json, write_text
+from abcgs.io.atomic import write_json
 from abcgs.io.images import load_image, save_image
 from abcgs.io.ply import write_ply
+from abcgs.io.tables import write_csv
 from abcgs.progress import progress as progress_bar
 from abcgs.render import select_backend
 from abcgs.render.cpu import kernel_threads
+from abcgs.runtime import torch_threads
 
 log = logging.getLogger(__name__)
 
-REFERENCE_ITERATIONS = 30000
-"""The iteration count the 3DGS densification schedule was designed for (see ``FitParams.scale_schedule``)."""
 
 
 class SceneLike(Protocol):
@@ -58,58 +55,6 @@ class SceneLike(Protocol):
     colors: np.ndarray
 
 
-class FitParams(BaseModel, extra="forbid"):
-    """Options of the ``fit`` stage. Learning rates are per step; ``lr_means*`` are multiplied by the scene extent."""
-
-    iterations: int = Field(30000, ge=1)
-    sh_degree: int = Field(0, ge=0, le=3, description="highest SH band (ABC-GS trains its scenes with 0)")
-    sh_degree_interval: int = Field(1000, ge=1, description="enable one more SH band every this many steps")
-    ssim_lambda: float = Field(0.2, ge=0.0, le=1.0)
-    init_opacity: float = Field(0.1, gt=0.0, lt=1.0)
-    lr_means: float = Field(1.6e-4, gt=0.0, description="initial means learning rate × scene extent")
-    lr_means_final: float = Field(1.6e-6, gt=0.0, description="final means learning rate × scene extent")
-    lr_sh0: float = Field(2.5e-3, ge=0.0)
-    lr_shN: float = Field(2.5e-3 / 20.0, ge=0.0)
-    lr_opacity: float = Field(5e-2, ge=0.0)
-    lr_scales: float = Field(5e-3, ge=0.0)
-    lr_quats: float = Field(1e-3, ge=0.0)
-    test_every: int = Field(8, ge=0, description="hold out views 0, n, 2n, … (LLFF: 8); 0 = train on all")
-    resolution_scale: float = Field(1.0, gt=0.0, le=1.0, description="train at this fraction of the image size")
-    seed: int = 0
-    backend: Literal["auto", "cpu", "reference", "gsplat"] = "auto"
-    device: Literal["auto", "cpu", "cuda"] = Field("auto", description="auto = cuda when available")
-    background: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="RGB in [0, 1] behind the Gaussians")
-    random_background: bool = Field(False, description="a random background colour each step (3DGS option)")
-    densify: bool = Field(True, description="False = keep the initial Gaussians (NoDensification)")
-    strategy: StrategyParams = Field(default_factory=StrategyParams)
-    scale_schedule: bool = Field(
-        False, description=f"multiply the strategy's step counts by iterations / {REFERENCE_ITERATIONS}"
-    )
-    max_gaussians: int | None = Field(None, ge=1, description="stop growing beyond this many Gaussians")
-    eval_every: int = Field(0, ge=0, description="also evaluate held-out views every this many steps (0 = end only)")
-    threads: int = Field(
-        1, ge=0,
-        description="torch CPU threads during the fit (0 = torch's default, all cores). 1 is the default: with "
-        "other processes on the cores, intra-op threads spin and a step runs up to ~15x slower",
-    )
-    rasterizer_threads: int = Field(
-        0, ge=0,
-        description="threads of the C++ rasterizer's own loops (0 = every core), independent of `threads`: they are "
-        "plain threads joined after each loop, so they do not spin; results are bit-identical for any count",
-    )
-
-    @field_validator("test_every")
-    @classmethod
-    def _test_every(cls, v: int) -> int:
-        if v == 1:
-            raise ValueError("test_every = 1 would hold out every view; use 0 (no hold-out) or >= 2")
-        return v
-
-    def strategy_params(self) -> StrategyParams:
-        """The strategy parameters actually used (scaled to ``iterations`` when ``scale_schedule``)."""
-        if self.scale_schedule:
-            return self.strategy.scaled(self.iterations / REFERENCE_ITERATIONS)
-        return self.strategy
 
 
 # ================================================================================================
@@ -312,20 +257,6 @@ def means_lr(step: int, params: FitParams, extent: float) -> float:
     return extent * math.exp((1.0 - t) * math.log(params.lr_means) + t * math.log(params.lr_means_final))
 
 
-@contextlib.contextmanager
-def torch_threads(n: int):
-    """Run the block with ``torch.set_num_threads(n)`` (``n = 0``: unchanged), restoring the old value."""
-    if n <= 0:
-        yield
-        return
-    old = torch.get_num_threads()
-    torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(old)
-
-
 def make_strategy(params: FitParams, extent: float, generator: torch.Generator | None = None) -> Strategy:
     if not params.densify:
         return NoDensification()
@@ -454,19 +385,6 @@ def _fit(
 HISTORY_COLUMNS = ("step", "seconds", "loss", "psnr", "n_gaussians")
 
 
-def history_csv(history: list[dict]) -> str:
-    """``history.csv`` text (columns :data:`HISTORY_COLUMNS`; a DVC plot)."""
-    buf = io.StringIO()
-    writer = csv.writer(buf, lineterminator="\n")
-    writer.writerow(HISTORY_COLUMNS)
-    for row in history:
-        writer.writerow(
-            [row["step"], f"{row['seconds']:.4f}", f"{row['loss']:.6g}",
-             f"{row['psnr']:.4f}" if math.isfinite(row["psnr"]) else "", row["n_gaussians"]]
-        )
-    return buf.getvalue()
-
-
 def comparison_grid(pairs: Sequence[tuple[np.ndarray, np.ndarray]], max_tile_width: int = 400, gap: int = 4) -> np.ndarray:
     """Rows of ``target | render`` tiles (``(H, W, 3)`` floats in [0, 1]) on white, tiles downscaled to ``max_tile_width``."""
     rows = []
@@ -511,7 +429,7 @@ def fit_and_save(
     result = fit(scene, params, progress)
     write_ply(out / "point_cloud.ply", result.model)
     write_json(out / "metrics.json", result.metrics())
-    write_text(out / "history.csv", history_csv(result.history))
+    write_csv(out / "history.csv", result.history, HISTORY_COLUMNS)
     if result.heldout is not None:
         pairs = [(v.target, v.render) for v in result.heldout.views]
     else:

@@ -58,14 +58,19 @@ def write_metrics(path: str | os.PathLike, record: dict[str, Any]) -> Path:
     return info
 
 
-FIT_HEADLINE = ("psnr", "ssim", "n_gaussians", "fit_minutes")
-"""Per scene: held-out PSNR/SSIM of the baseline fit, its size and wall time."""
-EXPERIMENT_HEADLINE = ("ssim", "short_rmse", "long_rmse", "short_lpips", "long_lpips", "gram_distance", "kid",
-                       "artfid", "stylize_minutes")
-"""Per experiment: content (SSIM), consistency (warp RMSE and the perceptual distance), style (Gram distance,
-KID, ArtFID) and stylization wall time. ``short_lpips``/``long_lpips``/``kid``/``artfid`` stand for whichever
-variant was computed (``lpips`` or ``lpips_proxy_vgg``, ``kid_tf_inception``, ``artfid`` or ``artfid_proxy``):
-:func:`experiment_headline` keeps the full name, so a proxy never appears under the official one."""
+FIT_HEADLINE: dict[str, str] = {"heldout_psnr": "psnr", "heldout_ssim": "ssim", "n_gaussians": "n_gaussians",
+                                "fit_minutes": "fit_minutes"}
+"""Per scene, headline name → key of the fit record: held-out PSNR/SSIM of the baseline fit (views the fit never
+trained on, against the photos), its size and wall time."""
+EXPERIMENT_HEADLINE: dict[str, str] = {
+    "content_ssim": "ssim", "short_rmse": "short_rmse", "long_rmse": "long_rmse", "short_lpips": "short_lpips",
+    "long_lpips": "long_lpips", "gram_distance": "gram_distance", "kid": "kid", "artfid": "artfid",
+    "stylize_minutes": "stylize_minutes"}
+"""Per experiment, headline name → key of the evaluate record: content (SSIM between the original and the stylized
+renders), consistency (warp RMSE and the perceptual distance), style (Gram distance, KID, ArtFID) and stylization
+wall time. ``short_lpips``/``long_lpips``/``kid``/``artfid`` stand for whichever variant was computed (``lpips`` or
+``lpips_proxy_vgg``, ``kid_tf_inception``, ``artfid`` or ``artfid_proxy``): :func:`experiment_headline` keeps the
+full name, so a proxy never appears under the official one. No headline name is shared with :data:`FIT_HEADLINE`."""
 
 
 def fit_headline(record: dict[str, Any]) -> dict[str, Any]:
@@ -73,21 +78,23 @@ def fit_headline(record: dict[str, Any]) -> dict[str, Any]:
     values = dict(record)
     if record.get("seconds") is not None:
         values["fit_minutes"] = record["seconds"] / 60.0
-    return {k: values[k] for k in FIT_HEADLINE if values.get(k) is not None}
+    return {name: values[key] for name, key in FIT_HEADLINE.items() if values.get(key) is not None}
 
 
 def experiment_headline(record: dict[str, Any]) -> dict[str, Any]:
     """The experiment's headline numbers from an evaluate record, under the names that were computed.
 
-    Picks each of :data:`EXPERIMENT_HEADLINE` by exact key, or for ``short_lpips``/``long_lpips``/``kid``/
+    Picks each key of :data:`EXPERIMENT_HEADLINE` by exact key, or for ``short_lpips``/``long_lpips``/``kid``/
     ``artfid`` the first key of the record that starts with it (e.g. ``short_lpips_proxy_vgg``,
     ``kid_tf_inception``, ``artfid_proxy``; the ``_std`` companions are left out)."""
     numbers = {k: v for k, v in record.items()
                if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)}
     out: dict[str, Any] = {}
-    for want in EXPERIMENT_HEADLINE:
-        key = want if want in numbers else next(
-            (k for k in numbers if k.startswith(want + "_") and not k.endswith("_std")), None)
+    for name, want in EXPERIMENT_HEADLINE.items():
+        if want in numbers:
+            out[name] = numbers[want]
+            continue
+        key = next((k for k in numbers if k.startswith(want + "_") and not k.endswith("_std")), None)
         if key is not None:
             out[key] = numbers[key]
     return out

@@ -246,3 +246,14 @@ def export_record(model: GaussianModel, ply: str | os.PathLike, spz: str | os.Pa
         "colour_clipped_share": float((sh0.abs() > limit).any(dim=1).sum()) / n,
         "scale_clipped_share": float(((ls < -10.0) | (ls > 255 / 16 - 10.0)).any(dim=1).sum()) / n,
     }
+
+
+def export_spz(ply: str | os.PathLike, spz: str | os.PathLike) -> dict:
+    """Convert the PLY ``ply`` to ``spz`` and write its record (:func:`export_record`) to ``<spz>.json``."""
+    from abcgs.io.atomic import write_json
+    from abcgs.io.ply import read_ply
+
+    model = read_ply(ply)
+    record = export_record(model, ply, spz, write_spz(spz, model))
+    write_json(f"{os.fspath(spz)}.json", record)
+    return record

@@ -1,42 +1,44 @@
-"""Fast CPU backend: a C++ torch extension (``csrc/rasterize_cpu.cpp``) with a hand-written backward pass.
+"""Fast CPU backend: C++ kernels (``csrc/``) for the projection and the rasterizer, with hand-written backward passes.
 
-The extension is compiled on first use with ``torch.utils.cpp_extension.load`` (needs a C++17 compiler
-and ninja, both installed by ``make``) and cached under ``$ABCGS_CACHE`` (default ``~/.cache/abcgs``)
-in a folder keyed by the source hash, the torch version and the compiler flags, so later processes load it
-in well under a second, from any checkout with the same sources (:func:`staged_sources`). If the build fails, :func:`load_extension` raises :class:`BackendUnavailable` with
-the compiler's message; ``rasterize(backend="auto")`` then falls back to the reference backend with a
-warning. The same extension carries two similarity-search helpers of the style losses (``csrc/knn_cpu.cpp``:
-``topk_columns``, ``pair_dots``; used by :mod:`abcgs.style.knn`, which has torch fallbacks for both) and the
-fit's fused L1 + SSIM loss (``csrc/image_loss_cpu.cpp``: ``l1_ssim_forward``; used by :mod:`abcgs.fit.losses`,
-whose torch code is its reference), so that they share its build and its threads.
+The kernels are compiled when abcgs is installed (``setup.py``: ``make install``, or ``pip install
+--no-build-isolation`` after torch), never at run time. On x86-64 the install builds the best variant the build
+machine runs (AVX-512 or AVX2) and a portable one (SSE2), each a module ``abcgs.render._kernels_<variant>``
+(:mod:`abcgs.render.kernel_variants`); :func:`load_extension` imports the best variant this CPU runs, in well
+under a second. The build record ``_kernels_build.json`` next to the modules says what was built, against which
+torch and from which sources. Where the install built no kernels (no torch or no compiler at build time), or the
+build no longer fits (``csrc/`` changed after an editable install, another torch is running),
+:func:`load_extension` raises :class:`BackendUnavailable` saying why and how to rebuild; ``rasterize(backend="auto")``
+then falls back to the reference backend with that warning. A copy of the checkout that was not installed itself
+(a benchmark's clean copy, a ``dvc exp`` temporary folder) uses the kernels of the installed abcgs while its
+``csrc/`` is the same.
+
+The same modules carry two similarity-search helpers of the style losses (``csrc/knn_cpu.cpp``: ``topk_columns``,
+``pair_dots``; used by :mod:`abcgs.features.knn`, which has torch fallbacks for both) and the fit's fused L1 +
+SSIM loss (``csrc/image_loss_cpu.cpp``: ``l1_ssim_forward``; used by :mod:`abcgs.fit.losses`, whose torch code is
+its reference), so that they share the build and its threads.
 """
 
 from __future__ import annotations
 
 import contextlib
-import hashlib
-import logging
-import os
+import importlib.machinery
+import importlib.metadata
+import importlib.util
+import json
 import platform
 import sys
 import threading
-import time
 from pathlib import Path
+from urllib.parse import unquote, urlparse
 
 import torch
 from torch import Tensor
 
+from abcgs.render import kernel_variants
 from abcgs.render.projection import Projected
 
-_SOURCES = [
-    Path(__file__).parent / "csrc" / n
-    for n in ("rasterize_cpu.cpp", "projection_cpu.cpp", "knn_cpu.cpp", "image_loss_cpu.cpp")
-]
-_HEADERS = [Path(__file__).parent / "csrc" / n for n in ("parallel.h", "vec_width.h")]
-# -fno-trapping-math: lets GCC if-convert float compares (the rasterizer's per-row alpha loop only vectorises with
-# it); FP exception flags are never read here, and values are unchanged (no reassociation, no contraction).
-_FLAGS = ["-O3", "-march=native", "-ffp-contract=off", "-fno-trapping-math", "-std=c++17"]
-log = logging.getLogger(__name__)
+_HERE = Path(__file__).resolve().parent
+_CSRC = _HERE / "csrc"
 _lock = threading.Lock()
 _module = None
 _error: str | None = None
@@ -46,76 +48,67 @@ class BackendUnavailable(RuntimeError):
     """The requested rasterizer backend cannot run here (reason in the message)."""
 
 
-def cache_dir() -> Path:
-    return Path(os.environ.get("ABCGS_CACHE", Path.home() / ".cache" / "abcgs"))
+def kernel_dirs() -> list[Path]:
+    """Folders that may hold the compiled kernels, in order: this module's, then that of the installed abcgs
+    (site-packages, or the source tree of an editable install) when this module is a copy of the checkout."""
+    dirs = [_HERE]
+    try:
+        dist = importlib.metadata.distribution("abcgs")
+        dirs.append(Path(dist.locate_file("abcgs/render")))
+        url = json.loads(dist.read_text("direct_url.json") or "{}").get("url", "")
+        if url.startswith("file://"):
+            dirs.append(Path(unquote(urlparse(url).path)) / "abcgs" / "render")
+    except (importlib.metadata.PackageNotFoundError, ValueError, OSError):
+        pass
+    return list(dict.fromkeys(d.resolve() for d in dirs))
 
 
-def _build_dir() -> Path:
-    key = hashlib.sha256()
-    for src in _SOURCES + _HEADERS:
-        key.update(src.read_bytes())
-    key.update(" ".join(_FLAGS).encode())
-    key.update(torch.__version__.encode())
-    key.update(platform.machine().encode())
-    key.update(platform.processor().encode())
-    key.update(sys.version.encode())
-    return cache_dir() / "ext" / f"rasterize_cpu_{key.hexdigest()[:16]}"
+def read_build_record(folder: Path) -> dict | None:
+    path = folder / kernel_variants.RECORD_NAME
+    return json.loads(path.read_text()) if path.is_file() else None
 
 
-def staged_sources(build: Path) -> list[Path]:
-    """The extension's sources (and header) copied into its content-keyed build folder; the build compiles these.
-
-    ``torch.utils.cpp_extension.load`` writes the sources' paths into the build's ``build.ninja``, and ninja
-    rebuilds everything when a command's paths change. Compiled from the checkout itself, every other checkout
-    with the same sources (a benchmark's or a test's clean copy, a ``dvc exp run --queue`` temporary folder) would
-    recompile the extension (about two minutes and 1.5 GiB on 2 cores), and the next process in the first checkout
-    again. The copies' paths depend only on the content key, so all of them share one build. A copy is written
-    only when missing (a rewrite would give it a new mtime, which ninja also rebuilds for).
-    """
-    src_dir = build / "src"
-    src_dir.mkdir(parents=True, exist_ok=True)
-    staged = []
-    for src in _SOURCES + _HEADERS:
-        dst = src_dir / src.name
-        if not dst.exists():
-            tmp = dst.with_name(f".{dst.name}.{os.getpid()}.tmp")
-            tmp.write_bytes(src.read_bytes())
-            os.replace(tmp, dst)
-        if src in _SOURCES:
-            staged.append(dst)
-    return staged
-
-
-STALE_BUILD_LOCK_S = 600.0
-"""A build lock older than this is left by a process killed while compiling (a build takes about a minute)."""
-
-
-def _clear_stale_build_lock(build: Path, *, stale_s: float = STALE_BUILD_LOCK_S, poll_s: float = 2.0) -> None:
-    """Wait while another process holds the build lock; remove the lock once it is older than ``stale_s``.
-
-    ``torch.utils.cpp_extension.load`` guards a build with a ``lock`` file that only its holder deletes, and
-    waits for it without a time limit: after a stage was killed mid-compile (Ctrl-C in ``dvc repro``), every
-    later process would hang there.
-    """
-    lock = build / "lock"
-    warned = False
-    while lock.exists():
+def _import_kernels(verbose: bool):
+    """The best variant of the first build record found (:func:`kernel_dirs`) that fits these sources, this torch
+    and this CPU."""
+    folder, record = _HERE, None
+    for d in kernel_dirs():
+        if (record := read_build_record(d)) is not None:
+            folder = d
+            break
+    problem = kernel_variants.build_problem(record, _CSRC, torch.__version__)
+    if problem is not None:
+        raise BackendUnavailable(problem)
+    capability, bf16 = kernel_variants.torch_cpu_features(torch)
+    order = kernel_variants.runnable_variants(platform.machine(), capability, bf16)
+    errors = []
+    for variant in (v for v in order if v in record["variants"]):
+        name = kernel_variants.MODULE_PREFIX + variant
+        path = next((folder / (name + s) for s in importlib.machinery.EXTENSION_SUFFIXES
+                     if (folder / (name + s)).is_file()), None)
+        if path is None:
+            errors.append(f"{variant}: no {name}*.so in {folder}")
+            continue
         try:
-            age = time.time() - lock.stat().st_mtime
-        except FileNotFoundError:
-            return
-        if age > stale_s:
-            log.warning("removing a stale build lock %s (%.0f s old: a compile was interrupted)", lock, age)
-            lock.unlink(missing_ok=True)
-            return
-        if not warned:
-            log.info("waiting for another process compiling the rasterizer (%s)", lock)
-            warned = True
-        time.sleep(poll_s)
+            spec = importlib.util.spec_from_file_location(f"abcgs.render.{name}", path)
+            module = importlib.util.module_from_spec(spec)
+            spec.loader.exec_module(module)
+        except ImportError as exc:
+            errors.append(f"{variant}: {exc}")
+            continue
+        sys.modules[spec.name] = module
+        if verbose:
+            print(f"abcgs C++ kernels: {path} (CPU capability {capability})")
+        return module
+    raise BackendUnavailable(
+        f"no C++ kernel variant loads here (built: {record['variants']}; this CPU: {capability}"
+        f"{', AVX512-BF16' if bf16 else ''}; {'; '.join(errors) or 'none of them runs on it'}); {kernel_variants.REBUILD}."
+    )
 
 
 def load_extension(verbose: bool = False):
-    """Compile (first time) and import the C++ extension; raise :class:`BackendUnavailable` on failure."""
+    """Import the C++ kernels built at install time (the best variant this CPU runs; ``verbose`` prints which);
+    raise :class:`BackendUnavailable` with the reason and the fix where there are none. Nothing is compiled."""
     global _module, _error
     with _lock:
         if _module is not None:
@@ -123,33 +116,21 @@ def load_extension(verbose: bool = False):
         if _error is not None:
             raise BackendUnavailable(_error)
         try:
-            import ninja  # noqa: F401  (the ninja wheel ships the build tool)
-
-            bin_dir = Path(ninja.BIN_DIR)
-            if str(bin_dir) not in os.environ.get("PATH", ""):
-                os.environ["PATH"] = f"{bin_dir}{os.pathsep}{os.environ.get('PATH', '')}"
-        except ImportError:
-            pass
-        try:
-            from torch.utils.cpp_extension import load
-
-            build = _build_dir()
-            build.mkdir(parents=True, exist_ok=True)
-            _clear_stale_build_lock(build)
-            _module = load(
-                name="abcgs_rasterize_cpu",
-                sources=[str(s) for s in staged_sources(build)],
-                extra_cflags=_FLAGS,
-                build_directory=str(build),
-                verbose=verbose,
-            )
-        except Exception as exc:  # compiler missing, ninja missing, build error
-            _error = (
-                f"the fast CPU rasterizer could not be built ({type(exc).__name__}: {str(exc).strip()[:2000]}). "
-                "It needs a C++17 compiler (g++) and ninja (`pip install ninja`); `make install` sets both up."
-            )
-            raise BackendUnavailable(_error) from exc
+            _module = _import_kernels(verbose)
+        except BackendUnavailable as exc:
+            _error = str(exc)
+            raise
         return _module
+
+
+def report() -> bool:
+    """Print which kernels this process loads, or why none (``make install`` calls it); True when they load."""
+    try:
+        print(f"abcgs C++ kernels: {load_extension().__name__}")
+        return True
+    except BackendUnavailable as exc:
+        print(f"warning: {exc}")
+        return False
 
 
 def set_kernel_threads(n: int) -> int:
@@ -174,7 +155,7 @@ def kernel_threads(n: int):
 
 
 def extension_or_none():
-    """The extension (:func:`load_extension`), or None where it cannot be built here; the reason stays in the
+    """The extension (:func:`load_extension`), or None where no usable build is installed; the reason stays in the
     :class:`BackendUnavailable` that :func:`load_extension` raises."""
     try:
         return load_extension()

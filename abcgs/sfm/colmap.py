@@ -29,36 +29,19 @@ from typing import Literal
 import cv2  # before pycolmap: see abcgs/sfm/__init__.py
 import numpy as np
 import pycolmap
-from pydantic import BaseModel, Field
 
 from abcgs.cameras import Camera
 from abcgs.errors import InputError, ReconstructionError
 from abcgs.io.atomic import atomic_path, write_json
 from abcgs.io.images import list_images, load_image, load_labels, save_labels
+from abcgs.sfm.params import EXHAUSTIVE_MAX_IMAGES, ReconstructParams  # noqa: F401  (the section's schema)
 
 log = logging.getLogger(__name__)
 
-EXHAUSTIVE_MAX_IMAGES = 100
-"""``matcher: auto`` matches all pairs up to this many images, sequentially above."""
 
 MIN_IMAGES = 3
 
 
-class ReconstructParams(BaseModel, extra="forbid"):
-    """Options of the ``reconstruct`` stage (``params.yaml`` section ``reconstruct:``)."""
-
-    min_registered_fraction: float = Field(0.9, ge=0.0, le=1.0, description="fail below this fraction of registered images")
-    matcher: Literal["auto", "exhaustive", "sequential"] = Field(
-        "auto", description=f"auto = exhaustive up to {EXHAUSTIVE_MAX_IMAGES} images, else sequential"
-    )
-    sequential_overlap: int = Field(10, ge=1, description="sequential matcher: neighbours matched on each side")
-    max_image_size: int = Field(3200, ge=-1, description="SIFT runs on images downscaled to this longest side (-1 = no limit)")
-    camera_model: Literal["SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"] = "SIMPLE_RADIAL"
-    single_camera: Literal["auto"] | bool = Field(
-        "auto", description="share intrinsics between all images; auto = when all images have the same size"
-    )
-    num_threads: int = Field(1, ge=-1, description="COLMAP threads; -1 = all cores (faster, not bit-reproducible)")
-    seed: int = Field(0, ge=0, description="seed for COLMAP's RANSAC / mapper / triangulator")
 
 
 @dataclass

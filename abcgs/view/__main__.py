@@ -15,8 +15,8 @@ from pathlib import Path
 
 from abcgs.errors import AbcgsError
 from abcgs.io.atomic import write_text
-from abcgs.view import viewer_page
 from abcgs.view.outputs import experiment_scene, load_experiment
+from abcgs.view.page import viewer_page
 
 
 def main(argv=None) -> int:

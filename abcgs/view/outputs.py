@@ -10,7 +10,7 @@ from abcgs.camera_paths import PathKind
 from abcgs.errors import InputError
 from abcgs.io.ply import read_ply
 from abcgs.sfm.colmap import read_colmap_scene
-from abcgs.view import ViewerExperiment, prepare_experiment
+from abcgs.view.page import ViewerExperiment, prepare_experiment
 
 
 def experiment_scene(run_dir: Path, params_path: Path | None = Path("params.yaml")) -> str:

@@ -1,0 +1,72 @@
+"""``params.yaml``: ``evaluate`` — the knobs of the evaluation stage (``stages/evaluate.py``)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+LPIPS_VGG_LAYERS = ("relu1_2", "relu2_2", "relu3_3", "relu4_3", "relu5_3")
+"""The five VGG-16 taps of LPIPS-vgg (Zhang et al. 2018), used by the ``lpips_proxy_vgg`` distance."""
+
+
+class EvalParams(BaseModel):
+    """``params.yaml``: ``evaluate``."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    max_views: int | None = Field(None, ge=2, description="evaluate only the first N training views (None: all)")
+    backend: str = Field("auto", description="rasterizer backend for the original/stylized renders and the FPS timing")
+    # content preservation
+    ssim_impl: Literal["auto", "wang", "pyiqa"] = Field(
+        "auto", description="auto: pyiqa's ssim when pyiqa imports, else the built-in Wang et al. SSIM"
+    )
+    perceptual: Literal["auto", "lpips", "proxy"] = Field(
+        "auto",
+        description="auto: real LPIPS-alex when the lpips package and torchvision's AlexNet weights are present, "
+        "else the VGG feature distance lpips_proxy_vgg; lpips: require the real one; proxy: always the proxy",
+    )
+    proxy_layers: list[str] = Field(default_factory=lambda: list(LPIPS_VGG_LAYERS), description="VGG taps of the proxy")
+    # consistency
+    flow: Literal["auto", "raft", "dis", "deepflow", "dualtvl1"] = Field(
+        "auto",
+        description="optical flow on the original renders: auto = RAFT when torchvision and its weights are on disk, "
+        "else OpenCV DIS; deepflow/dualtvl1 need opencv-contrib's cv2.optflow",
+    )
+    raft_weights: str | None = Field(
+        None, description="torchvision RAFT-large state dict (None: Raft_Large_Weights.DEFAULT in the torch hub cache)"
+    )
+    raft_iterations: int = Field(12, ge=1, description="RAFT refinement updates")
+    short_term_gap: int = Field(1, ge=1, description="view distance of the short-term pairs (i, i+gap)")
+    long_term_gap: int = Field(7, ge=1, description="view distance of the long-term pairs; clipped to n_views-1")
+    heatmap_pair: Literal["short", "long"] = Field("short", description="which pair kind eval_consistency.png shows")
+    heatmap_view: int = Field(0, ge=0, description="first view of the pair shown in eval_consistency.png")
+    # FID / KID
+    fid_patches_per_image: int = Field(2, ge=1, description="random square crops per stylized render")
+    fid_style_patches: int | None = Field(
+        None, ge=2, description="crops taken from the style image(s) in all (None: as many as from the renders)"
+    )
+    fid_patch_size: int = Field(96, ge=16, description="crop side in px at evaluation resolution (clipped to the image)")
+    fid_batch: int = Field(16, ge=1)
+    kid_subsets: int = Field(100, ge=1, description="random subsets averaged for KID")
+    kid_subset_size: int = Field(1000, ge=2, description="KID subset size (clipped to the smaller set)")
+    # Gram style distance (abcgs/evaluation/style_distance.py)
+    gram_layers: list[str] = Field(default_factory=lambda: ["relu1_2", "relu2_2", "relu3_3"],
+                                   description="VGG taps of the Gram style distance")
+    gram_style_height: int = Field(256, ge=16, description="style images are resized to this height (as for stylization)")
+    # ArtFID (official only with both official components)
+    art_inception_path: str | None = Field(
+        None, description="TorchScript export of ArtFID's art-trained Inception (art_inception.pth); None: not available"
+    )
+    # speed
+    num_threads: int | None = Field(
+        None, ge=1, description="torch intra-op threads during evaluation (None: torch's default); 1 avoids "
+        "oversubscription on a shared machine"
+    )
+    workers: int = Field(
+        0, ge=0, description="threads over the image pairs of the content and consistency distances, each running "
+        "torch ops on num_threads (abcgs/evaluation/parallel.py; same numbers for any count); 0 = one per core left by "
+        "num_threads"
+    )
+    fps_passes: int = Field(3, ge=1, description="full render passes over the views; FPS is their median")
+    seed: int = 0

@@ -1,0 +1,158 @@
+"""The per-scene evaluation reference: the original scene's renders and the optical flows between them.
+
+Both depend on the fitted scene, its views and the flow settings only, never on a stylization, so the
+``reference`` DVC stage (``stages/reference.py``) computes them once per scene and every experiment's
+``evaluate`` reads them instead of re-rendering and re-estimating the flows (with RAFT on a CPU the flows are
+most of an evaluation; with OpenCV's DIS they are seconds).
+
+On disk (one folder per scene)::
+
+    reference.json   view names and sizes, which flows, settings they were made with, provenance
+    renders.npz      view_0000 … : (H_i, W_i, 3) float32 renders in [0, 1] (exact, not 8-bit)
+    flows.npz        i_j_H_W : (H, W, 2) float32 flow from view i to view j on the grid (H, W)
+
+The arrays stay float32, so metrics computed from a stored reference equal those computed in memory.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from abcgs.cameras import Camera
+from abcgs.errors import InputError
+from abcgs.evaluation.consistency import FlowCache, make_flow_estimator, view_pairs
+from abcgs.evaluation.params import EvalParams
+from abcgs.gaussians import GaussianModel, render
+from abcgs.io.atomic import atomic_path, write_json
+
+REFERENCE_VERSION = 1
+FLOW_SETTINGS = ("flow", "raft_weights", "raft_iterations", "short_term_gap", "long_term_gap", "max_views", "backend")
+"""The ``evaluate`` settings a reference is made with; ``dvc.yaml``'s reference stage tracks these keys."""
+
+FlowKey = tuple[int, int, tuple[int, int]]
+
+
+@dataclass
+class SceneReference:
+    """Original renders ``(H_i, W_i, 3)`` float32 in [0, 1] of the evaluated views, and the flows between them."""
+
+    view_names: list[str]
+    originals: list[np.ndarray]
+    flows: dict[FlowKey, np.ndarray]
+    """``(i, j, (H, W))`` → ``(H, W, 2)`` float32 flow in pixels from view ``i`` to ``j`` on the grid ``(H, W)``."""
+    info: dict = field(default_factory=dict)
+
+    def flow_cache(self) -> FlowCache:
+        """A :class:`FlowCache` that serves the stored flows and refuses to estimate others."""
+        return FlowCache.precomputed(self.originals, self.flows, self.info["flow_provenance"])
+
+
+def settings_of(params: EvalParams) -> dict:
+    return {k: getattr(params, k) for k in FLOW_SETTINGS}
+
+
+@torch.no_grad()
+def render_views(model: GaussianModel, cameras: list[Camera], backend: str) -> tuple[list[np.ndarray], str]:
+    """Renders ``(H, W, 3)`` float32 clamped to [0, 1] and the backend that made them."""
+    imgs, used = [], backend
+    for cam in cameras:
+        img, _, meta = render(model, cam, backend=backend)
+        imgs.append(img.clamp(0, 1).cpu().numpy().astype(np.float32))
+        used = meta.backend
+    return imgs, used
+
+
+def evaluated_cameras(cameras: list[Camera], params: EvalParams) -> list[Camera]:
+    """The views evaluation uses: the first ``params.max_views`` (all when unset); at least two."""
+    cams = cameras[: params.max_views] if params.max_views else list(cameras)
+    if len(cams) < 2:
+        raise InputError(f"evaluation needs at least 2 views, the scene has {len(cams)}")
+    return cams
+
+
+def flow_pairs(originals: list[np.ndarray], params: EvalParams) -> list[FlowKey]:
+    """Every flow the short- and long-term consistency pairs ask for: both directions on the first view's grid."""
+    keys: list[FlowKey] = []
+    for gap in (params.short_term_gap, params.long_term_gap):
+        for i, j in view_pairs(len(originals), gap):
+            hw = tuple(np.shape(originals[i])[:2])
+            for key in ((i, j, hw), (j, i, hw)):
+                if key not in keys:
+                    keys.append(key)
+    return keys
+
+
+def compute_reference(cameras: list[Camera], original: GaussianModel, params: EvalParams, *,
+                      model_digest: str | None = None, progress=None) -> SceneReference:
+    """Render the original scene for the evaluated views and estimate every flow the consistency metrics need."""
+    cams = evaluated_cameras(cameras, params)
+    t = time.perf_counter()
+    originals, backend = render_views(original, cams, params.backend)
+    render_s = time.perf_counter() - t
+    flows = FlowCache(originals, make_flow_estimator(params.flow, params.raft_weights, params.raft_iterations))
+    t = time.perf_counter()
+    keys = flow_pairs(originals, params)
+    for key in (progress(keys) if progress else keys):
+        flows(*key)
+    info = {
+        "version": REFERENCE_VERSION, "view_names": [c.name for c in cams],
+        "sizes": [list(np.shape(o)[:2]) for o in originals], "settings": settings_of(params),
+        "render_backend": backend, "flow_provenance": flows.provenance(), "n_flows": len(keys),
+        "model_digest": model_digest, "timings_s": {"render": render_s, "flow": time.perf_counter() - t},
+    }
+    return SceneReference([c.name for c in cams], originals, {k: flows(*k) for k in keys}, info)
+
+
+def model_digest(path: Path) -> str:
+    """sha256 (first 16 hex digits) of a PLY: ties a reference to the fitted scene it was rendered from."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
+
+
+def save_reference(folder: Path, ref: SceneReference) -> None:
+    """Write ``ref`` to ``folder`` atomically (a half-written reference never appears)."""
+    with atomic_path(folder, is_dir=True) as tmp:
+        np.savez(tmp / "renders.npz", **{f"view_{k:04d}": o for k, o in enumerate(ref.originals)})
+        np.savez(tmp / "flows.npz", **{f"{i}_{j}_{h}_{w}": f for (i, j, (h, w)), f in ref.flows.items()})
+        write_json(tmp / "reference.json", ref.info)
+
+
+def load_reference(folder: Path, cameras: list[Camera], params: EvalParams, *, model_digest: str | None = None,
+                   scene: str = "<scene>") -> SceneReference:
+    """Read a reference and check that it was made for these views, this fitted scene and these settings."""
+    folder = Path(folder)
+    redo = f"re-run the reference stage (dvc repro reference@{scene})"
+    if not (folder / "reference.json").exists():
+        raise InputError(f"{folder} holds no evaluation reference (reference.json missing): {redo}")
+    info = json.loads((folder / "reference.json").read_text())
+    if info.get("version") != REFERENCE_VERSION:
+        raise InputError(f"{folder} is a reference of format {info.get('version')}, expected {REFERENCE_VERSION}: {redo}")
+    cams = evaluated_cameras(cameras, params)
+    if info["view_names"] != [c.name for c in cams]:
+        raise InputError(f"{folder} was made for other views ({len(info['view_names'])} views, not {len(cams)}): {redo}")
+    differ = {k: (info["settings"].get(k), v) for k, v in settings_of(params).items() if info["settings"].get(k) != v}
+    if differ:
+        raise InputError(f"{folder} was made with other evaluate settings {differ} (stored, current): {redo}")
+    if model_digest is not None and info.get("model_digest") not in (None, model_digest):
+        raise InputError(f"{folder} was rendered from another fit of the scene: {redo}")
+    with np.load(folder / "renders.npz") as z:
+        originals = [z[f"view_{k:04d}"] for k in range(len(cams))]
+    for k, (o, c) in enumerate(zip(originals, cams)):
+        if o.shape != (c.height, c.width, 3):
+            raise InputError(f"{folder}: stored render {k} is {o.shape[1]}x{o.shape[0]}, view is {c.width}x{c.height}: {redo}")
+    flows = {}
+    with np.load(folder / "flows.npz") as z:
+        for name in z.files:
+            i, j, h, w = (int(v) for v in name.split("_"))
+            flows[(i, j, (h, w))] = z[name]
+    ref = SceneReference(info["view_names"], originals, flows, info)
+    missing = [k for k in flow_pairs(originals, params) if k not in flows]
+    if missing:
+        raise InputError(f"{folder} lacks {len(missing)} flows the consistency pairs need (e.g. {missing[0]}): {redo}")
+    return ref

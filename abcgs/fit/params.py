@@ -1,0 +1,112 @@
+"""The ``fit`` section's schema: the baseline 3DGS fit (:mod:`abcgs.fit.trainer`) and its densification
+strategy (:mod:`abcgs.fit.strategy`).
+
+Schema modules import nothing heavier than pydantic, so that reading ``params.yaml`` does not load the code
+it configures (each stage's code dependencies stay its own: ``abcgs/dag.py``).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, Field, field_validator, model_validator
+
+
+class StrategyParams(BaseModel, extra="forbid"):
+    """Knobs of :class:`DefaultStrategy`. Steps count from 1; defaults are the 3DGS values for 30k iterations.
+
+    For short runs scale the schedule with :meth:`scaled` (or set the step fields directly).
+    """
+
+    refine_start: int = Field(500, ge=0, description="no densification at or before this step")
+    refine_stop: int = Field(15000, ge=0, description="statistics, densification and resets stop at this step")
+    refine_every: int = Field(100, ge=1, description="densify every this many steps")
+    reset_every: int = Field(3000, ge=1, description="clamp opacities to reset_opacity every this many steps")
+    grow_grad2d: float = Field(0.0002, gt=0.0, description="mean view-space gradient (NDC units) to densify")
+    grow_scale3d: float = Field(
+        0.01, gt=0.0, description="percent_dense: clone if max scale <= this × scene extent, else split"
+    )
+    split_samples: int = Field(2, ge=2, le=8, description="children per split Gaussian")
+    prune_opacity: float = Field(0.005, gt=0.0, lt=1.0, description="prune below this opacity")
+    prune_scale3d: float = Field(0.1, gt=0.0, description="after the first reset: prune if max scale > this × extent")
+    prune_screen_px: float = Field(20.0, gt=0.0, description="after the first reset: prune if screen radius > this (px)")
+    reset_opacity: float = Field(0.01, gt=0.0, lt=1.0, description="opacity cap applied at each reset")
+
+    @model_validator(mode="after")
+    def _check(self) -> StrategyParams:
+        if self.prune_opacity >= self.reset_opacity:
+            raise ValueError(
+                f"prune_opacity ({self.prune_opacity}) must be below reset_opacity ({self.reset_opacity}), "
+                "or every reset would prune the whole scene"
+            )
+        return self
+
+    def scaled(self, factor: float) -> StrategyParams:
+        """The same schedule with every step count multiplied by ``factor`` (e.g. ``iterations / 30000``)."""
+        step = lambda s: max(1, int(round(s * factor)))  # noqa: E731
+        return self.model_copy(
+            update={
+                "refine_start": int(round(self.refine_start * factor)),
+                "refine_stop": step(self.refine_stop),
+                "refine_every": step(self.refine_every),
+                "reset_every": step(self.reset_every),
+            }
+        )
+
+
+REFERENCE_ITERATIONS = 30000
+"""The iteration count the 3DGS densification schedule was designed for (see ``FitParams.scale_schedule``)."""
+
+
+class FitParams(BaseModel, extra="forbid"):
+    """Options of the ``fit`` stage. Learning rates are per step; ``lr_means*`` are multiplied by the scene extent."""
+
+    iterations: int = Field(30000, ge=1)
+    sh_degree: int = Field(0, ge=0, le=3, description="highest SH band (ABC-GS trains its scenes with 0)")
+    sh_degree_interval: int = Field(1000, ge=1, description="enable one more SH band every this many steps")
+    ssim_lambda: float = Field(0.2, ge=0.0, le=1.0)
+    init_opacity: float = Field(0.1, gt=0.0, lt=1.0)
+    lr_means: float = Field(1.6e-4, gt=0.0, description="initial means learning rate × scene extent")
+    lr_means_final: float = Field(1.6e-6, gt=0.0, description="final means learning rate × scene extent")
+    lr_sh0: float = Field(2.5e-3, ge=0.0)
+    lr_shN: float = Field(2.5e-3 / 20.0, ge=0.0)
+    lr_opacity: float = Field(5e-2, ge=0.0)
+    lr_scales: float = Field(5e-3, ge=0.0)
+    lr_quats: float = Field(1e-3, ge=0.0)
+    test_every: int = Field(8, ge=0, description="hold out views 0, n, 2n, … (LLFF: 8); 0 = train on all")
+    resolution_scale: float = Field(1.0, gt=0.0, le=1.0, description="train at this fraction of the image size")
+    seed: int = 0
+    backend: Literal["auto", "cpu", "reference", "gsplat"] = "auto"
+    device: Literal["auto", "cpu", "cuda"] = Field("auto", description="auto = cuda when available")
+    background: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="RGB in [0, 1] behind the Gaussians")
+    random_background: bool = Field(False, description="a random background colour each step (3DGS option)")
+    densify: bool = Field(True, description="False = keep the initial Gaussians (NoDensification)")
+    strategy: StrategyParams = Field(default_factory=StrategyParams)
+    scale_schedule: bool = Field(
+        False, description=f"multiply the strategy's step counts by iterations / {REFERENCE_ITERATIONS}"
+    )
+    max_gaussians: int | None = Field(None, ge=1, description="stop growing beyond this many Gaussians")
+    eval_every: int = Field(0, ge=0, description="also evaluate held-out views every this many steps (0 = end only)")
+    threads: int = Field(
+        1, ge=0,
+        description="torch CPU threads during the fit (0 = torch's default, all cores). 1 is the default: with "
+        "other processes on the cores, intra-op threads spin and a step runs up to ~15x slower",
+    )
+    rasterizer_threads: int = Field(
+        0, ge=0,
+        description="threads of the C++ rasterizer's own loops (0 = every core), independent of `threads`: they are "
+        "plain threads joined after each loop, so they do not spin; results are bit-identical for any count",
+    )
+
+    @field_validator("test_every")
+    @classmethod
+    def _test_every(cls, v: int) -> int:
+        if v == 1:
+            raise ValueError("test_every = 1 would hold out every view; use 0 (no hold-out) or >= 2")
+        return v
+
+    def strategy_params(self) -> StrategyParams:
+        """The strategy parameters actually used (scaled to ``iterations`` when ``scale_schedule``)."""
+        if self.scale_schedule:
+            return self.strategy.scaled(self.iterations / REFERENCE_ITERATIONS)
+        return self.strategy

@@ -1,0 +1,294 @@
+"""Content masks: the user's label PNGs for any subset of views, or automatic ones, lifted onto Gaussians.
+
+The user's path (``masks.source: given``, or ``auto`` when ``<scene>/masks/`` has files): label PNGs named
+like the views they label, for one view or several. A PNG may hold label numbers (single channel: 0 =
+unassigned, 1, 2, …) or colours painted in any paint program (black = unassigned; each other colour is a
+label, numbered in the order of the colours' RGB values across all the mask files; colours covering less
+than :data:`MIN_COLOUR_SHARE` of a file, such as a soft brush's edge blends, count as unassigned). Eq. 2
+lifts them to every view. With ``masks.holdout_every: k`` every k-th given mask is kept out of the lifting
+and only scored: the per-label IoU of the lifted masks against the user's on those views is the honest
+measure of how well one view's labels carry to the others; ``masks.lift_views: ['000']`` lifts from the named
+views only and scores all the other given masks.
+
+Automatic masks need no downloaded network (SAM-class checkpoints cannot be fetched on the project's
+machines; PyPI packages that wrap them ship no weights):
+
+- ``clustering``: k-means (OpenCV) on CIELAB colour + rendered depth of a reference view — view-consistent
+  after lifting, but clusters of colour, not objects;
+- ``grabcut``: OpenCV's GrabCut (iterated graph cuts over colour GMMs, Rother et al. 2004) on the reference
+  view's render, seeded by a box (``masks.grabcut.box``, fractions of the view; default the central region,
+  where an object-centred capture keeps its object) and by depth (the nearest pixels inside the box are
+  probable object, the farthest probable background): label 1 = the object, 2 = the rest.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from abcgs.camera_paths import capture_layout
+from abcgs.cameras import Camera
+from abcgs.errors import InputError
+from abcgs.gaussians import GaussianModel, render
+from abcgs.io.images import load_labels
+from abcgs.masks.lifting import LiftResult, lift_labels, propagate_labels, render_label_map
+from abcgs.masks.params import AutoMaskParams, GrabCutParams, MaskParams  # noqa: F401  (the section's schema)
+
+log = logging.getLogger(__name__)
+
+
+MIN_COLOUR_SHARE = 0.005
+"""In a colour label PNG, colours covering less than this share of the file's pixels are unassigned (0)."""
+
+
+
+
+
+
+
+
+@dataclass
+class ContentMasks:
+    """Lifted labels and the re-rendered per-view label maps."""
+
+    gaussian_labels: torch.Tensor  # (N,) int64
+    n_labels: int
+    view_labels: list[np.ndarray]  # per camera (H, W) int64
+    source: str
+    input_views: list[str]
+    agreement: float | None  # pixel agreement of re-rendered vs given masks on the masked views
+    heldout_views: list[str] = field(default_factory=list)
+    heldout_iou: dict[int, float] = field(default_factory=dict)  # per label, lifted vs given on held-out views
+    heldout_agreement: float | None = None  # pixel agreement on the held-out views' labelled pixels
+    palette: dict[int, tuple[int, int, int]] = field(default_factory=dict)  # colour label PNGs: label → RGB
+    propagated: int = 0  # Gaussians no masked view saw, labelled from their 3-D neighbours
+
+
+def read_label_files(paths: list[Path], sizes: list[tuple[int, int]]) -> tuple[list[np.ndarray], dict]:
+    """Label PNGs → ``(H, W) int64`` maps and the colour palette used (empty for numbered PNGs).
+
+    Numbered (single-channel or grey) files are read as they are. If any file holds colours, every file's
+    colours are numbered together (see the module docstring) so one colour is one label in every view.
+    ``sizes`` are the views' ``(H, W)``; a size mismatch is an :class:`InputError`.
+    """
+    raws = []
+    for p, hw in zip(paths, sizes):
+        img = cv2.imdecode(np.fromfile(str(p), dtype=np.uint8), cv2.IMREAD_UNCHANGED) if p.is_file() else None
+        if img is None:
+            raise InputError(f"label map {p} does not exist or could not be decoded (a PNG of label numbers or colours)")
+        if tuple(img.shape[:2]) != tuple(hw):
+            raise InputError(f"label map {p} is {img.shape[1]}x{img.shape[0]} but its view is {hw[1]}x{hw[0]}; "
+                             "masks must have the same size as the view they label")
+        if img.ndim == 3 and img.shape[2] == 4:
+            img = img[..., :3]
+        raws.append(img)
+    coloured = [r.ndim == 3 and not (np.all(r[..., 0] == r[..., 1]) and np.all(r[..., 1] == r[..., 2])) for r in raws]
+    if not any(coloured):
+        return [load_labels(p, expect_hw=hw) for p, hw in zip(paths, sizes)], {}
+    keep: set[tuple[int, int, int]] = set()
+    for r in raws:
+        rgb = (r if r.ndim == 3 else np.repeat(r[..., None], 3, -1))[..., ::-1].reshape(-1, 3)  # BGR → RGB
+        cols, counts = np.unique(rgb, axis=0, return_counts=True)
+        keep |= {tuple(int(v) for v in c) for c, n in zip(cols, counts) if n >= MIN_COLOUR_SHARE * len(rgb) and c.any()}
+    if len(keep) > 255:
+        raise InputError(f"the colour label PNGs hold {len(keep)} colours; paint each label in one flat colour")
+    palette = {i + 1: c for i, c in enumerate(sorted(keep))}
+    lut = {c: i for i, c in palette.items()}
+    maps = []
+    for r in raws:
+        rgb = (r if r.ndim == 3 else np.repeat(r[..., None], 3, -1))[..., ::-1]
+        code = (rgb[..., 0].astype(np.int64) << 16) | (rgb[..., 1].astype(np.int64) << 8) | rgb[..., 2]
+        out = np.zeros(code.shape, np.int64)
+        for c, i in lut.items():
+            out[code == ((c[0] << 16) | (c[1] << 8) | c[2])] = i
+        maps.append(out)
+    return maps, palette
+
+
+def find_given_masks(masks_dir: Path, cameras: list[Camera]) -> dict[int, np.ndarray]:
+    """Label PNGs in ``masks_dir`` whose stem matches a camera's image stem → {camera index: labels}."""
+    if not masks_dir.is_dir():
+        return {}
+    return find_given_masks_with_palette(masks_dir, cameras)[0]
+
+
+def find_given_masks_with_palette(masks_dir: Path, cameras: list[Camera]) -> tuple[dict[int, np.ndarray], dict]:
+    """:func:`find_given_masks` and the colour palette of colour label PNGs (see :func:`read_label_files`)."""
+    if not masks_dir.is_dir():
+        return {}, {}
+    by_stem = {Path(c.name).stem: i for i, c in enumerate(cameras)}
+    found = []
+    for p in sorted(masks_dir.glob("*.png")):
+        i = by_stem.get(p.stem)
+        if i is None:
+            log.warning("mask %s matches no registered view; ignored", p.name)
+            continue
+        found.append((i, p))
+    if not found:
+        return {}, {}
+    maps, palette = read_label_files([p for _, p in found], [(cameras[i].height, cameras[i].width) for i, _ in found])
+    return {i: m for (i, _), m in zip(found, maps)}, palette
+
+
+def cluster_view(model: GaussianModel, camera: Camera, params: AutoMaskParams, backend: str = "auto") -> np.ndarray:
+    """k-means labels 1..n of one rendered view from Lab colour + depth ``(H, W) int64``."""
+    with torch.no_grad():
+        img, alpha, meta = render(model, camera, backend=backend, render_depth=True, normalize_depth=True)
+    rgb = img.clamp(0, 1).numpy().astype(np.float32)
+    lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB) / np.array([100.0, 127.0, 127.0], np.float32)
+    depth = meta.depth[..., 0].numpy()
+    valid = alpha[..., 0].numpy() > 0.5
+    if valid.sum() < params.n_labels:
+        raise InputError(f"view {camera.name} renders almost empty; cannot cluster it into {params.n_labels} labels")
+    d = (depth - depth[valid].mean()) / (depth[valid].std() + 1e-6)
+    feats = np.concatenate([lab, params.depth_weight * d[..., None]], -1).reshape(-1, 4).astype(np.float32)
+    cv2.setRNGSeed(params.seed)
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3)
+    _, lbl, _ = cv2.kmeans(feats[valid.reshape(-1)], params.n_labels, None, crit, 3, cv2.KMEANS_PP_CENTERS)
+    out = np.zeros(depth.shape, np.int64)
+    out[valid] = lbl[:, 0] + 1
+    # clean-up: a median filter removes speckle without moving boundaries much
+    return cv2.medianBlur(out.astype(np.uint8), 5).astype(np.int64)
+
+
+def grabcut_view(model: GaussianModel, camera: Camera, params: GrabCutParams, backend: str = "auto") -> np.ndarray:
+    """Object (1) vs rest (2) of one rendered view by GrabCut seeded with a box and depth ``(H, W) int64``
+    (0 where nothing is rendered)."""
+    with torch.no_grad():
+        img, alpha, meta = render(model, camera, backend=backend, render_depth=True, normalize_depth=True)
+    rgb = (img.clamp(0, 1).numpy() * 255 + 0.5).astype(np.uint8)
+    depth = meta.depth[..., 0].numpy()
+    valid = alpha[..., 0].numpy() > 0.5
+    h, w = depth.shape
+    x0, y0, x1, y1 = params.box
+    bx0, by0 = int(round(x0 * w)), int(round(y0 * h))
+    bx1, by1 = max(bx0 + 1, int(round(x1 * w))), max(by0 + 1, int(round(y1 * h)))
+    mask = np.full((h, w), cv2.GC_BGD, np.uint8)
+    mask[by0:by1, bx0:bx1] = cv2.GC_PR_FGD
+    inside = np.zeros((h, w), bool)
+    inside[by0:by1, bx0:bx1] = True
+    inside &= valid
+    if inside.sum() < 16:
+        raise InputError(f"grabcut: the box {params.box} covers almost nothing rendered in view {camera.name}")
+    if params.depth_seed:
+        # inverse depth, clipped to its 2nd–98th percentiles in the box: a few far floaters must not set the scale
+        disp = 1.0 / np.maximum(depth, 1e-6)
+        lo, hi = (float(v) for v in np.percentile(disp[inside], [2, 98]))
+        if hi > lo:
+            d8 = (255.0 - np.clip((disp - lo) / (hi - lo) * 255.0, 0, 255)).astype(np.uint8)  # 0 = nearest
+            thr, _ = cv2.threshold(d8[inside], 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+            near = inside & (d8 <= thr)
+            mask[inside & ~near] = cv2.GC_PR_BGD
+            core = cv2.erode(near.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+            mask[core] = cv2.GC_FGD
+    mask[~valid] = cv2.GC_BGD
+    bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
+    cv2.setRNGSeed(0)
+    cv2.grabCut(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), mask, None, bgd, fgd, params.iterations, cv2.GC_INIT_WITH_MASK)
+    obj = (mask == cv2.GC_FGD) | (mask == cv2.GC_PR_FGD)
+    out = np.where(obj, 1, 2).astype(np.int64)
+    out[~valid] = 0
+    if not (out == 1).any():
+        raise InputError(f"grabcut found no object in view {camera.name}; move masks.grabcut.box onto it")
+    return out
+
+
+def label_iou(pred: np.ndarray, truth: np.ndarray, n_labels: int) -> dict[int, float]:
+    """Per label 1..n: IoU of ``pred`` and ``truth`` over pixels where ``truth`` is assigned (> 0); labels absent
+    from both are left out."""
+    keep = truth > 0
+    out = {}
+    for k in range(1, n_labels + 1):
+        a, b = (pred == k) & keep, truth == k
+        union = int((a | b).sum())
+        if union:
+            out[k] = float((a & b).sum() / union)
+    return out
+
+
+def make_content_masks(
+    model: GaussianModel, cameras: list[Camera], masks_dir: Path | None, params: MaskParams
+) -> ContentMasks:
+    """Given or automatic masks → per-Gaussian labels → re-rendered masks for every view."""
+    given, palette = find_given_masks_with_palette(masks_dir, cameras) if masks_dir is not None else ({}, {})
+    if params.source == "given" and not given:
+        raise InputError(f"masks.source is 'given' but no label PNG in {masks_dir} matches a view")
+    heldout: list[int] = []
+    if given and params.source in ("auto", "given"):
+        source = "given"
+        idx = sorted(given)
+        if params.lift_views:
+            stems = {Path(cameras[i].name).stem: i for i in idx}
+            missing = [v for v in params.lift_views if v not in stems]
+            if missing:
+                raise InputError(f"masks.lift_views names view(s) {missing} without a mask in {masks_dir} "
+                                 f"(masks found for: {', '.join(sorted(stems)) or 'none'})")
+            chosen = sorted(stems[v] for v in params.lift_views)
+            heldout = [i for i in idx if i not in chosen]
+            idx = chosen
+        elif params.holdout_every >= 2 and len(idx) >= 2:
+            heldout = idx[params.holdout_every - 1 :: params.holdout_every]
+            idx = [i for i in idx if i not in heldout]
+        maps = [given[i] for i in idx]
+    elif params.source == "grabcut":
+        source = "grabcut"
+        i = params.grabcut.reference_view
+        if i >= len(cameras):
+            raise InputError(f"masks.grabcut.reference_view {i} is out of range (scene has {len(cameras)} views)")
+        idx, maps = [i], [grabcut_view(model, cameras[i], params.grabcut, params.backend)]
+    else:
+        source = "clustering"
+        i = params.clustering.reference_view
+        if i >= len(cameras):
+            raise InputError(f"masks.clustering.reference_view {i} is out of range (scene has {len(cameras)} views)")
+        idx, maps = [i], [cluster_view(model, cameras[i], params.clustering, params.backend)]
+    n_labels = int(max([m.max() for m in maps] + [given[i].max() for i in heldout]))
+    if n_labels == 0:
+        raise InputError("the content masks contain no label > 0 (0 means unassigned); nothing to lift")
+    lifted = lift_labels(model, [cameras[i] for i in idx], maps, n_labels, params.lift, backend=params.backend)
+    propagated = 0
+    if params.lift.propagate == "always" or (
+        params.lift.propagate == "auto" and len(idx) < len(cameras) and len(cameras) > 1
+        and capture_layout(cameras).kind == "orbit"
+    ):
+        unseen = lifted.weights.sum(1) < params.lift.min_weight
+        labels = propagate_labels(model.means, lifted.labels, unseen, params.lift.propagate_k)
+        propagated = int((labels != lifted.labels).sum())
+        lifted = LiftResult(labels, lifted.weights)
+        log.info("propagated labels to %d Gaussians no masked view sees", propagated)
+    views = [
+        render_label_map(model, lifted.labels, n_labels, c, threshold=params.lift.render_threshold, backend=params.backend)
+        for c in cameras
+    ]
+    agree = [float((views[i] == m)[m > 0].mean()) for i, m in zip(idx, maps) if (m > 0).any()]
+    ho_iou: dict[int, list[float]] = {}
+    ho_agree = []
+    for i in heldout:
+        truth = given[i]
+        for k, v in label_iou(views[i], truth, n_labels).items():
+            ho_iou.setdefault(k, []).append(v)
+        if (truth > 0).any():
+            ho_agree.append(float((views[i] == truth)[truth > 0].mean()))
+    counts = lifted.counts()
+    log.info("lifted %s masks of %d view(s) onto %d Gaussians: %s", source, len(idx), len(lifted.labels), counts)
+    if heldout:
+        log.info("held-out views %d: per-label IoU %s", len(heldout),
+                 {k: round(float(np.mean(v)), 3) for k, v in sorted(ho_iou.items())})
+    return ContentMasks(lifted.labels, n_labels, views, source, [cameras[i].name for i in idx],
+                        float(np.mean(agree)) if agree else None, [cameras[i].name for i in heldout],
+                        {k: float(np.mean(v)) for k, v in sorted(ho_iou.items())},
+                        float(np.mean(ho_agree)) if ho_agree else None, palette, propagated)
+
+
+def colorize_labels(labels: np.ndarray) -> np.ndarray:
+    """``(H, W)`` labels → ``(H, W, 3) uint8`` with a fixed palette (0 = black)."""
+    palette = np.array(
+        [[0, 0, 0], [230, 25, 75], [60, 180, 75], [255, 225, 25], [0, 130, 200], [245, 130, 48], [145, 30, 180],
+         [70, 240, 240], [240, 50, 230], [210, 245, 60], [250, 190, 212], [0, 128, 128], [220, 190, 255],
+         [170, 110, 40], [255, 250, 200], [128, 0, 0], [170, 255, 195]], np.uint8)
+    return palette[np.clip(labels, 0, len(palette) - 1)]

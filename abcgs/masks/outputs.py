@@ -1,0 +1,70 @@
+"""What the ``masks`` stage writes for one scene.
+
+Layout of ``out/<scene>/masks/``: ``gaussian_labels.npy`` ``(N,) int64`` (the lifted label of every Gaussian, 0 =
+unassigned), ``views/<view>.png`` (the label map rendered back for every view), ``overlay.png`` (the first views,
+their lifted labels and both blended) and ``masks.json`` (source, label counts, agreement and held-out IoU).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from abcgs.cameras import Camera
+from abcgs.errors import InputError
+from abcgs.io.atomic import atomic_path, write_json
+from abcgs.io.images import load_image, load_labels, save_image, save_labels
+from abcgs.masks.content import ContentMasks, colorize_labels
+from abcgs.sfm.colmap import SceneData
+from abcgs.viz import image_grid
+
+OVERLAY_ROWS = 4
+"""Views shown in ``overlay.png``."""
+
+
+def write_content_masks(out: Path, result: ContentMasks, cameras: list[Camera], image_paths: list[Path]) -> None:
+    """Write ``out/`` (a folder, atomically) from the lifted masks ``result`` of the scene's ``cameras``."""
+    with atomic_path(out, is_dir=True) as tmp:
+        np.save(tmp / "gaussian_labels.npy", result.gaussian_labels.numpy().astype(np.int64))
+        (tmp / "views").mkdir()
+        rows = []
+        for cam, path, lab in zip(cameras, image_paths, result.view_labels):
+            save_labels(tmp / "views" / f"{Path(cam.name).stem}.png", lab)
+            if len(rows) < OVERLAY_ROWS:
+                img = load_image(path)
+                over = (0.5 * img + 0.5 * colorize_labels(lab) / 255.0).astype(np.float32)
+                rows.append([img, colorize_labels(lab), over])
+        save_image(tmp / "overlay.png", image_grid(rows, ["view", "lifted labels", "overlay"]))
+        labels, counts = np.unique(result.gaussian_labels.numpy(), return_counts=True)
+        write_json(tmp / "masks.json", {
+            "source": result.source, "input_views": result.input_views, "n_labels": result.n_labels,
+            "gaussians_per_label": {str(k): int(v) for k, v in zip(labels, counts)},
+            "agreement_with_input_masks": result.agreement,
+            "heldout_views": result.heldout_views,
+            "heldout_iou_per_label": {str(k): v for k, v in result.heldout_iou.items()},
+            "heldout_agreement": result.heldout_agreement,
+            "colour_palette": {str(k): list(v) for k, v in result.palette.items()},
+            "gaussians_propagated": result.propagated,
+        })
+
+
+@dataclass
+class SceneMasks:
+    """The masks stage's output read back: the lifted label of each Gaussian and the label map of each view."""
+
+    gaussian_labels: torch.Tensor  # (N,)
+    view_labels: list[np.ndarray]  # per camera
+
+
+def load_scene_masks(masks_dir: Path, scene: SceneData, n_gaussians: int) -> SceneMasks:
+    labels = torch.from_numpy(np.load(masks_dir / "gaussian_labels.npy")).long()
+    if labels.shape[0] != n_gaussians:
+        raise InputError(
+            f"{masks_dir}/gaussian_labels.npy has {labels.shape[0]} labels but the scene has {n_gaussians} Gaussians; "
+            "re-run the masks stage (dvc repro)"
+        )
+    views = [load_labels(masks_dir / "views" / f"{Path(c.name).stem}.png", expect_hw=(c.height, c.width)) for c in scene.cameras]
+    return SceneMasks(labels, views)

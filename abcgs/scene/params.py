@@ -1,0 +1,35 @@
+"""The ``tiny`` section's schema: the embedded synthetic scene (:mod:`abcgs.scene.synthetic`).
+
+Schema modules import nothing heavier than pydantic, so that reading ``params.yaml`` does not load the code
+it configures (each stage's code dependencies stay its own: ``abcgs/dag.py``).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, Field
+
+
+class TinySceneParams(BaseModel, extra="forbid"):
+    """Knobs of the embedded scene. Lengths in scene units, sizes in pixels."""
+
+    seed: int = 0
+    n_views: int = Field(16, ge=3, le=64, description="number of views on the forward-facing grid")
+    width: int = Field(160, ge=32, le=2048, description="view width in pixels")
+    height: int = Field(120, ge=32, le=2048, description="view height in pixels")
+    focal_factor: float = Field(0.85, gt=0.1, le=5.0, description="focal length in units of the view width")
+    baseline: float = Field(1.2, gt=0.0, le=5.0, description="horizontal extent of the camera grid (scene units)")
+    wall_depth: float = Field(6.0, gt=1.0, description="distance of the back wall from the camera plane")
+    supersample: int = Field(2, ge=1, le=4, description="rays per pixel along each axis (anti-aliasing)")
+    style_height: int = Field(256, ge=32, le=2048, description="height of the generated paintings in pixels")
+    layout: Literal["forward", "orbit"] = Field(
+        "forward", description="forward: a wall behind the objects, cameras on a forward-facing grid; orbit: the "
+                               "objects inside a textured dome, cameras on a ring all around them")
+    mask_views: int = Field(0, ge=0, description="write label maps for the first this many views only (0: all); "
+                                                 "e.g. 1 = one user mask to lift")
+    odd_view_width_delta: int = Field(
+        0, ge=0, le=64,
+        description="odd-numbered views are this many pixels narrower (a second camera with the same lens and a "
+                    "cropped sensor, as COLMAP gives each camera its own undistorted size); 0: one camera",
+    )

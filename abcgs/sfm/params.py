@@ -1,0 +1,31 @@
+"""The ``reconstruct`` section's schema (:mod:`abcgs.sfm.colmap`).
+
+Schema modules import nothing heavier than pydantic, so that reading ``params.yaml`` does not load the code
+it configures (each stage's code dependencies stay its own: ``abcgs/dag.py``).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, Field
+
+EXHAUSTIVE_MAX_IMAGES = 100
+"""``matcher: auto`` matches all pairs up to this many images, sequentially above."""
+
+
+class ReconstructParams(BaseModel, extra="forbid"):
+    """Options of the ``reconstruct`` stage (``params.yaml`` section ``reconstruct:``)."""
+
+    min_registered_fraction: float = Field(0.9, ge=0.0, le=1.0, description="fail below this fraction of registered images")
+    matcher: Literal["auto", "exhaustive", "sequential"] = Field(
+        "auto", description=f"auto = exhaustive up to {EXHAUSTIVE_MAX_IMAGES} images, else sequential"
+    )
+    sequential_overlap: int = Field(10, ge=1, description="sequential matcher: neighbours matched on each side")
+    max_image_size: int = Field(3200, ge=-1, description="SIFT runs on images downscaled to this longest side (-1 = no limit)")
+    camera_model: Literal["SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"] = "SIMPLE_RADIAL"
+    single_camera: Literal["auto"] | bool = Field(
+        "auto", description="share intrinsics between all images; auto = when all images have the same size"
+    )
+    num_threads: int = Field(1, ge=-1, description="COLMAP threads; -1 = all cores (faster, not bit-reproducible)")
+    seed: int = Field(0, ge=0, description="seed for COLMAP's RANSAC / mapper / triangulator")

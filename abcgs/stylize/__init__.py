@@ -1,0 +1,9 @@
+"""The stylization stage (paper Sec. "Stylization"): colour match, then the optimisation loop.
+
+- :mod:`abcgs.stylize.color`      — the linear colour transform (mean and covariance match) and colour preservation.
+- :mod:`abcgs.stylize.colormatch` — colour match per matching group, applied to images and Gaussians, and the re-fit.
+- :mod:`abcgs.stylize.loop`       — Eq. 8: FAST (or a baseline) + content, TV, depth, scale and opacity terms;
+  the authors' colour pass.
+- :mod:`abcgs.stylize.experiment` — what a stage loads for one experiment (scene, masks, groups, VGG).
+- :mod:`abcgs.stylize.outputs`    — what a stylization run writes (PLY, renders, grid, turntable, loss history).
+"""

@@ -1,0 +1,58 @@
+"""What the colour-match and stylization stages load for one experiment: scene, masks, matching groups, VGG
+(paths: :mod:`abcgs.layout`)."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import torch
+
+from abcgs.errors import InputError
+from abcgs.features.matching import ExperimentParams, MatchingGroup, TransferSpec, build_groups
+from abcgs.features.vgg import VGG16Features
+from abcgs.features.weights import WeightsInfo, resolve_vgg16
+from abcgs.gaussians import GaussianModel
+from abcgs.io.ply import read_ply
+from abcgs.layout import colormatch_dir, load_scene
+from abcgs.masks.outputs import SceneMasks, load_scene_masks
+from abcgs.params import Params
+
+log = logging.getLogger(__name__)
+
+
+def experiment(params: Params, name: str) -> ExperimentParams:
+    """``experiments.<name>`` (the schema has checked that its colour match and scene exist and agree)."""
+    return params.experiments[name]
+
+
+def colormatch_spec(params: Params, name: str) -> TransferSpec:
+    """``colormatches.<name>``: the scene, transfer type and painting(s) of a colour-matched start."""
+    return params.colormatches[name]
+
+
+def load_vgg(params: Params) -> tuple[VGG16Features, WeightsInfo]:
+    sd, info = resolve_vgg16(params.vgg)
+    vgg = VGG16Features(sd, params.stylize.layers, feature_scale=info.feature_scale)
+    log.info("VGG-16 weights: %s (%s, sha256 %s…)", info.source, info.path, info.sha256[:12])
+    return vgg, info
+
+
+def load_groups(params: Params, spec: TransferSpec, vgg: VGG16Features, labels: torch.Tensor) -> list[MatchingGroup]:
+    present = {int(v) for v in torch.unique(labels)} - {0}
+    return build_groups(
+        spec, params.data.styles, params.data.style_masks, present, vgg,
+        style_height=params.stylize.style_height, isolation=params.isolation, layers=params.stylize.layers,
+    )
+
+
+def read_colormatch(folder: Path, name: str) -> GaussianModel:
+    """The colour-matched Gaussians of stage ``colormatch@<name>``, with a clear error when it has not run."""
+    ply = folder / "point_cloud.ply"
+    if not ply.is_file():
+        raise InputError(f"{ply} is missing: run the colour match first (dvc repro colormatch@{name})")
+    return read_ply(ply)
+
+
+__all__ = ["SceneMasks", "colormatch_dir", "colormatch_spec", "experiment", "load_groups", "load_scene",
+           "load_scene_masks", "load_vgg", "read_colormatch"]

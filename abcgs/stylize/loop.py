@@ -1,0 +1,418 @@
+"""The ABC-GS stylization stage: optimise the colour-matched Gaussians with
+
+    L = λ_FAST·L_style + λ_c·L_con + λ_tv·L_tv + λ_dep·L_dep + λ_sca·‖Δs‖ + λ_opa·‖Δα‖
+
+(paper λ = {2, 0.005, 0.02, 0.01, 1, 1}, densification off), optionally followed by the authors'
+post-process ("colour pass"): re-render every view, colour-match the renders to the style again, and
+re-fit colours and rotations (xyz, scales, opacities frozen) to those images with the reconstruction
+loss ``0.8·L1 + 0.2·D-SSIM`` (vpx-ecnu/ABC-GS ``abcgs/phases/post_process_phase.py``). ``L_style`` is
+FAST (ABC-GS) or a baseline (NNFM, KNNFM, Gram) chosen by one parameter.
+
+Shapes: renders ``(H, W, 3)``; VGG features ``(C, h, w)`` at 1/4 of the (×0.5 downsampled) render;
+per-group features ``(C, N)``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from abcgs.cameras import Camera
+from abcgs.errors import InputError, NumericalError
+from abcgs.features import knn
+from abcgs.features.isolation import downsample_mask
+from abcgs.features.knn import StyleFeatures
+from abcgs.features.matching import ALL_PIXELS, MatchingGroup
+from abcgs.features.vgg import VGG16Features, downsample_half, extract_features
+from abcgs.fit.losses import reconstruction_loss
+from abcgs.gaussians import GaussianModel, render
+from abcgs.losses.fast import FastParams, FastStats
+from abcgs.losses.terms import content_loss, style_loss, tv_loss
+from abcgs.masks.outputs import SceneMasks
+from abcgs.progress import progress as progress_bar
+from abcgs.render import rgb_to_sh0, sh0_to_rgb
+from abcgs.stylize.color import apply_color_transform, fit_color_transform, preserve_color
+from abcgs.stylize.params import LR_PRESETS, StylizeParams  # noqa: F401  (the section's schema)
+
+log = logging.getLogger(__name__)
+
+
+
+
+
+
+@dataclass
+class StylizeResult:
+    model: GaussianModel
+    history: list[dict]
+    timings: dict[str, float]
+    fast_stats: dict
+    seconds: float
+    color_pass_seconds: float = 0.0
+    projected_search: dict | None = None
+
+    def record(self) -> dict:
+        """The run's numbers for ``stylize.json``: wall time, per-iteration timings, FAST counters, size."""
+        n_it = max(1, int(self.timings.get("iterations", 1)))
+        return {
+            "stylize_seconds": self.seconds, "iterations": int(self.timings.get("iterations", 0)),
+            "seconds_per_iteration": {k: v / n_it for k, v in self.timings.items() if k != "iterations"},
+            "fast": self.fast_stats, "n_gaussians": self.model.num_gaussians,
+            "projected_search": self.projected_search,
+        }
+
+
+@dataclass
+class ViewTargets:
+    """Per-view fixed targets: content features, original depth, per-group feature masks."""
+
+    camera: Camera
+    content_feats: Tensor  # (C, h, w)
+    depth: Tensor  # (H, W, 1)
+    group_masks: list[Tensor] = field(default_factory=list)  # per group (h, w) bool
+    content_image: Tensor | None = None  # (H, W, 3) the colour-matched render
+
+
+def color_match_model(
+    model: GaussianModel, labels: Tensor, groups: list[MatchingGroup], content_pixels: dict[int, np.ndarray]
+) -> tuple[GaussianModel, dict[int, tuple[Tensor, Tensor]]]:
+    """Apply each group's mean/covariance colour transform to the DC colours of its Gaussians.
+
+    ``content_pixels[z]``: ``(n, 3)`` pixels of the content (training images) covered by group z.
+    Single transfer (one group over all pixels) recolours every Gaussian.
+    """
+    out = model.detach()
+    rgb = sh0_to_rgb(out.sh0[:, 0, :])
+    transforms = {}
+    for g in groups:
+        pix = content_pixels.get(g.content_label)
+        if pix is None or len(pix) < 2:
+            raise InputError(f"colour match: no content pixels for content label {g.content_label}")
+        A, b = fit_color_transform(pix, g.style_pixels)
+        transforms[g.content_label] = (A, b)
+        sel = torch.ones_like(labels, dtype=torch.bool) if g.content_label == ALL_PIXELS else labels == g.content_label
+        rgb[sel] = apply_color_transform(rgb[sel], A, b)
+    out.sh0 = rgb_to_sh0(rgb)[:, None, :].contiguous()
+    if out.shN.numel():
+        out.shN = torch.zeros_like(out.shN)  # view-dependent colour would undo the match
+    return out, transforms
+
+
+def group_pixel_masks(groups: list[MatchingGroup], label_map: np.ndarray) -> list[np.ndarray]:
+    """Per group, the ``(H, W)`` bool pixels it covers in one view's (rendered) label map."""
+    return [np.ones_like(label_map, bool) if g.content_label == ALL_PIXELS else label_map == g.content_label for g in groups]
+
+
+def _features(vgg: VGG16Features, img_hw3: Tensor, params: StylizeParams) -> Tensor:
+    x = img_hw3.permute(2, 0, 1)[None]
+    if params.downsample_render:
+        x = downsample_half(x)
+    return extract_features(vgg, x, params.layers)[0]
+
+
+def prepare_targets(
+    model_content: GaussianModel,
+    model_original: GaussianModel,
+    cameras: list[Camera],
+    label_maps: list[np.ndarray],
+    groups: list[MatchingGroup],
+    vgg: VGG16Features,
+    params: StylizeParams,
+) -> list[ViewTargets]:
+    """Content features (from the colour-matched scene), depth (from the original scene), group masks."""
+    targets = []
+    with torch.no_grad():
+        for cam, lab in zip(cameras, label_maps):
+            # one render gives both when the depth comes from the content scene itself
+            img, _, meta = render(model_content, cam, backend=params.backend, render_depth=model_original is model_content)
+            if model_original is not model_content:
+                _, _, meta = render(model_original, cam, backend=params.backend, render_depth=True)
+            feats = _features(vgg, img.clamp(0, 1), params)
+            hw = tuple(feats.shape[-2:])
+            masks = [downsample_mask(m, hw) if m.any() else torch.zeros(hw, dtype=torch.bool)
+                     for m in group_pixel_masks(groups, lab)]
+            targets.append(ViewTargets(cam, feats, meta.depth, masks, img))
+    return targets
+
+
+def group_features(feats: Tensor, mask: Tensor) -> Tensor:
+    """The ``(C, n)`` columns of ``feats`` ``(C, h, w)`` under ``mask`` ``(h, w)`` bool, in row-major order: a view of
+    all columns when the mask covers every cell (single-image transfer), so that neither the forward nor the backward
+    copies the features through the mask."""
+    return feats.flatten(1) if bool(mask.all()) else feats[:, mask]
+
+
+def _optimizer(model: GaussianModel, lrs: dict[str, float]) -> torch.optim.Adam:
+    """Adam (eps 1e-15, as 3DGS) over the fields with a positive learning rate; the others are frozen."""
+    groups = []
+    for name, lr in lrs.items():
+        tensor = getattr(model, name)
+        if lr > 0:
+            groups.append({"params": [tensor], "lr": lr})
+        else:
+            tensor.requires_grad_(False)
+    return torch.optim.Adam(groups, eps=1e-15)
+
+
+def main_pass_lrs(params: StylizeParams) -> dict[str, float]:
+    """Learning rate per :class:`GaussianModel` field in the main pass (geometry 0 unless ``optimize_geometry``)."""
+    geo = params.optimize_geometry
+    return {"sh0": params.lr_sh0, "means": params.lr_means if geo else 0.0, "log_scales": params.lr_scales if geo else 0.0,
+            "opacity_logits": params.lr_opacity if geo else 0.0, "quats": params.lr_quats if geo else 0.0}
+
+
+def _check_finite(value: Tensor, name: str, step: int) -> None:
+    if not torch.isfinite(value):
+        raise NumericalError(
+            f"stylization loss term {name} became {value.item()} at step {step}; lower the learning rates or "
+            "λ of that term, or check the inputs (style image, masks)"
+        )
+
+
+@torch.no_grad()
+def _renormalize_quats(model: GaussianModel) -> None:
+    """Project the rotations back onto unit quaternions after an optimiser step (in place)."""
+    model.quats.data = model.quats.data / model.quats.data.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+
+def _random_views(n: int, seed: int):
+    """Endless view indices: a seeded random permutation of ``range(n)``, drawn again when used up."""
+    gen = torch.Generator().manual_seed(seed)
+    while True:
+        yield from torch.randperm(n, generator=gen).tolist()
+
+
+def style_pass(
+    model: GaussianModel,
+    targets: list[ViewTargets],
+    groups: list[MatchingGroup],
+    vgg: VGG16Features,
+    params: StylizeParams,
+    *,
+    iterations: int,
+    progress: bool = True,
+    history: list[dict] | None = None,
+    timings: dict[str, float] | None = None,
+    fast_stats: FastStats | None = None,
+    method: str = "fast",
+) -> GaussianModel:
+    """The main stylization pass over random views; returns the optimised (detached) model."""
+    history = [] if history is None else history
+    timings = {} if timings is None else timings
+    orig = model.detach()
+    orig_scales, orig_opac = orig.scales, orig.opacities
+    m = model.as_parameters()
+    lrs = main_pass_lrs(params)
+    opt = _optimizer(m, lrs)
+    views = _random_views(len(targets), params.seed)
+    style_feats = [StyleFeatures.of(g.features) for g in groups]  # fixed for the run: prepared once
+    bar = progress_bar(range(iterations), "stylize", enabled=progress)
+    t_start = time.perf_counter()
+    for step in bar:
+        tgt = targets[next(views)]
+        t0 = time.perf_counter()
+        img, alpha, meta = render(m, tgt.camera, backend=params.backend, render_depth=params.lambda_depth > 0)
+        t1 = time.perf_counter()
+        feats = _features(vgg, img, params)
+        t2 = time.perf_counter()
+        pairs = [(group_features(feats, mask), fs) for mask, fs in zip(tgt.group_masks, style_feats) if bool(mask.any())]
+        terms: dict[str, Tensor] = {}
+        if pairs and params.lambda_style > 0:
+            terms["style"] = params.lambda_style * style_loss(
+                method, pairs, k=params.fast.k, fast_params=params.fast, stats=fast_stats,
+                max_block_elems=params.fast.max_block_elems,
+            )
+        t3 = time.perf_counter()
+        if params.lambda_content > 0:
+            terms["content"] = params.lambda_content * content_loss(feats, tgt.content_feats)
+        if params.lambda_tv > 0:
+            terms["tv"] = params.lambda_tv * tv_loss(img.permute(2, 0, 1)[None])
+        if params.lambda_depth > 0 and meta.depth is not None:
+            terms["depth"] = params.lambda_depth * F.mse_loss(meta.depth, tgt.depth)
+        if params.lambda_scale > 0 and lrs["log_scales"] > 0:
+            terms["scale"] = params.lambda_scale * (m.scales - orig_scales).norm(dim=-1).mean()
+        if params.lambda_opacity > 0 and lrs["opacity_logits"] > 0:
+            terms["opacity"] = params.lambda_opacity * (m.opacities - orig_opac).abs().mean()
+        for name, value in terms.items():
+            _check_finite(value, name, step)
+        loss = torch.stack(list(terms.values())).sum()
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        t4 = time.perf_counter()
+        opt.step()
+        _renormalize_quats(m)
+        t5 = time.perf_counter()
+        for key, dt in (("render", t1 - t0), ("vgg", t2 - t1), ("style_loss", t3 - t2), ("backward", t4 - t3),
+                        ("step", t5 - t4)):
+            timings[key] = timings.get(key, 0.0) + dt
+        timings["iterations"] = timings.get("iterations", 0) + 1
+        if step % params.log_every == 0 or step == iterations - 1:
+            row = {"step": step, "seconds": time.perf_counter() - t_start, "loss": float(loss.detach()), "pass": "main"}
+            row.update({k: float(v.detach()) for k, v in terms.items()})
+            history.append(row)
+            bar.set_postfix({k: f"{float(v.detach()):.4f}" for k, v in terms.items()}, refresh=False)
+    bar.close()
+    return m.detach()
+
+
+def color_pass(
+    model: GaussianModel,
+    gaussian_labels: Tensor,
+    targets: list[ViewTargets],
+    groups: list[MatchingGroup],
+    params: StylizeParams,
+    *,
+    iterations: int,
+    start_step: int = 0,
+    progress: bool = True,
+    history: list[dict] | None = None,
+) -> GaussianModel:
+    """The authors' post-process: colour-match the re-rendered views to the style again, then re-fit.
+
+    Every view is rendered, each group's covered pixels (alpha > 0.5) get the mean/covariance colour transform to its style
+    region (the transform is applied to the group's Gaussians too, as in the colour-match stage), and the
+    DC colours and rotations are re-fitted to those images with ``0.8·L1 + 0.2·D-SSIM`` while means,
+    scales and opacities stay frozen (``post_process_phase.py`` freezes ``_xyz``, ``_scaling``, ``_opacity``).
+    """
+    history = [] if history is None else history
+    with torch.no_grad():
+        outs = [render(model, t.camera, backend=params.backend) for t in targets]
+    renders = [o[0].clamp(0, 1) for o in outs]
+    pix: dict[int, list[Tensor]] = {g.content_label: [] for g in groups}
+    full_masks = []
+    for t, img, (_, alpha, _) in zip(targets, renders, outs):
+        h, w = img.shape[:2]
+        # pixels the scene covers (alpha > 0.5): the black background is neither measured nor recoloured
+        covered = alpha.reshape(h, w) > 0.5
+        masks = [(F.interpolate(m[None, None].float(), size=(h, w), mode="nearest")[0, 0] > 0.5) & covered
+                 for m in t.group_masks]
+        full_masks.append(masks)
+        for g, m in zip(groups, masks):
+            pix[g.content_label].append(img[m])
+    content = {k: torch.cat(v).numpy() if v else np.zeros((0, 3), np.float32) for k, v in pix.items()}
+    recolored, transforms = color_match_model(model, gaussian_labels, groups, content)
+    images = []
+    for img, masks in zip(renders, full_masks):
+        new = img.clone()
+        for g, m in zip(groups, masks):
+            a, b = transforms[g.content_label]
+            new[m] = apply_color_transform(img[m], a, b, clip=(0.0, 1.0))
+        images.append(new)
+    m = recolored.as_parameters()
+    opt = _optimizer(m, {"sh0": params.lr_sh0, "quats": params.lr_quats, "means": 0.0, "log_scales": 0.0,
+                         "opacity_logits": 0.0})
+    views = _random_views(len(targets), params.seed + 1)
+    bar = progress_bar(range(iterations), "colour pass", enabled=progress)
+    t_start = time.perf_counter()
+    for it in bar:
+        i = next(views)
+        img, _, _ = render(m, targets[i].camera, backend=params.backend)
+        terms = reconstruction_loss(img, images[i])
+        _check_finite(terms.total, "colour-pass reconstruction", start_step + it)
+        opt.zero_grad(set_to_none=True)
+        terms.total.backward()
+        opt.step()
+        _renormalize_quats(m)
+        if it % params.log_every == 0 or it == iterations - 1:
+            history.append({"step": start_step + it, "seconds": time.perf_counter() - t_start, "pass": "color",
+                            "loss": float(terms.total.detach()), "l1": float(terms.l1.detach())})
+    bar.close()
+    return m.detach()
+
+
+def stylize(
+    model: GaussianModel,
+    cameras: list[Camera],
+    label_maps: list[np.ndarray],
+    gaussian_labels: Tensor,
+    groups: list[MatchingGroup],
+    vgg: VGG16Features,
+    params: StylizeParams,
+    *,
+    method: str = "fast",
+    progress: bool = True,
+    depth_model: GaussianModel | None = None,
+) -> StylizeResult:
+    """Run the stylization passes on a (colour-matched) model.
+
+    Args:
+        model: the colour-matched, re-fitted scene (the content target and the starting point).
+        cameras: the views to stylize from.
+        label_maps: per view ``(H, W)`` rendered content labels (ignored by single transfer).
+        gaussian_labels: ``(N,)`` lifted content label of each Gaussian (for the colour pass).
+        depth_model: the original (pre-colour-match) scene whose depth the depth loss keeps (paper: "we use
+            the original Gaussians to render the initial depth map"); default ``model``.
+        groups: matching groups with style features (:func:`abcgs.features.matching.build_groups`).
+    """
+    if not cameras:
+        raise InputError("stylize: no views")
+    if method == "none":  # the colour-matched start itself: the baseline that stylizes nothing
+        return StylizeResult(model.detach(), [], {"iterations": 0}, {}, 0.0)
+    torch.manual_seed(params.seed)
+    t0 = time.perf_counter()
+    history: list[dict] = []
+    timings: dict[str, float] = {}
+    stats = FastStats()
+    targets = prepare_targets(model, depth_model or model, cameras, label_maps, groups, vgg, params)
+    for g, z in enumerate(groups):
+        if not any(bool(t.group_masks[g].any()) for t in targets):
+            raise InputError(f"matching group for content label {z.content_label} covers no pixel in any view")
+    styled = style_pass(model, targets, groups, vgg, params, iterations=params.iterations, progress=progress,
+                        history=history, timings=timings, fast_stats=stats, method=method)
+    t_cp = time.perf_counter()
+    if params.color_pass_iterations > 0:
+        styled = color_pass(styled, gaussian_labels, targets, groups, params, iterations=params.color_pass_iterations,
+                            start_step=params.iterations, progress=progress, history=history)
+    t_cp = time.perf_counter() - t_cp
+    if params.preserve_color:
+        styled = recolor_to_content(styled, model)
+    return StylizeResult(styled, history, timings, stats.as_dict(), time.perf_counter() - t0, t_cp)
+
+
+def stylize_scene(
+    matched: GaussianModel,
+    original: GaussianModel,
+    cameras: list[Camera],
+    masks: SceneMasks,
+    groups: list[MatchingGroup],
+    vgg: VGG16Features,
+    params: StylizeParams,
+    *,
+    method: str = "fast",
+) -> StylizeResult:
+    """:func:`stylize` a colour-matched scene at ``params.resolution_scale`` of its views' size (label maps resized
+    with nearest neighbours), keeping the depth of the ``original`` scene."""
+    cams, labels = cameras, masks.view_labels
+    if params.resolution_scale != 1.0:
+        cams = [c.scaled(params.resolution_scale) for c in cameras]
+        labels = [cv2.resize(v.astype(np.int32), (c.width, c.height), interpolation=cv2.INTER_NEAREST).astype(np.int64)
+                  for v, c in zip(labels, cams)]
+    res = stylize(matched, cams, labels, masks.gaussian_labels, groups, vgg, params, method=method,
+                  depth_model=original)
+    res.projected_search = projected_search_record(params.fast)
+    return res
+
+
+def projected_search_record(fast_params: FastParams) -> dict | None:
+    """The approximate neighbour search as it runs here (``projection_products: auto`` resolved on this CPU), or
+    None when it is off; it applies to CPU searches of at least ``min_similarities`` only."""
+    proj = knn.projection_of(fast_params)
+    if proj is None:
+        return None
+    return {"rank": proj.rank, "candidates": proj.candidates, "min_similarities": proj.min_similarities,
+            "products": "bfloat16" if proj.bf16_products() else "float32"}
+
+
+def recolor_to_content(styled: GaussianModel, content: GaussianModel) -> GaussianModel:
+    """``preserve_color``: keep the stylised luminance, take chroma from the content colours (YIQ)."""
+    out = styled.detach()
+    rgb = preserve_color(sh0_to_rgb(styled.sh0[:, 0, :]), sh0_to_rgb(content.sh0[:, 0, :]))
+    out.sh0 = rgb_to_sh0(rgb)[:, None, :].contiguous()
+    return out

@@ -1,0 +1,78 @@
+"""What a stylization run writes: the stylized PLY, every view's render, a grid, a turntable video, the loss history
+and the run's record.
+
+Layout of ``out/<experiment>/``: ``stylize/{point_cloud.ply, renders/<view>.png, grid.png, turntable.mp4}``,
+``stylize_history.csv`` (a DVC plot) and ``stylize.json`` + ``stylize_info.json`` (:func:`abcgs.io.metrics.write_metrics`).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from abcgs.camera_paths import PathKind, camera_path
+from abcgs.cameras import Camera
+from abcgs.features.matching import ALL_PIXELS, MatchingGroup
+from abcgs.gaussians import GaussianModel, render
+from abcgs.io.atomic import atomic_path
+from abcgs.io.images import save_image
+from abcgs.io.ply import write_ply
+from abcgs.io.tables import write_csv
+from abcgs.masks.content import colorize_labels
+from abcgs.viz import image_grid, style_legend, write_video
+
+HISTORY_COLUMNS = ("step", "seconds", "loss", "style", "content", "tv", "depth", "scale", "opacity")
+"""Columns of ``stylize_history.csv``: the loss terms of Eq. 8 per logged step (unweighted sums as logged)."""
+
+GRID_ROWS = 3
+"""Views shown in ``grid.png``."""
+
+
+def _image(model: GaussianModel, camera: Camera, backend: str) -> np.ndarray:
+    return render(model, camera, backend=backend)[0].clamp(0, 1).numpy()
+
+
+def write_stylized_scene(
+    out: Path,
+    stylized: GaussianModel,
+    original: GaussianModel,
+    cameras: list[Camera],
+    view_labels: list[np.ndarray],
+    groups: list[MatchingGroup],
+    *,
+    backend: str,
+    path_kind: PathKind,
+    path_frames: int,
+) -> dict:
+    """Write ``out/`` (a folder, atomically): the stylized PLY, a render of every camera, ``grid.png`` (content,
+    labels, each label beside its painting or painting region, stylized; :data:`GRID_ROWS` views) and
+    ``turntable.mp4`` along :func:`abcgs.camera_paths.camera_path`.
+
+    Returns ``{"render_fps": renders per second over the cameras, "camera_path": the path kind used}``.
+    """
+    with atomic_path(out, is_dir=True) as tmp, torch.no_grad():
+        write_ply(tmp / "point_cloud.ply", stylized)
+        (tmp / "renders").mkdir()
+        t0 = time.perf_counter()
+        renders = [_image(stylized, c, backend) for c in cameras]
+        fps = len(renders) / max(time.perf_counter() - t0, 1e-9)
+        for cam, img in zip(cameras, renders):
+            save_image(tmp / "renders" / f"{Path(cam.name).stem}.png", img)
+        legend = style_legend(
+            [(None if g.content_label == ALL_PIXELS else colorize_labels(np.array([g.content_label]))[0],
+              g.style_image, g.style_region) for g in groups],
+            height=cameras[0].height)
+        rows = [[_image(original, cameras[i], backend), colorize_labels(view_labels[i]), legend, renders[i]]
+                for i in range(min(GRID_ROWS, len(renders)))]
+        save_image(tmp / "grid.png", image_grid(rows, ["content", "labels", "label: painting", "stylized"]))
+        path, kind = camera_path(cameras, path_kind, path_frames)
+        write_video(tmp / "turntable.mp4", [_image(stylized, c, backend) for c in path], fps=24)
+    return {"render_fps": fps, "camera_path": kind}
+
+
+def write_history(path: Path, history: list[dict]) -> None:
+    """``stylize_history.csv`` (columns :data:`HISTORY_COLUMNS`)."""
+    write_csv(path, history, HISTORY_COLUMNS)

@@ -1,0 +1,180 @@
+"""Benchmarks as DVC experiments of the one pipeline: run a params overlay, show and publish its results.
+
+    python -m eval.bench.experiment run eval/params/quality_fern.yaml --name quality-fern --shared ../shared/data
+    python -m eval.bench.experiment show quality-fern --readme README.md --figure docs/img/quality/fern_overview.jpg
+
+``run`` turns the overlay into ``dvc exp run --temp -n NAME -S ...`` overrides against the workspace's
+``params.yaml``: the overlay's ``data``, ``colormatches`` and ``experiments`` replace the workspace's (keys it lacks
+are removed with ``~key``), every other section is merged key by key (``++key=value``). ``${shared}`` in the overlay
+becomes the absolute ``--shared`` folder. DVC runs the experiment in a temporary copy and keeps every finished
+stage in its cache: run the same command again after an interruption and the finished stages are restored from
+the run cache, not recomputed (``dvc exp show`` lists the runs with their headline columns).
+
+``show`` checks the experiment's commit out into a temporary git worktree that shares this repository's DVC cache,
+restores its outputs, prints the results table (the report stage's ``reports/results.md``) and, when asked, copies
+the comparison figure to ``--figure`` and writes the table between README's ``<!-- results:begin -->`` and
+``<!-- results:end -->`` lines. The workspace's params, dvc.lock and outputs stay as they are.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+ROOT = Path(__file__).resolve().parents[2]
+REPLACED = ("data", "colormatches", "experiments")
+"""Overlay sections that replace the workspace's instead of merging into it."""
+BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
+
+
+def _leaves(tree: Any, prefix: str = "") -> dict[str, Any]:
+    if isinstance(tree, dict) and tree:
+        out: dict[str, Any] = {}
+        for k, v in tree.items():
+            out.update(_leaves(v, f"{prefix}.{k}" if prefix else str(k)))
+        return out
+    return {prefix: tree}
+
+
+def _value(v: Any) -> str:
+    """A value in DVC's (Hydra's) override grammar: strings single-quoted, the rest as YAML flow."""
+    if isinstance(v, str):
+        return "'" + v.replace("\\", "\\\\").replace("'", "\\'") + "'"
+    if v is None:
+        return "null"
+    return json.dumps(v) if not isinstance(v, bool) else str(v).lower()
+
+
+def _removed(old: Any, new: Any, prefix: str) -> list[str]:
+    """The shallowest keys under ``prefix`` that ``old`` has and ``new`` lacks."""
+    if not isinstance(old, dict):
+        return []
+    out: list[str] = []
+    for k, v in old.items():
+        key = f"{prefix}.{k}"
+        if not isinstance(new, dict) or k not in new:
+            out.append(key)
+        else:
+            out += _removed(v, new[k], key)
+    return out
+
+
+def overrides(base: dict, overlay: dict) -> list[str]:
+    """``-S`` arguments that make ``base`` (the workspace's params) into ``base`` with ``overlay`` applied."""
+    args: list[str] = []
+    for section in REPLACED:
+        if section in overlay:
+            args += [f"~{k}" for k in _removed(base.get(section) or {}, overlay[section] or {}, section)]
+            old = _leaves(base.get(section) or {}, section)
+            args += [f"++{k}={_value(v)}" for k, v in sorted(_leaves(overlay[section] or {}, section).items())
+                     if v != {} and old.get(k, object()) != v]
+    for section, value in overlay.items():
+        if section in REPLACED:
+            continue
+        for key, v in sorted(_leaves(value, section).items()):
+            args.append(f"++{key}={_value(v)}")
+    return args
+
+
+def load_overlay(path: Path, shared: Path | None) -> dict:
+    text = path.read_text(encoding="utf-8")
+    if "${shared}" in text:
+        if shared is None or not shared.is_dir():
+            raise SystemExit(f"{path} reads ${{shared}}: pass --shared FOLDER (e.g. ../shared/data); got {shared}")
+        text = text.replace("${shared}", str(shared.resolve()))
+    return yaml.safe_load(text) or {}
+
+
+def cmd_run(a: argparse.Namespace) -> int:
+    base = yaml.safe_load((ROOT / "params.yaml").read_text(encoding="utf-8"))
+    args = overrides(base, load_overlay(a.overlay, a.shared)) + [f"++{s}" for s in a.set]
+    cmd = [sys.executable, "-m", "dvc", "exp", "run", "--temp", "-n", a.name]
+    for arg in args:
+        cmd += ["-S", arg]
+    print("$ " + " ".join(cmd[:7]) + f" … ({len(args)} overrides)", flush=True)
+    if a.dry_run:
+        print("\n".join(args))
+        return 0
+    return subprocess.run(cmd, cwd=ROOT).returncode
+
+
+def _git(args: list[str], cwd: Path, check: bool = True) -> subprocess.CompletedProcess:
+    return subprocess.run(["git", *args], cwd=cwd, check=check, capture_output=True, text=True)
+
+
+def find_exp_commit(name: str) -> str:
+    """The newest experiment ref named ``name`` (``refs/exps/<..>/<baseline>/<name>``)."""
+    refs = _git(["for-each-ref", "--sort=-committerdate", "--format=%(objectname) %(refname)", "refs/exps"], ROOT)
+    for line in refs.stdout.splitlines():
+        sha, ref = line.split(" ", 1)
+        if ref.rsplit("/", 1)[-1] == name:
+            return sha
+    raise SystemExit(f"no DVC experiment named {name!r}; `dvc exp list --all-commits` shows the ones that exist")
+
+
+def replace_block(text: str, table: str) -> str:
+    """``text`` with the lines between :data:`BEGIN` and :data:`END` replaced by ``table``."""
+    pattern = re.compile(re.escape(BEGIN) + r".*?" + re.escape(END), re.S)
+    if not pattern.search(text):
+        raise SystemExit(f"the README has no {BEGIN} … {END} block to write the table into")
+    return pattern.sub(lambda _: f"{BEGIN}\n{table.strip()}\n{END}", text, count=1)
+
+
+def cmd_show(a: argparse.Namespace) -> int:
+    sha = find_exp_commit(a.name)
+    with tempfile.TemporaryDirectory(prefix="abcgs-exp-") as tmp:
+        wt = Path(tmp) / "wt"
+        _git(["worktree", "add", "--detach", str(wt), sha], ROOT)
+        try:
+            dvc = [sys.executable, "-m", "dvc"]
+            subprocess.run(dvc + ["cache", "dir", "--local", str(ROOT / ".dvc" / "cache")], cwd=wt, check=True,
+                           capture_output=True)
+            co = subprocess.run(dvc + ["checkout", "--quiet"], cwd=wt, capture_output=True, text=True)
+            if co.returncode != 0:
+                print(f"warning: dvc checkout restored only part of the outputs:\n{co.stderr.strip()[-2000:]}",
+                      file=sys.stderr)
+            results = wt / "reports" / "results.md"
+            if not results.is_file():
+                raise SystemExit(f"experiment {a.name} has no reports/results.md: did its report stage run?")
+            table = results.read_text(encoding="utf-8")
+            print(f"experiment {a.name} ({sha[:10]}):\n{table}")
+            if a.readme:
+                a.readme.write_text(replace_block(a.readme.read_text(encoding="utf-8"), table), encoding="utf-8")
+                print(f"wrote the table into {a.readme}")
+            if a.figure and (wt / "reports" / "comparison.jpg").is_file():
+                a.figure.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy2(wt / "reports" / "comparison.jpg", a.figure)
+                print(f"copied the comparison figure to {a.figure}")
+        finally:
+            _git(["worktree", "remove", "--force", str(wt)], ROOT, check=False)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m eval.bench.experiment", description=__doc__.strip().splitlines()[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("run", help="run a params overlay as a DVC experiment (resumable)")
+    r.add_argument("overlay", type=Path)
+    r.add_argument("--name", required=True, help="the experiment's name (dvc exp show lists it)")
+    r.add_argument("--shared", type=Path, help="folder that ${shared} in the overlay stands for")
+    r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="one more override, e.g. stylize.iterations=600")
+    r.add_argument("--dry-run", action="store_true", help="print the overrides and stop")
+    s = sub.add_parser("show", help="print an experiment's results table; optionally publish it")
+    s.add_argument("name")
+    s.add_argument("--readme", type=Path, help="write the table between the results markers of this file")
+    s.add_argument("--figure", type=Path, help="copy the report's comparison figure here")
+    a = ap.parse_args(argv)
+    return cmd_run(a) if a.cmd == "run" else cmd_show(a)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

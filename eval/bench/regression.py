@@ -1,0 +1,16 @@
+"""The tiny-scene regression protocol shared by the end-to-end test and the seed-spread study.
+
+``tests/test_pipeline_e2e.py`` runs ``dvc repro`` on the embedded scene with :data:`REDUCED` iteration counts and
+gates :data:`GATED` against ``tests/baselines/tiny_seed_spread.json``, whose tolerances
+``python -m eval.studies.seed_spread`` measures with the same settings.
+"""
+
+GATED = ("ssim", "short_rmse", "long_rmse")
+"""Metrics (keys of ``out/<experiment>/eval.json``) whose regression fails CI."""
+
+REDUCED = {
+    ("fit", "iterations"): 300,
+    ("colormatch", "refit_iterations"): 20,
+    ("stylize", "iterations"): 20,
+}
+"""(section, key) → value: the shortened schedule of the regression runs."""

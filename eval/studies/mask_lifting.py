@@ -1,0 +1,138 @@
+"""One user mask → every view: lift label PNGs of some views onto a fitted scene (Eq. 2) and score the result
+on the views left out.
+
+    # the user's path: label PNGs (numbers or paint colours) named like the views, lifted from one of them
+    python eval/studies/mask_lifting.py --colmap out/tiny/colmap --ply out/tiny/gs/point_cloud.ply \\
+        --masks out/tiny/colmap/masks --lift 000 --figure lifted.png --json lifted.json
+
+    # no masks at hand: GrabCut (box + depth seeds) segments every view on its own, one of them is lifted and
+    # the others score it (agreement with an independent per-view segmentation, not with a hand-drawn truth)
+    python eval/studies/mask_lifting.py --colmap out/bench/fern/colmap --ply out/bench/fern/gs/point_cloud.ply \\
+        --grabcut-box 0.1,0.0,0.9,1.0 --masks out/bench/fern/grabcut_masks --lift image000 --figure fig.png
+
+Prints, per label, the IoU of the lifted masks against the given masks on every held-out view (mean and
+worst), the pixel agreement, and the seconds it took; ``--figure`` draws the lifted-from view with its mask
+and three other views with their given mask (where there is one) beside the lifted labels.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from abcgs.errors import InputError
+from abcgs.io.atomic import write_json
+from abcgs.io.images import load_image, save_image
+from abcgs.io.ply import read_ply
+from abcgs.masks.content import (
+    GrabCutParams,
+    colorize_labels,
+    find_given_masks_with_palette,
+    grabcut_view,
+    label_iou,
+)
+from abcgs.masks.lifting import LiftParams, LiftResult, lift_labels, propagate_labels, render_label_map
+from abcgs.sfm.colmap import read_colmap_scene
+from abcgs.viz import image_grid
+
+
+def overlay(img: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """Half the view, half the label colours (unassigned pixels keep the view)."""
+    col = colorize_labels(labels).astype(np.float32) / 255.0
+    out = img.astype(np.float32).copy()
+    on = labels > 0
+    out[on] = 0.45 * out[on] + 0.55 * col[on]
+    return out
+
+
+def main(argv: list[str] | None = None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
+    ap.add_argument("--colmap", type=Path, required=True, help="reconstruct output (sparse/, images/)")
+    ap.add_argument("--ply", type=Path, required=True, help="the fitted scene")
+    ap.add_argument("--masks", type=Path, required=True, help="folder of label PNGs named like the views")
+    ap.add_argument("--lift", default=None, help="comma-separated view stems to lift from (default: the first mask)")
+    ap.add_argument("--grabcut-box", default=None,
+                    help="x0,y0,x1,y1 (fractions): first write a GrabCut mask of every view into --masks")
+    ap.add_argument("--show", default=None, help="comma-separated view stems for the figure (default: three spread out)")
+    ap.add_argument("--no-propagate", action="store_true", help="leave Gaussians no lifted view sees unlabelled")
+    ap.add_argument("--figure", type=Path, default=None)
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args(argv)
+    t0 = time.perf_counter()
+
+    scene = read_colmap_scene(args.colmap / "sparse", args.colmap / "images")
+    cams, model = scene.cameras, read_ply(args.ply)
+    stems = [Path(c.name).stem for c in cams]
+    if args.grabcut_box:
+        box = tuple(float(v) for v in args.grabcut_box.split(","))
+        args.masks.mkdir(parents=True, exist_ok=True)
+        for c, stem in zip(cams, stems):
+            seg = grabcut_view(model, c, GrabCutParams(box=box))
+            save_image(args.masks / f"{stem}.png", colorize_labels(seg))  # as a paint program would save it
+    given, palette = find_given_masks_with_palette(args.masks, cams)
+    if not given:
+        raise InputError(f"no label PNG in {args.masks} is named like a view ({stems[0]}.png, …)")
+    lift_stems = args.lift.split(",") if args.lift else [stems[min(given)]]
+    unknown = [s for s in lift_stems if s not in stems or stems.index(s) not in given]
+    if unknown:
+        raise InputError(f"--lift names views without a mask in {args.masks}: {unknown}")
+    lift_idx = [stems.index(s) for s in lift_stems]
+    held = [i for i in sorted(given) if i not in lift_idx]
+    n_labels = int(max(m.max() for m in given.values()))
+    lp = LiftParams()
+    lifted = lift_labels(model, [cams[i] for i in lift_idx], [given[i] for i in lift_idx], n_labels, lp)
+    if not args.no_propagate:  # Gaussians no lifted view sees take their 3-D neighbours' label (LiftParams.propagate)
+        unseen = lifted.weights.sum(1) < lp.min_weight
+        lifted = LiftResult(propagate_labels(model.means, lifted.labels, unseen, lp.propagate_k), lifted.weights)
+    views = {i: render_label_map(model, lifted.labels, n_labels, cams[i]) for i in range(len(cams))}
+    per_label: dict[int, list[float]] = {}
+    agree = []
+    for i in held:
+        for k, v in label_iou(views[i], given[i], n_labels).items():
+            per_label.setdefault(k, []).append(v)
+        if (given[i] > 0).any():
+            agree.append(float((views[i] == given[i])[given[i] > 0].mean()))
+    result = {
+        "lifted_from": [cams[i].name for i in lift_idx], "heldout_views": [cams[i].name for i in held],
+        "n_labels": n_labels, "palette": {str(k): list(v) for k, v in palette.items()},
+        "iou_per_label": {str(k): {"mean": float(np.mean(v)), "min": float(np.min(v)), "n_views": len(v)}
+                          for k, v in sorted(per_label.items())},
+        "pixel_agreement": float(np.mean(agree)) if agree else None,
+        "gaussians_per_label": {str(k): int(v) for k, v in lifted.counts().items()},
+        "masks": str(args.masks), "grabcut_box": args.grabcut_box, "propagated": not args.no_propagate,
+        "seconds": time.perf_counter() - t0,
+    }
+    print(f"lifted {len(lift_idx)} view(s) onto {model.num_gaussians:,} Gaussians; scored on {len(held)} held-out view(s)")
+    for k, v in result["iou_per_label"].items():
+        print(f"  label {k}: IoU mean {v['mean']:.3f}, worst {v['min']:.3f} over {v['n_views']} views")
+    if agree:
+        print(f"  pixel agreement {result['pixel_agreement']:.3f}; {result['seconds']:.1f} s")
+
+    if args.figure:
+        if args.show:
+            show = [stems.index(s) for s in args.show.split(",")]
+        else:
+            rest = [i for i in range(len(cams)) if i not in lift_idx]
+            show = [rest[round(t * (len(rest) - 1))] for t in (0.25, 0.6, 1.0)] if len(rest) >= 3 else rest
+        rows = []
+        src = lift_idx[0]
+        img = load_image(scene.image_paths[src])
+        rows.append([img, overlay(img, given[src]), overlay(img, views[src])])
+        for i in show:
+            img = load_image(scene.image_paths[i])
+            ref = overlay(img, given[i]) if i in given else np.ones_like(img)
+            rows.append([img, ref, overlay(img, views[i])])
+        source = f"{cams[src].name}'s mask alone" if len(lift_idx) == 1 else "the masks of " + ", ".join(
+            cams[i].name for i in lift_idx)
+        save_image(args.figure, image_grid(rows, ["view", "given mask (held out below row 1)", f"lifted from {source}"],
+                                           height=180))
+    if args.json:
+        write_json(args.json, result)
+    return result
+
+
+if __name__ == "__main__":
+    main()
