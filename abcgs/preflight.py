@@ -5,29 +5,36 @@ checks the params against the two other things a run depends on:
 
 - ``dvc.yaml``: every params key a stage tracks must be present in the params file itself (a default filled in by
   the schema does not count: DVC reads the YAML, and aborts with "Parameters ... are missing" after the earlier
-  stages have run). :func:`check_dvc_tracked_keys`.
-- the files: every painting and painting label map named in ``data`` exists and decodes; every scene folder
-  exists and holds readable images, unless a ``dvc.yaml`` stage produces it (the embedded tiny scene is made by
-  ``make_tiny``). :func:`check_input_files`.
+  stages have run). :func:`check_dvc_tracked_keys`; :func:`check_scene_entries`: scenes are mappings when
+  ``dvc.yaml`` reads ``${item.path}``.
+- the inputs (:func:`check_input_files`): every scene folder exists and holds decodable views of similar sizes
+  (:func:`check_scene_images`; an alpha channel or a grey view among colour ones is a warning), its ``masks/`` name
+  views and label something (:func:`check_scene_masks`), paintings and label maps exist, decode, are large enough
+  and do not live in a folder stages write, and ``vgg.path`` exists. A scene or painting a ``dvc.yaml`` stage
+  produces (the embedded tiny scene, made by ``make_tiny``) is checked by that stage instead.
 
-:func:`check_scene_entries`: scenes are mappings when ``dvc.yaml`` reads ``${item.path}``.
-
-:func:`preflight` runs them all; :func:`abcgs.pipeline.run_stage` calls it for every stage, and
-``python -m abcgs.preflight params.yaml`` (``make run`` does) before ``dvc repro``.
+:func:`abcgs.pipeline.run_stage` runs the params checks for every stage; the ``preflight`` stage
+(``stages/preflight.py``), which every other stage depends on, runs the input checks too, so ``dvc repro`` stops
+there before any stage's outputs are deleted. ``python -m abcgs.preflight params.yaml`` runs them all by hand
+(``make run`` does, before ``dvc repro``: it also explains params that DVC cannot even parse).
 """
 
 from __future__ import annotations
 
+import logging
 import os
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
 import cv2
+import numpy as np
 import yaml
+from PIL import Image
 
 from abcgs.errors import InputError, ParamsError
 
+log = logging.getLogger(__name__)
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
 
 
@@ -127,16 +134,101 @@ def _check_image(path: Path, what: str) -> None:
         raise InputError(f"{what}: {path} is not a readable image (corrupt or not an image); replace the file")
 
 
-def check_input_files(params, root: Path, produced: Iterable[str] = ()) -> None:
-    """Scene folders and style files named in ``params.data`` exist and decode (see the module docstring)."""
+MIN_PAINTING_SIDE = 32
+"""Paintings smaller than this on a side carry no strokes for VGG's relu3 features (a 4× downsampling)."""
+STAGE_OUTPUT_ROOTS = ("out", "reports")
+"""Folders the pipeline's stages write and delete: inputs must not live there."""
+
+
+def _check_painting(path: Path, what: str) -> None:
+    _check_image(path, what)
+    with Image.open(path) as im:
+        w, h = im.size
+    if min(w, h) < MIN_PAINTING_SIDE:
+        raise InputError(f"{what}: {path} is {w}×{h} pixels; a painting needs at least {MIN_PAINTING_SIDE} pixels on "
+                         "each side for its strokes to reach the style features; use a larger image")
+
+
+def _in_stage_output(rel: str, root: Path) -> str | None:
+    """The stage-output folder (``out/``, ``reports/``) that ``rel`` lies in, if any."""
+    try:
+        parts = (root / rel).resolve().relative_to(root.resolve()).parts
+    except ValueError:
+        return None
+    return parts[0] if parts and parts[0] in STAGE_OUTPUT_ROOTS else None
+
+
+def check_scene_images(name: str, images: Path, max_ratio: float) -> list[str]:
+    """Headers of a scene's photos (no decoding): an error for a view far larger than the capture's median view,
+    warnings for an alpha channel (ignored) and grey views among colour ones (used as grey RGB). Returns warnings."""
+    sizes, modes = {}, {}
+    for p in sorted(q for q in images.iterdir() if q.suffix.lower() in IMAGE_SUFFIXES):
+        with Image.open(p) as im:
+            sizes[p.name], modes[p.name] = im.size, im.mode
+    pixels = {n: w * h for n, (w, h) in sizes.items()}
+    median = float(np.median(list(pixels.values())))
+    big = {n: px / median for n, px in pixels.items() if max_ratio and px > max_ratio * median}
+    if big:
+        worst = max(big, key=big.get)
+        w, h = sizes[worst]
+        mw, mh = sorted(sizes.values(), key=lambda s: s[0] * s[1])[len(sizes) // 2]
+        raise InputError(
+            f"data.scenes.{name}: {images / worst} is {w}×{h}, {big[worst]:.0f}× the pixels of the capture's median "
+            f"view ({mw}×{mh}){f' (and {len(big) - 1} more)' if len(big) > 1 else ''}. One capture's views should have "
+            f"similar sizes: resize it to about {mw}×{mh}, or remove it; reconstruct.max_view_size_ratio "
+            f"(now {max_ratio:g}, 0 = off) sets the limit")
+    warnings = []
+    alpha = [n for n, m in modes.items() if m in ("RGBA", "LA", "PA") or m.endswith("A")]
+    if alpha:
+        warnings.append(f"data.scenes.{name}: {len(alpha)} view(s) have an alpha channel, which is ignored (pixels are "
+                        f"used as if opaque): {', '.join(alpha[:5])}{' …' if len(alpha) > 5 else ''}")
+    grey = [n for n, m in modes.items() if m in ("L", "LA", "I;16", "I", "1")]
+    if grey and len(grey) < len(modes):
+        warnings.append(f"data.scenes.{name}: {len(grey)} grey view(s) among colour views are used as grey RGB, which "
+                        f"the fit cannot reconcile with the colour views: {', '.join(grey[:5])}")
+    return warnings
+
+
+def check_scene_masks(name: str, folder: Path) -> None:
+    """The user's label PNGs in ``<scene>/masks/`` name views of ``images/`` and label something."""
+    masks = folder / "masks"
+    files = sorted(masks.glob("*.png")) if masks.is_dir() else []
+    if not files:
+        return
+    stems = {p.stem for p in (folder / "images").iterdir() if p.suffix.lower() in IMAGE_SUFFIXES}
+    orphans = [p.name for p in files if p.stem not in stems]
+    if orphans:
+        raise InputError(
+            f"data.scenes.{name}: {len(orphans)} of {len(files)} mask file(s) in {masks} match no view in images/ "
+            f"({', '.join(orphans[:5])}{' …' if len(orphans) > 5 else ''}). A mask is named like its view "
+            f"(masks/IMG_0001.png labels images/IMG_0001.jpg); rename or remove them")
+    if all(not np.any(cv2.imread(str(p), cv2.IMREAD_UNCHANGED)) for p in files):
+        raise InputError(f"data.scenes.{name}: every mask in {masks} is all 0 (unassigned), so it labels nothing; "
+                         "paint the labels (1, 2, … or colours on black) or remove the folder for automatic masks")
+
+
+def check_input_files(params, root: Path, produced: Iterable[str] = ()) -> list[str]:
+    """Scene folders, style files and weights named in the params exist, decode and make sense (module docstring).
+    Raises :class:`InputError` on the first problem; returns warnings."""
     produced = list(produced)
+    warnings: list[str] = []
     for section, entries in (("styles", params.data.styles), ("style_masks", params.data.style_masks)):
         for name, rel in entries.items():
+            inside = _in_stage_output(rel, root)
+            if inside:
+                raise InputError(f"data.{section}.{name}: {rel} lies in {inside}/, which pipeline stages write and "
+                                 "delete when they re-run; copy the file to a folder of its own")
             if not _produced(Path(rel), produced, root):  # e.g. the tiny scene's paintings, made by make_tiny
-                _check_image(root / rel, f"data.{section}.{name}")
+                (_check_painting if section == "styles" else _check_image)(root / rel, f"data.{section}.{name}")
+    if params.vgg.path and not (root / params.vgg.path).is_file():
+        raise InputError(f"vgg.path: {params.vgg.path} does not exist; give a torchvision VGG-16 state dict (.pth) or "
+                         "null to use the weights found on this machine (docs/WEIGHTS.md)")
     for name, scene in params.data.scenes.items():
         rel = scene.path
         folder = root / rel
+        if _in_stage_output(rel, root):
+            raise InputError(f"data.scenes.{name}: {rel} lies in a folder pipeline stages write and delete; move the "
+                             "scene elsewhere")
         if _produced(Path(rel), produced, root):
             continue
         images = folder / "images"
@@ -150,12 +242,16 @@ def check_input_files(params, root: Path, produced: Iterable[str] = ()) -> None:
         if bad:
             raise InputError(f"data.scenes.{name}: {len(bad)} image(s) in {images} do not decode: {', '.join(bad[:5])}"
                              f"{' …' if len(bad) > 5 else ''}; remove or replace them")
+        warnings += check_scene_images(name, images, params.scene_section(name, "reconstruct").max_view_size_ratio)
+        check_scene_masks(name, folder)
+    return warnings
 
 
-def preflight(params, raw: dict, params_path: str | os.PathLike) -> None:
-    """Both checks for ``params`` validated from ``raw``, the parsed ``params_path``; ``dvc.yaml`` and the
+def preflight(params, raw: dict, params_path: str | os.PathLike, *, files: bool = True) -> list[str]:
+    """The checks for ``params`` validated from ``raw``, the parsed ``params_path``; ``dvc.yaml`` and the
     repository root are taken from the params file's folder. Without a ``dvc.yaml`` there (a params file used
-    outside the pipeline) only the files are checked."""
+    outside the pipeline) only the files are checked; ``files=False`` skips them (stages after the ``preflight``
+    stage, which ran them). Returns the warnings (each also logged)."""
     params_path = Path(params_path)
     root = params_path.resolve().parent
     dvc_yaml = root / "dvc.yaml"
@@ -164,7 +260,10 @@ def preflight(params, raw: dict, params_path: str | os.PathLike) -> None:
         check_dvc_tracked_keys(raw, dvc_yaml, str(params_path))
         check_scene_entries(raw, dvc_yaml, str(params_path))
         produced = dvc_outputs(dvc_yaml)
-    check_input_files(params, root, produced)
+    warnings = check_input_files(params, root, produced) if files else []
+    for w in warnings:
+        log.warning("preflight: %s", w)
+    return warnings
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -45,17 +45,20 @@ def load_runs(root: Path, experiments: dict[str, dict]) -> list[Run]:
 
 
 def _perceptual_key(ev: dict, prefix: str) -> str | None:
-    return next((k for k in ev if k.startswith(prefix) and k not in (f"{prefix}rmse",) and not k.endswith("_std")
+    """The consistency perceptual distance's key (``short_lpips`` or ``short_lpips_proxy_vgg``, …)."""
+    return next((k for k in ev if k.startswith(f"{prefix}lpips") and not k.endswith("_std")
                  and isinstance(ev[k], (int, float))), None)
 
 
 def table_rows(runs: list[Run]) -> tuple[list[str], list[list[str]]]:
-    """Column names (with the metric names actually used) and formatted cells."""
+    """Column names (with the metric names actually used) and formatted cells; each warp RMSE is followed by the
+    unstylized scene's RMSE over the same pairs (``floor``)."""
     art = next((k for r in runs for k in ("artfid", "artfid_proxy") if k in r.evaluation), "artfid_proxy")
     short_p = next((k for r in runs if (k := _perceptual_key(r.evaluation, "short_"))), "short_lpips")
     long_p = next((k for r in runs if (k := _perceptual_key(r.evaluation, "long_"))), "long_lpips")
     cols = ["run", "scene", "transfer", "method", f"{art} ↓", "fid_tf_inception ↓", "kid_tf_inception ↓", "ssim ↑",
-            "stylize min ↓", "fps ↑", f"{short_p} ↓", "short_rmse ↓", f"{long_p} ↓", "long_rmse ↓"]
+            "stylize min ↓", "fps ↑", f"{short_p} ↓", "short_rmse ↓", "short floor", f"{long_p} ↓", "long_rmse ↓",
+            "long floor"]
 
     def f(v, fmt="{:.3f}"):
         return "–" if v is None else fmt.format(v)
@@ -68,7 +71,8 @@ def table_rows(runs: list[Run]) -> tuple[list[str], list[list[str]]]:
             f(ev.get(art), "{:.2f}"), f(ev.get("fid_tf_inception"), "{:.1f}"), f(ev.get("kid_tf_inception"), "{:.4f}"),
             f(ev.get("ssim")), f(st.get("stylize_seconds", 0) / 60, "{:.2f}"),
             f((ev.get("speed") or {}).get("render_fps") or st.get("render_fps"), "{:.1f}"),
-            f(ev.get(short_p)), f(ev.get("short_rmse")), f(ev.get(long_p)), f(ev.get("long_rmse")),
+            f(ev.get(short_p)), f(ev.get("short_rmse")), f(ev.get("short_rmse_floor")),
+            f(ev.get(long_p)), f(ev.get("long_rmse")), f(ev.get("long_rmse_floor")),
         ])
     return cols, rows
 
@@ -87,8 +91,25 @@ def ablation_groups(runs: list[Run]) -> list[list[Run]]:
     return [g for g in groups.values() if len({r.spec.get("method") for r in g}) > 1]
 
 
-def render_html(runs: list[Run], title: str = "abcgs report", viewer: str | None = None) -> str:
-    """The report page; ``viewer``: an :func:`abcgs.view.viewer_fragment` to place under the table."""
+def collect_warnings(root: Path, scenes: list[str]) -> list[str]:
+    """What the run left out or changed without stopping: the preflight stage's warnings and, per scene, the views
+    that did not register (``out/<scene>/reconstruct.json``)."""
+    warnings = list(read_record(root / "preflight_report.json").get("warnings", [])) \
+        if (root / "preflight_report.json").is_file() else []
+    for scene in scenes:
+        rec = root / scene / "reconstruct.json"
+        if rec.is_file():
+            dropped = read_record(rec).get("unregistered") or []
+            if dropped:
+                warnings.append(f"scene {scene}: {len(dropped)} view(s) did not register and are not in the scene: "
+                                f"{', '.join(dropped[:10])}{' …' if len(dropped) > 10 else ''}")
+    return warnings
+
+
+def render_html(runs: list[Run], title: str = "abcgs report", viewer: str | None = None,
+                warnings: list[str] | None = None) -> str:
+    """The report page; ``viewer``: an :func:`abcgs.view.viewer_fragment` to place under the table; ``warnings``
+    (:func:`collect_warnings`) above it."""
     cols, rows = table_rows(runs)
     head = "".join(f"<th>{html.escape(c)}</th>" for c in cols)
     body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in rows)
@@ -96,7 +117,8 @@ def render_html(runs: list[Run], title: str = "abcgs report", viewer: str | None
         f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
         "<style>body{font-family:sans-serif;margin:24px;max-width:1200px}table{border-collapse:collapse}"
         "td,th{border:1px solid #ccc;padding:4px 8px;text-align:right}td:first-child{text-align:left}"
-        "h2{margin-top:32px}.note{color:#555;font-size:90%}</style></head><body>",
+        "h2{margin-top:32px}.note{color:#555;font-size:90%}.warn{background:#fff4d6;border:1px solid #e0b84a;"
+        "padding:4px 12px;margin:12px 0}</style></head><body>",
         f"<h1>{html.escape(title)}</h1>",
         "<p class='note'>Metric names say what was computed: <code>artfid</code>/<code>lpips</code> only with the "
         "official networks; offline runs report <code>artfid_proxy</code> = (1 + content distance proxy) × "
@@ -104,6 +126,9 @@ def render_html(runs: list[Run], title: str = "abcgs report", viewer: str | None
         "SSIM 0.54, short LPIPS 0.057 / RMSE 0.048, long LPIPS 0.093 / RMSE 0.077.</p>",
         f"<table><tr>{head}</tr>{body}</table>",
     ]
+    if warnings:
+        items = "".join(f"<li>{html.escape(w)}</li>" for w in warnings)
+        parts.insert(-1, f"<div class='warn'><b>Warnings</b><ul>{items}</ul></div>")
     if viewer:
         parts += ["<h2>The scenes in 3-D</h2>", "<p class='note'>Original, stylized and content labels over the same "
                   "Gaussians; the training cameras are the viewpoints ◀ ▶ step through.</p>", viewer]
@@ -199,14 +224,15 @@ METHOD_LABELS = {"fast": "FAST", "nnfm": "NNFM (ARF)", "knnfm": "KNNFM", "gram":
 
 
 def results_markdown(runs: list[Run]) -> str:
-    """The results table as markdown, one row per run grouped by painting(s): content SSIM, short/long warp RMSE,
-    Gram style distance, KID on TF-Inception patches and stylization minutes (metric names: docs/METRICS.md)."""
+    """The results table as markdown, one row per run grouped by painting(s): content SSIM, short/long warp RMSE
+    beside the unstylized scene's (the floor: the same pairs, flows and masks on the original renders), Gram style
+    distance, KID on TF-Inception patches and stylization minutes (metric names: docs/METRICS.md)."""
 
     def f(v, fmt="{:.3f}"):
         return "" if v is None else fmt.format(v)
 
-    lines = ["| painting(s) | method | content SSIM ↑ | short / long warp RMSE ↓ | Gram distance ↓ | KID (TF-Inception) ↓ "
-             "| stylize min |", "| --- | --- | --- | --- | --- | --- | --- |"]
+    lines = ["| painting(s) | method | content SSIM ↑ | short / long warp RMSE ↓ | unstylized floor | Gram distance ↓ "
+             "| KID (TF-Inception) ↓ | stylize min |", "| --- | --- | --- | --- | --- | --- | --- | --- |"]
     previous = None
     for r in sorted(runs, key=lambda r: (str(r.spec.get("style") or r.spec.get("styles")), r.spec.get("transfer", ""),
                                          r.spec.get("method") == "none")):
@@ -218,18 +244,21 @@ def results_markdown(runs: list[Run]) -> str:
         minutes = st.get("stylize_seconds") if method != "none" else None
         lines.append("| " + " | ".join([
             painting if painting != previous else "", METHOD_LABELS.get(method, method), f(ev.get("ssim")),
-            f"{f(ev.get('short_rmse'), '{:.4f}')} / {f(ev.get('long_rmse'), '{:.4f}')}", f(ev.get("gram_distance")),
+            f"{f(ev.get('short_rmse'), '{:.4f}')} / {f(ev.get('long_rmse'), '{:.4f}')}",
+            f"{f(ev.get('short_rmse_floor'), '{:.4f}')} / {f(ev.get('long_rmse_floor'), '{:.4f}')}",
+            f(ev.get("gram_distance")),
             f(ev.get("kid_tf_inception")), f(None if minutes is None else minutes / 60, "{:.1f}")]) + " |")
         previous = painting
     return "\n".join(lines)
 
 
-def write_report(out: Path, runs: list[Run], root: Path, styles: dict[str, str], viewer: str | None = None) -> None:
+def write_report(out: Path, runs: list[Run], root: Path, styles: dict[str, str], viewer: str | None = None,
+                 warnings: list[str] | None = None) -> None:
     """The report's files: ``out`` (self-contained HTML), ``<out>.png`` (metric bars), ``results.md`` (the table as
     markdown, what README's results block is made from) and ``comparison.jpg`` (:func:`comparison_figure`) beside it."""
     from abcgs.io.atomic import write_text
 
-    write_text(out, render_html(runs, viewer=viewer))
+    write_text(out, render_html(runs, viewer=viewer, warnings=warnings))
     summary_png(runs, out.with_suffix(".png"))
     write_text(out.with_name("results.md"), results_markdown(runs) + "\n")
     comparison_figure(runs, root, styles, out.with_name("comparison.jpg"))

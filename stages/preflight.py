@@ -1,11 +1,13 @@
 """Stage ``preflight``: every check that needs no stage's output, before any stage runs or loses its outputs.
 
-    python stages/preflight.py --out out/preflight.json
+    python stages/preflight.py --out out/preflight.json --record out/preflight_report.json
 
-Validates the whole params file (schema, names, references between sections), checks it against ``dvc.yaml``
-(every tracked key present) and checks the input files (scene folders, paintings, label maps decode). Every other
-stage depends on its output, so ``dvc repro`` stops here, with the key named, before DVC deletes any stage's
-outputs. The output's content does not depend on the params, so a passing preflight re-runs nothing downstream.
+:func:`abcgs.pipeline.run_stage` validates the whole params file (schema, names, references between sections) and
+checks it against ``dvc.yaml`` (every tracked key present), as for every stage; this stage then checks the inputs
+(:func:`abcgs.preflight.check_input_files`: scene folders, views, masks, paintings, weights). Every other stage
+depends on its stamp, so ``dvc repro`` stops here, with the key named, before DVC deletes any stage's outputs. The
+stamp's content does not depend on the params, so a passing preflight re-runs nothing downstream; the warnings go to
+``--record``, which the report shows.
 """
 
 from __future__ import annotations
@@ -15,15 +17,21 @@ from pathlib import Path
 
 from abcgs.io.atomic import write_json
 from abcgs.pipeline import StageSpec, run_stage, stage_parser
+from abcgs.preflight import check_input_files, dvc_outputs
 
-SPEC = StageSpec("preflight")
+SPEC = StageSpec("preflight", params=("data", "vgg", "reconstruct"))
 
 
 def main(args, params) -> None:
+    root = args.params.resolve().parent
+    dvc_yaml = root / "dvc.yaml"
+    warnings = check_input_files(params, root, dvc_outputs(dvc_yaml) if dvc_yaml.is_file() else [])
+    write_json(args.record, {"warnings": warnings})
     write_json(args.out, {"checks": "passed"})
 
 
 if __name__ == "__main__":
     ap = stage_parser(SPEC, __doc__.strip().splitlines()[0])
     ap.add_argument("--out", type=Path, required=True, help="the stamp every other stage depends on")
+    ap.add_argument("--record", type=Path, required=True, help="the warnings (JSON)")
     sys.exit(run_stage(SPEC, ap, main))

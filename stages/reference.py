@@ -1,10 +1,11 @@
-"""Stage ``reference``: the original scene's renders and optical flows that every experiment's evaluation
-of this scene compares against, computed once per scene.
+"""Stage ``reference``: the original scene's renders, the consistency pairs, the optical flows between them and the
+unstylized scene's warp error over those pairs (the floor), which every experiment's evaluation of this scene
+compares against, computed once per scene.
 
     python stages/reference.py --scene tiny --out out/tiny/reference
 
-Tracks only the ``evaluate`` keys of :data:`abcgs.evaluation.reference.FLOW_SETTINGS` (views and flows), so new
-experiments, or changed metric, ``stylize`` or ``colormatch`` settings, do not re-run it.
+Tracks only the ``evaluate`` keys of :data:`abcgs.evaluation.reference.FLOW_SETTINGS` (views, pairs and flows), so
+new experiments, or changed metric, ``stylize`` or ``colormatch`` settings, do not re-run it.
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 from abcgs.pipeline import StageSpec, run_stage, stage_parser
-from abcgs.report import load_runs, write_report
+from abcgs.report import collect_warnings, load_runs, write_report
 from abcgs.view.outputs import load_experiment
 from abcgs.view.page import viewer_fragment
 
@@ -26,7 +26,8 @@ def main(args, params) -> None:
                                 path_frames=params.viewer.path_frames)
                 for name, exp in params.experiments.items()]
         viewer = viewer_fragment(exps, max_width=params.viewer.max_width)
-    write_report(args.out, runs, args.root, dict(params.data.styles), viewer)
+    scenes = sorted({exp.scene for exp in params.experiments.values()})
+    write_report(args.out, runs, args.root, dict(params.data.styles), viewer, collect_warnings(args.root, scenes))
 
 
 if __name__ == "__main__":

@@ -79,6 +79,14 @@ def test_evaluate_scene_names_proxies_as_proxies(scene, proxy) -> None:
     assert fk["n_stylized_patches"] == 10 and fk["n_style_patches"] == 10 and len(fk["inception"]["sha256"]) == 64
     assert 0 < m["ssim"] < 1 and m["render_fps"] > 0 and m["speed"]["backend"]
     assert len(res.per_view) == 5 and res.per_view[-1]["short_rmse"] is None
+    # pose pairs (a dolly along x in file order: the same pairs), the floor and the valid fraction of every pair
+    assert m["pairs"] == "pose" and m["consistency_pairs"]["order"] == ["v00", "v01", "v02", "v03", "v04"]
+    short = m["consistency_pairs"]["short"]
+    assert [(r["view"], r["pair_view"]) for r in short] == [("v00", "v01"), ("v01", "v02"), ("v02", "v03"), ("v03", "v04")]
+    assert all(0 < r["valid_fraction"] <= 1 and np.isfinite(r["rmse_floor"]) for r in short)
+    assert m["short_valid_fraction"] == pytest.approx(np.mean([r["valid_fraction"] for r in short]))
+    assert 0 < m["short_rmse_floor"] < 1 and 0 < m["long_rmse_floor"] < 1
+    assert res.per_view[0]["short_pair"] == "v01" and res.per_view[0]["short_valid_fraction"] == short[0]["valid_fraction"]
     json.dumps(m)  # serialisable
 
 
@@ -87,6 +95,9 @@ def test_identical_scenes_score_perfect_content(scene, proxy) -> None:
     res = evaluate_scene(cams[:3], model, model, [style], PARAMS, perceptual=proxy)
     assert res.metrics["ssim"] == pytest.approx(1.0, abs=1e-9)
     assert res.metrics["content_lpips_proxy_vgg"] == pytest.approx(0.0, abs=1e-6)
+    # the unstylized scene scores its own floor
+    assert res.metrics["short_rmse"] == res.metrics["short_rmse_floor"]
+    assert res.metrics["long_rmse"] == res.metrics["long_rmse_floor"]
 
 
 def test_mismatched_counts_and_missing_inputs_fail_clearly(scene, proxy, tmp_path) -> None:
@@ -95,6 +106,8 @@ def test_mismatched_counts_and_missing_inputs_fail_clearly(scene, proxy, tmp_pat
         evaluate_images(img, img[:2], [img[0]], PARAMS, perceptual=proxy)
     with pytest.raises(InputError, match="no style images"):
         evaluate_images(img, img, [], PARAMS, perceptual=proxy)
+    with pytest.raises(InputError, match="pairs views by their cameras"):
+        evaluate_images(img, img, [img[0]], PARAMS, perceptual=proxy)
     from abcgs.evaluation.evaluate import load_stylize_run
 
     with pytest.raises(InputError, match="run the stylize stage"):
@@ -154,8 +167,15 @@ def test_stored_reference_gives_the_same_metrics(scene, proxy, tmp_path) -> None
     assert _numbers(stored.metrics) == _numbers(direct.metrics)
     assert stored.metrics["provenance"]["flow"] == direct.metrics["provenance"]["flow"]
     assert stored.metrics["provenance"]["reference"]["n_flows"] == 10
+    assert ref.info["floor"]["short"]["rmse"] == stored.metrics["short_rmse_floor"] == direct.metrics["short_rmse_floor"]
     with pytest.raises(InputError, match="other evaluate settings.*long_term_gap"):
         load_reference(tmp_path / "ref", cams, PARAMS.model_copy(update={"long_term_gap": 2}))
+    with pytest.raises(InputError, match="other evaluate settings.*pairs"):
+        load_reference(tmp_path / "ref", cams, PARAMS.model_copy(update={"pairs": "index"}))
+    moved = [cams[0], cams[3], cams[2], cams[1], cams[4]]  # views 1 and 3 swap poses: other pairs
+    moved = [Camera(c.name, m.K, m.viewmat, m.width, m.height) for c, m in zip(cams, moved)]
+    with pytest.raises(InputError, match="other consistency pairs"):
+        load_reference(tmp_path / "ref", moved, PARAMS)
     with pytest.raises(InputError, match="other views"):
         load_reference(tmp_path / "ref", cams[:4], PARAMS)
     with pytest.raises(InputError, match="another fit"):

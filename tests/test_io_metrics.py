@@ -31,12 +31,12 @@ def test_headlines_keep_the_computed_names_and_only_headline_numbers(tmp_path) -
     from abcgs.io.metrics import EXPERIMENT_HEADLINE, experiment_headline, fit_headline, write_headline
 
     ev = {"ssim": 0.5, "short_rmse": 0.06, "long_rmse": 0.09, "short_lpips_proxy_vgg": 0.7, "long_lpips_proxy_vgg": 1.1,
-          "gram_distance": 0.3, "kid_tf_inception": 0.2, "kid_tf_inception_std": 0.01, "artfid_proxy": 900.0,
+          "short_rmse_floor": 0.04, "long_rmse_floor": 0.05, "gram_distance": 0.3, "kid_tf_inception": 0.2, "kid_tf_inception_std": 0.01, "artfid_proxy": 900.0,
           "artfid_components": {"content_distance": {"value": 3.0}}, "stylize_minutes": 5.0, "n_views": 16,
           "short_valid_fraction": 0.8, "speed": {"render_fps": 20.0}, "fid_tf_inception": float("nan")}
     head = experiment_headline(ev)
-    assert head == {"content_ssim": 0.5, "short_rmse": 0.06, "long_rmse": 0.09, "short_lpips_proxy_vgg": 0.7,
-                    "long_lpips_proxy_vgg": 1.1, "gram_distance": 0.3, "kid_tf_inception": 0.2, "artfid_proxy": 900.0,
+    assert head == {"content_ssim": 0.5, "short_rmse": 0.06, "long_rmse": 0.09, "short_rmse_floor": 0.04,
+                    "long_rmse_floor": 0.05, "short_lpips_proxy_vgg": 0.7, "long_lpips_proxy_vgg": 1.1, "gram_distance": 0.3, "kid_tf_inception": 0.2, "artfid_proxy": 900.0,
                     "stylize_minutes": 5.0}
     assert len(head) == len(EXPERIMENT_HEADLINE)
     # the official name only when the official metric was computed

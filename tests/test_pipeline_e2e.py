@@ -189,6 +189,70 @@ def test_quality_has_not_regressed(repo: Path, first_repro) -> None:
     assert not failures, "quality regressed:\n" + "\n".join(failures)
 
 
+# ------------------------------------------------------------------------------------------------ bad params
+def _with_params(repo: Path, edit) -> str:
+    """Apply ``edit`` to the repo's params.yaml; returns the original text (restore it in ``finally``)."""
+    text = (repo / "params.yaml").read_text()
+    params = yaml.safe_load(text)
+    edit(params)
+    (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    return text
+
+
+def test_a_params_typo_stops_plain_dvc_repro_before_any_output_is_lost(repo: Path, first_repro) -> None:
+    ply = repo / "out" / "tiny" / "gs" / "point_cloud.ply"
+    before = ply.read_bytes()
+    original = _with_params(repo, lambda p: p["fit"].__setitem__("iteratons", p["fit"].pop("iterations")))
+    try:
+        t0 = time.perf_counter()
+        proc = _run(["dvc", "repro"], repo)
+        seconds = time.perf_counter() - t0
+    finally:
+        (repo / "params.yaml").write_text(original)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode != 0 and "fit.iteratons" in out, out[-3000:]
+    assert "Running stage 'fit@tiny'" not in out and ply.read_bytes() == before, "the fitted scene was touched"
+    print(f"typo caught by the preflight stage in {seconds:.1f} s")
+    assert seconds < 30, f"the typo took {seconds:.0f} s to report"
+
+
+@pytest.mark.parametrize("where", ["experiment", "scene"])
+def test_a_name_with_shell_syntax_runs_no_command(repo: Path, first_repro, tmp_path: Path, where: str) -> None:
+    marker = tmp_path / "injected"
+    bad = f"e; touch {marker} #"
+
+    def edit(p: dict) -> None:
+        if where == "experiment":
+            p["experiments"][bad] = dict(p["experiments"]["tiny_single"])
+        else:
+            p["data"]["scenes"][bad] = dict(p["data"]["scenes"]["tiny"])
+
+    original = _with_params(repo, edit)
+    try:
+        proc = _run(["dvc", "repro"], repo)
+    finally:
+        (repo / "params.yaml").write_text(original)
+    assert not marker.exists(), "a command from a params name ran"
+    assert proc.returncode != 0
+    out = proc.stdout + proc.stderr
+    assert ("a name must match" in out or "must be letters" in out) or "stage name" in out.lower(), out[-3000:]
+
+
+def test_a_scene_folder_with_a_space_and_accents_reconstructs(repo: Path, first_repro) -> None:
+    spaced = repo / "data" / "tiny copy ü"
+    shutil.copytree(repo / "data" / "tiny", spaced)
+    original = _with_params(repo, lambda p: p["data"]["scenes"].__setitem__("spaced", {"path": "data/tiny copy ü"}))
+    try:
+        proc = _run(["dvc", "repro", "reconstruct@spaced"], repo)
+        assert proc.returncode == 0, (proc.stdout + proc.stderr)[-3000:]
+        assert json.loads((repo / "out" / "spaced" / "reconstruct.json").read_text())["registered"] == 16
+    finally:
+        (repo / "params.yaml").write_text(original)
+        shutil.rmtree(spaced)
+        shutil.rmtree(repo / "out" / "spaced", ignore_errors=True)
+        _run(["dvc", "repro"], repo)  # back to the module's pipeline (restores the lock's view)
+
+
 # ------------------------------------------------------------------------------------------------ at scale
 # These run last in this module: they add a scene, commit, queue experiments and push to a remote.
 def _changed_stages(repo: Path) -> set[str]:

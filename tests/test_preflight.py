@@ -62,7 +62,10 @@ def test_style_files_must_exist_and_decode(tmp_path) -> None:
     (tmp_path / "bad.jpg").write_bytes(b"\xff\xd8 not really a jpeg")
     with pytest.raises(InputError, match=r"data\.styles\.p: .*bad\.jpg is not a readable image"):
         check_input_files(validate_params(_raw(tmp_path, styles={"p": "bad.jpg"})), tmp_path)
-    save_image(tmp_path / "ok.png", np.zeros((16, 16, 3), np.float32))
+    save_image(tmp_path / "small.png", np.zeros((16, 16, 3), np.float32))
+    with pytest.raises(InputError, match=r"data\.styles\.p: .*small\.png is 16×16 pixels"):
+        check_input_files(validate_params(_raw(tmp_path, styles={"p": "small.png"})), tmp_path)
+    save_image(tmp_path / "ok.png", np.zeros((64, 64, 3), np.float32))
     with pytest.raises(InputError, match=r"data\.style_masks\.p: .*gone\.png does not exist"):
         check_input_files(validate_params(_raw(tmp_path, styles={"p": "ok.png"}, style_masks={"p": "gone.png"})), tmp_path)
     check_input_files(validate_params(_raw(tmp_path, styles={"p": "ok.png"})), tmp_path)

@@ -347,16 +347,27 @@ def test_a_fresh_process_loads_the_installed_kernels_without_compiling(tmp_path)
         "import abcgs.render.cpu as c\n"
         "t = time.perf_counter(); ext = c.extension_or_none(); t = time.perf_counter() - t\n"
         "print(t, ext.__name__ if ext is not None else None)\n",
-        {"HOME": str(tmp_path), "XDG_CACHE_HOME": str(tmp_path / ".cache"), "ABCGS_CACHE": str(tmp_path / "abcgs")},
+        {"HOME": str(tmp_path), "XDG_CACHE_HOME": str(tmp_path / ".cache")},
     )
     assert proc.returncode == 0, proc.stderr[-2000:]
     seconds, name = proc.stdout.split()[-2:]
     assert float(seconds) < 5
-    assert not (tmp_path / ".cache" / "abcgs").exists() and not (tmp_path / "abcgs").exists()
-    assert not (tmp_path / ".cache" / "torch_extensions").exists()
+    assert not (tmp_path / ".cache" / "abcgs").exists() and not (tmp_path / ".cache" / "torch_extensions").exists()
     if cpu_backend.is_available():
         assert name == cpu_backend.load_extension().__name__
         assert name.startswith("abcgs.render." + kernel_variants.MODULE_PREFIX)
+
+
+@needs_cpu
+def test_a_copy_of_the_checkout_uses_the_installed_kernels(tmp_path) -> None:
+    """A copy that was not installed itself (a benchmark's clean copy, a dvc exp temp folder) has no modules of its
+    own: it loads those of the installed abcgs, checked against its own csrc/."""
+    shutil.copytree(REPO / "abcgs", tmp_path / "abcgs", ignore=shutil.ignore_patterns("__pycache__", "_kernels_*"))
+    proc = _run_python("import abcgs.render.cpu as c; print(c.__file__, c.load_extension().__file__)", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    module, kernels = map(Path, proc.stdout.split()[-2:])
+    assert module == tmp_path / "abcgs" / "render" / "cpu.py"  # the copy was imported
+    assert kernels == Path(cpu_backend.load_extension().__file__)
 
 
 @needs_cpu

@@ -101,3 +101,21 @@ def test_style_legend_pairs_each_label_colour_with_its_painting():
     assert pure_blue(row).sum() > 5 and ((row[:, 0] > 150) & (row[:, 0] < 250) & (row[:, 2] > 200)).sum() > 5
     no_swatch = style_legend([(None, red, None)], height=40)
     assert (no_swatch[5, 2] == [255, 0, 0]).all()
+
+
+def test_tables_show_the_consistency_floor_beside_the_rmse(tmp_path) -> None:
+    from abcgs.io.metrics import read_record
+    from abcgs.report import results_markdown, table_rows
+
+    make_run(tmp_path, "a_fast", official=False, ssim=0.5)
+    make_run(tmp_path, "b_fast", official=False, ssim=0.5)
+    rec = read_record(tmp_path / "a_fast" / "eval.json") | {"short_rmse_floor": 0.031, "long_rmse_floor": 0.047,
+                                                            "short_valid_fraction": 0.9}
+    write_metrics(tmp_path / "a_fast" / "eval.json", rec)
+    runs = load_runs(tmp_path, {k: SPECS[k] for k in ("a_fast", "b_fast")})
+    cols, rows = table_rows(runs)
+    assert cols[cols.index("short_rmse ↓") + 1] == "short floor" and cols[cols.index("long_rmse ↓") + 1] == "long floor"
+    assert "short_lpips_proxy_vgg ↓" in cols  # not a floor or valid-fraction key
+    assert rows[0][cols.index("short floor")] == "0.031" and rows[1][cols.index("long floor")] == "–"
+    md = results_markdown(runs).splitlines()
+    assert "unstylized floor" in md[0] and "0.0310 / 0.0470" in md[2]

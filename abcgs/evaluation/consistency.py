@@ -14,10 +14,14 @@ Views may differ in size (COLMAP gives each camera its own undistorted size): a 
 grid of its first view ``i``, view ``j`` resampled onto it (:func:`on_grid`) before the flow and the warp;
 the number of resampled pairs is reported.
 
-Reported per pair: masked RMSE (images in [0, 1], averaged over the 3 channels) and a masked perceptual
-distance (:class:`abcgs.evaluation.content.PerceptualDistance`: real LPIPS-alex or the named VGG proxy);
-short-term pairs are (i, i + 1), long-term pairs (i, i + gap) with gap clipped to n − 1 (training views
-in capture order, as for forward-facing LLFF scenes).
+Reported per pair: masked RMSE (images in [0, 1], averaged over the 3 channels), a masked perceptual
+distance (:class:`abcgs.evaluation.content.PerceptualDistance`: real LPIPS-alex or the named VGG proxy) and the
+fraction of view ``i``'s pixels the mask keeps. Which views are paired is :mod:`abcgs.evaluation.pairs`: views 1
+and 7 apart along a path through the camera poses (``evaluate.pairs: pose``), or in file order (``index``).
+
+The floor (:func:`warp_floor`): the same pairs, flows and masks applied to the original renders themselves. The
+unstylized scene is consistent by construction, so what it scores is flow error, occlusion edges and resampling:
+the part of a stylized scene's number that is measurement, not stylization.
 
 Flow (``evaluate.flow``): ``raft`` = torchvision's RAFT-large (Teed & Deng 2020; weights from
 ``evaluate.raft_weights`` or torchvision's ``Raft_Large_Weights.DEFAULT`` file in the torch hub cache, which
@@ -34,6 +38,7 @@ comparable only when it is named ``lpips``.
 from __future__ import annotations
 
 import importlib.util
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -48,6 +53,7 @@ from abcgs.evaluation.content import (
     check_same_count,
     masked_rmse,
 )
+from abcgs.evaluation.pairs import path_pairs
 from abcgs.evaluation.parallel import ordered_map
 
 FB_ALPHA = 0.01
@@ -263,11 +269,8 @@ class PairResult:
 
 
 def view_pairs(n: int, gap: int) -> list[tuple[int, int]]:
-    """``(i, i + g)`` for all i with g = min(gap, n − 1)."""
-    if n < 2:
-        raise InputError(f"consistency needs at least 2 views, got {n}")
-    g = max(1, min(gap, n - 1))
-    return [(i, i + g) for i in range(n - g)]
+    """``(i, i + g)`` for all i with g = min(gap, n − 1): ``n`` views paired in list order."""
+    return path_pairs(range(n), gap)
 
 
 def on_grid(img: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
@@ -337,18 +340,22 @@ def evaluate_pair(i: int, j: int, stylized: list[np.ndarray], flows: FlowCache, 
 
 
 def consistency(
-    originals: list[np.ndarray], stylized: list[np.ndarray], gap: int, flows: FlowCache,
+    originals: list[np.ndarray], stylized: list[np.ndarray], pairs: int | Sequence[tuple[int, int]], flows: FlowCache,
     perceptual: PerceptualDistance | None, *, workers: int = 1,
 ) -> tuple[dict, list[PairResult]]:
-    """Mean masked RMSE / perceptual distance over the pairs ``(i, i + gap)``; per-pair results.
+    """Mean masked RMSE / perceptual distance / valid fraction over ``pairs``; per-pair results.
 
+    ``pairs``: ``(i, j)`` list indices (view ``j`` warped into view ``i``; e.g. a
+    :class:`~abcgs.evaluation.pairs.ViewPairs`' ``short``), or an int: that gap in list order (:func:`view_pairs`).
     ``workers``: threads over the pairs (:func:`abcgs.evaluation.parallel.ordered_map`; the same results for any
     count). The flows are looked up (estimated, when ``flows`` has an estimator) first, in this thread.
     """
     check_same_count(originals, stylized)
     for k, (o, s) in enumerate(zip(originals, stylized)):
         check_pair(o, s, f"original and stylized render of view {k}")
-    pairs = view_pairs(len(originals), gap)
+    pairs = view_pairs(len(originals), pairs) if isinstance(pairs, int) else [(int(i), int(j)) for i, j in pairs]
+    if not pairs:
+        raise InputError("no view pairs to measure consistency on")
     for i, j in pairs:  # an estimator (one OpenCV object, or RAFT on torch's threads) runs here, not in the workers
         hw = tuple(np.shape(stylized[i])[:2])
         flows(i, j, hw), flows(j, i, hw)
@@ -356,13 +363,23 @@ def consistency(
     rm = np.array([r.rmse for r in results])
     pc = np.array([r.perceptual for r in results])
     summary = {
-        "gap": results[0].j - results[0].i, "n_pairs": len(results),
+        "n_pairs": len(results),
         "rmse": float(np.nanmean(rm)) if np.isfinite(rm).any() else float("nan"),
         "perceptual": float(np.nanmean(pc)) if np.isfinite(pc).any() else float("nan"),
         "valid_fraction": float(np.mean([r.valid_fraction for r in results])),
         "n_pairs_resampled": sum(r.resampled for r in results),
     }
     return summary, results
+
+
+def warp_floor(originals: list[np.ndarray], pairs: int | Sequence[tuple[int, int]], flows: FlowCache, *,
+               workers: int = 1) -> tuple[dict, list[PairResult]]:
+    """The unstylized scene's own warp error: :func:`consistency` of the original renders against themselves.
+
+    Original view ``j`` warped into view ``i`` with the same flows and masks a stylization is measured with; the
+    masked RMSE (no perceptual distance) per pair and its mean, in the same units as ``short_rmse``/``long_rmse``.
+    """
+    return consistency(originals, originals, pairs, flows, None, workers=workers)
 
 
 def heatmap_panel(original_i: np.ndarray, stylized_i: np.ndarray, pair: PairResult, vmax: float = 0.5) -> list[np.ndarray]:

@@ -43,9 +43,10 @@ from abcgs.evaluation.fid import (
     random_patches,
     resize_short_side,
 )
+from abcgs.evaluation.pairs import ViewPairs, index_pairs
 from abcgs.evaluation.parallel import ordered_map, resolve_workers
 from abcgs.evaluation.params import EvalParams
-from abcgs.evaluation.reference import SceneReference, evaluated_cameras, render_views
+from abcgs.evaluation.reference import SceneReference, compute_floor, evaluated_cameras, pairs_for, render_views
 from abcgs.evaluation.style_distance import GramDistance
 from abcgs.features.matching import resize_to_height
 from abcgs.features.weights import resolve_vgg16
@@ -105,11 +106,16 @@ def evaluate_images(
     view_names: list[str] | None = None,
     vgg_params=None,
     flows: FlowCache | None = None,
+    pairs: ViewPairs | None = None,
+    floor: dict | None = None,
 ) -> EvalResult:
     """All image metrics for matched lists of original/stylized renders (channels-last, [0, 1]).
 
     ``flows``: flows between the original renders (e.g. a stored :class:`~abcgs.evaluation.reference.SceneReference`'s);
-    estimated here with ``params.flow`` when not given.
+    estimated here with ``params.flow`` when not given. ``pairs``: the consistency pairs
+    (:func:`abcgs.evaluation.reference.pairs_for` the cameras); without them only ``evaluate.pairs: index`` works
+    (list order). ``floor``: the unstylized scene's warp error over those pairs
+    (:func:`abcgs.evaluation.reference.compute_floor`, stored in a reference); measured here when not given.
     """
     check_same_count(originals, stylized)
     for k, (o, s) in enumerate(zip(originals, stylized)):
@@ -120,6 +126,13 @@ def evaluate_images(
         raise InputError("no style images to compare the stylized renders with")
     n = len(originals)
     names = view_names or [str(i) for i in range(n)]
+    if pairs is None:
+        if params.pairs != "index":
+            raise InputError(f"evaluate.pairs: {params.pairs} pairs views by their cameras: pass the pairs "
+                             "(abcgs.evaluation.reference.pairs_for), or use evaluate.pairs: index")
+        pairs = index_pairs(n, params.short_term_gap, params.long_term_gap)
+    if sorted(pairs.order) != list(range(n)):
+        raise InputError(f"the consistency pairs were made for {len(pairs.order)} views, not these {n}")
     timings: dict[str, float] = {}
     t = time.perf_counter()
 
@@ -137,8 +150,10 @@ def evaluate_images(
     t = time.perf_counter()
     if flows is None:
         flows = FlowCache(originals, make_flow_estimator(params.flow, params.raft_weights, params.raft_iterations))
-    short, short_pairs = consistency(originals, stylized, params.short_term_gap, flows, perceptual, workers=workers)
-    long, long_pairs = consistency(originals, stylized, params.long_term_gap, flows, perceptual, workers=workers)
+    short, short_pairs = consistency(originals, stylized, pairs.short, flows, perceptual, workers=workers)
+    long, long_pairs = consistency(originals, stylized, pairs.long, flows, perceptual, workers=workers)
+    if floor is None:
+        floor = compute_floor(originals, pairs, flows)
     timings["consistency_s"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -178,21 +193,29 @@ def evaluate_images(
                                (None if art_path is not None else art_why)) if r]
         art_note = "proxy, NOT comparable to the paper's ArtFID: " + "; ".join(reasons)
 
-    # per view: pair (i, i+gap) is attributed to view i
+    # per view: a pair (i, j) is attributed to view i (each view is the first of at most one pair of a kind)
     sp = {r.i: r for r in short_pairs}
     lp = {r.i: r for r in long_pairs}
     rows = []
     for i in range(n):
+        s, lg = sp.get(i), lp.get(i)
         rows.append({
             "view": i, "name": names[i], "ssim": ssims[i], f"content_{pname}": content[i],
-            "short_rmse": sp[i].rmse if i in sp else None, f"short_{pname}": sp[i].perceptual if i in sp else None,
-            "long_rmse": lp[i].rmse if i in lp else None, f"long_{pname}": lp[i].perceptual if i in lp else None,
+            "short_rmse": s.rmse if s else None, f"short_{pname}": s.perceptual if s else None,
+            "short_pair": names[s.j] if s else None, "short_valid_fraction": s.valid_fraction if s else None,
+            "long_rmse": lg.rmse if lg else None, f"long_{pname}": lg.perceptual if lg else None,
+            "long_pair": names[lg.j] if lg else None, "long_valid_fraction": lg.valid_fraction if lg else None,
             "gram_distance": gram_per_view[i],
         })
 
-    pairs = short_pairs if params.heatmap_pair == "short" else long_pairs
-    pick = min(params.heatmap_view, len(pairs) - 1)
-    pr = pairs[pick]
+    def pair_rows(results, kind: str) -> list[dict]:
+        floor_of = {(i, j): r for i, j, r in floor[kind]["per_pair"]}
+        return [{"view": names[r.i], "pair_view": names[r.j], "i": r.i, "j": r.j, "rmse": r.rmse,
+                 pname: r.perceptual, "valid_fraction": r.valid_fraction, "rmse_floor": floor_of.get((r.i, r.j))}
+                for r in results]
+
+    shown = short_pairs if params.heatmap_pair == "short" else long_pairs
+    pr = next((r for r in shown if r.i == params.heatmap_view), shown[min(params.heatmap_view, len(shown) - 1)])
     panel = heatmap_panel(originals[pr.i], stylized[pr.i], pr)
     captions = [f"original {names[pr.i]}", f"stylized {names[pr.i]}", f"stylized {names[pr.j]} warped",
                 f"error (cyan: occluded) rmse {pr.rmse:.3f}"]
@@ -203,8 +226,11 @@ def evaluate_images(
         f"content_{pname}": content_mean,
         "short_rmse": short["rmse"], f"short_{pname}": short["perceptual"],
         "long_rmse": long["rmse"], f"long_{pname}": long["perceptual"],
-        "short_term_gap": short["gap"], "long_term_gap": long["gap"],
+        "short_rmse_floor": floor["short"]["rmse"], "long_rmse_floor": floor["long"]["rmse"],
+        "pairs": pairs.mode, "short_term_gap": pairs.short_gap, "long_term_gap": pairs.long_gap,
         "short_valid_fraction": short["valid_fraction"], "long_valid_fraction": long["valid_fraction"],
+        "consistency_pairs": {"mode": pairs.mode, "order": [names[k] for k in pairs.order],
+                              "short": pair_rows(short_pairs, "short"), "long": pair_rows(long_pairs, "long")},
         "n_view_sizes": len({tuple(np.shape(o)[:2]) for o in originals}),
         "short_pairs_resampled": short["n_pairs_resampled"], "long_pairs_resampled": long["n_pairs_resampled"],
         "fid_tf_inception": fid, "kid_tf_inception": kid_mean, "kid_tf_inception_std": kid_std,
@@ -269,9 +295,10 @@ def _evaluate_scene(cameras, original, stylized, style_images, params, *, styliz
         if reference.view_names != [c.name for c in cams]:
             raise InputError("the evaluation reference was made for other views; re-run the reference stage")
         originals, backend = reference.originals, reference.info.get("render_backend", "stored")
-        kwargs["flows"] = reference.flow_cache()
+        kwargs.update(flows=reference.flow_cache(), pairs=reference.pairs, floor=reference.floor)
     else:
         originals, backend = render_views(original, cams, params.backend)
+        kwargs.setdefault("pairs", pairs_for(cams, params))
     styl, backend_s = render_views(stylized, cams, params.backend)
     render_s = time.perf_counter() - t
     saved_rmse = None

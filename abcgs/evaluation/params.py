@@ -37,8 +37,13 @@ class EvalParams(BaseModel):
         None, description="torchvision RAFT-large state dict (None: Raft_Large_Weights.DEFAULT in the torch hub cache)"
     )
     raft_iterations: int = Field(12, ge=1, description="RAFT refinement updates")
-    short_term_gap: int = Field(1, ge=1, description="view distance of the short-term pairs (i, i+gap)")
-    long_term_gap: int = Field(7, ge=1, description="view distance of the long-term pairs; clipped to n_views-1")
+    pairs: Literal["pose", "index"] = Field(
+        "pose",
+        description="how views are ordered before pairing (abcgs/evaluation/pairs.py): pose = along a path through "
+        "the camera poses (nearest neighbours; independent of file order), index = file-name order",
+    )
+    short_term_gap: int = Field(1, ge=1, description="views this far apart in the pair order are the short-term pairs")
+    long_term_gap: int = Field(7, ge=1, description="views this far apart are the long-term pairs; clipped to n_views-1")
     heatmap_pair: Literal["short", "long"] = Field("short", description="which pair kind eval_consistency.png shows")
     heatmap_view: int = Field(0, ge=0, description="first view of the pair shown in eval_consistency.png")
     # FID / KID

@@ -1,13 +1,15 @@
-"""The per-scene evaluation reference: the original scene's renders and the optical flows between them.
+"""The per-scene evaluation reference: the original scene's renders, the consistency pairs, the optical flows
+between them and the unstylized scene's own warp error over those pairs (the floor).
 
-Both depend on the fitted scene, its views and the flow settings only, never on a stylization, so the
+All depend on the fitted scene, its views and the flow settings only, never on a stylization, so the
 ``reference`` DVC stage (``stages/reference.py``) computes them once per scene and every experiment's
 ``evaluate`` reads them instead of re-rendering and re-estimating the flows (with RAFT on a CPU the flows are
 most of an evaluation; with OpenCV's DIS they are seconds).
 
 On disk (one folder per scene)::
 
-    reference.json   view names and sizes, which flows, settings they were made with, provenance
+    reference.json   view names and sizes, the pairs (:class:`~abcgs.evaluation.pairs.ViewPairs`), the floor,
+                     which flows, settings they were made with, provenance
     renders.npz      view_0000 … : (H_i, W_i, 3) float32 renders in [0, 1] (exact, not 8-bit)
     flows.npz        i_j_H_W : (H, W, 2) float32 flow from view i to view j on the grid (H, W)
 
@@ -27,13 +29,15 @@ import torch
 
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
-from abcgs.evaluation.consistency import FlowCache, make_flow_estimator, view_pairs
+from abcgs.evaluation.consistency import FlowCache, PairResult, make_flow_estimator, warp_floor
+from abcgs.evaluation.pairs import ViewPairs, consistency_pairs
 from abcgs.evaluation.params import EvalParams
 from abcgs.gaussians import GaussianModel, render
 from abcgs.io.atomic import atomic_path, write_json
 
-REFERENCE_VERSION = 1
-FLOW_SETTINGS = ("flow", "raft_weights", "raft_iterations", "short_term_gap", "long_term_gap", "max_views", "backend")
+REFERENCE_VERSION = 2
+FLOW_SETTINGS = ("flow", "raft_weights", "raft_iterations", "pairs", "short_term_gap", "long_term_gap", "max_views",
+                 "backend")
 """The ``evaluate`` settings a reference is made with; ``dvc.yaml``'s reference stage tracks these keys."""
 
 FlowKey = tuple[int, int, tuple[int, int]]
@@ -41,12 +45,16 @@ FlowKey = tuple[int, int, tuple[int, int]]
 
 @dataclass
 class SceneReference:
-    """Original renders ``(H_i, W_i, 3)`` float32 in [0, 1] of the evaluated views, and the flows between them."""
+    """Original renders ``(H_i, W_i, 3)`` float32 in [0, 1] of the evaluated views, their consistency pairs, the
+    flows between them and the floor."""
 
     view_names: list[str]
     originals: list[np.ndarray]
     flows: dict[FlowKey, np.ndarray]
     """``(i, j, (H, W))`` → ``(H, W, 2)`` float32 flow in pixels from view ``i`` to ``j`` on the grid ``(H, W)``."""
+    pairs: ViewPairs
+    floor: dict
+    """:func:`floor_record`: per kind (``short``, ``long``) the unstylized scene's mean warp RMSE and per pair."""
     info: dict = field(default_factory=dict)
 
     def flow_cache(self) -> FlowCache:
@@ -77,11 +85,16 @@ def evaluated_cameras(cameras: list[Camera], params: EvalParams) -> list[Camera]
     return cams
 
 
-def flow_pairs(originals: list[np.ndarray], params: EvalParams) -> list[FlowKey]:
+def pairs_for(cameras: list[Camera], params: EvalParams) -> ViewPairs:
+    """The consistency pairs of the evaluated views ``cameras`` under ``params`` (``pairs``, the two gaps)."""
+    return consistency_pairs(cameras, params.pairs, params.short_term_gap, params.long_term_gap)
+
+
+def flow_pairs(originals: list[np.ndarray], pairs: ViewPairs) -> list[FlowKey]:
     """Every flow the short- and long-term consistency pairs ask for: both directions on the first view's grid."""
     keys: list[FlowKey] = []
-    for gap in (params.short_term_gap, params.long_term_gap):
-        for i, j in view_pairs(len(originals), gap):
+    for kind in ("short", "long"):
+        for i, j in pairs.of(kind):
             hw = tuple(np.shape(originals[i])[:2])
             for key in ((i, j, hw), (j, i, hw)):
                 if key not in keys:
@@ -89,25 +102,43 @@ def flow_pairs(originals: list[np.ndarray], params: EvalParams) -> list[FlowKey]
     return keys
 
 
+def floor_record(summary: dict, results: list[PairResult]) -> dict:
+    """One kind's floor as stored: mean masked RMSE, mean valid fraction and per pair ``[i, j, rmse]``."""
+    return {"rmse": summary["rmse"], "valid_fraction": summary["valid_fraction"],
+            "per_pair": [[r.i, r.j, r.rmse] for r in results]}
+
+
+def compute_floor(originals: list[np.ndarray], pairs: ViewPairs, flows: FlowCache) -> dict:
+    """The unstylized scene's warp error over the short and long pairs (:func:`~abcgs.evaluation.consistency.warp_floor`)."""
+    return {kind: floor_record(*warp_floor(originals, pairs.of(kind), flows)) for kind in ("short", "long")}
+
+
 def compute_reference(cameras: list[Camera], original: GaussianModel, params: EvalParams, *,
                       model_digest: str | None = None, progress=None) -> SceneReference:
-    """Render the original scene for the evaluated views and estimate every flow the consistency metrics need."""
+    """Render the original scene for the evaluated views, pick the consistency pairs, estimate every flow they
+    need and measure the floor."""
     cams = evaluated_cameras(cameras, params)
+    pairs = pairs_for(cams, params)
     t = time.perf_counter()
     originals, backend = render_views(original, cams, params.backend)
     render_s = time.perf_counter() - t
     flows = FlowCache(originals, make_flow_estimator(params.flow, params.raft_weights, params.raft_iterations))
     t = time.perf_counter()
-    keys = flow_pairs(originals, params)
+    keys = flow_pairs(originals, pairs)
     for key in (progress(keys) if progress else keys):
         flows(*key)
+    flow_s = time.perf_counter() - t
+    t = time.perf_counter()
+    floor = compute_floor(originals, pairs, flows)
     info = {
         "version": REFERENCE_VERSION, "view_names": [c.name for c in cams],
         "sizes": [list(np.shape(o)[:2]) for o in originals], "settings": settings_of(params),
+        "pairs": pairs.to_json(), "floor": floor,
         "render_backend": backend, "flow_provenance": flows.provenance(), "n_flows": len(keys),
-        "model_digest": model_digest, "timings_s": {"render": render_s, "flow": time.perf_counter() - t},
+        "model_digest": model_digest,
+        "timings_s": {"render": render_s, "flow": flow_s, "floor": time.perf_counter() - t},
     }
-    return SceneReference([c.name for c in cams], originals, {k: flows(*k) for k in keys}, info)
+    return SceneReference([c.name for c in cams], originals, {k: flows(*k) for k in keys}, pairs, floor, info)
 
 
 def model_digest(path: Path) -> str:
@@ -139,6 +170,9 @@ def load_reference(folder: Path, cameras: list[Camera], params: EvalParams, *, m
     differ = {k: (info["settings"].get(k), v) for k, v in settings_of(params).items() if info["settings"].get(k) != v}
     if differ:
         raise InputError(f"{folder} was made with other evaluate settings {differ} (stored, current): {redo}")
+    pairs = pairs_for(cams, params)
+    if info.get("pairs") != pairs.to_json():
+        raise InputError(f"{folder} was made for other consistency pairs (the camera poses changed): {redo}")
     if model_digest is not None and info.get("model_digest") not in (None, model_digest):
         raise InputError(f"{folder} was rendered from another fit of the scene: {redo}")
     with np.load(folder / "renders.npz") as z:
@@ -151,8 +185,8 @@ def load_reference(folder: Path, cameras: list[Camera], params: EvalParams, *, m
         for name in z.files:
             i, j, h, w = (int(v) for v in name.split("_"))
             flows[(i, j, (h, w))] = z[name]
-    ref = SceneReference(info["view_names"], originals, flows, info)
-    missing = [k for k in flow_pairs(originals, params) if k not in flows]
+    ref = SceneReference(info["view_names"], originals, flows, pairs, info["floor"], info)
+    missing = [k for k in flow_pairs(originals, pairs) if k not in flows]
     if missing:
         raise InputError(f"{folder} lacks {len(missing)} flows the consistency pairs need (e.g. {missing[0]}): {redo}")
     return ref

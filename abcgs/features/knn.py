@@ -81,7 +81,7 @@ def bf16_with_residuals(x: torch.Tensor, dim: int) -> tuple[torch.Tensor, torch.
 @functools.lru_cache(maxsize=1)
 def bf16_dot_available() -> bool:
     """Whether the CPU kernels' extension here has the AVX512-BF16 candidate products (``topk_dots_both``'s
-    ``bf16_products``: built with ``-march=native`` on a CPU with AVX512-BF16 and AVX512-VL)."""
+    ``bf16_products``: the ``x86_64_v4_bf16`` kernel variant, on a CPU with AVX512-BF16 and AVX512-VL)."""
     ext = _cpu_kernels()
     return ext is not None and bool(ext.bf16_dot_available())
 

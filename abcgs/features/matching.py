@@ -95,7 +95,18 @@ def build_groups(
     raw = load_labels(style_mask_paths[key])
     labels = cv2.resize(raw.astype(np.int32), (img.shape[1], img.shape[0]), interpolation=cv2.INTER_NEAREST)
     style_labels = sorted(int(v) for v in np.unique(labels) if v != 0)
-    binding = {j: j for j in sorted(content_labels) if j in style_labels} if exp.binding == "auto" else dict(exp.binding)
+    if exp.binding == "auto":
+        unbound = sorted(j for j in content_labels if j not in style_labels)
+        if unbound:
+            raise InputError(
+                f"semantic transfer with binding auto pairs content label j with painting label j, but the painting's "
+                f"label map {style_mask_paths[key]} has no region for content label(s) {unbound} (its labels: "
+                f"{style_labels}), which would stay unstylized. Give an explicit binding, e.g. binding: "
+                f"{{{', '.join(f'{j}: {style_labels[0]}' for j in unbound)}}} plus the labels that do match, or paint "
+                "those regions into the label map")
+        binding = {j: j for j in sorted(content_labels)}
+    else:
+        binding = dict(exp.binding)
     if not binding:
         raise InputError(f"semantic transfer: no content label ({sorted(content_labels)}) matches a style label ({style_labels})")
     groups = []

@@ -63,11 +63,12 @@ FIT_HEADLINE: dict[str, str] = {"heldout_psnr": "psnr", "heldout_ssim": "ssim", 
 """Per scene, headline name → key of the fit record: held-out PSNR/SSIM of the baseline fit (views the fit never
 trained on, against the photos), its size and wall time."""
 EXPERIMENT_HEADLINE: dict[str, str] = {
-    "content_ssim": "ssim", "short_rmse": "short_rmse", "long_rmse": "long_rmse", "short_lpips": "short_lpips",
-    "long_lpips": "long_lpips", "gram_distance": "gram_distance", "kid": "kid", "artfid": "artfid",
-    "stylize_minutes": "stylize_minutes"}
+    "content_ssim": "ssim", "short_rmse": "short_rmse", "long_rmse": "long_rmse", "short_rmse_floor": "short_rmse_floor",
+    "long_rmse_floor": "long_rmse_floor", "short_lpips": "short_lpips", "long_lpips": "long_lpips",
+    "gram_distance": "gram_distance", "kid": "kid", "artfid": "artfid", "stylize_minutes": "stylize_minutes"}
 """Per experiment, headline name → key of the evaluate record: content (SSIM between the original and the stylized
-renders), consistency (warp RMSE and the perceptual distance), style (Gram distance, KID, ArtFID) and stylization
+renders), consistency (warp RMSE, the unstylized scene's warp RMSE over the same pairs — the floor the stylized
+number is read against — and the perceptual distance), style (Gram distance, KID, ArtFID) and stylization
 wall time. ``short_lpips``/``long_lpips``/``kid``/``artfid`` stand for whichever variant was computed (``lpips`` or
 ``lpips_proxy_vgg``, ``kid_tf_inception``, ``artfid`` or ``artfid_proxy``): :func:`experiment_headline` keeps the
 full name, so a proxy never appears under the official one. No headline name is shared with :data:`FIT_HEADLINE`."""

@@ -173,21 +173,37 @@ def _map(db: Path, images_dir: Path, sparse_dir: Path, params: ReconstructParams
     return max(models.values(), key=lambda r: (r.num_reg_images(), r.num_points3D()))
 
 
-def check_registration(rec: pycolmap.Reconstruction | None, names: list[str], params: ReconstructParams) -> list[str]:
+def check_registration(rec: pycolmap.Reconstruction | None, names: list[str], params: ReconstructParams,
+                       images_dir: Path | None = None) -> list[str]:
     """The unregistered image names; :class:`ReconstructionError` when too few images registered."""
     registered = {im.name for im in rec.images.values() if im.has_pose} if rec is not None else set()
     missing = [n for n in names if n not in registered]
     frac = len(registered) / len(names)
+    shown = ", ".join(missing[:20]) + (f" ... (+{len(missing) - 20} more)" if len(missing) > 20 else "")
     if frac < params.min_registered_fraction:
-        shown = ", ".join(missing[:20]) + (f" ... (+{len(missing) - 20} more)" if len(missing) > 20 else "")
+        hint = ("Try photos with more overlap between neighbouring views and more texture (avoid blank walls, motion "
+                "blur, reflections), remove unrelated photos, or lower reconstruct.min_registered_fraction to keep the "
+                "partial model.")
+        if images_dir is not None and not registered and views_are_identical(images_dir, names):
+            hint = ("The photos are (nearly) identical: the camera never moved. Structure from motion needs views "
+                    "from different positions (parallax); photograph the scene while moving around it.")
         raise ReconstructionError(
             f"structure from motion registered only {len(registered)} of {len(names)} images "
             f"({frac:.0%} < reconstruct.min_registered_fraction = {params.min_registered_fraction:.0%}). "
-            f"Unregistered: {shown}. Try photos with more overlap between neighbouring views and more "
-            "texture (avoid blank walls, motion blur, reflections), remove unrelated photos, or lower "
-            "reconstruct.min_registered_fraction to keep the partial model."
+            f"Unregistered: {shown or 'none'}. {hint}"
         )
+    if missing:
+        log.warning("reconstruct: %d of %d views did not register and are left out of the scene: %s", len(missing),
+                    len(names), shown)
     return missing
+
+
+def views_are_identical(images_dir: Path, names: list[str], tolerance: float = 2.0) -> bool:
+    """Whether every view equals the first one to within ``tolerance`` grey levels (mean absolute difference of
+    64 × 64 thumbnails, 0–255)."""
+    thumbs = [cv2.resize(cv2.imread(str(Path(images_dir) / n), cv2.IMREAD_GRAYSCALE), (64, 64),
+                         interpolation=cv2.INTER_AREA).astype(np.float32) for n in names]
+    return all(float(np.abs(t - thumbs[0]).mean()) <= tolerance for t in thumbs[1:])
 
 
 def undistort_labels(labels: np.ndarray, distorted: pycolmap.Camera, undistorted: pycolmap.Camera) -> np.ndarray:
@@ -266,7 +282,7 @@ def reconstruct(
         _match(db, params, matcher)
         log.info("reconstruct: features matched (%.1f s)", time.perf_counter() - t0)
         rec = _map(db, images_dir, work / "sparse", params)
-        unregistered = check_registration(rec, names, params)
+        unregistered = check_registration(rec, names, params, images_dir)
         assert rec is not None
         log.info("reconstruct: %d/%d images registered (%.1f s)", rec.num_reg_images(), len(names), time.perf_counter() - t0)
         model_dir = work / "model"

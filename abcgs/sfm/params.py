@@ -29,3 +29,7 @@ class ReconstructParams(BaseModel, extra="forbid"):
     )
     num_threads: int = Field(1, ge=-1, description="COLMAP threads; -1 = all cores (faster, not bit-reproducible)")
     seed: int = Field(0, ge=0, description="seed for COLMAP's RANSAC / mapper / triangulator")
+    max_view_size_ratio: float = Field(
+        4.0, ge=0, description="preflight fails when a view has more than this many times the pixels of the "
+        "capture's median view (a stray full-size photo among resized ones registers badly or makes the fit slow); "
+        "0 turns the check off")

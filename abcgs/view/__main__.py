@@ -1,9 +1,10 @@
 """Look at one experiment in 3-D without the report:
 
-    python -m abcgs.view out/tiny_single            # writes out/tiny_single/viewer.html and opens it
+    python -m abcgs.view out/tiny_single            # writes reports/viewers/tiny_single.html and opens it
     python -m abcgs.view out/tiny_single --no-open --max-gaussians 20000
 
-The page is self-contained (viewer bundle and splats inline) and works from file:// with no network.
+The page is self-contained (viewer bundle and splats inline) and works from file:// with no network. It is written
+outside ``out/`` (which the report stage depends on), so looking at a scene never makes the pipeline out of date.
 """
 
 from __future__ import annotations
@@ -25,13 +26,13 @@ def main(argv=None) -> int:
     ap.add_argument("--scene", help="scene key (default: from --params, else the only fitted scene beside it)")
     ap.add_argument("--params", type=Path, default=Path("params.yaml"))
     ap.add_argument("--max-gaussians", type=int, default=150_000)
-    ap.add_argument("--out", type=Path, help="page to write (default: <run_dir>/viewer.html)")
+    ap.add_argument("--out", type=Path, help="page to write (default: reports/viewers/<experiment>.html)")
     ap.add_argument("--no-open", action="store_true", help="only write the page")
     args = ap.parse_args(argv)
     try:
         scene = args.scene or experiment_scene(args.run_dir, args.params)
         exp = load_experiment(args.run_dir, scene=scene, max_gaussians=args.max_gaussians)
-        out = args.out or args.run_dir / "viewer.html"
+        out = args.out or Path("reports") / "viewers" / f"{args.run_dir.resolve().name}.html"
         write_text(out, viewer_page([exp], title=f"abcgs: {exp.name}"))
     except AbcgsError as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -88,7 +88,8 @@ def stage_order(repo: Path, targets: list[str] | None = None) -> list[str]:
 
 
 SIMD_FLAGS = ("avx2", "fma", "avx512f", "avx512_bf16", "amx_bf16")
-"""CPU flags that change the figures: torch's kernels, the extension's ``-march=native`` build and the bf16 search."""
+"""CPU flags that change the figures: torch's kernels, which kernel variant loads (abcgs/render/kernel_variants.py) and
+the bf16 search."""
 
 
 def cpu_description() -> dict:
@@ -129,8 +130,10 @@ def bench(repo: Path, stages: list[str], on_stage=None) -> list[dict]:
 
 
 def warm_up(repo: Path) -> None:
-    """Build (or load) the copy's C++ extension before anything is timed, as an installed checkout has it; a
-    revision without one just fails this step."""
+    """Build the copy's C++ kernels in place before anything is timed, as an installed checkout has them (a revision
+    whose kernels compile at first use builds them on this import instead)."""
+    if (repo / "setup.py").is_file():
+        run_in([sys.executable, "setup.py", "-q", "build_ext", "--inplace"], repo, timeout=1800)
     run_in([sys.executable, "-c", "import abcgs.render.cpu as c; c.load_extension()"], repo, timeout=1800)
 
 

@@ -5,11 +5,14 @@
 
 For the fitted (unstylized) scene and each given stylized PLY, renders every view and prints the short/long
 masked warp RMSE twice: with the evaluation's optical flow (``--flow``, default DIS, computed on the
-unstylized renders exactly as ``evaluate`` does) and with correspondences from the unstylized scene's rendered
-depth and the camera poses (:func:`abcgs.evaluation.consistency.depth_correspondence`, occlusion by a depth test,
-alpha > 0.95). The unstylized scene's row is the floor of each measurement: everything it scores is flow error
-(or depth blur at edges), not inconsistency. A stylized scene's excess over that row is what the stylization
-costs. Diagnostic only; the headline metric stays the flow-based one the paper defines.
+unstylized renders exactly as ``evaluate`` does, over the same pairs: ``--pairs``, default ``pose``,
+:mod:`abcgs.evaluation.pairs`) and with correspondences from the unstylized scene's rendered depth and the camera
+poses (:func:`abcgs.evaluation.consistency.depth_correspondence`, occlusion by a depth test, alpha > 0.95). The
+unstylized scene's row is the floor of each measurement: everything it scores is flow error (or depth blur at
+edges), not inconsistency. Its flow columns are the library's floor (:func:`abcgs.evaluation.reference.compute_floor`,
+what the ``reference`` stage stores and ``evaluate`` reports as ``short_rmse_floor``/``long_rmse_floor``). A
+stylized scene's excess over that row is what the stylization costs. Diagnostic only; the headline metric stays
+the flow-based one the paper defines.
 """
 
 from __future__ import annotations
@@ -31,10 +34,10 @@ from abcgs.evaluation.consistency import (
     consistency,
     depth_correspondence,
     make_flow_estimator,
-    view_pairs,
     warp_error,
 )
-from abcgs.evaluation.evaluate import render_views
+from abcgs.evaluation.pairs import consistency_pairs
+from abcgs.evaluation.reference import compute_floor, render_views
 from abcgs.gaussians import render
 from abcgs.io.atomic import write_json
 from abcgs.io.ply import read_ply
@@ -51,8 +54,8 @@ def _resolve(spec: str) -> tuple[str, Path]:
     return name, Path(hits[0])
 
 
-def depth_rmse(stylized: list[np.ndarray], corr: dict, gap: int) -> float:
-    errs = [warp_error(i, j, stylized, *corr[(i, j)], None).rmse for i, j in view_pairs(len(stylized), gap)]
+def depth_rmse(stylized: list[np.ndarray], corr: dict, pairs: list[tuple[int, int]]) -> float:
+    errs = [warp_error(i, j, stylized, *corr[(i, j)], None).rmse for i, j in pairs]
     return float(np.nanmean(errs))
 
 
@@ -61,7 +64,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--colmap", type=Path, required=True, help="folder with sparse/ and images/")
     ap.add_argument("--scene-ply", type=Path, required=True, help="the fitted, unstylized scene")
     ap.add_argument("--ply", action="append", default=[], metavar="NAME=PATH", help="a scene to measure (glob ok)")
-    ap.add_argument("--gaps", default="1,7", help="short,long view gaps (as evaluate.short_gap/long_gap)")
+    ap.add_argument("--gaps", default="1,7", help="short,long view gaps (as evaluate.short_term_gap/long_term_gap)")
+    ap.add_argument("--pairs", default="pose", choices=("pose", "index"), help="view order before pairing (as evaluate.pairs)")
     ap.add_argument("--flow", default="dis", help="flow method (auto | raft | dis | deepflow | dualtvl1)")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--json", type=Path, default=None)
@@ -73,6 +77,8 @@ def main(argv=None) -> dict:
     cams = scene.cameras
     base = read_ply(args.scene_ply)
     gaps = [int(g) for g in args.gaps.split(",")]
+    pairs = consistency_pairs(cams, args.pairs, *gaps)
+    kinds = ("short", "long")
     depths, alphas, originals = [], [], []
     with torch.no_grad():
         for c in cams:
@@ -81,28 +87,33 @@ def main(argv=None) -> dict:
             depths.append(meta.depth[..., 0].numpy())
             alphas.append(alpha[..., 0].numpy())
     corr = {}
-    for g in gaps:
-        for i, j in view_pairs(len(cams), g):
+    for kind in kinds:
+        for i, j in pairs.of(kind):
             corr[(i, j)] = depth_correspondence(depths[i], depths[j], cams[i].K, cams[i].viewmat, cams[j].K,
                                                 cams[j].viewmat, valid_i=alphas[i] > 0.95)
     estimator = make_flow_estimator(args.flow)
     flows = FlowCache(originals, estimator)
+    floor = compute_floor(originals, pairs, flows)
     rows = []
-    for name, path in measured:
-        styled, _ = render_views(read_ply(path), cams, "auto")
+    for k, (name, path) in enumerate(measured):
+        styled = originals if k == 0 else render_views(read_ply(path), cams, "auto")[0]
         row = {"name": name, "ply": str(path)}
-        for tag, g in zip(("short", "long"), gaps):
-            row[f"{tag}_rmse_flow"] = consistency(originals, styled, g, flows, None)[0]["rmse"]
-            row[f"{tag}_rmse_depth"] = depth_rmse(styled, corr, g)
+        for kind in kinds:
+            row[f"{kind}_rmse_flow"] = (floor[kind]["rmse"] if k == 0 else
+                                        consistency(originals, styled, pairs.of(kind), flows, None)[0]["rmse"])
+            row[f"{kind}_rmse_depth"] = depth_rmse(styled, corr, pairs.of(kind))
         rows.append(row)
         print(f"{name:34s} flow short/long {row['short_rmse_flow']:.4f}/{row['long_rmse_flow']:.4f}   "
               f"depth short/long {row['short_rmse_depth']:.4f}/{row['long_rmse_depth']:.4f}", flush=True)
-    valid = {tag: float(np.mean([corr[p][1].mean() for p in view_pairs(len(cams), g)])) for tag, g in zip(("short", "long"), gaps)}
-    out = {"rows": rows, "gaps": gaps, "flow": estimator.provenance(), "n_views": len(cams),
-           "depth_valid_fraction": valid, "seconds": time.perf_counter() - t0,
+    valid = {kind: float(np.mean([corr[p][1].mean() for p in pairs.of(kind)])) for kind in kinds}
+    flow_valid = {kind: floor[kind]["valid_fraction"] for kind in kinds}
+    out = {"rows": rows, "gaps": [pairs.short_gap, pairs.long_gap], "pairs": pairs.to_json(),
+           "flow": estimator.provenance(), "n_views": len(cams), "depth_valid_fraction": valid,
+           "flow_valid_fraction": flow_valid, "seconds": time.perf_counter() - t0,
            "how": "masked warp RMSE (images in [0, 1]); flow as evaluate computes it on the unstylized renders; depth: "
                   "the unstylized scene's normalised expected depth, alpha > 0.95, 2 % occlusion tolerance"}
-    print(f"{len(cams)} views, gaps {gaps}, flow {estimator.provenance()['implementation']}, depth-valid fraction "
+    print(f"{len(cams)} views, {args.pairs} pairs, gaps {out['gaps']}, flow {estimator.provenance()['implementation']}, "
+          f"valid fraction flow {flow_valid['short']:.2f}/{flow_valid['long']:.2f}, depth "
           f"{valid['short']:.2f}/{valid['long']:.2f}; {out['seconds']:.0f} s")
     if args.json:
         write_json(args.json, out)

@@ -1,0 +1,307 @@
+"""Masks from strokes (abcgs.masks.paint): GrabCut per label from a few strokes, the saved label PNGs, the JSON API.
+
+The page itself is driven in a browser by tests/test_paint_browser.py.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from abcgs.errors import InputError
+from abcgs.io.images import save_image
+from abcgs.masks.content import colorize_labels, label_iou, read_label_files
+from abcgs.masks.paint import (
+    BACKGROUND,
+    PALETTE,
+    PaintSession,
+    Stroke,
+    fill_gaps,
+    gmm_log_density,
+    main,
+    make_server,
+    rasterize_strokes,
+    segment,
+)
+
+H, W = 120, 160
+
+
+def two_shapes(seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A textured background (label 3), a red disc (1) and a blue rotated box with stripes (2), with pixel noise.
+
+    Returns ``(H, W, 3) uint8`` RGB and the true labels ``(H, W) int64``.
+    """
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float32)
+    img = np.stack([90 + 50 * xx / W, 140 - 30 * yy / H, 80 + 40 * np.sin(xx / 9.0) * np.cos(yy / 11.0)], -1)
+    for _ in range(40):  # blobs, some in colours near the shapes' (a brownish red, a slate blue)
+        c = [(170, 85, 70), (80, 90, 150), (200, 190, 120), (60, 100, 60)][rng.integers(4)]
+        cv2.circle(img, (int(rng.integers(W)), int(rng.integers(H))), int(rng.integers(3, 9)), c, -1)
+    truth = np.full((H, W), 3, np.int64)
+    disc = (xx - 48) ** 2 + (yy - 58) ** 2 < 26**2
+    img[disc] = [200, 50, 45]
+    img[disc & (np.hypot(xx - 40, yy - 50) < 9)] = [235, 150, 60]  # a highlight of another colour
+    box = np.zeros((H, W), np.uint8)
+    cv2.fillPoly(box, [cv2.boxPoints(((115, 62), (44, 70), 20)).astype(np.int32)], 1)
+    box = box.astype(bool)
+    stripes = (np.sin((xx + yy) / 3.0) > 0)
+    img[box] = [40, 70, 190]
+    img[box & stripes] = [70, 110, 220]
+    truth[disc], truth[box] = 1, 2
+    img = img + rng.normal(0, 10, img.shape)
+    return np.clip(img, 0, 255).astype(np.uint8), truth
+
+
+def line(label: int, *xy: float, radius: float = 3.0) -> Stroke:
+    return Stroke(label, np.array(xy, float).reshape(-1, 2), radius)
+
+
+# ≤ 3 strokes per label, each well inside its region
+SHAPE_STROKES = [line(1, 35, 58, 62, 58), line(1, 48, 45, 48, 72),
+                 line(2, 110, 45, 120, 80), line(2, 104, 62, 126, 60)]
+BACKGROUND_STROKES = [line(3, 8, 8, 150, 8), line(3, 8, 112, 150, 112), line(3, 80, 20, 80, 100)]
+
+
+def test_a_few_strokes_per_label_cut_two_shapes_and_the_background() -> None:
+    img, truth = two_shapes()
+    seg = segment(img, SHAPE_STROKES + BACKGROUND_STROKES)
+    assert seg.labels.shape == (H, W) and seg.labels.dtype == np.int64
+    iou = label_iou(seg.labels, truth, 3)
+    assert all(v >= 0.9 for v in iou.values()), iou
+    assert set(seg.probability) == {1, 2, 3} and all(p.shape == (H, W) for p in seg.probability.values())
+
+
+def test_the_background_brush_leaves_the_rest_unassigned() -> None:
+    img, truth = two_shapes()
+    bg = [Stroke(BACKGROUND, s.points, s.radius) for s in BACKGROUND_STROKES]
+    seg = segment(img, SHAPE_STROKES + bg)
+    iou = label_iou(seg.labels, np.where(truth == 3, 0, truth), 2)
+    assert iou[1] >= 0.9 and iou[2] >= 0.9, iou
+    assert (seg.labels[truth == 3] == 0).mean() > 0.95
+    assert set(np.unique(seg.labels)) == {0, 1, 2}
+
+
+def test_one_object_alone_is_cut_from_its_strokes() -> None:
+    img, truth = two_shapes()
+    seg = segment(img, [s for s in SHAPE_STROKES if s.label == 1])
+    assert label_iou(seg.labels, np.where(truth == 1, 1, 0), 1)[1] >= 0.9
+    assert set(np.unique(seg.labels)) == {0, 1}
+
+
+def test_a_seed_raster_works_like_strokes_and_large_views_are_cut_smaller() -> None:
+    img, truth = two_shapes()
+    strokes = SHAPE_STROKES + BACKGROUND_STROKES
+    seeds = rasterize_strokes(strokes, (H, W))
+    assert np.array_equal(segment(img, seeds).labels, segment(img, strokes).labels)
+    small = segment(img, strokes, max_side=100)  # cut at 100x75, labels scaled back up
+    assert small.labels.shape == (H, W)
+    assert all(v >= 0.85 for v in label_iou(small.labels, truth, 3).values())
+
+
+def test_gaps_take_the_label_around_them_nearest_in_colour() -> None:
+    """Two regions with strokes and an unclaimed gap between them, in the second region's colour."""
+    lab = np.zeros((20, 30, 3), np.float32)
+    lab[:, 12:] = [60, 20, -10]
+    labels = np.zeros((20, 30), np.int64)
+    labels[:, :10], labels[:, 20:] = 1, 2
+    claimed = labels > 0
+    seeds = np.full((20, 30), -1, np.int64)
+    seeds[5, 2:8], seeds[5, 22:28] = 1, 2
+    out = fill_gaps(labels, claimed, lab, seeds)
+    assert (out[:, 10:20] == 2).all() and (out[:, :10] == 1).all()
+    inside = labels.copy()  # a hole inside region 1 takes 1, whatever its colour
+    inside[8:12, 3:6] = 0
+    lab2 = lab.copy()
+    lab2[8:12, 3:6] = [60, 20, -10]
+    assert (fill_gaps(inside, inside > 0, lab2, seeds)[8:12, 3:6] == 1).all()
+
+
+def test_without_fill_the_gaps_stay_unassigned() -> None:
+    img, truth = two_shapes()
+    strokes = [line(1, 35, 58, 62, 58), line(2, 110, 45, 120, 80), line(3, 8, 8, 12, 8, radius=1)]
+    filled, gaps = segment(img, strokes), segment(img, strokes, fill=False)
+    assert (gaps.labels == 0).any() and not (filled.labels == 0).any()
+    assert np.array_equal(filled.labels[gaps.labels > 0], gaps.labels[gaps.labels > 0])
+
+
+def test_rasterize_strokes_paints_labels_in_order() -> None:
+    seeds = rasterize_strokes([line(2, 10, 10, 30, 10, radius=2), line(0, 20, 5, 20, 15, radius=1),
+                               Stroke(5, np.array([[40.0, 30.0]]), 3)], (40, 50))
+    assert seeds.dtype == np.int64 and seeds.shape == (40, 50)
+    assert seeds[10, 12] == 2 and seeds[10, 20] == 0  # the later background stroke crosses the first
+    assert seeds[29, 39] == 5 and seeds[0, 0] == -1
+    assert (seeds == 2).sum() > 2 * 20
+
+
+def test_the_page_uses_the_pipeline_label_colours() -> None:
+    assert np.array_equal(PALETTE, colorize_labels(np.arange(len(PALETTE))))
+
+
+def test_gmm_log_density_reads_opencv_models() -> None:
+    from scipy.stats import multivariate_normal
+
+    rng = np.random.default_rng(1)
+    means = rng.uniform(0, 255, (5, 3))
+    covs = [np.diag(rng.uniform(20, 200, 3)) for _ in range(5)]
+    weights = np.array([0.4, 0.3, 0.2, 0.1, 0.0])
+    model = np.concatenate([weights, means.reshape(-1), np.stack(covs).reshape(-1)])[None]
+    x = rng.uniform(0, 255, (50, 3))
+    want = np.log(sum(w * multivariate_normal(m, c + np.eye(3) * 1e-2).pdf(x)
+                      for w, m, c in zip(weights, means, covs) if w > 0))
+    assert np.allclose(gmm_log_density(model, x), want, rtol=1e-6)
+
+
+def test_segment_errors_say_what_to_do() -> None:
+    img, _ = two_shapes()
+    with pytest.raises(InputError, match="no label strokes"):
+        segment(img, [Stroke(BACKGROUND, np.array([[5.0, 5.0]]), 3)])
+    with pytest.raises(InputError, match="seed map"):
+        segment(img, np.zeros((10, 10), int))
+    with pytest.raises(InputError, match="stroke"):
+        Stroke.from_json({"label": 1, "points": "nowhere"})
+
+
+# ----------------------------------------------------------------------------------------------
+# Saving and the session
+# ----------------------------------------------------------------------------------------------
+
+
+def make_scene(root: Path, n: int = 3) -> Path:
+    for i in range(n):
+        img, _ = two_shapes(seed=i)
+        save_image(root / "images" / f"view{i:02d}.png", img)
+    return root
+
+
+def test_save_writes_label_pngs_of_the_views_with_strokes_that_read_back(tmp_path) -> None:
+    scene = make_scene(tmp_path / "scene")
+    s = PaintSession.for_scene(scene)
+    assert [it.name for it in s.items] == ["view00.png", "view01.png", "view02.png"]
+    s.set_strokes(0, SHAPE_STROKES + BACKGROUND_STROKES)
+    s.set_strokes(2, SHAPE_STROKES)
+    written = s.save()  # cuts both first
+    assert written == [scene / "masks" / "view00.png", scene / "masks" / "view02.png"]
+    assert not (scene / "masks" / "view01.png").exists()  # no strokes, no file
+    maps, palette = read_label_files(written, [(H, W)] * 2)
+    assert palette == {}  # numbered, single-channel
+    assert np.array_equal(maps[0], s.items[0].result.labels) and np.array_equal(maps[1], s.items[2].result.labels)
+    assert set(np.unique(maps[0])) == {1, 2, 3}
+    assert cv2.imread(str(written[0]), cv2.IMREAD_UNCHANGED).ndim == 2
+    assert not list((scene / "masks").glob(".*"))  # atomic writes leave no temporaries
+    state = s.state()
+    assert [it["saved"] for it in state["items"]] == [True, False, True] and state["n_labels"] == 3
+
+
+def test_scene_and_painting_errors(tmp_path) -> None:
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(InputError, match="no images/ folder"):
+        PaintSession.for_scene(tmp_path / "empty")
+    with pytest.raises(InputError, match="does not exist"):
+        PaintSession.for_scene(tmp_path / "nowhere")
+    save_image(tmp_path / "p.png", two_shapes()[0])
+    with pytest.raises(InputError, match=".png"):
+        PaintSession.for_painting(tmp_path / "p.png", tmp_path / "p_labels.jpg")
+    assert PaintSession.for_painting(tmp_path / "p.png").items[0].out_path == tmp_path / "p_labels.png"
+    s = PaintSession.for_scene(make_scene(tmp_path / "scene", 1))
+    with pytest.raises(InputError, match="nothing to save"):
+        s.save()
+
+
+def test_cli_explains_a_missing_images_folder(tmp_path, capsys) -> None:
+    assert main([str(tmp_path), "--no-open"]) == 2
+    assert "no images/ folder" in capsys.readouterr().err
+    assert main(["--no-open"]) == 2
+    assert "--painting" in capsys.readouterr().err
+
+
+# ----------------------------------------------------------------------------------------------
+# The JSON API
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.fixture()
+def served(tmp_path):
+    def start(session: PaintSession) -> str:
+        server = make_server(session, port=0)
+        threading.Thread(target=server.serve_forever, daemon=True).start()
+        servers.append(server)
+        return f"http://127.0.0.1:{server.server_port}"
+
+    servers: list = []
+    yield start
+    for server in servers:
+        server.shutdown()
+        server.server_close()
+
+
+def request(url: str, body: dict | None = None) -> tuple[int, bytes, str]:
+    data = None if body is None else json.dumps(body).encode()
+    req = urllib.request.Request(url, data=data, headers={"Content-Type": "application/json"} if data else {})
+    try:
+        with urllib.request.urlopen(req, timeout=60) as r:
+            return r.status, r.read(), r.headers["Content-Type"]
+    except urllib.error.HTTPError as e:
+        return e.code, e.read(), e.headers["Content-Type"]
+
+
+def test_the_api_takes_strokes_cuts_and_saves(tmp_path, served) -> None:
+    scene = make_scene(tmp_path / "scene", 2)
+    url = served(PaintSession.for_scene(scene))
+    status, page, ctype = request(url + "/")
+    assert status == 200 and ctype.startswith("text/html") and b"Segment" in page
+    assert b"http://" not in page and b"https://" not in page  # nothing from the network
+    state = json.loads(request(url + "/api/state")[1])
+    assert state["mode"] == "scene" and [it["name"] for it in state["items"]] == ["view00.png", "view01.png"]
+    status, png, ctype = request(url + "/api/image/1")
+    assert status == 200 and ctype == "image/png"
+    assert cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR).shape == (H, W, 3)
+
+    status, body, _ = request(url + "/api/labels/0.png")
+    assert status == 404 and "Segment" in json.loads(body)["error"]
+    strokes = [s.to_json() for s in SHAPE_STROKES + BACKGROUND_STROKES]
+    status, body, _ = request(url + "/api/strokes/0", {"strokes": strokes})
+    assert status == 200 and json.loads(body)["strokes"] == len(strokes)
+    assert json.loads(request(url + "/api/strokes/0")[1])["strokes"][0]["label"] == 1
+    status, body, _ = request(url + "/api/segment/0", {})
+    assert status == 200, body
+    result = json.loads(body)
+    assert set(result["counts"]) == {"1", "2", "3"} and result["item"]["cut"]
+    status, png, _ = request(url + "/api/labels/0.png")
+    labels = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert labels.shape == (H, W) and all(v >= 0.9 for v in label_iou(labels, two_shapes(0)[1], 3).values())
+    status, png, _ = request(url + "/api/overlay/0.png")
+    assert cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED).shape == (H, W, 4)
+
+    status, body, _ = request(url + "/api/segment/1", {})
+    assert status == 400 and "no label strokes" in json.loads(body)["error"]
+    status, body, _ = request(url + "/api/strokes/0", {"strokes": [{"label": 1}]})
+    assert status == 400 and "stroke" in json.loads(body)["error"]
+    status, body, _ = request(url + "/api/save", {})
+    assert status == 200, body
+    assert json.loads(body)["written"] == [str(scene / "masks" / "view00.png")]
+    maps, _ = read_label_files([scene / "masks" / "view00.png"], [(H, W)])
+    assert np.array_equal(maps[0], labels)
+    assert request(url + "/api/nothing")[0] == 404
+
+
+def test_the_api_segments_a_painting_into_its_label_map(tmp_path, served) -> None:
+    img, truth = two_shapes(3)
+    save_image(tmp_path / "painting.png", img)
+    out = tmp_path / "regions" / "painting_labels.png"
+    url = served(PaintSession.for_painting(tmp_path / "painting.png", out))
+    state = json.loads(request(url + "/api/state")[1])
+    assert state["mode"] == "painting" and len(state["items"]) == 1
+    strokes = [s.to_json() for s in SHAPE_STROKES + BACKGROUND_STROKES]
+    status, body, _ = request(url + "/api/segment/0", {"strokes": strokes})
+    assert status == 200, body
+    assert json.loads(request(url + "/api/save", {})[1])["written"] == [str(out)]
+    maps, _ = read_label_files([out], [(H, W)])
+    assert all(v >= 0.9 for v in label_iou(maps[0], truth, 3).values())

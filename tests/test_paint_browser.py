@@ -1,0 +1,138 @@
+"""The masks-from-strokes page in a real browser: Debian's chromium driven by playwright (no browser download).
+
+Mouse strokes are drawn on the canvas of a view of the tiny scene (and of its painting), Segment and Save are
+pressed, and the label PNGs the server writes are checked against the scene's true labels. Every request the page
+makes must go to the local server.
+
+Where chromium is missing these tests skip with the install command, except under CI (``CI`` set), where a
+missing browser is a failure (as in tests/test_viewer_browser.py).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import threading
+
+import numpy as np
+import pytest
+
+from abcgs.io.images import load_labels
+from abcgs.masks.content import label_iou, read_label_files
+from abcgs.masks.paint import PaintSession, Stroke, make_server
+from eval.bench.paint_iou import simulated_strokes
+
+pytestmark = pytest.mark.browser
+
+CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu-sandbox"]
+
+
+def _chromium() -> str:
+    path = os.environ.get("ABCGS_CHROMIUM") or shutil.which("chromium") or shutil.which("chromium-browser")
+    if path:
+        return path
+    msg = "chromium is not installed: `apt-get install -y chromium` (make test does this when run as root)"
+    if os.environ.get("CI"):
+        pytest.fail(msg)
+    pytest.skip(msg)
+
+
+@pytest.fixture(scope="module")
+def browser():
+    playwright = pytest.importorskip("playwright.sync_api")
+    exe = _chromium()
+    with playwright.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS)
+        yield b
+        b.close()
+
+
+@pytest.fixture()
+def serve():
+    servers = []
+
+    def start(session: PaintSession) -> str:
+        server = make_server(session, port=0)
+        threading.Thread(target=server.serve_forever, daemon=True).start()
+        servers.append(server)
+        return f"http://127.0.0.1:{server.server_port}/"
+
+    yield start
+    for server in servers:
+        server.shutdown()
+        server.server_close()
+
+
+def _open(browser, url: str):
+    page = browser.new_page(viewport={"width": 1100, "height": 760})
+    requests, errors = [], []
+    page.on("request", lambda r: requests.append(r.url))
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(url)
+    page.wait_for_function("window.abcgsPaint && window.abcgsPaint.ready", timeout=30_000)
+    return page, requests, errors
+
+
+def _draw(page, strokes: list[Stroke], width: int) -> None:
+    """Draw ``strokes`` (image pixel coordinates) with the mouse: pick the label by key, press, move, release."""
+    box = page.locator("#canvas").bounding_box()
+    scale = box["width"] / width
+    for s in strokes:
+        page.keyboard.press(str(s.label) if s.label > 0 else "b")
+        page.locator("#brush").fill(str(round(s.radius * scale)))  # the slider is in screen pixels
+        x, y = s.points[0]
+        page.mouse.move(box["x"] + x * scale, box["y"] + y * scale)
+        page.mouse.down()
+        for x, y in s.points[1:]:
+            page.mouse.move(box["x"] + x * scale, box["y"] + y * scale, steps=2)
+        page.mouse.up()
+    page.wait_for_function(f"window.abcgsPaint.state.state.items[window.abcgsPaint.state.index].strokes === {len(strokes)}")
+
+
+def _press(page, button: str, done: str) -> None:
+    page.click(f"#{button}")
+    page.wait_for_function(
+        f"(() => {{ const s = document.getElementById('status'); return s.className === 'error' || "
+        f"(s.className === 'ok' && s.textContent.startsWith({done!r})); }})()", timeout=120_000)
+    status = page.locator("#status")
+    assert status.get_attribute("class") == "ok", status.text_content()
+
+
+def test_strokes_on_a_view_segment_and_save_a_mask(browser, serve, tiny_scene, tmp_path) -> None:
+    scene = tmp_path / "scene"
+    shutil.copytree(tiny_scene / "images", scene / "images")  # the fixture's own masks/ stay untouched
+    truth = load_labels(tiny_scene / "masks" / "000.png")
+    url = serve(PaintSession.for_scene(scene))
+    page, requests, errors = _open(browser, url)
+    assert page.locator("#view option").count() == 16
+    _draw(page, simulated_strokes(truth, 3, radius=3.0), truth.shape[1])
+    _press(page, "segment", "segmented")
+    assert "cut" in page.locator("#views li.current").text_content()
+    page.screenshot(path=str(tmp_path / "paint_after_segment.png"))
+    _press(page, "save", "saved")
+    page.close()
+
+    path = scene / "masks" / "000.png"
+    assert path.is_file() and sorted(p.name for p in (scene / "masks").iterdir()) == ["000.png"]
+    labels = read_label_files([path], [truth.shape])[0][0]
+    assert set(np.unique(labels)) <= {0, 1, 2, 3} and {1, 2, 3} <= set(np.unique(labels))
+    iou = label_iou(labels, truth, 3)
+    assert all(v >= 0.7 for v in iou.values()), iou  # the strokes landed where they were drawn
+    assert not errors, errors
+    assert all(u.startswith((url, "data:", "blob:")) for u in requests), [u for u in requests if not u.startswith(url)]
+
+
+def test_the_painting_mode_writes_its_label_map(browser, serve, tiny_scene, tmp_path) -> None:
+    out = tmp_path / "paint_labels.png"
+    truth = load_labels(tiny_scene / "styles" / "paint_labels.png")
+    url = serve(PaintSession.for_painting(tiny_scene / "styles" / "paint.png", out))
+    page, _, errors = _open(browser, url)
+    assert page.locator("#view-nav").is_hidden()
+    _draw(page, simulated_strokes(truth, 2, radius=4.0), truth.shape[1])
+    _press(page, "save", "saved")  # Save cuts what has strokes and is not cut yet
+    page.close()
+    labels = read_label_files([out], [truth.shape])[0][0]
+    assert {1, 2, 3} <= set(np.unique(labels))
+    iou = label_iou(labels, truth, 3)
+    assert all(v >= 0.7 for v in iou.values()), iou
+    assert not errors, errors
