@@ -130,11 +130,13 @@ def bench(repo: Path, stages: list[str], on_stage=None) -> list[dict]:
 
 
 def warm_up(repo: Path) -> None:
-    """Build the copy's C++ kernels in place before anything is timed, as an installed checkout has them (a revision
-    whose kernels compile at first use builds them on this import instead)."""
-    if (repo / "setup.py").is_file():
+    """Make the copy's C++ kernels loadable before anything is timed, as in an installed checkout: a copy whose
+    ``csrc/`` equals the installed kernels' sources loads those; another revision's sources are built in place
+    (``setup.py build_ext --inplace``), or, for a revision whose kernels compile at first use, on this import."""
+    load = [sys.executable, "-c", "import abcgs.render.cpu as c; c.load_extension()"]
+    if run_in(load, repo, timeout=1800).returncode != 0 and (repo / "setup.py").is_file():
         run_in([sys.executable, "setup.py", "-q", "build_ext", "--inplace"], repo, timeout=1800)
-    run_in([sys.executable, "-c", "import abcgs.render.cpu as c; c.load_extension()"], repo, timeout=1800)
+        run_in(load, repo, timeout=60)
 
 
 def bench_interleaved(base: Path, base_stages: list[str], cur: Path, cur_stages: list[str],
