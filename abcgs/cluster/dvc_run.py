@@ -1,0 +1,112 @@
+"""``dvc`` for the cluster: ``python abcgs/cluster/dvc_run.py [--keep-run-cache] repro TARGET ...``.
+
+**dvc.lock once.** ``dvc repro`` rewrites ``dvc.lock`` after every stage, parsing and dumping the whole file each
+time. Restoring a pipeline from the run cache is mostly that: 20 stages of the tiny pipeline spent 80 % of their
+time in it, and the cost grows with the square of the number of stages. This wrapper writes the lock once, when the
+reproduction ends (also when a stage failed: the stages that finished are recorded).
+
+**Every stage in the run cache** (``--keep-run-cache``, the jobs). DVC leaves a stage out of its run cache when
+the stage has an uncached output that is neither a metric nor a plot (``cache: false`` under ``outs``). Most
+stages of this pipeline have one: the git-tracked records (``stylize.json``, ``eval.json``, ``reconstruct.json``,
+...). A cluster job must leave every stage it finished restorable by the other jobs, by a retry of itself and by
+``collect``, so this wrapper saves those stages too. DVC's run cache stores uncached outputs the way it stores
+uncached metrics: it copies them into the cache, and restoring a stage checks them out again.
+
+``python abcgs/cluster/dvc_run.py push-run-cache`` sends the run cache to the default DVC remote with the objects
+of every entry (``dvc push --run-cache`` sends the entries, and the objects of cached outputs only through the
+workspace, so a restore elsewhere would miss the uncached outputs).
+
+The cluster job runs this file by path, not with ``-m``, so that it imports only DVC and not the ``abcgs``
+package of the clone it runs in.
+"""
+
+from __future__ import annotations
+
+import sys
+
+
+def keep_every_stage_in_the_run_cache() -> None:
+    """Make ``Stage.save`` write the run-cache entry of every stage that ran (a restored stage has one already)."""
+    from dvc.stage import Stage
+    from dvc.stage.cache import StageCache
+
+    original_save, original_restore = Stage.save, StageCache.restore
+    if getattr(original_save, "_abcgs_run_cache", False):
+        return
+
+    def restore(self, stage, *args, **kwargs):
+        result = original_restore(self, stage, *args, **kwargs)
+        if not kwargs.get("dry"):
+            stage._abcgs_restored = True
+        return result
+
+    def save(self, allow_missing: bool = False, run_cache: bool = True):
+        keep = run_cache or not getattr(self, "_abcgs_restored", False)
+        return original_save(self, allow_missing=allow_missing, run_cache=keep)
+
+    save._abcgs_run_cache = True  # type: ignore[attr-defined]
+    Stage.save = save
+    StageCache.restore = restore
+
+
+def push_run_cache() -> int:
+    """Push every run-cache entry of the repository in the current folder, and the objects it names, to the default
+    remote; 1 when an object failed to upload."""
+    from dvc.repo import Repo
+
+    with Repo(".") as repo:
+        entries = repo.stage_cache.push(None)
+        objs: set = set()
+        for hashes in repo.stage_cache.get_used_objs(entries).values():
+            objs |= set(hashes)
+        result = repo.cloud.push(objs)
+        print(f"run cache: {len(entries)} entries, {len(result.transferred)} new objects pushed"
+              + (f", {len(result.failed)} FAILED" if result.failed else ""), flush=True)
+        return 1 if result.failed else 0
+
+
+def write_the_lock_once() -> None:
+    """Collect the per-stage ``dvc.lock`` updates of ``dvc repro`` and write them in one go when it ends."""
+    import dvc.repo.reproduce as reproduce
+    from dvc.stage import Stage
+
+    if getattr(reproduce._reproduce, "_abcgs_lock_once", False):
+        return
+    pending: list = []
+    original_dump, original_reproduce = Stage.dump, reproduce._reproduce
+
+    def dump(self, **kwargs):
+        if kwargs != {"update_pipeline": False}:  # only the lock update after a stage is deferred
+            return original_dump(self, **kwargs)
+        pending.append(self)
+
+    def _reproduce(*args, **kwargs):
+        try:
+            return original_reproduce(*args, **kwargs)
+        finally:
+            files: dict[str, tuple] = {}
+            for stage in pending:
+                files.setdefault(stage.dvcfile.path, (stage.dvcfile, []))[1].append(stage)
+            pending.clear()
+            for dvcfile, stages in files.values():
+                dvcfile.dump_stages(stages, update_pipeline=False)
+
+    _reproduce._abcgs_lock_once = True  # type: ignore[attr-defined]
+    Stage.dump = dump
+    reproduce._reproduce = _reproduce
+
+
+def main(argv: list[str]) -> int:
+    if argv[:1] == ["push-run-cache"]:
+        return push_run_cache()
+    write_the_lock_once()
+    if argv[:1] == ["--keep-run-cache"]:
+        argv = argv[1:]
+        keep_every_stage_in_the_run_cache()
+    from dvc.cli import main as dvc_main
+
+    return dvc_main(argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
