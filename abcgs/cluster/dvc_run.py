@@ -6,10 +6,10 @@ time in it, and the cost grows with the square of the number of stages. This wra
 reproduction ends (also when a stage failed: the stages that finished are recorded).
 
 **Every stage in the run cache** (``--keep-run-cache``, the jobs). DVC leaves a stage out of its run cache when
-the stage has an uncached output that is neither a metric nor a plot (``cache: false`` under ``outs``). Most
-stages of this pipeline have one: the git-tracked records (``stylize.json``, ``eval.json``, ``reconstruct.json``,
-...). A cluster job must leave every stage it finished restorable by the other jobs, by a retry of itself and by
-``collect``, so this wrapper saves those stages too. DVC's run cache stores uncached outputs the way it stores
+the stage has an uncached output that is neither a metric nor a plot (``cache: false`` under ``outs``). This
+pipeline's ``dvc.yaml`` has none (its records are cached outputs), but a cluster job must leave every stage it
+finished restorable by the other jobs, by a retry of itself and by ``collect`` whatever a pipeline declares, so
+this wrapper saves such stages too. DVC's run cache stores uncached outputs the way it stores
 uncached metrics: it copies them into the cache, and restoring a stage checks them out again.
 
 ``python abcgs/cluster/dvc_run.py push-run-cache`` sends the run cache to the default DVC remote with the objects
