@@ -18,7 +18,8 @@ def test_bench_runs_the_stages_a_target_needs_in_order(tmp_path) -> None:
     assert names == ["preflight", "make_tiny", "reconstruct@tiny", "fit@tiny", "masks@tiny"]
     for r in out["stages"]:
         assert r["rc"] == 0 and r["wall_s"] > 0 and r["cpu_s"] > 0 and 0 < r["core_use"] <= 2.5
-        assert r["peak_rss_mib"] > 100  # python + torch, measured as the stage's own processes
+        # measured as the stage's own processes: python + torch (the preflight stage imports no torch)
+        assert r["peak_rss_mib"] > (20 if r["stage"] == "preflight" else 100), r
     assert out["total_wall_s"] >= sum(r["wall_s"] for r in out["stages"]) * 0.99
     assert out["peak_rss_mib"] == max(r["peak_rss_mib"] for r in out["stages"])
     machine = json.loads((tmp_path / "b.json").read_text())["machine"]
