@@ -10,6 +10,8 @@
 
 from __future__ import annotations
 
+import os
+import shutil
 from pathlib import Path
 
 import cv2  # noqa: F401  (load before anything imports pycolmap; see abcgs/sfm/__init__.py)
@@ -20,6 +22,18 @@ from abcgs.scene.synthetic import TinySceneParams, make_tiny_scene
 from eval.bench.repo_copy import copy_repo, run_in  # noqa: F401  (re-exported for the end-to-end tests)
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+def chromium_path() -> str:
+    """Debian's chromium for the browser tests (``$ABCGS_CHROMIUM`` first); skipped with the install command where it
+    is missing, a failure under CI."""
+    path = os.environ.get("ABCGS_CHROMIUM") or shutil.which("chromium") or shutil.which("chromium-browser")
+    if path:
+        return path
+    msg = "chromium is not installed: `apt-get install -y chromium` (make test does this when run as root)"
+    if os.environ.get("CI"):
+        pytest.fail(msg)
+    pytest.skip(msg)
 SHARED_DATA = REPO_ROOT.parent / "shared" / "data"
 
 

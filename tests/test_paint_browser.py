@@ -10,12 +10,12 @@ missing browser is a failure (as in tests/test_viewer_browser.py).
 
 from __future__ import annotations
 
-import os
 import shutil
 import threading
 
 import numpy as np
 import pytest
+from conftest import chromium_path
 
 from abcgs.io.images import load_labels
 from abcgs.masks.content import label_iou, read_label_files
@@ -27,20 +27,12 @@ pytestmark = pytest.mark.browser
 CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu-sandbox"]
 
 
-def _chromium() -> str:
-    path = os.environ.get("ABCGS_CHROMIUM") or shutil.which("chromium") or shutil.which("chromium-browser")
-    if path:
-        return path
-    msg = "chromium is not installed: `apt-get install -y chromium` (make test does this when run as root)"
-    if os.environ.get("CI"):
-        pytest.fail(msg)
-    pytest.skip(msg)
 
 
 @pytest.fixture(scope="module")
 def browser():
     playwright = pytest.importorskip("playwright.sync_api")
-    exe = _chromium()
+    exe = chromium_path()
     with playwright.sync_playwright() as p:
         b = p.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS)
         yield b

@@ -11,12 +11,11 @@ from __future__ import annotations
 
 import base64
 import io
-import os
-import shutil
 
 import numpy as np
 import pytest
 import torch
+from conftest import chromium_path
 
 from abcgs.cameras import Camera, intrinsics, look_at
 from abcgs.gaussians import GaussianModel, render
@@ -29,14 +28,6 @@ W, H = 320, 240
 CHROMIUM_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--no-sandbox", "--disable-gpu-sandbox"]
 
 
-def _chromium() -> str:
-    path = os.environ.get("ABCGS_CHROMIUM") or shutil.which("chromium") or shutil.which("chromium-browser")
-    if path:
-        return path
-    msg = "chromium is not installed: `apt-get install -y chromium` (make test does this when run as root)"
-    if os.environ.get("CI"):
-        pytest.fail(msg)
-    pytest.skip(msg)
 
 
 def _scene(seed: int = 0) -> tuple[GaussianModel, GaussianModel, np.ndarray]:
@@ -95,7 +86,7 @@ def _shot(page) -> np.ndarray:
 @pytest.fixture(scope="module")
 def browser():
     playwright = pytest.importorskip("playwright.sync_api")
-    exe = _chromium()
+    exe = chromium_path()
     with playwright.sync_playwright() as p:
         b = p.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS)
         yield b
