@@ -183,7 +183,11 @@ def format_table(runs: list[Run]) -> str:
 
 def format_markdown(runs: list[Run]) -> str:
     """The report's table as GitHub markdown (for README and issue notes)."""
-    cols, rows = table_rows(runs)
+    return _markdown(*table_rows(runs))
+
+
+def _markdown(cols: list[str], rows: list[list[str]]) -> str:
+    """A GitHub markdown table."""
     lines = ["| " + " | ".join(cols) + " |", "|" + " --- |" * len(cols)]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
     return "\n".join(lines)
@@ -231,9 +235,9 @@ def results_markdown(runs: list[Run]) -> str:
     def f(v, fmt="{:.3f}"):
         return "" if v is None else fmt.format(v)
 
-    lines = ["| painting(s) | method | content SSIM ↑ | short / long warp RMSE ↓ | unstylized floor | Gram distance ↓ "
-             "| KID (TF-Inception) ↓ | stylize min |", "| --- | --- | --- | --- | --- | --- | --- | --- |"]
-    previous = None
+    cols = ["painting(s)", "method", "content SSIM ↑", "short / long warp RMSE ↓", "unstylized floor", "Gram distance ↓",
+            "KID (TF-Inception) ↓", "stylize min"]
+    rows, previous = [], None
     for r in sorted(runs, key=lambda r: (str(r.spec.get("style") or r.spec.get("styles")), r.spec.get("transfer", ""),
                                          r.spec.get("method") == "none")):
         ev, st = r.evaluation, r.stylize
@@ -242,14 +246,14 @@ def results_markdown(runs: list[Run]) -> str:
             painting = f"{painting} ({r.spec['transfer']})"
         method = r.spec.get("method", "")
         minutes = st.get("stylize_seconds") if method != "none" else None
-        lines.append("| " + " | ".join([
+        rows.append([
             painting if painting != previous else "", METHOD_LABELS.get(method, method), f(ev.get("ssim")),
             f"{f(ev.get('short_rmse'), '{:.4f}')} / {f(ev.get('long_rmse'), '{:.4f}')}",
             f"{f(ev.get('short_rmse_floor'), '{:.4f}')} / {f(ev.get('long_rmse_floor'), '{:.4f}')}",
             f(ev.get("gram_distance")),
-            f(ev.get("kid_tf_inception")), f(None if minutes is None else minutes / 60, "{:.1f}")]) + " |")
+            f(ev.get("kid_tf_inception")), f(None if minutes is None else minutes / 60, "{:.1f}")])
         previous = painting
-    return "\n".join(lines)
+    return _markdown(cols, rows)
 
 
 def write_report(out: Path, runs: list[Run], root: Path, styles: dict[str, str], viewer: str | None = None,

@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 from pathlib import Path
@@ -34,6 +35,19 @@ def chromium_path() -> str:
     if os.environ.get("CI"):
         pytest.fail(msg)
     pytest.skip(msg)
+
+
+@contextlib.contextmanager
+def launch_chromium(args: list[str]):
+    """A headless chromium (playwright driving :func:`chromium_path`, no browser download) for a module's tests."""
+    playwright = pytest.importorskip("playwright.sync_api")
+    exe = chromium_path()
+    with playwright.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=exe, args=args)
+        try:
+            yield browser
+        finally:
+            browser.close()
 SHARED_DATA = REPO_ROOT.parent / "shared" / "data"
 
 

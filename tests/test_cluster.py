@@ -35,7 +35,6 @@ from abcgs.cluster.job import run_job
 from abcgs.cluster.plan import (
     PlanError,
     Resources,
-    apply_overlay,
     apply_sets,
     gpu_overrides,
     load_resources,
@@ -43,6 +42,7 @@ from abcgs.cluster.plan import (
 )
 from abcgs.cluster.run import RunInfo, StageLog, configure_cache, load_run, read_state, save_run
 from abcgs.cluster.slurm import _expand_tasks, dependency, render_script
+from abcgs.overlay import apply_overlay
 from eval.bench.regression import REDUCED
 
 SLURM = (pytest.mark.slow, pytest.mark.slurm)

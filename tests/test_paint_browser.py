@@ -15,7 +15,7 @@ import threading
 
 import numpy as np
 import pytest
-from conftest import chromium_path
+from conftest import launch_chromium
 
 from abcgs.io.images import load_labels
 from abcgs.masks.content import label_iou, read_label_files
@@ -31,12 +31,8 @@ CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu-sandbox"]
 
 @pytest.fixture(scope="module")
 def browser():
-    playwright = pytest.importorskip("playwright.sync_api")
-    exe = chromium_path()
-    with playwright.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS)
+    with launch_chromium(CHROMIUM_ARGS) as b:
         yield b
-        b.close()
 
 
 @pytest.fixture()

@@ -15,7 +15,7 @@ import io
 import numpy as np
 import pytest
 import torch
-from conftest import chromium_path
+from conftest import launch_chromium
 
 from abcgs.cameras import Camera, intrinsics, look_at
 from abcgs.gaussians import GaussianModel, render
@@ -85,12 +85,8 @@ def _shot(page) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def browser():
-    playwright = pytest.importorskip("playwright.sync_api")
-    exe = chromium_path()
-    with playwright.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=exe, args=CHROMIUM_ARGS)
+    with launch_chromium(CHROMIUM_ARGS) as b:
         yield b
-        b.close()
 
 
 @pytest.fixture(scope="module")

@@ -18,9 +18,7 @@ import yaml
 from abcgs.cluster.plan import (
     KINDS,
     Plan,
-    PlanError,
     Resources,
-    apply_overlay,
     apply_sets,
     gpu_overrides,
     load_resources,
@@ -42,6 +40,7 @@ from abcgs.cluster.run import (
     write_json,
 )
 from abcgs.cluster.slurm import SlurmError, dependency, python_executable, render_script, sbatch, task_states
+from abcgs.overlay import apply_overlay, read_overlay
 
 CLUSTER_DIR_ENV = "ABCGS_CLUSTER_DIR"
 """Environment variable naming the cluster folder (``cache/`` and ``runs/``) when ``--cluster-dir`` is not given."""
@@ -56,22 +55,12 @@ def _committed_yaml(repo: Path, commit: str, name: str) -> Any:
     return yaml.safe_load(git(["show", f"{commit}:{name}"], repo))
 
 
-def _load_overlay(path: Path, data: Path | None) -> dict:
-    """A benchmark overlay (``eval/params/*.yaml``); ``${shared}`` in it becomes the absolute ``data`` folder."""
-    text = path.read_text(encoding="utf-8")
-    if "${shared}" in text:
-        if data is None or not data.is_dir():
-            raise PlanError(f"{path} reads ${{shared}}: pass --data FOLDER (e.g. ../shared/data); got {data}")
-        text = text.replace("${shared}", str(data.resolve()))
-    return yaml.safe_load(text) or {}
-
-
 def build_params(base: Mapping[str, Any], overlay: Path | None, data: Path | None, sets: list[str],
                  resources: Mapping[str, Resources]) -> tuple[dict, dict[str, Any]]:
     """The run's params (base, overlay, ``--set``, GPU backends) and the GPU backend keys that were changed."""
     from abcgs.params import validate_params
 
-    params = apply_overlay(base, _load_overlay(overlay, data)) if overlay else dict(base)
+    params = apply_overlay(base, read_overlay(overlay, data, "--data")) if overlay else dict(base)
     params = apply_sets(copy.deepcopy(params), sets)
     gpu = gpu_overrides(resources, params)
     apply_sets(params, [f"{k}={v}" for k, v in gpu.items()])

@@ -19,7 +19,7 @@ Slurm counts a task's failure in an array's ``afterok`` even after the task was 
 against the job order, so a ``dvc.yaml`` change that the split no longer fits fails here, not on the cluster.
 
 The module also holds the two inputs a plan is made from besides ``dvc.yaml``: the params (the workspace's, or a
-benchmark overlay from ``eval/params`` merged over them: :func:`apply_overlay`) and the per-kind Slurm resources
+benchmark overlay from ``eval/params`` merged over them: :func:`abcgs.overlay.apply_overlay`) and the per-kind Slurm resources
 (:class:`Resources`, ``resources.yaml``).
 """
 
@@ -39,8 +39,6 @@ KINDS = ("prep", "scene", "experiment", "report")
 """Job kinds, in the order they run; each has its own resources (:class:`Resources`)."""
 COLLECTIONS: dict[str, str] = {"data.scenes": "scene", "colormatches": "scene", "experiments": "experiment"}
 """``foreach`` collection → the kind of job its stages go to."""
-REPLACED = ("data", "colormatches", "experiments")
-"""Overlay sections that replace the base params' instead of merging into them (as ``eval.bench.experiment``)."""
 RESOURCES_FILE = Path(__file__).with_name("resources.yaml")
 _INTERP = re.compile(r"\$\{\s*([A-Za-z0-9_.]+)\s*\}")
 
@@ -302,20 +300,6 @@ def _arrays(jobs: dict[str, Job], scenes: list[str], exp_scene: dict[str, str]) 
 
 
 # ------------------------------------------------------------------------------------------------ params
-def apply_overlay(base: Mapping[str, Any], overlay: Mapping[str, Any]) -> dict:
-    """``base`` params with a benchmark overlay applied: its ``data``, ``colormatches`` and ``experiments`` replace
-    the base's (:data:`REPLACED`), every other section is merged key by key (``eval.bench.experiment``'s rule)."""
-    from abcgs.params import deep_merge
-
-    out = dict(base)
-    for section, value in overlay.items():
-        if section in REPLACED or not isinstance(value, Mapping) or not isinstance(out.get(section), Mapping):
-            out[section] = value
-        else:
-            out[section] = deep_merge(dict(out[section]), dict(value))
-    return out
-
-
 def apply_sets(params: dict, sets: Iterable[str]) -> dict:
     """``params`` with ``KEY=VALUE`` changes (dotted keys, YAML values) applied in place; returns ``params``."""
     from abcgs.params import set_dotted

@@ -30,9 +30,10 @@ from typing import Any
 
 import yaml
 
+from abcgs.errors import ParamsError
+from abcgs.overlay import REPLACED, read_overlay
+
 ROOT = Path(__file__).resolve().parents[2]
-REPLACED = ("data", "colormatches", "experiments")
-"""Overlay sections that replace the workspace's instead of merging into it."""
 BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
 
 
@@ -85,18 +86,13 @@ def overrides(base: dict, overlay: dict) -> list[str]:
     return args
 
 
-def load_overlay(path: Path, shared: Path | None) -> dict:
-    text = path.read_text(encoding="utf-8")
-    if "${shared}" in text:
-        if shared is None or not shared.is_dir():
-            raise SystemExit(f"{path} reads ${{shared}}: pass --shared FOLDER (e.g. ../shared/data); got {shared}")
-        text = text.replace("${shared}", str(shared.resolve()))
-    return yaml.safe_load(text) or {}
-
-
 def cmd_run(a: argparse.Namespace) -> int:
     base = yaml.safe_load((ROOT / "params.yaml").read_text(encoding="utf-8"))
-    args = overrides(base, load_overlay(a.overlay, a.shared)) + [f"++{s}" for s in a.set]
+    try:
+        overlay = read_overlay(a.overlay, a.shared)
+    except ParamsError as exc:
+        raise SystemExit(str(exc)) from None
+    args = overrides(base, overlay) + [f"++{s}" for s in a.set]
     cmd = [sys.executable, "-m", "dvc", "exp", "run", "--temp", "-n", a.name]
     for arg in args:
         cmd += ["-S", arg]
