@@ -89,15 +89,14 @@ def test_report_viewer_renders_every_experiment(repo: Path, first_repro) -> None
     shows each tiny experiment's stylized scene close to our own render of its first training camera."""
     import cv2
     import numpy as np
-    from test_viewer_browser import CHROMIUM_ARGS, _chromium, _shot
+    from conftest import launch_chromium
+    from test_viewer_browser import CHROMIUM_ARGS, _shot
 
     from abcgs.gaussians import render
     from abcgs.sfm.colmap import read_colmap_scene
 
-    playwright = pytest.importorskip("playwright.sync_api")
     cams = read_colmap_scene(repo / "out/tiny/colmap/sparse", repo / "out/tiny/colmap/images").cameras
-    with playwright.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=_chromium(), args=CHROMIUM_ARGS)
+    with launch_chromium(CHROMIUM_ARGS) as browser:
         page = browser.new_page(viewport={"width": 400, "height": 700})
         remote = []
         page.on("request", lambda r: remote.append(r.url) if not r.url.startswith(("file:", "data:", "blob:")) else None)
@@ -114,7 +113,6 @@ def test_report_viewer_renders_every_experiment(repo: Path, first_repro) -> None
             ours = cv2.resize(ours, (shot.shape[1], shot.shape[0]), interpolation=cv2.INTER_LINEAR)
             r = np.corrcoef(shot.reshape(-1), ours.reshape(-1))[0, 1]
             assert r > 0.8, f"{exp}: viewer vs our rasterizer, correlation {r:.3f}"
-        browser.close()
     assert remote == []
 
 
