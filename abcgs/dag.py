@@ -31,9 +31,31 @@ def _module_file(root: Path, dotted: str) -> Path | None:
     return None
 
 
+def _is_type_checking(node: ast.AST) -> bool:
+    """``if TYPE_CHECKING:`` / ``if typing.TYPE_CHECKING:``: its body is read by type checkers only, never run."""
+    if not isinstance(node, ast.If):
+        return False
+    test = node.test
+    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
+
+
+def _run_nodes(tree: ast.AST) -> Iterable[ast.AST]:
+    """Every node of ``tree`` but the bodies of ``if TYPE_CHECKING:`` blocks (their ``else`` branches run)."""
+    todo = [tree]
+    while todo:
+        node = todo.pop()
+        yield node
+        if _is_type_checking(node):
+            todo.extend(node.orelse)
+            continue
+        todo.extend(ast.iter_child_nodes(node))
+
+
 def _imported_modules(tree: ast.AST, current: str | None) -> Iterable[str]:
-    """Dotted names a module's import statements may load (``from a import b``: ``a`` and ``a.b``)."""
-    for node in ast.walk(tree):
+    """Dotted names a module's import statements may load (``from a import b``: ``a`` and ``a.b``); imports under
+    ``if TYPE_CHECKING:`` load nothing when the code runs and are left out."""
+    for node in _run_nodes(tree):
         if isinstance(node, ast.Import):
             for alias in node.names:
                 yield alias.name

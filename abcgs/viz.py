@@ -11,6 +11,19 @@ import numpy as np
 from abcgs.io.atomic import atomic_path
 from abcgs.io.images import to_uint8
 
+LABEL_COLOURS = np.array(
+    [[0, 0, 0], [230, 25, 75], [60, 180, 75], [255, 225, 25], [0, 130, 200], [245, 130, 48], [145, 30, 180],
+     [70, 240, 240], [240, 50, 230], [210, 245, 60], [250, 190, 212], [0, 128, 128], [220, 190, 255],
+     [170, 110, 40], [255, 250, 200], [128, 0, 0], [170, 255, 195]], np.uint8)
+"""RGB of content labels 0 (black: unassigned), 1, 2, … in masks, grids and the drawing page; labels past the end
+take the colours from 1 on again."""
+
+
+def colorize_labels(labels: np.ndarray) -> np.ndarray:
+    """``(H, W)`` labels → ``(H, W, 3) uint8`` in :data:`LABEL_COLOURS`."""
+    lab = np.asarray(labels).astype(np.int64)
+    return LABEL_COLOURS[np.where(lab > 0, (lab - 1) % (len(LABEL_COLOURS) - 1) + 1, 0)]
+
 
 def _fit(img: np.ndarray, height: int) -> np.ndarray:
     img = img if img.dtype == np.uint8 else to_uint8(img)

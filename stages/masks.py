@@ -1,5 +1,5 @@
-"""Stage ``masks``: content label maps (given or automatic) lifted onto the fitted Gaussians (Eq. 2),
-re-rendered as view-consistent masks for every view.
+"""Stage ``masks``: content label maps (given or automatic) lifted onto the fitted Gaussians (Eq. 2), the views
+without a mask re-cut from them (cross-view refinement), re-rendered as view-consistent masks for every view.
 
     python stages/masks.py --scene tiny --out out/tiny/masks
 """
@@ -20,7 +20,8 @@ SPEC = StageSpec("masks", foreach="data.scenes", params=("masks", "data.scenes.{
 def main(args, params) -> None:
     scene, model = load_scene(args.root, args.scene)
     masks_dir = args.root / args.scene / "colmap" / "masks"
-    result = make_content_masks(model, scene.cameras, masks_dir, params.scene_section(args.scene, "masks"))
+    result = make_content_masks(model, scene.cameras, masks_dir, params.scene_section(args.scene, "masks"),
+                                scene.image_paths)
     write_content_masks(args.out, result, scene.cameras, scene.image_paths)
 
 

@@ -15,6 +15,7 @@ from abcgs.io.images import save_labels
 from abcgs.masks.content import (
     GrabCutParams,
     MaskParams,
+    RefineParams,
     find_given_masks_with_palette,
     grabcut_view,
     label_iou,
@@ -187,7 +188,8 @@ def test_propagation_labels_the_unseen_side_and_keeps_unpainted_pixels_unpainted
 
 
 def make_content_masks_from(model, cams, maps, propagate: str):
-    """make_content_masks with the given maps as the first views' user masks (written to a temp folder)."""
+    """make_content_masks with the given maps as the first views' user masks (written to a temp folder); the lifting
+    and propagation alone (no cross-view refinement, which tests/test_mask_refine.py covers)."""
     import tempfile
     from pathlib import Path
 
@@ -196,8 +198,8 @@ def make_content_masks_from(model, cams, maps, propagate: str):
     with tempfile.TemporaryDirectory() as tmp:
         for c, m in zip(cams, maps):
             save_labels(Path(tmp) / f"{c.name[:-4]}.png", m)
-        return make_content_masks(model, cams, Path(tmp),
-                                  MaskParams(source="given", lift=LiftParams(propagate=propagate)))
+        return make_content_masks(model, cams, Path(tmp), MaskParams(source="given", lift=LiftParams(propagate=propagate),
+                                                                     refine=RefineParams(enabled=False)))
 
 
 def test_orbit_capture_propagates_by_default(tmp_path) -> None:
@@ -214,11 +216,15 @@ def test_orbit_capture_propagates_by_default(tmp_path) -> None:
     assert capture_layout(ring).kind == "orbit"
     ones = torch.ones(ball_model.num_gaussians, dtype=torch.long)
     save_labels(tmp_path / "000.png", render_label_map(ball_model, ones, 1, ring[0]))
-    res = make_content_masks(ball_model, ring, tmp_path, MaskParams(source="given"))
+    res = make_content_masks(ball_model, ring, tmp_path, MaskParams(source="given", refine=RefineParams(enabled=False)))
     assert res.propagated > 0.2 * ball_model.num_gaussians
-    assert (res.gaussian_labels == 1).float().mean() > 0.95
-    back = render_label_map(ball_model, res.gaussian_labels, 1, ring[4])  # the opposite view
-    assert (back == 1).sum() >= 0.95 * (render_label_map(ball_model, ones, 1, ring[4]) == 1).sum()
+    # with the cross-view refinement (default) the re-cut views see the far side themselves; either way it is labelled
+    refined = make_content_masks(ball_model, ring, tmp_path, MaskParams(source="given"))
+    assert refined.refinement is not None and len(refined.refinement.views) == 7
+    for r in (res, refined):
+        assert (r.gaussian_labels == 1).float().mean() > 0.95
+        back = render_label_map(ball_model, r.gaussian_labels, 1, ring[4])  # the opposite view
+        assert (back == 1).sum() >= 0.95 * (render_label_map(ball_model, ones, 1, ring[4]) == 1).sum()
 
 
 def test_the_orbit_tiny_scene_is_object_centred(tmp_path) -> None:

@@ -87,6 +87,20 @@ def test_the_closure_follows_imports_inside_functions_and_package_inits(tmp_path
     assert missing_deps(import_closure(script, tmp_path), ["stage.py", "abcgs/sub"]) == [Path("abcgs/__init__.py")]
 
 
+def test_imports_under_type_checking_are_not_run_but_their_else_branch_is(tmp_path: Path) -> None:
+    pkg = tmp_path / "abcgs"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    for name in ("heavy", "light", "fallback"):
+        (pkg / f"{name}.py").write_text("")
+    script = tmp_path / "stage.py"
+    script.write_text("import typing\nfrom typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from abcgs import heavy\n"
+                      "if typing.TYPE_CHECKING:\n    import abcgs.heavy\nelse:\n    from abcgs import fallback\n"
+                      "from abcgs import light\n")
+    got = {p.as_posix() for p in import_closure(script, tmp_path)}
+    assert got == {"stage.py", "abcgs/__init__.py", "abcgs/light.py", "abcgs/fallback.py"}
+
+
 def test_removing_one_imported_file_from_a_stage_deps_is_caught() -> None:
     stage = DVC["fit"]
     deps = _deps(stage)

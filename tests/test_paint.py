@@ -17,19 +17,17 @@ import pytest
 
 from abcgs.errors import InputError
 from abcgs.io.images import save_image
-from abcgs.masks.content import colorize_labels, label_iou, read_label_files
-from abcgs.masks.paint import (
+from abcgs.masks.content import label_iou, read_label_files
+from abcgs.masks.grabcut import (
     BACKGROUND,
-    PALETTE,
-    PaintSession,
     Stroke,
     fill_gaps,
     gmm_log_density,
-    main,
-    make_server,
     rasterize_strokes,
     segment,
 )
+from abcgs.masks.paint import PaintSession, main, make_server
+from abcgs.viz import LABEL_COLOURS, colorize_labels
 
 H, W = 120, 160
 
@@ -141,8 +139,15 @@ def test_rasterize_strokes_paints_labels_in_order() -> None:
     assert (seeds == 2).sum() > 2 * 20
 
 
-def test_the_page_uses_the_pipeline_label_colours() -> None:
-    assert np.array_equal(PALETTE, colorize_labels(np.arange(len(PALETTE))))
+def test_label_colours_cycle_past_the_end_and_the_page_overlay_uses_them() -> None:
+    from abcgs.masks.paint import overlay_rgba
+
+    n = len(LABEL_COLOURS)
+    lab = np.array([[0, 1, n - 1, n]])
+    col = colorize_labels(lab)
+    assert (col[0, 0] == 0).all() and np.array_equal(col[0, 2], LABEL_COLOURS[n - 1])
+    assert np.array_equal(col[0, 3], LABEL_COLOURS[1])  # past the end: from label 1's colour on
+    assert np.array_equal(overlay_rgba(lab)[..., :3], col)
 
 
 def test_gmm_log_density_reads_opencv_models() -> None:

@@ -19,7 +19,8 @@ from conftest import launch_chromium
 
 from abcgs.io.images import load_labels
 from abcgs.masks.content import label_iou, read_label_files
-from abcgs.masks.paint import PaintSession, Stroke, make_server
+from abcgs.masks.grabcut import Stroke
+from abcgs.masks.paint import PaintSession, make_server
 from eval.bench.paint_iou import simulated_strokes
 
 pytestmark = pytest.mark.browser

@@ -36,8 +36,9 @@ from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel, render
 from abcgs.io.images import load_labels
-from abcgs.masks.lifting import LiftResult, lift_labels, propagate_labels, render_label_map
-from abcgs.masks.params import AutoMaskParams, GrabCutParams, MaskParams  # noqa: F401  (the section's schema)
+from abcgs.masks.lifting import lift_labels, propagate_unseen, render_label_map
+from abcgs.masks.params import AutoMaskParams, GrabCutParams, MaskParams, RefineParams  # noqa: F401  (the section's schema)
+from abcgs.masks.refine import Refinement, refine_labels
 
 log = logging.getLogger(__name__)
 
@@ -67,6 +68,7 @@ class ContentMasks:
     heldout_agreement: float | None = None  # pixel agreement on the held-out views' labelled pixels
     palette: dict[int, tuple[int, int, int]] = field(default_factory=dict)  # colour label PNGs: label → RGB
     propagated: int = 0  # Gaussians no masked view saw, labelled from their 3-D neighbours
+    refinement: Refinement | None = None  # the cross-view re-cut (masks.refine), when it ran
 
 
 def read_label_files(paths: list[Path], sizes: list[tuple[int, int]]) -> tuple[list[np.ndarray], dict]:
@@ -212,9 +214,19 @@ def label_iou(pred: np.ndarray, truth: np.ndarray, n_labels: int) -> dict[int, f
 
 
 def make_content_masks(
-    model: GaussianModel, cameras: list[Camera], masks_dir: Path | None, params: MaskParams
+    model: GaussianModel,
+    cameras: list[Camera],
+    masks_dir: Path | None,
+    params: MaskParams,
+    images: list[Path] | None = None,
+    *,
+    show_progress: bool = True,
 ) -> ContentMasks:
-    """Given or automatic masks → per-Gaussian labels → re-rendered masks for every view."""
+    """Given or automatic masks → per-Gaussian labels (Eq. 2; cross-view refinement with ``masks.refine``) →
+    re-rendered masks for every view.
+
+    ``images``: the views' photos, which the refinement cuts (None: the scene's renders stand in for them).
+    """
     given, palette = find_given_masks_with_palette(masks_dir, cameras) if masks_dir is not None else ({}, {})
     if params.source == "given" and not given:
         raise InputError(f"masks.source is 'given' but no label PNG in {masks_dir} matches a view")
@@ -251,16 +263,24 @@ def make_content_masks(
     if n_labels == 0:
         raise InputError("the content masks contain no label > 0 (0 means unassigned); nothing to lift")
     lifted = lift_labels(model, [cameras[i] for i in idx], maps, n_labels, params.lift, backend=params.backend)
-    propagated = 0
-    if params.lift.propagate == "always" or (
+    # Gaussians no masked view sees take their 3-D neighbours' label (object-centred captures, LiftParams.propagate)
+    propagate = params.lift.propagate == "always" or (
         params.lift.propagate == "auto" and len(idx) < len(cameras) and len(cameras) > 1
         and capture_layout(cameras).kind == "orbit"
-    ):
-        unseen = lifted.weights.sum(1) < params.lift.min_weight
-        labels = propagate_labels(model.means, lifted.labels, unseen, params.lift.propagate_k)
-        propagated = int((labels != lifted.labels).sum())
-        lifted = LiftResult(labels, lifted.weights)
+    )
+    propagated = 0
+    if propagate:
+        lifted, propagated = propagate_unseen(model.means, lifted, params.lift)
         log.info("propagated labels to %d Gaussians no masked view sees", propagated)
+    refinement = None
+    if params.refine.enabled and len(idx) < len(cameras):
+        # every view but the lifted ones (the user's masks stay as painted; held-out views are re-cut and scored)
+        refinement = refine_labels(model, cameras, images, dict(zip(idx, maps)), lifted, n_labels, params.lift,
+                                   params.refine, backend=params.backend, show_progress=show_progress)
+        lifted = refinement.lifted
+        if propagate:
+            lifted, n = propagate_unseen(model.means, lifted, params.lift)
+            propagated = n
     views = [
         render_label_map(model, lifted.labels, n_labels, c, threshold=params.lift.render_threshold, backend=params.backend)
         for c in cameras
@@ -282,13 +302,4 @@ def make_content_masks(
     return ContentMasks(lifted.labels, n_labels, views, source, [cameras[i].name for i in idx],
                         float(np.mean(agree)) if agree else None, [cameras[i].name for i in heldout],
                         {k: float(np.mean(v)) for k, v in sorted(ho_iou.items())},
-                        float(np.mean(ho_agree)) if ho_agree else None, palette, propagated)
-
-
-def colorize_labels(labels: np.ndarray) -> np.ndarray:
-    """``(H, W)`` labels → ``(H, W, 3) uint8`` with a fixed palette (0 = black)."""
-    palette = np.array(
-        [[0, 0, 0], [230, 25, 75], [60, 180, 75], [255, 225, 25], [0, 130, 200], [245, 130, 48], [145, 30, 180],
-         [70, 240, 240], [240, 50, 230], [210, 245, 60], [250, 190, 212], [0, 128, 128], [220, 190, 255],
-         [170, 110, 40], [255, 250, 200], [128, 0, 0], [170, 255, 195]], np.uint8)
-    return palette[np.clip(labels, 0, len(palette) - 1)]
+                        float(np.mean(ho_agree)) if ho_agree else None, palette, propagated, refinement)

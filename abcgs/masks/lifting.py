@@ -29,10 +29,13 @@ from abcgs.render import accumulate_weights, rasterize
 
 @dataclass
 class LiftResult:
-    """Per-Gaussian labels ``(N,) int64`` (0 = unassigned) and the vote ``weights (N, L+1)``."""
+    """Per-Gaussian labels ``(N,) int64`` (0 = unassigned), the vote ``weights (N, L+1)``, and ``decided (N,) bool``:
+    the vote cleared both thresholds (or the label was propagated from 3-D neighbours). An undecided Gaussian has
+    label 0 without anyone having chosen it: seen too little, or a split vote."""
 
     labels: Tensor
     weights: Tensor
+    decided: Tensor
 
     def counts(self) -> dict[int, int]:
         vals, cnt = torch.unique(self.labels, return_counts=True)
@@ -83,7 +86,7 @@ def lift_labels(
     best_w, best = weights.max(1)
     ok = (best_w >= params.min_weight) & (best_w >= params.min_share * total.clamp_min(1e-12))
     labels = torch.where(ok, best, torch.zeros_like(best))
-    return LiftResult(labels, weights)
+    return LiftResult(labels, weights, ok)
 
 
 def propagate_labels(means: Tensor, labels: Tensor, unseen: Tensor, k: int = 8) -> Tensor:
@@ -113,6 +116,15 @@ def propagate_labels(means: Tensor, labels: Tensor, unseen: Tensor, k: int = 8) 
     pick = np.array([next(v for v in row if tied[i, v - 1]) for i, row in enumerate(votes)])
     out[unseen] = torch.as_tensor(pick, dtype=out.dtype)
     return out
+
+
+def propagate_unseen(means: Tensor, lifted: LiftResult, params: LiftParams) -> tuple[LiftResult, int]:
+    """:func:`propagate_labels` to the Gaussians whose summed vote is below ``params.min_weight`` (no masked view saw
+    them); the filled ones count as decided. Returns the new result and how many Gaussians changed label."""
+    unseen = lifted.weights.sum(1) < params.min_weight
+    labels = propagate_labels(means, lifted.labels, unseen, params.propagate_k)
+    changed = labels != lifted.labels
+    return LiftResult(labels, lifted.weights, lifted.decided | (unseen & (labels > 0))), int(changed.sum())
 
 
 def render_label_map(

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -17,9 +18,11 @@ from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.io.atomic import atomic_path, write_json
 from abcgs.io.images import load_image, load_labels, save_image, save_labels
-from abcgs.masks.content import ContentMasks, colorize_labels
 from abcgs.sfm.colmap import SceneData
-from abcgs.viz import image_grid
+from abcgs.viz import colorize_labels, image_grid
+
+if TYPE_CHECKING:  # the writer takes the computed masks; the stages that only read them do not import that code
+    from abcgs.masks.content import ContentMasks
 
 OVERLAY_ROWS = 4
 """Views shown in ``overlay.png``."""
@@ -48,6 +51,10 @@ def write_content_masks(out: Path, result: ContentMasks, cameras: list[Camera], 
             "heldout_agreement": result.heldout_agreement,
             "colour_palette": {str(k): list(v) for k, v in result.palette.items()},
             "gaussians_propagated": result.propagated,
+            "refinement": None if result.refinement is None else {
+                "views_recut": len(result.refinement.views), "seconds": result.refinement.seconds,
+                "per_view": result.refinement.views,
+            },
         })
 
 

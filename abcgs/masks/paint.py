@@ -10,14 +10,9 @@ strokes where it is wrong, and press **Save**: every view with strokes gets a si
 unassigned, 1, 2, …; the format :func:`abcgs.masks.content.read_label_files` reads), written atomically. Views
 without strokes get no file: the ``masks`` stage lifts labels from any subset of views (Eq. 2).
 
-The segmentation is a pure function over arrays (:func:`segment`); the server only keeps strokes and results per
-view. For each label k (and the background brush, when used), GrabCut runs once, k against the rest: k's strokes
-are certain foreground (``GC_FGD``), every other stroke certain background (``GC_BGD``), unstroked pixels probable
-background (``GC_PR_BGD``; GrabCut then moves them). The parts of k's cut that no k-stroke touches are dropped (a
-stroke marks the region it lies in). Where cuts overlap, the one with the higher GrabCut foreground probability (the
-posterior of its colour models) wins. Gaps no cut claims take, per connected gap, the label around it whose strokes
-are nearest in colour, when it clearly is (``fill``, :data:`FILL_MAJORITY`; off, gaps stay 0). Pixels the background wins are 0. The cut uses colour only:
-no depth cue, so no fitted scene is needed.
+The cut is :func:`abcgs.masks.grabcut.segment` (GrabCut per label from the strokes); the server only keeps strokes
+and results per view. The page cuts on colour alone: it runs before the scene is fitted. The ``masks`` stage later
+re-cuts every view that has no label PNG on colour and the fitted scene's depth (:mod:`abcgs.masks.refine`).
 """
 
 from __future__ import annotations
@@ -28,7 +23,6 @@ import logging
 import re
 import sys
 import threading
-import time
 import webbrowser
 from dataclasses import dataclass, field
 from http import HTTPStatus
@@ -40,292 +34,13 @@ import numpy as np
 
 from abcgs.errors import AbcgsError, InputError
 from abcgs.io.images import IMAGE_SUFFIXES, load_image, save_labels, to_uint8
+from abcgs.masks.grabcut import Segmentation, Stroke, segment
+from abcgs.viz import LABEL_COLOURS, colorize_labels
 
 log = logging.getLogger(__name__)
 
 PAGE = Path(__file__).resolve().parent / "static" / "paint.html"
 """The drawing page (HTML + plain JavaScript in one file)."""
-
-BACKGROUND = 0
-"""Stroke label of the background brush: certain background for every label, unassigned (0) in the saved map."""
-
-FILL_MAJORITY = 0.7
-"""A gap between several cuts takes the label nearest in colour for at least this share of its pixels, or stays 0.
-On the tiny scene's textured views a plain majority gives large gaps of wall to an object (box IoU 0.96 → 0.63 from
-strokes that differed by 26 pixels); at 0.7 such gaps stay unassigned."""
-
-GMM_COMPONENTS = 5
-"""Gaussians per colour model in OpenCV's GrabCut (its model array is ``1 × 13·GMM_COMPONENTS``)."""
-
-PALETTE = np.array(
-    [[0, 0, 0], [230, 25, 75], [60, 180, 75], [255, 225, 25], [0, 130, 200], [245, 130, 48], [145, 30, 180],
-     [70, 240, 240], [240, 50, 230], [210, 245, 60], [250, 190, 212], [0, 128, 128], [220, 190, 255],
-     [170, 110, 40], [255, 250, 200], [128, 0, 0], [170, 255, 195]], np.uint8)
-"""RGB of labels 0, 1, … (cycled past the end); the same colours as :func:`abcgs.masks.content.colorize_labels`."""
-
-
-# ----------------------------------------------------------------------------------------------
-# Strokes and segmentation: pure functions over arrays
-# ----------------------------------------------------------------------------------------------
-
-
-@dataclass
-class Stroke:
-    """One brush stroke in image pixel coordinates.
-
-    Attributes:
-        label: 1..N paints that label; :data:`BACKGROUND` (0) is the background brush.
-        points: ``(P, 2) float`` x (right), y (down) of the polyline, pixel j spanning [j, j + 1) as in the
-            browser; a single point is a dot.
-        radius: brush radius in pixels.
-    """
-
-    label: int
-    points: np.ndarray
-    radius: float = 3.0
-
-    @classmethod
-    def from_json(cls, data: dict) -> Stroke:
-        """``{"label": int, "points": [[x, y], …], "radius": float}`` → :class:`Stroke` (clear errors on bad input)."""
-        try:
-            label = int(data["label"])
-            pts = np.asarray(data["points"], dtype=np.float64).reshape(-1, 2)
-            radius = float(data.get("radius", 3.0))
-        except (KeyError, TypeError, ValueError) as exc:
-            raise InputError(f"a stroke must be {{'label': int, 'points': [[x, y], ...], 'radius': float}}: {exc}") from exc
-        if label < 0 or label > 255:
-            raise InputError(f"stroke label {label} is outside 0..255 (0 is the background brush)")
-        if len(pts) == 0 or not np.isfinite(pts).all() or not (0 < radius < 1e4):
-            raise InputError("a stroke needs at least one finite point and a radius > 0")
-        return cls(label, pts, radius)
-
-    def to_json(self) -> dict:
-        return {"label": self.label, "points": self.points.tolist(), "radius": self.radius}
-
-
-def rasterize_strokes(strokes: list[Stroke], hw: tuple[int, int], scale: float = 1.0) -> np.ndarray:
-    """Strokes → seed map ``(H, W) int64``: -1 = no stroke, 0 = background brush, k = label k.
-
-    Later strokes paint over earlier ones. ``scale`` multiplies the coordinates and radii (segmenting a
-    downscaled copy of the view).
-    """
-    seeds = np.full(hw, -1, np.int16)
-    shift = 4  # sub-pixel precision of cv2's drawing: coordinates in 1/16 px
-    for s in strokes:
-        pts = np.round((s.points * scale - 0.5) * (1 << shift)).astype(np.int32)
-        r = max(1, int(round(s.radius * scale * (1 << shift))))
-        colour = int(s.label)
-        thick = max(1, int(round(2 * s.radius * scale)))
-        if len(pts) == 1:
-            cv2.circle(seeds, tuple(int(v) for v in pts[0]), r, colour, -1, cv2.LINE_8, shift)
-        else:
-            cv2.polylines(seeds, [pts.reshape(-1, 1, 2)], False, colour, thick, cv2.LINE_8, shift)
-            for p in (pts[0], pts[-1]):  # round caps
-                cv2.circle(seeds, tuple(int(v) for v in p), r, colour, -1, cv2.LINE_8, shift)
-    return seeds.astype(np.int64)
-
-
-@dataclass
-class Segmentation:
-    """The label map of one view and what decided it.
-
-    Attributes:
-        labels: ``(H, W) int64``, 0 = unassigned, k = label k.
-        probability: per label k, GrabCut's foreground probability ``(H, W) float32`` (its colour models' posterior).
-        seconds: time spent.
-    """
-
-    labels: np.ndarray
-    probability: dict[int, np.ndarray] = field(default_factory=dict)
-    seconds: float = 0.0
-
-    def counts(self) -> dict[int, int]:
-        vals, cnt = np.unique(self.labels, return_counts=True)
-        return {int(v): int(c) for v, c in zip(vals, cnt)}
-
-
-def gmm_log_density(model: np.ndarray, pixels: np.ndarray) -> np.ndarray:
-    """Log density of OpenCV GrabCut's colour model at ``pixels``.
-
-    Args:
-        model: the ``(1, 65) float64`` array :func:`cv2.grabCut` fills (5 weights, 5 × 3 means, 5 × 3 × 3
-            covariances, in the channel order of the image it was given).
-        pixels: ``(N, 3)`` colours in that order, 0..255.
-
-    Returns:
-        ``(N,) float64``.
-    """
-    k = GMM_COMPONENTS
-    flat = np.asarray(model, np.float64).reshape(-1)
-    weights, means, covs = flat[:k], flat[k:4 * k].reshape(k, 3), flat[4 * k:13 * k].reshape(k, 3, 3)
-    x = np.asarray(pixels, np.float64)
-    terms = []
-    for w, mu, cov in zip(weights, means, covs):
-        if w <= 0:
-            continue
-        cov = cov + np.eye(3) * 1e-2  # a small ridge keeps a near-singular component invertible
-        inv, logdet = np.linalg.inv(cov), np.linalg.slogdet(cov)[1]
-        d = x - mu
-        maha = np.einsum("ni,ij,nj->n", d, inv, d)
-        terms.append(np.log(w) - 0.5 * (maha + logdet + 3 * np.log(2 * np.pi)))
-    if not terms:
-        return np.full(len(x), -np.inf)
-    return np.logaddexp.reduce(np.stack(terms), axis=0)
-
-
-def _grabcut_one(bgr: np.ndarray, seeds: np.ndarray, k: int, iterations: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """GrabCut of seed value ``k`` against the rest: ``(cut (H, W) bool, fg model, bg model)``."""
-    mask = np.full(seeds.shape, cv2.GC_PR_BGD, np.uint8)
-    mask[seeds >= 0] = cv2.GC_BGD
-    mask[seeds == k] = cv2.GC_FGD
-    if not (mask != cv2.GC_FGD).any():
-        raise InputError(f"the strokes of {'the background' if k == BACKGROUND else f'label {k}'} cover the whole "
-                         "view; leave some of it unpainted")
-    bgd, fgd = np.zeros((1, 13 * GMM_COMPONENTS), np.float64), np.zeros((1, 13 * GMM_COMPONENTS), np.float64)
-    cv2.setRNGSeed(0)
-    try:
-        cv2.grabCut(bgr, mask, None, bgd, fgd, iterations, cv2.GC_INIT_WITH_MASK)
-    except cv2.error as exc:
-        raise InputError(f"GrabCut could not cut label {k}: {exc.err}") from exc
-    return (mask == cv2.GC_FGD) | (mask == cv2.GC_PR_FGD), fgd, bgd
-
-
-def _colour_distances(lab: np.ndarray, seeds: np.ndarray, centres: int = 24) -> dict[int, np.ndarray]:
-    """Per seed value (label or background), each pixel's squared CIELAB distance to the nearest colour of its strokes.
-
-    A value's stroke colours are summarised by up to ``centres`` k-means centres.
-
-    Args:
-        lab: ``(H, W, 3) float32`` CIELAB. seeds: ``(H, W)`` as :func:`rasterize_strokes` returns.
-
-    Returns:
-        ``{value: (H, W) float32}``.
-    """
-    flat = lab.reshape(-1, 3)
-    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 20, 0.5)
-    out = {}
-    for v in (int(v) for v in np.unique(seeds) if v >= 0):
-        samples = np.ascontiguousarray(flat[seeds.reshape(-1) == v], np.float32)
-        if len(samples) > centres:
-            cv2.setRNGSeed(0)
-            _, _, samples = cv2.kmeans(samples, centres, None, crit, 1, cv2.KMEANS_PP_CENTERS)
-        d = np.full(flat.shape[0], np.inf, np.float32)
-        for c in samples:
-            d = np.minimum(d, ((flat - c) ** 2).sum(-1))
-        out[v] = d.reshape(seeds.shape)
-    return out
-
-
-def fill_gaps(
-    labels: np.ndarray, claimed: np.ndarray, lab: np.ndarray, seeds: np.ndarray, majority: float = FILL_MAJORITY
-) -> np.ndarray:
-    """Give each connected gap (where ``claimed`` is False) one of the values around it: the one whose strokes'
-    colours are nearest for most of the gap's pixels. A gap that borders several values is filled only when that
-    value wins at least ``majority`` of its pixels; else it is left as it was.
-
-    Args:
-        labels: ``(H, W) int`` values of the claimed pixels (0 may be a claimed value: the background).
-        claimed: ``(H, W) bool``. lab: ``(H, W, 3) float32`` CIELAB of the view. seeds: its stroke raster.
-
-    Returns:
-        ``(H, W) int64``.
-    """
-    out = labels.astype(np.int64).copy()
-    n, comp = cv2.connectedComponents((~claimed).astype(np.uint8), connectivity=4)
-    if n <= 1:
-        return out
-    dist = _colour_distances(lab, seeds)
-    ring = np.ones((3, 3), np.uint8)
-    for c in range(1, n):
-        gap = comp == c
-        rim = cv2.dilate(gap.astype(np.uint8), ring).astype(bool) & claimed
-        around = [int(v) for v in np.unique(out[rim]) if int(v) in dist] or sorted(dist)
-        votes = np.bincount(np.stack([dist[v][gap] for v in around]).argmin(0), minlength=len(around))
-        if len(around) == 1 or votes.max() >= majority * votes.sum():
-            out[gap] = around[int(np.argmax(votes))]
-    return out
-
-
-def segment(
-    image: np.ndarray,
-    strokes: list[Stroke] | np.ndarray,
-    *,
-    iterations: int = 5,
-    max_side: int = 1024,
-    keep_touching: bool = True,
-    fill: bool = True,
-) -> Segmentation:
-    """Label map of one view from strokes, by GrabCut per label (one label against the rest).
-
-    For each label k with strokes (and for the background brush, when used): k's strokes are certain foreground,
-    every other stroke certain background, the unstroked pixels probable background; GrabCut then fits its
-    colour models and cuts. Parts of k's cut that none of k's strokes touch are dropped (``keep_touching``). A
-    pixel claimed by several cuts goes to the one with the highest GrabCut foreground probability (the posterior of
-    that cut's colour models). With ``fill``, each connected gap that no cut claims takes one of the values around it
-    whose strokes are nearest in colour for most of its pixels (:func:`fill_gaps`), provided strokes of at least two
-    kinds (labels, background) exist; else gaps stay 0. Pixels won by the background are 0.
-
-    Args:
-        image: ``(H, W, 3)`` RGB, ``uint8`` or float in ``[0, 1]``.
-        strokes: :class:`Stroke` list in the image's pixel coordinates, or a seed map ``(H, W) int`` (-1 = none,
-            0 = background, k = label k) as :func:`rasterize_strokes` makes.
-        iterations: GrabCut iterations per label.
-        max_side: views larger than this are cut at this size (longest side) and the labels scaled back up
-            (nearest), which keeps one cut to a second or two on photo-sized views.
-        keep_touching: drop the parts of a label's cut that none of its strokes touch.
-        fill: give gaps between the cuts a label from around them (off: they stay unassigned, 0).
-
-    Returns:
-        :class:`Segmentation` with labels ``(H, W) int64`` at the image's full size.
-
-    Raises:
-        InputError: no label strokes, a seed map of the wrong size, or a cut GrabCut cannot start.
-    """
-    t0 = time.perf_counter()
-    rgb = image if image.dtype == np.uint8 else to_uint8(np.asarray(image, np.float32))
-    if rgb.ndim != 3 or rgb.shape[2] != 3:
-        raise InputError(f"segment needs an (H, W, 3) RGB image, got shape {rgb.shape}")
-    h, w = rgb.shape[:2]
-    scale = min(1.0, max_side / max(h, w))
-    sh, sw = max(1, int(round(h * scale))), max(1, int(round(w * scale)))
-    small = rgb if (sh, sw) == (h, w) else cv2.resize(rgb, (sw, sh), interpolation=cv2.INTER_AREA)
-    if isinstance(strokes, np.ndarray):
-        if strokes.shape != (h, w):
-            raise InputError(f"the seed map is {strokes.shape[1]}x{strokes.shape[0]} but the image is {w}x{h}")
-        seeds = strokes.astype(np.int64)
-        if (sh, sw) != (h, w):
-            seeds = cv2.resize(seeds.astype(np.int16), (sw, sh), interpolation=cv2.INTER_NEAREST).astype(np.int64)
-    else:
-        seeds = rasterize_strokes(strokes, (sh, sw), scale=sw / w)
-    kinds = sorted(int(v) for v in np.unique(seeds) if v >= 0)
-    if not any(k > 0 for k in kinds):
-        raise InputError("no label strokes: draw over at least one region with a label (1, 2, …) before segmenting")
-    bgr = cv2.cvtColor(small, cv2.COLOR_RGB2BGR)
-    pixels = bgr.reshape(-1, 3).astype(np.float64)
-    out = np.zeros((sh, sw), np.int64)
-    best = np.full((sh, sw), -1.0, np.float32)
-    prob: dict[int, np.ndarray] = {}
-    for k in kinds:
-        cut, fgd, bgd = _grabcut_one(bgr, seeds, k, iterations)
-        if keep_touching:
-            _, comp = cv2.connectedComponents(cut.astype(np.uint8), connectivity=8)
-            touched = np.unique(comp[(seeds == k) & cut])
-            cut = np.isin(comp, touched[touched > 0])
-        lf, lb = gmm_log_density(fgd, pixels), gmm_log_density(bgd, pixels)
-        p = (1.0 / (1.0 + np.exp(np.clip(lb - lf, -60, 60)))).reshape(sh, sw).astype(np.float32)
-        take = cut & (p > best)
-        out[take], best[take] = k, p[take]
-        if k > 0:
-            prob[k] = p
-    claimed = best >= 0
-    for k in kinds:  # strokes are certain
-        out[seeds == k], claimed[seeds == k] = k, True
-    if fill and len(kinds) >= 2:
-        out = fill_gaps(out, claimed, cv2.cvtColor(small.astype(np.float32) / 255.0, cv2.COLOR_RGB2LAB), seeds)
-    if (sh, sw) != (h, w):
-        out = cv2.resize(out.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).astype(np.int64)
-        prob = {k: cv2.resize(p, (w, h), interpolation=cv2.INTER_LINEAR) for k, p in prob.items()}
-    return Segmentation(out, prob, time.perf_counter() - t0)
 
 
 def overlay_rgba(labels: np.ndarray, alpha: int = 150) -> np.ndarray:
@@ -333,7 +48,7 @@ def overlay_rgba(labels: np.ndarray, alpha: int = 150) -> np.ndarray:
     edge opaque so that the cut reads on any image."""
     lab = np.asarray(labels)
     rgba = np.zeros((*lab.shape, 4), np.uint8)
-    rgba[..., :3] = PALETTE[np.where(lab > 0, (lab - 1) % (len(PALETTE) - 1) + 1, 0)]
+    rgba[..., :3] = colorize_labels(lab)
     src = lab.astype(np.uint16 if lab.max(initial=0) > 255 else np.uint8)
     ring = np.ones((3, 3), np.uint8)
     edge = cv2.dilate(src, ring) != cv2.erode(src, ring)
@@ -502,7 +217,7 @@ class PaintSession:
             used += [int(it.result.labels.max()) for it in self.items if it.result is not None]
             return {
                 "mode": self.mode, "title": self.title,
-                "palette": [[int(c) for c in rgb] for rgb in PALETTE],
+                "palette": [[int(c) for c in rgb] for rgb in LABEL_COLOURS],
                 "n_labels": max([2, *used]), "fill": self.fill,
                 "items": [{
                     "index": i, "name": it.name, "strokes": len(it.strokes), "cut": it.result is not None,

@@ -29,6 +29,24 @@ class LiftParams(BaseModel):
     propagate_k: int = Field(8, ge=1, description="neighbours in the propagation vote")
 
 
+class RefineParams(BaseModel):
+    """``masks.refine``: cross-view refinement (:mod:`abcgs.masks.refine`): each view without a given mask is cut
+    again by GrabCut on its colours and rendered depth, seeded by the lifted labels, and the labels lifted from all."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    enabled: bool = Field(
+        True, description="re-cut the views that have no mask and lift from all of them (measured on the tiny scene, "
+        "one stroke-cut view lifted: per-label IoU on the other views 0.85 / 0.94 / 0.85 → 0.99 / 0.98 / 0.97, "
+        "docs/MASKS.md); false: lift the given or automatic masks alone")
+    seed_erode: float = Field(
+        0.04, ge=0.0, le=0.25, description="each rendered label region is eroded by this share of the view's shorter "
+                                           "side; its core seeds the cut, the rest is the cut's to decide")
+    depth_weight: float = Field(
+        1.0, ge=0.0, description="weight of the rendered inverse depth against colour in the cut (0: colour only)")
+    iterations: int = Field(5, ge=1, le=50, description="GrabCut iterations per label")
+
+
 class GrabCutParams(BaseModel):
     """``masks.grabcut``: the object mask of the reference view by GrabCut."""
 
@@ -69,6 +87,7 @@ class MaskParams(BaseModel):
                             "grabcut: object vs rest by GrabCut; auto: given if present, else clustering"
     )
     lift: LiftParams = Field(default_factory=LiftParams)
+    refine: RefineParams = Field(default_factory=RefineParams)
     clustering: AutoMaskParams = Field(default_factory=AutoMaskParams)
     grabcut: GrabCutParams = Field(default_factory=GrabCutParams)
     holdout_every: int = Field(

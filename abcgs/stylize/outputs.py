@@ -21,8 +21,7 @@ from abcgs.io.atomic import atomic_path
 from abcgs.io.images import save_image
 from abcgs.io.ply import write_ply
 from abcgs.io.tables import write_csv
-from abcgs.masks.content import colorize_labels
-from abcgs.viz import image_grid, style_legend, write_video
+from abcgs.viz import colorize_labels, image_grid, style_legend, write_video
 
 HISTORY_COLUMNS = ("step", "seconds", "loss", "style", "content", "tv", "depth", "scale", "opacity")
 """Columns of ``stylize_history.csv``: the loss terms of Eq. 8 per logged step (unweighted sums as logged)."""

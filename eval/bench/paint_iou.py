@@ -14,11 +14,12 @@ Steps, all in a temporary folder:
    printed as ``2-D``.
 4. ``reconstruct`` and a short ``fit`` (``--iterations``, densifying every 25 steps) of the scene.
 5. :func:`abcgs.masks.content.make_content_masks` with the strokes' mask as the only given mask, as the ``masks``
-   stage runs it; the lifted labels rendered into every other view are scored against the true labels
-   (undistorted like the views). For reference, the view's true mask is lifted the same way (``true mask``): the
-   ceiling that the fitted scene and the lifting allow.
+   stage runs it (``masks`` defaults: Eq. 2 lifting, then the cross-view refinement that re-cuts the other views on
+   colour and rendered depth); the lifted labels rendered into every other view are scored against the true labels
+   (undistorted like the views). Also scored: the same mask lifted without refinement (``lift only``), and view
+   000's true mask lifted with refinement (``true mask``): what a perfect cut on the page would give.
 
-The goal printed is IoU ≥ 0.9 per label on the other views.
+The goal printed is IoU ≥ 0.9 per label on every other view (the worst view counts).
 """
 
 from __future__ import annotations
@@ -39,11 +40,11 @@ import numpy as np
 
 from abcgs.io.atomic import write_json
 from abcgs.io.images import load_image, load_labels, save_labels
-from abcgs.masks.content import MaskParams, label_iou, make_content_masks
-from abcgs.masks.paint import Stroke, segment
+from abcgs.masks.content import MaskParams, RefineParams, label_iou, make_content_masks
+from abcgs.masks.grabcut import Stroke, segment
 
 GOAL = 0.9
-"""Per-label IoU the lifted stroke masks should reach on every other view."""
+"""Per-label IoU the lifted stroke masks should reach on every other view (the worst one counts)."""
 
 
 def simulated_strokes(truth: np.ndarray, n_strokes: int = 3, radius: float = 3.0, min_length: float = 6.0) -> list[Stroke]:
@@ -166,7 +167,7 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--rounds", type=int, default=1,
                     help="segment → correct rounds; 2 or more: the first round draws fewer strokes, later ones fix errors")
     ap.add_argument("--radius", type=float, default=3.0, help="brush radius (px)")
-    ap.add_argument("--iterations", type=int, default=300, help="fit steps")
+    ap.add_argument("--iterations", type=int, default=1500, help="fit steps (the tiny pipeline's fit.iterations)")
     ap.add_argument("--work", type=Path, default=None, help="keep the scene, reconstruction and fit here")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--figure", type=Path, default=None, help="strokes, cut, and the lifted labels in three other views")
@@ -229,11 +230,16 @@ def main(argv: list[str] | None = None) -> dict:
         shutil.rmtree(only_truth, ignore_errors=True)
         only_truth.mkdir()
         shutil.copy(work / "colmap_truth" / "masks" / f"{args.view}.png", only_truth)
+        photos = scene.image_paths
         t_lift = time.perf_counter()
-        lifted = make_content_masks(model, cams, work / "colmap" / "masks", MaskParams(source="given"))
+        lifted = make_content_masks(model, cams, work / "colmap" / "masks", MaskParams(source="given"), photos,
+                                    show_progress=False)
         seconds_lift = time.perf_counter() - t_lift
-        ceiling = make_content_masks(model, cams, only_truth, MaskParams(source="given"))
+        lift_only = make_content_masks(model, cams, work / "colmap" / "masks",
+                                       MaskParams(source="given", refine=RefineParams(enabled=False)))
+        ceiling = make_content_masks(model, cams, only_truth, MaskParams(source="given"), photos, show_progress=False)
         strokes_score = _score(lifted.view_labels, truth, src, n_labels)
+        lift_only_score = _score(lift_only.view_labels, truth, src, n_labels)
         ceiling_score = _score(ceiling.view_labels, truth, src, n_labels)
 
         result = {
@@ -245,21 +251,26 @@ def main(argv: list[str] | None = None) -> dict:
             "rounds": rounds,
             "cut_iou": {str(k): v for k, v in label_iou(cut.labels, truth_raw, n_labels).items()},
             "lifted_from_strokes": strokes_score,
+            "lifted_from_strokes_without_refinement": lift_only_score,
             "lifted_from_true_mask": ceiling_score,
             "goal": GOAL,
-            "goal_met": all(v["mean"] >= GOAL for v in strokes_score["iou_per_label"].values()),
+            "goal_met": all(v["min"] >= GOAL for v in strokes_score["iou_per_label"].values()),
             "fit": {"iterations": it, "n_gaussians": model.num_gaussians},
-            "seconds": {"segment": seconds_segment, "reconstruct_and_fit": seconds_fit, "lift_and_render": seconds_lift,
+            "seconds": {"segment": seconds_segment, "reconstruct_and_fit": seconds_fit,
+                        "lift_refine_and_render": seconds_lift,
                         "total": time.perf_counter() - t0},
             "machine": f"{platform.processor() or platform.machine()}",
         }
         print(f"tiny scene, view {args.view}: {len(strokes)} strokes ({result['strokes_per_label']} per label, "
               f"{args.rounds} round(s)); fit {it} steps, {model.num_gaussians:,} Gaussians")
-        print(f"{'label':>5} {'cut (2-D)':>10} {'lifted: mean':>13} {'worst':>6} {'true mask: mean':>16} {'worst':>6}")
+        print(f"{'label':>5} {'cut (2-D)':>10} {'lift only':>10} {'lifted + refined: mean':>23} {'worst':>6} "
+              f"{'true mask: mean':>16} {'worst':>6}")
         for k in range(1, n_labels + 1):
             s, c = strokes_score["iou_per_label"][str(k)], ceiling_score["iou_per_label"][str(k)]
-            print(f"{k:>5} {result['cut_iou'][str(k)]:10.3f} {s['mean']:13.3f} {s['min']:6.3f} {c['mean']:16.3f} {c['min']:6.3f}")
-        print(f"IoU on the {len(cams) - 1} other views; goal ≥ {GOAL} per label: "
+            o = lift_only_score["iou_per_label"][str(k)]
+            print(f"{k:>5} {result['cut_iou'][str(k)]:10.3f} {o['mean']:10.3f} {s['mean']:23.3f} {s['min']:6.3f} "
+                  f"{c['mean']:16.3f} {c['min']:6.3f}")
+        print(f"IoU on the {len(cams) - 1} other views; goal ≥ {GOAL} per label on every view: "
               f"{'met' if result['goal_met'] else 'not met'}. Pixel agreement {strokes_score['pixel_agreement']:.3f} "
               f"(true mask {ceiling_score['pixel_agreement']:.3f}); {result['seconds']['total']:.0f} s")
         if args.figure:
@@ -276,13 +287,13 @@ def _figure(path: Path, colmap: Path, scene, strokes: list[Stroke], cut: np.ndar
             views: list[np.ndarray], src: int) -> None:
     """Row 1: the strokes and the cut on the drawn view; row 2: the lifted labels in three other views."""
     from abcgs.io.images import save_image
-    from abcgs.masks.paint import PALETTE, rasterize_strokes
-    from abcgs.viz import image_grid
+    from abcgs.masks.grabcut import rasterize_strokes
+    from abcgs.viz import colorize_labels, image_grid
     from eval.studies.mask_lifting import overlay
 
     seeds = rasterize_strokes(strokes, cut.shape)
     drawn = image.copy()
-    drawn[seeds > 0] = PALETTE[seeds[seeds > 0]] / 255.0
+    drawn[seeds > 0] = colorize_labels(seeds[seeds > 0]) / 255.0
     n = len(scene.cameras)
     others = [i for i in range(n) if i != src]
     show = [others[round(t * (len(others) - 1))] for t in (0.3, 0.65, 1.0)]

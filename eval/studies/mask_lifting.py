@@ -29,14 +29,13 @@ from abcgs.io.images import load_image, save_image
 from abcgs.io.ply import read_ply
 from abcgs.masks.content import (
     GrabCutParams,
-    colorize_labels,
     find_given_masks_with_palette,
     grabcut_view,
     label_iou,
 )
-from abcgs.masks.lifting import LiftParams, LiftResult, lift_labels, propagate_labels, render_label_map
+from abcgs.masks.lifting import LiftParams, lift_labels, propagate_unseen, render_label_map
 from abcgs.sfm.colmap import read_colmap_scene
-from abcgs.viz import image_grid
+from abcgs.viz import colorize_labels, image_grid
 
 
 def overlay(img: np.ndarray, labels: np.ndarray) -> np.ndarray:
@@ -85,8 +84,7 @@ def main(argv: list[str] | None = None) -> dict:
     lp = LiftParams()
     lifted = lift_labels(model, [cams[i] for i in lift_idx], [given[i] for i in lift_idx], n_labels, lp)
     if not args.no_propagate:  # Gaussians no lifted view sees take their 3-D neighbours' label (LiftParams.propagate)
-        unseen = lifted.weights.sum(1) < lp.min_weight
-        lifted = LiftResult(propagate_labels(model.means, lifted.labels, unseen, lp.propagate_k), lifted.weights)
+        lifted, _ = propagate_unseen(model.means, lifted, lp)
     views = {i: render_label_map(model, lifted.labels, n_labels, cams[i]) for i in range(len(cams))}
     per_label: dict[int, list[float]] = {}
     agree = []

@@ -1,0 +1,153 @@
+"""Cross-view refinement of lifted content labels: every view without a given mask is cut again, on its own colours
+and the fitted scene's depth, seeded by the lifted labels rendered into it; then the labels are lifted from all views.
+
+Lifting the masks of a few views (Eq. 2) labels only the Gaussians those views see, and carries their masks' errors
+into 3-D: a stroke-guided cut that leaked from an object onto the wall behind it leaves wall Gaussians with the
+object's label, seen as a tail of the object in every other view. Refinement lets every view vote with its own
+evidence, as segmenters that prompt one view from another do (here with GrabCut rather than a learned model):
+
+1. **Seeds.** The Gaussians whose vote is decided (:attr:`LiftResult.decided`) are rendered into view v with their
+   labels. Each label's region, and the region of decided 0 (what the user left unassigned, a background seed), is
+   eroded by ``masks.refine.seed_erode`` × the view's shorter side: that certain core is the seed. Edges, pixels of
+   undecided Gaussians and empty pixels are left to the cut.
+2. **Cut.** :func:`abcgs.masks.grabcut.segment` on the view's photo and its rendered depth (GrabCut per label on two
+   colour components and inverse depth; ``masks.refine.depth_weight``). A seed is certain; GrabCut decides the rest,
+   so a tail that has the wall's depth and colours goes to the wall.
+3. **Lift again** from every view: the given masks as they are, the cuts for the others.
+
+The views with given masks are never re-cut: what the user painted stays the user's.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from abcgs.cameras import Camera
+from abcgs.gaussians import GaussianModel, render
+from abcgs.io.images import load_image, to_uint8
+from abcgs.masks.grabcut import segment
+from abcgs.masks.lifting import LiftResult, lift_labels
+from abcgs.masks.params import LiftParams, RefineParams
+from abcgs.progress import progress
+from abcgs.render import rasterize
+
+log = logging.getLogger(__name__)
+
+NO_SEED = -1
+"""Seed-map value of a pixel left to the cut (:func:`abcgs.masks.grabcut.rasterize_strokes`'s "no stroke")."""
+
+
+@dataclass
+class Refinement:
+    """What :func:`refine_labels` did.
+
+    Attributes:
+        lifted: the labels lifted from every view.
+        views: per re-cut view (name): ``{"seeded": share of its rendered pixels that were seeds, "changed": share of
+            its pixels whose label the cut changed from the first lift's render}``.
+        seconds: time spent.
+    """
+
+    lifted: LiftResult
+    views: dict[str, dict[str, float]] = field(default_factory=dict)
+    seconds: float = 0.0
+
+
+def render_seeds(
+    model: GaussianModel, lifted: LiftResult, n_labels: int, camera: Camera, erode_px: int, *, backend: str = "auto"
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The decided labels rendered into ``camera`` and their eroded cores.
+
+    A pixel takes the label (0..n_labels) whose decided Gaussians hold at least half of its alpha; undecided
+    Gaussians render as a label of their own that never seeds.
+
+    Returns:
+        ``seeds (H, W) int64`` (:data:`NO_SEED`, or 0..n_labels: the label's region eroded by ``erode_px``),
+        ``rendered (H, W) int64`` (the label before erosion, :data:`NO_SEED` where no label holds half the alpha),
+        ``depth (H, W) float32`` (expected depth, world units; 0 where nothing is rendered).
+    """
+    act = model.detach().activated()
+    undecided = n_labels + 1
+    cls = torch.where(lifted.decided, lifted.labels.long(), torch.full_like(lifted.labels.long(), undecided))
+    onehot = torch.nn.functional.one_hot(cls, n_labels + 2).to(torch.float32)
+    with torch.no_grad():
+        img, alpha, meta = rasterize(
+            act["means"], act["quats"], act["scales"], act["opacities"], onehot, camera.torch_viewmat(),
+            camera.torch_K(), camera.width, camera.height, render_depth=True, normalize_depth=True, backend=backend,
+        )
+    a = alpha[..., 0]
+    best_w, best = img.max(-1)
+    ok = (best_w >= 0.5 * a) & (a > 0.5) & (best != undecided)
+    rendered = torch.where(ok, best, torch.full_like(best, NO_SEED)).numpy().astype(np.int64)
+    depth = torch.where(a > 1e-3, meta.depth[..., 0], torch.zeros_like(a)).numpy().astype(np.float32)
+    seeds = np.full(rendered.shape, NO_SEED, np.int64)
+    kernel = np.ones((2 * erode_px + 1, 2 * erode_px + 1), np.uint8) if erode_px > 0 else None
+    for v in range(n_labels + 1):
+        region = (rendered == v).astype(np.uint8)
+        if kernel is not None:
+            # pixels outside the view count as inside the region: a region that meets the border keeps its core there
+            region = cv2.erode(region, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=1)
+        seeds[region.astype(bool)] = v
+    return seeds, rendered, depth
+
+
+def refine_labels(
+    model: GaussianModel,
+    cameras: list[Camera],
+    images: list[Path] | list[np.ndarray] | None,
+    given: dict[int, np.ndarray],
+    lifted: LiftResult,
+    n_labels: int,
+    lift_params: LiftParams,
+    params: RefineParams,
+    *,
+    backend: str = "auto",
+    show_progress: bool = True,
+) -> Refinement:
+    """Re-cut every camera not in ``given`` from the lifted labels, then lift from all cameras (module docstring).
+
+    Args:
+        model: the fitted scene. cameras: all views. images: their photos (paths or ``(H, W, 3)`` arrays) at the
+            cameras' sizes; None: the scene's own renders stand in for them.
+        given: camera index → the label map lifted as it is (the user's masks); every other camera is re-cut.
+        lifted: the first lift (from ``given``, or from an automatic mask). n_labels: labels 1..n_labels.
+        lift_params: thresholds of the final lift. params: ``masks.refine``.
+
+    Returns:
+        :class:`Refinement`.
+    """
+    t0 = time.perf_counter()
+    views: dict[str, dict[str, float]] = {}
+    todo = [i for i in range(len(cameras)) if i not in given]
+    recut: dict[int, np.ndarray] = {}
+    for i in progress(todo, "masks: re-cut views", enabled=show_progress):
+        cam = cameras[i]
+        erode_px = max(1, int(round(params.seed_erode * min(cam.height, cam.width))))
+        seeds, rendered, depth = render_seeds(model, lifted, n_labels, cam, erode_px, backend=backend)
+        if not (seeds > 0).any():  # no label reaches this view: nothing to seed a cut with
+            recut[i] = np.where(rendered > 0, rendered, 0)
+            views[cam.name] = {"seeded": float((seeds >= 0).mean()), "changed": 0.0}
+            continue
+        if images is None:
+            with torch.no_grad():
+                rgb = to_uint8(render(model, cam, backend=backend)[0].clamp(0, 1).numpy())
+        else:
+            src = images[i]
+            rgb = to_uint8(load_image(src) if isinstance(src, (str, Path)) else np.asarray(src))
+        cut = segment(rgb, seeds, iterations=params.iterations, depth=depth, depth_weight=params.depth_weight).labels
+        recut[i] = cut
+        views[cam.name] = {"seeded": float((seeds >= 0).mean()),
+                           "changed": float((cut != np.where(rendered > 0, rendered, 0)).mean())}
+    maps = [given[i] if i in given else recut[i] for i in range(len(cameras))]
+    relifted = lift_labels(model, cameras, maps, n_labels, lift_params, backend=backend)
+    seconds = time.perf_counter() - t0
+    log.info("refined: %d views re-cut on colour%s in %.1f s; labels per Gaussian %s", len(todo),
+             " and depth" if params.depth_weight > 0 else "", seconds, relifted.counts())
+    return Refinement(relifted, views, seconds)
