@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import shutil
 from pathlib import Path
 
 import cv2  # noqa: F401  (load before anything imports pycolmap; see abcgs/sfm/__init__.py)
@@ -20,6 +19,8 @@ import pytest
 
 from abcgs.runtime import torch_threads
 from abcgs.scene.synthetic import TinySceneParams, make_tiny_scene
+from eval.bench.browser import INSTALL_HINT, find_chromium
+from eval.bench.browser import launch_chromium as launch_browser
 from eval.bench.repo_copy import copy_repo, run_in  # noqa: F401  (re-exported for the end-to-end tests)
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -28,10 +29,10 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 def chromium_path() -> str:
     """Debian's chromium for the browser tests (``$ABCGS_CHROMIUM`` first); skipped with the install command where it
     is missing, a failure under CI."""
-    path = os.environ.get("ABCGS_CHROMIUM") or shutil.which("chromium") or shutil.which("chromium-browser")
+    path = find_chromium()
     if path:
         return path
-    msg = "chromium is not installed: `apt-get install -y chromium` (make test does this when run as root)"
+    msg = f"chromium is not installed: {INSTALL_HINT}"
     if os.environ.get("CI"):
         pytest.fail(msg)
     pytest.skip(msg)
@@ -40,14 +41,11 @@ def chromium_path() -> str:
 @contextlib.contextmanager
 def launch_chromium(args: list[str]):
     """A headless chromium (playwright driving :func:`chromium_path`, no browser download) for a module's tests."""
-    playwright = pytest.importorskip("playwright.sync_api")
-    exe = chromium_path()
-    with playwright.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=exe, args=args)
-        try:
-            yield browser
-        finally:
-            browser.close()
+    pytest.importorskip("playwright.sync_api")
+    with launch_browser(args, chromium_path()) as browser:
+        yield browser
+
+
 SHARED_DATA = REPO_ROOT.parent / "shared" / "data"
 
 

@@ -10,8 +10,8 @@ missing browser is a failure (as in tests/test_viewer_browser.py).
 
 from __future__ import annotations
 
+import contextlib
 import shutil
-import threading
 
 import numpy as np
 import pytest
@@ -19,15 +19,12 @@ from conftest import launch_chromium
 
 from abcgs.io.images import load_labels
 from abcgs.masks.content import label_iou, read_label_files
-from abcgs.masks.grabcut import Stroke
-from abcgs.masks.paint import PaintSession, make_server
+from abcgs.masks.paint import PaintSession
 from eval.bench.paint_iou import simulated_strokes
+from eval.bench.paint_page import CHROMIUM_ARGS, draw, open_page, press
+from eval.bench.paint_page import serve as serve_page
 
 pytestmark = pytest.mark.browser
-
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu-sandbox"]
-
-
 
 
 @pytest.fixture(scope="module")
@@ -38,53 +35,8 @@ def browser():
 
 @pytest.fixture()
 def serve():
-    servers = []
-
-    def start(session: PaintSession) -> str:
-        server = make_server(session, port=0)
-        threading.Thread(target=server.serve_forever, daemon=True).start()
-        servers.append(server)
-        return f"http://127.0.0.1:{server.server_port}/"
-
-    yield start
-    for server in servers:
-        server.shutdown()
-        server.server_close()
-
-
-def _open(browser, url: str):
-    page = browser.new_page(viewport={"width": 1100, "height": 760})
-    requests, errors = [], []
-    page.on("request", lambda r: requests.append(r.url))
-    page.on("pageerror", lambda e: errors.append(str(e)))
-    page.goto(url)
-    page.wait_for_function("window.abcgsPaint && window.abcgsPaint.ready", timeout=30_000)
-    return page, requests, errors
-
-
-def _draw(page, strokes: list[Stroke], width: int) -> None:
-    """Draw ``strokes`` (image pixel coordinates) with the mouse: pick the label by key, press, move, release."""
-    box = page.locator("#canvas").bounding_box()
-    scale = box["width"] / width
-    for s in strokes:
-        page.keyboard.press(str(s.label) if s.label > 0 else "b")
-        page.locator("#brush").fill(str(round(s.radius * scale)))  # the slider is in screen pixels
-        x, y = s.points[0]
-        page.mouse.move(box["x"] + x * scale, box["y"] + y * scale)
-        page.mouse.down()
-        for x, y in s.points[1:]:
-            page.mouse.move(box["x"] + x * scale, box["y"] + y * scale, steps=2)
-        page.mouse.up()
-    page.wait_for_function(f"window.abcgsPaint.state.state.items[window.abcgsPaint.state.index].strokes === {len(strokes)}")
-
-
-def _press(page, button: str, done: str) -> None:
-    page.click(f"#{button}")
-    page.wait_for_function(
-        f"(() => {{ const s = document.getElementById('status'); return s.className === 'error' || "
-        f"(s.className === 'ok' && s.textContent.startsWith({done!r})); }})()", timeout=120_000)
-    status = page.locator("#status")
-    assert status.get_attribute("class") == "ok", status.text_content()
+    with contextlib.ExitStack() as stack:
+        yield lambda session: stack.enter_context(serve_page(session))
 
 
 def test_strokes_on_a_view_segment_and_save_a_mask(browser, serve, tiny_scene, tmp_path) -> None:
@@ -92,13 +44,13 @@ def test_strokes_on_a_view_segment_and_save_a_mask(browser, serve, tiny_scene, t
     shutil.copytree(tiny_scene / "images", scene / "images")  # the fixture's own masks/ stay untouched
     truth = load_labels(tiny_scene / "masks" / "000.png")
     url = serve(PaintSession.for_scene(scene))
-    page, requests, errors = _open(browser, url)
+    page, requests, errors = open_page(browser, url)
     assert page.locator("#view option").count() == 16
-    _draw(page, simulated_strokes(truth, 3, radius=3.0), truth.shape[1])
-    _press(page, "segment", "segmented")
+    draw(page, simulated_strokes(truth, 3, radius=3.0), truth.shape[1])
+    press(page, "segment", "segmented")
     assert "cut" in page.locator("#views li.current").text_content()
     page.screenshot(path=str(tmp_path / "paint_after_segment.png"))
-    _press(page, "save", "saved")
+    press(page, "save", "saved")
     page.close()
 
     path = scene / "masks" / "000.png"
@@ -115,10 +67,10 @@ def test_the_painting_mode_writes_its_label_map(browser, serve, tiny_scene, tmp_
     out = tmp_path / "paint_labels.png"
     truth = load_labels(tiny_scene / "styles" / "paint_labels.png")
     url = serve(PaintSession.for_painting(tiny_scene / "styles" / "paint.png", out))
-    page, _, errors = _open(browser, url)
+    page, _, errors = open_page(browser, url)
     assert page.locator("#view-nav").is_hidden()
-    _draw(page, simulated_strokes(truth, 2, radius=4.0), truth.shape[1])
-    _press(page, "save", "saved")  # Save cuts what has strokes and is not cut yet
+    draw(page, simulated_strokes(truth, 2, radius=4.0), truth.shape[1])
+    press(page, "save", "saved")  # Save cuts what has strokes and is not cut yet
     page.close()
     labels = read_label_files([out], [truth.shape])[0][0]
     assert {1, 2, 3} <= set(np.unique(labels))

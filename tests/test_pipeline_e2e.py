@@ -56,6 +56,7 @@ def test_all_stages_write_their_artifacts(repo: Path, first_repro) -> None:
     assert fit["psnr"] > 18.0, fit  # 300 steps on 160×120; ~22 dB seen
     masks = json.loads((out / "tiny" / "masks" / "masks.json").read_text())
     assert masks["source"] == "given" and masks["agreement_with_input_masks"] > 0.9
+    assert masks["input_views"] == ["000.png"] and masks["refinement"]["views_recut"] == 15  # the other views re-cut
     reference = json.loads((out / "tiny" / "reference" / "reference.json").read_text())
     assert len(reference["view_names"]) == 16 and reference["n_flows"] == 2 * (15 + 9)  # (i, i+1), (i, i+7), both ways
     for exp in ("tiny_single", "tiny_compositional", "tiny_semantic"):

@@ -12,8 +12,8 @@ the run cache, not recomputed (``dvc exp show`` lists the runs with their headli
 
 ``show`` checks the experiment's commit out into a temporary git worktree that shares this repository's DVC cache,
 restores its outputs, prints the results table (the report stage's ``reports/results.md``) and, when asked, copies
-the comparison figure to ``--figure`` and writes the table between README's ``<!-- results:begin -->`` and
-``<!-- results:end -->`` lines. The workspace's params, dvc.lock and outputs stay as they are.
+the comparison figure to ``--figure`` (and any other output with ``--copy SRC=DST``) and writes the table between
+README's ``<!-- results:begin -->`` and ``<!-- results:end -->`` lines. The workspace's params, dvc.lock and outputs stay as they are.
 """
 
 from __future__ import annotations
@@ -125,6 +125,27 @@ def replace_block(text: str, table: str) -> str:
     return pattern.sub(lambda _: f"{BEGIN}\n{table.strip()}\n{END}", text, count=1)
 
 
+def _copy_arg(text: str) -> tuple[str, Path]:
+    """``--copy SRC=DST``: SRC relative to the experiment's workspace, DST a path here."""
+    src, sep, dst = text.partition("=")
+    if not sep or not src or not dst:
+        raise argparse.ArgumentTypeError(f"--copy takes SRC=DST (an output of the experiment = a path here), got {text!r}")
+    return src, Path(dst)
+
+
+def _publish(src: Path, dst: Path) -> None:
+    """Copy an output picture to ``dst``; a ``.jpg`` destination of another format is re-encoded (quality 90)."""
+    if not src.is_file():
+        raise SystemExit(f"the experiment has no {src.name} at {src}; is it one of its outputs?")
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    if dst.suffix.lower() in (".jpg", ".jpeg") and src.suffix.lower() not in (".jpg", ".jpeg"):
+        from abcgs.io.images import load_image, save_image
+
+        save_image(dst, load_image(src))
+    else:
+        shutil.copy2(src, dst)
+
+
 def cmd_show(a: argparse.Namespace) -> int:
     sha = find_exp_commit(a.name)
     with tempfile.TemporaryDirectory(prefix="abcgs-exp-") as tmp:
@@ -150,6 +171,9 @@ def cmd_show(a: argparse.Namespace) -> int:
                 a.figure.parent.mkdir(parents=True, exist_ok=True)
                 shutil.copy2(wt / "reports" / "comparison.jpg", a.figure)
                 print(f"copied the comparison figure to {a.figure}")
+            for src, dst in a.copy:
+                _publish(wt / src, dst)
+                print(f"copied {src} to {dst}")
         finally:
             _git(["worktree", "remove", "--force", str(wt)], ROOT, check=False)
     return 0
@@ -168,6 +192,8 @@ def main(argv: list[str] | None = None) -> int:
     s.add_argument("name")
     s.add_argument("--readme", type=Path, help="write the table between the results markers of this file")
     s.add_argument("--figure", type=Path, help="copy the report's comparison figure here")
+    s.add_argument("--copy", type=_copy_arg, action="append", default=[], metavar="SRC=DST",
+                   help="copy one of the experiment's outputs (path in its workspace) here; repeatable")
     a = ap.parse_args(argv)
     return cmd_run(a) if a.cmd == "run" else cmd_show(a)
 

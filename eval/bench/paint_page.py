@@ -1,0 +1,79 @@
+"""A scripted user at the masks-from-strokes page (``python -m abcgs.masks.paint``), for the browser tests and the
+studies that make masks the way a person would: chromium (playwright) presses keys, moves the mouse over the
+canvas and clicks the page's buttons; nothing calls the server's API directly.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+from collections.abc import Iterator
+
+from abcgs.masks.grabcut import Stroke
+from abcgs.masks.paint import PaintSession, make_server
+
+CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu-sandbox"]
+"""Headless chromium flags for the page (no GPU is needed: it draws on a 2-D canvas)."""
+
+
+@contextlib.contextmanager
+def serve(session: PaintSession) -> Iterator[str]:
+    """The page's server for ``session`` on a free loopback port, in a thread; yields its URL."""
+    server = make_server(session, port=0)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        yield f"http://127.0.0.1:{server.server_port}/"
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
+def open_page(browser, url: str, viewport: tuple[int, int] = (1100, 760)):
+    """A new tab on the page, ready to draw; returns ``(page, requests, errors)`` (every URL it asked for, and its
+    uncaught JavaScript errors)."""
+    page = browser.new_page(viewport={"width": viewport[0], "height": viewport[1]})
+    requests: list[str] = []
+    errors: list[str] = []
+    page.on("request", lambda r: requests.append(r.url))
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(url)
+    page.wait_for_function("window.abcgsPaint && window.abcgsPaint.ready", timeout=30_000)
+    return page, requests, errors
+
+
+def show_view(page, name: str) -> None:
+    """Switch the page to the view named ``name`` (its file name) with the view picker."""
+    page.select_option("#view", label=name)
+    page.wait_for_function(
+        f"window.abcgsPaint.state.state.items[window.abcgsPaint.state.index].name === {name!r}")
+
+
+def draw(page, strokes: list[Stroke], width: int) -> None:
+    """Draw ``strokes`` (image pixel coordinates of an image ``width`` px wide) with the mouse: pick the label by its
+    key (B for the background brush), set the brush size, press, move, release."""
+    box = page.locator("#canvas").bounding_box()
+    scale = box["width"] / width
+    before = page.evaluate("window.abcgsPaint.state.state.items[window.abcgsPaint.state.index].strokes")
+    for s in strokes:
+        page.keyboard.press(str(s.label) if s.label > 0 else "b")
+        page.locator("#brush").fill(str(round(s.radius * scale)))  # the slider is in screen pixels
+        x, y = s.points[0]
+        page.mouse.move(box["x"] + x * scale, box["y"] + y * scale)
+        page.mouse.down()
+        for x, y in s.points[1:]:
+            page.mouse.move(box["x"] + x * scale, box["y"] + y * scale, steps=2)
+        page.mouse.up()
+    page.wait_for_function(
+        f"window.abcgsPaint.state.state.items[window.abcgsPaint.state.index].strokes === {before + len(strokes)}")
+
+
+def press(page, button: str, done: str, timeout_ms: int = 120_000) -> None:
+    """Click ``#<button>`` and wait for the status line to start with ``done``; a status the page marks as an error
+    raises with its text."""
+    page.click(f"#{button}")
+    page.wait_for_function(
+        f"(() => {{ const s = document.getElementById('status'); return s.className === 'error' || "
+        f"(s.className === 'ok' && s.textContent.startsWith({done!r})); }})()", timeout=timeout_ms)
+    status = page.locator("#status")
+    if status.get_attribute("class") != "ok":
+        raise AssertionError(f"the page says: {status.text_content()}")
