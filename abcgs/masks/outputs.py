@@ -52,8 +52,7 @@ def write_content_masks(out: Path, result: ContentMasks, cameras: list[Camera], 
             "colour_palette": {str(k): list(v) for k, v in result.palette.items()},
             "gaussians_propagated": result.propagated,
             "refinement": None if result.refinement is None else {
-                "views_recut": len(result.refinement.views), "seconds": result.refinement.seconds,
-                "per_view": result.refinement.views,
+                "views_recut": len(result.refinement.views), "per_view": result.refinement.views,
             },
         })
 
