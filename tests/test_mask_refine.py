@@ -101,6 +101,7 @@ def test_render_seeds_are_the_eroded_decided_labels() -> None:
     assert np.all((seeds == NO_SEED) | (seeds == rendered))  # a seed is a rendered label
     assert 0 < (seeds == 2).sum() < (rendered == 2).sum()  # eroded
     assert (depth > 0).mean() > 0.95 and depth[ball_px].mean() < depth[~ball_px].mean()
+    assert np.array_equal(render_seeds(model, lifted, 2, cam, erode_px=0)[0], rendered)  # no erosion: every label seeds
 
 
 def test_refinement_removes_a_leak_that_one_view_lifted_into_the_other_views(tmp_path) -> None:
@@ -130,6 +131,10 @@ def test_refinement_removes_a_leak_that_one_view_lifted_into_the_other_views(tmp
     assert scores[2] > scores[1] + 0.05, scores  # depth is what tells the band from the ball in the wall's colours
     # the refinement does not touch the user's view: its mask is still lifted as painted
     assert refined.input_views == ["000.png"]
+    with pytest.raises(InputError, match="the photo of view 001.png is 95x72 but its camera is 96x72"):
+        make_content_masks(model, cams, tmp_path, MaskParams(source="given"),
+                           [np.zeros((72, 96 if i != 1 else 95, 3), np.uint8) for i in range(len(cams))],
+                           show_progress=False)
 
 
 def test_refinement_keeps_what_the_user_left_unassigned(tmp_path) -> None:

@@ -30,8 +30,9 @@ import numpy as np
 import torch
 
 from abcgs.cameras import Camera
+from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel, render
-from abcgs.io.images import load_image, to_uint8
+from abcgs.io.images import load_image
 from abcgs.masks.grabcut import segment
 from abcgs.masks.lifting import LiftResult, lift_labels
 from abcgs.masks.params import LiftParams, RefineParams
@@ -129,7 +130,7 @@ def refine_labels(
     recut: dict[int, np.ndarray] = {}
     for i in progress(todo, "masks: re-cut views", enabled=show_progress):
         cam = cameras[i]
-        erode_px = max(1, int(round(params.seed_erode * min(cam.height, cam.width))))
+        erode_px = int(round(params.seed_erode * min(cam.height, cam.width)))
         seeds, rendered, depth = render_seeds(model, lifted, n_labels, cam, erode_px, backend=backend)
         if not (seeds > 0).any():  # no label reaches this view: nothing to seed a cut with
             recut[i] = np.where(rendered > 0, rendered, 0)
@@ -137,10 +138,13 @@ def refine_labels(
             continue
         if images is None:
             with torch.no_grad():
-                rgb = to_uint8(render(model, cam, backend=backend)[0].clamp(0, 1).numpy())
+                rgb = render(model, cam, backend=backend)[0].clamp(0, 1).numpy()
         else:
             src = images[i]
-            rgb = to_uint8(load_image(src) if isinstance(src, (str, Path)) else np.asarray(src))
+            rgb = load_image(src) if isinstance(src, (str, Path)) else np.asarray(src)
+        if rgb.shape[:2] != (cam.height, cam.width):
+            raise InputError(f"the photo of view {cam.name} is {rgb.shape[1]}x{rgb.shape[0]} but its camera is "
+                             f"{cam.width}x{cam.height}; give the undistorted images the cameras belong to")
         cut = segment(rgb, seeds, iterations=params.iterations, depth=depth, depth_weight=params.depth_weight).labels
         recut[i] = cut
         views[cam.name] = {"seeded": float((seeds >= 0).mean()),
