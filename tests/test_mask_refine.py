@@ -13,9 +13,9 @@ from abcgs.gaussians import render
 from abcgs.io.images import save_labels, to_uint8
 from abcgs.masks.content import MaskParams, RefineParams, label_iou, make_content_masks
 from abcgs.masks.grabcut import Stroke, grabcut_features, inverse_depth, segment
-from abcgs.masks.lifting import LiftResult, lift_labels, render_label_map
+from abcgs.masks.lifting import NO_VOTE, LiftResult, lift_labels, one_hot_labels, render_label_map
 from abcgs.masks.refine import NO_SEED, render_seeds
-from abcgs.render import rgb_to_sh0
+from abcgs.render import accumulate_weights, rgb_to_sh0
 
 
 def camouflaged(seed: int = 0):
@@ -147,6 +147,27 @@ def test_refinement_keeps_what_the_user_left_unassigned(tmp_path) -> None:
     for i, c in enumerate(cams[1:], 1):
         iou = label_iou(res.view_labels[i], np.where(render_label_map(model, truth, 2, c) == 1, 1, 0), 1)[1]
         assert iou > 0.9, (c.name, iou)
+
+
+def test_no_vote_pixels_add_nothing_to_the_lift() -> None:
+    """A label map with NO_VOTE over half the view lifts as if that half had not been seen, where 0 would vote for
+    "unassigned"."""
+    model, truth = wall_and_ball(5)
+    cam = cameras(2)[0]
+    lab = render_label_map(model, truth, 2, cam)
+    half = lab.copy()
+    half[:, : lab.shape[1] // 2] = NO_VOTE
+    zero = lab.copy()
+    zero[:, : lab.shape[1] // 2] = 0
+    full, no_vote, zeros = (lift_labels(model, [cam], [m], 2) for m in (lab, half, zero))
+    right = torch.from_numpy(np.ones(lab.shape, bool))
+    right[:, : lab.shape[1] // 2] = False
+    expected = accumulate_weights(*(model.activated()[k].detach() for k in ("means", "quats", "scales", "opacities")),
+                                  cam.torch_viewmat(), cam.torch_K(), one_hot_labels(lab, 2) * right[..., None])
+    torch.testing.assert_close(no_vote.weights, expected)
+    assert no_vote.weights.sum() < 0.7 * full.weights.sum()
+    assert zeros.weights[:, 0].sum() > 10 * no_vote.weights[:, 0].sum() + 1  # 0 votes, NO_VOTE does not
+    assert torch.equal(one_hot_labels(np.array([[NO_VOTE, 2]]), 2), torch.tensor([[[0.0, 0, 0], [0, 0, 1]]]))
 
 
 def test_lift_result_decided_marks_the_votes_that_cleared_both_thresholds() -> None:

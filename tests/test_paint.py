@@ -113,13 +113,13 @@ def test_gaps_take_the_label_around_them_nearest_in_colour() -> None:
     claimed = labels > 0
     seeds = np.full((20, 30), -1, np.int64)
     seeds[5, 2:8], seeds[5, 22:28] = 1, 2
-    out = fill_gaps(labels, claimed, lab, seeds)
-    assert (out[:, 10:20] == 2).all() and (out[:, :10] == 1).all()
+    out, after = fill_gaps(labels, claimed, lab, seeds)
+    assert (out[:, 10:20] == 2).all() and (out[:, :10] == 1).all() and after.all()
     inside = labels.copy()  # a hole inside region 1 takes 1, whatever its colour
     inside[8:12, 3:6] = 0
     lab2 = lab.copy()
     lab2[8:12, 3:6] = [60, 20, -10]
-    assert (fill_gaps(inside, inside > 0, lab2, seeds)[8:12, 3:6] == 1).all()
+    assert (fill_gaps(inside, inside > 0, lab2, seeds)[0][8:12, 3:6] == 1).all()
 
 
 def test_without_fill_the_gaps_stay_unassigned() -> None:
@@ -128,6 +128,8 @@ def test_without_fill_the_gaps_stay_unassigned() -> None:
     filled, gaps = segment(img, strokes), segment(img, strokes, fill=False)
     assert (gaps.labels == 0).any() and not (filled.labels == 0).any()
     assert np.array_equal(filled.labels[gaps.labels > 0], gaps.labels[gaps.labels > 0])
+    # what no cut claimed is marked: undecided, not unassigned
+    assert filled.claimed.all() and np.array_equal(gaps.claimed, gaps.labels > 0)
 
 
 def test_rasterize_strokes_paints_labels_in_order() -> None:

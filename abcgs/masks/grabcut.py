@@ -104,11 +104,14 @@ class Segmentation:
 
     Attributes:
         labels: ``(H, W) int64``, 0 = unassigned, k = label k.
+        claimed: ``(H, W) bool``: a cut, a stroke or the gap fill gave the pixel its value (the background's
+            included); False where nothing did and the 0 means "undecided" rather than "unassigned".
         probability: per label k, GrabCut's foreground probability ``(H, W) float32`` (its colour models' posterior).
         seconds: time spent.
     """
 
     labels: np.ndarray
+    claimed: np.ndarray
     probability: dict[int, np.ndarray] = field(default_factory=dict)
     seconds: float = 0.0
 
@@ -193,7 +196,7 @@ def _colour_distances(lab: np.ndarray, seeds: np.ndarray, centres: int = 24) -> 
 
 def fill_gaps(
     labels: np.ndarray, claimed: np.ndarray, lab: np.ndarray, seeds: np.ndarray, majority: float = FILL_MAJORITY
-) -> np.ndarray:
+) -> tuple[np.ndarray, np.ndarray]:
     """Give each connected gap (where ``claimed`` is False) one of the values around it: the one whose strokes'
     colours are nearest for most of the gap's pixels. A gap that borders several values is filled only when that
     value wins at least ``majority`` of its pixels; else it is left as it was.
@@ -204,12 +207,13 @@ def fill_gaps(
             stroke raster.
 
     Returns:
-        ``(H, W) int64``.
+        the labels ``(H, W) int64`` and the claimed pixels after the fill ``(H, W) bool``.
     """
     out = labels.astype(np.int64).copy()
+    claimed_after = claimed.copy()
     n, comp = cv2.connectedComponents((~claimed).astype(np.uint8), connectivity=4)
     if n <= 1:
-        return out
+        return out, claimed_after
     dist = _colour_distances(lab, seeds)
     ring = np.ones((3, 3), np.uint8)
     for c in range(1, n):
@@ -219,7 +223,8 @@ def fill_gaps(
         votes = np.bincount(np.stack([dist[v][gap] for v in around]).argmin(0), minlength=len(around))
         if len(around) == 1 or votes.max() >= majority * votes.sum():
             out[gap] = around[int(np.argmax(votes))]
-    return out
+            claimed_after[gap] = True
+    return out, claimed_after
 
 DEPTH_PERCENTILES = (1.0, 99.0)
 """Inverse depth is normalised between these percentiles of the view's rendered pixels (a few floaters must not set
@@ -366,8 +371,9 @@ def segment(
     for k in kinds:  # strokes are certain
         out[seeds == k], claimed[seeds == k] = k, True
     if fill and len(kinds) >= 2:
-        out = fill_gaps(out, claimed, fill_features(small, depth, depth_weight), seeds)
+        out, claimed = fill_gaps(out, claimed, fill_features(small, depth, depth_weight), seeds)
     if (sh, sw) != (h, w):
         out = cv2.resize(out.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).astype(np.int64)
+        claimed = cv2.resize(claimed.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).astype(bool)
         prob = {k: cv2.resize(p, (w, h), interpolation=cv2.INTER_LINEAR) for k, p in prob.items()}
-    return Segmentation(out, prob, time.perf_counter() - t0)
+    return Segmentation(out, claimed, prob, time.perf_counter() - t0)

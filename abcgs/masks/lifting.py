@@ -1,7 +1,8 @@
 """Lifting 2-D content label maps onto Gaussians (ABC-GS Eq. 2) and rendering them back.
 
 For each Gaussian i and label j, ``w[i, j] = Σ_p α_i(p) T_i(p) M_j(p)`` summed over the pixels of every
-masked view (its blending weight at the pixel times the one-hot mask). Each Gaussian takes the label
+masked view (its blending weight at the pixel times the one-hot mask; a pixel of value :data:`NO_VOTE` adds
+nothing). Each Gaussian takes the label
 whose weight wins, provided the winner holds at least ``min_weight`` of blending weight and a
 ``min_share`` of the Gaussian's total; otherwise it stays unassigned (0). Label 0 in the masks means
 "unassigned" and takes part in the vote like any label, so Gaussians seen mostly in unassigned pixels
@@ -26,6 +27,10 @@ from abcgs.gaussians import GaussianModel
 from abcgs.masks.params import LiftParams  # noqa: F401  (the section's schema)
 from abcgs.render import accumulate_weights, rasterize
 
+NO_VOTE = -1
+"""Label-map value of a pixel that votes for nothing (not even 0 = unassigned): e.g. what a re-cut view left
+undecided."""
+
 
 @dataclass
 class LiftResult:
@@ -43,11 +48,13 @@ class LiftResult:
 
 
 def one_hot_labels(labels: np.ndarray | Tensor, n_labels: int) -> Tensor:
-    """``(H, W)`` int labels in 0..n_labels → ``(H, W, n_labels + 1) float32`` one-hot."""
+    """``(H, W)`` int labels in 0..n_labels (or :data:`NO_VOTE`) → ``(H, W, n_labels + 1) float32`` one-hot (all
+    zeros at :data:`NO_VOTE`)."""
     lab = torch.as_tensor(np.asarray(labels), dtype=torch.long)
-    if lab.min() < 0 or lab.max() > n_labels:
+    if lab.min() < NO_VOTE or lab.max() > n_labels:
         raise InputError(f"label map has labels outside 0..{n_labels}: found {int(lab.min())}..{int(lab.max())}")
-    return torch.nn.functional.one_hot(lab, n_labels + 1).to(torch.float32)
+    votes = lab >= 0
+    return torch.nn.functional.one_hot(lab.clamp_min(0), n_labels + 1).to(torch.float32) * votes[..., None]
 
 
 def lift_labels(

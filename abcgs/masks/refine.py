@@ -12,7 +12,8 @@ evidence, as segmenters that prompt one view from another do (here with GrabCut 
    undecided Gaussians and empty pixels are left to the cut.
 2. **Cut.** :func:`abcgs.masks.grabcut.segment` on the view's photo and its rendered depth (GrabCut per label on two
    colour components and inverse depth; ``masks.refine.depth_weight``). A seed is certain; GrabCut decides the rest,
-   so a tail that has the wall's depth and colours goes to the wall.
+   so a tail that has the wall's depth and colours goes to the wall. Pixels no cut claims vote for nothing
+   (:data:`abcgs.masks.lifting.NO_VOTE`): "undecided" must not outvote a label as "unassigned" would.
 3. **Lift again** from every view: the given masks as they are, the cuts for the others.
 
 The views with given masks are never re-cut: what the user painted stays the user's.
@@ -34,7 +35,7 @@ from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel, render
 from abcgs.io.images import load_image
 from abcgs.masks.grabcut import segment
-from abcgs.masks.lifting import LiftResult, lift_labels
+from abcgs.masks.lifting import NO_VOTE, LiftResult, lift_labels
 from abcgs.masks.params import LiftParams, RefineParams
 from abcgs.progress import progress
 from abcgs.render import rasterize
@@ -51,8 +52,9 @@ class Refinement:
 
     Attributes:
         lifted: the labels lifted from every view.
-        views: per re-cut view (name): ``{"seeded": share of its rendered pixels that were seeds, "changed": share of
-            its pixels whose label the cut changed from the first lift's render}``.
+        views: per re-cut view (name): ``{"seeded": share of its pixels that were seeds, "changed": share of the
+            pixels both the first lift's render and the cut decided whose label the cut changed, "undecided": share of
+            its pixels that vote for nothing}``.
         seconds: time spent.
     """
 
@@ -132,9 +134,9 @@ def refine_labels(
         cam = cameras[i]
         erode_px = int(round(params.seed_erode * min(cam.height, cam.width)))
         seeds, rendered, depth = render_seeds(model, lifted, n_labels, cam, erode_px, backend=backend)
-        if not (seeds > 0).any():  # no label reaches this view: nothing to seed a cut with
-            recut[i] = np.where(rendered > 0, rendered, 0)
-            views[cam.name] = {"seeded": float((seeds >= 0).mean()), "changed": 0.0}
+        if not (seeds > 0).any():  # no label reaches this view: nothing to seed a cut with; it votes as rendered
+            recut[i] = np.where(rendered >= 0, rendered, NO_VOTE)
+            views[cam.name] = {"seeded": float((seeds >= 0).mean()), "changed": 0.0, "undecided": float((rendered < 0).mean())}
             continue
         if images is None:
             with torch.no_grad():
@@ -145,10 +147,13 @@ def refine_labels(
         if rgb.shape[:2] != (cam.height, cam.width):
             raise InputError(f"the photo of view {cam.name} is {rgb.shape[1]}x{rgb.shape[0]} but its camera is "
                              f"{cam.width}x{cam.height}; give the undistorted images the cameras belong to")
-        cut = segment(rgb, seeds, iterations=params.iterations, depth=depth, depth_weight=params.depth_weight).labels
+        seg = segment(rgb, seeds, iterations=params.iterations, depth=depth, depth_weight=params.depth_weight)
+        cut = np.where(seg.claimed, seg.labels, NO_VOTE)
         recut[i] = cut
+        both = (cut >= 0) & (rendered >= 0)
         views[cam.name] = {"seeded": float((seeds >= 0).mean()),
-                           "changed": float((cut != np.where(rendered > 0, rendered, 0)).mean())}
+                           "changed": float((cut != rendered)[both].mean()) if both.any() else 0.0,
+                           "undecided": float((cut < 0).mean())}
     maps = [given[i] if i in given else recut[i] for i in range(len(cameras))]
     relifted = lift_labels(model, cameras, maps, n_labels, lift_params, backend=backend)
     seconds = time.perf_counter() - t0

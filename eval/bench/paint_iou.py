@@ -297,9 +297,13 @@ def _figure(path: Path, colmap: Path, scene, strokes: list[Stroke], cut: np.ndar
     n = len(scene.cameras)
     others = [i for i in range(n) if i != src]
     show = [others[round(t * (len(others) - 1))] for t in (0.3, 0.65, 1.0)]
-    rows = [[drawn, overlay(image, cut), overlay(load_image(scene.image_paths[src]), views[src])],
-            [overlay(load_image(scene.image_paths[i]), views[i]) for i in show]]
-    save_image(path, image_grid(rows, ["strokes / other view", "cut / other view", "lifted / other view"], height=180))
+    top = image_grid([[drawn, overlay(image, cut), overlay(load_image(scene.image_paths[src]), views[src])]],
+                     ["the drawn view: strokes", "its colour cut (the page)", "the masks stage's labels"], height=180)
+    bottom = image_grid([[overlay(load_image(scene.image_paths[i]), views[i]) for i in show]],
+                        [f"view {Path(scene.cameras[i].name).stem}: the masks stage's labels" for i in show], height=180)
+    width = max(top.shape[1], bottom.shape[1])  # undistorted views differ in width by a pixel or two
+    rows = [np.pad(g, ((0, 0), (0, width - g.shape[1]), (0, 0)), constant_values=255) for g in (top, bottom)]
+    save_image(path, np.vstack(rows))
 
 
 if __name__ == "__main__":

@@ -19,8 +19,8 @@ What the first command does, as a person would at ``python -m abcgs.masks.paint`
    cypress, 3 the village and the hills), Segment, a screenshot, Save → ``<work>/<painting>_labels.png``.
 
 The strokes are straight polylines in image pixels, listed below; the page gets them as mouse moves. The overlay
-``eval/params/fern_strokes.yaml`` then binds them: the semantic transfer gives the fern the cypress, the planter the
-village and the building the sky; the compositional one gives each region a painting of its own.
+``eval/params/fern_strokes.yaml`` then binds them: the semantic transfer gives the fern the village and the hills,
+the planter the cypress and the building the sky; the compositional one gives each region a painting of its own.
 """
 
 from __future__ import annotations
