@@ -67,7 +67,8 @@ def test_grabcut_features_put_depth_in_the_third_channel() -> None:
     assert np.all(np.diff(f[0, :, 2].astype(int)) <= 0) and f[0, 0, 2] > 240 and f[0, -1, 2] < 15
     # a heavier depth weight shrinks the colour channels, not the depth channel
     g = grabcut_features(rgb, depth, depth_weight=4.0)
-    assert np.array_equal(g[..., 2], f[..., 2]) and g[..., :2].astype(float).std() < 0.5 * f[..., :2].astype(float).std()
+    assert np.array_equal(g[..., 2], f[..., 2])
+    assert g[..., :2].astype(float).std() < 0.5 * f[..., :2].astype(float).std()
     with pytest.raises(InputError, match="depth map is 29x20"):
         grabcut_features(rgb, np.ones((20, 29)))
 

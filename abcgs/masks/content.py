@@ -47,12 +47,6 @@ MIN_COLOUR_SHARE = 0.005
 """In a colour label PNG, colours covering less than this share of the file's pixels are unassigned (0)."""
 
 
-
-
-
-
-
-
 @dataclass
 class ContentMasks:
     """Lifted labels and the re-rendered per-view label maps."""

@@ -40,8 +40,6 @@ GMM_COMPONENTS = 5
 """Gaussians per colour model in OpenCV's GrabCut (its model array is ``1 × 13·GMM_COMPONENTS``)."""
 
 
-
-
 @dataclass
 class Stroke:
     """One brush stroke in image pixel coordinates.
@@ -226,6 +224,7 @@ def fill_gaps(
             claimed_after[gap] = True
     return out, claimed_after
 
+
 DEPTH_PERCENTILES = (1.0, 99.0)
 """Inverse depth is normalised between these percentiles of the view's rendered pixels (a few floaters must not set
 the scale)."""
@@ -264,7 +263,8 @@ def grabcut_features(rgb: np.ndarray, depth: np.ndarray | None, depth_weight: fl
     if depth is None or depth_weight <= 0:
         return np.ascontiguousarray(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     if depth.shape != rgb.shape[:2]:
-        raise InputError(f"the depth map is {depth.shape[1]}x{depth.shape[0]} but the image is {rgb.shape[1]}x{rgb.shape[0]}")
+        raise InputError(f"the depth map is {depth.shape[1]}x{depth.shape[0]} but the image is "
+                         f"{rgb.shape[1]}x{rgb.shape[0]}")
     x = rgb.reshape(-1, 3).astype(np.float64)
     centred = x - x.mean(0)
     var, vec = np.linalg.eigh(np.cov(centred.T) + np.eye(3) * 1e-9)

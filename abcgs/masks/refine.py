@@ -136,7 +136,8 @@ def refine_labels(
         seeds, rendered, depth = render_seeds(model, lifted, n_labels, cam, erode_px, backend=backend)
         if not (seeds > 0).any():  # no label reaches this view: nothing to seed a cut with; it votes as rendered
             recut[i] = np.where(rendered >= 0, rendered, NO_VOTE)
-            views[cam.name] = {"seeded": float((seeds >= 0).mean()), "changed": 0.0, "undecided": float((rendered < 0).mean())}
+            views[cam.name] = {"seeded": float((seeds >= 0).mean()), "changed": 0.0,
+                               "undecided": float((rendered < 0).mean())}
             continue
         if images is None:
             with torch.no_grad():
