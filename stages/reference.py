@@ -10,6 +10,7 @@ new experiments, or changed metric, ``stylize`` or ``colormatch`` settings, do n
 
 from __future__ import annotations
 
+import logging
 import sys
 from pathlib import Path
 
@@ -18,6 +19,7 @@ from abcgs.layout import load_scene
 from abcgs.pipeline import StageSpec, run_stage, stage_parser
 from abcgs.progress import progress
 
+log = logging.getLogger("reference")
 SPEC = StageSpec("reference", foreach="data.scenes", params=tuple(f"evaluate.{k}" for k in FLOW_SETTINGS))
 
 
@@ -27,6 +29,8 @@ def main(args, params) -> None:
     ref = compute_reference(scene.cameras, model, params.evaluate, model_digest=digest,
                             progress=lambda keys: progress(keys, "flows"))
     save_reference(args.out, ref)
+    log.info("reference: %d views, %d flows; %s", len(ref.view_names), len(ref.flows),
+             ", ".join(f"{k} {v:.1f} s" for k, v in ref.timings_s.items()))
 
 
 if __name__ == "__main__":

@@ -4,6 +4,7 @@ bad inputs (missing runs, mismatched view counts) fail with clear errors."""
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -182,6 +183,24 @@ def test_stored_reference_gives_the_same_metrics(scene, proxy, tmp_path) -> None
         load_reference(tmp_path / "ref", cams, PARAMS, model_digest="def")
     with pytest.raises(InputError, match="no evaluation reference"):
         load_reference(tmp_path / "nothing", cams, PARAMS, scene="tiny")
+
+
+def test_a_reference_folder_is_the_same_bytes_when_computed_again(scene, tmp_path) -> None:
+    """The folder is a dep of every evaluation of its scene: no wall clock in it (timings, zip entry dates), so a
+    re-run on another machine or a later day gives DVC the same hash. Zip dates have a 2 s resolution, hence the
+    wait."""
+    from abcgs.evaluation.reference import compute_reference, save_reference
+
+    cams, model, _, _ = scene
+    save_reference(tmp_path / "a", compute_reference(cams, model, PARAMS, model_digest="abc"))
+    time.sleep(2.1)
+    again = compute_reference(cams, model, PARAMS, model_digest="abc")
+    assert set(again.timings_s) == {"render", "flow", "floor"}
+    save_reference(tmp_path / "b", again)
+    files = sorted(p.name for p in (tmp_path / "a").iterdir())
+    assert files == ["flows.npz", "reference.json", "renders.npz"]
+    for name in files:
+        assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes(), name
 
 
 def test_pair_workers_give_the_same_metrics(scene, proxy) -> None:

@@ -69,7 +69,7 @@ def test_tiny_registers_all_views(tiny_scene: Path, tiny_colmap: Path) -> None:
     n = len(list_images(tiny_scene / "images"))
     assert metrics["registered"] == metrics["total"] == n and metrics["unregistered"] == []
     assert metrics["points"] > 200 and metrics["mean_reprojection_error_px"] < 1.0
-    assert {"seconds"} <= metrics.keys()
+    assert "seconds" not in metrics  # the folder is every later stage's dep: no wall time in it
     for name in ("cameras.bin", "images.bin", "points3D.bin"):
         assert (tiny_colmap / "sparse" / name).is_file()
 

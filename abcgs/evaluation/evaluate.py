@@ -324,7 +324,7 @@ def _evaluate_scene(cameras, original, stylized, style_images, params, *, styliz
     m["eval_timings_s"]["render_s"] = render_s
     m["provenance"]["render_backend"] = {"original": backend, "stylized": backend_s}
     if reference is not None:
-        m["provenance"]["reference"] = {k: reference.info.get(k) for k in ("model_digest", "n_flows", "timings_s")}
+        m["provenance"]["reference"] = {k: reference.info.get(k) for k in ("model_digest", "n_flows")}
     return res
 
 

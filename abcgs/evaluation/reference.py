@@ -56,6 +56,10 @@ class SceneReference:
     floor: dict
     """:func:`floor_record`: per kind (``short``, ``long``) the unstylized scene's mean warp RMSE and per pair."""
     info: dict = field(default_factory=dict)
+    """What ``reference.json`` stores: views, settings, pairs, floor, provenance. Deterministic: the folder's hash
+    is a dependency of every evaluation of the scene."""
+    timings_s: dict[str, float] = field(default_factory=dict)
+    """Wall seconds of ``render``, ``flow`` and ``floor`` when computed; logged by the stage, not stored."""
 
     def flow_cache(self) -> FlowCache:
         """A :class:`FlowCache` that serves the stored flows and refuses to estimate others."""
@@ -136,9 +140,9 @@ def compute_reference(cameras: list[Camera], original: GaussianModel, params: Ev
         "pairs": pairs.to_json(), "floor": floor,
         "render_backend": backend, "flow_provenance": flows.provenance(), "n_flows": len(keys),
         "model_digest": model_digest,
-        "timings_s": {"render": render_s, "flow": flow_s, "floor": time.perf_counter() - t},
     }
-    return SceneReference([c.name for c in cams], originals, {k: flows(*k) for k in keys}, pairs, floor, info)
+    timings = {"render": render_s, "flow": flow_s, "floor": time.perf_counter() - t}
+    return SceneReference([c.name for c in cams], originals, {k: flows(*k) for k in keys}, pairs, floor, info, timings)
 
 
 def model_digest(path: Path) -> str:

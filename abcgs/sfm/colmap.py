@@ -7,7 +7,8 @@
     out_dir/images/                                undistorted images (registered views only)
     out_dir/masks/                                 undistorted label maps (only when masks are given)
     out_dir/metrics.json                           {registered, total, points, mean_reprojection_error_px,
-                                                    seconds, unregistered: [names]}
+                                                    unregistered: [names]} (no wall time: the folder is a
+                                                    dependency of every later stage, its hash must not vary)
 
 Determinism: COLMAP's RANSAC, mapper and triangulator are seeded with ``params.seed``. With
 ``num_threads = 1`` (the default) repeated runs give identical models. More threads are faster, but
@@ -56,9 +57,12 @@ class ReconstructionReport:
     unregistered: list[str] = field(default_factory=list)
     out_dir: Path | None = None
 
-    def metrics(self) -> dict:
+    def metrics(self, *, seconds: bool = True) -> dict:
+        """The record; ``seconds=False`` leaves out the wall time (for the model folder, whose bytes are a dep)."""
         data = asdict(self)
         data.pop("out_dir")
+        if not seconds:
+            data.pop("seconds")
         return data
 
 
@@ -303,7 +307,7 @@ def reconstruct(
                 unregistered=unregistered,
                 out_dir=Path(out_dir),
             )
-            write_json(tmp / "metrics.json", report.metrics())
+            write_json(tmp / "metrics.json", report.metrics(seconds=False))
     log.info("reconstruct: done in %.1f s -> %s", report.seconds, out_dir)
     return report
 

@@ -15,11 +15,15 @@ counts of the regression test (``eval/bench/regression.py``) and an empty DVC ca
   5e-5, relative.
 
 It prints the walls and the ratio of their medians, whether every headline metric (``out/*/metrics.json`` and
-``out/*/fit_metrics.json``, timings left out) and every stylized and fitted PLY is the same in all runs, and
-writes it all to ``--json``. The goal is a ratio within 1.5: the scheduler, the clones and the restores cost
-little next to the stages. ``--repeat N`` alternates the order (plain, cluster, cluster, plain, ...): on a shared
-machine the load changes from one run to the next. ``--first cluster`` starts with the cluster run. Needs root
-and Debian's ``slurm-wlm`` and ``munge`` (installed when missing).
+``out/*/fit_metrics.json``, timings left out), every stylized and fitted PLY and every entry of ``dvc.lock``
+(each stage's command, dep and out hashes, params) is the same in all runs, and writes it all to ``--json``.
+Records that hold wall times (``stylize.json``, ``eval.json``, ...) differ between any two runs; with two or more
+plain runs it also prints which ``dvc.lock`` entries differ between plain runs, and whether the cluster run
+differs from the plain runs in any other.
+The goal is a ratio within 1.5: the scheduler, the clones and the restores cost little next to the stages.
+``--repeat N`` alternates the order (plain, cluster, cluster, plain, ...): on a shared machine the load changes
+from one run to the next. ``--first cluster`` starts with the cluster run. Needs root and Debian's ``slurm-wlm``
+and ``munge`` (installed when missing).
 """
 
 from __future__ import annotations
@@ -77,6 +81,25 @@ def differences(a: dict, b: dict) -> dict:
     return diff
 
 
+def lock_entries(repo: Path) -> dict[str, str]:
+    """``dvc.lock`` flattened to ``stage:field:path -> value`` (cmd, each dep's and out's md5, each param)."""
+    flat: dict[str, str] = {}
+    for stage, entry in yaml.safe_load((repo / "dvc.lock").read_text())["stages"].items():
+        flat[f"{stage}:cmd"] = str(entry.get("cmd"))
+        for field in ("deps", "outs"):
+            for item in entry.get(field, []):
+                flat[f"{stage}:{field}:{item['path']}"] = str(item.get("md5") or item.get("hash"))
+        for file, values in (entry.get("params") or {}).items():
+            for key, value in values.items():
+                flat[f"{stage}:params:{file}:{key}"] = json.dumps(value, sort_keys=True)
+    return flat
+
+
+def lock_differences(a: dict[str, str], b: dict[str, str]) -> list[str]:
+    """The ``stage:field:path`` entries of two :func:`lock_entries` that differ or exist in one only."""
+    return sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
+
+
 def run_plain(work: Path) -> dict:
     repo = copy_repo(work / "repo", reduce)
     t0 = time.perf_counter()
@@ -85,7 +108,7 @@ def run_plain(work: Path) -> dict:
     if proc.returncode != 0:
         raise SystemExit(f"plain dvc repro failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
     return {"wall_s": round(wall, 1), "stages_run": len(re.findall(r"Running stage '", proc.stdout)),
-            "results": results(repo)}
+            "results": results(repo), "lock": lock_entries(repo)}
 
 
 def _cli(args: list[str], repo: Path, env: dict) -> subprocess.CompletedProcess:
@@ -123,7 +146,8 @@ def run_cluster(work: Path, resources: dict) -> dict:
                       "ran": len(rec.get("ran") or []), "restored": len(rec.get("restored") or [])}
     return {"wall_s": round(wall, 1), "jobs_done_s": round(queue_done, 1), "collect_s": round(wall - queue_done, 1),
             "collect_ran": collect["ran"], "collect_restored": len(collect["restored"]), "jobs": jobs,
-            "stages_run": sum(j["ran"] for j in jobs.values()), "resources": resources, "results": results(repo)}
+            "stages_run": sum(j["ran"] for j in jobs.values()), "resources": resources, "results": results(repo),
+            "lock": lock_entries(repo)}
 
 
 def _median(xs: list[float]) -> float:
@@ -155,6 +179,12 @@ def main(argv: list[str] | None = None) -> dict:
                 print(f"[bench.cluster] round {i + 1}: {which}: {runs[which][-1]['wall_s']:.1f} s", flush=True)
     plain, cluster = (_median([r["wall_s"] for r in runs[k]]) for k in ("plain", "cluster"))
     diffs = [differences(p["results"], c["results"]) for p in runs["plain"] for c in runs["cluster"]]
+    lock_diffs = sorted({k for p in runs["plain"] for c in runs["cluster"] for k in lock_differences(p["lock"], c["lock"])})
+    plain_pairs = [(p, q) for n, p in enumerate(runs["plain"]) for q in runs["plain"][n + 1:]]
+    run_to_run = sorted({k for p, q in plain_pairs for k in lock_differences(p["lock"], q["lock"])}) if plain_pairs else None
+    n_lock = len(runs["plain"][0]["lock"])
+    for r in runs["plain"] + runs["cluster"]:
+        r.pop("lock")
     ratio = cluster / plain
     out = {"command": "python -m eval.bench.cluster " + " ".join(argv if argv is not None else sys.argv[1:]),
            "date": time.strftime("%Y-%m-%d %H:%M"), "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
@@ -164,6 +194,9 @@ def main(argv: list[str] | None = None) -> dict:
            "plain_median_s": plain, "cluster_median_s": cluster, "ratio": round(ratio, 3),
            "metrics_equal": not any(d["metrics"] for d in diffs), "ply_equal": not any(d["ply"] for d in diffs),
            "differences": [d for d in diffs if d["metrics"] or d["ply"]],
+           "lock_equal": not lock_diffs, "lock_entries": n_lock, "lock_differences": lock_diffs,
+           "lock_differences_plain_vs_plain": run_to_run,
+           "lock_differences_beyond_plain_vs_plain": None if run_to_run is None else sorted(set(lock_diffs) - set(run_to_run)),
            "plain": runs["plain"], "cluster": runs["cluster"]}
     print(f"plain dvc repro: {', '.join(f'{r:.1f}' for r in out['plain_wall_s'])} s "
           f"({runs['plain'][0]['stages_run']} stages)")
@@ -171,7 +204,14 @@ def main(argv: list[str] | None = None) -> dict:
         print(f"one-node Slurm:  {c['wall_s']:.1f} s (jobs {c['jobs_done_s']:.1f} s + collect {c['collect_s']:.1f} s; "
               f"{c['stages_run']} stages in jobs, collect ran {len(c['collect_ran'])})")
     print(f"ratio cluster / plain (medians): {ratio:.2f} (goal <= 1.5)")
-    print(f"metrics equal: {out['metrics_equal']}; PLYs equal: {out['ply_equal']}")
+    print(f"metrics equal: {out['metrics_equal']}; PLYs equal: {out['ply_equal']}; dvc.lock equal: {out['lock_equal']} "
+          f"({len(lock_diffs)} of {out['lock_entries']} entries differ)")
+    if run_to_run is not None:
+        beyond = out["lock_differences_beyond_plain_vs_plain"]
+        print(f"  two plain runs differ in {len(run_to_run)} entries (the records of wall time); cluster vs plain "
+              f"differs beyond those in {len(beyond)}" + (": " + ", ".join(beyond) if beyond else ""))
+    for k in lock_diffs[:40]:
+        print(f"  dvc.lock {k}")
     for d in out["differences"][:1]:
         for k, (va, vb) in list(d["metrics"].items())[:20]:
             print(f"  {k}: plain {va} / cluster {vb}")
