@@ -29,7 +29,7 @@ def main(args, params) -> None:
     ref = compute_reference(scene.cameras, model, params.evaluate, model_digest=digest,
                             progress=lambda keys: progress(keys, "flows"))
     save_reference(args.out, ref)
-    log.info("reference: %d views, %d flows; %s", len(ref.view_names), len(ref.flows),
+    log.info("%d views, %d flows; %s", len(ref.view_names), len(ref.flows),
              ", ".join(f"{k} {v:.1f} s" for k, v in ref.timings_s.items()))
 
 
