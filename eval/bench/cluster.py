@@ -19,11 +19,10 @@ It prints the walls and the ratio of their medians, whether every headline metri
 (each stage's command, dep and out hashes, params) is the same in all runs, and writes it all to ``--json``.
 Records that hold wall times (``stylize.json``, ``eval.json``, ...) differ between any two runs; with two or more
 plain runs it also prints which ``dvc.lock`` entries differ between plain runs, and whether the cluster run
-differs from the plain runs in any other.
-The goal is a ratio within 1.5: the scheduler, the clones and the restores cost little next to the stages.
-``--repeat N`` alternates the order (plain, cluster, cluster, plain, ...): on a shared machine the load changes
-from one run to the next. ``--first cluster`` starts with the cluster run. Needs root and Debian's ``slurm-wlm``
-and ``munge`` (installed when missing).
+differs from the plain runs in any other. The goal is a ratio within 1.5: the scheduler, the clones and the
+restores cost little next to the stages. ``--repeat N`` alternates the order (plain, cluster, cluster, plain,
+...): on a shared machine the load changes from one run to the next. ``--first cluster`` starts with the cluster
+run. Needs root and Debian's ``slurm-wlm`` and ``munge`` (installed when missing).
 """
 
 from __future__ import annotations
@@ -98,6 +97,18 @@ def lock_entries(repo: Path) -> dict[str, str]:
 def lock_differences(a: dict[str, str], b: dict[str, str]) -> list[str]:
     """The ``stage:field:path`` entries of two :func:`lock_entries` that differ or exist in one only."""
     return sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
+
+
+def lock_summary(plain: list[dict[str, str]], cluster: list[dict[str, str]]) -> dict:
+    """The :func:`lock_entries` of the plain and the cluster runs compared: the entries that differ between any
+    plain and any cluster run, those that differ between plain runs (``None`` with one plain run), and the first
+    set less the second."""
+    across = sorted({k for p in plain for c in cluster for k in lock_differences(p, c)})
+    run_to_run = (sorted({k for n, p in enumerate(plain) for q in plain[n + 1:] for k in lock_differences(p, q)})
+                  if len(plain) > 1 else None)
+    return {"lock_equal": not across, "lock_entries": len(plain[0]), "lock_differences": across,
+            "lock_differences_plain_vs_plain": run_to_run,
+            "lock_differences_beyond_plain_vs_plain": None if run_to_run is None else sorted(set(across) - set(run_to_run))}
 
 
 def run_plain(work: Path) -> dict:
@@ -179,12 +190,7 @@ def main(argv: list[str] | None = None) -> dict:
                 print(f"[bench.cluster] round {i + 1}: {which}: {runs[which][-1]['wall_s']:.1f} s", flush=True)
     plain, cluster = (_median([r["wall_s"] for r in runs[k]]) for k in ("plain", "cluster"))
     diffs = [differences(p["results"], c["results"]) for p in runs["plain"] for c in runs["cluster"]]
-    lock_diffs = sorted({k for p in runs["plain"] for c in runs["cluster"] for k in lock_differences(p["lock"], c["lock"])})
-    plain_pairs = [(p, q) for n, p in enumerate(runs["plain"]) for q in runs["plain"][n + 1:]]
-    run_to_run = sorted({k for p, q in plain_pairs for k in lock_differences(p["lock"], q["lock"])}) if plain_pairs else None
-    n_lock = len(runs["plain"][0]["lock"])
-    for r in runs["plain"] + runs["cluster"]:
-        r.pop("lock")
+    locks = lock_summary([r.pop("lock") for r in runs["plain"]], [r.pop("lock") for r in runs["cluster"]])
     ratio = cluster / plain
     out = {"command": "python -m eval.bench.cluster " + " ".join(argv if argv is not None else sys.argv[1:]),
            "date": time.strftime("%Y-%m-%d %H:%M"), "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
@@ -194,9 +200,7 @@ def main(argv: list[str] | None = None) -> dict:
            "plain_median_s": plain, "cluster_median_s": cluster, "ratio": round(ratio, 3),
            "metrics_equal": not any(d["metrics"] for d in diffs), "ply_equal": not any(d["ply"] for d in diffs),
            "differences": [d for d in diffs if d["metrics"] or d["ply"]],
-           "lock_equal": not lock_diffs, "lock_entries": n_lock, "lock_differences": lock_diffs,
-           "lock_differences_plain_vs_plain": run_to_run,
-           "lock_differences_beyond_plain_vs_plain": None if run_to_run is None else sorted(set(lock_diffs) - set(run_to_run)),
+           **locks,
            "plain": runs["plain"], "cluster": runs["cluster"]}
     print(f"plain dvc repro: {', '.join(f'{r:.1f}' for r in out['plain_wall_s'])} s "
           f"({runs['plain'][0]['stages_run']} stages)")
@@ -205,12 +209,12 @@ def main(argv: list[str] | None = None) -> dict:
               f"{c['stages_run']} stages in jobs, collect ran {len(c['collect_ran'])})")
     print(f"ratio cluster / plain (medians): {ratio:.2f} (goal <= 1.5)")
     print(f"metrics equal: {out['metrics_equal']}; PLYs equal: {out['ply_equal']}; dvc.lock equal: {out['lock_equal']} "
-          f"({len(lock_diffs)} of {out['lock_entries']} entries differ)")
-    if run_to_run is not None:
+          f"({len(out['lock_differences'])} of {out['lock_entries']} entries differ)")
+    if out["lock_differences_plain_vs_plain"] is not None:
         beyond = out["lock_differences_beyond_plain_vs_plain"]
-        print(f"  two plain runs differ in {len(run_to_run)} entries (the records of wall time); cluster vs plain "
+        print(f"  two plain runs differ in {len(out['lock_differences_plain_vs_plain'])} entries; cluster vs plain "
               f"differs beyond those in {len(beyond)}" + (": " + ", ".join(beyond) if beyond else ""))
-    for k in lock_diffs[:40]:
+    for k in out["lock_differences"][:40]:
         print(f"  dvc.lock {k}")
     for d in out["differences"][:1]:
         for k, (va, vb) in list(d["metrics"].items())[:20]:
