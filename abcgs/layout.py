@@ -17,7 +17,7 @@ from pathlib import Path
 
 from abcgs.gaussians import GaussianModel
 from abcgs.io.ply import read_ply
-from abcgs.sfm.colmap import SceneData, read_colmap_scene
+from abcgs.sfm.model import SceneData, read_colmap_scene
 
 
 def colormatch_dir(out_root: Path, scene: str, name: str) -> Path:

@@ -15,7 +15,7 @@ import os
 import re
 import typing
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
@@ -77,6 +77,20 @@ def set_dotted(params: dict, dotted: str, value: Any) -> None:
     params[leaf] = value
 
 
+Device = Literal["auto", "cpu", "cuda"]
+"""Where tensors live: ``auto`` = the first CUDA GPU when torch sees one, else the CPU."""
+
+
+class RuntimeParams(BaseModel):
+    """``runtime:``: how every stage runs, not what it computes (:mod:`abcgs.runtime`)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    device: Device = Field(
+        "auto", description="auto | cpu | cuda: where every stage keeps its tensors (scenes, images, VGG, losses, "
+                            "metrics); the renders follow (gsplat on CUDA, the C++ kernels on the CPU)")
+
+
 class DataParams(BaseModel):
     """Where the scenes and style images are. Paths are relative to the repository root."""
 
@@ -107,6 +121,7 @@ class Params(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     data: DataParams
+    runtime: RuntimeParams = Field(default_factory=RuntimeParams)
     tiny: TinySceneParams = Field(default_factory=TinySceneParams)
     reconstruct: ReconstructParams = Field(default_factory=ReconstructParams)
     fit: FitParams = Field(default_factory=FitParams)

@@ -1,4 +1,4 @@
-"""Process-wide runtime settings: torch's thread count for a block of work.
+"""Process-wide runtime settings: the device every stage computes on, and torch's thread count for a block of work.
 
 The OpenMP wait policy, which must be set before torch loads, is set in :mod:`abcgs` itself (``abcgs/__init__.py``);
 the C++ kernels' own thread count is :func:`abcgs.render.cpu.kernel_threads`.
@@ -10,6 +10,31 @@ import contextlib
 from collections.abc import Iterator
 
 import torch
+
+from abcgs.errors import InputError
+from abcgs.params import Device
+
+
+def resolve_device(setting: Device | str = "auto") -> torch.device:
+    """``runtime.device`` as a :class:`torch.device`: ``auto`` is CUDA when torch sees a GPU, else the CPU.
+
+    Raises :class:`InputError` for ``cuda`` on a machine where torch sees no GPU (a CPU build of torch, no driver).
+    """
+    if setting == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if setting == "cuda" and not torch.cuda.is_available():
+        raise InputError("runtime.device is 'cuda' but torch sees no CUDA GPU (a CPU build of torch, or no driver); "
+                         "set runtime.device: auto or cpu")
+    if setting not in ("cpu", "cuda"):
+        raise InputError(f"runtime.device must be auto, cpu or cuda, got {setting!r}")
+    return torch.device(setting)
+
+
+def synchronize(device: torch.device) -> None:
+    """Wait for the device's queued work (CUDA runs asynchronously), so that a wall-clock split of a step is honest;
+    a no-op on the CPU."""
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
 
 
 @contextlib.contextmanager

@@ -15,24 +15,27 @@ import sys
 from pathlib import Path
 
 from abcgs.pipeline import StageSpec, run_stage, stage_parser
-from abcgs.runtime import torch_threads
+from abcgs.runtime import resolve_device, torch_threads
 from abcgs.stylize.colormatch import color_match_and_refit, write_colormatch
 from abcgs.stylize.experiment import colormatch_spec, load_groups, load_scene, load_scene_masks, load_vgg
 
 SPEC = StageSpec("colormatch", foreach="colormatches", params=(
     "colormatches.{key}", "data.styles", "data.style_masks", "colormatch", "isolation", "vgg",
     "stylize.layers", "stylize.style_height",  # the style features of the matching groups
+    "runtime",
 ))
 
 
 def main(args, params) -> None:
     spec = colormatch_spec(params, args.colormatch)
+    device = resolve_device(params.runtime.device)
     scene, model = load_scene(args.root, spec.scene)
     masks = load_scene_masks(args.root / spec.scene / "masks", scene, model.num_gaussians)
-    vgg, info = load_vgg(params)
+    vgg, info = load_vgg(params, device)
     groups = load_groups(params, spec, vgg, masks.gaussian_labels)
     with torch_threads(params.colormatch.threads):
-        res = color_match_and_refit(model, scene, masks.gaussian_labels, masks.view_labels, groups, params.colormatch)
+        res = color_match_and_refit(model.to(device), scene, masks.gaussian_labels.to(device), masks.view_labels,
+                                    groups, params.colormatch)
     write_colormatch(args.out, args.colormatch, spec, res, groups, info.model_dump())
 
 

@@ -19,10 +19,11 @@ from abcgs.evaluation.reference import load_reference, model_digest
 from abcgs.io.images import load_image
 from abcgs.io.ply import read_ply
 from abcgs.pipeline import StageSpec, run_stage, stage_parser
+from abcgs.runtime import resolve_device
 from abcgs.stylize.experiment import colormatch_spec, experiment, load_scene
 
 SPEC = StageSpec("evaluate", foreach="experiments", params=(
-    "evaluate", "experiments.{key}", "colormatches.{item.colormatch}", "data.styles", "vgg",
+    "evaluate", "experiments.{key}", "colormatches.{item.colormatch}", "data.styles", "vgg", "runtime",
 ))
 
 
@@ -37,7 +38,8 @@ def main(args, params) -> None:
     styles = {k: params.data.styles[k] for k in spec.style_keys()}
     reference = load_reference(args.root / exp.scene / "reference", scene.cameras, ep, scene=exp.scene,
                                model_digest=model_digest(args.root / exp.scene / "gs" / "point_cloud.ply"))
-    res = evaluate_scene(scene.cameras, original, read_ply(ply), [load_image(p) for p in styles.values()], ep,
+    device = resolve_device(params.runtime.device)
+    res = evaluate_scene(scene.cameras, original.to(device), read_ply(ply, device=device), [load_image(p) for p in styles.values()], ep,
                          stylize_info=info, saved_renders=[load_image(p) for p in pngs[:n]], vgg_params=params.vgg,
                          reference=reference)
     record = {"experiment": args.experiment, "scene": exp.scene, "colormatch": exp.colormatch,

@@ -15,14 +15,16 @@ from pathlib import Path
 from abcgs.fit.trainer import fit_and_save
 from abcgs.io.metrics import fit_headline, write_headline
 from abcgs.pipeline import StageSpec, run_stage, stage_parser
-from abcgs.sfm.colmap import read_colmap_scene
+from abcgs.runtime import resolve_device
+from abcgs.sfm.model import read_colmap_scene
 
-SPEC = StageSpec("fit", foreach="data.scenes", params=("fit", "data.scenes.{key}"))
+SPEC = StageSpec("fit", foreach="data.scenes", params=("fit", "data.scenes.{key}", "runtime"))
 
 
 def main(args, params) -> None:
     scene = read_colmap_scene(args.colmap / "sparse", args.colmap / "images")
-    result = fit_and_save(scene, params.scene_section(args.scene, "fit"), args.out)
+    result = fit_and_save(scene, params.scene_section(args.scene, "fit"), args.out,
+                          device=resolve_device(params.runtime.device))
     write_headline(args.headline, fit_headline(result.metrics()))
 
 

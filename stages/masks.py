@@ -13,12 +13,14 @@ from abcgs.layout import load_scene
 from abcgs.masks.content import make_content_masks
 from abcgs.masks.outputs import write_content_masks
 from abcgs.pipeline import StageSpec, run_stage, stage_parser
+from abcgs.runtime import resolve_device
 
-SPEC = StageSpec("masks", foreach="data.scenes", params=("masks", "data.scenes.{key}"))
+SPEC = StageSpec("masks", foreach="data.scenes", params=("masks", "data.scenes.{key}", "runtime"))
 
 
 def main(args, params) -> None:
     scene, model = load_scene(args.root, args.scene)
+    model = model.to(resolve_device(params.runtime.device))
     masks_dir = args.root / args.scene / "colmap" / "masks"
     result = make_content_masks(model, scene.cameras, masks_dir, params.scene_section(args.scene, "masks"),
                                 scene.image_paths)

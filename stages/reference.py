@@ -18,15 +18,16 @@ from abcgs.evaluation.reference import FLOW_SETTINGS, compute_reference, model_d
 from abcgs.layout import load_scene
 from abcgs.pipeline import StageSpec, run_stage, stage_parser
 from abcgs.progress import progress
+from abcgs.runtime import resolve_device
 
 log = logging.getLogger("reference")
-SPEC = StageSpec("reference", foreach="data.scenes", params=tuple(f"evaluate.{k}" for k in FLOW_SETTINGS))
+SPEC = StageSpec("reference", foreach="data.scenes", params=(*(f"evaluate.{k}" for k in FLOW_SETTINGS), "runtime"))
 
 
 def main(args, params) -> None:
     scene, model = load_scene(args.root, args.scene)
     digest = model_digest(args.root / args.scene / "gs" / "point_cloud.ply")
-    ref = compute_reference(scene.cameras, model, params.evaluate, model_digest=digest,
+    ref = compute_reference(scene.cameras, model.to(resolve_device(params.runtime.device)), params.evaluate, model_digest=digest,
                             progress=lambda keys: progress(keys, "flows"))
     save_reference(args.out, ref)
     log.info("%d views, %d flows; %s", len(ref.view_names), len(ref.flows),

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from abcgs.io.metrics import write_metrics
 from abcgs.pipeline import StageSpec, run_stage, stage_parser
-from abcgs.runtime import torch_threads
+from abcgs.runtime import resolve_device, torch_threads
 from abcgs.stylize.experiment import (
     colormatch_dir,
     colormatch_spec,
@@ -28,7 +28,7 @@ from abcgs.stylize.outputs import write_history, write_stylized_scene
 
 SPEC = StageSpec("stylize", foreach="experiments", params=(
     "experiments.{key}", "colormatches.{item.colormatch}", "data.styles", "data.style_masks", "stylize",
-    "isolation", "vgg", "viewer.camera_path", "viewer.path_frames",
+    "isolation", "vgg", "viewer.camera_path", "viewer.path_frames", "runtime",
 ))
 
 
@@ -36,10 +36,12 @@ def main(args, params) -> None:
     exp = experiment(params, args.experiment)
     spec = colormatch_spec(params, exp.colormatch)
     sp = params.stylize
+    device = resolve_device(params.runtime.device)
     scene, original = load_scene(args.root, exp.scene)
     matched = read_colormatch(colormatch_dir(args.root, exp.scene, exp.colormatch), exp.colormatch)
-    masks = load_scene_masks(args.root / exp.scene / "masks", scene, original.num_gaussians)
-    vgg, info = load_vgg(params)
+    masks = load_scene_masks(args.root / exp.scene / "masks", scene, original.num_gaussians, device=device)
+    original, matched = original.to(device), matched.to(device)
+    vgg, info = load_vgg(params, device)
     groups = load_groups(params, spec, vgg, masks.gaussian_labels)
     with torch_threads(sp.threads):
         res = stylize_scene(matched, original, scene.cameras, masks, groups, vgg, sp, method=exp.method)

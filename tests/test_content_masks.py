@@ -132,7 +132,7 @@ def test_mask_lifting_script_scores_held_out_views(tiny_colmap, tmp_path) -> Non
     import math
 
     from abcgs.io.ply import write_ply
-    from abcgs.sfm.colmap import read_colmap_scene
+    from abcgs.sfm.model import read_colmap_scene
     from eval.studies import mask_lifting
 
     scene = read_colmap_scene(tiny_colmap / "sparse", tiny_colmap / "images")

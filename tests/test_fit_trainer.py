@@ -18,7 +18,7 @@ from abcgs.fit.trainer import evaluate, fit, fit_and_save, load_views
 from abcgs.gaussians import GaussianModel, render
 from abcgs.io.images import load_image, save_image
 from abcgs.io.ply import read_ply
-from abcgs.sfm.colmap import SceneData
+from abcgs.sfm.model import SceneData
 
 W, H = 48, 36
 

@@ -94,7 +94,7 @@ def test_report_viewer_renders_every_experiment(repo: Path, first_repro) -> None
     from test_viewer_browser import CHROMIUM_ARGS, _shot
 
     from abcgs.gaussians import render
-    from abcgs.sfm.colmap import read_colmap_scene
+    from abcgs.sfm.model import read_colmap_scene
 
     cams = read_colmap_scene(repo / "out/tiny/colmap/sparse", repo / "out/tiny/colmap/images").cameras
     with launch_chromium(CHROMIUM_ARGS) as browser:

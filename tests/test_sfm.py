@@ -13,8 +13,9 @@ from abcgs.errors import InputError, ReconstructionError
 from abcgs.io.images import list_images, load_image, load_labels, save_image
 from abcgs.scene.synthetic import cameras_from_json
 from abcgs.sfm.align import alignment_residual, umeyama
-from abcgs.sfm.colmap import ReconstructParams, read_colmap_scene, reconstruct
+from abcgs.sfm.colmap import ReconstructParams, reconstruct
 from abcgs.sfm.llff import llff_camera_centres
+from abcgs.sfm.model import read_colmap_scene
 
 FERN = Path(__file__).resolve().parents[2] / "shared" / "data" / "scenes" / "fern"  # ../shared next to the repo
 
@@ -105,6 +106,43 @@ def test_read_colmap_scene_contract(tiny_colmap: Path) -> None:
     cam = data.cameras[0]
     depth = data.points @ cam.viewmat[:3, :3].T[:, 2] + cam.viewmat[2, 3]
     assert (depth > 0).mean() > 0.99
+
+
+@pytest.mark.parametrize("fmt", ["bin", "txt"])
+def test_read_colmap_scene_equals_pycolmaps_reading(tiny_colmap: Path, tmp_path: Path, fmt: str) -> None:
+    """The numpy reader of abcgs.sfm.model gives pycolmap's cameras, poses and points, from both model formats."""
+    import pycolmap
+
+    rec = pycolmap.Reconstruction(str(tiny_colmap / "sparse"))
+    model = tiny_colmap / "sparse"
+    if fmt == "txt":
+        model = tmp_path / "txt"
+        model.mkdir()
+        rec.write_text(str(model))
+    data = read_colmap_scene(model, tiny_colmap / "images")
+    images = sorted((im for im in rec.images.values() if im.has_pose), key=lambda im: im.name)
+    assert [c.name for c in data.cameras] == [im.name for im in images]
+    for cam, im in zip(data.cameras, images):
+        pc = rec.cameras[im.camera_id]
+        np.testing.assert_allclose(cam.K, pc.calibration_matrix(), rtol=0, atol=1e-9)
+        np.testing.assert_allclose(cam.viewmat[:3], im.cam_from_world().matrix(), rtol=0, atol=1e-9)
+        assert (cam.width, cam.height) == (pc.width, pc.height)
+    pts = sorted(rec.points3D.values(), key=lambda p: tuple(p.xyz))
+    order = np.lexsort(data.points.astype(np.float64).T[::-1])
+    np.testing.assert_allclose(data.points[order], np.array([p.xyz for p in pts], np.float32), atol=1e-6)
+    np.testing.assert_allclose(data.colors[order], np.array([p.color for p in pts], np.float32) / 255.0, atol=1e-7)
+
+
+def test_read_colmap_scene_refuses_a_distorted_model(tiny_colmap: Path, tmp_path: Path) -> None:
+    import pycolmap
+
+    rec = pycolmap.Reconstruction(str(tiny_colmap / "sparse"))
+    for cam in rec.cameras.values():
+        cam.model = pycolmap.CameraModelId.SIMPLE_RADIAL
+        cam.params = [cam.focal_length, cam.principal_point_x, cam.principal_point_y, 0.01]
+    rec.write(str(tmp_path))
+    with pytest.raises(InputError, match="SIMPLE_RADIAL camera.*undistorted"):
+        read_colmap_scene(tmp_path, tiny_colmap / "images")
 
 
 def test_masks_are_undistorted_with_the_images(tiny_colmap: Path) -> None:

@@ -55,9 +55,10 @@ def find_art_inception(path: str | None) -> tuple[Path | None, str]:
 class ArtInception:
     """User-provided TorchScript art-Inception: NCHW RGB [0, 1] at 299×299 → (N, 2048)."""
 
-    def __init__(self, path: Path, batch: int = 16) -> None:
+    def __init__(self, path: Path, batch: int = 16, device: torch.device | str = "cpu") -> None:
+        self.device = torch.device(device)
         try:
-            self.model = torch.jit.load(str(path), map_location="cpu").eval()
+            self.model = torch.jit.load(str(path), map_location=self.device).eval()
         except Exception as exc:  # noqa: BLE001  (state dicts, pickles, corrupt files)
             raise InputError(
                 f"{path} is not a TorchScript module ({type(exc).__name__}); a plain art_inception.pth state dict needs "
@@ -69,9 +70,9 @@ class ArtInception:
     def features(self, patches: np.ndarray) -> np.ndarray:
         out = []
         for k in range(0, len(patches), self.batch):
-            x = torch.from_numpy(np.ascontiguousarray(patches[k : k + self.batch], dtype=np.float32)).permute(0, 3, 1, 2)
+            x = torch.from_numpy(np.ascontiguousarray(patches[k : k + self.batch], dtype=np.float32)).permute(0, 3, 1, 2).to(self.device)
             x = F.interpolate(x, size=(INCEPTION_SIZE, INCEPTION_SIZE), mode="bilinear", align_corners=False)
-            out.append(self.model(x.clamp(0, 1)).double().reshape(x.shape[0], -1).numpy())
+            out.append(self.model(x.clamp(0, 1)).double().reshape(x.shape[0], -1).numpy(force=True))
         return np.concatenate(out)
 
     def provenance(self) -> dict:

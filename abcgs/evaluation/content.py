@@ -188,8 +188,10 @@ class PerceptualDistance:
     """
 
     def __init__(self, mode: str = "auto", *, layers: Sequence[str] = ("relu1_2", "relu2_2", "relu3_3", "relu4_3", "relu5_3"),
-                 vgg_state: dict | None = None, vgg_info: dict | None = None, vgg_params=None) -> None:
+                 vgg_state: dict | None = None, vgg_info: dict | None = None, vgg_params=None,
+                 device: torch.device | str = "cpu") -> None:
         ok, why = real_lpips_status()
+        self.device = torch.device(device)
         self.note = why
         if mode == "lpips" and not ok:
             raise InputError(f"evaluate.perceptual is 'lpips' but real LPIPS cannot run: {why}")
@@ -197,7 +199,7 @@ class PerceptualDistance:
         if mode in ("auto", "lpips") and ok:
             import lpips
 
-            self._lpips = lpips.LPIPS(net="alex", verbose=False).eval()
+            self._lpips = lpips.LPIPS(net="alex", verbose=False).eval().to(self.device)
             # the masked distance needs LPIPS's per-pixel map: a shallow copy sharing the network, so that no
             # call toggles a flag another thread's call reads (abcgs/evaluation/parallel.py)
             self._lpips_spatial = copy.copy(self._lpips)
@@ -213,7 +215,7 @@ class PerceptualDistance:
 
             vgg_state, winfo = resolve_vgg16(vgg_params)
             vgg_info = winfo.model_dump()
-        self._vgg = VGG16Features(vgg_state, self.layers)
+        self._vgg = VGG16Features(vgg_state, self.layers).to(self.device)
         self.name = "lpips_proxy_vgg"
         self.info = {
             "name": self.name,
@@ -235,14 +237,13 @@ class PerceptualDistance:
                 return float("nan")
             a = np.asarray(a, np.float32) * m[..., None]
             b = np.asarray(b, np.float32) * m[..., None]
+        x, y = as_bchw(a).to(self.device).clamp(0, 1), as_bchw(b).to(self.device).clamp(0, 1)
+        mt = torch.from_numpy(m)[None, None].to(self.device) if mask is not None else None
         if self.name == "lpips":
-            x, y = as_bchw(a).clamp(0, 1), as_bchw(b).clamp(0, 1)
             if mask is None:
                 return float(self._lpips(x * 2 - 1, y * 2 - 1).mean())
             dmap = self._lpips_spatial(x * 2 - 1, y * 2 - 1)  # (1, 1, H, W), upsampled to the input size
-            mt = torch.from_numpy(m)[None, None]
             return float((dmap * mt).sum() / mt.sum())
-        x, y = as_bchw(a).clamp(0, 1), as_bchw(b).clamp(0, 1)
         feats = self._vgg(torch.cat([x, y]))
         total = 0.0
         for k in self.layers:
@@ -250,7 +251,7 @@ class PerceptualDistance:
             if mask is None:
                 total += float(d.mean())
             else:
-                mk = F.interpolate(torch.from_numpy(m)[None, None], size=d.shape[-2:], mode="area")
+                mk = F.interpolate(mt, size=d.shape[-2:], mode="area")
                 w = float(mk.sum())
                 total += float((d * mk).sum() / w) if w > 0 else 0.0
         return total

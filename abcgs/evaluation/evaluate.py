@@ -108,6 +108,7 @@ def evaluate_images(
     flows: FlowCache | None = None,
     pairs: ViewPairs | None = None,
     floor: dict | None = None,
+    device: torch.device | str = "cpu",
 ) -> EvalResult:
     """All image metrics for matched lists of original/stylized renders (channels-last, [0, 1]).
 
@@ -116,6 +117,7 @@ def evaluate_images(
     (:func:`abcgs.evaluation.reference.pairs_for` the cameras); without them only ``evaluate.pairs: index`` works
     (list order). ``floor``: the unstylized scene's warp error over those pairs
     (:func:`abcgs.evaluation.reference.compute_floor`, stored in a reference); measured here when not given.
+    ``device``: where the metric networks (VGG, Inception, LPIPS) run; the images stay numpy on the host.
     """
     check_same_count(originals, stylized)
     for k, (o, s) in enumerate(zip(originals, stylized)):
@@ -140,7 +142,7 @@ def evaluate_images(
     vgg_state, vgg_info = resolve_vgg16(vgg_params)
     ssim = SSIM(params.ssim_impl)
     perceptual = perceptual or PerceptualDistance(params.perceptual, layers=params.proxy_layers, vgg_state=vgg_state,
-                                                  vgg_info=vgg_info.model_dump())
+                                                  vgg_info=vgg_info.model_dump(), device=device)
     pname = perceptual.name
     workers = resolve_workers(params.workers)
     ssims = ordered_map(lambda pair: ssim(*pair), zip(originals, stylized), workers)
@@ -157,7 +159,6 @@ def evaluate_images(
     timings["consistency_s"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    inception = inception or TFInception(batch=params.fid_batch)
     h, w = originals[0].shape[:2]
     n_r = n * params.fid_patches_per_image
     n_s = params.fid_style_patches or n_r
@@ -165,14 +166,18 @@ def evaluate_images(
     rng_r, rng_s = np.random.default_rng([params.seed, 1]), np.random.default_rng([params.seed, 2])
     p_r = random_patches(stylized, n_r, params.fid_patch_size, rng_r)
     p_s = random_patches(styles, n_s, params.fid_patch_size, rng_s)
-    f_r, f_s = inception.features_of_sets([p_r, p_s], workers)
-    fid = fid_from_features(f_s, f_r)
-    kid_mean, kid_std, kid_m = kid(f_s, f_r, params.kid_subsets, params.kid_subset_size, params.seed)
+    fid = kid_mean = kid_std = None
+    kid_m = 0
+    if params.fid:
+        inception = inception or TFInception(batch=params.fid_batch, device=device)
+        f_r, f_s = inception.features_of_sets([p_r, p_s], workers)
+        fid = fid_from_features(f_s, f_r)
+        kid_mean, kid_std, kid_m = kid(f_s, f_r, params.kid_subsets, params.kid_subset_size, params.seed)
     timings["fid_s"] = time.perf_counter() - t
 
     t = time.perf_counter()
     gram = GramDistance(vgg_state, [resize_to_height(s, params.gram_style_height) for s in style_images],
-                        params.gram_layers)
+                        params.gram_layers, device=device)
     gram_per_view = ordered_map(gram.per_image, stylized, workers)
     timings["gram_s"] = time.perf_counter() - t
 
@@ -180,8 +185,11 @@ def evaluate_images(
     art_path, art_why = find_art_inception(params.art_inception_path)
     content_mean = _mean(content)
     components = {"content_distance": {"name": pname, "value": content_mean}}
-    if art_path is not None and pname == "lpips":
-        art = ArtInception(art_path, params.fid_batch)
+    if not params.fid:
+        components["style_distance"] = {"name": "fid_tf_inception", "value": None}
+        art_key, art_val, art_note = "artfid_proxy", None, "not computed: evaluate.fid is false"
+    elif art_path is not None and pname == "lpips":
+        art = ArtInception(art_path, params.fid_batch, device)
         fid_art = fid_from_features(art.features(p_s), art.features(p_r))
         components["style_distance"] = {"name": "fid_art_inception", "value": fid_art, "network": art.provenance()}
         art_key, art_val = "artfid", artfid_formula(content_mean, fid_art)
@@ -243,7 +251,7 @@ def evaluate_images(
             "flow": flows.provenance(),
             "occlusion": "forward-backward check |f_fw + f_bw(x+f_fw)|^2 < 0.01(|f_fw|^2+|f_bw|^2) + 0.5 (Sundaram et al. 2010) and target inside the frame",
             "fid_kid": {
-                "inception": inception.provenance(),
+                "inception": inception.provenance() if params.fid else "not computed: evaluate.fid is false",
                 "n_stylized_patches": int(n_r), "n_style_patches": int(n_s), "n_style_images": len(style_images),
                 "patch_size_px": int(p_r.shape[1]), "kid_subset_size": int(kid_m), "kid_subsets": params.kid_subsets,
                 "protocol": "seeded random square crops resized to 299x299; style images first resized to the renders' short side; "
@@ -309,7 +317,8 @@ def _evaluate_scene(cameras, original, stylized, style_images, params, *, styliz
             check_pair(a, b, f"re-rendered and saved stylized view {k}")
         saved_rmse = max(masked_rmse(a, b) for a, b in zip(styl, sr))
     fps, pass_times = render_fps(stylized, cams, params.backend, params.fps_passes)
-    res = evaluate_images(originals, styl, style_images, params, view_names=[Path(c.name).stem for c in cams], **kwargs)
+    res = evaluate_images(originals, styl, style_images, params, view_names=[Path(c.name).stem for c in cams],
+                          device=stylized.device, **kwargs)
     m = res.metrics
     m["render_fps"] = fps
     m["speed"] = {"render_fps": fps, "fps_passes_s": pass_times, "fps_views_per_pass": len(cams), "backend": backend_s,

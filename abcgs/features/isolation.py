@@ -187,7 +187,7 @@ def region_features(
     to the region downsampled to feature resolution (:func:`downsample_mask`). ``img`` RGB in [0, 1].
     """
     iso, region = isolate_region(img, mask, method, erode_px=erode_px, label=label)
-    device = next(vgg.parameters()).device
+    device = vgg.device
     x = torch.from_numpy(iso.astype(np.float32, copy=False)).permute(2, 0, 1)[None].to(device)
     with torch.no_grad():
         f = extract_features(vgg, x, layers)

@@ -72,7 +72,7 @@ def build_groups(
 
     def whole(key: str, label: int) -> MatchingGroup:
         img = load_style(style_paths[key], style_height)
-        x = torch.from_numpy(img).permute(2, 0, 1)[None]
+        x = torch.from_numpy(img).permute(2, 0, 1)[None].to(vgg.device)
         with torch.no_grad():
             f = extract_features(vgg, x, layers)[0]
         return MatchingGroup(label, key, img.reshape(-1, 3), f.reshape(f.shape[0], -1), img)

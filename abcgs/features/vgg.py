@@ -131,6 +131,11 @@ class VGG16Features(nn.Module):
         self._take = {LAYER_INDEX[n]: n for n in self.layers}
         self.eval()
 
+    @property
+    def device(self) -> torch.device:
+        """Where the weights are (inputs must be there too)."""
+        return self.mean.device
+
     def train(self, mode: bool = True) -> VGG16Features:  # always eval: no dropout/BN anyway
         return super().train(False)
 

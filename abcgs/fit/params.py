@@ -77,7 +77,6 @@ class FitParams(BaseModel, extra="forbid"):
     resolution_scale: float = Field(1.0, gt=0.0, le=1.0, description="train at this fraction of the image size")
     seed: int = 0
     backend: Literal["auto", "cpu", "reference", "gsplat"] = "auto"
-    device: Literal["auto", "cpu", "cuda"] = Field("auto", description="auto = cuda when available")
     background: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="RGB in [0, 1] behind the Gaussians")
     random_background: bool = Field(False, description="a random background colour each step (3DGS option)")
     densify: bool = Field(True, description="False = keep the initial Gaussians (NoDensification)")

@@ -40,14 +40,14 @@ from abcgs.io.tables import write_csv
 from abcgs.progress import progress as progress_bar
 from abcgs.render import select_backend
 from abcgs.render.cpu import kernel_threads
-from abcgs.runtime import torch_threads
+from abcgs.runtime import resolve_device, torch_threads
 
 log = logging.getLogger(__name__)
 
 
 
 class SceneLike(Protocol):
-    """What :func:`fit` needs from a scene (:class:`abcgs.sfm.colmap.SceneData` has it)."""
+    """What :func:`fit` needs from a scene (:class:`abcgs.sfm.model.SceneData` has it)."""
 
     cameras: list[Camera]
     image_paths: list[Path]
@@ -230,14 +230,6 @@ def evaluate(
 # ================================================================================================
 
 
-def _resolve_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name == "cuda" and not torch.cuda.is_available():
-        raise InputError("fit.device is 'cuda' but no CUDA device is available; use 'auto' or 'cpu'")
-    return torch.device(name)
-
-
 def make_optimizers(model: GaussianModel, params: FitParams, extent: float) -> dict[str, torch.optim.Optimizer]:
     """One Adam (eps = 1e-15, as 3DGS) per parameter tensor with the 3DGS learning rates."""
     lrs = {
@@ -271,15 +263,18 @@ def fit(
     views: Views | None = None,
     initial: GaussianModel | None = None,
     strategy: Strategy | None = None,
+    device: torch.device | None = None,
 ) -> FitResult:
     """Fit 3-D Gaussians to ``scene`` (cameras, image paths, SfM points and colours).
 
     Args:
-        scene: a :class:`~abcgs.sfm.colmap.SceneData` (or anything with the same attributes).
+        scene: a :class:`~abcgs.sfm.model.SceneData` (or anything with the same attributes).
         params: :class:`FitParams` (defaults: the 3DGS recipe, 30k steps).
         progress: show a tqdm bar with loss, PSNR, Gaussian count and ETA.
         views: preloaded images (skip :func:`load_views`). initial: start from these Gaussians instead of
             the SfM points. strategy: override the densification strategy built from ``params``.
+        device: where to train (``runtime.device`` resolved); default: the device of ``views`` when given, else
+            :func:`abcgs.runtime.resolve_device` of ``auto``.
 
     Raises:
         InputError: unusable scene (no points, image/camera size mismatch, …).
@@ -287,7 +282,9 @@ def fit(
     """
     params = params or FitParams()
     with torch_threads(params.threads), kernel_threads(params.rasterizer_threads):
-        return _fit(scene, params, progress, views, initial, strategy)
+        if device is None:
+            device = views.images[0].device if views is not None and views.images else resolve_device("auto")
+        return _fit(scene, params, progress, views, initial, strategy, device)
 
 
 def _fit(
@@ -297,8 +294,8 @@ def _fit(
     views: Views | None,
     initial: GaussianModel | None,
     strategy: Strategy | None,
+    device: torch.device,
 ) -> FitResult:
-    device = _resolve_device(params.device)
     backend = select_backend(device, params.backend)
     torch.manual_seed(params.seed)
     gen = torch.Generator(device=device).manual_seed(params.seed)
@@ -414,7 +411,8 @@ def comparison_grid(pairs: Sequence[tuple[np.ndarray, np.ndarray]], max_tile_wid
 
 
 def fit_and_save(
-    scene: SceneLike, params: FitParams, out_dir: str | os.PathLike, progress: bool = True
+    scene: SceneLike, params: FitParams, out_dir: str | os.PathLike, progress: bool = True, *,
+    device: torch.device | None = None,
 ) -> FitResult:
     """:func:`fit`, then write into ``out_dir`` (each file atomically):
 
@@ -426,7 +424,7 @@ def fit_and_save(
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    result = fit(scene, params, progress)
+    result = fit(scene, params, progress, device=device)
     write_ply(out / "point_cloud.ply", result.model)
     write_json(out / "metrics.json", result.metrics())
     write_csv(out / "history.csv", result.history, HISTORY_COLUMNS)

@@ -135,10 +135,10 @@ def cluster_view(model: GaussianModel, camera: Camera, params: AutoMaskParams, b
     """k-means labels 1..n of one rendered view from Lab colour + depth ``(H, W) int64``."""
     with torch.no_grad():
         img, alpha, meta = render(model, camera, backend=backend, render_depth=True, normalize_depth=True)
-    rgb = img.clamp(0, 1).numpy().astype(np.float32)
+    rgb = img.clamp(0, 1).numpy(force=True).astype(np.float32)
     lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB) / np.array([100.0, 127.0, 127.0], np.float32)
-    depth = meta.depth[..., 0].numpy()
-    valid = alpha[..., 0].numpy() > 0.5
+    depth = meta.depth[..., 0].numpy(force=True)
+    valid = alpha[..., 0].numpy(force=True) > 0.5
     if valid.sum() < params.n_labels:
         raise InputError(f"view {camera.name} renders almost empty; cannot cluster it into {params.n_labels} labels")
     d = (depth - depth[valid].mean()) / (depth[valid].std() + 1e-6)
@@ -157,9 +157,9 @@ def grabcut_view(model: GaussianModel, camera: Camera, params: GrabCutParams, ba
     (0 where nothing is rendered)."""
     with torch.no_grad():
         img, alpha, meta = render(model, camera, backend=backend, render_depth=True, normalize_depth=True)
-    rgb = (img.clamp(0, 1).numpy() * 255 + 0.5).astype(np.uint8)
-    depth = meta.depth[..., 0].numpy()
-    valid = alpha[..., 0].numpy() > 0.5
+    rgb = (img.clamp(0, 1).numpy(force=True) * 255 + 0.5).astype(np.uint8)
+    depth = meta.depth[..., 0].numpy(force=True)
+    valid = alpha[..., 0].numpy(force=True) > 0.5
     h, w = depth.shape
     x0, y0, x1, y1 = params.box
     bx0, by0 = int(round(x0 * w)), int(round(y0 * h))

@@ -79,16 +79,17 @@ def lift_labels(
         raise InputError("no masked views to lift labels from; add label PNGs under <scene>/masks/")
     m = model.detach()
     act = m.activated()
-    weights = torch.zeros(m.num_gaussians, n_labels + 1)
+    dev = m.device
+    weights = torch.zeros(m.num_gaussians, n_labels + 1)  # on the host: one transfer per view, not per pixel
     for cam, lab in zip(cameras, label_maps):
         if tuple(lab.shape) != (cam.height, cam.width):
             raise InputError(
                 f"mask of view {cam.name} is {lab.shape[1]}x{lab.shape[0]}, the view is {cam.width}x{cam.height}"
             )
         weights += accumulate_weights(
-            act["means"], act["quats"], act["scales"], act["opacities"], cam.torch_viewmat(), cam.torch_K(),
-            one_hot_labels(lab, n_labels), backend=backend,
-        )
+            act["means"], act["quats"], act["scales"], act["opacities"], cam.torch_viewmat(dev), cam.torch_K(dev),
+            one_hot_labels(lab, n_labels).to(dev), backend=backend,
+        ).cpu()
     total = weights.sum(1)
     best_w, best = weights.max(1)
     ok = (best_w >= params.min_weight) & (best_w >= params.min_share * total.clamp_min(1e-12))
@@ -143,12 +144,13 @@ def render_label_map(
     ``threshold`` of the pixel's alpha (else 0, as are empty pixels).
     """
     act = model.detach().activated()
-    onehot = torch.nn.functional.one_hot(labels.long(), n_labels + 1).to(torch.float32)
+    dev = model.device
+    onehot = torch.nn.functional.one_hot(labels.long(), n_labels + 1).to(device=dev, dtype=torch.float32)
     with torch.no_grad():
         img, alpha, _ = rasterize(
-            act["means"], act["quats"], act["scales"], act["opacities"], onehot, camera.torch_viewmat(),
-            camera.torch_K(), camera.width, camera.height, backend=backend,
+            act["means"], act["quats"], act["scales"], act["opacities"], onehot, camera.torch_viewmat(dev),
+            camera.torch_K(dev), camera.width, camera.height, backend=backend,
         )
     best_w, best = img.max(-1)
     ok = (best_w >= threshold * alpha[..., 0]) & (alpha[..., 0] > 1e-3)
-    return torch.where(ok, best, torch.zeros_like(best)).numpy().astype(np.int64)
+    return torch.where(ok, best, torch.zeros_like(best)).numpy(force=True).astype(np.int64)

@@ -18,7 +18,7 @@ from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.io.atomic import atomic_path, write_json
 from abcgs.io.images import load_image, load_labels, save_image, save_labels
-from abcgs.sfm.colmap import SceneData
+from abcgs.sfm.model import SceneData
 from abcgs.viz import colorize_labels, image_grid
 
 if TYPE_CHECKING:  # the writer takes the computed masks; the stages that only read them do not import that code
@@ -31,7 +31,7 @@ OVERLAY_ROWS = 4
 def write_content_masks(out: Path, result: ContentMasks, cameras: list[Camera], image_paths: list[Path]) -> None:
     """Write ``out/`` (a folder, atomically) from the lifted masks ``result`` of the scene's ``cameras``."""
     with atomic_path(out, is_dir=True) as tmp:
-        np.save(tmp / "gaussian_labels.npy", result.gaussian_labels.numpy().astype(np.int64))
+        np.save(tmp / "gaussian_labels.npy", result.gaussian_labels.numpy(force=True).astype(np.int64))
         (tmp / "views").mkdir()
         rows = []
         for cam, path, lab in zip(cameras, image_paths, result.view_labels):
@@ -41,7 +41,7 @@ def write_content_masks(out: Path, result: ContentMasks, cameras: list[Camera], 
                 over = (0.5 * img + 0.5 * colorize_labels(lab) / 255.0).astype(np.float32)
                 rows.append([img, colorize_labels(lab), over])
         save_image(tmp / "overlay.png", image_grid(rows, ["view", "lifted labels", "overlay"]))
-        labels, counts = np.unique(result.gaussian_labels.numpy(), return_counts=True)
+        labels, counts = np.unique(result.gaussian_labels.numpy(force=True), return_counts=True)
         write_json(tmp / "masks.json", {
             "source": result.source, "input_views": result.input_views, "n_labels": result.n_labels,
             "gaussians_per_label": {str(k): int(v) for k, v in zip(labels, counts)},
@@ -65,8 +65,10 @@ class SceneMasks:
     view_labels: list[np.ndarray]  # per camera
 
 
-def load_scene_masks(masks_dir: Path, scene: SceneData, n_gaussians: int) -> SceneMasks:
-    labels = torch.from_numpy(np.load(masks_dir / "gaussian_labels.npy")).long()
+def load_scene_masks(masks_dir: Path, scene: SceneData, n_gaussians: int, *,
+                     device: torch.device | str = "cpu") -> SceneMasks:
+    """The masks stage's output: Gaussian labels on ``device``, view label maps as host arrays."""
+    labels = torch.from_numpy(np.load(masks_dir / "gaussian_labels.npy")).long().to(device)
     if labels.shape[0] != n_gaussians:
         raise InputError(
             f"{masks_dir}/gaussian_labels.npy has {labels.shape[0]} labels but the scene has {n_gaussians} Gaussians; "

@@ -78,18 +78,18 @@ def render_seeds(
     """
     act = model.detach().activated()
     undecided = n_labels + 1
-    cls = torch.where(lifted.decided, lifted.labels.long(), torch.full_like(lifted.labels.long(), undecided))
+    cls = torch.where(lifted.decided, lifted.labels.long(), torch.full_like(lifted.labels.long(), undecided)).to(model.device)
     onehot = torch.nn.functional.one_hot(cls, n_labels + 2).to(torch.float32)
     with torch.no_grad():
         img, alpha, meta = rasterize(
-            act["means"], act["quats"], act["scales"], act["opacities"], onehot, camera.torch_viewmat(),
-            camera.torch_K(), camera.width, camera.height, render_depth=True, normalize_depth=True, backend=backend,
+            act["means"], act["quats"], act["scales"], act["opacities"], onehot, camera.torch_viewmat(model.device),
+            camera.torch_K(model.device), camera.width, camera.height, render_depth=True, normalize_depth=True, backend=backend,
         )
     a = alpha[..., 0]
     best_w, best = img.max(-1)
     ok = (best_w >= 0.5 * a) & (a > 0.5) & (best != undecided)
-    rendered = torch.where(ok, best, torch.full_like(best, NO_SEED)).numpy().astype(np.int64)
-    depth = torch.where(a > 1e-3, meta.depth[..., 0], torch.zeros_like(a)).numpy().astype(np.float32)
+    rendered = torch.where(ok, best, torch.full_like(best, NO_SEED)).numpy(force=True).astype(np.int64)
+    depth = torch.where(a > 1e-3, meta.depth[..., 0], torch.zeros_like(a)).numpy(force=True).astype(np.float32)
     seeds = np.full(rendered.shape, NO_SEED, np.int64)
     kernel = np.ones((2 * erode_px + 1, 2 * erode_px + 1), np.uint8) if erode_px > 0 else None
     for v in range(n_labels + 1):
@@ -141,7 +141,7 @@ def refine_labels(
             continue
         if images is None:
             with torch.no_grad():
-                rgb = render(model, cam, backend=backend)[0].clamp(0, 1).numpy()
+                rgb = render(model, cam, backend=backend)[0].clamp(0, 1).numpy(force=True)
         else:
             src = images[i]
             rgb = load_image(src) if isinstance(src, (str, Path)) else np.asarray(src)

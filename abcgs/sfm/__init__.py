@@ -1,4 +1,4 @@
-"""Structure from motion through pycolmap, and reading COLMAP models (see :mod:`abcgs.sfm.colmap`).
+"""Structure from motion through pycolmap (:mod:`abcgs.sfm.colmap`) and reading the result (:mod:`abcgs.sfm.model`).
 
 Import-order hazard: pycolmap 4.x's ``_core`` module carries its own (exported) zlib. If ``pycolmap``
 is imported before ``cv2``, the system ``libz`` that both load binds its internal calls to

@@ -1,4 +1,4 @@
-"""Structure from motion with pycolmap, and reading the result as :class:`SceneData`.
+"""Structure from motion with pycolmap (:func:`reconstruct`); the result is read back by :mod:`abcgs.sfm.model`.
 
 :func:`reconstruct` runs SIFT extraction → matching (exhaustive or sequential) → incremental mapping
 (largest model kept) → undistortion to PINHOLE, and writes::
@@ -31,7 +31,6 @@ import cv2  # before pycolmap: see abcgs/sfm/__init__.py
 import numpy as np
 import pycolmap
 
-from abcgs.cameras import Camera
 from abcgs.errors import InputError, ReconstructionError
 from abcgs.io.atomic import atomic_path, write_json
 from abcgs.io.images import list_images, load_image, load_labels, save_labels
@@ -64,23 +63,6 @@ class ReconstructionReport:
         if not seconds:
             data.pop("seconds")
         return data
-
-
-@dataclass
-class SceneData:
-    """A calibrated scene as the fit stage consumes it.
-
-    Attributes:
-        cameras: one PINHOLE :class:`Camera` per registered image, sorted by image name.
-        image_paths: the image file of each camera, same order.
-        points: ``(M, 3) float32`` sparse SfM points in world coordinates.
-        colors: ``(M, 3) float32`` their RGB colours in ``[0, 1]``.
-    """
-
-    cameras: list[Camera]
-    image_paths: list[Path]
-    points: np.ndarray
-    colors: np.ndarray
 
 
 def set_colmap_log_level(level: Literal["info", "warning", "error"]) -> None:
@@ -310,35 +292,3 @@ def reconstruct(
             write_json(tmp / "metrics.json", report.metrics(seconds=False))
     log.info("reconstruct: done in %.1f s -> %s", report.seconds, out_dir)
     return report
-
-
-def camera_from_colmap(image: pycolmap.Image, camera: pycolmap.Camera) -> Camera:
-    """A :class:`Camera` from a registered COLMAP image and its (SIMPLE_)PINHOLE camera."""
-    if camera.model_name not in ("PINHOLE", "SIMPLE_PINHOLE"):
-        raise InputError(
-            f"image {image.name} uses a {camera.model_name} camera; read_colmap_scene needs an undistorted "
-            "(PINHOLE) model, i.e. the sparse/ folder written by the reconstruct stage"
-        )
-    viewmat = np.eye(4)
-    viewmat[:3, :] = image.cam_from_world().matrix()
-    return Camera(image.name, np.asarray(camera.calibration_matrix(), float), viewmat, int(camera.width), int(camera.height))
-
-
-def read_colmap_scene(model_dir: str | os.PathLike, images_dir: str | os.PathLike) -> SceneData:
-    """Read an undistorted COLMAP model (``sparse/``) and its images into :class:`SceneData`."""
-    model_dir, images_dir = Path(model_dir), Path(images_dir)
-    if not (model_dir / "cameras.bin").is_file() and not (model_dir / "cameras.txt").is_file():
-        raise InputError(f"{model_dir} is not a COLMAP model (no cameras.bin/.txt); run the reconstruct stage first")
-    rec = pycolmap.Reconstruction(str(model_dir))
-    images = sorted((im for im in rec.images.values() if im.has_pose), key=lambda im: im.name)
-    if not images:
-        raise InputError(f"COLMAP model {model_dir} has no registered images")
-    cameras = [camera_from_colmap(im, rec.cameras[im.camera_id]) for im in images]
-    paths = [images_dir / im.name for im in images]
-    missing = [p.name for p in paths if not p.is_file()]
-    if missing:
-        raise InputError(f"{len(missing)} image(s) of the model are missing from {images_dir}: {', '.join(missing[:10])}")
-    pts = list(rec.points3D.values())
-    xyz = np.array([p.xyz for p in pts], np.float32).reshape(-1, 3)
-    rgb = np.array([p.color for p in pts], np.float32).reshape(-1, 3) / 255.0
-    return SceneData(cameras, paths, xyz, rgb)

@@ -20,7 +20,7 @@ from abcgs.gaussians import GaussianModel
 from abcgs.io.atomic import atomic_path, write_json
 from abcgs.io.images import save_image
 from abcgs.io.ply import write_ply
-from abcgs.sfm.colmap import SceneData
+from abcgs.sfm.model import SceneData
 from abcgs.stylize.color import apply_color_transform
 from abcgs.stylize.loop import color_match_model, group_pixel_masks
 from abcgs.stylize.params import ColorMatchParams  # noqa: F401  (the section's schema)
@@ -39,7 +39,7 @@ def content_pixels_by_group(images: list[Tensor], view_labels: list[np.ndarray],
     """Pixels of the training images covered by each group (all pixels for single transfer)."""
     out: dict[int, list[np.ndarray]] = {g.content_label: [] for g in groups}
     for img, lab in zip(images, view_labels):
-        arr = img.numpy()
+        arr = img.numpy(force=True)
         for g, m in zip(groups, group_pixel_masks(groups, lab)):
             out[g.content_label].append(arr[m])
     return {k: np.concatenate(v) for k, v in out.items()}
@@ -52,7 +52,7 @@ def recolor_images(images: list[Tensor], view_labels: list[np.ndarray], groups: 
         new = img.clone()
         for g, m in zip(groups, group_pixel_masks(groups, lab)):
             A, b = transforms[g.content_label]
-            sel = torch.from_numpy(m)
+            sel = torch.from_numpy(m).to(img.device)
             new[sel] = apply_color_transform(img[sel], A, b, clip=(0.0, 1.0))
         out.append(new)
     return out
@@ -62,7 +62,9 @@ def color_match_and_refit(
     model: GaussianModel, scene: SceneData, gaussian_labels: Tensor, view_labels: list[np.ndarray],
     groups: list[MatchingGroup], params: ColorMatchParams, *, progress: bool = True,
 ) -> ColorMatchResult:
-    views = load_views(scene, params.resolution_scale, test_every=0)
+    """Colour-match ``model`` and its training images per group, then re-fit; everything on ``model``'s device
+    (``gaussian_labels`` ``(N,)`` too)."""
+    views = load_views(scene, params.resolution_scale, test_every=0, device=model.device)
     if params.resolution_scale != 1.0:
         import cv2
 
@@ -103,4 +105,4 @@ def write_colormatch(out: Path, name: str, spec: TransferSpec, result: ColorMatc
             "refit_final_loss": result.history[-1]["loss"] if result.history else None,
             "vgg_weights": vgg_weights,
         })
-        save_image(tmp / "recolored.png", image_grid([[img.numpy() for img in result.images[:4]]]))
+        save_image(tmp / "recolored.png", image_grid([[img.numpy(force=True) for img in result.images[:4]]]))

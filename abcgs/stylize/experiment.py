@@ -31,9 +31,10 @@ def colormatch_spec(params: Params, name: str) -> TransferSpec:
     return params.colormatches[name]
 
 
-def load_vgg(params: Params) -> tuple[VGG16Features, WeightsInfo]:
+def load_vgg(params: Params, device: torch.device | str = "cpu") -> tuple[VGG16Features, WeightsInfo]:
+    """The VGG-16 feature extractor of ``stylize.layers`` on ``device``, and its weights' provenance."""
     sd, info = resolve_vgg16(params.vgg)
-    vgg = VGG16Features(sd, params.stylize.layers, feature_scale=info.feature_scale)
+    vgg = VGG16Features(sd, params.stylize.layers, feature_scale=info.feature_scale).to(device)
     log.info("VGG-16 weights: %s (%s, sha256 %s…)", info.source, info.path, info.sha256[:12])
     return vgg, info
 

@@ -136,7 +136,7 @@ def prepare_targets(
                 _, _, meta = render(model_original, cam, backend=params.backend, render_depth=True)
             feats = _features(vgg, img.clamp(0, 1), params)
             hw = tuple(feats.shape[-2:])
-            masks = [downsample_mask(m, hw) if m.any() else torch.zeros(hw, dtype=torch.bool)
+            masks = [downsample_mask(m, hw).to(feats.device) if m.any() else torch.zeros(hw, dtype=torch.bool, device=feats.device)
                      for m in group_pixel_masks(groups, lab)]
             targets.append(ViewTargets(cam, feats, meta.depth, masks, img))
     return targets
@@ -240,9 +240,10 @@ def style_pass(
             terms["scale"] = params.lambda_scale * (m.scales - orig_scales).norm(dim=-1).mean()
         if params.lambda_opacity > 0 and lrs["opacity_logits"] > 0:
             terms["opacity"] = params.lambda_opacity * (m.opacities - orig_opac).abs().mean()
-        for name, value in terms.items():
-            _check_finite(value, name, step)
         loss = torch.stack(list(terms.values())).sum()
+        if not torch.isfinite(loss):  # one device-to-host read per step; then name the culprit
+            for name, value in terms.items():
+                _check_finite(value, name, step)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         t4 = time.perf_counter()
@@ -296,7 +297,7 @@ def color_pass(
         full_masks.append(masks)
         for g, m in zip(groups, masks):
             pix[g.content_label].append(img[m])
-    content = {k: torch.cat(v).numpy() if v else np.zeros((0, 3), np.float32) for k, v in pix.items()}
+    content = {k: torch.cat(v).numpy(force=True) if v else np.zeros((0, 3), np.float32) for k, v in pix.items()}
     recolored, transforms = color_match_model(model, gaussian_labels, groups, content)
     images = []
     for img, masks in zip(renders, full_masks):

@@ -31,7 +31,7 @@ GRID_ROWS = 3
 
 
 def _image(model: GaussianModel, camera: Camera, backend: str) -> np.ndarray:
-    return render(model, camera, backend=backend)[0].clamp(0, 1).numpy()
+    return render(model, camera, backend=backend)[0].clamp(0, 1).numpy(force=True)
 
 
 def write_stylized_scene(

@@ -9,7 +9,7 @@ import numpy as np
 from abcgs.camera_paths import PathKind
 from abcgs.errors import InputError
 from abcgs.io.ply import read_ply
-from abcgs.sfm.colmap import read_colmap_scene
+from abcgs.sfm.model import read_colmap_scene
 from abcgs.view.page import ViewerExperiment, prepare_experiment
 
 

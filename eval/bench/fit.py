@@ -24,7 +24,8 @@ from abcgs.fit.strategy import StrategyParams
 from abcgs.fit.trainer import FitParams, fit
 from abcgs.io.atomic import write_json
 from abcgs.io.ply import write_ply
-from abcgs.sfm.colmap import ReconstructParams, read_colmap_scene, reconstruct
+from abcgs.sfm.colmap import ReconstructParams, reconstruct
+from abcgs.sfm.model import read_colmap_scene
 
 
 def main(argv=None) -> dict:

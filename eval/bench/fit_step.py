@@ -33,7 +33,7 @@ from abcgs.io.atomic import write_json
 from abcgs.io.ply import read_ply
 from abcgs.render import select_backend
 from abcgs.render.cpu import kernel_threads
-from abcgs.sfm.colmap import read_colmap_scene
+from abcgs.sfm.model import read_colmap_scene
 
 PHASES = ("render", "loss", "loss_backward", "render_backward", "adam")
 

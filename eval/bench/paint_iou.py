@@ -177,7 +177,8 @@ def main(argv: list[str] | None = None) -> dict:
     from abcgs.fit.strategy import StrategyParams
     from abcgs.fit.trainer import FitParams, fit
     from abcgs.scene.synthetic import make_tiny_scene
-    from abcgs.sfm.colmap import ReconstructParams, read_colmap_scene, reconstruct, set_colmap_log_level
+    from abcgs.sfm.colmap import ReconstructParams, reconstruct, set_colmap_log_level
+    from abcgs.sfm.model import read_colmap_scene
 
     set_colmap_log_level("error")
     t0 = time.perf_counter()

@@ -24,7 +24,7 @@ from abcgs.features.weights import resolve_vgg16
 from abcgs.gaussians import render
 from abcgs.io.ply import read_ply
 from abcgs.params import Params, load_params
-from abcgs.sfm.colmap import read_colmap_scene
+from abcgs.sfm.model import read_colmap_scene
 
 
 def stylization_vgg(params: Params) -> VGG16Features:

@@ -39,7 +39,7 @@ from abcgs.io.images import save_image
 from abcgs.io.ply import read_ply, write_ply
 from abcgs.losses.terms import gram_matrix
 from abcgs.params import load_params
-from abcgs.sfm.colmap import read_colmap_scene
+from abcgs.sfm.model import read_colmap_scene
 from abcgs.stylize.colormatch import ColorMatchParams, color_match_and_refit
 from abcgs.stylize.loop import stylize
 from abcgs.viz import image_grid

@@ -32,7 +32,7 @@ import numpy as np
 
 from abcgs.io.atomic import write_json, write_text
 from abcgs.io.ply import read_ply
-from abcgs.sfm.colmap import read_colmap_scene
+from abcgs.sfm.model import read_colmap_scene
 from abcgs.view.page import prepare_experiment, viewer_page
 
 CHROMIUM_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--no-sandbox", "--disable-gpu-sandbox"]

@@ -41,7 +41,7 @@ from abcgs.evaluation.reference import compute_floor, render_views
 from abcgs.gaussians import render
 from abcgs.io.atomic import write_json
 from abcgs.io.ply import read_ply
-from abcgs.sfm.colmap import read_colmap_scene
+from abcgs.sfm.model import read_colmap_scene
 
 
 def _resolve(spec: str) -> tuple[str, Path]:

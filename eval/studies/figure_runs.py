@@ -26,7 +26,7 @@ from abcgs.features.matching import load_style
 from abcgs.gaussians import render
 from abcgs.io.images import save_image
 from abcgs.io.ply import read_ply
-from abcgs.sfm.colmap import read_colmap_scene
+from abcgs.sfm.model import read_colmap_scene
 from abcgs.viz import image_grid
 
 

@@ -34,7 +34,7 @@ from abcgs.masks.content import (
     label_iou,
 )
 from abcgs.masks.lifting import LiftParams, lift_labels, propagate_unseen, render_label_map
-from abcgs.sfm.colmap import read_colmap_scene
+from abcgs.sfm.model import read_colmap_scene
 from abcgs.viz import colorize_labels, image_grid
 
 
