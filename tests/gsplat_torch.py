@@ -160,7 +160,11 @@ def rasterize_to_pixels(
         images.append(torch.cat(rows_c, dim=0))
         alphas.append(torch.cat(rows_a, dim=0))
     shape = image_dims + (image_height, image_width)
-    return torch.stack(images).reshape(shape + (d,)), torch.stack(alphas).reshape(shape + (1,))
+    # like the CUDA autograd function's outputs, attached to every input even where no Gaussian reaches a pixel
+    link = means2d[..., :0].sum() + conics[..., :0].sum() + colors[..., :0].sum() + opacities[..., :0].sum()
+    if backgrounds is not None:
+        link = link + backgrounds[..., :0].sum()
+    return torch.stack(images).reshape(shape + (d,)) + link, torch.stack(alphas).reshape(shape + (1,)) + link
 
 
 TWINS = {
