@@ -14,7 +14,9 @@ falls back: it runs or raises :class:`BackendUnavailable`.
 
 from __future__ import annotations
 
+import math
 import os
+import re
 import warnings
 from dataclasses import dataclass
 
@@ -23,7 +25,7 @@ from torch import Tensor
 
 from abcgs.render import cpu as cpu_backend
 from abcgs.render.cpu import BackendUnavailable
-from abcgs.render.projection import project_gaussians
+from abcgs.render.projection import project_gaussians, screen_bounds
 from abcgs.render.reference import rasterize_reference
 from abcgs.render.sh import sh_to_color
 
@@ -37,10 +39,13 @@ class RenderMeta:
 
     Attributes:
         means2d: ``(N, 2)`` screen positions in px, part of the autograd graph: call ``retain_grad()`` on it
-            before ``backward()`` to read the view-space positional gradient the densifier needs.
+            before ``backward()`` to read the view-space positional gradient the densifier needs (loss per px
+            of screen motion on every backend). Rows of the Gaussians that gsplat culls are 0 with the
+            gsplat backend.
         radii: ``(N, 2)`` int32 3.33-sigma screen half-extent in px (0 = not rendered).
-        depths: ``(N,)`` camera-space z (world units).
-        visible: ``(N,)`` bool, rendered in this view.
+        depths: ``(N,)`` camera-space z (world units), for every Gaussian.
+        visible: ``(N,)`` bool, rendered in this view: in depth range, with a box of alpha ≥ 1/255 that
+            overlaps the image.
         depth: ``(H, W, 1)`` expected depth Σ T_i α_i z_i (or normalised by alpha), when requested.
         backend: the backend that produced the image.
     """
@@ -97,11 +102,47 @@ def _warn_once(key: str, message: str) -> None:
         warnings.warn(message, RuntimeWarning, stacklevel=3)
 
 
+GSPLAT_TESTED = ">=1.5,<1.6"
+"""The gsplat versions the adapter is tested with (``pyproject.toml``'s ``cuda`` extra; docs/RENDERING.md)."""
+_GSPLAT_RANGE = ((1, 5), (1, 6))
+
+
+def gsplat_version_problem(version: str) -> tuple[str, str] | None:
+    """``("refuse" | "warn", message)`` when gsplat ``version`` is outside :data:`GSPLAT_TESTED`, else None.
+
+    Versions below 1.5 have another API (one radius per Gaussian, no opacity-aware projection) and are refused;
+    newer ones are used with a warning, since their conventions may have moved.
+    """
+    match = re.match(r"(\d+)\.(\d+)", version)
+    fix = f"pip install 'gsplat{GSPLAT_TESTED}'"
+    if match is None:
+        return "warn", f"gsplat reports the version {version!r}, which abcgs cannot read (tested: gsplat{GSPLAT_TESTED}); {fix}"
+    found = (int(match[1]), int(match[2]))
+    if found < _GSPLAT_RANGE[0]:
+        return "refuse", (
+            f"gsplat {version} is older than the gsplat backend supports (tested: gsplat{GSPLAT_TESTED}; before 1.5 "
+            f"the projection returns one radius per Gaussian and takes no opacities); {fix}"
+        )
+    if found >= _GSPLAT_RANGE[1]:
+        return "warn", (
+            f"gsplat {version} is untested with abcgs (tested: gsplat{GSPLAT_TESTED}); its conventions may differ from "
+            f"those in docs/RENDERING.md ('gsplat conventions'): check with `pytest -m cuda tests/test_gsplat_adapter.py` "
+            f"or {fix}"
+        )
+    return None
+
+
 def _import_gsplat():
     try:
-        import gsplat  # noqa: F401
+        import gsplat
     except Exception as exc:
-        raise BackendUnavailable(f"gsplat is not importable ({exc}); install it with `pip install gsplat`") from exc
+        raise BackendUnavailable(f"gsplat is not importable ({exc}); install it with `pip install 'gsplat{GSPLAT_TESTED}'`") from exc
+    problem = gsplat_version_problem(str(getattr(gsplat, "__version__", "unknown")))
+    if problem is not None:
+        kind, message = problem
+        if kind == "refuse":
+            raise BackendUnavailable(message)
+        _warn_once("gsplat-version", message)
     return gsplat
 
 
@@ -160,13 +201,24 @@ def rasterize(
     project = cpu_backend.project_cpu if name == "cpu" and not camera_grad else project_gaussians
     proj = project(means, quats, scales, opacities, viewmat, K, width, height, near=near, far=far, eps2d=eps2d)
     if sh_degree is not None:
-        R, t = viewmat[:3, :3], viewmat[:3, 3]
-        campos = -R.T @ t
-        colors = sh_to_color(sh_degree, colors, means, campos)
+        colors = sh_to_color(sh_degree, colors, means, camera_position(viewmat))
     n_color = colors.shape[1]
     feats = torch.cat([colors, proj.depths[:, None]], dim=1) if render_depth else colors
     blend = cpu_backend.rasterize_cpu if name == "cpu" else rasterize_reference
     out, alpha = blend(proj.means2d, proj.conics, feats, opacities, proj.depths, proj.extents, width, height, tile_size=tile_size)
+    image, depth = _finish(out, alpha, n_color, render_depth, normalize_depth, background)
+    meta = RenderMeta(proj.means2d, proj.radii, proj.depths, proj.visible, depth, name, width, height)
+    return image, alpha, meta
+
+
+def camera_position(viewmat: Tensor) -> Tensor:
+    """World position ``(3,)`` of the camera of a rigid world→camera ``viewmat`` ``(4, 4)``."""
+    R, t = viewmat[:3, :3], viewmat[:3, 3]
+    return -R.T @ t
+
+
+def _finish(out: Tensor, alpha: Tensor, n_color: int, render_depth: bool, normalize_depth: bool, background):
+    """Split the blended features ``(H, W, C [+ 1])`` into image and depth; normalise the depth; add the background."""
     image, depth = out[..., :n_color], None
     if render_depth:
         depth = out[..., n_color:]
@@ -174,29 +226,57 @@ def rasterize(
             depth = torch.where(alpha > 0, depth / alpha.clamp_min(1e-10), torch.zeros_like(depth))
     if background is not None:
         image = image + (1.0 - alpha) * background.to(image)
-    meta = RenderMeta(proj.means2d, proj.radii, proj.depths, proj.visible, depth, name, width, height)
-    return image, alpha, meta
+    return image, depth
+
+
+GSPLAT_CHANNEL_CHUNK = 32
+"""Channels per ``gsplat.rasterize_to_pixels`` call (``gsplat.rasterization``'s ``channel_chunk``)."""
 
 
 def _rasterize_gsplat(
     means, quats, scales, opacities, colors, viewmat, K, width, height, *, sh_degree, background, render_depth,
     normalize_depth, near, far, eps2d, tile_size,
 ):
+    """``rasterize`` on gsplat's kernels: the steps of ``gsplat.rasterization`` (one camera, unpacked), composed here
+    so that ``meta.means2d`` is the ``(N, 2)`` tensor the rasterizer reads (``retain_grad()`` on a view of gsplat's
+    ``(1, N, 2)`` output would stay without a gradient). Conventions: docs/RENDERING.md, "gsplat conventions"."""
     gsplat = _import_gsplat()
-    render, alpha, info = gsplat.rasterization(
-        means, quats, scales, opacities, colors, viewmat[None], K[None], width, height,
-        near_plane=near, far_plane=far, eps2d=eps2d, sh_degree=sh_degree, tile_size=tile_size, packed=False,
-        backgrounds=None if background is None else background[None],
-        render_mode="RGB+ED" if render_depth and normalize_depth else ("RGB+D" if render_depth else "RGB"),
+    radii_c, means2d_c, depths_c, conics_c, _ = gsplat.fully_fused_projection(
+        means, None, quats, scales, viewmat[None], K[None], width, height, eps2d=eps2d, near_plane=near,
+        far_plane=far, opacities=opacities,
     )
-    image, alpha = render[0], alpha[0]
-    depth = None
-    if render_depth:
-        image, depth = image[..., :-1], image[..., -1:]
-    radii = info["radii"][0]
-    if radii.dim() == 1:
-        radii = radii[:, None].expand(-1, 2)
-    meta = RenderMeta(info["means2d"][0], radii.int(), info["depths"][0], radii[:, 0] > 0, depth, "gsplat", width, height)
+    kept = (radii_c[0] > 0).all(dim=-1)
+    # gsplat's CUDA projection leaves the rows of the Gaussians it culls unwritten (torch.empty): never read them.
+    means2d = torch.where(kept[:, None], means2d_c[0], torch.zeros_like(means2d_c[0]))
+    conics = conics_c[0]
+    z = means @ viewmat[2, :3] + viewmat[2, 3]
+    depths = torch.where(kept, depths_c[0], z)
+    if sh_degree is not None:
+        sh = gsplat.spherical_harmonics(sh_degree, means - camera_position(viewmat), colors, masks=kept)
+        colors = torch.clamp_min(sh + 0.5, 0.0)
+    n_color = colors.shape[1]
+    feats = torch.cat([colors, depths[:, None]], dim=1) if render_depth else colors
+    tiles_x, tiles_y = math.ceil(width / tile_size), math.ceil(height / tile_size)
+    _, isect_ids, flatten_ids = gsplat.isect_tiles(means2d[None], radii_c, depths[None], tile_size, tiles_x, tiles_y)
+    isect_offsets = gsplat.isect_offset_encode(isect_ids, 1, tiles_x, tiles_y).reshape(1, tiles_y, tiles_x)
+    chunks, alpha = [], None
+    for chunk in feats.split(GSPLAT_CHANNEL_CHUNK, dim=1):
+        out_c, alpha_c = gsplat.rasterize_to_pixels(
+            means2d[None], conics[None], chunk[None], opacities[None], width, height, tile_size, isect_offsets,
+            flatten_ids,
+        )
+        chunks.append(out_c[0])
+        alpha = alpha_c[0] if alpha is None else alpha
+    image, depth = _finish(torch.cat(chunks, dim=-1), alpha, n_color, render_depth, normalize_depth, background)
+    # gsplat keeps a Gaussian when its integer, opacity-aware radius box overlaps the image; meta.visible and
+    # meta.radii follow the other backends' rule (the float box of alpha ≥ 1/255, 3.33-sigma radii), so that the
+    # densifier's statistics do not depend on the backend. The 2-D covariance is the inverse of the conic.
+    with torch.no_grad():
+        a, b, c = conics.detach().unbind(-1)
+        det = a * c - b * b
+        cov_diag = torch.where(kept[:, None], torch.stack([c / det, a / det], dim=-1), torch.zeros_like(conics[:, :2]))
+        _, radii, visible = screen_bounds(means2d, cov_diag, opacities, kept, width, height)
+    meta = RenderMeta(means2d, radii, depths, visible, depth, "gsplat", width, height)
     return image, alpha, meta
 
 
