@@ -45,6 +45,7 @@ import yaml
 
 from abcgs.io.atomic import write_json
 from abcgs.params import Params, deep_merge, validate_params
+from abcgs.sfm.model import read_colmap_scene
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER = {"stylize_minutes": 1.60, "render_fps": 153.0, "card": "RTX 4090 (paper, LLFF)"}
@@ -286,10 +287,11 @@ def run_fern(bundle: Path | None, work: Path, common: dict, device: torch.device
     fit = _read(out / "fern" / "gs" / "metrics.json")
     styl = _read(out / "fern_starry_night_fast" / "stylize.json")
     ev = _read(out / "fern_starry_night_fast" / "eval.json")
+    cam = read_colmap_scene(bundle / "fern" / "colmap" / "sparse", bundle / "fern" / "colmap" / "images").cameras[0]
     return {"stage_s": stage_s, "heldout_psnr": fit.get("psnr"), "n_gaussians": styl.get("n_gaussians"),
             "stylize_seconds": styl.get("stylize_seconds"), "stylize_iterations": styl.get("iterations"),
             "seconds_per_iteration": styl.get("seconds_per_iteration"), "render_fps": ev.get("render_fps"),
-            "eval_resolution": ev.get("resolution"), "content_ssim": ev.get("ssim"),
+            "eval_resolution": [cam.width, cam.height], "content_ssim": ev.get("ssim"),
             "short_rmse": ev.get("short_rmse"), "long_rmse": ev.get("long_rmse")}
 
 
