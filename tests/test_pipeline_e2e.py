@@ -24,6 +24,7 @@ from conftest import REPO_ROOT, copy_repo, run_in
 from abcgs.io.metrics import numeric_leaves
 from abcgs.io.ply import read_ply
 from eval.bench.regression import REDUCED
+from eval.bench.repo_copy import IDENTITY
 
 pytestmark = pytest.mark.slow
 
@@ -386,6 +387,8 @@ def test_a_second_clone_pulls_instead_of_recomputing(repo: Path, shared: dict, q
     """Clone B: `dvc pull` then `dvc repro` is a no-op; `dvc exp push/pull` moves an experiment from A to B."""
     clone = tmp_path / "B"
     subprocess.run(["git", "clone", "-q", "-b", shared["branch"], str(shared["origin"]), str(clone)], check=True)
+    for cmd in IDENTITY:  # `dvc exp apply` commits; a fresh machine has no identity in its HOME
+        subprocess.run(cmd, cwd=clone, check=True)
     pull = _run(["dvc", "pull"], clone)
     assert pull.returncode == 0, pull.stderr
     proc = _run(["dvc", "repro"], clone)

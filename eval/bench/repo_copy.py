@@ -16,6 +16,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 OUTPUTS = ("out/", "data/", "reports/")
+IDENTITY = (["git", "config", "user.name", "abcgs-ci"], ["git", "config", "user.email", "ci@abcgs.invalid"])
+"""A copy's own git identity (its .git/config): the commits that DVC makes there (experiments, the queue) need one,
+and a fresh machine has none in its HOME."""
 
 
 def run_in(args: list[str], cwd: Path, timeout: int | None = 900, env: dict | None = None) -> subprocess.CompletedProcess:
@@ -67,7 +70,6 @@ def _commit_copy(dst: Path, edit_params: Callable[[dict], None] | None) -> Path:
         params = yaml.safe_load((dst / "params.yaml").read_text())
         edit_params(params)
         (dst / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
-    git = ["git", "-c", "user.name=ci", "-c", "user.email=ci@example.invalid"]
-    for cmd in (["git", "init", "-q"], ["git", "add", "-A"], git + ["commit", "-qm", "copy"]):
+    for cmd in (["git", "init", "-q"], *IDENTITY, ["git", "add", "-A"], ["git", "commit", "-qm", "copy"]):
         subprocess.run(cmd, cwd=dst, check=True, capture_output=True)
     return dst
