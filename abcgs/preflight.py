@@ -9,9 +9,12 @@ checks the params against the two other things a run depends on:
   ``dvc.yaml`` reads ``${item.path}``.
 - the inputs (:func:`check_input_files`): every scene folder exists and holds decodable views of similar sizes
   (:func:`check_scene_images`; an alpha channel or a grey view among colour ones is a warning), its ``masks/`` name
-  views and label something (:func:`check_scene_masks`), paintings and label maps exist, decode, are large enough
-  and do not live in a folder stages write, and ``vgg.path`` exists. A scene or painting a ``dvc.yaml`` stage
-  produces (the embedded tiny scene, made by ``make_tiny``) is checked by that stage instead.
+  views and label something (:func:`check_scene_masks`; numbered labels that skip values are a warning), paintings
+  and label maps exist, decode, are large enough and do not live in a folder stages write (a label map of another
+  size than its painting is a warning), and ``vgg.path`` exists. A scene or painting a ``dvc.yaml`` stage produces
+  (the embedded tiny scene, made by ``make_tiny``) is checked by that stage instead; a path into it must name a
+  file the stage writes there (:data:`PRODUCED_FILES`). The labels the colour matches bind exist in the label
+  maps where those are given files (:func:`check_bindings`).
 
 :func:`abcgs.pipeline.run_stage` runs the params checks for every stage; the ``preflight`` stage
 (``stages/preflight.py``), which every other stage depends on, runs the input checks too, so ``dvc repro`` stops
@@ -269,8 +272,8 @@ def _check_produced_file(rel: str, out: str, contents: Mapping[str, Collection[s
         return
     inner = (root / rel).resolve().relative_to((root / out).resolve()).as_posix()
     if inner not in contents[out]:
-        raise InputError(f"{what}: {rel} is not a file the pipeline writes into {out}/ (it writes "
-                         f"{', '.join(f'{out}/{f}' for f in contents[out])}); fix the path")
+        raise InputError(f"{what}: {rel} is none of the files the pipeline writes there for params to name "
+                         f"({', '.join(f'{out}/{f}' for f in contents[out])}); fix the path")
 
 
 def _size(path: Path) -> tuple[int, int]:

@@ -56,8 +56,8 @@ def _params(tmp_path: Path, colormatch: dict, style_masks: dict | None = None, s
 def test_a_missing_painting_inside_the_tiny_scene_names_its_key_before_the_scene_exists() -> None:
     raw = {"data": {"scenes": {"tiny": {"path": "data/tiny"}},
                     "styles": {"p": "data/tiny/styles/paint.png", "typo": "data/tiny/styles/paint3.png"}}}
-    with pytest.raises(InputError, match=r"data\.styles\.typo: data/tiny/styles/paint3\.png is not a file the "
-                                         r"pipeline writes into data/tiny/ .*data/tiny/styles/paint2\.png"):
+    with pytest.raises(InputError, match=r"data\.styles\.typo: data/tiny/styles/paint3\.png is none of the files "
+                                         r"the pipeline writes there .*data/tiny/styles/paint2\.png"):
         check_input_files(validate_params(raw), REPO_ROOT, PRODUCED, CONTENTS)
     raw["data"]["styles"].pop("typo")
     raw["data"]["style_masks"] = {"p": "data/tiny/styles/paint_labels.png"}
