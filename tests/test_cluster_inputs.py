@@ -102,3 +102,9 @@ def test_a_bad_set_or_resources_file_names_the_argument(tmp_path: Path) -> None:
             load_resources(tmp_path / "r.yaml")
     with pytest.raises(PlanError, match="--resources .*cannot be read"):
         load_resources(tmp_path / "none.yaml")
+
+
+def test_a_bad_rev_names_the_argument(capsys) -> None:
+    assert main(["plan", "--rev", "--upload-pack=touch x"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: --rev '--upload-pack=touch x' is not a commit") and len(err.strip().splitlines()) == 1

@@ -91,19 +91,23 @@ def test_a_hostile_experiment_name_runs_no_command(repo: Path, args: list[str]) 
 
 
 @pytest.mark.parametrize("args", [["dvc", "repro", "-s", f"reconstruct@{SCENE}"],
-                                  ["dvc", "exp", "run", "-s", f"reconstruct@{SCENE}"]], ids=["repro-s", "exp-run-s"])
+                                  ["dvc", "repro", "--downstream", f"reconstruct@{SCENE}"],
+                                  ["dvc", "exp", "run", "-s", f"reconstruct@{SCENE}"]],
+                         ids=["repro-s", "repro-downstream", "exp-run-s"])
 def test_a_hostile_scene_name_runs_no_command(repo: Path, args: list[str]) -> None:
     _refused_without_running(repo, run_in(args, repo, timeout=300), "reconstruct@s'")
 
 
-def test_a_cluster_jobs_dvc_repro_runs_no_command(repo: Path) -> None:
+@pytest.mark.parametrize("target, stage", [(f"stylize@{EXPERIMENT}", "stylize@e'"),
+                                           (f"reconstruct@{SCENE}", "reconstruct@s'")], ids=["experiment", "scene"])
+def test_a_cluster_jobs_dvc_repro_runs_no_command(repo: Path, target: str, stage: str) -> None:
     """The command a cluster job runs: ``dvc repro`` through :mod:`abcgs.cluster.dvc_run`, in the job's clone."""
     from abcgs.cluster.run import dvc_env, repro
 
     lines: list[str] = []
-    rc, _ = repro(repo, ["-s", f"stylize@{EXPERIMENT}"], keep_run_cache=True, on_line=lambda line, _: lines.append(line),
+    rc, _ = repro(repo, ["-s", target], keep_run_cache=True, on_line=lambda line, _: lines.append(line),
                   env=dvc_env(repo))
-    _refused_without_running(repo, subprocess.CompletedProcess([], rc, "".join(lines), ""), "stylize@e'")
+    _refused_without_running(repo, subprocess.CompletedProcess([], rc, "".join(lines), ""), stage)
 
 
 # ------------------------------------------------------------------------------------------------ the key

@@ -78,7 +78,10 @@ def build_params(base: Mapping[str, Any], overlay: Path | None, data: Path | Non
 
 def _prepare(a: argparse.Namespace) -> tuple[Path, str, dict, dict, dict[str, Any], Plan, dict[str, Resources]]:
     repo = _repo_root(Path.cwd())
-    commit = git(["rev-parse", f"{a.rev}^{{commit}}"], repo)
+    try:
+        commit = git(["rev-parse", "--verify", "--end-of-options", f"{a.rev}^{{commit}}"], repo)
+    except RunError:
+        raise RunError(f"--rev {a.rev!r} is not a commit of {repo}") from None
     dirty = git(["status", "--porcelain", "--untracked-files=no"], repo)
     if dirty:
         print(f"note: the jobs run commit {commit[:10]}; uncommitted changes to tracked files are not in it:\n"

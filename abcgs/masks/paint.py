@@ -7,9 +7,9 @@
 The page (``static/paint.html``, plain JavaScript, nothing fetched from the network) is served on 127.0.0.1, to
 itself only: a request whose ``Host`` is not that address (DNS rebinding), with another page's ``Origin``, or a POST
 not declared ``application/json`` (what a cross-origin form or ``fetch`` could send without asking) is refused, as
-is a body without a plain ``Content-Length`` up to :data:`MAX_BODY`; each refusal is a 4xx with a one-line reason. Pick
-a label, draw strokes over the objects of one or more views, press **Segment** to see the cut over the view, add
-strokes where it is wrong, and press **Save**: every view with strokes gets a single-channel label PNG (0 =
+is a body without a plain ``Content-Length`` up to :data:`MAX_BODY`; each refusal is a 4xx with a one-line reason.
+Pick a label, draw strokes over the objects of one or more views, press **Segment** to see the cut over the view,
+add strokes where it is wrong, and press **Save**: every view with strokes gets a single-channel label PNG (0 =
 unassigned, 1, 2, …; the format :func:`abcgs.masks.content.read_label_files` reads), written atomically. Views
 without strokes get no file: the ``masks`` stage lifts labels from any subset of views (Eq. 2).
 
