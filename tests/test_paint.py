@@ -6,6 +6,7 @@ The page itself is driven in a browser by tests/test_paint_browser.py.
 from __future__ import annotations
 
 import http.client
+import http.cookiejar
 import json
 import re
 import subprocess
@@ -30,7 +31,7 @@ from abcgs.masks.grabcut import (
     rasterize_strokes,
     segment,
 )
-from abcgs.masks.paint import PaintSession, main, make_server
+from abcgs.masks.paint import PaintSession, main, make_server, page_url
 from abcgs.viz import LABEL_COLOURS, colorize_labels
 
 H, W = 120, 160
@@ -238,12 +239,18 @@ def test_cli_explains_a_missing_images_folder(tmp_path, capsys) -> None:
 # ----------------------------------------------------------------------------------------------
 
 
+OPENER = urllib.request.build_opener(urllib.request.HTTPCookieProcessor(http.cookiejar.CookieJar()))
+"""A browser's memory for :func:`request`: the cookie the page's address (with its token) sets."""
+
+
 @pytest.fixture()
 def served(tmp_path):
     def start(session: PaintSession) -> str:
         server = make_server(session, port=0)
         threading.Thread(target=server.serve_forever, daemon=True).start()
         servers.append(server)
+        with OPENER.open(page_url(server), timeout=60) as r:  # as a browser opens the printed address
+            assert r.status == 200
         return f"http://127.0.0.1:{server.server_port}"
 
     servers: list = []
@@ -257,7 +264,7 @@ def request(url: str, body: dict | None = None) -> tuple[int, bytes, str]:
     data = None if body is None else json.dumps(body).encode()
     req = urllib.request.Request(url, data=data, headers={"Content-Type": "application/json"} if data else {})
     try:
-        with urllib.request.urlopen(req, timeout=60) as r:
+        with OPENER.open(req, timeout=60) as r:
             return r.status, r.read(), r.headers["Content-Type"]
     except urllib.error.HTTPError as e:
         return e.code, e.read(), e.headers["Content-Type"]
@@ -349,9 +356,9 @@ def paint_process(tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "abcgs.masks.paint", str(scene), "--no-open"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     line = proc.stdout.readline()
-    m = re.search(r"http://127\.0\.0\.1:(\d+)/", line)
+    m = re.search(r"http://127\.0\.0\.1:(\d+)/\?token=([\w-]+)", line)
     assert m, line + proc.stdout.read() if proc.poll() is not None else line
-    yield int(m.group(1)), proc.pid, scene
+    yield int(m.group(1)), m.group(2), proc.pid, scene
     proc.terminate()
     proc.wait(timeout=30)
 
@@ -362,14 +369,21 @@ def _peak_rss_mb(pid: int) -> float:
 
 
 def test_the_server_refuses_other_pages_hosts_and_bodies(paint_process) -> None:
-    port, pid, scene = paint_process
-    own = {"Host": f"127.0.0.1:{port}", "Content-Type": "application/json"}
+    port, token, pid, scene = paint_process
+    own = {"Host": f"127.0.0.1:{port}", "Content-Type": "application/json", "Cookie": f"abcgs_paint_{port}={token}"}
     strokes = json.dumps({"strokes": [s.to_json() for s in SHAPE_STROKES]}).encode()
 
     def post(path: str, body: bytes, **headers: str) -> tuple[int, dict]:
         h = {**own, "Content-Length": str(len(body)), **headers}
         return raw_request(port, "POST", path, {k: v for k, v in h.items() if v is not None}, body)
 
+    # without the token (another user of the machine) nothing is served; with it in the address, the page gets it
+    for headers in ({"Host": own["Host"]}, {"Host": own["Host"], "Cookie": f"abcgs_paint_{port}=guess"}):
+        status, body = raw_request(port, "GET", "/api/state", headers)
+        assert status == 403 and "token" in body["error"]
+    assert raw_request(port, "GET", f"/api/state?token={token}", {"Host": own["Host"]})[0] == 200
+    status, _ = post("/api/save", b"{}", Cookie=None)
+    assert status == 403
     # another web page (a cross-origin fetch or form) or a rebound DNS name cannot press Save
     status, body = post("/api/strokes/0", strokes, Origin="http://evil.example")
     assert status == 403 and "http://evil.example" in body["error"]

@@ -5,12 +5,13 @@
         --labels-out data/tiny/styles/paint_labels.png         # one painting → its region label map
 
 The page (``static/paint.html``, plain JavaScript, nothing fetched from the network) is served on 127.0.0.1, to
-itself only: a request whose ``Host`` is not that address (DNS rebinding), with another page's ``Origin``, or a POST
-not declared ``application/json`` (what a cross-origin form or ``fetch`` could send without asking) is refused, as
-is a body without a plain ``Content-Length`` up to :data:`MAX_BODY`; each refusal is a 4xx with a one-line reason.
-Pick a label, draw strokes over the objects of one or more views, press **Segment** to see the cut over the view,
-add strokes where it is wrong, and press **Save**: every view with strokes gets a single-channel label PNG (0 =
-unassigned, 1, 2, …; the format :func:`abcgs.masks.content.read_label_files` reads), written atomically. Views
+itself only: the address printed at start carries a random token (as Jupyter's does; the page keeps it in a cookie),
+and a request without it, whose ``Host`` is not that address (DNS rebinding), with another page's ``Origin``, or a
+POST not declared ``application/json`` (what a cross-origin form or ``fetch`` could send without asking) is refused,
+as is a body without a plain ``Content-Length`` up to :data:`MAX_BODY`; each refusal is a 4xx with a one-line
+reason. Pick a label, draw strokes over the objects of one or more views, press **Segment** to see the cut over the
+view, add strokes where it is wrong, and press **Save**: every view with strokes gets a single-channel label PNG (0
+= unassigned, 1, 2, …; the format :func:`abcgs.masks.content.read_label_files` reads), written atomically. Views
 without strokes get no file: the ``masks`` stage lifts labels from any subset of views (Eq. 2).
 
 The cut is :func:`abcgs.masks.grabcut.segment` (GrabCut per label from the strokes); the server only keeps strokes
@@ -24,13 +25,16 @@ import argparse
 import json
 import logging
 import re
+import secrets
 import sys
 import threading
 import webbrowser
 from dataclasses import dataclass, field
 from http import HTTPStatus
+from http.cookies import SimpleCookie
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
+from urllib.parse import parse_qs
 
 import cv2
 import numpy as np
@@ -273,14 +277,17 @@ def _png(arr: np.ndarray) -> bytes:
 
 class _Handler(BaseHTTPRequestHandler):
     session: PaintSession  # set on the subclass :func:`make_server` builds
+    token: str
     server_version = "abcgs-paint"
 
     def log_message(self, fmt, *args):  # requests go to the debug log, not stderr
         log.debug("%s - %s", self.address_string(), fmt % args)
 
-    def _send(self, status: int, body: bytes, ctype: str) -> None:
+    def _send(self, status: int, body: bytes, ctype: str, headers: dict[str, str] | None = None) -> None:
         self.send_response(status)
         self.send_header("Content-Type", ctype)
+        for k, v in (headers or {}).items():
+            self.send_header(k, v)
         self.send_header("Content-Length", str(len(body)))
         self.send_header("Cache-Control", "no-store")
         self.end_headers()
@@ -294,6 +301,20 @@ class _Handler(BaseHTTPRequestHandler):
         host, port = self.server.server_address[:2]
         names = {"127.0.0.1", "localhost"} if host in ("127.0.0.1", "localhost") else {"[::1]", "localhost"}
         return {f"{n}:{port}" for n in names}
+
+    def _cookie(self) -> str:
+        return f"abcgs_paint_{self.server.server_address[1]}"  # cookies are per host, not per port
+
+    def _check_token(self, query: str) -> bool:
+        """The request carries the server's token, in the query (``?token=``, the address printed at start) or in
+        the cookie the page got with it; True when it came in the query (the page then sets the cookie)."""
+        given = parse_qs(query).get("token", [""])[0]
+        morsel = SimpleCookie(self.headers.get("Cookie", "")).get(self._cookie()) if not given else None
+        value = given or (morsel.value if morsel is not None else "")
+        if not secrets.compare_digest(value.encode(), self.token.encode()):
+            raise Refused(HTTPStatus.FORBIDDEN, "missing or wrong token: open the address (with ?token=) that "
+                                                "`python -m abcgs.masks.paint` printed")
+        return bool(given)
 
     def _check_caller(self, method: str) -> None:
         """Only the page this server serves drives it: ``Host`` is the server's own address (no DNS rebinding), an
@@ -334,11 +355,13 @@ class _Handler(BaseHTTPRequestHandler):
         return data
 
     def _dispatch(self, method: str) -> None:
-        path = self.path.split("?", 1)[0]
+        path, _, query = self.path.partition("?")
         try:
             self._check_caller(method)
+            from_query = self._check_token(query)
             if method == "GET" and path in ("/", "/index.html"):
-                return self._send(200, PAGE.read_bytes(), "text/html; charset=utf-8")
+                cookie = {"Set-Cookie": f"{self._cookie()}={self.token}; HttpOnly; SameSite=Strict; Path=/"}
+                return self._send(200, PAGE.read_bytes(), "text/html; charset=utf-8", cookie if from_query else None)
             m = _ROUTE.match(path)
             if not m:
                 return self._json({"error": f"no such page: {path}"}, HTTPStatus.NOT_FOUND)
@@ -393,17 +416,27 @@ class _Handler(BaseHTTPRequestHandler):
         self._dispatch("POST")
 
 
-def make_server(session: PaintSession, port: int = 0, host: str = "127.0.0.1") -> ThreadingHTTPServer:
+def make_server(session: PaintSession, port: int = 0, host: str = "127.0.0.1",
+                token: str | None = None) -> ThreadingHTTPServer:
     """An HTTP server for ``session`` on ``host:port`` (0 = any free port); call ``serve_forever()`` on it.
 
-    ``server.server_port`` is the port it got. Only loopback addresses are allowed: the page can write files.
+    ``server.server_port`` is the port it got. Only loopback addresses are allowed: the page can write files. Every
+    request must carry ``token`` (a fresh random one by default; ``server.token``), which :func:`page_url` puts in
+    the page's address, as Jupyter does: another user of the machine can reach the port, but not guess it.
     """
     if host not in ("127.0.0.1", "localhost", "::1"):
         raise InputError(f"the paint server listens on the loopback address only, not {host}")
-    handler = type("PaintHandler", (_Handler,), {"session": session})
+    token = token or secrets.token_urlsafe(24)
+    handler = type("PaintHandler", (_Handler,), {"session": session, "token": token})
     server = ThreadingHTTPServer((host, port), handler)
     server.daemon_threads = True
+    server.token = token  # type: ignore[attr-defined]
     return server
+
+
+def page_url(server: ThreadingHTTPServer) -> str:
+    """The page's address with the server's token (the page then keeps it in a cookie for its requests)."""
+    return f"http://127.0.0.1:{server.server_port}/?token={server.token}"  # type: ignore[attr-defined]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -436,7 +469,7 @@ def main(argv: list[str] | None = None) -> int:
     except (AbcgsError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    url = f"http://127.0.0.1:{server.server_port}/"
+    url = page_url(server)
     what = (f"{len(session.items)} views; masks go to {session.items[0].out_path.parent}" if session.mode == "scene"
             else f"the painting; its labels go to {session.items[0].out_path}")
     print(f"paint: {url}  ({what}); Ctrl+C to stop")
