@@ -67,5 +67,5 @@ def read_colormatch(folder: Path, name: str) -> GaussianModel:
     return read_ply(ply)
 
 
-__all__ = ["SceneMasks", "check_bindings", "colormatch_dir", "colormatch_spec", "experiment", "load_groups", "load_scene",
-           "load_scene_masks", "load_vgg", "read_colormatch"]
+__all__ = ["SceneMasks", "check_bindings", "colormatch_dir", "colormatch_spec", "experiment", "load_groups",
+           "load_scene", "load_scene_masks", "load_vgg", "read_colormatch"]

@@ -47,7 +47,7 @@ def main(argv=None) -> int:
     ap.add_argument("--scene", help="scene key (default: from --params, else the only fitted scene beside it)")
     ap.add_argument("--params", type=Path, default=Path("params.yaml"))
     ap.add_argument("--max-gaussians", type=positive_int, default=150_000,
-                    help="Gaussians per layer on the page (a random subset of larger scenes; at least 1)")
+                    help="Gaussians per layer on the page, at least 1 (larger scenes keep their most visible ones)")
     ap.add_argument("--out", type=Path, help="page to write (default: reports/viewers/<experiment>.html)")
     ap.add_argument("--no-open", action="store_true", help="only write the page")
     args = ap.parse_args(argv)
