@@ -12,6 +12,11 @@ params keys it reads, written exactly as its ``params:`` list in ``dvc.yaml`` (`
    ``tests/test_dag.py`` checks that every declaration equals the stage's ``params:`` in ``dvc.yaml``;
 3. sets up logging and turns an :class:`abcgs.errors.AbcgsError` into a one-paragraph message and exit status 2
    instead of a traceback.
+
+A ``foreach`` stage's key (``stylize@tiny_single`` → ``tiny_single``) is the key option when given, else read
+from ``$DVC_STAGE``, which DVC sets for the command (:func:`stage_key`); its path arguments may name the key as
+``{key}`` / ``{item.F}`` (``--out out/{key}/stylize``). ``dvc.yaml``'s commands therefore carry no params value
+that a shell would parse, however a stage is selected (``-s``, ``--downstream``, ``dvc exp run``, a cluster job).
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ import argparse
 import errno
 import inspect
 import logging
+import os
 import re
 import sys
 import time
@@ -32,7 +38,7 @@ from typing import Any, Literal
 from pydantic import BaseModel
 
 from abcgs.errors import AbcgsError
-from abcgs.params import Params, read_params_file, validate_params
+from abcgs.params import NAME_PATTERN, NAME_RE, Params, read_params_file, validate_params
 from abcgs.preflight import preflight
 
 log = logging.getLogger("abcgs")
@@ -40,6 +46,8 @@ _STORAGE_ERRNOS = {
     errno.ENOSPC: "The disk is full: free space (e.g. `dvc gc` for old cache entries) or move out/ and the DVC cache "
                   "to a larger disk (`dvc cache dir`).",
     errno.EDQUOT: "The disk quota is used up: free space or ask for a larger quota.",
+    errno.EFBIG: "A file grew past the file system's or the process's file-size limit (`ulimit -f`): raise the limit "
+                 "or move out/ and the DVC cache to a file system that allows larger files.",
     errno.EROFS: "The file system is read-only: run the pipeline in a writable checkout.",
     errno.EACCES: "Permission denied: the output folder must be writable by you.",
 }
@@ -47,7 +55,13 @@ _STORAGE_ERRNOS = {
 
 Foreach = Literal["data.scenes", "colormatches", "experiments"]
 KEY_OPTION: dict[str, str] = {"data.scenes": "scene", "colormatches": "colormatch", "experiments": "experiment"}
-"""The command-line option that names a ``foreach`` stage's key (``--scene tiny``, ``--experiment tiny_single``)."""
+"""The command-line option that names a ``foreach`` stage's key by hand (``--scene tiny``, ``--experiment
+tiny_single``); under DVC the key comes from :data:`DVC_STAGE_ENV` instead (:func:`stage_key`)."""
+DVC_STAGE_ENV = "DVC_STAGE"
+"""The variable DVC sets for a stage's command: the stage's address, ``stylize@tiny_single`` (with ``dvc.yaml:`` in
+front when DVC runs in another folder). ``dvc.yaml`` passes no params value in a command (a name there would be
+parsed by the shell): a ``foreach`` stage learns its key from this variable, and its path arguments name the key as
+``{key}`` / ``{item.F}``, filled in by :func:`run_stage`."""
 
 
 @dataclass(frozen=True)
@@ -62,8 +76,9 @@ class StageSpec:
     params: tuple[str, ...] = ()
     foreach: Foreach | None = None
 
-    def resolved_params(self, raw: Mapping[str, Any], key: str | None) -> tuple[str, ...]:
-        """``params`` with ``{key}`` / ``{item.F}`` filled in from the raw params file, as DVC fills them in."""
+    def fill(self, template: str, raw: Mapping[str, Any], key: str | None) -> str:
+        """``template`` with ``{key}`` / ``{item.F}`` filled in from the raw params file, as DVC fills in
+        ``${key}`` / ``${item.F}``."""
         item = _lookup(raw, self.foreach).get(key, {}) if self.foreach and key is not None else {}
 
         def fill(m: re.Match) -> str:
@@ -73,7 +88,11 @@ class StageSpec:
             value = item.get(name.removeprefix("item.")) if isinstance(item, Mapping) else None
             return str(value)
 
-        return tuple(re.sub(r"\{(key|item\.[A-Za-z_]+)\}", fill, p) for p in self.params)
+        return re.sub(r"\{(key|item\.[A-Za-z_]+)\}", fill, template)
+
+    def resolved_params(self, raw: Mapping[str, Any], key: str | None) -> tuple[str, ...]:
+        """``params`` with ``{key}`` / ``{item.F}`` filled in (:meth:`fill`)."""
+        return tuple(self.fill(p, raw, key) for p in self.params)
 
 
 def _lookup(raw: Mapping[str, Any], dotted: str) -> Mapping[str, Any]:
@@ -182,8 +201,37 @@ def stage_parser(spec: StageSpec, description: str) -> argparse.ArgumentParser:
     ap.add_argument("--params", type=Path, default=Path("params.yaml"), help="the pipeline's params file")
     if spec.foreach:
         opt = KEY_OPTION[spec.foreach]
-        ap.add_argument(f"--{opt}", required=True, help=f"a key of {spec.foreach}")
+        ap.add_argument(f"--{opt}", help=f"a key of {spec.foreach} (under DVC: the key in ${DVC_STAGE_ENV}, "
+                                         f"{spec.name}@<key>)")
     return ap
+
+
+def stage_key(spec: StageSpec, given: str | None, environ: Mapping[str, str]) -> str | None:
+    """The ``foreach`` key this run is for: ``given`` (the key option, a run by hand), else the part after ``@`` of
+    the DVC stage running the script (:data:`DVC_STAGE_ENV`); ``None`` outside a ``foreach`` entry."""
+    if given is not None:
+        return given
+    stage, at, key = environ.get(DVC_STAGE_ENV, "").partition("@")
+    if not at:
+        return None
+    stage = stage.rsplit(":", 1)[-1]  # `path/dvc.yaml:` in front when DVC runs in another folder
+    if spec.foreach and stage != spec.name:
+        raise AbcgsError(f"${DVC_STAGE_ENV} names stage {stage!r}, which does not run stages/{spec.name}.py; pass "
+                         f"--{KEY_OPTION[spec.foreach]} NAME")
+    return key
+
+
+def fill_paths(args: argparse.Namespace, spec: StageSpec, raw: Mapping[str, Any], key: str | None) -> None:
+    """Path arguments with ``{key}`` / ``{item.F}`` in them (``--out out/{key}/stylize``) → the stage's paths."""
+    for name, value in vars(args).items():
+        if not isinstance(value, Path) or "{" not in str(value):
+            continue
+        if key is None:
+            raise AbcgsError(f"--{name.replace('_', '-')} {value} names the stage's key, but no key is given: run "
+                             f"it under DVC (which passes ${DVC_STAGE_ENV}) or give the path itself")
+        if not NAME_RE.fullmatch(key):
+            raise AbcgsError(f"${DVC_STAGE_ENV} {key!r}: a name must match {NAME_PATTERN}; fix it in the params file")
+        setattr(args, name, Path(spec.fill(str(value), raw, key)))
 
 
 def run_stage(
@@ -196,9 +244,14 @@ def run_stage(
         raw = read_params_file(args.params)
         params = validate_params(raw, str(args.params))
         preflight(params, raw, args.params, files=False)  # the preflight stage checks the files
-        key = getattr(args, KEY_OPTION[spec.foreach]) if spec.foreach else None
+        key = stage_key(spec, getattr(args, KEY_OPTION[spec.foreach]) if spec.foreach else None, os.environ)
+        if spec.foreach and key is None:
+            raise AbcgsError(f"which entry of {spec.foreach}? pass --{KEY_OPTION[spec.foreach]} NAME")
         if spec.foreach and key not in _lookup(raw, spec.foreach):
             raise AbcgsError(f"{key!r} is not a key of {spec.foreach} in {args.params}")
+        if spec.foreach:
+            setattr(args, KEY_OPTION[spec.foreach], key)  # main reads args.scene / args.experiment
+        fill_paths(args, spec, raw, key)
         main(args, tracked_view(params, spec.resolved_params(raw, key), spec.name))
     except AbcgsError as exc:
         print(f"\n[{spec.name}] error: {exc}", file=sys.stderr)

@@ -9,9 +9,12 @@ checks the params against the two other things a run depends on:
   ``dvc.yaml`` reads ``${item.path}``.
 - the inputs (:func:`check_input_files`): every scene folder exists and holds decodable views of similar sizes
   (:func:`check_scene_images`; an alpha channel or a grey view among colour ones is a warning), its ``masks/`` name
-  views and label something (:func:`check_scene_masks`), paintings and label maps exist, decode, are large enough
-  and do not live in a folder stages write, and ``vgg.path`` exists. A scene or painting a ``dvc.yaml`` stage
-  produces (the embedded tiny scene, made by ``make_tiny``) is checked by that stage instead.
+  views and label something (:func:`check_scene_masks`; numbered labels that skip values are a warning), paintings
+  and label maps exist, decode, are large enough and do not live in a folder stages write (a label map of another
+  size than its painting is a warning), and ``vgg.path`` exists. A scene or painting a ``dvc.yaml`` stage produces
+  (the embedded tiny scene, made by ``make_tiny``) is checked by that stage instead; a path into it must name a
+  file the stage writes there (:data:`PRODUCED_FILES`). The labels the colour matches bind exist in the label
+  maps where those are given files (:func:`check_bindings`).
 
 :func:`abcgs.pipeline.run_stage` runs the params checks for every stage; the ``preflight`` stage
 (``stages/preflight.py``), which every other stage depends on, runs the input checks too, so ``dvc repro`` stops
@@ -23,7 +26,7 @@ from __future__ import annotations
 
 import logging
 import os
-from collections.abc import Iterable
+from collections.abc import Collection, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +36,7 @@ import yaml
 from PIL import Image
 
 from abcgs.errors import InputError, ParamsError
+from abcgs.scene.params import TINY_STYLE_FILES
 
 log = logging.getLogger(__name__)
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
@@ -116,13 +120,36 @@ def dvc_outputs(dvc_yaml: Path) -> list[str]:
     return paths
 
 
-def _produced(path: Path, outputs: Iterable[str], root: Path) -> bool:
+PRODUCED_FILES: dict[str, tuple[str, ...]] = {"make_tiny": TINY_STYLE_FILES}
+"""Per ``dvc.yaml`` stage: the files in its output folder that params may name, relative to it (checked before the
+stage has run)."""
+
+
+def dvc_output_files(dvc_yaml: Path) -> dict[str, tuple[str, ...]]:
+    """Output folder of each stage of :data:`PRODUCED_FILES` → the files in it that params may name."""
+    out: dict[str, tuple[str, ...]] = {}
+    for name, stage in _stages(dvc_yaml).items():
+        if name not in PRODUCED_FILES:
+            continue
+        for entry in _bodies(stage).get("outs", []) or []:
+            p = entry if isinstance(entry, str) else next(iter(entry), None) if isinstance(entry, dict) else None
+            if p and "${" not in p:
+                out[p] = PRODUCED_FILES[name]
+    return out
+
+
+def _producer(path: Path, outputs: Iterable[str], root: Path) -> str | None:
+    """The stage output (a path of ``outputs``) that ``path`` is or lies in, if any."""
     target = (root / path).resolve()
     for out in outputs:
         o = (root / out).resolve()
         if target == o or o in target.parents:
-            return True
-    return False
+            return out
+    return None
+
+
+def _produced(path: Path, outputs: Iterable[str], root: Path) -> bool:
+    return _producer(path, outputs, root) is not None
 
 
 def _check_image(path: Path, what: str) -> None:
@@ -189,12 +216,27 @@ def check_scene_images(name: str, images: Path, max_ratio: float) -> list[str]:
     return warnings
 
 
-def check_scene_masks(name: str, folder: Path) -> None:
-    """The user's label PNGs in ``<scene>/masks/`` name views of ``images/`` and label something."""
+def mask_labels(path: Path) -> np.ndarray | None:
+    """A numbered label PNG (single-channel or grey) as ``(H, W)`` integers; ``None`` when it holds colours (those
+    are numbered together across the files by :func:`abcgs.masks.content.read_label_files`)."""
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        return None
+    if img.ndim == 3:
+        img = img[..., :3]
+        if not (np.all(img[..., 0] == img[..., 1]) and np.all(img[..., 1] == img[..., 2])):
+            return None
+        img = img[..., 0]
+    return img
+
+
+def check_scene_masks(name: str, folder: Path) -> list[str]:
+    """The user's label PNGs in ``<scene>/masks/`` name views of ``images/`` and label something. Returns warnings:
+    numbered labels that skip values (``255`` beside ``1, 2, 3``: each value is a label of its own)."""
     masks = folder / "masks"
     files = sorted(masks.glob("*.png")) if masks.is_dir() else []
     if not files:
-        return
+        return []
     stems = {p.stem for p in (folder / "images").iterdir() if p.suffix.lower() in IMAGE_SUFFIXES}
     orphans = [p.name for p in files if p.stem not in stems]
     if orphans:
@@ -205,12 +247,66 @@ def check_scene_masks(name: str, folder: Path) -> None:
     if all(not np.any(cv2.imread(str(p), cv2.IMREAD_UNCHANGED)) for p in files):
         raise InputError(f"data.scenes.{name}: every mask in {masks} is all 0 (unassigned), so it labels nothing; "
                          "paint the labels (1, 2, … or colours on black) or remove the folder for automatic masks")
+    values = scene_mask_labels(folder)
+    if values and max(values) > len(values):
+        return [f"data.scenes.{name}: the masks in {masks} use the label value(s) {sorted(values)}: each value is a "
+                f"label of its own, so labels beyond {len(values)} ({sorted(v for v in values if v > len(values))}) "
+                "are regions too (255 is no 'ignore' value here: paint 0 to leave pixels unassigned)"]
+    return []
 
 
-def check_input_files(params, root: Path, produced: Iterable[str] = ()) -> list[str]:
-    """Scene folders, style files and weights named in the params exist, decode and make sense (module docstring).
-    Raises :class:`InputError` on the first problem; returns warnings."""
+def scene_mask_labels(folder: Path) -> set[int] | None:
+    """The non-zero label values of the numbered masks in ``<scene>/masks/``; ``None`` when there are none or they
+    hold colours (then the numbers are given when they are read)."""
+    files = sorted((folder / "masks").glob("*.png")) if (folder / "masks").is_dir() else []
+    maps = [mask_labels(p) for p in files]
+    if not maps or any(m is None for m in maps):
+        return None
+    return {int(v) for m in maps for v in np.unique(m)} - {0}
+
+
+def _check_produced_file(rel: str, out: str, contents: Mapping[str, Collection[str]], root: Path, what: str) -> None:
+    """``rel`` lies in the output folder ``out`` of a stage that has not necessarily run: it must be a file that
+    stage writes there (``contents``), when that is known."""
+    if out not in contents:
+        return
+    inner = (root / rel).resolve().relative_to((root / out).resolve()).as_posix()
+    if inner not in contents[out]:
+        raise InputError(f"{what}: {rel} is none of the files the pipeline writes there for params to name "
+                         f"({', '.join(f'{out}/{f}' for f in contents[out])}); fix the path")
+
+
+def _size(path: Path) -> tuple[int, int]:
+    with Image.open(path) as im:
+        return im.size
+
+
+def check_bindings(params, root: Path, produced: Iterable[str]) -> None:
+    """The labels each colour match binds exist in the label files the user gives: a compositional binding's
+    content labels in the scene's numbered masks, an explicit semantic binding's regions in the painting's label
+    map (:meth:`abcgs.features.params.TransferSpec.check_labels`). Files a stage makes are checked by the
+    ``colormatch`` stage instead, before its work."""
     produced = list(produced)
+    for name, spec in params.colormatches.items():
+        scene = params.data.scenes[spec.scene].path
+        content = None
+        if spec.transfer == "compositional" and not _produced(Path(scene), produced, root):
+            content = scene_mask_labels(root / scene)
+        regions, map_path = None, ""
+        if spec.transfer == "semantic" and spec.binding != "auto":
+            map_path = params.data.style_masks.get(spec.style, "")
+            if map_path and not _produced(Path(map_path), produced, root):
+                labels = mask_labels(root / map_path)
+                regions = None if labels is None else {int(v) for v in np.unique(labels)} - {0}
+        spec.check_labels(name, content, f"the masks in {Path(scene) / 'masks'}", regions, map_path)
+
+
+def check_input_files(params, root: Path, produced: Iterable[str] = (),
+                      contents: Mapping[str, Collection[str]] | None = None) -> list[str]:
+    """Scene folders, style files and weights named in the params exist, decode and make sense (module docstring).
+    A path inside a stage's output folder must be among the files the stage writes there (``contents``:
+    :func:`dvc_output_files`). Raises :class:`InputError` on the first problem; returns warnings."""
+    produced, contents = list(produced), dict(contents or {})
     warnings: list[str] = []
     for section, entries in (("styles", params.data.styles), ("style_masks", params.data.style_masks)):
         for name, rel in entries.items():
@@ -218,8 +314,20 @@ def check_input_files(params, root: Path, produced: Iterable[str] = ()) -> list[
             if inside:
                 raise InputError(f"data.{section}.{name}: {rel} lies in {inside}/, which pipeline stages write and "
                                  "delete when they re-run; copy the file to a folder of its own")
-            if not _produced(Path(rel), produced, root):  # e.g. the tiny scene's paintings, made by make_tiny
+            out = _producer(Path(rel), produced, root)
+            if out is not None:  # e.g. the tiny scene's paintings, made by make_tiny
+                _check_produced_file(rel, out, contents, root, f"data.{section}.{name}")
+            else:
                 (_check_painting if section == "styles" else _check_image)(root / rel, f"data.{section}.{name}")
+    for name, rel in params.data.style_masks.items():
+        painting = params.data.styles.get(name)
+        if painting is None or _produced(Path(rel), produced, root) or _produced(Path(painting), produced, root):
+            continue
+        (mw, mh), (pw, ph) = _size(root / rel), _size(root / painting)
+        if (mw, mh) != (pw, ph):
+            stretch = " (another aspect ratio: its regions are stretched)" if abs(mw * ph - mh * pw) > max(pw, ph) else ""
+            warnings.append(f"data.style_masks.{name}: {rel} is {mw}×{mh} but its painting {painting} is {pw}×{ph}; "
+                            f"the label map is resized to the painting (nearest label){stretch}")
     if params.vgg.path and not (root / params.vgg.path).is_file():
         raise InputError(f"vgg.path: {params.vgg.path} does not exist; give a torchvision VGG-16 state dict (.pth) or "
                          "null to use the weights found on this machine (docs/WEIGHTS.md)")
@@ -243,7 +351,8 @@ def check_input_files(params, root: Path, produced: Iterable[str] = ()) -> list[
             raise InputError(f"data.scenes.{name}: {len(bad)} image(s) in {images} do not decode: {', '.join(bad[:5])}"
                              f"{' …' if len(bad) > 5 else ''}; remove or replace them")
         warnings += check_scene_images(name, images, params.scene_section(name, "reconstruct").max_view_size_ratio)
-        check_scene_masks(name, folder)
+        warnings += check_scene_masks(name, folder)
+    check_bindings(params, root, produced)
     return warnings
 
 
@@ -256,11 +365,12 @@ def preflight(params, raw: dict, params_path: str | os.PathLike, *, files: bool 
     root = params_path.resolve().parent
     dvc_yaml = root / "dvc.yaml"
     produced: list[str] = []
+    contents: dict[str, tuple[str, ...]] = {}
     if dvc_yaml.is_file():
         check_dvc_tracked_keys(raw, dvc_yaml, str(params_path))
         check_scene_entries(raw, dvc_yaml, str(params_path))
-        produced = dvc_outputs(dvc_yaml)
-    warnings = check_input_files(params, root, produced) if files else []
+        produced, contents = dvc_outputs(dvc_yaml), dvc_output_files(dvc_yaml)
+    warnings = check_input_files(params, root, produced, contents) if files else []
     for w in warnings:
         log.warning("preflight: %s", w)
     return warnings

@@ -17,7 +17,14 @@ from pathlib import Path
 from abcgs.pipeline import StageSpec, run_stage, stage_parser
 from abcgs.runtime import resolve_device, torch_threads
 from abcgs.stylize.colormatch import color_match_and_refit, write_colormatch
-from abcgs.stylize.experiment import colormatch_spec, load_groups, load_scene, load_scene_masks, load_vgg
+from abcgs.stylize.experiment import (
+    check_bindings,
+    colormatch_spec,
+    load_groups,
+    load_scene,
+    load_scene_masks,
+    load_vgg,
+)
 
 SPEC = StageSpec("colormatch", foreach="colormatches", params=(
     "colormatches.{key}", "data.styles", "data.style_masks", "colormatch", "isolation", "vgg",
@@ -31,6 +38,7 @@ def main(args, params) -> None:
     device = resolve_device(params.runtime.device)
     scene, model = load_scene(args.root, spec.scene)
     masks = load_scene_masks(args.root / spec.scene / "masks", scene, model.num_gaussians)
+    check_bindings(params, args.colormatch, spec, masks.gaussian_labels, args.root / spec.scene / "masks")
     vgg, info = load_vgg(params, device)
     groups = load_groups(params, spec, vgg, masks.gaussian_labels)
     with torch_threads(params.colormatch.threads):

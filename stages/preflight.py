@@ -4,10 +4,11 @@
 
 :func:`abcgs.pipeline.run_stage` validates the whole params file (schema, names, references between sections) and
 checks it against ``dvc.yaml`` (every tracked key present), as for every stage; this stage then checks the inputs
-(:func:`abcgs.preflight.check_input_files`: scene folders, views, masks, paintings, weights). Every other stage
+(:func:`abcgs.preflight.check_input_files`: scene folders, views, masks, paintings, weights, and the labels
+the colour matches bind where the label maps are given files). Every other stage
 depends on its stamp, so ``dvc repro`` stops here, with the key named, before DVC deletes any stage's outputs. The
-stamp's content does not depend on the params, so a passing preflight re-runs nothing downstream; the warnings go to
-``--record``, which the report shows.
+stamp's content does not depend on the params, so a passing preflight re-runs nothing downstream; the warnings are
+printed (``dvc repro`` shows them) and go to ``--record``, which the report shows.
 """
 
 from __future__ import annotations
@@ -17,15 +18,19 @@ from pathlib import Path
 
 from abcgs.io.atomic import write_json
 from abcgs.pipeline import StageSpec, run_stage, stage_parser
-from abcgs.preflight import check_input_files, dvc_outputs
+from abcgs.preflight import check_input_files, dvc_output_files, dvc_outputs
 
-SPEC = StageSpec("preflight", params=("data", "vgg", "reconstruct"))
+SPEC = StageSpec("preflight", params=("data", "vgg", "reconstruct", "colormatches"))
 
 
 def main(args, params) -> None:
     root = args.params.resolve().parent
     dvc_yaml = root / "dvc.yaml"
-    warnings = check_input_files(params, root, dvc_outputs(dvc_yaml) if dvc_yaml.is_file() else [])
+    known = dvc_yaml.is_file()
+    warnings = check_input_files(params, root, dvc_outputs(dvc_yaml) if known else [],
+                                 dvc_output_files(dvc_yaml) if known else {})
+    for w in warnings:  # on the terminal of `dvc repro`, and in the record the report shows
+        print(f"[preflight] warning: {w}", file=sys.stderr, flush=True)
     write_json(args.record, {"warnings": warnings})
     write_json(args.out, {"checks": "passed"})
 

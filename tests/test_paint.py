@@ -5,7 +5,12 @@ The page itself is driven in a browser by tests/test_paint_browser.py.
 
 from __future__ import annotations
 
+import http.client
+import http.cookiejar
 import json
+import re
+import subprocess
+import sys
 import threading
 import urllib.error
 import urllib.request
@@ -26,7 +31,7 @@ from abcgs.masks.grabcut import (
     rasterize_strokes,
     segment,
 )
-from abcgs.masks.paint import PaintSession, main, make_server
+from abcgs.masks.paint import PaintSession, main, make_server, page_url
 from abcgs.viz import LABEL_COLOURS, colorize_labels
 
 H, W = 120, 160
@@ -234,12 +239,18 @@ def test_cli_explains_a_missing_images_folder(tmp_path, capsys) -> None:
 # ----------------------------------------------------------------------------------------------
 
 
+OPENER = urllib.request.build_opener(urllib.request.HTTPCookieProcessor(http.cookiejar.CookieJar()))
+"""A browser's memory for :func:`request`: the cookie the page's address (with its token) sets."""
+
+
 @pytest.fixture()
 def served(tmp_path):
     def start(session: PaintSession) -> str:
         server = make_server(session, port=0)
         threading.Thread(target=server.serve_forever, daemon=True).start()
         servers.append(server)
+        with OPENER.open(page_url(server), timeout=60) as r:  # as a browser opens the printed address
+            assert r.status == 200
         return f"http://127.0.0.1:{server.server_port}"
 
     servers: list = []
@@ -253,7 +264,7 @@ def request(url: str, body: dict | None = None) -> tuple[int, bytes, str]:
     data = None if body is None else json.dumps(body).encode()
     req = urllib.request.Request(url, data=data, headers={"Content-Type": "application/json"} if data else {})
     try:
-        with urllib.request.urlopen(req, timeout=60) as r:
+        with OPENER.open(req, timeout=60) as r:
             return r.status, r.read(), r.headers["Content-Type"]
     except urllib.error.HTTPError as e:
         return e.code, e.read(), e.headers["Content-Type"]
@@ -312,3 +323,91 @@ def test_the_api_segments_a_painting_into_its_label_map(tmp_path, served) -> Non
     assert json.loads(request(url + "/api/save", {})[1])["written"] == [str(out)]
     maps, _ = read_label_files([out], [(H, W)])
     assert all(v >= 0.9 for v in label_iou(maps[0], truth, 3).values())
+
+
+# ----------------------------------------------------------------------------------------------
+# Only the server's own page drives it
+# ----------------------------------------------------------------------------------------------
+
+
+def raw_request(port: int, method: str, path: str, headers: dict[str, str], body: bytes = b"") -> tuple[int, dict]:
+    """One request with exactly these headers (``http.client`` adds none but ``Accept-Encoding``); status, JSON."""
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=60)
+    try:
+        conn.putrequest(method, path, skip_host=True, skip_accept_encoding=True)
+        for k, v in headers.items():
+            conn.putheader(k, v)
+        conn.endheaders()
+        try:
+            for i in range(0, len(body), 1 << 20):
+                conn.send(body[i:i + (1 << 20)])
+        except (BrokenPipeError, ConnectionResetError):  # the server answered and closed without reading it all
+            pass
+        r = conn.getresponse()
+        return r.status, json.loads(r.read() or b"{}")
+    finally:
+        conn.close()
+
+
+@pytest.fixture()
+def paint_process(tmp_path):
+    """``python -m abcgs.masks.paint SCENE --no-open`` in a process of its own (its memory is measured): port, pid."""
+    scene = make_scene(tmp_path / "scene", 1)
+    proc = subprocess.Popen([sys.executable, "-m", "abcgs.masks.paint", str(scene), "--no-open"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    line = proc.stdout.readline()
+    m = re.search(r"http://127\.0\.0\.1:(\d+)/\?token=([\w-]+)", line)
+    assert m, line + proc.stdout.read() if proc.poll() is not None else line
+    yield int(m.group(1)), m.group(2), proc.pid, scene
+    proc.terminate()
+    proc.wait(timeout=30)
+
+
+def _peak_rss_mb(pid: int) -> float:
+    status = Path(f"/proc/{pid}/status").read_text()
+    return int(re.search(r"VmHWM:\s+(\d+) kB", status).group(1)) / 1024
+
+
+def test_the_server_refuses_other_pages_hosts_and_bodies(paint_process) -> None:
+    port, token, pid, scene = paint_process
+    own = {"Host": f"127.0.0.1:{port}", "Content-Type": "application/json", "Cookie": f"abcgs_paint_{port}={token}"}
+    strokes = json.dumps({"strokes": [s.to_json() for s in SHAPE_STROKES]}).encode()
+
+    def post(path: str, body: bytes, **headers: str) -> tuple[int, dict]:
+        h = {**own, "Content-Length": str(len(body)), **headers}
+        return raw_request(port, "POST", path, {k: v for k, v in h.items() if v is not None}, body)
+
+    # without the token (another user of the machine) nothing is served; with it in the address, the page gets it
+    for headers in ({"Host": own["Host"]}, {"Host": own["Host"], "Cookie": f"abcgs_paint_{port}=guess"}):
+        status, body = raw_request(port, "GET", "/api/state", headers)
+        assert status == 403 and "token" in body["error"]
+    assert raw_request(port, "GET", f"/api/state?token={token}", {"Host": own["Host"]})[0] == 200
+    status, _ = post("/api/save", b"{}", Cookie=None)
+    assert status == 403
+    # another web page (a cross-origin fetch or form) or a rebound DNS name cannot press Save
+    status, body = post("/api/strokes/0", strokes, Origin="http://evil.example")
+    assert status == 403 and "http://evil.example" in body["error"]
+    status, body = post("/api/save", b"{}", Host=f"evil.example:{port}")
+    assert status == 403 and "evil.example" in body["error"]
+    assert raw_request(port, "GET", "/api/state", {"Host": f"rebound.example:{port}"})[0] == 403
+    status, body = post("/api/strokes/0", strokes, **{"Content-Type": "text/plain"})
+    assert status == 415 and "application/json" in body["error"]
+    # malformed requests: a 400 with a one-line reason
+    for length in ("-1", "abc", str(1 << 40), None):
+        status, body = post("/api/strokes/0", strokes, **{"Content-Length": length})
+        assert status == 400 and "\n" not in body["error"] and ("Content-Length" in body["error"] or "larger" in
+                                                               body["error"]), (length, body)
+    for bad in (b"{not json", b"[1, 2]", b'{"strokes": 5}', b'{"strokes": "abc"}', b'{"strokes": [[1, 2]]}',
+                b'{"strokes": [{"label": "x", "points": [[1, 2]]}]}', b'{"fill": "yes"}', b"\xff\xfe", b"[" * 100000):
+        status, body = post("/api/segment/0", bad)
+        assert status == 400 and body["error"] and "\n" not in body["error"], (bad[:40], status, body)
+    # a body far larger than its Content-Length claims is not read: the server stays small
+    status, _ = post("/api/strokes/0", b"x" * (200 << 20), **{"Content-Length": "-1"})
+    assert status == 400
+    print(f"paint server peak RSS: {_peak_rss_mb(pid):.0f} MB")
+    assert _peak_rss_mb(pid) < 200, f"the server grew to {_peak_rss_mb(pid):.0f} MB"
+    assert not (scene / "masks").exists()  # nothing above saved anything
+    # the page's own requests still work
+    assert post("/api/strokes/0", strokes, Origin=f"http://127.0.0.1:{port}")[0] == 200
+    status, body = post("/api/save", b"{}", Origin=f"http://localhost:{port}", Host=f"localhost:{port}")
+    assert status == 200 and body["written"] == [str(scene / "masks" / "view00.png")], body

@@ -115,3 +115,28 @@ def test_page_is_self_contained_and_round_trips_its_splats():
     back = decode_spz(base64.b64decode(b64))
     assert back.num_gaussians == m.num_gaussians
     assert "</script" not in html[html.index("<script>") + 8: html.rindex("</script>")]  # the bundle cannot close its tag
+
+
+def test_embedded_names_cannot_end_or_change_their_script_element():
+    m = _model()
+    cams = [Camera("c", intrinsics(100.0, 64, 48), look_at(np.zeros(3), np.array([0.0, 0.0, 4.0])), 64, 48)]
+    name = "run <!-- <script> </script> & \u2028"
+    html = viewer_page([prepare_experiment(name, m, cams)], title="t")
+    payload = re.search(r'id="abcgs-viewer-data">(.*?)</script>', html, re.S).group(1)
+    assert not set(payload) & set("<>&")  # nothing the HTML parser reads inside a script element
+    assert json.loads(payload)["experiments"][0]["name"] == name
+
+
+def test_view_arguments_are_checked_before_any_work(tmp_path, capsys):
+    from abcgs.view.__main__ import main
+
+    for bad in ("-5", "0", "many"):
+        with pytest.raises(SystemExit) as exc:
+            main([str(tmp_path), "--max-gaussians", bad, "--no-open"])
+        assert exc.value.code == 2 and "--max-gaussians" in capsys.readouterr().err
+    (tmp_path / "file").write_text("x")
+    for out, says in ((tmp_path, "is a folder"), (tmp_path / "file" / "page.html", "not a folder you can write"),
+                      (tmp_path / "missing-run" / "p.html", "")):
+        assert main([str(tmp_path / "missing-run"), "--out", str(out), "--no-open"]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error: ") and says in err and len(err.strip().splitlines()) == 1, err

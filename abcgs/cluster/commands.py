@@ -39,7 +39,15 @@ from abcgs.cluster.run import (
     save_run,
     write_json,
 )
-from abcgs.cluster.slurm import SlurmError, dependency, python_executable, render_script, sbatch, task_states
+from abcgs.cluster.slurm import (
+    SlurmError,
+    dependency,
+    python_executable,
+    render_script,
+    sbatch,
+    script_path,
+    task_states,
+)
 from abcgs.overlay import apply_overlay, read_overlay
 
 CLUSTER_DIR_ENV = "ABCGS_CLUSTER_DIR"
@@ -60,7 +68,7 @@ def build_params(base: Mapping[str, Any], overlay: Path | None, data: Path | Non
     """The run's params (base, overlay, ``--set``, GPU backends) and the GPU backend keys that were changed."""
     from abcgs.params import validate_params
 
-    params = apply_overlay(base, read_overlay(overlay, data, "--data")) if overlay else dict(base)
+    params = apply_overlay(base, read_overlay(overlay, data, "--data", "--params")) if overlay else dict(base)
     params = apply_sets(copy.deepcopy(params), sets)
     gpu = gpu_overrides(resources, params)
     apply_sets(params, [f"{k}={v}" for k, v in gpu.items()])
@@ -70,7 +78,10 @@ def build_params(base: Mapping[str, Any], overlay: Path | None, data: Path | Non
 
 def _prepare(a: argparse.Namespace) -> tuple[Path, str, dict, dict, dict[str, Any], Plan, dict[str, Resources]]:
     repo = _repo_root(Path.cwd())
-    commit = git(["rev-parse", f"{a.rev}^{{commit}}"], repo)
+    try:
+        commit = git(["rev-parse", "--verify", "--end-of-options", f"{a.rev}^{{commit}}"], repo)
+    except RunError:
+        raise RunError(f"--rev {a.rev!r} is not a commit of {repo}") from None
     dirty = git(["status", "--porcelain", "--untracked-files=no"], repo)
     if dirty:
         print(f"note: the jobs run commit {commit[:10]}; uncommitted changes to tracked files are not in it:\n"
@@ -137,10 +148,15 @@ def latest_run(a: argparse.Namespace) -> Path:
 
 
 def cmd_submit(a: argparse.Namespace) -> int:
-    repo, commit, base, params, gpu, plan, resources = _prepare(a)
     cluster = _cluster_dir(a) if not (a.cache and a.run_dir) else None
+    where = "--cluster-dir" if a.cluster_dir else f"${CLUSTER_DIR_ENV}"
+    script_path(a.run_dir or cluster, "--run-dir" if a.run_dir else where, directive=True)  # before any work
+    script_path(a.cache or cluster, "--cache" if a.cache else where)
+    repo, commit, base, params, gpu, plan, resources = _prepare(a)
     cache = (a.cache or cluster / "cache").resolve()
     run = (a.run_dir or cluster / "runs" / f"{time.strftime('%Y%m%d-%H%M%S')}-{commit[:8]}").resolve()
+    script_path(run, "--run-dir" if a.run_dir else where, directive=True)  # the resolved paths (symbolic links)
+    script_path(cache, "--cache" if a.cache else where)
     if (run / "run.json").exists():
         raise RunError(f"{run} already holds a run; choose another --run-dir")
     if a.remote and not _default_remote(repo, commit):

@@ -308,7 +308,15 @@ def apply_sets(params: dict, sets: Iterable[str]) -> dict:
         key, eq, value = item.partition("=")
         if not eq or not key:
             raise PlanError(f"--set {item!r}: expected KEY=VALUE, e.g. stylize.iterations=300")
-        set_dotted(params, key.strip(), yaml.safe_load(value))
+        try:
+            parsed = yaml.safe_load(value)
+        except yaml.YAMLError as exc:
+            reason = " ".join(str(exc).split())
+            raise PlanError(f"--set {item!r}: the value is not plain YAML ({reason})") from None
+        try:
+            set_dotted(params, key.strip(), parsed)
+        except (AttributeError, TypeError):
+            raise PlanError(f"--set {item!r}: {key.strip()} goes below a params value that is not a mapping") from None
     return params
 
 
@@ -346,7 +354,14 @@ class Resources:
 def load_resources(path: Path | None = None) -> dict[str, Resources]:
     """Per-kind :class:`Resources` from a YAML file (``defaults:`` plus one mapping per kind of :data:`KINDS`)."""
     path = path or RESOURCES_FILE
-    raw = yaml.safe_load(Path(path).read_text(encoding="utf-8")) or {}
+    try:
+        raw = yaml.safe_load(Path(path).read_text(encoding="utf-8")) or {}
+    except OSError as exc:
+        raise PlanError(f"--resources {path}: cannot be read ({exc.strerror or exc})") from None
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise PlanError(f"--resources {path}: not YAML ({' '.join(str(exc).split())})") from None
+    if not isinstance(raw, dict) or not all(isinstance(v, dict) or v is None for v in raw.values()):
+        raise PlanError(f"--resources {path}: a mapping of `defaults:` and per-kind mappings ({', '.join(KINDS)})")
     allowed = {f for f in Resources.__dataclass_fields__}
     unknown = set(raw) - set(KINDS) - {"defaults"}
     if unknown:

@@ -27,7 +27,7 @@ from abcgs.errors import AbcgsError
 SBATCH_TEMPLATE = Template("""\
 #!/bin/bash
 # abcgs job array "$array" ($kind): task i runs job i below in its own clone of commit $commit, with the DVC
-# cache $cache. Written by `python -m abcgs.cluster submit`; run folder $run.
+# cache $cache_q. Written by `python -m abcgs.cluster submit`; run folder $run_q.
 $job_list
 #SBATCH --job-name=abcgs-$array
 #SBATCH --array=0-$last$throttle
@@ -42,11 +42,33 @@ export OMP_NUM_THREADS=$${SLURM_CPUS_PER_TASK:-1}
 export DVC_NO_ANALYTICS=1
 exec $python -m abcgs.cluster job $run_q $array_q "$$SLURM_ARRAY_TASK_ID"
 """)
-"""The sbatch script of one job array (``string.Template``; ``$$`` is a literal ``$`` for bash)."""
+"""The sbatch script of one job array (``string.Template``; ``$$`` is a literal ``$`` for bash). Every path in it is
+checked by :func:`script_path` and, outside ``#SBATCH`` lines, quoted for the shell."""
 
 
 class SlurmError(AbcgsError):
-    """A Slurm command failed (the message has its output)."""
+    """A Slurm command failed (the message has its output), or a value cannot go into an sbatch script."""
+
+
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+_DIRECTIVE_UNSAFE = re.compile(r"[\s\"'\\#%]")
+
+
+def script_path(path: str | Path, what: str, directive: bool = False) -> str:
+    """``path`` as text for an sbatch script, refused (naming ``what``, e.g. ``--run-dir``) when it holds a newline,
+    NUL or another control character, which would end its line and start a command of its own; ``directive``: it
+    also goes into ``#SBATCH`` lines, which sbatch splits at spaces and cuts at ``#`` (and reads ``%`` in
+    ``--output`` as a pattern), so those are refused too."""
+    text = str(path)
+    bad = _CONTROL.search(text)
+    if bad:
+        raise SlurmError(f"{what} {text!r} holds the control character {bad.group()!r} (e.g. a newline), which would "
+                         "end its line in the sbatch script; choose a path without it")
+    bad = _DIRECTIVE_UNSAFE.search(text) if directive else None
+    if bad:
+        raise SlurmError(f"{what} {text!r} holds {bad.group()!r}; the run folder goes into #SBATCH lines, which "
+                         "take no spaces, quotes, '#', '%' or backslashes: choose a folder without them")
+    return text
 
 
 def render_script(plan: Plan, array: Array, resources: Resources, run: Path, commit: str, cache: str,
@@ -55,12 +77,17 @@ def render_script(plan: Plan, array: Array, resources: Resources, run: Path, com
     jobs = "\n".join(f"#   {i}: {name}: dvc repro {' '.join(plan.jobs[name].targets) or '(the whole pipeline)'}"
                      for i, name in enumerate(array.jobs))
     throttle = f"%{resources.max_parallel}" if resources.max_parallel else ""
+    run_text = script_path(run, "the run folder", directive=True)
+    cache, python = script_path(cache, "the DVC cache"), script_path(python, "the Python interpreter")
+    targets = [t for name in array.jobs for t in (name, *plan.jobs[name].targets)]
+    for text in (commit, array.name, array.kind, *targets, *resources.sbatch_options()):
+        script_path(text, "a value of the plan or of --resources")
     return SBATCH_TEMPLATE.substitute(
-        array=array.name, kind=array.kind, commit=commit, cache=cache, run=run, job_list=jobs,
+        array=array.name, kind=array.kind, commit=commit, cache_q=shlex.quote(cache), run=run_text, job_list=jobs,
         last=len(array.jobs) - 1, throttle=throttle, logs=run / "logs",
         resource_lines="\n".join(f"#SBATCH {o}" for o in resources.sbatch_options()),
         bindir=shlex.quote(str(Path(python).parent)), python=shlex.quote(python),
-        run_q=shlex.quote(str(run)), array_q=shlex.quote(array.name))
+        run_q=shlex.quote(run_text), array_q=shlex.quote(array.name))
 
 
 def dependency(array: Array, ids: Mapping[str, str]) -> list[str]:

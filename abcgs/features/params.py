@@ -11,6 +11,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from abcgs.errors import InputError
 from abcgs.losses.params import StyleMethod
 
 TransferType = Literal["single", "compositional", "semantic"]
@@ -45,6 +46,29 @@ class TransferSpec(BaseModel):
 
     def style_keys(self) -> list[str]:
         return sorted(set(self.styles.values())) if self.transfer == "compositional" else [self.style]
+
+    def check_labels(self, name: str, content: set[int] | None, content_source: str = "",
+                     regions: set[int] | None = None, regions_source: str = "") -> None:
+        """Raise :class:`InputError` naming ``colormatches.<name>`` when the transfer binds a label that does not
+        exist: a compositional or explicit semantic binding's content label outside ``content`` (the labels found
+        in ``content_source``), an explicit semantic binding's painting region outside ``regions`` (the non-zero
+        values of the label map ``regions_source``). ``None``: not known yet (that side is not checked). Cheap:
+        the ``preflight`` stage runs it on the label files given, the ``colormatch`` stage before any work."""
+        key = f"colormatches.{name}"
+        if content is not None and self.transfer == "compositional":
+            unknown = sorted(set(self.styles) - content)
+            if unknown:
+                raise InputError(f"{key}.styles binds content label(s) {unknown}, which {content_source} does not "
+                                 f"hold (labels present: {sorted(content)}); bind present labels or paint those")
+        if self.transfer != "semantic" or self.binding == "auto":
+            return
+        for c_label, s_label in sorted(self.binding.items()):
+            if content is not None and c_label not in content:
+                raise InputError(f"{key}.binding.{c_label}: content label {c_label} is not in {content_source} "
+                                 f"(labels present: {sorted(content)})")
+            if regions is not None and s_label not in regions:
+                raise InputError(f"{key}.binding.{c_label}: painting region {s_label} has no pixels in "
+                                 f"{regions_source} (regions present: {sorted(regions)})")
 
 
 class ExperimentParams(BaseModel):

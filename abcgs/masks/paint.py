@@ -4,10 +4,14 @@
     python -m abcgs.masks.paint data/tiny --painting data/tiny/styles/paint.png \\
         --labels-out data/tiny/styles/paint_labels.png         # one painting → its region label map
 
-The page (``static/paint.html``, plain JavaScript, nothing fetched from the network) is served on 127.0.0.1. Pick
-a label, draw strokes over the objects of one or more views, press **Segment** to see the cut over the view, add
-strokes where it is wrong, and press **Save**: every view with strokes gets a single-channel label PNG (0 =
-unassigned, 1, 2, …; the format :func:`abcgs.masks.content.read_label_files` reads), written atomically. Views
+The page (``static/paint.html``, plain JavaScript, nothing fetched from the network) is served on 127.0.0.1, to
+itself only: the address printed at start carries a random token (as Jupyter's does; the page keeps it in a cookie),
+and a request without it, whose ``Host`` is not that address (DNS rebinding), with another page's ``Origin``, or a
+POST not declared ``application/json`` (what a cross-origin form or ``fetch`` could send without asking) is refused,
+as is a body without a plain ``Content-Length`` up to :data:`MAX_BODY`; each refusal is a 4xx with a one-line
+reason. Pick a label, draw strokes over the objects of one or more views, press **Segment** to see the cut over the
+view, add strokes where it is wrong, and press **Save**: every view with strokes gets a single-channel label PNG (0
+= unassigned, 1, 2, …; the format :func:`abcgs.masks.content.read_label_files` reads), written atomically. Views
 without strokes get no file: the ``masks`` stage lifts labels from any subset of views (Eq. 2).
 
 The cut is :func:`abcgs.masks.grabcut.segment` (GrabCut per label from the strokes); the server only keeps strokes
@@ -21,13 +25,16 @@ import argparse
 import json
 import logging
 import re
+import secrets
 import sys
 import threading
 import webbrowser
 from dataclasses import dataclass, field
 from http import HTTPStatus
+from http.cookies import SimpleCookie
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
+from urllib.parse import parse_qs
 
 import cv2
 import numpy as np
@@ -232,6 +239,31 @@ class PaintSession:
 # ----------------------------------------------------------------------------------------------
 
 _ROUTE = re.compile(r"^/api/(state|image|strokes|segment|labels|overlay|save)(?:/(\d+))?(?:\.png)?$")
+MAX_BODY = 16 << 20
+"""Largest request body read (bytes): strokes of a long session are a few MB of JSON."""
+
+
+class Refused(AbcgsError):
+    """A request the server does not serve: ``status`` (400, 403, 415) and a one-line reason."""
+
+    def __init__(self, status: int, reason: str) -> None:
+        super().__init__(reason)
+        self.status = status
+
+
+def _strokes(body: dict) -> list[Stroke]:
+    """``body["strokes"]``: a list of stroke objects (:meth:`Stroke.from_json`)."""
+    strokes = body.get("strokes", [])
+    if not isinstance(strokes, list):
+        raise InputError(f"'strokes' must be a list of stroke objects, not {type(strokes).__name__}")
+    return [Stroke.from_json(d) for d in strokes]
+
+
+def _flag(body: dict, key: str) -> bool | None:
+    value = body.get(key)
+    if value is not None and not isinstance(value, bool):
+        raise InputError(f"{key!r} must be true or false, not {json.dumps(value)[:40]}")
+    return value
 
 
 def _png(arr: np.ndarray) -> bytes:
@@ -245,14 +277,17 @@ def _png(arr: np.ndarray) -> bytes:
 
 class _Handler(BaseHTTPRequestHandler):
     session: PaintSession  # set on the subclass :func:`make_server` builds
+    token: str
     server_version = "abcgs-paint"
 
     def log_message(self, fmt, *args):  # requests go to the debug log, not stderr
         log.debug("%s - %s", self.address_string(), fmt % args)
 
-    def _send(self, status: int, body: bytes, ctype: str) -> None:
+    def _send(self, status: int, body: bytes, ctype: str, headers: dict[str, str] | None = None) -> None:
         self.send_response(status)
         self.send_header("Content-Type", ctype)
+        for k, v in (headers or {}).items():
+            self.send_header(k, v)
         self.send_header("Content-Length", str(len(body)))
         self.send_header("Cache-Control", "no-store")
         self.end_headers()
@@ -261,24 +296,72 @@ class _Handler(BaseHTTPRequestHandler):
     def _json(self, data, status: int = 200) -> None:
         self._send(status, json.dumps(data).encode(), "application/json")
 
+    def _hosts(self) -> set[str]:
+        """The ``Host`` values of the address this server serves (``127.0.0.1:PORT``, ``localhost:PORT``)."""
+        host, port = self.server.server_address[:2]
+        names = {"127.0.0.1", "localhost"} if host in ("127.0.0.1", "localhost") else {"[::1]", "localhost"}
+        return {f"{n}:{port}" for n in names}
+
+    def _cookie(self) -> str:
+        return f"abcgs_paint_{self.server.server_address[1]}"  # cookies are per host, not per port
+
+    def _check_token(self, query: str) -> bool:
+        """The request carries the server's token, in the query (``?token=``, the address printed at start) or in
+        the cookie the page got with it; True when it came in the query (the page then sets the cookie)."""
+        given = parse_qs(query).get("token", [""])[0]
+        morsel = SimpleCookie(self.headers.get("Cookie", "")).get(self._cookie()) if not given else None
+        value = given or (morsel.value if morsel is not None else "")
+        if not secrets.compare_digest(value.encode(), self.token.encode()):
+            raise Refused(HTTPStatus.FORBIDDEN, "missing or wrong token: open the address (with ?token=) that "
+                                                "`python -m abcgs.masks.paint` printed")
+        return bool(given)
+
+    def _check_caller(self, method: str) -> None:
+        """Only the page this server serves drives it: ``Host`` is the server's own address (no DNS rebinding), an
+        ``Origin`` is its own (no other web page), and a POST body is declared JSON (a cross-origin page cannot send
+        that without a CORS preflight, which this server never grants)."""
+        hosts = self._hosts()
+        if self.headers.get("Host", "") not in hosts:
+            raise Refused(HTTPStatus.FORBIDDEN, f"Host {self.headers.get('Host', '')!r} is not this server "
+                                                f"({' or '.join(sorted(hosts))})")
+        origin = self.headers.get("Origin")
+        if origin is not None and origin not in {f"http://{h}" for h in hosts}:
+            raise Refused(HTTPStatus.FORBIDDEN, f"requests from {origin[:100]!r} are refused: only this server's "
+                                                "own page may use it")
+        if method == "POST":
+            ctype = (self.headers.get("Content-Type") or "").split(";", 1)[0].strip().lower()
+            if ctype != "application/json":
+                raise Refused(HTTPStatus.UNSUPPORTED_MEDIA_TYPE,
+                              f"Content-Type {ctype or '(none)'!r}: the API takes application/json")
+
     def _body(self) -> dict:
-        n = int(self.headers.get("Content-Length") or 0)
-        if n > 64 << 20:
-            raise InputError("request too large")
+        text = (self.headers.get("Content-Length") or "").strip()
+        if not text.isdigit():  # also a negative length, which rfile.read would take as "until the end"
+            raise Refused(HTTPStatus.BAD_REQUEST, f"Content-Length {text[:40]!r} is not a byte count")
+        n = int(text)
+        if n > MAX_BODY:
+            raise Refused(HTTPStatus.BAD_REQUEST, f"the body of {n} bytes is larger than {MAX_BODY} bytes")
         raw = self.rfile.read(n) if n else b"{}"
+        if len(raw) != n:
+            raise Refused(HTTPStatus.BAD_REQUEST, f"the body ended after {len(raw)} of {n} bytes")
         try:
             data = json.loads(raw or b"{}")
-        except json.JSONDecodeError as exc:
-            raise InputError(f"the request body is not JSON: {exc}") from exc
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise Refused(HTTPStatus.BAD_REQUEST, f"the request body is not JSON: {exc}") from None
+        except RecursionError:
+            raise Refused(HTTPStatus.BAD_REQUEST, "the request body nests too deeply") from None
         if not isinstance(data, dict):
-            raise InputError("the request body must be a JSON object")
+            raise Refused(HTTPStatus.BAD_REQUEST, "the request body must be a JSON object")
         return data
 
     def _dispatch(self, method: str) -> None:
-        path = self.path.split("?", 1)[0]
+        path, _, query = self.path.partition("?")
         try:
+            self._check_caller(method)
+            from_query = self._check_token(query)
             if method == "GET" and path in ("/", "/index.html"):
-                return self._send(200, PAGE.read_bytes(), "text/html; charset=utf-8")
+                cookie = {"Set-Cookie": f"{self._cookie()}={self.token}; HttpOnly; SameSite=Strict; Path=/"}
+                return self._send(200, PAGE.read_bytes(), "text/html; charset=utf-8", cookie if from_query else None)
             m = _ROUTE.match(path)
             if not m:
                 return self._json({"error": f"no such page: {path}"}, HTTPStatus.NOT_FOUND)
@@ -293,13 +376,14 @@ class _Handler(BaseHTTPRequestHandler):
             if method == "GET" and what == "strokes":
                 return self._json({"strokes": [st.to_json() for st in s._item(idx).strokes]})
             if method == "POST" and what == "strokes":
-                s.set_strokes(idx, [Stroke.from_json(d) for d in self._body().get("strokes", [])])
+                s.set_strokes(idx, _strokes(self._body()))
                 return self._json(s.state()["items"][idx])
             if method == "POST" and what == "segment":
                 body = self._body()
+                fill = _flag(body, "fill")
                 if "strokes" in body:
-                    s.set_strokes(idx, [Stroke.from_json(d) for d in body["strokes"]])
-                seg = s.segment(idx, body.get("fill"))
+                    s.set_strokes(idx, _strokes(body))
+                seg = s.segment(idx, fill)
                 return self._json({"counts": {str(k): v for k, v in seg.counts().items()},
                                    "seconds": round(seg.seconds, 3), "item": s.state()["items"][idx]})
             if method == "GET" and what in ("labels", "overlay"):
@@ -310,12 +394,15 @@ class _Handler(BaseHTTPRequestHandler):
                 arr = labels.astype(np.uint8) if what == "labels" else overlay_rgba(labels)
                 return self._send(200, _png(arr), "image/png")
             if method == "POST" and what == "save":
-                body = self._body()
-                if "fill" in body:
-                    s.fill = bool(body["fill"])
+                fill = _flag(self._body(), "fill")
+                if fill is not None:
+                    s.fill = fill
                 written = s.save()
                 return self._json({"written": [str(p) for p in written], "state": s.state()})
             return self._json({"error": f"{method} {path} is not supported"}, HTTPStatus.METHOD_NOT_ALLOWED)
+        except Refused as exc:
+            self.close_connection = True  # the body, if any, is left unread
+            return self._json({"error": str(exc)}, exc.status)
         except AbcgsError as exc:
             return self._json({"error": str(exc)}, HTTPStatus.BAD_REQUEST)
         except Exception as exc:  # the page shows the message; the server keeps running
@@ -329,17 +416,27 @@ class _Handler(BaseHTTPRequestHandler):
         self._dispatch("POST")
 
 
-def make_server(session: PaintSession, port: int = 0, host: str = "127.0.0.1") -> ThreadingHTTPServer:
+def make_server(session: PaintSession, port: int = 0, host: str = "127.0.0.1",
+                token: str | None = None) -> ThreadingHTTPServer:
     """An HTTP server for ``session`` on ``host:port`` (0 = any free port); call ``serve_forever()`` on it.
 
-    ``server.server_port`` is the port it got. Only loopback addresses are allowed: the page can write files.
+    ``server.server_port`` is the port it got. Only loopback addresses are allowed: the page can write files. Every
+    request must carry ``token`` (a fresh random one by default; ``server.token``), which :func:`page_url` puts in
+    the page's address, as Jupyter does: another user of the machine can reach the port, but not guess it.
     """
     if host not in ("127.0.0.1", "localhost", "::1"):
         raise InputError(f"the paint server listens on the loopback address only, not {host}")
-    handler = type("PaintHandler", (_Handler,), {"session": session})
+    token = token or secrets.token_urlsafe(24)
+    handler = type("PaintHandler", (_Handler,), {"session": session, "token": token})
     server = ThreadingHTTPServer((host, port), handler)
     server.daemon_threads = True
+    server.token = token  # type: ignore[attr-defined]
     return server
+
+
+def page_url(server: ThreadingHTTPServer) -> str:
+    """The page's address with the server's token (the page then keeps it in a cookie for its requests)."""
+    return f"http://127.0.0.1:{server.server_port}/?token={server.token}"  # type: ignore[attr-defined]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -372,7 +469,7 @@ def main(argv: list[str] | None = None) -> int:
     except (AbcgsError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    url = f"http://127.0.0.1:{server.server_port}/"
+    url = page_url(server)
     what = (f"{len(session.items)} views; masks go to {session.items[0].out_path.parent}" if session.mode == "scene"
             else f"the painting; its labels go to {session.items[0].out_path}")
     print(f"paint: {url}  ({what}); Ctrl+C to stop")

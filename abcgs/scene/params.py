@@ -33,3 +33,9 @@ class TinySceneParams(BaseModel, extra="forbid"):
         description="odd-numbered views are this many pixels narrower (a second camera with the same lens and a "
                     "cropped sensor, as COLMAP gives each camera its own undistorted size); 0: one camera",
     )
+
+
+TINY_STYLE_FILES = ("styles/paint.png", "styles/paint2.png", "styles/paint_labels.png")
+"""The paintings and the painting label map ``make_tiny`` writes into the tiny scene folder, relative to it
+(:func:`abcgs.scene.synthetic.write_tiny_scene`): the files there that ``data.styles`` / ``data.style_masks`` can
+name. ``preflight`` checks such paths against this list, before the folder exists."""

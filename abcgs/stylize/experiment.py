@@ -6,6 +6,7 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from abcgs.errors import InputError
@@ -13,6 +14,7 @@ from abcgs.features.matching import ExperimentParams, MatchingGroup, TransferSpe
 from abcgs.features.vgg import VGG16Features
 from abcgs.features.weights import WeightsInfo, resolve_vgg16
 from abcgs.gaussians import GaussianModel
+from abcgs.io.images import load_labels
 from abcgs.io.ply import read_ply
 from abcgs.layout import colormatch_dir, load_scene
 from abcgs.masks.outputs import SceneMasks, load_scene_masks
@@ -39,6 +41,17 @@ def load_vgg(params: Params, device: torch.device | str = "cpu") -> tuple[VGG16F
     return vgg, info
 
 
+def check_bindings(params: Params, name: str, spec: TransferSpec, labels: torch.Tensor, masks_dir: Path) -> None:
+    """The labels colour match ``name`` binds exist among the Gaussians' ``labels`` (the masks stage's, from
+    ``masks_dir``) and in its painting's label map (:meth:`TransferSpec.check_labels`); cheap, before any work."""
+    present = {int(v) for v in torch.unique(labels)} - {0}
+    regions, source = None, ""
+    if spec.transfer == "semantic" and spec.style in params.data.style_masks:
+        source = params.data.style_masks[spec.style]
+        regions = {int(v) for v in np.unique(load_labels(source))} - {0}
+    spec.check_labels(name, present, f"the Gaussians' labels ({masks_dir}/gaussian_labels.npy)", regions, source)
+
+
 def load_groups(params: Params, spec: TransferSpec, vgg: VGG16Features, labels: torch.Tensor) -> list[MatchingGroup]:
     present = {int(v) for v in torch.unique(labels)} - {0}
     return build_groups(
@@ -55,5 +68,5 @@ def read_colormatch(folder: Path, name: str) -> GaussianModel:
     return read_ply(ply)
 
 
-__all__ = ["SceneMasks", "colormatch_dir", "colormatch_spec", "experiment", "load_groups", "load_scene",
-           "load_scene_masks", "load_vgg", "read_colormatch"]
+__all__ = ["SceneMasks", "check_bindings", "colormatch_dir", "colormatch_spec", "experiment", "load_groups",
+           "load_scene", "load_scene_masks", "load_vgg", "read_colormatch"]

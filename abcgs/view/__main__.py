@@ -10,14 +10,35 @@ outside ``out/`` (which the report stage depends on), so looking at a scene neve
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import webbrowser
 from pathlib import Path
 
-from abcgs.errors import AbcgsError
+from abcgs.errors import AbcgsError, InputError
 from abcgs.io.atomic import write_text
 from abcgs.view.outputs import experiment_scene, load_experiment
 from abcgs.view.page import viewer_page
+
+
+def positive_int(text: str) -> int:
+    """An ``argparse`` type: an integer of at least 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{value} is not at least 1")
+    return value
+
+
+def check_page_path(out: Path, option: str) -> None:
+    """``out`` can become the page: not a folder, and its folder is (or can be made) writable."""
+    if out.is_dir():
+        raise InputError(f"{option} {out} is a folder; give the page's file name, e.g. {out / 'viewer.html'}")
+    parent = next((p for p in (out.parent, *out.parent.parents) if p.exists()), Path("."))
+    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"{option} {out}: {parent} is not a folder you can write; give a path you can write")
 
 
 def main(argv=None) -> int:
@@ -25,17 +46,23 @@ def main(argv=None) -> int:
     ap.add_argument("run_dir", type=Path, help="an experiment's output folder, e.g. out/tiny_single")
     ap.add_argument("--scene", help="scene key (default: from --params, else the only fitted scene beside it)")
     ap.add_argument("--params", type=Path, default=Path("params.yaml"))
-    ap.add_argument("--max-gaussians", type=int, default=150_000)
+    ap.add_argument("--max-gaussians", type=positive_int, default=150_000,
+                    help="Gaussians per layer on the page, at least 1 (larger scenes keep their most visible ones)")
     ap.add_argument("--out", type=Path, help="page to write (default: reports/viewers/<experiment>.html)")
     ap.add_argument("--no-open", action="store_true", help="only write the page")
     args = ap.parse_args(argv)
+    out = args.out or Path("reports") / "viewers" / f"{args.run_dir.resolve().name}.html"
     try:
+        check_page_path(out, "--out" if args.out else "the page")
         scene = args.scene or experiment_scene(args.run_dir, args.params)
         exp = load_experiment(args.run_dir, scene=scene, max_gaussians=args.max_gaussians)
-        out = args.out or Path("reports") / "viewers" / f"{args.run_dir.resolve().name}.html"
         write_text(out, viewer_page([exp], title=f"abcgs: {exp.name}"))
     except AbcgsError as exc:
         print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"error: cannot write {out}: {exc.strerror or exc}; give --out a file in a folder you can write",
+              file=sys.stderr)
         return 2
     size = out.stat().st_size / 1e6
     print(f"wrote {out} ({size:.1f} MB; {exp.layers['stylized'].num_gaussians} of {exp.n_gaussians_full} Gaussians "

@@ -168,6 +168,17 @@ def prepare_experiment(
     return ViewerExperiment(name, layers, list(cameras), stylized.num_gaussians, full_artifact, target, path, used)
 
 
+_SCRIPT_ESCAPES = str.maketrans({"<": "\\u003c", ">": "\\u003e", "&": "\\u0026"})
+
+
+def script_json(data) -> str:
+    """``data`` as JSON to place inside a ``<script>`` element: ``<``, ``>`` and ``&`` as ``\\uXXXX`` escapes
+    (they occur only inside JSON strings, which read them back unchanged; ``json.dumps`` already escapes every
+    non-ASCII character), so no string in it (a run folder named ``<!--`` or ``</script>``) can end or change the
+    element."""
+    return json.dumps(data).translate(_SCRIPT_ESCAPES)
+
+
 def _b64(data: bytes) -> str:
     return base64.b64encode(data).decode("ascii")
 
@@ -193,7 +204,7 @@ def viewer_fragment(experiments: list[ViewerExperiment], *, max_width: int = 960
             "n_gaussians_page": exp.layers["stylized"].num_gaussians,
             "n_gaussians_full": exp.n_gaussians_full, "full_artifact": exp.full_artifact, "max_width": max_width,
         })
-    payload = json.dumps(data).replace("</", "<\\/")
+    payload = script_json(data)
     js = gzip.decompress(bundle.read_bytes()).decode("utf-8").replace("</script", "<\\/script")
     return "\n".join([
         "<style>#abcgs-viewer .abcgs-bar{display:flex;flex-wrap:wrap;gap:6px;align-items:center;margin:6px 0}"

@@ -10,7 +10,7 @@ import threading
 from collections.abc import Iterator
 
 from abcgs.masks.grabcut import Stroke
-from abcgs.masks.paint import PaintSession, make_server
+from abcgs.masks.paint import PaintSession, make_server, page_url
 
 CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu-sandbox"]
 """Headless chromium flags for the page (no GPU is needed: it draws on a 2-D canvas)."""
@@ -18,11 +18,11 @@ CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu-sandbox"]
 
 @contextlib.contextmanager
 def serve(session: PaintSession) -> Iterator[str]:
-    """The page's server for ``session`` on a free loopback port, in a thread; yields its URL."""
+    """The page's server for ``session`` on a free loopback port, in a thread; yields its URL (with the token)."""
     server = make_server(session, port=0)
     threading.Thread(target=server.serve_forever, daemon=True).start()
     try:
-        yield f"http://127.0.0.1:{server.server_port}/"
+        yield page_url(server)
     finally:
         server.shutdown()
         server.server_close()
