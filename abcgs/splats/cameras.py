@@ -6,14 +6,16 @@ Sizes come from robust bounds of the Gaussians (opacity-weighted 5 % / 95 % quan
 principal axes, :func:`splat_frame`), so floaters and a far background do not push the cameras away:
 
 - ``orbit``: a ring around the axis of least spread (the "up" of an object on a table), 20° above its equator, at the
-  distance where the bounds fill the field of view (× 1.2), every camera looking at the centre;
-- ``forward``: a 4 × ⌈count/4⌉ grid of cameras in a plane facing the bounds along that axis, spread over ±15 % of the
-  width, from the side of the shorter tail (a forward-facing capture's far background forms the longer one), all
-  looking at the centre;
-- ``auto``: ``orbit`` when the least spread is at least :data:`ORBIT_MIN_FLATNESS` of the largest (a compact object),
-  else ``forward`` (a layered, facing scene such as LLFF's).
-
-Image "down" is the middle principal axis: the widest spread runs across the image. The sign of a principal axis is
+  distance where the bounds fill the field of view (× 1.2), every camera looking at the centre; image "down" is
+  that axis;
+- ``forward``: a 4 × ⌈count/4⌉ grid of cameras in a plane facing the bounds along the depth axis, spread over ±15 % of
+  the width, from the side of the shorter tail, all looking at the centre; the widest of the two other axes runs
+  across the image;
+- ``auto``: ``forward`` when one principal axis is lopsided — the distance from the median to one quantile exceeds
+  the other by :data:`FORWARD_MIN_ASYMMETRY` of the range or more, as a forward-facing capture's far background
+  makes it (that axis is the depth axis) — else ``orbit`` (a compact or symmetric splat, e.g. an object with the
+  room around it).
+ The sign of a principal axis is
 arbitrary, so a generated view may be upside down relative to the capture that trained the splat; stylization does
 not depend on it.
 """
@@ -31,8 +33,8 @@ from abcgs.cameras import Camera, intrinsics, look_at
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
 
-ORBIT_MIN_FLATNESS = 0.35
-"""``auto`` picks an orbit when the smallest robust half-extent is at least this fraction of the largest."""
+FORWARD_MIN_ASYMMETRY = 0.3
+"""``auto`` picks forward-facing views when an axis's quantile tails differ by this fraction of its 5–95 % range."""
 QUANTILE = 0.05
 
 
@@ -90,9 +92,10 @@ def cameras_around(
     if count < 1:
         raise InputError(f"views.count must be at least 1, got {count}")
     fr = splat_frame(model)
+    asym = np.abs(fr.tails) / (2 * fr.half_extent)
     used = kind
     if kind == "auto":
-        used = "orbit" if fr.half_extent[2] >= ORBIT_MIN_FLATNESS * fr.half_extent[0] else "forward"
+        used = "forward" if asym.max() >= FORWARD_MIN_ASYMMETRY else "orbit"
     focal = width / 2 / np.tan(np.radians(fov_deg) / 2)
     K = intrinsics(focal, width, height)
     tan_half = min(width, height) / 2 / focal  # the narrower half-angle: the bounds must fit both ways
@@ -107,12 +110,15 @@ def cameras_around(
             out.append(Camera(f"view_{i:03d}.png", K.copy(), look_at(eye, fr.centre, up=-up), width, height,
                               {"views_kind": used}))
     elif used == "forward":
-        side = -1.0 if fr.tails[2] > 0 else 1.0  # cameras on the short-tail side
-        dist = 1.2 * max(fr.half_extent[0], fr.half_extent[1] * width / height) / np.tan(np.radians(fov_deg) / 2)
-        dist += fr.half_extent[2]
+        depth = int(np.argmax(asym))
+        across, down = (i for i in range(3) if i != depth)  # principal order: the wider spread runs across
+        a0, a1, a2 = fr.axes[across], fr.axes[down], fr.axes[depth]
+        h0, h1, h2 = fr.half_extent[across], fr.half_extent[down], fr.half_extent[depth]
+        side = -1.0 if fr.tails[depth] > 0 else 1.0  # cameras on the short-tail side
+        dist = 1.2 * max(h0, h1 * width / height) / np.tan(np.radians(fov_deg) / 2) + h2
         cols = 4 if count >= 4 else count
         rows = -(-count // cols)
-        spread = 0.15 * fr.half_extent[0]
+        spread = 0.15 * h0
         for i in range(count):
             r, c = divmod(i, cols)
             u = (c / max(cols - 1, 1) - 0.5) * 2 * spread

@@ -124,6 +124,12 @@ def with_higher_sh(model: GaussianModel, original: GaussianModel, mode: str) -> 
     return out
 
 
+def _keep_bands_above_1_zero(model: GaussianModel, params: StylizeParams) -> None:
+    """``degree1``: bands 2–3 get no gradient, so Adam leaves them at zero (a degree-1 scene in degree-3 storage)."""
+    if params.higher_sh == "degree1" and model.shN.shape[1] > 3 and model.shN.requires_grad:
+        model.shN.register_hook(lambda g: torch.cat([g[:, :3], torch.zeros_like(g[:, 3:])], dim=1))
+
+
 def higher_sh_lr(params: StylizeParams, model: GaussianModel) -> float:
     """The higher SH bands' learning rate: ``lr_shN`` when ``higher_sh`` optimises them (and the scene has them)."""
     return params.lr_shN if params.higher_sh in ("optimized", "degree1") and model.shN.numel() else 0.0
@@ -236,6 +242,7 @@ def style_pass(
     lrs = main_pass_lrs(params)
     lrs["shN"] = higher_sh_lr(params, m)
     opt = _optimizer(m, lrs)
+    _keep_bands_above_1_zero(m, params)
     views = _random_views(len(targets), params.seed)
     style_feats = [StyleFeatures.of(g.features) for g in groups]  # fixed for the run: prepared once
     bar = progress_bar(range(iterations), "stylize", enabled=progress)
@@ -334,6 +341,7 @@ def color_pass(
     m = recolored.as_parameters()
     opt = _optimizer(m, {"sh0": params.lr_sh0, "quats": params.lr_quats, "means": 0.0, "log_scales": 0.0,
                          "opacity_logits": 0.0, "shN": higher_sh_lr(params, m)})
+    _keep_bands_above_1_zero(m, params)
     views = _random_views(len(targets), params.seed + 1)
     bar = progress_bar(range(iterations), "colour pass", enabled=progress)
     t_start = time.perf_counter()
