@@ -27,6 +27,7 @@ from abcgs.render import select_backend
 from abcgs.render.cpu import kernel_threads
 from abcgs.runtime import torch_threads
 from abcgs.splats.formats import read_splat
+from abcgs.splats.preview import decimate
 from abcgs.splats.validate import check_splat
 
 SOURCE_FILE = "splat_source.json"
@@ -41,12 +42,15 @@ def import_and_save(scene: SceneLike, splat: str | os.PathLike, fmt: str, params
                     out_dir: str | os.PathLike) -> dict:
     """Read ``splat`` (:func:`~abcgs.splats.formats.read_splat`), check it against the photos
     (:func:`~abcgs.splats.validate.check_splat` with ``params.import_min_psnr``; raises before writing anything
-    when it fails), evaluate the held-out views and write the outputs listed in the module docstring. Returns the
+    when it fails; ``params.import_max_gaussians`` decimates it first, :mod:`abcgs.splats.preview`), evaluate the held-out views and write the outputs listed in the module docstring. Returns the
     ``metrics.json`` record."""
     out = Path(out_dir)
     t0 = time.perf_counter()
     with torch_threads(params.threads), kernel_threads(params.rasterizer_threads):
         imported = read_splat(splat, fmt, scene=scene)
+        n_source = imported.model.num_gaussians
+        if params.import_max_gaussians is not None and n_source > params.import_max_gaussians:
+            imported.model = decimate(imported.model, params.import_max_gaussians)
         backend = select_backend(torch.device("cpu"), params.backend)
         check = check_splat(imported.model, scene, min_psnr=params.import_min_psnr, backend=backend, source=str(splat))
         views = load_views(scene, params.resolution_scale, params.test_every)
@@ -63,6 +67,7 @@ def import_and_save(scene: SceneLike, splat: str | os.PathLike, fmt: str, params
         "n_train_views": len(views.train), "n_test_views": len(views.test),
         "per_view": held["per_view"] if held else {}, "eval_history": [],
         "imported": {"format": prov.format, "source": prov.source, "sh_degree": prov.sh_degree,
+                     "n_gaussians_source": n_source,
                      "frame_is_scene_frame": bool((abs(torch.tensor(prov.to_file) - torch.eye(4)) < 1e-9).all()),
                      "check": check.to_dict()},
     }
