@@ -328,3 +328,29 @@ def test_give_back_of_a_fitted_scene_says_there_is_nothing_else(tmp_path):
     write_ply(tmp_path / "point_cloud.ply", make_model(50, 0))
     rec = give_back(tmp_path / "point_cloud.ply", tmp_path / "splat_source.json", tmp_path / "returned")
     assert rec["format"] is None and [p.name for p in (tmp_path / "returned").iterdir()] == ["returned.json"]
+
+
+def test_preview_keeps_the_most_important_gaussians_and_import_records_it(scene_and_model, tmp_path):
+    from abcgs.splats.preview import decimate, importance
+
+    scene, model = scene_and_model
+    small = decimate(model, 1000)
+    assert small.num_gaussians == 1000
+    kept = importance(small)
+    assert float(kept.min()) >= float(torch.sort(importance(model), descending=True).values[999]) - 1e-12
+    path = tmp_path / "full.ply"
+    write_ply(path, model)
+    record = import_and_save(scene, path, "auto", FitParams(import_max_gaussians=1500, import_min_psnr=10.0), tmp_path / "gs")
+    assert record["n_gaussians"] == 1500 and record["imported"]["n_gaussians_source"] == model.num_gaussians
+
+
+def test_scene_params_name_a_splat_relative_to_the_scene_folder():
+    from abcgs.errors import ParamsError
+    from abcgs.params import validate_params
+
+    p = validate_params({"data": {"scenes": {"g": {"path": "data/g", "splat": "splat/point_cloud.ply"}}}})
+    assert p.data.scenes["g"].splat_path() == Path("data/g/splat/point_cloud.ply")
+    assert p.data.scenes["g"].splat_format == "auto"
+    assert validate_params({"data": {"scenes": {"g": "data/g"}}}).data.scenes["g"].splat_path() is None
+    with pytest.raises(ParamsError, match="splat_format"):
+        validate_params({"data": {"scenes": {"g": {"path": "data/g", "splat": "x.ply", "splat_format": "obj"}}}})
