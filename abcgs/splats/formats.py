@@ -24,8 +24,10 @@ A PLY is told apart by its header (packed properties: ``supersplat``) and its su
 
 from __future__ import annotations
 
+import gzip
 import json
 import os
+import struct
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Literal, get_args
@@ -184,10 +186,8 @@ def read_splat(path: str | os.PathLike, fmt: str = "auto", *, scene=None) -> Imp
         model = read_splat_file(p)
     else:
         model = read_spz(p)
-        import gzip
-        import struct
-
-        extra = {"spz_version": struct.unpack_from("<I", gzip.decompress(p.read_bytes())[:8], 4)[0]}
+        with gzip.open(p, "rb") as f:  # the header's version, to write the same one back
+            extra = {"spz_version": struct.unpack("<II", f.read(8))[1]}
     prov = SplatProvenance(fmt, os.fspath(p), model.sh_degree, model.num_gaussians,
                            frames.similarity_matrix(to_file).tolist(), layout.to_list() if layout else None, **extra)
     scene_model = frames.transform_model(model, frames.inverse(to_file))
