@@ -50,17 +50,22 @@ def test_auto_views_orbit_a_compact_splat_and_face_a_layered_one():
     assert _projected_inside(blob, cams) > 0.97
     centres = np.stack([c.center for c in cams])
     assert np.ptp(np.linalg.norm(centres - splat_frame(blob).centre, axis=1)) < 1e-6  # one radius
-    # a wide layer at z ~ 0 with a far background tail towards +z: views from -z, facing it
+    # a forward-facing capture's splat: trained from z = -3, each Gaussian a few pixels wide there, so the far ones
+    # (up to z = 6) are larger; views come from -z, facing +z
     g = torch.Generator().manual_seed(1)
     n = 3000
-    means = torch.randn(n, 3, generator=g) * torch.tensor([1.5, 1.0, 0.05])
-    means[: n // 10, 2] += 3.0 + torch.rand(n // 10, generator=g) * 4
-    layer = GaussianModel(means, blob.quats[:1].repeat(n, 1), torch.full((n, 3), -3.0), torch.full((n,), 2.0),
-                          torch.zeros(n, 1, 3), torch.zeros(n, 0, 3))
-    cams, kind = cameras_around(layer, "auto", 8, 64, 48)
+    means = torch.rand(n, 3, generator=g) * torch.tensor([4.0, 3.0, 6.0]) - torch.tensor([2.0, 1.5, 0.0])
+    log_scales = torch.log(0.004 * (means[:, 2:3] + 3.0)).repeat(1, 3)
+    facing = GaussianModel(means, blob.quats[:1].repeat(n, 1), log_scales, torch.full((n,), 2.0),
+                           torch.zeros(n, 1, 3), torch.zeros(n, 0, 3))
+    cams, kind = cameras_around(facing, "auto", 8, 64, 48)
     assert kind == "forward"
-    assert all(c.center[2] < -1.0 for c in cams)  # the short-tail side
-    assert _projected_inside(layer.index(torch.arange(n // 10, n)), cams) > 0.9
+    assert all(c.center[2] < -1.0 for c in cams)  # the small-Gaussian side
+    assert all(c.viewmat[2, 2] > 0.9 for c in cams)  # looking along +z
+    assert _projected_inside(facing, cams) > 0.9
+    # the same positions with sizes that do not grow: nothing says which side it was seen from, so an orbit
+    assert cameras_around(GaussianModel(means, facing.quats, torch.full((n, 3), -4.0), facing.opacity_logits,
+                                        facing.sh0, facing.shN), "auto", 8, 64, 48)[1] == "orbit"
 
 
 def test_a_bare_splat_runs_through_import_stylization_and_give_back(tmp_path):

@@ -8,14 +8,16 @@ principal axes, :func:`splat_frame`), so floaters and a far background do not pu
 - ``orbit``: a ring around the axis of least spread (the "up" of an object on a table), 20° above its equator, at the
   distance where the bounds fill the field of view (× 1.2), every camera looking at the centre; image "down" is
   that axis;
-- ``forward``: a 4 × ⌈count/4⌉ grid of cameras in a plane facing the bounds along the depth axis, spread over ±15 % of
-  the width, from the side of the shorter tail, all looking at the centre; the widest of the two other axes runs
-  across the image;
-- ``auto``: ``forward`` when one principal axis is lopsided — the distance from the median to one quantile exceeds
-  the other by :data:`FORWARD_MIN_ASYMMETRY` of the range or more, as a forward-facing capture's far background
-  makes it (that axis is the depth axis) — else ``orbit`` (a compact or symmetric splat, e.g. an object with the
-  room around it).
- The sign of a principal axis is
+- ``forward``: a 4 × ⌈count/4⌉ grid of cameras in a plane facing the splat along its size gradient (below), spread
+  over ±15 % of the width, from the side of the small Gaussians, at the distance where the 10–90 % quantiles across
+  fill the field of view, all looking at their centre;
+- ``auto``: ``forward`` when the Gaussians grow across the splat: a splat trained from one side has Gaussians whose
+  size grows with their distance from the cameras (each covers a few pixels there), so ``log σ_max`` regressed on
+  position (opacity-weighted, inside the bounds) has a gradient pointing away from them; when it changes ``log σ_max``
+  by :data:`FORWARD_MIN_LOG_GROWTH` or more across the bounds, the views come from the small side (fern: 2.9, its
+  gradient 16° from the capture's mean viewing direction). Else ``orbit`` (an object seen from all round).
+
+The sign of a principal axis is
 arbitrary, so a generated view may be upside down relative to the capture that trained the splat; stylization does
 not depend on it.
 """
@@ -33,9 +35,13 @@ from abcgs.cameras import Camera, intrinsics, look_at
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
 
-FORWARD_MIN_ASYMMETRY = 0.3
-"""``auto`` picks forward-facing views when an axis's quantile tails differ by this fraction of its 5–95 % range."""
+FORWARD_MIN_LOG_GROWTH = 0.7
+"""``auto`` picks forward-facing views when the Gaussians' ``log σ_max`` grows by this much across the bounds
+(σ × 2 at 0.69)."""
 QUANTILE = 0.05
+FORWARD_QUANTILE = 0.1
+"""Forward-facing views frame the 10–90 % quantiles across and along the viewing direction (a facing capture's
+floaters and far background would otherwise push the cameras back)."""
 
 
 @dataclass(frozen=True)
@@ -46,13 +52,18 @@ class SplatFrame:
         centre: ``(3,)`` opacity-weighted median of the means (world units).
         axes: ``(3, 3)`` rows: unit principal axes, largest spread first.
         half_extent: ``(3,)`` half the 5–95 % quantile range along each axis (world units).
-        tails: ``(3,)`` for each axis, (95 % − median) − (median − 5 %): positive when the far tail is on the + side.
+        size_gradient: ``(3,)`` world gradient of ``log σ_max`` (per world unit), opacity-weighted least squares over
+            the Gaussians inside the bounds.
     """
 
     centre: np.ndarray
     axes: np.ndarray
     half_extent: np.ndarray
-    tails: np.ndarray
+    size_gradient: np.ndarray
+
+    def log_growth(self) -> float:
+        """How much ``log σ_max`` changes across the bounds along the size gradient."""
+        return float(np.abs(self.axes @ self.size_gradient) @ (2 * self.half_extent))
 
 
 def _wquantile(v: np.ndarray, w: np.ndarray, qs: tuple[float, ...]) -> np.ndarray:
@@ -68,6 +79,7 @@ def splat_frame(model: GaussianModel) -> SplatFrame:
     with torch.no_grad():
         x = model.means.double().cpu().numpy()
         w = model.opacities.double().cpu().numpy() + 1e-6
+        log_size = model.log_scales.double().max(dim=1).values.cpu().numpy()
     if not np.isfinite(x).all():
         raise InputError("the splat has NaN/Inf positions; it is corrupt")
     med = np.array([_wquantile(x[:, a], w, (0.5,))[0] for a in range(3)])
@@ -78,8 +90,10 @@ def splat_frame(model: GaussianModel) -> SplatFrame:
     proj = d @ axes.T
     qs = np.stack([_wquantile(proj[:, a], w, (QUANTILE, 0.5, 1 - QUANTILE)) for a in range(3)])
     half = np.maximum((qs[:, 2] - qs[:, 0]) / 2, 1e-6)
-    tails = (qs[:, 2] - qs[:, 1]) - (qs[:, 1] - qs[:, 0])
-    return SplatFrame(med + axes.T @ ((qs[:, 0] + qs[:, 2]) / 2), axes, half, tails)
+    inside = ((proj >= qs[:, 0]) & (proj <= qs[:, 2])).all(axis=1)
+    a = np.c_[np.ones(inside.sum()), proj[inside]] * np.sqrt(w[inside])[:, None]
+    coef, *_ = np.linalg.lstsq(a, log_size[inside] * np.sqrt(w[inside]), rcond=None)
+    return SplatFrame(med + axes.T @ ((qs[:, 0] + qs[:, 2]) / 2), axes, half, axes.T @ coef[1:])
 
 
 def cameras_around(
@@ -92,10 +106,9 @@ def cameras_around(
     if count < 1:
         raise InputError(f"views.count must be at least 1, got {count}")
     fr = splat_frame(model)
-    asym = np.abs(fr.tails) / (2 * fr.half_extent)
     used = kind
     if kind == "auto":
-        used = "forward" if asym.max() >= FORWARD_MIN_ASYMMETRY else "orbit"
+        used = "forward" if fr.log_growth() >= FORWARD_MIN_LOG_GROWTH else "orbit"
     focal = width / 2 / np.tan(np.radians(fov_deg) / 2)
     K = intrinsics(focal, width, height)
     tan_half = min(width, height) / 2 / focal  # the narrower half-angle: the bounds must fit both ways
@@ -110,12 +123,19 @@ def cameras_around(
             out.append(Camera(f"view_{i:03d}.png", K.copy(), look_at(eye, fr.centre, up=-up), width, height,
                               {"views_kind": used}))
     elif used == "forward":
-        depth = int(np.argmax(asym))
-        across, down = (i for i in range(3) if i != depth)  # principal order: the wider spread runs across
-        a0, a1, a2 = fr.axes[across], fr.axes[down], fr.axes[depth]
-        h0, h1, h2 = fr.half_extent[across], fr.half_extent[down], fr.half_extent[depth]
-        side = -1.0 if fr.tails[depth] > 0 else 1.0  # cameras on the short-tail side
-        dist = 1.2 * max(h0, h1 * width / height) / np.tan(np.radians(fov_deg) / 2) + h2
+        g = fr.size_gradient
+        a2 = g / np.linalg.norm(g) if np.linalg.norm(g) > 0 else fr.axes[2]  # viewing direction: towards larger
+        a0 = fr.axes[0] - (fr.axes[0] @ a2) * a2 if abs(fr.axes[0] @ a2) < 0.9 else fr.axes[1] - (fr.axes[1] @ a2) * a2
+        a0 /= np.linalg.norm(a0)
+        a1 = np.cross(a2, a0)
+        with torch.no_grad():
+            x = model.means.double().cpu().numpy() - fr.centre
+            w = model.opacities.double().cpu().numpy() + 1e-6
+        q = np.stack([_wquantile(x @ a, w, (FORWARD_QUANTILE, 1 - FORWARD_QUANTILE)) for a in (a0, a1, a2)])
+        h0, h1, h2 = np.maximum((q[:, 1] - q[:, 0]) / 2, 1e-6)
+        centre = fr.centre + np.stack([a0, a1, a2]).T @ q.mean(axis=1)
+        dist = max(h0, h1 * width / height) / np.tan(np.radians(fov_deg) / 2) + h2
+        side = -1.0  # cameras on the small-Gaussian side
         cols = 4 if count >= 4 else count
         rows = -(-count // cols)
         spread = 0.15 * h0
@@ -123,8 +143,8 @@ def cameras_around(
             r, c = divmod(i, cols)
             u = (c / max(cols - 1, 1) - 0.5) * 2 * spread
             v = (r / max(rows - 1, 1) - 0.5) * 2 * spread * height / width if rows > 1 else 0.0
-            eye = fr.centre + side * dist * a2 + u * a0 + v * a1
-            out.append(Camera(f"view_{i:03d}.png", K.copy(), look_at(eye, fr.centre, up=-a1), width, height,
+            eye = centre + side * dist * a2 + u * a0 + v * a1
+            out.append(Camera(f"view_{i:03d}.png", K.copy(), look_at(eye, centre, up=-a1), width, height,
                               {"views_kind": used}))
     else:
         raise InputError(f"views.kind must be auto, orbit or forward, got {kind!r}")
