@@ -153,6 +153,9 @@ def _write(fmt: str, model: GaussianModel, scene: SceneData, root: Path) -> Path
     if fmt == "gsplat_ply":
         write_ply(root / "point_cloud_29999.ply", frames.transform_model(model, gs))
         return root / "point_cloud_29999.ply"
+    if fmt == "opensplat":
+        write_ply(root / "splat.ply", frames.transform_model(model, frames.opensplat_similarity(scene.cameras)))
+        return root / "splat.ply"
     if fmt == "supersplat":
         write_compressed_ply(root / "scene.compressed.ply", model)
         return root / "scene.compressed.ply"
@@ -170,7 +173,7 @@ def _write(fmt: str, model: GaussianModel, scene: SceneData, root: Path) -> Path
 # Lossy ones, measured on this scene: SuperSplat's compressed PLY 48.4 (positions 11/10/11 bits of a 256-Gaussian
 # chunk, SH 8 bits), .splat 47.4 against the degree-0 original (8-bit colour/opacity/rotation; it has no SH bands),
 # .spz 38.3 (SH bands at 4-5 bits: the bound of a degree-3 scene is below 40 dB; docs/SPLATS.md).
-BOUND_DB = {"inria": 40.0, "splatfacto": 40.0, "gsplat_ckpt": 40.0, "gsplat_ply": 40.0, "spz": 35.0,
+BOUND_DB = {"inria": 40.0, "splatfacto": 40.0, "gsplat_ckpt": 40.0, "gsplat_ply": 40.0, "opensplat": 40.0, "spz": 35.0,
             "supersplat": 40.0, "splat": 40.0}
 
 
@@ -179,7 +182,7 @@ def test_each_format_reimports_to_the_originals_renders(fmt, scene_and_model, tm
     scene, model = scene_and_model
     path = _write(fmt, model, scene, tmp_path / fmt)
     detected = detect_splat_format(path)
-    assert detected == ("ply" if fmt == "gsplat_ply" else fmt)  # gsplat's PLY is a plain PLY: it must be named
+    assert detected == ("ply" if fmt in ("gsplat_ply", "opensplat") else fmt)  # plain PLYs: their frame must be named
     imported = read_splat(path, fmt, scene=scene)
     reference = model if fmt != "splat" else GaussianModel(model.means, model.quats, model.log_scales,
                                                            model.opacity_logits, model.sh0, model.shN[:, :0])
@@ -268,6 +271,13 @@ def test_gsplat_ply_read_as_plain_ply_is_diagnosed_as_gsplats_frame(scene_and_mo
     ply = _write("gsplat_ply", model, scene, tmp_path)
     with pytest.raises(InputError, match="gsplat_ply"):
         check_splat(read_splat(ply, scene=scene).model, scene, min_psnr=20.0)
+
+
+def test_opensplat_ply_read_as_plain_ply_is_diagnosed_as_opensplats_frame(scene_and_model, tmp_path):
+    scene, model = scene_and_model
+    ply = _write("opensplat", model, scene, tmp_path)
+    with pytest.raises(InputError, match="splat_format: opensplat"):
+        check_splat(read_splat(ply, scene=scene).model, scene, min_psnr=18.0)
 
 
 def test_coefficient_major_sh_is_diagnosed_as_sh_layout(scene_and_model, tmp_path):

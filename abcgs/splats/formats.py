@@ -12,14 +12,16 @@ format              input                                                  frame
 ``splatfacto``      ``ns-export gaussian-splat`` PLY + dataparser_transforms  nerfstudio's dataparser transform undone
 ``gsplat_ckpt``     gsplat ``ckpts/ckpt_*.pt``                             gsplat's ``normalize_world_space`` undone
 ``gsplat_ply``      gsplat's exported PLY                                  gsplat's ``normalize_world_space`` undone
+``opensplat``       OpenSplat's PLY (trained without ``--keep-crs``)       OpenSplat's centring and scaling undone
 ``supersplat``      SuperSplat / splat-transform compressed PLY            the scene's
 ``splat``           antimatter15 ``.splat``                                the scene's
 ``spz``             Niantic ``.spz`` (v2, v3)                              the scene's
 ==================  =====================================================  =============================================
 
 A PLY is told apart by its header (packed properties: ``supersplat``) and its surroundings (a
-``dataparser_transforms.json`` next to it or above: ``splatfacto``); gsplat's PLY looks like any other and must be named
-(``splat_format: gsplat_ply``) — the import check says so when a plain PLY renders well only in gsplat's frame.
+``dataparser_transforms.json`` next to it or above: ``splatfacto``); gsplat's and OpenSplat's PLYs look like any other and must be
+named (``splat_format: gsplat_ply`` / ``opensplat``) — the import check says so when a plain PLY renders well only in
+their frame.
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ from abcgs.splats import frames, inria, splatfacto, supersplat
 from abcgs.splats.gsplat_ckpt import read_gsplat_ckpt, write_gsplat_ckpt
 from abcgs.splats.splat import read_splat_file, write_splat_file
 
-SplatFormat = Literal["inria", "ply", "splatfacto", "gsplat_ckpt", "gsplat_ply", "supersplat", "splat", "spz"]
+SplatFormat = Literal["inria", "ply", "splatfacto", "gsplat_ckpt", "gsplat_ply", "opensplat", "supersplat", "splat", "spz"]
 FORMATS: tuple[str, ...] = get_args(SplatFormat)
 LOSSY: frozenset[str] = frozenset({"supersplat", "splat", "spz"})
 """Formats that quantise (their round trip is bounded, not exact)."""
@@ -129,8 +131,8 @@ def detect_splat_format(path: str | os.PathLike) -> str:
 
 def _scene_frame_needed(fmt: str, scene) -> None:
     if scene is None:
-        raise InputError(f"splat format {fmt} is stored in gsplat's normalised world, which is computed from the scene's "
-                         "cameras and points; import it into a scene that has them")
+        raise InputError(f"splat format {fmt} is stored in its trainer's normalised world, which is computed from the "
+                         "scene's cameras (and points); import it into a scene that has them")
 
 
 def read_splat(path: str | os.PathLike, fmt: str = "auto", *, scene=None) -> ImportedSplat:
@@ -160,7 +162,7 @@ def read_splat(path: str | os.PathLike, fmt: str = "auto", *, scene=None) -> Imp
                                            scene.cameras, source=str(p / "cameras.json"))
             if sim is not None and not frames.is_identity(sim, inria.CAMERA_ALIGN_TOLERANCE * max(1.0, abs(sim.t).max())):
                 to_file = frames.inverse(sim)
-    elif fmt in ("ply", "gsplat_ply", "splatfacto"):
+    elif fmt in ("ply", "gsplat_ply", "opensplat", "splatfacto"):
         ply = splatfacto.splatfacto_ply(p) if fmt == "splatfacto" else p
         if supersplat.is_compressed_ply(ply):
             raise InputError(f"{ply} is a SuperSplat compressed PLY; set splat_format: supersplat (or auto)")
@@ -175,6 +177,9 @@ def read_splat(path: str | os.PathLike, fmt: str = "auto", *, scene=None) -> Imp
         elif fmt == "gsplat_ply":
             _scene_frame_needed(fmt, scene)
             to_file = frames.gsplat_similarity(scene.cameras, scene.points)
+        elif fmt == "opensplat":
+            _scene_frame_needed(fmt, scene)
+            to_file = frames.opensplat_similarity(scene.cameras)
     elif fmt == "gsplat_ckpt":
         _scene_frame_needed(fmt, scene)
         model, step = read_gsplat_ckpt(p)
@@ -216,7 +221,7 @@ def write_splat(model: GaussianModel, path: str | os.PathLike, like: SplatProven
             write_ply(tmp / "point_cloud" / f"iteration_{like.iteration or 0}" / "point_cloud.ply", out, layout)
             for name, text in like.side_files.items():
                 write_text(tmp / name, text)
-    elif fmt in ("ply", "gsplat_ply", "splatfacto"):
+    elif fmt in ("ply", "gsplat_ply", "opensplat", "splatfacto"):
         write_ply(path, out, layout)
         for name, text in like.side_files.items():
             write_text(path.parent / name, text)

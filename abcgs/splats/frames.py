@@ -11,6 +11,9 @@ view directions). The maps known here:
 - gsplat's ``simple_trainer`` with ``normalize_world_space`` (its default): the world is re-centred, rotated and
   scaled from the COLMAP cameras and points (``examples/datasets/normalize.py`` and ``colmap.py``'s ``Parser``),
   and nothing in the checkpoint or PLY records it; :func:`gsplat_similarity` recomputes it from the scene.
+- OpenSplat (without ``--keep-crs``): the world re-centred on the mean camera centre and scaled by 1 / the largest
+  absolute coordinate of the centred camera centres, no rotation (its ``autoScaleAndCenterPoses``):
+  :func:`opensplat_similarity`.
 - :data:`AXIS_FLIP`: a world whose y and z axes point the other way (OpenGL/Blender "y up, z back" against
   COLMAP/OpenCV "y down, z forward"), a rotation of 180° about x.
 """
@@ -223,3 +226,17 @@ def gsplat_similarity(cameras: list[Camera], points: np.ndarray) -> Similarity:
     if np.median(pts[:, 2]) > np.mean(pts[:, 2]):
         out = compose(AXIS_FLIP, out)
     return out
+
+
+def opensplat_similarity(cameras: list[Camera]) -> Similarity:
+    """Dataset frame → OpenSplat's world (trained without ``--keep-crs``): ``x' = f (x − c)`` with ``c`` the mean
+    camera centre and ``f = 1 / max |centre − c|`` over every coordinate of every camera."""
+    if len(cameras) < 2:
+        raise InputError(f"OpenSplat's frame is computed from the scene's cameras; the scene has {len(cameras)}")
+    centres = np.stack([c.center for c in cameras])
+    c = centres.mean(axis=0)
+    extent = float(np.abs(centres - c).max())
+    if extent <= 0:
+        raise InputError("OpenSplat's frame needs cameras at more than one place; every camera centre is the same")
+    f = 1.0 / extent
+    return Similarity(f, np.eye(3), -f * c)

@@ -10,7 +10,8 @@ from typing import Literal
 
 from pydantic import BaseModel, Field
 
-SplatFormatParam = Literal["auto", "inria", "ply", "splatfacto", "gsplat_ckpt", "gsplat_ply", "supersplat", "splat", "spz"]
+SplatFormatParam = Literal[
+    "auto", "inria", "ply", "splatfacto", "gsplat_ckpt", "gsplat_ply", "opensplat", "supersplat", "splat", "spz"]
 """``auto`` or a format of :data:`abcgs.splats.formats.SplatFormat`."""
 
 

@@ -6,7 +6,7 @@ they disagree.
 A splat trained on these photos renders them at 20–35 dB; the same splat in another frame, axis convention or scale
 renders them at the level of an unrelated image (~8–13 dB). When the check fails it renders cheap alternatives — the
 world's y/z axes reversed (OpenGL vs OpenCV), the ``f_rest`` coefficients read coefficient-major instead of INRIA's
-channel-major, gsplat's normalised world, and the Gaussians' robust bounds moved onto the scene's sparse points
+channel-major, gsplat's and OpenSplat's normalised worlds, and the Gaussians' robust bounds moved onto the scene's sparse points
 (another scale or offset) — and names the one that renders clearly better, with its PSNR.
 """
 
@@ -39,6 +39,8 @@ CAUSES = {
                  "coefficients, then G, then B); re-export the PLY in the INRIA layout",
     "gsplat_frame": "frame: the splat is in gsplat's normalised world (simple_trainer's normalize_world_space); set "
                     "splat_format: gsplat_ply (or import the checkpoint .pt)",
+    "opensplat_frame": "frame: the splat is in OpenSplat's centred and scaled world (trained without --keep-crs); set "
+                       "splat_format: opensplat",
     "scale_offset": "scale/frame: the splat's Gaussians sit at another scale or place than the scene's sparse points "
                     "(another reconstruction, or a tool's own normalisation, e.g. a nerfstudio export without its "
                     "dataparser_transforms.json); import the splat trained on this scene's COLMAP model with its frame file",
@@ -126,6 +128,9 @@ def _alternatives(model: GaussianModel, scene) -> dict[str, Callable[[], Gaussia
             return GaussianModel(model.means, model.quats, model.log_scales, model.opacity_logits, model.sh0,
                                  flat.reshape(n, k1, 3).contiguous())
         alts["sh_layout"] = transposed
+    if len(scene.cameras) >= 2:
+        alts["opensplat_frame"] = lambda: frames.transform_model(
+            model, frames.inverse(frames.opensplat_similarity(scene.cameras)))
     points = np.asarray(getattr(scene, "points", np.zeros((0, 3))))
     if len(points) >= 4:
         alts["gsplat_frame"] = lambda: frames.transform_model(
