@@ -93,7 +93,7 @@ class FitParams(BaseModel, extra="forbid"):
         "other processes on the cores, intra-op threads spin and a step runs up to ~15x slower",
     )
     import_min_psnr: float = Field(
-        18.0, ge=0.0, description="a scene that names a trained splat imports it instead of fitting; below this mean "
+        16.0, ge=0.0, description="a scene that names a trained splat imports it instead of fitting; below this mean "
         "PSNR (dB) of its renders against the photos the import fails, naming the likely cause (frame, axes, scale, SH "
         "layout), instead of stylizing a misaligned scene")
     import_max_gaussians: int | None = Field(

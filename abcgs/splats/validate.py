@@ -1,7 +1,7 @@
 """Does an imported splat show the scene? Render its views, compare with the photos, and name the likely cause when
 they disagree.
 
-    check = check_splat(model, scene, min_psnr=20.0)   # raises InputError below 20 dB, naming the cause
+    check = check_splat(model, scene, min_psnr=16.0)   # raises InputError below 16 dB, naming the cause
 
 A splat trained on these photos renders them at 20–35 dB; the same splat in another frame, axis convention or scale
 renders them at the level of an unrelated image (~8–13 dB). When the check fails it renders cheap alternatives — the
@@ -170,7 +170,8 @@ def check_splat(model: GaussianModel, scene, *, min_psnr: float, max_views: int 
         tried = ", ".join(f"{k} {v:.1f} dB" for k, v in check.alternatives.items())
         why = ("no frame, axis, scale or SH-layout alternative renders better"
                + (f" ({tried})" if tried else "")
-               + ": the splat was trained on other photos or poses than this scene's; import the splat trained on "
-               "this scene's images, in its COLMAP frame")
+               + ": the splat was trained on other photos or poses than this scene's (import the one trained on this "
+               "scene's images, in its COLMAP frame), or it is too coarse to match them (accept it with a lower "
+               "fit.import_min_psnr)")
     raise InputError(f"{source}: its renders match the scene's photos at {psnr:.1f} dB over {len(cams)} views, below "
                      f"fit.import_min_psnr = {min_psnr:g} dB, so it would stylize a misaligned scene; {why}")
