@@ -17,9 +17,8 @@ principal axes, :func:`splat_frame`), so floaters and a far background do not pu
   by :data:`FORWARD_MIN_LOG_GROWTH` or more across the bounds, the views come from the small side (fern: 2.9, its
   gradient 16° from the capture's mean viewing direction). Else ``orbit`` (an object seen from all round).
 
-The sign of a principal axis is
-arbitrary, so a generated view may be upside down relative to the capture that trained the splat; stylization does
-not depend on it.
+The roll of the views follows the principal axes, whose sign is arbitrary, so a generated view may be tilted or upside
+down relative to the capture that trained the splat; stylization does not depend on it.
 """
 
 from __future__ import annotations
