@@ -27,6 +27,7 @@ from abcgs.fit.params import FitParams
 from abcgs.masks.params import MaskParams
 from abcgs.scene.params import TinySceneParams
 from abcgs.sfm.params import ReconstructParams
+from abcgs.splats.params import SplatFormatParam, SplatViewsParams
 from abcgs.stylize.params import ColorMatchParams, StylizeParams
 from abcgs.view.params import ViewerParams
 
@@ -54,11 +55,24 @@ class SceneParams(BaseModel):
     reconstruct: dict[str, Any] = Field(default_factory=dict, description="overrides of `reconstruct` for this scene")
     fit: dict[str, Any] = Field(default_factory=dict, description="overrides of `fit` for this scene")
     masks: dict[str, Any] = Field(default_factory=dict, description="overrides of `masks` for this scene")
+    splat: str | None = Field(
+        None, description="a trained 3DGS splat (file or INRIA output folder), relative to `path` (so that DVC tracks "
+        "it with the scene) or absolute: the fit stage imports it instead of fitting (docs/SPLATS.md)")
+    splat_format: SplatFormatParam = Field("auto", description="the splat's format; auto detects it")
+    views: SplatViewsParams | None = Field(
+        None, description="for a scene that is only a splat (no photos, no cameras): the cameras made around it")
 
     @model_validator(mode="before")
     @classmethod
     def _path_shorthand(cls, data: Any) -> Any:
         return {"path": data} if isinstance(data, str) else data
+
+    def splat_path(self) -> Path | None:
+        """The splat's path (``splat`` joined to ``path`` when relative), ``None`` when the scene names none."""
+        if self.splat is None:
+            return None
+        p = Path(self.splat)
+        return p if p.is_absolute() else Path(self.path) / p
 
 
 def deep_merge(base: dict, override: dict) -> dict:

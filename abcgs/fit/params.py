@@ -91,6 +91,13 @@ class FitParams(BaseModel, extra="forbid"):
         description="torch CPU threads during the fit (0 = torch's default, all cores). 1 is the default: with "
         "other processes on the cores, intra-op threads spin and a step runs up to ~15x slower",
     )
+    import_min_psnr: float = Field(
+        16.0, ge=0.0, description="a scene that names a trained splat imports it instead of fitting; below this mean "
+        "PSNR (dB) of its renders against the photos the import fails, naming the likely cause (frame, axes, scale, SH "
+        "layout), instead of stylizing a misaligned scene")
+    import_max_gaussians: int | None = Field(
+        None, ge=1, description="preview of a large imported splat: keep only this many of its Gaussians (the most "
+        "opaque and largest, abcgs/splats/preview.py); null keeps them all")
     rasterizer_threads: int = Field(
         0, ge=0,
         description="threads of the C++ rasterizer's own loops (0 = every core), independent of `threads`: they are "

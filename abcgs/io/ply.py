@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import os
 import re
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -44,8 +45,76 @@ def ply_property_names(sh_degree: int) -> list[str]:
     )
 
 
-def gaussians_to_array(model: GaussianModel) -> np.ndarray:
-    """The model as a ``(N,)`` numpy structured array in the INRIA layout (``float32`` fields)."""
+@dataclass(frozen=True)
+class PlyLayout:
+    """The ``vertex`` properties of a 3DGS PLY as a file had them: ``(name, numpy dtype string)`` in file order.
+
+    Another trainer may order the properties differently, leave out ``nx ny nz``, store other types or add
+    properties of its own; :func:`write_ply` with a layout writes that order and those types back.
+    """
+
+    properties: tuple[tuple[str, str], ...]
+
+    @classmethod
+    def standard(cls, sh_degree: int) -> PlyLayout:
+        """The INRIA layout (all ``float32``) of :func:`ply_property_names`."""
+        return cls(tuple((name, "<f4") for name in ply_property_names(sh_degree)))
+
+    @property
+    def names(self) -> list[str]:
+        return [name for name, _ in self.properties]
+
+    @property
+    def sh_degree(self) -> int:
+        return _REST_COUNTS[sum(1 for name in self.names if name.startswith("f_rest_"))]
+
+    def extra_names(self) -> list[str]:
+        """Properties that are not Gaussian parameters (``nx ny nz`` and any a trainer added)."""
+        known = set(ply_property_names(self.sh_degree)) - {"nx", "ny", "nz"}
+        return [name for name in self.names if name not in known]
+
+    def to_list(self) -> list[list[str]]:
+        return [[name, dtype] for name, dtype in self.properties]
+
+    @classmethod
+    def from_list(cls, items: list) -> PlyLayout:
+        return cls(tuple((str(name), str(dtype)) for name, dtype in items))
+
+
+def _model_columns(model: GaussianModel) -> dict[str, np.ndarray]:
+    """Every 3DGS property of ``model`` as a ``float32`` column, by its PLY name."""
+    n = model.num_gaussians
+
+    def host(t: torch.Tensor) -> np.ndarray:
+        return t.detach().to("cpu", torch.float32).numpy().reshape(n, -1)
+
+    blocks = [
+        ("x y z", host(model.means)), ("f_dc_0 f_dc_1 f_dc_2", host(model.sh0)),
+        (" ".join(f"f_rest_{i}" for i in range(3 * model.shN.shape[1])), host(model.shN.transpose(1, 2))),
+        ("opacity", host(model.opacity_logits)), ("scale_0 scale_1 scale_2", host(model.log_scales)),
+        ("rot_0 rot_1 rot_2 rot_3", host(model.quats)),
+    ]
+    return {name: block[:, i] for names, block in blocks for i, name in enumerate(names.split())}
+
+
+def gaussians_to_array(model: GaussianModel, layout: PlyLayout | None = None,
+                       extras: dict[str, np.ndarray] | None = None) -> np.ndarray:
+    """The model as a ``(N,)`` numpy structured array: the INRIA layout (``float32`` fields), or ``layout``'s order
+    and types. Properties that are not Gaussian parameters take their values from ``extras`` when it holds one
+    column per Gaussian for them, else zeros."""
+    if layout is not None:
+        if layout.sh_degree != model.sh_degree:
+            raise InputError(f"the PLY layout has SH degree {layout.sh_degree} but the scene has degree {model.sh_degree}")
+        cols = _model_columns(model)
+        n = model.num_gaussians
+        arr = np.empty(n, dtype=[(name, dtype) for name, dtype in layout.properties])
+        for name, dtype in layout.properties:
+            value = cols.get(name)
+            if value is None:
+                extra = (extras or {}).get(name)
+                value = extra if extra is not None and len(extra) == n else np.zeros(n)
+            arr[name] = np.asarray(value).astype(dtype)
+        return arr
     n = model.num_gaussians
 
     def host(t: torch.Tensor) -> np.ndarray:
@@ -71,9 +140,11 @@ def gaussians_to_array(model: GaussianModel) -> np.ndarray:
     return arr
 
 
-def write_ply(path: str | os.PathLike, model: GaussianModel) -> None:
-    """Write ``model`` as an INRIA-layout 3DGS PLY (binary little endian), atomically."""
-    element = PlyElement.describe(gaussians_to_array(model), "vertex")
+def write_ply(path: str | os.PathLike, model: GaussianModel, layout: PlyLayout | None = None,
+              extras: dict[str, np.ndarray] | None = None) -> None:
+    """Write ``model`` as an INRIA-layout 3DGS PLY (binary little endian), atomically; with ``layout``, in that
+    property order and those types (see :func:`gaussians_to_array` for ``extras``)."""
+    element = PlyElement.describe(gaussians_to_array(model, layout, extras), "vertex")
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:
             PlyData([element], text=False, byte_order="<").write(fh)
@@ -95,6 +166,13 @@ def _check_body_size(path: Path, raw: bytes, data: PlyData) -> None:
         )
 
 
+UNKNOWN_LAYOUT_FIX = (
+    "a 3DGS PLY stores per vertex x y z, f_dc_0..2, f_rest_* (0, 9, 24 or 45), opacity, scale_0..2 and rot_0..3 "
+    "(the INRIA layout that 3DGS, gsplat, nerfstudio, OpenSplat and SuperSplat write); export the scene from its tool "
+    "in that layout, or name the format with data.scenes.<scene>.splat_format (supersplat, splat, spz, gsplat_ckpt)"
+)
+
+
 def read_ply(path: str | os.PathLike, *, device: torch.device | str = "cpu") -> GaussianModel:
     """Read a 3DGS PLY written by this module, by the INRIA code or by tools that keep its layout.
 
@@ -103,6 +181,14 @@ def read_ply(path: str | os.PathLike, *, device: torch.device | str = "cpu") -> 
     missing ``vertex`` element or property, or an ``f_rest`` count that is not 0/9/24/45 raises
     :class:`InputError` saying which.
     """
+    return read_ply_layout(path, device=device)[0]
+
+
+def read_ply_layout(
+    path: str | os.PathLike, *, device: torch.device | str = "cpu"
+) -> tuple[GaussianModel, PlyLayout, dict[str, np.ndarray]]:
+    """:func:`read_ply`, also returning the file's :class:`PlyLayout` and the values of its properties that are
+    not Gaussian parameters (``{name: (N,) array}``), so that :func:`write_ply` can write the same layout back."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"PLY file {path} does not exist")
@@ -118,9 +204,11 @@ def read_ply(path: str | os.PathLike, *, device: torch.device | str = "cpu") -> 
         raise InputError(f"{path} is a malformed or truncated PLY file: {exc}") from exc
     _check_body_size(path, raw, data)
     if "vertex" not in [el.name for el in data.elements]:
-        raise InputError(f"{path} has no 'vertex' element; a 3DGS PLY stores one vertex per Gaussian")
+        raise InputError(f"{path} has no 'vertex' element, a PLY of an unknown layout: {UNKNOWN_LAYOUT_FIX}")
     vertex = data["vertex"]
     names = [p.name for p in vertex.properties]
+    if any(isinstance(p, PlyListProperty) for p in vertex.properties):
+        raise InputError(f"{path}: its vertex element has list properties, a PLY of an unknown layout: {UNKNOWN_LAYOUT_FIX}")
     rest = [n for n in names if n.startswith("f_rest_")]
     if len(rest) not in _REST_COUNTS:
         raise InputError(
@@ -133,7 +221,9 @@ def read_ply(path: str | os.PathLike, *, device: torch.device | str = "cpu") -> 
     required = [n for n in ply_property_names(degree) if n not in ("nx", "ny", "nz")]
     missing = [n for n in required if n not in names]
     if missing:
-        raise InputError(f"{path} is missing the vertex properties {', '.join(missing)} of the 3DGS layout")
+        raise InputError(f"{path} is missing the vertex properties {', '.join(missing)} of the 3DGS layout (it has "
+                         f"{', '.join(names[:12])}{', ...' if len(names) > 12 else ''}), a PLY of an unknown layout: "
+                         f"{UNKNOWN_LAYOUT_FIX}")
     arr = vertex.data
     n = len(arr)
 
@@ -145,7 +235,9 @@ def read_ply(path: str | os.PathLike, *, device: torch.device | str = "cpu") -> 
     k1 = len(rest) // 3
     f_rest = col(*[f"f_rest_{i}" for i in range(len(rest))]).reshape(n, 3, k1)
     t = lambda a: torch.from_numpy(np.ascontiguousarray(a)).to(device)  # noqa: E731
-    return GaussianModel(
+    layout = PlyLayout(tuple((p.name, arr.dtype[p.name].str) for p in vertex.properties))
+    extras = {name: np.array(arr[name]) for name in layout.extra_names()}
+    model = GaussianModel(
         means=t(col("x", "y", "z")),
         quats=t(col("rot_0", "rot_1", "rot_2", "rot_3")),
         log_scales=t(col("scale_0", "scale_1", "scale_2")),
@@ -153,3 +245,4 @@ def read_ply(path: str | os.PathLike, *, device: torch.device | str = "cpu") -> 
         sh0=t(col("f_dc_0", "f_dc_1", "f_dc_2")[:, None, :]),
         shN=t(f_rest.transpose(0, 2, 1)),
     )
+    return model, layout, extras

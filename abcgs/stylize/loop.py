@@ -81,12 +81,14 @@ class ViewTargets:
 
 
 def color_match_model(
-    model: GaussianModel, labels: Tensor, groups: list[MatchingGroup], content_pixels: dict[int, np.ndarray]
+    model: GaussianModel, labels: Tensor, groups: list[MatchingGroup], content_pixels: dict[int, np.ndarray],
+    *, zero_higher_sh: bool = True,
 ) -> tuple[GaussianModel, dict[int, tuple[Tensor, Tensor]]]:
     """Apply each group's mean/covariance colour transform to the DC colours of its Gaussians.
 
     ``content_pixels[z]``: ``(n, 3)`` pixels of the content (training images) covered by group z.
-    Single transfer (one group over all pixels) recolours every Gaussian.
+    Single transfer (one group over all pixels) recolours every Gaussian. The higher SH bands are zeroed unless
+    ``zero_higher_sh`` is False (``stylize.higher_sh`` other than ``zero``).
     """
     out = model.detach()
     rgb = sh0_to_rgb(out.sh0[:, 0, :])
@@ -100,9 +102,37 @@ def color_match_model(
         sel = torch.ones_like(labels, dtype=torch.bool) if g.content_label == ALL_PIXELS else labels == g.content_label
         rgb[sel] = apply_color_transform(rgb[sel], A, b)
     out.sh0 = rgb_to_sh0(rgb)[:, None, :].contiguous()
-    if out.shN.numel():
+    if out.shN.numel() and zero_higher_sh:
         out.shN = torch.zeros_like(out.shN)  # view-dependent colour would undo the match
     return out, transforms
+
+
+def with_higher_sh(model: GaussianModel, original: GaussianModel, mode: str) -> GaussianModel:
+    """``model`` with the SH bands above DC that ``stylize.higher_sh = mode`` starts from: ``zero`` leaves them as
+    they are (the colour match zeroed them), ``frozen``/``optimized`` put the ``original``'s back, ``degree1`` puts
+    back band 1 and zeroes bands 2–3."""
+    if mode == "zero" or not model.shN.numel():
+        return model
+    if original.shN.shape != model.shN.shape:
+        raise InputError(f"higher_sh={mode}: the original scene has SH shape {tuple(original.shN.shape)}, the colour-"
+                         f"matched one {tuple(model.shN.shape)}; re-run the colormatch stage")
+    out = model.detach()
+    shn = original.shN.detach().clone()
+    if mode == "degree1":
+        shn[:, 3:] = 0.0
+    out.shN = shn.contiguous()
+    return out
+
+
+def _keep_bands_above_1_zero(model: GaussianModel, params: StylizeParams) -> None:
+    """``degree1``: bands 2–3 get no gradient, so Adam leaves them at zero (a degree-1 scene in degree-3 storage)."""
+    if params.higher_sh == "degree1" and model.shN.shape[1] > 3 and model.shN.requires_grad:
+        model.shN.register_hook(lambda g: torch.cat([g[:, :3], torch.zeros_like(g[:, 3:])], dim=1))
+
+
+def higher_sh_lr(params: StylizeParams, model: GaussianModel) -> float:
+    """The higher SH bands' learning rate: ``lr_shN`` when ``higher_sh`` optimises them (and the scene has them)."""
+    return params.lr_shN if params.higher_sh in ("optimized", "degree1") and model.shN.numel() else 0.0
 
 
 def group_pixel_masks(groups: list[MatchingGroup], label_map: np.ndarray) -> list[np.ndarray]:
@@ -210,7 +240,9 @@ def style_pass(
     orig_scales, orig_opac = orig.scales, orig.opacities
     m = model.as_parameters()
     lrs = main_pass_lrs(params)
+    lrs["shN"] = higher_sh_lr(params, m)
     opt = _optimizer(m, lrs)
+    _keep_bands_above_1_zero(m, params)
     views = _random_views(len(targets), params.seed)
     style_feats = [StyleFeatures.of(g.features) for g in groups]  # fixed for the run: prepared once
     bar = progress_bar(range(iterations), "stylize", enabled=progress)
@@ -298,7 +330,8 @@ def color_pass(
         for g, m in zip(groups, masks):
             pix[g.content_label].append(img[m])
     content = {k: torch.cat(v).numpy(force=True) if v else np.zeros((0, 3), np.float32) for k, v in pix.items()}
-    recolored, transforms = color_match_model(model, gaussian_labels, groups, content)
+    recolored, transforms = color_match_model(model, gaussian_labels, groups, content,
+                                              zero_higher_sh=params.higher_sh == "zero")
     images = []
     for img, masks in zip(renders, full_masks):
         new = img.clone()
@@ -308,7 +341,8 @@ def color_pass(
         images.append(new)
     m = recolored.as_parameters()
     opt = _optimizer(m, {"sh0": params.lr_sh0, "quats": params.lr_quats, "means": 0.0, "log_scales": 0.0,
-                         "opacity_logits": 0.0})
+                         "opacity_logits": 0.0, "shN": higher_sh_lr(params, m)})
+    _keep_bands_above_1_zero(m, params)
     views = _random_views(len(targets), params.seed + 1)
     bar = progress_bar(range(iterations), "colour pass", enabled=progress)
     t_start = time.perf_counter()
@@ -395,8 +429,8 @@ def stylize_scene(
         cams = [c.scaled(params.resolution_scale) for c in cameras]
         labels = [cv2.resize(v.astype(np.int32), (c.width, c.height), interpolation=cv2.INTER_NEAREST).astype(np.int64)
                   for v, c in zip(labels, cams)]
-    res = stylize(matched, cams, labels, masks.gaussian_labels, groups, vgg, params, method=method,
-                  depth_model=original)
+    res = stylize(with_higher_sh(matched, original, params.higher_sh), cams, labels, masks.gaussian_labels, groups,
+                  vgg, params, method=method, depth_model=original)
     res.projected_search = projected_search_record(params.fast)
     return res
 

@@ -23,6 +23,14 @@ LR_PRESETS: dict[str, dict[str, float]] = {
 """Learning-rate presets of the stylization optimiser (Adam, eps 1e-15), per parameter group."""
 
 
+HigherSH = Literal["zero", "frozen", "optimized", "degree1"]
+"""What stylization does to the SH bands above the DC term of a degree 1–3 scene (docs/SPLATS.md "SH bands"):
+``zero``: set to zero, the stylized colour is the same from every side (the colour match zeroes them; the file keeps
+its degree); ``frozen``: the original's bands kept unchanged, only the DC colour stylized (SGSST); ``optimized``: the
+original's bands kept and optimised with the DC colour (the authors' code); ``degree1``: band 1 kept and optimised,
+bands 2–3 zeroed (StylizedGS's degree 1)."""
+
+
 class StylizeParams(BaseModel):
     """``params.yaml``: ``stylize``."""
 
@@ -56,6 +64,12 @@ class StylizeParams(BaseModel):
     lr_scales: float = Field(LR_PRESETS["authors_code"]["lr_scales"], ge=0)
     lr_opacity: float = Field(LR_PRESETS["authors_code"]["lr_opacity"], ge=0)
     lr_quats: float = Field(LR_PRESETS["authors_code"]["lr_quats"], ge=0)
+    higher_sh: HigherSH = Field(
+        "zero", description="the SH bands above DC of a degree 1-3 scene: zero | frozen | optimized | degree1 (HigherSH; "
+        "measured on a degree-3 scene in docs/SPLATS.md); no effect on a degree-0 scene")
+    lr_shN: float = Field(LR_PRESETS["authors_code"]["lr_sh0"] / 20.0, ge=0,
+                          description="learning rate of the higher SH bands when higher_sh is optimized or degree1 "
+                          "(INRIA: the DC rate / 20)")
     optimize_geometry: bool = Field(True, description="also optimise xyz/scale/opacity/rotation in the main pass")
     preserve_color: bool = Field(False, description="keep the scene's colours: transfer luminance only")
     seed: int = 0

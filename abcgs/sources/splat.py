@@ -1,0 +1,49 @@
+"""A scene that is only a trained splat — no photos, no cameras: cameras made around it, its renders as the photos.
+
+    source = read_splat_source(Path("data/chair/chair.splat"), Path("out/chair/colmap/images"), SplatViewsParams())
+
+Everything downstream then runs unchanged: the reconstruct stage writes these cameras as its COLMAP model, the fit
+stage imports the same splat (which renders its own views at any PSNR threshold) and stylization sees the renders as
+the content images. The points handed on are the centres of the splat's Gaussians with opacity ≥ 0.5 (at most
+:data:`MAX_POINTS`, an evenly strided subset), coloured by their DC colour.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from abcgs.gaussians import render
+from abcgs.io.images import save_image
+from abcgs.render import sh0_to_rgb
+from abcgs.splats.cameras import SourceScene, SourceView, cameras_around
+from abcgs.splats.formats import read_splat
+from abcgs.splats.params import SplatViewsParams
+
+MAX_POINTS = 100_000
+
+
+@torch.no_grad()
+def read_splat_source(path: Path, out_images_dir: Path, params: SplatViewsParams | None = None, *,
+                      fmt: str = "auto", backend: str = "auto") -> SourceScene:
+    """Read the splat at ``path``, make ``params``' cameras around it, write its render from each into
+    ``out_images_dir`` (PNG, named like the cameras) and return the :class:`SourceScene` (``format`` ``"splat"``)."""
+    params = params or SplatViewsParams()
+    model = read_splat(path, fmt).model
+    cams, _ = cameras_around(model, params.kind, params.count, params.width, params.height, params.fov_deg)
+    out_images_dir = Path(out_images_dir)
+    out_images_dir.mkdir(parents=True, exist_ok=True)
+    views = []
+    for cam in cams:
+        img, _, _ = render(model, cam, backend=backend)
+        save_image(out_images_dir / cam.name, img.clamp(0, 1).numpy())
+        views.append(SourceView(cam.name, out_images_dir / cam.name, cam))
+    keep = torch.nonzero(model.opacities >= 0.5)[:, 0]
+    if len(keep) > MAX_POINTS:
+        keep = keep[:: -(-len(keep) // MAX_POINTS)]
+    points = model.means[keep].numpy().astype(np.float32)
+    colors = sh0_to_rgb(model.sh0[keep, 0, :]).clamp(0, 1).numpy().astype(np.float32)
+    return SourceScene("splat", views, points, colors, np.eye(4))
+

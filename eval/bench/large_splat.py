@@ -1,0 +1,180 @@
+"""Benchmark a splat of real size: import, stylize and export ``--n`` Gaussians of SH degree 3 on this machine.
+
+    python -m eval.bench.large_splat --n 3000000 --json docs/measurements/large_splat_3m.json
+
+A scene trained for 30k iterations holds 1–6 M Gaussians. This synthesizes one (deterministic: ``--n`` Gaussians of
+SH degree 3 on three textured walls and a cloud in between, 0.3–3 cm across in a 2 m room), writes it as an INRIA PLY
+(the input), then times each phase and reads the process's peak resident memory after it:
+
+- ``import``: :func:`abcgs.splats.formats.read_splat`, and the import check (:func:`abcgs.splats.validate.check_splat`)
+  against ``--views`` photos (the splat's own renders at the scene size);
+- ``stylize``: :func:`abcgs.stylize.loop.stylize` with ``--steps`` main-pass steps and ``--color-steps`` colour-pass
+  steps at ``--width`` × ``--height`` (fern's size by default), VGG-16 with random weights (the same arithmetic as the
+  real ones); its preparation (content render, depth and VGG features of each view), and each step split into render
+  (projection + rasterization), VGG, style loss, backward (through VGG and the rasterizer) and the optimiser step;
+- ``export``: the stylized scene written back as the input's INRIA PLY and as ``.spz``;
+- ``preview``: the same stylization steps on :func:`abcgs.splats.preview.decimate` to ``--preview`` Gaussians.
+
+Prints a table and, with ``--json``, writes the raw record.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import resource
+import tempfile
+import time
+from pathlib import Path
+
+import abcgs  # noqa: F401  (before torch: abcgs sets OpenMP's wait policy, see abcgs/__init__.py)
+
+# isort: split
+import numpy as np
+import torch
+
+from abcgs.cameras import Camera, intrinsics, look_at
+from abcgs.features.matching import ALL_PIXELS, MatchingGroup
+from abcgs.features.vgg import VGG16Features, extract_features, random_state_dict
+from abcgs.gaussians import GaussianModel, render
+from abcgs.io.atomic import write_json
+from abcgs.io.images import save_image
+from abcgs.io.ply import write_ply
+from abcgs.io.spz import write_spz
+from abcgs.sfm.model import SceneData
+from abcgs.splats.formats import read_splat, write_splat
+from abcgs.splats.preview import decimate
+from abcgs.splats.validate import check_splat
+from abcgs.stylize.loop import stylize
+from abcgs.stylize.params import StylizeParams
+
+
+def peak_rss_gib() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # Linux: KiB
+
+
+def synthesize(n: int, seed: int = 0) -> GaussianModel:
+    """``n`` Gaussians of SH degree 3: 80 % on three walls (back z = 1, left x = -1, floor y = 1) with a smooth
+    colour pattern, 20 % in a cloud in between."""
+    g = torch.Generator().manual_seed(seed)
+    n_wall = int(0.8 * n)
+    uv = torch.rand(n_wall, 2, generator=g) * 2 - 1
+    wall = torch.randint(0, 3, (n_wall,), generator=g)
+    means = torch.empty(n, 3)
+    w = means[:n_wall]
+    w[:] = torch.stack([uv[:, 0], uv[:, 1], torch.ones(n_wall)], 1)
+    w[wall == 1] = torch.stack([-torch.ones(n_wall), uv[:, 1], uv[:, 0]], 1)[wall == 1]
+    w[wall == 2] = torch.stack([uv[:, 0], torch.ones(n_wall), uv[:, 1]], 1)[wall == 2]
+    means[n_wall:] = (torch.rand(n - n_wall, 3, generator=g) * 2 - 1) * torch.tensor([0.6, 0.6, 0.5])
+    rgb = 0.5 + 0.4 * torch.stack([torch.sin(6 * means[:, 0]), torch.cos(5 * means[:, 1]), torch.sin(4 * means[:, 2] + 1)], 1)
+    return GaussianModel(
+        means=means, quats=torch.nn.functional.normalize(torch.randn(n, 4, generator=g), dim=-1),
+        log_scales=np.log(0.003) + torch.rand(n, 3, generator=g) * np.log(10.0),
+        opacity_logits=torch.randn(n, generator=g) + 1.0,
+        sh0=((rgb - 0.5) / 0.28209479177387814)[:, None, :],
+        shN=torch.randn(n, 15, 3, generator=g) * 0.05,
+    )
+
+
+def cameras(count: int, width: int, height: int) -> list[Camera]:
+    K = intrinsics(0.9 * width, width, height)
+    out = []
+    for i in range(count):
+        t = (i / max(count - 1, 1) - 0.5) * 0.6
+        eye = np.array([0.5 * np.sin(t), -0.1, -2.6 + 0.2 * np.cos(t)])
+        out.append(Camera(f"view_{i:02d}.png", K, look_at(eye, np.array([0.0, 0.0, 0.5])), width, height))
+    return out
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--n", type=int, default=3_000_000)
+    ap.add_argument("--views", type=int, default=4)
+    ap.add_argument("--width", type=int, default=504)
+    ap.add_argument("--height", type=int, default=378)
+    ap.add_argument("--steps", type=int, default=3)
+    ap.add_argument("--color-steps", type=int, default=2)
+    ap.add_argument("--preview", type=int, default=300_000)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--work", type=Path, default=None, help="scratch folder (default: a temporary one)")
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    work = args.work or Path(tempfile.mkdtemp(prefix="large_splat_"))
+    work.mkdir(parents=True, exist_ok=True)
+    rec: dict = {"n_gaussians": args.n, "sh_degree": 3, "views": args.views, "width": args.width, "height": args.height,
+                 "threads": args.threads, "cpus": os.cpu_count(), "machine": platform.processor() or platform.machine(),
+                 "phases": {}}
+
+    def phase(name: str, seconds: float, **extra) -> None:
+        rec["phases"][name] = {"seconds": seconds, "peak_rss_gib": peak_rss_gib(), **extra}
+        print(f"{name:>28}: {seconds:8.1f} s   peak RSS {peak_rss_gib():5.2f} GiB  "
+              + " ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in extra.items()), flush=True)
+
+    t = time.perf_counter()
+    model = synthesize(args.n)
+    ply = work / "input" / "point_cloud.ply"
+    write_ply(ply, model)
+    phase("synthesize + write input PLY", time.perf_counter() - t, ply_gib=ply.stat().st_size / 2**30)
+    cams = cameras(args.views, args.width, args.height)
+    t = time.perf_counter()
+    paths = []
+    with torch.no_grad():
+        for c in cams:
+            save_image(work / "photos" / c.name, render(model, c)[0].clamp(0, 1).numpy())
+            paths.append(work / "photos" / c.name)
+    phase("render the photos", time.perf_counter() - t, per_view_s=(time.perf_counter() - t) / len(cams))
+    del model
+    scene = SceneData(cams, paths, np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32))
+
+    t = time.perf_counter()
+    imported = read_splat(ply, scene=scene)
+    phase("import: read PLY", time.perf_counter() - t)
+    t = time.perf_counter()
+    check = check_splat(imported.model, scene, min_psnr=18.0)
+    phase("import: check vs photos", time.perf_counter() - t, psnr_db=check.psnr, check_width=check.width)
+
+    vgg = VGG16Features(random_state_dict(0), ["relu3_1", "relu3_2", "relu3_3"])
+    style = torch.rand(3, 256, 256, generator=torch.Generator().manual_seed(1))
+    with torch.no_grad():
+        feats = extract_features(vgg, style[None], ["relu3_1", "relu3_2", "relu3_3"])[0]
+    pixels = style.permute(1, 2, 0).reshape(-1, 3).numpy()
+    groups = [MatchingGroup(ALL_PIXELS, "style", pixels, feats.reshape(feats.shape[0], -1))]
+    sp = StylizeParams(iterations=args.steps, color_pass_iterations=args.color_steps, log_every=1)
+
+    def stylize_phase(name: str, m: GaussianModel) -> GaussianModel:
+        labels = torch.zeros(m.num_gaussians, dtype=torch.long)
+        view_labels = [np.zeros((c.height, c.width), np.int64) for c in cams]
+        t0 = time.perf_counter()
+        res = stylize(m, cams, view_labels, labels, groups, vgg, sp, depth_model=m, progress=False)
+        total = time.perf_counter() - t0
+        n_it = max(1, int(res.timings.get("iterations", 1)))
+        split = {k: v / n_it for k, v in res.timings.items() if k != "iterations"}
+        main = sum(res.timings[k] for k in split)
+        prepare = total - main - res.color_pass_seconds
+        step = sum(split.values())
+        phase(name, total, main_step_s=step, color_step_s=res.color_pass_seconds / max(1, args.color_steps),
+              prepare_s=prepare, **{f"step_{k}_s": v for k, v in split.items()})
+        return res.model
+
+    styled = stylize_phase("stylize (full)", imported.model)
+    t = time.perf_counter()
+    out = write_splat(styled, work / "returned" / "point_cloud.ply", imported.provenance)
+    phase("export: INRIA PLY back", time.perf_counter() - t, ply_gib=out.stat().st_size / 2**30)
+    t = time.perf_counter()
+    size = write_spz(work / "returned" / "point_cloud.spz", styled)
+    phase("export: .spz", time.perf_counter() - t, spz_gib=size / 2**30)
+    del styled
+    t = time.perf_counter()
+    small = decimate(imported.model, args.preview)
+    phase(f"preview: decimate to {args.preview}", time.perf_counter() - t)
+    stylize_phase("stylize (preview)", small)
+    rec["load_average"] = os.getloadavg()
+    if args.json:
+        write_json(args.json, rec)
+    return rec
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,139 @@
+"""A scene that is only a splat: cameras made around it, its renders as the photos, and the whole library path
+(import check, colour match, stylization, give-back) on them. The SH-band options of stylization."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from abcgs.features.matching import TransferSpec, build_groups
+from abcgs.features.vgg import VGG16Features, random_state_dict
+from abcgs.fit.params import FitParams
+from abcgs.gaussians import GaussianModel, render
+from abcgs.io.images import save_image
+from abcgs.io.ply import read_ply
+from abcgs.sfm.model import SceneData
+from abcgs.sources.splat import read_splat_source
+from abcgs.splats.cameras import cameras_around, splat_frame
+from abcgs.splats.exporting import give_back
+from abcgs.splats.formats import read_splat
+from abcgs.splats.importing import import_and_save
+from abcgs.splats.params import SplatViewsParams
+from abcgs.splats.splat import write_splat_file
+from abcgs.stylize.colormatch import ColorMatchParams, color_match_and_refit
+from abcgs.stylize.loop import stylize, with_higher_sh
+from abcgs.stylize.params import StylizeParams
+
+sys.path.insert(0, str(Path(__file__).parent))
+from test_splats import make_model  # noqa: E402
+
+
+def _projected_inside(model: GaussianModel, cams) -> float:
+    """Share of (camera, Gaussian) pairs whose centre projects in front of the camera and inside the image."""
+    x = np.c_[model.means.numpy(), np.ones(model.num_gaussians)]
+    hits = []
+    for c in cams:
+        p = (c.viewmat @ x.T)[:3]
+        uv = (c.K @ p)[:2] / np.maximum(p[2], 1e-9)
+        hits.append((p[2] > 0) & (uv[0] >= 0) & (uv[0] < c.width) & (uv[1] >= 0) & (uv[1] < c.height))
+    return float(np.mean(hits))
+
+
+def test_auto_views_orbit_a_compact_splat_and_face_a_layered_one():
+    blob = make_model(2000, 0)
+    cams, kind = cameras_around(blob, "auto", 12, 64, 48)
+    assert kind == "orbit" and len(cams) == 12 and cams[0].meta["views_kind"] == "orbit"
+    assert _projected_inside(blob, cams) > 0.97
+    centres = np.stack([c.center for c in cams])
+    assert np.ptp(np.linalg.norm(centres - splat_frame(blob).centre, axis=1)) < 1e-6  # one radius
+    # a forward-facing capture's splat: trained from z = -3, each Gaussian a few pixels wide there, so the far ones
+    # (up to z = 6) are larger; views come from -z, facing +z
+    g = torch.Generator().manual_seed(1)
+    n = 3000
+    means = torch.rand(n, 3, generator=g) * torch.tensor([4.0, 3.0, 6.0]) - torch.tensor([2.0, 1.5, 0.0])
+    log_scales = torch.log(0.004 * (means[:, 2:3] + 3.0)).repeat(1, 3)
+    facing = GaussianModel(means, blob.quats[:1].repeat(n, 1), log_scales, torch.full((n,), 2.0),
+                           torch.zeros(n, 1, 3), torch.zeros(n, 0, 3))
+    cams, kind = cameras_around(facing, "auto", 8, 64, 48)
+    assert kind == "forward"
+    assert all(c.center[2] < -1.0 for c in cams)  # the small-Gaussian side
+    assert all(c.viewmat[2, 2] > 0.9 for c in cams)  # looking along +z
+    assert _projected_inside(facing, cams) > 0.9
+    # the same positions with sizes that do not grow: nothing says which side it was seen from, so an orbit
+    assert cameras_around(GaussianModel(means, facing.quats, torch.full((n, 3), -4.0), facing.opacity_logits,
+                                        facing.sh0, facing.shN), "auto", 8, 64, 48)[1] == "orbit"
+
+
+def test_a_bare_splat_runs_through_import_stylization_and_give_back(tmp_path):
+    model = make_model(2500, 0, seed=3)
+    src = tmp_path / "scene.splat"
+    write_splat_file(src, model)
+    source = read_splat_source(src, tmp_path / "images", SplatViewsParams(count=8, width=64, height=48))
+    assert source.format == "splat" and len(source.views) == 8 and all(v.image_path.is_file() for v in source.views)
+    assert source.points.shape[1] == 3 and len(source.points) > 100
+    scene = SceneData([v.camera for v in source.views], [v.image_path for v in source.views], source.points, source.colors)
+    record = import_and_save(scene, src, "auto", FitParams(test_every=4), tmp_path / "gs")
+    assert record["imported"]["check"]["psnr"] > 40.0  # its own renders (8-bit PNGs)
+    original = read_ply(tmp_path / "gs" / "point_cloud.ply")
+    vgg = VGG16Features(random_state_dict(0), ["relu3_1"])
+    style = tmp_path / "style.png"
+    save_image(style, np.random.default_rng(0).random((64, 64, 3)).astype(np.float32))
+    groups = build_groups(TransferSpec(scene="s", transfer="single", style="p"), {"p": str(style)}, {}, set(), vgg,
+                          style_height=64, layers=["relu3_1"])
+    labels = torch.zeros(original.num_gaussians, dtype=torch.long)
+    view_labels = [np.zeros((c.height, c.width), np.int64) for c in scene.cameras]
+    cm = color_match_and_refit(original, scene, labels, view_labels, groups, ColorMatchParams(refit_iterations=5),
+                               progress=False)
+    sp = StylizeParams(iterations=4, color_pass_iterations=2, layers=["relu3_1"], style_height=64)
+    res = stylize(cm.model, scene.cameras, view_labels, labels, groups, vgg, sp, depth_model=original, progress=False)
+    with torch.no_grad():
+        assert not torch.equal(res.model.sh0, original.sh0)
+    (tmp_path / "stylized.ply").parent.mkdir(exist_ok=True)
+    from abcgs.io.ply import write_ply
+
+    write_ply(tmp_path / "stylized.ply", res.model)
+    returned = give_back(tmp_path / "stylized.ply", tmp_path / "gs" / "splat_source.json", tmp_path / "returned")
+    assert returned["format"] == "splat" and returned["file"] == "scene.splat"
+    back = read_splat(tmp_path / "returned" / "scene.splat").model
+    assert back.num_gaussians == model.num_gaussians
+
+
+@pytest.mark.parametrize("mode", ["zero", "frozen", "optimized", "degree1"])
+def test_higher_sh_modes_start_from_and_train_what_they_say(mode, tmp_path):
+    original = make_model(800, 3, seed=4)
+    matched = original.detach()
+    matched.shN = torch.zeros_like(matched.shN)  # what the colour match hands over
+    start = with_higher_sh(matched, original, mode)
+    expect = {"zero": torch.zeros_like(original.shN), "frozen": original.shN, "optimized": original.shN,
+              "degree1": torch.cat([original.shN[:, :3], torch.zeros_like(original.shN[:, 3:])], 1)}[mode]
+    assert torch.equal(start.shN, expect)
+    cams, _ = cameras_around(original, "orbit", 4, 48, 36)
+    paths = []
+    for c in cams:
+        with torch.no_grad():
+            save_image(tmp_path / c.name, render(original, c)[0].clamp(0, 1).numpy())
+        paths.append(tmp_path / c.name)
+    vgg = VGG16Features(random_state_dict(0), ["relu3_1"])
+    style = tmp_path / "style.png"
+    save_image(style, np.random.default_rng(0).random((48, 48, 3)).astype(np.float32))
+    groups = build_groups(TransferSpec(scene="s", transfer="single", style="p"), {"p": str(style)}, {}, set(), vgg,
+                          style_height=48, layers=["relu3_1"])
+    labels = torch.zeros(original.num_gaussians, dtype=torch.long)
+    view_labels = [np.zeros((c.height, c.width), np.int64) for c in cams]
+    sp = StylizeParams(iterations=3, color_pass_iterations=2, layers=["relu3_1"], style_height=48, higher_sh=mode,
+                       lr_shN=0.01)
+    res = stylize(start, cams, view_labels, labels, groups, vgg, sp, depth_model=original, progress=False)
+    out = res.model.shN
+    assert out.shape == original.shN.shape  # the degree is kept in every mode
+    if mode == "zero":
+        assert torch.equal(out, torch.zeros_like(out))
+    elif mode == "frozen":
+        assert torch.equal(out, original.shN)
+    elif mode == "optimized":
+        assert not torch.equal(out, original.shN)
+    else:
+        assert not torch.equal(out[:, :3], original.shN[:, :3]) and torch.equal(out[:, 3:], torch.zeros_like(out[:, 3:]))
