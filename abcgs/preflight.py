@@ -7,9 +7,11 @@ checks the params against the two other things a run depends on:
   the schema does not count: DVC reads the YAML, and aborts with "Parameters ... are missing" after the earlier
   stages have run). :func:`check_dvc_tracked_keys`; :func:`check_scene_entries`: scenes are mappings when
   ``dvc.yaml`` reads ``${item.path}``.
-- the inputs (:func:`check_input_files`): every scene folder exists and holds decodable views of similar sizes
-  (:func:`check_scene_images`; an alpha channel or a grey view among colour ones is a warning), its ``masks/`` name
-  views and label something (:func:`check_scene_masks`), paintings and label maps exist, decode, are large enough
+- the inputs (:func:`check_input_files`): every scene folder exists and its format is known (given or detected:
+  :mod:`abcgs.sources.detect`); a folder of photos holds decodable views of similar sizes (:func:`check_scene_images`;
+  an alpha channel or a grey view among colour ones is a warning), its ``masks/`` name views and label something
+  (:func:`check_scene_masks`); a dataset with cameras is read and checked by the ``preflight`` stage
+  (:mod:`abcgs.sources.check`: the model is present, images match cameras, sizes are a consistent scale), paintings and label maps exist, decode, are large enough
   and do not live in a folder stages write, and ``vgg.path`` exists. A scene or painting a ``dvc.yaml`` stage
   produces (the embedded tiny scene, made by ``make_tiny``) is checked by that stage instead.
 
@@ -33,9 +35,9 @@ import yaml
 from PIL import Image
 
 from abcgs.errors import InputError, ParamsError
+from abcgs.sources.detect import DEFAULT_IMAGES, IMAGE_SUFFIXES, detect_format
 
 log = logging.getLogger(__name__)
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
 
 
 def _stages(dvc_yaml: Path) -> dict[str, Any]:
@@ -189,13 +191,13 @@ def check_scene_images(name: str, images: Path, max_ratio: float) -> list[str]:
     return warnings
 
 
-def check_scene_masks(name: str, folder: Path) -> None:
+def check_scene_masks(name: str, folder: Path, images: str = DEFAULT_IMAGES) -> None:
     """The user's label PNGs in ``<scene>/masks/`` name views of ``images/`` and label something."""
     masks = folder / "masks"
     files = sorted(masks.glob("*.png")) if masks.is_dir() else []
     if not files:
         return
-    stems = {p.stem for p in (folder / "images").iterdir() if p.suffix.lower() in IMAGE_SUFFIXES}
+    stems = {p.stem for p in (folder / images).iterdir() if p.suffix.lower() in IMAGE_SUFFIXES}
     orphans = [p.name for p in files if p.stem not in stems]
     if orphans:
         raise InputError(
@@ -231,9 +233,19 @@ def check_input_files(params, root: Path, produced: Iterable[str] = ()) -> list[
                              "scene elsewhere")
         if _produced(Path(rel), produced, root):
             continue
-        images = folder / "images"
+        sub = scene.images or DEFAULT_IMAGES
+        images = folder / sub
+        if not folder.exists():
+            raise InputError(f"data.scenes.{name}: {images} does not exist; a scene folder holds {sub}/ (and "
+                             "optionally masks/), or a dataset with its cameras (README \"Your own scene\")")
+        try:
+            fmt = detect_format(folder, scene.images) if scene.format == "auto" else scene.format
+        except InputError as exc:
+            raise InputError(f"data.scenes.{name}: {exc}") from None
+        if fmt != "photos":
+            continue  # a dataset with cameras: its reader checks it in the preflight stage (abcgs/sources/check.py)
         if not images.is_dir():
-            raise InputError(f"data.scenes.{name}: {images} does not exist; a scene folder holds images/ (and "
+            raise InputError(f"data.scenes.{name}: {images} does not exist; a scene folder holds {sub}/ (and "
                              "optionally masks/)")
         files = sorted(p for p in images.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
         if not files:
@@ -243,7 +255,7 @@ def check_input_files(params, root: Path, produced: Iterable[str] = ()) -> list[
             raise InputError(f"data.scenes.{name}: {len(bad)} image(s) in {images} do not decode: {', '.join(bad[:5])}"
                              f"{' …' if len(bad) > 5 else ''}; remove or replace them")
         warnings += check_scene_images(name, images, params.scene_section(name, "reconstruct").max_view_size_ratio)
-        check_scene_masks(name, folder)
+        check_scene_masks(name, folder, sub)
     return warnings
 
 

@@ -4,7 +4,8 @@
 
 :func:`abcgs.pipeline.run_stage` validates the whole params file (schema, names, references between sections) and
 checks it against ``dvc.yaml`` (every tracked key present), as for every stage; this stage then checks the inputs
-(:func:`abcgs.preflight.check_input_files`: scene folders, views, masks, paintings, weights). Every other stage
+(:func:`abcgs.preflight.check_input_files`: scene folders, views, masks, paintings, weights;
+:func:`abcgs.sources.check.check_scene_sources`: datasets with cameras read by their readers). Every other stage
 depends on its stamp, so ``dvc repro`` stops here, with the key named, before DVC deletes any stage's outputs. The
 stamp's content does not depend on the params, so a passing preflight re-runs nothing downstream; the warnings go to
 ``--record``, which the report shows.
@@ -18,6 +19,7 @@ from pathlib import Path
 from abcgs.io.atomic import write_json
 from abcgs.pipeline import StageSpec, run_stage, stage_parser
 from abcgs.preflight import check_input_files, dvc_outputs
+from abcgs.sources.check import check_scene_sources
 
 SPEC = StageSpec("preflight", params=("data", "vgg", "reconstruct"))
 
@@ -25,7 +27,8 @@ SPEC = StageSpec("preflight", params=("data", "vgg", "reconstruct"))
 def main(args, params) -> None:
     root = args.params.resolve().parent
     dvc_yaml = root / "dvc.yaml"
-    warnings = check_input_files(params, root, dvc_outputs(dvc_yaml) if dvc_yaml.is_file() else [])
+    produced = dvc_outputs(dvc_yaml) if dvc_yaml.is_file() else []
+    warnings = check_input_files(params, root, produced) + check_scene_sources(params, root, produced)
     write_json(args.record, {"warnings": warnings})
     write_json(args.out, {"checks": "passed"})
 
