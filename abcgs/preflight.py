@@ -127,7 +127,7 @@ def _produced(path: Path, outputs: Iterable[str], root: Path) -> bool:
     return False
 
 
-def _check_image(path: Path, what: str) -> None:
+def check_image(path: Path, what: str) -> None:
     if not path.is_file():
         raise InputError(f"{what}: {path} does not exist; fix the path in params.yaml (paths are relative to the "
                          "repository root)")
@@ -142,8 +142,8 @@ STAGE_OUTPUT_ROOTS = ("out", "reports")
 """Folders the pipeline's stages write and delete: inputs must not live there."""
 
 
-def _check_painting(path: Path, what: str) -> None:
-    _check_image(path, what)
+def check_painting(path: Path, what: str) -> None:
+    check_image(path, what)
     with Image.open(path) as im:
         w, h = im.size
     if min(w, h) < MIN_PAINTING_SIDE:
@@ -221,7 +221,7 @@ def check_input_files(params, root: Path, produced: Iterable[str] = ()) -> list[
                 raise InputError(f"data.{section}.{name}: {rel} lies in {inside}/, which pipeline stages write and "
                                  "delete when they re-run; copy the file to a folder of its own")
             if not _produced(Path(rel), produced, root):  # e.g. the tiny scene's paintings, made by make_tiny
-                (_check_painting if section == "styles" else _check_image)(root / rel, f"data.{section}.{name}")
+                (check_painting if section == "styles" else check_image)(root / rel, f"data.{section}.{name}")
     if params.vgg.path and not (root / params.vgg.path).is_file():
         raise InputError(f"vgg.path: {params.vgg.path} does not exist; give a torchvision VGG-16 state dict (.pth) or "
                          "null to use the weights found on this machine (docs/WEIGHTS.md)")

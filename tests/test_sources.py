@@ -361,3 +361,38 @@ def test_llff_wrong_pairing_and_convention_fail(tmp_path: Path, tiny_scene: Path
     np.save(folder / "poses_bounds.npy", arr[:-1])
     with pytest.raises(InputError, match=r"holds 15 poses but .*images holds 16 images"):
         read_source(folder, "llff")
+
+
+# ------------------------------------------------------------------------------------------ the stage and preflight
+
+
+def test_reconstruct_stage_reads_a_dataset_scene(tmp_path: Path, tiny_scene: Path, truth) -> None:
+    """stages/reconstruct.py on an LLFF scene named in params (format detected): the dataset's cameras, points
+    triangulated, the record saying so; the preflight check reads the scene and names its key on a problem."""
+    import importlib.util
+
+    from abcgs.params import load_params
+    from abcgs.pipeline import run_stage
+    from abcgs.sources.check import check_scene_sources
+
+    cams, render = truth
+    write_llff(tmp_path / "scene", tiny_scene, cams)
+    (tmp_path / "params.yaml").write_text(json.dumps({"data": {"scenes": {"s": {"path": str(tmp_path / "scene")}}}}))
+    spec = importlib.util.spec_from_file_location("stage_reconstruct", Path(__file__).parents[1] / "stages" / "reconstruct.py")
+    stage = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(stage)
+    ap = stage.stage_parser(stage.SPEC, "reconstruct")
+    ap.add_argument("--out", type=Path)
+    ap.add_argument("--metrics", type=Path)
+    ap.add_argument("--colmap-log", default="warning")
+    out = tmp_path / "out"
+    assert run_stage(stage.SPEC, ap, stage.main, ["--params", str(tmp_path / "params.yaml"), "--scene", "s",
+                                                  "--out", str(out / "colmap"), "--metrics", str(out / "r.json")]) == 0
+    record = json.loads((out / "r.json").read_text())
+    assert record["format"] == "llff" and record["points_method"] == "triangulated" and record["seconds"] > 0
+    assert_same_cameras(read_colmap_scene(out / "colmap" / "sparse", out / "colmap" / "images").cameras, cams, render)
+    params = load_params(tmp_path / "params.yaml")
+    assert check_scene_sources(params, tmp_path) == []
+    (tmp_path / "scene" / "images" / "003.png").unlink()
+    with pytest.raises(InputError, match=r"^data\.scenes\.s: .*poses_bounds\.npy holds 16 poses but .*images holds 15"):
+        check_scene_sources(params, tmp_path)
