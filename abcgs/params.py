@@ -105,7 +105,8 @@ class DataParams(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     scenes: dict[str, SceneParams] = Field(
-        description="scene name → {path: folder with images/ (and optional masks/), reconstruct/fit/masks: overrides}"
+        description="scene name → {path: folder with images/ (and optional masks/) or a dataset with cameras, "
+        "format, images, background, reconstruct/fit/masks: overrides}"
     )
     styles: dict[str, str] = Field(default_factory=dict, description="style name → painting image file")
     style_masks: dict[str, str] = Field(

@@ -396,3 +396,25 @@ def test_reconstruct_stage_reads_a_dataset_scene(tmp_path: Path, tiny_scene: Pat
     (tmp_path / "scene" / "images" / "003.png").unlink()
     with pytest.raises(InputError, match=r"^data\.scenes\.s: .*poses_bounds\.npy holds 16 poses but .*images holds 15"):
         check_scene_sources(params, tmp_path)
+
+
+def test_textureless_views_start_from_random_points_in_the_frustums(tmp_path: Path, tiny_scene: Path, truth) -> None:
+    """Nothing to match (flat views): random points between LLFF's near and far bounds, inside the views."""
+    from abcgs.sources.model import RANDOM_POINTS
+
+    cams, _ = truth
+    write_llff(tmp_path / "scene", tiny_scene, cams)
+    for i, p in enumerate(sorted((tmp_path / "scene" / "images").iterdir())):
+        cv2.imwrite(str(p), np.full((120, 160, 3), 40 + 10 * i, np.uint8))
+    report = write_source_model(read_source(tmp_path / "scene", "llff"), tmp_path / "colmap", ReconstructParams())
+    assert report.points_method == "random" and report.points == RANDOM_POINTS and report.verified_matches == 0
+    data = read_colmap_scene(tmp_path / "colmap" / "sparse", tmp_path / "colmap" / "images")
+    depth_in_some_view = np.zeros(len(data.points), bool)
+    for cam in data.cameras:
+        p = data.points @ cam.viewmat[:3, :3].T + cam.viewmat[:3, 3]
+        uv = p @ cam.K.T
+        inside = (uv[:, 0] >= 0) & (uv[:, 0] <= cam.width * uv[:, 2]) & (uv[:, 1] >= 0) & (uv[:, 1] <= cam.height * uv[:, 2])
+        depth_in_some_view |= inside & (p[:, 2] >= 1.0 - 1e-6) & (p[:, 2] <= 12.0 + 1e-6)
+    assert depth_in_some_view.all()
+    grey = sorted(np.unique(np.round(data.colors[:, 0] * 255)))  # each point has its view's colour
+    assert set(grey) <= {40.0 + 10 * i for i in range(16)} and len(grey) == 16

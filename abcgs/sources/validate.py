@@ -17,14 +17,18 @@ from abcgs.sources.base import SourceScene
 
 MIN_VISIBLE = 0.02
 """A camera sees a scene when at least this fraction of its points lie in front of it and inside its image."""
+MAX_CHECKED_POINTS = 20_000
+"""The visibility check looks at this many of a model's points at most."""
 MIN_CONVERGENCE = 1e-3
 """Axes whose spread (smallest eigenvalue of the mean of ``I - d dᵀ``) is below this are taken as parallel (a
 forward-facing capture): where they meet is then not defined and not checked."""
 
 
 def visible_fraction(scene: SourceScene) -> np.ndarray:
-    """Per view: the fraction of the scene's points in front of the camera and inside its image, ``(N,)``."""
+    """Per view: the fraction of the scene's points in front of the camera and inside its image, ``(N,)`` (on every
+    k-th point of large models: at most :data:`MAX_CHECKED_POINTS`)."""
     pts = np.asarray(scene.points, np.float64)
+    pts = pts[:: max(1, len(pts) // MAX_CHECKED_POINTS)]
     out = []
     for cam in scene.cameras:
         p = pts @ cam.viewmat[:3, :3].T + cam.viewmat[:3, 3]
