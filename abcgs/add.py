@@ -26,8 +26,9 @@ import yaml
 from abcgs.errors import InputError, ParamsError
 from abcgs.io.atomic import write_text
 from abcgs.io.images import load_labels
-from abcgs.params import NAME_PATTERN, NAME_RE, SceneParams, validate_params
+from abcgs.params import NAME_PATTERN, NAME_RE, SceneParams, load_params, validate_params
 from abcgs.preflight import check_image, check_painting, check_scene_images
+from abcgs.sfm.params import ReconstructParams
 from abcgs.sources.base import SourceScene
 from abcgs.sources.detect import DEFAULT_IMAGES, image_files
 from abcgs.sources.lens import consistent_scale, image_size
@@ -63,14 +64,15 @@ def describe_source(scene: SourceScene, folder: Path) -> list[str]:
     return lines + list(scene.notes)
 
 
-def describe_photos(name: str, folder: Path, images: str | None) -> list[str]:
-    """Check a folder of photos (count, decodable headers, similar sizes) and say what it holds."""
+def describe_photos(name: str, folder: Path, images: str | None, max_ratio: float) -> list[str]:
+    """Check a folder of photos (count, decodable headers, sizes within ``max_ratio`` of the median view's pixels:
+    ``reconstruct.max_view_size_ratio``) and say what it holds."""
     sub = images or DEFAULT_IMAGES
     files = image_files(folder / sub)
     if len(files) < MIN_PHOTOS:
         raise InputError(f"{folder / sub} holds {len(files)} image(s); structure from motion needs at least "
                          f"{MIN_PHOTOS} overlapping photos of the scene (LLFF-style captures have 20-60)")
-    warnings = check_scene_images(name, folder / sub, max_ratio=4.0)
+    warnings = check_scene_images(name, folder / sub, max_ratio)
     lines = [f"{len(files)} photos, {_sizes([image_size(p) for p in files])} pixels, in {sub}/; cameras: structure "
              "from motion in the reconstruct stage"]
     if (folder / "masks").is_dir():
@@ -117,8 +119,8 @@ def _check_name(name: str, section: str, existing: Any, force: bool) -> None:
 
 
 def scene_entry(name: str, path: str | os.PathLike, *, fmt: str = "auto", images: str | None = None,
-                background: tuple[float, float, float] | None = None, splat: str | os.PathLike | None = None
-                ) -> tuple[dict, list[str]]:
+                background: tuple[float, float, float] | None = None, splat: str | os.PathLike | None = None,
+                max_view_size_ratio: float = ReconstructParams().max_view_size_ratio) -> tuple[dict, list[str]]:
     """The ``data.scenes.<name>`` entry for the scene at ``path`` (absolute paths, the detected format) and the lines
     describing it. Raises :class:`InputError` for anything its reader refuses."""
     folder = Path(path).expanduser().resolve()
@@ -129,7 +131,7 @@ def scene_entry(name: str, path: str | os.PathLike, *, fmt: str = "auto", images
     if background is not None:
         entry["background"] = [float(c) for c in background]
     if resolved == "photos":
-        lines = describe_photos(name, folder, images)
+        lines = describe_photos(name, folder, images, max_view_size_ratio)
     elif resolved == "splat":
         lines = [f"a bare splat scene: {folder}"]
     else:
@@ -161,9 +163,10 @@ def add_scene(params_path: str | os.PathLike, name: str, path: str | os.PathLike
               splat: str | os.PathLike | None = None, force: bool = False, dry_run: bool = False
               ) -> tuple[dict, list[str]]:
     """Check the scene and write ``data.scenes.<name>`` into the params file (unless ``dry_run``)."""
-    raw = yaml.safe_load(Path(params_path).read_text(encoding="utf-8")) if Path(params_path).is_file() else {}
-    _check_name(name, "data.scenes", ((raw or {}).get("data") or {}).get("scenes"), force)
-    entry, lines = scene_entry(name, path, fmt=fmt, images=images, background=background, splat=splat)
+    params = load_params(params_path)
+    _check_name(name, "data.scenes", params.data.scenes, force)
+    entry, lines = scene_entry(name, path, fmt=fmt, images=images, background=background, splat=splat,
+                               max_view_size_ratio=params.reconstruct.max_view_size_ratio)
 
     def edit(doc: Any) -> None:
         doc["data"]["scenes"][name] = entry
@@ -194,8 +197,7 @@ def add_style(params_path: str | os.PathLike, name: str, path: str | os.PathLike
               labels: str | os.PathLike | None = None, force: bool = False, dry_run: bool = False
               ) -> tuple[dict, list[str]]:
     """Check the painting (and its region map) and write ``data.styles.<name>`` (and ``data.style_masks.<name>``)."""
-    raw = yaml.safe_load(Path(params_path).read_text(encoding="utf-8")) if Path(params_path).is_file() else {}
-    _check_name(name, "data.styles", ((raw or {}).get("data") or {}).get("styles"), force)
+    _check_name(name, "data.styles", load_params(params_path).data.styles, force)
     painting = Path(path).expanduser().resolve()
     check_painting(painting, "painting")
     w, h = image_size(painting)

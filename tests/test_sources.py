@@ -289,6 +289,13 @@ def test_nerfstudio_downscaled_folder_and_missing_image(tmp_path: Path, tiny_sce
     _copy_images(tiny_scene / "images", tmp_path / "images_2", scale=0.5)
     assert_same_cameras(read_source(tmp_path, "nerfstudio", images="images_2").cameras, [c.scaled(0.5) for c in cams],
                         render)
+    meta = json.loads((tmp_path / "transforms.json").read_text())
+    meta.update(k1=0.01, p1=0.001)  # OPENCV distortion, global: carried as the views' lens, scaled with the images
+    (tmp_path / "transforms.json").write_text(json.dumps(meta))
+    lens = read_source(tmp_path, "nerfstudio", images="images_2").views[0].distortion
+    c = cams[0].scaled(0.5)
+    assert lens.model == "OPENCV"
+    assert lens.params == pytest.approx((c.K[0, 0], c.K[1, 1], c.K[0, 2], c.K[1, 2], 0.01, 0.0, 0.001, 0.0))
     (tmp_path / "images" / "005.png").unlink()
     with pytest.raises(InputError, match=r"frames\[5\]\.file_path 'images/005\.png' names .*005\.png, which does not "
                                          r"exist; copy the images beside transforms\.json"):
