@@ -118,7 +118,7 @@ def dvc_outputs(dvc_yaml: Path) -> list[str]:
     return paths
 
 
-def _produced(path: Path, outputs: Iterable[str], root: Path) -> bool:
+def produced_by_stage(path: Path, outputs: Iterable[str], root: Path) -> bool:
     target = (root / path).resolve()
     for out in outputs:
         o = (root / out).resolve()
@@ -220,7 +220,7 @@ def check_input_files(params, root: Path, produced: Iterable[str] = ()) -> list[
             if inside:
                 raise InputError(f"data.{section}.{name}: {rel} lies in {inside}/, which pipeline stages write and "
                                  "delete when they re-run; copy the file to a folder of its own")
-            if not _produced(Path(rel), produced, root):  # e.g. the tiny scene's paintings, made by make_tiny
+            if not produced_by_stage(Path(rel), produced, root):  # e.g. the tiny scene's paintings, made by make_tiny
                 (check_painting if section == "styles" else check_image)(root / rel, f"data.{section}.{name}")
     if params.vgg.path and not (root / params.vgg.path).is_file():
         raise InputError(f"vgg.path: {params.vgg.path} does not exist; give a torchvision VGG-16 state dict (.pth) or "
@@ -231,7 +231,7 @@ def check_input_files(params, root: Path, produced: Iterable[str] = ()) -> list[
         if _in_stage_output(rel, root):
             raise InputError(f"data.scenes.{name}: {rel} lies in a folder pipeline stages write and delete; move the "
                              "scene elsewhere")
-        if _produced(Path(rel), produced, root):
+        if produced_by_stage(Path(rel), produced, root):
             continue
         sub = scene.images or DEFAULT_IMAGES
         images = folder / sub

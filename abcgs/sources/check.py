@@ -10,7 +10,7 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from abcgs.errors import InputError
-from abcgs.preflight import _produced
+from abcgs.preflight import produced_by_stage
 from abcgs.sources.read import read_source, resolve_format
 
 
@@ -20,7 +20,7 @@ def check_scene_sources(params, root: Path, produced: Iterable[str] = ()) -> lis
     produced = list(produced)
     warnings = []
     for name, scene in params.data.scenes.items():
-        if _produced(Path(scene.path), produced, root):
+        if produced_by_stage(Path(scene.path), produced, root):
             continue
         folder = root / scene.path
         try:

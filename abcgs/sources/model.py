@@ -207,8 +207,7 @@ def depth_range(source_views: list[SourceView], stated: tuple[float, float] | No
     and a half times the cameras' distance to it), else from the spread of the camera centres."""
     if stated is not None:
         return stated
-    scene = SourceScene("photos", tuple(source_views))
-    meet = axes_meeting_point(scene)
+    meet = axes_meeting_point([v.camera for v in source_views])
     centres = np.array([v.camera.center for v in source_views])
     if meet is not None:
         dist = np.linalg.norm(centres - meet, axis=1)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.sources.base import SourceScene
 
@@ -40,10 +41,10 @@ def visible_fraction(scene: SourceScene) -> np.ndarray:
     return np.asarray(out)
 
 
-def axes_meeting_point(scene: SourceScene) -> np.ndarray | None:
+def axes_meeting_point(cameras: list[Camera]) -> np.ndarray | None:
     """The point nearest (least squares) to every camera's optical axis, or ``None`` when the axes are parallel."""
-    centres = np.array([c.center for c in scene.cameras])
-    dirs = np.array([c.viewmat[2, :3] for c in scene.cameras])  # camera +z in world
+    centres = np.array([c.center for c in cameras])
+    dirs = np.array([c.viewmat[2, :3] for c in cameras])  # camera +z in world
     A = np.zeros((3, 3))
     b = np.zeros(3)
     for c, d in zip(centres, dirs):
@@ -72,7 +73,7 @@ def check_cameras(scene: SourceScene, what: str) -> None:
         return
     if n < 2:
         return
-    meet = axes_meeting_point(scene)
+    meet = axes_meeting_point(scene.cameras)
     if meet is None:
         return
     depth = np.array([(c.viewmat @ np.append(meet, 1.0))[2] for c in scene.cameras])
