@@ -39,7 +39,7 @@ NAME_RE = re.compile(NAME_PATTERN)
 
 
 class SceneParams(BaseModel):
-    """``data.scenes.<name>``: the scene's folder and its overrides of the per-scene sections.
+    """``data.scenes.<name>``: the scene's folder, its format, and its overrides of the per-scene sections.
 
     ``{path: data/fern, fit: {iterations: 3000}}`` fits this scene for 3000 steps and every other scene with
     the global ``fit``. An override is a partial section, merged key by key (nested mappings too) over the
@@ -51,7 +51,15 @@ class SceneParams(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    path: str = Field(description="folder holding images/ (and optional masks/ with label PNGs of the same stem)")
+    path: str = Field(description="the scene's folder: photos in images/ (and optional masks/ with label PNGs of the "
+                      "same stem), or a dataset with its cameras (sparse/0/, transforms.json, transforms_train.json, "
+                      "poses_bounds.npy; abcgs/sources)")
+    format: Literal["auto", "photos", "colmap", "nerfstudio", "blender", "llff", "splat"] = Field(
+        "auto", description="where the cameras come from; auto = detected from the folder's files (abcgs/sources/detect.py)")
+    images: str | None = Field(
+        None, description="image subfolder (default images/), e.g. images_8 beside a full-size COLMAP model or LLFF poses")
+    background: tuple[float, float, float] | None = Field(
+        None, description="RGB in [0, 1] that RGBA views are composited on (blender; default white)")
     reconstruct: dict[str, Any] = Field(default_factory=dict, description="overrides of `reconstruct` for this scene")
     fit: dict[str, Any] = Field(default_factory=dict, description="overrides of `fit` for this scene")
     masks: dict[str, Any] = Field(default_factory=dict, description="overrides of `masks` for this scene")
@@ -73,6 +81,20 @@ class SceneParams(BaseModel):
             return None
         p = Path(self.splat)
         return p if p.is_absolute() else Path(self.path) / p
+
+    @field_validator("images")
+    @classmethod
+    def _subfolder(cls, v: str | None) -> str | None:
+        if v is not None and (not NAME_RE.fullmatch(v) or v in (".", "..")):
+            raise ValueError(f"images: {v!r} must be the name of a subfolder of the scene's folder (e.g. images_8)")
+        return v
+
+    @field_validator("background")
+    @classmethod
+    def _unit_rgb(cls, v: tuple[float, float, float] | None) -> tuple[float, float, float] | None:
+        if v is not None and not all(0.0 <= c <= 1.0 for c in v):
+            raise ValueError(f"background: {list(v)} must be RGB in [0, 1], e.g. [1, 1, 1] for white")
+        return v
 
 
 def deep_merge(base: dict, override: dict) -> dict:
@@ -111,7 +133,8 @@ class DataParams(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     scenes: dict[str, SceneParams] = Field(
-        description="scene name → {path: folder with images/ (and optional masks/), reconstruct/fit/masks: overrides}"
+        description="scene name → {path: folder with images/ (and optional masks/) or a dataset with cameras, "
+        "format, images, background, reconstruct/fit/masks: overrides}"
     )
     styles: dict[str, str] = Field(default_factory=dict, description="style name → painting image file")
     style_masks: dict[str, str] = Field(

@@ -7,10 +7,12 @@ checks the params against the two other things a run depends on:
   the schema does not count: DVC reads the YAML, and aborts with "Parameters ... are missing" after the earlier
   stages have run). :func:`check_dvc_tracked_keys`; :func:`check_scene_entries`: scenes are mappings when
   ``dvc.yaml`` reads ``${item.path}``.
-- the inputs (:func:`check_input_files`): every scene folder exists and holds decodable views of similar sizes
-  (:func:`check_scene_images`; an alpha channel or a grey view among colour ones is a warning), its ``masks/`` name
-  views and label something (:func:`check_scene_masks`; numbered labels that skip values are a warning), paintings
-  and label maps exist, decode, are large enough and do not live in a folder stages write (a label map of another
+- the inputs (:func:`check_input_files`): every scene folder exists and its format is known (given or detected:
+  :mod:`abcgs.sources.detect`); a folder of photos holds decodable views of similar sizes (:func:`check_scene_images`;
+  an alpha channel or a grey view among colour ones is a warning), its ``masks/`` name views and label something
+  (:func:`check_scene_masks`; numbered labels that skip values are a warning); a dataset with cameras is read and
+  checked by the ``preflight`` stage (:mod:`abcgs.sources.check`: the model is present, images match cameras, sizes
+  are a consistent scale); paintings and label maps exist, decode, are large enough and do not live in a folder stages write (a label map of another
   size than its painting is a warning), and ``vgg.path`` exists. A scene or painting a ``dvc.yaml`` stage produces
   (the embedded tiny scene, made by ``make_tiny``) is checked by that stage instead; a path into it must name a
   file the stage writes there (:data:`PRODUCED_FILES`). The labels the colour matches bind exist in the label
@@ -37,9 +39,9 @@ from PIL import Image
 
 from abcgs.errors import InputError, ParamsError
 from abcgs.scene.params import TINY_STYLE_FILES
+from abcgs.sources.detect import DEFAULT_IMAGES, IMAGE_SUFFIXES, detect_format
 
 log = logging.getLogger(__name__)
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
 
 
 def _stages(dvc_yaml: Path) -> dict[str, Any]:
@@ -148,11 +150,11 @@ def _producer(path: Path, outputs: Iterable[str], root: Path) -> str | None:
     return None
 
 
-def _produced(path: Path, outputs: Iterable[str], root: Path) -> bool:
+def produced_by_stage(path: Path, outputs: Iterable[str], root: Path) -> bool:
     return _producer(path, outputs, root) is not None
 
 
-def _check_image(path: Path, what: str) -> None:
+def check_image(path: Path, what: str) -> None:
     if not path.is_file():
         raise InputError(f"{what}: {path} does not exist; fix the path in params.yaml (paths are relative to the "
                          "repository root)")
@@ -167,8 +169,8 @@ STAGE_OUTPUT_ROOTS = ("out", "reports")
 """Folders the pipeline's stages write and delete: inputs must not live there."""
 
 
-def _check_painting(path: Path, what: str) -> None:
-    _check_image(path, what)
+def check_painting(path: Path, what: str) -> None:
+    check_image(path, what)
     with Image.open(path) as im:
         w, h = im.size
     if min(w, h) < MIN_PAINTING_SIDE:
@@ -230,14 +232,14 @@ def mask_labels(path: Path) -> np.ndarray | None:
     return img
 
 
-def check_scene_masks(name: str, folder: Path) -> list[str]:
+def check_scene_masks(name: str, folder: Path, images: str = DEFAULT_IMAGES) -> list[str]:
     """The user's label PNGs in ``<scene>/masks/`` name views of ``images/`` and label something. Returns warnings:
     numbered labels that skip values (``255`` beside ``1, 2, 3``: each value is a label of its own)."""
     masks = folder / "masks"
     files = sorted(masks.glob("*.png")) if masks.is_dir() else []
     if not files:
         return []
-    stems = {p.stem for p in (folder / "images").iterdir() if p.suffix.lower() in IMAGE_SUFFIXES}
+    stems = {p.stem for p in (folder / images).iterdir() if p.suffix.lower() in IMAGE_SUFFIXES}
     orphans = [p.name for p in files if p.stem not in stems]
     if orphans:
         raise InputError(
@@ -290,12 +292,12 @@ def check_bindings(params, root: Path, produced: Iterable[str]) -> None:
     for name, spec in params.colormatches.items():
         scene = params.data.scenes[spec.scene].path
         content = None
-        if spec.transfer == "compositional" and not _produced(Path(scene), produced, root):
+        if spec.transfer == "compositional" and not produced_by_stage(Path(scene), produced, root):
             content = scene_mask_labels(root / scene)
         regions, map_path = None, ""
         if spec.transfer == "semantic" and spec.binding != "auto":
             map_path = params.data.style_masks.get(spec.style, "")
-            if map_path and not _produced(Path(map_path), produced, root):
+            if map_path and not produced_by_stage(Path(map_path), produced, root):
                 labels = mask_labels(root / map_path)
                 regions = None if labels is None else {int(v) for v in np.unique(labels)} - {0}
         spec.check_labels(name, content, f"the masks in {Path(scene) / 'masks'}", regions, map_path)
@@ -318,10 +320,10 @@ def check_input_files(params, root: Path, produced: Iterable[str] = (),
             if out is not None:  # e.g. the tiny scene's paintings, made by make_tiny
                 _check_produced_file(rel, out, contents, root, f"data.{section}.{name}")
             else:
-                (_check_painting if section == "styles" else _check_image)(root / rel, f"data.{section}.{name}")
+                (check_painting if section == "styles" else check_image)(root / rel, f"data.{section}.{name}")
     for name, rel in params.data.style_masks.items():
         painting = params.data.styles.get(name)
-        if painting is None or _produced(Path(rel), produced, root) or _produced(Path(painting), produced, root):
+        if painting is None or produced_by_stage(Path(rel), produced, root) or produced_by_stage(Path(painting), produced, root):
             continue
         (mw, mh), (pw, ph) = _size(root / rel), _size(root / painting)
         if (mw, mh) != (pw, ph):
@@ -337,11 +339,21 @@ def check_input_files(params, root: Path, produced: Iterable[str] = (),
         if _in_stage_output(rel, root):
             raise InputError(f"data.scenes.{name}: {rel} lies in a folder pipeline stages write and delete; move the "
                              "scene elsewhere")
-        if _produced(Path(rel), produced, root):
+        if produced_by_stage(Path(rel), produced, root):
             continue
-        images = folder / "images"
+        sub = scene.images or DEFAULT_IMAGES
+        images = folder / sub
+        if not folder.exists():
+            raise InputError(f"data.scenes.{name}: {images} does not exist; a scene folder holds {sub}/ (and "
+                             "optionally masks/), or a dataset with its cameras (README \"Your own scene\")")
+        try:
+            fmt = detect_format(folder, scene.images) if scene.format == "auto" else scene.format
+        except InputError as exc:
+            raise InputError(f"data.scenes.{name}: {exc}") from None
+        if fmt != "photos":
+            continue  # a dataset with cameras: its reader checks it in the preflight stage (abcgs/sources/check.py)
         if not images.is_dir():
-            raise InputError(f"data.scenes.{name}: {images} does not exist; a scene folder holds images/ (and "
+            raise InputError(f"data.scenes.{name}: {images} does not exist; a scene folder holds {sub}/ (and "
                              "optionally masks/)")
         files = sorted(p for p in images.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
         if not files:
@@ -351,7 +363,7 @@ def check_input_files(params, root: Path, produced: Iterable[str] = (),
             raise InputError(f"data.scenes.{name}: {len(bad)} image(s) in {images} do not decode: {', '.join(bad[:5])}"
                              f"{' …' if len(bad) > 5 else ''}; remove or replace them")
         warnings += check_scene_images(name, images, params.scene_section(name, "reconstruct").max_view_size_ratio)
-        warnings += check_scene_masks(name, folder)
+        warnings += check_scene_masks(name, folder, sub)
     check_bindings(params, root, produced)
     return warnings
 

@@ -19,6 +19,8 @@ from abcgs.io.metrics import fit_headline, write_headline
 from abcgs.pipeline import StageSpec, run_stage, stage_parser
 from abcgs.runtime import resolve_device
 from abcgs.sfm.model import read_colmap_scene
+from abcgs.sources.detect import splat_file
+from abcgs.sources.read import resolve_format
 from abcgs.splats.importing import import_and_save, write_fitted_source
 
 SPEC = StageSpec("fit", foreach="data.scenes", params=("fit", "data.scenes.{key}", "runtime"))
@@ -29,8 +31,11 @@ def main(args, params) -> None:
     fit = params.scene_section(args.scene, "fit")
     spec = params.data.scenes[args.scene]
     device = resolve_device(params.runtime.device)
-    if spec.splat is not None:
-        record = import_and_save(scene, spec.splat_path(), spec.splat_format, fit, args.out, device=device)
+    splat = spec.splat_path()
+    if splat is None and resolve_format(Path(spec.path), spec.format, spec.images) == "splat":
+        splat = splat_file(spec.path)  # a bare splat: its own renders are the photos
+    if splat is not None:
+        record = import_and_save(scene, splat, spec.splat_format, fit, args.out, device=device)
     else:
         record = fit_and_save(scene, fit, args.out, device=device).metrics()
         write_fitted_source(args.out)

@@ -5,7 +5,8 @@
 :func:`abcgs.pipeline.run_stage` validates the whole params file (schema, names, references between sections) and
 checks it against ``dvc.yaml`` (every tracked key present), as for every stage; this stage then checks the inputs
 (:func:`abcgs.preflight.check_input_files`: scene folders, views, masks, paintings, weights, and the labels
-the colour matches bind where the label maps are given files). Every other stage
+the colour matches bind where the label maps are given files; :func:`abcgs.sources.check.check_scene_sources`:
+datasets with cameras read by their readers). Every other stage
 depends on its stamp, so ``dvc repro`` stops here, with the key named, before DVC deletes any stage's outputs. The
 stamp's content does not depend on the params, so a passing preflight re-runs nothing downstream; the warnings are
 printed (``dvc repro`` shows them) and go to ``--record``, which the report shows.
@@ -19,6 +20,7 @@ from pathlib import Path
 from abcgs.io.atomic import write_json
 from abcgs.pipeline import StageSpec, run_stage, stage_parser
 from abcgs.preflight import check_input_files, dvc_output_files, dvc_outputs
+from abcgs.sources.check import check_scene_sources
 
 SPEC = StageSpec("preflight", params=("data", "vgg", "reconstruct", "colormatches"))
 
@@ -27,8 +29,9 @@ def main(args, params) -> None:
     root = args.params.resolve().parent
     dvc_yaml = root / "dvc.yaml"
     known = dvc_yaml.is_file()
-    warnings = check_input_files(params, root, dvc_outputs(dvc_yaml) if known else [],
-                                 dvc_output_files(dvc_yaml) if known else {})
+    produced = dvc_outputs(dvc_yaml) if known else []
+    warnings = (check_input_files(params, root, produced, dvc_output_files(dvc_yaml) if known else {})
+                + check_scene_sources(params, root, produced))
     for w in warnings:  # on the terminal of `dvc repro`, and in the record the report shows
         print(f"[preflight] warning: {w}", file=sys.stderr, flush=True)
     write_json(args.record, {"warnings": warnings})

@@ -1,22 +1,30 @@
-"""Stage ``reconstruct``: COLMAP through pycolmap — SIFT, matching, incremental mapping, undistortion to PINHOLE.
+"""Stage ``reconstruct``: the scene's calibrated views as an undistorted COLMAP model, from its photos or its dataset.
 
     python stages/reconstruct.py --scene tiny --out out/tiny/colmap --metrics out/tiny/reconstruct.json
 
-Reads the scene folder ``data.scenes.<scene>.path`` (``images/``, optional ``masks/``). Writes the undistorted
-model (``sparse/``), images (``images/``) and, when the scene has ``masks/``, the undistorted label maps
-(``masks/``); registered/total images, points and reprojection error go to ``--metrics``. Options: the
-``reconstruct`` section (:class:`abcgs.sfm.colmap.ReconstructParams`) with the scene's override merged in.
+Reads the scene folder ``data.scenes.<scene>.path`` in its format (``format:``, default detected:
+:mod:`abcgs.sources`). Photos (``images/``, optional ``masks/``) go through COLMAP via pycolmap: SIFT, matching,
+incremental mapping, undistortion to PINHOLE (:mod:`abcgs.sfm.colmap`; options: the ``reconstruct`` section with the
+scene's override merged in). A dataset with cameras (COLMAP model, ``transforms.json``, NeRF-synthetic,
+``poses_bounds.npy``) keeps its cameras and frame: undistorted, scaled to its images, with its points or points
+triangulated from its poses (:mod:`abcgs.sources.model`). Either way the output is the undistorted model
+(``sparse/``), images (``images/``) and label maps (``masks/``, when there are any); the record goes to
+``--metrics``.
 """
 
 from __future__ import annotations
 
 import logging
 import sys
+import tempfile
 from pathlib import Path
 
 from abcgs.io.atomic import write_json
 from abcgs.pipeline import StageSpec, run_stage, stage_parser
-from abcgs.sfm.colmap import reconstruct, set_colmap_log_level
+from abcgs.sfm.colmap import set_colmap_log_level
+from abcgs.sources.model import write_source_model
+from abcgs.sources.photos import reconstruct_photos
+from abcgs.sources.read import read_source, resolve_format
 
 SPEC = StageSpec("reconstruct", foreach="data.scenes", params=("reconstruct", "data.scenes.{key}"))
 log = logging.getLogger("reconstruct")
@@ -24,19 +32,30 @@ log = logging.getLogger("reconstruct")
 
 def main(args, params) -> None:
     set_colmap_log_level(args.colmap_log)
-    folder = Path(params.scene_path(args.scene))
-    report = reconstruct(folder / "images", args.out, params.scene_section(args.scene, "reconstruct"),
-                         masks_dir=folder / "masks")
-    write_json(args.metrics, report.metrics())
-    log.info(
-        "%d/%d registered, %d points, reprojection error %.3f px, %.1f s",
-        report.registered, report.total, report.points, report.mean_reprojection_error_px, report.seconds,
-    )
+    scene = params.data.scenes[args.scene]
+    folder = Path(scene.path)
+    options = params.scene_section(args.scene, "reconstruct")
+    fmt = resolve_format(folder, scene.format, scene.images)
+    if fmt == "photos":
+        report = reconstruct_photos(folder, args.out, options, scene.images)
+        write_json(args.metrics, report.metrics())
+        log.info("%d/%d registered, %d points, reprojection error %.3f px, %.1f s", report.registered, report.total,
+                 report.points, report.mean_reprojection_error_px, report.seconds)
+        return
+    with tempfile.TemporaryDirectory() as work:  # a bare splat's renders, until the model's images/ holds them
+        source = read_source(folder, fmt, images=scene.images, background=scene.background, views=scene.views,
+                             work=work)
+        for note in source.notes:
+            log.info("%s: %s", fmt, note)
+        record = write_source_model(source, args.out, options, masks_dir=folder / "masks")
+    write_json(args.metrics, record.metrics())
+    log.info("%s: %d views with the dataset's cameras, %d points (%s), %.1f s", fmt, record.total, record.points,
+             record.points_method, record.seconds)
 
 
 if __name__ == "__main__":
     ap = stage_parser(SPEC, __doc__.strip().splitlines()[0])
     ap.add_argument("--out", type=Path, required=True, help="output folder, e.g. out/<scene>/colmap")
-    ap.add_argument("--metrics", type=Path, required=True, help="registration record JSON")
+    ap.add_argument("--metrics", type=Path, required=True, help="the reconstruction record (JSON)")
     ap.add_argument("--colmap-log", choices=("info", "warning"), default="warning", help="COLMAP's own log level")
     sys.exit(run_stage(SPEC, ap, main))

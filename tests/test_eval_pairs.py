@@ -173,7 +173,7 @@ def fern_views(scale: float = 0.5) -> tuple[list[Camera], list[np.ndarray]]:
     import cv2
 
     from abcgs.io.images import load_image
-    from abcgs.sfm.llff import llff_cameras
+    from abcgs.sources.llff import llff_cameras
 
     paths = sorted(p for p in (FERN / "images").iterdir() if p.suffix.lower() in (".jpg", ".jpeg", ".png"))
     photos = [load_image(p) for p in paths]
@@ -203,7 +203,7 @@ def test_shuffled_fern_equals_ordered_fern() -> None:
 
 def test_llff_cameras_have_opencv_axes(tmp_path: Path) -> None:
     """LLFF's camera-to-world columns are (down, right, back); the viewmat is world→camera in OpenCV axes."""
-    from abcgs.sfm.llff import llff_cameras
+    from abcgs.sources.llff import llff_cameras
 
     row = np.zeros((3, 5))
     row[:, 0], row[:, 1], row[:, 2] = (0, -1, 0), (1, 0, 0), (0, 0, 1)  # world y up, the camera looks along −z

@@ -152,7 +152,7 @@ def test_scene_override_errors_name_the_key_path(raw) -> None:
     p["data"]["scenes"]["big"] = {"path": "data/big", "fit": {"iterations": "many"}}
     assert "data.scenes.big.fit.iterations: Input should be a valid integer" in _error(p)
     p["data"]["scenes"]["big"] = {"path": "data/big", "stylize": {"iterations": 1}}
-    assert "data.scenes.big.stylize: unknown key; allowed keys here: path, reconstruct, fit, masks" in _error(p)
+    assert "data.scenes.big.stylize: unknown key; allowed keys here: path, format, images, background, reconstruct, fit, masks" in _error(p)
     p["data"]["scenes"]["big"] = {"fit": {}}
     assert "data.scenes.big.path: required key is missing" in _error(p)
     p["data"]["scenes"]["big"] = "data/big"  # the library's shorthand

@@ -31,6 +31,7 @@ import cv2  # before pycolmap: see abcgs/sfm/__init__.py
 import numpy as np
 import pycolmap
 
+from abcgs.cameras import Camera
 from abcgs.errors import InputError, ReconstructionError
 from abcgs.io.atomic import atomic_path, write_json
 from abcgs.io.images import list_images, load_image, load_labels, save_labels
@@ -114,7 +115,8 @@ def resolve_single_camera(params: ReconstructParams, sizes: dict[str, tuple[int,
 # ----------------------------------------------------------------------------------------------
 
 
-def _extract(db: Path, images_dir: Path, names: list[str], params: ReconstructParams, single: bool) -> None:
+def extract_features(db: Path, images_dir: Path, names: list[str], params: ReconstructParams, single: bool) -> None:
+    """SIFT features of ``names`` (in ``images_dir``) into the database ``db``; one shared camera when ``single``."""
     opts = pycolmap.FeatureExtractionOptions(num_threads=params.num_threads, max_image_size=params.max_image_size)
     pycolmap.extract_features(
         db,
@@ -134,7 +136,8 @@ def choose_matcher(params: ReconstructParams, n_images: int) -> str:
     return "exhaustive" if n_images <= EXHAUSTIVE_MAX_IMAGES else "sequential"
 
 
-def _match(db: Path, params: ReconstructParams, matcher: str) -> None:
+def match_features(db: Path, params: ReconstructParams, matcher: str) -> None:
+    """Match the features in ``db`` (``exhaustive`` or ``sequential``) and verify each pair's two-view geometry."""
     matching = pycolmap.FeatureMatchingOptions(num_threads=params.num_threads)
     verification = pycolmap.TwoViewGeometryOptions()
     verification.ransac.random_seed = params.seed
@@ -226,7 +229,7 @@ def _undistort_masks(masks_dir: Path, rec: pycolmap.Reconstruction, und: pycolma
     return count
 
 
-def _undistort(model_dir: Path, images_dir: Path, work: Path, out: Path, params: ReconstructParams) -> None:
+def undistort_model(model_dir: Path, images_dir: Path, work: Path, out: Path, params: ReconstructParams) -> None:
     """COLMAP undistortion of ``model_dir`` into ``out/sparse`` and ``out/images`` (other outputs dropped)."""
     und = work / "undistorted"
     pycolmap.undistort_images(und, model_dir, images_dir, output_type="COLMAP", num_threads=params.num_threads)
@@ -263,9 +266,9 @@ def reconstruct(
         work = Path(scratch)
         db = work / "database.db"
         log.info("reconstruct: %d images, %s camera(s), %s matching", len(names), "one shared" if single else "per-image", matcher)
-        _extract(db, images_dir, names, params, single)
+        extract_features(db, images_dir, names, params, single)
         log.info("reconstruct: features extracted (%.1f s)", time.perf_counter() - t0)
-        _match(db, params, matcher)
+        match_features(db, params, matcher)
         log.info("reconstruct: features matched (%.1f s)", time.perf_counter() - t0)
         rec = _map(db, images_dir, work / "sparse", params)
         unregistered = check_registration(rec, names, params, images_dir)
@@ -275,7 +278,7 @@ def reconstruct(
         model_dir.mkdir()
         rec.write_binary(str(model_dir))
         with atomic_path(out_dir, is_dir=True) as tmp:
-            _undistort(model_dir, images_dir, work, tmp, params)
+            undistort_model(model_dir, images_dir, work, tmp, params)
             if masks_dir is not None and Path(masks_dir).is_dir():
                 und = pycolmap.Reconstruction(str(tmp / "sparse"))
                 n = _undistort_masks(Path(masks_dir), rec, und, tmp / "masks")
@@ -292,3 +295,15 @@ def reconstruct(
             write_json(tmp / "metrics.json", report.metrics(seconds=False))
     log.info("reconstruct: done in %.1f s -> %s", report.seconds, out_dir)
     return report
+
+
+def camera_from_colmap(image: pycolmap.Image, camera: pycolmap.Camera) -> Camera:
+    """A :class:`Camera` from a registered COLMAP image and its (SIMPLE_)PINHOLE camera."""
+    if camera.model_name not in ("PINHOLE", "SIMPLE_PINHOLE"):
+        raise InputError(
+            f"image {image.name} uses a {camera.model_name} camera; an undistorted (PINHOLE) model is needed here, "
+            "i.e. the sparse/ folder written by the reconstruct stage"
+        )
+    viewmat = np.eye(4)
+    viewmat[:3, :] = image.cam_from_world().matrix()
+    return Camera(image.name, np.asarray(camera.calibration_matrix(), float), viewmat, int(camera.width), int(camera.height))

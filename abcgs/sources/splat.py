@@ -18,7 +18,8 @@ import torch
 from abcgs.gaussians import render
 from abcgs.io.images import save_image
 from abcgs.render import sh0_to_rgb
-from abcgs.splats.cameras import SourceScene, SourceView, cameras_around
+from abcgs.sources.base import SourceScene, SourceView
+from abcgs.splats.cameras import cameras_around
 from abcgs.splats.formats import read_splat
 from abcgs.splats.params import SplatViewsParams
 
@@ -45,5 +46,5 @@ def read_splat_source(path: Path, out_images_dir: Path, params: SplatViewsParams
         keep = keep[:: -(-len(keep) // MAX_POINTS)]
     points = model.means[keep].numpy().astype(np.float32)
     colors = sh0_to_rgb(model.sh0[keep, 0, :]).clamp(0, 1).numpy().astype(np.float32)
-    return SourceScene("splat", views, points, colors, np.eye(4))
+    return SourceScene("splat", tuple(views), points, colors)
 

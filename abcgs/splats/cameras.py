@@ -23,8 +23,7 @@ down relative to the capture that trained the splat; stylization does not depend
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from pathlib import Path
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
@@ -148,31 +147,3 @@ def cameras_around(
     else:
         raise InputError(f"views.kind must be auto, orbit or forward, got {kind!r}")
     return out, used
-
-
-@dataclass
-class SourceView:
-    """One view of a source scene: its image file and calibrated camera (``distortion``: OpenCV coefficients or
-    ``None``; ``mask_path``: a label PNG or ``None``)."""
-
-    name: str
-    image_path: Path
-    camera: Camera
-    distortion: np.ndarray | None = None
-    mask_path: Path | None = None
-
-
-@dataclass
-class SourceScene:
-    """A scene read from a source (here: a bare splat) before the reconstruct stage writes it as a COLMAP model.
-
-    Attributes:
-        format: the source's kind. views: the views. points: ``(M, 3) float32`` world points or ``None``.
-        colors: ``(M, 3) float32`` their RGB in ``[0, 1]``. frame: ``(4, 4)`` source frame → scene frame.
-    """
-
-    format: str
-    views: list[SourceView]
-    points: np.ndarray | None = None
-    colors: np.ndarray | None = None
-    frame: np.ndarray = field(default_factory=lambda: np.eye(4))

@@ -1,8 +1,11 @@
 """Benchmark the baseline 3DGS fit on a real scene: held-out PSNR against training wall time.
 
     python eval/bench/fit.py --scene ../shared/data/scenes/fern --json out/bench/fit_fern.json
+    python eval/bench/fit.py --scene ../shared/data/scenes/fern --format llff   # LLFF's poses, no SfM
 
-Reconstructs the scene with pycolmap (cached in ``--work``), fits with the given budget, evaluates the
+Reconstructs the scene with pycolmap (``--format photos``, the default) or writes the dataset's own cameras
+(``--format llff``, ``colmap``, …, ``auto``: :mod:`abcgs.sources`; points triangulated from the given poses), cached
+in ``--work``, then fits with the given budget, evaluates the
 held-out views (every 8th, LLFF convention) every ``--eval-every`` steps, and prints the PSNR-vs-time
 table; ``--json`` also writes it, and a PNG curve is written next to it. Wall time counts training
 steps only (evaluation excluded), on whatever machine runs it — the table header says which.
@@ -26,11 +29,16 @@ from abcgs.io.atomic import write_json
 from abcgs.io.ply import write_ply
 from abcgs.sfm.colmap import ReconstructParams, reconstruct
 from abcgs.sfm.model import read_colmap_scene
+from abcgs.sources.base import FORMATS
+from abcgs.sources.model import write_source_model
+from abcgs.sources.read import read_source, resolve_format
 
 
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scene", type=Path, required=True, help="folder with images/")
+    ap.add_argument("--scene", type=Path, required=True, help="folder with images/ (or a dataset with cameras)")
+    ap.add_argument("--format", default="photos", choices=("auto", *FORMATS),
+                    help="where the cameras come from (photos: structure from motion)")
     ap.add_argument("--work", type=Path, default=Path("out/bench"), help="where the reconstruction is cached")
     ap.add_argument("--iterations", type=int, default=3000)
     ap.add_argument("--eval-every", type=int, default=250)
@@ -42,9 +50,14 @@ def main(argv=None) -> dict:
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
 
-    colmap = args.work / args.scene.name / "colmap"
+    fmt = resolve_format(args.scene, args.format)
+    run = args.scene.name if fmt == "photos" else f"{args.scene.name}-{fmt}"
+    colmap = args.work / run / "colmap"
     if not (colmap / "sparse").is_dir():
-        reconstruct(args.scene / "images", colmap, ReconstructParams())
+        if fmt == "photos":
+            reconstruct(args.scene / "images", colmap, ReconstructParams())
+        else:
+            write_source_model(read_source(args.scene, fmt), colmap, ReconstructParams())
     scene = read_colmap_scene(colmap / "sparse", colmap / "images")
     params = FitParams(
         iterations=args.iterations, eval_every=args.eval_every, max_gaussians=args.max_gaussians,
@@ -55,15 +68,16 @@ def main(argv=None) -> dict:
         ),
     )
     result = fit(scene, params, progress=True)
-    write_ply(args.work / args.scene.name / "gs" / "point_cloud.ply", result.model)
+    write_ply(args.work / run / "gs" / "point_cloud.ply", result.model)
     cam = scene.cameras[0]
-    print(f"\n# {args.scene.name}: {len(scene.cameras)} views at {cam.width}x{cam.height}, "
+    print(f"\n# {args.scene.name} ({fmt}): {len(scene.cameras)} views at {cam.width}x{cam.height}, "
           f"{len(result.views.test)} held out; {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
           f"{torch.get_num_threads() if args.threads == 0 else args.threads} torch threads, backend {result.backend}")
     print(f"{'step':>6} {'train s':>8} {'PSNR dB':>8} {'SSIM':>6}")
     for row in result.eval_history:
         print(f"{row['step']:>6} {row['seconds']:8.1f} {row['psnr']:8.2f} {row['ssim']:6.3f}")
-    out = {"scene": str(args.scene), "width": cam.width, "height": cam.height, "params": params.model_dump(),
+    out = {"scene": str(args.scene), "format": fmt, "points": int(len(scene.points)), "width": cam.width,
+           "height": cam.height, "params": params.model_dump(),
            "n_gaussians": result.model.num_gaussians, "curve": result.eval_history, "backend": result.backend,
            "cpus": os.cpu_count()}
     if args.json:
@@ -77,7 +91,7 @@ def main(argv=None) -> dict:
         ax.plot([r["seconds"] / 60 for r in result.eval_history], [r["psnr"] for r in result.eval_history], "o-")
         ax.set_xlabel("training wall time (min)")
         ax.set_ylabel("held-out PSNR (dB)")
-        ax.set_title(f"3DGS fit on {args.scene.name}, {cam.width}x{cam.height}")
+        ax.set_title(f"3DGS fit on {args.scene.name} ({fmt}), {cam.width}x{cam.height}")
         ax.grid(alpha=0.3)
         fig.tight_layout()
         fig.savefig(args.json.with_suffix(".png"))

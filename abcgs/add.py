@@ -1,0 +1,229 @@
+"""Adding a scene or a painting to ``params.yaml``: detect and check the input, say what was found, write the entry.
+
+    python -m abcgs add-scene garden /data/garden                 # photos, a COLMAP model, transforms.json, …
+    python -m abcgs add-scene lego /data/nerf_synthetic/lego --background 1 1 1
+    python -m abcgs add-style starry /data/paintings/starry.jpg --labels /data/paintings/starry_labels.png
+
+The scene's format is detected from its files (:mod:`abcgs.sources.detect`) unless ``--format`` names it, then its
+reader checks it (camera count, image sizes, the cameras' conventions) before anything is written. The entry holds
+absolute paths (DVC runs experiments in a copy of the repository). ``params.yaml`` is edited as data, never as
+text: loaded (with ruamel.yaml's round trip, which keeps the comments, where it is installed), changed, validated
+against the schema as a whole and written atomically.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+from collections import Counter
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from abcgs.errors import InputError, ParamsError
+from abcgs.fit.params import FitParams
+from abcgs.io.atomic import write_text
+from abcgs.io.images import load_labels
+from abcgs.params import NAME_PATTERN, NAME_RE, SceneParams, load_params, validate_params
+from abcgs.preflight import check_image, check_painting, check_scene_images
+from abcgs.sfm.params import ReconstructParams
+from abcgs.sources.base import SourceScene
+from abcgs.sources.detect import DEFAULT_IMAGES, image_files
+from abcgs.sources.lens import consistent_scale, image_size
+from abcgs.sources.read import MARKER, read_source, resolve_format
+
+MIN_PHOTOS = 3
+"""Structure from motion needs at least this many overlapping photos (as :mod:`abcgs.sfm.colmap`)."""
+
+
+def _sizes(sizes: list[tuple[int, int]]) -> str:
+    counts = Counter(sizes)
+    return ", ".join(f"{w}x{h}" + (f" ({n})" if len(counts) > 1 else "") for (w, h), n in counts.most_common(4))
+
+
+def describe_source(scene: SourceScene, folder: Path) -> list[str]:
+    """Lines saying what a reader found: views, sizes, lenses, points, what it did."""
+    lens = Counter(v.distortion.model if v.distortion else "pinhole" for v in scene.views)
+    folders = Counter(str(v.image_path.parent.relative_to(folder)) if v.image_path.is_relative_to(folder)
+                      else str(v.image_path.parent) for v in scene.views)
+    lines = [f"{len(scene.views)} views with cameras from {MARKER[scene.format]}, "
+             f"{_sizes([(v.camera.width, v.camera.height) for v in scene.views])} pixels, in "
+             f"{', '.join(f + '/' for f in folders)}; lens: {', '.join(f'{m} ({n})' for m, n in lens.items())}"]
+    if scene.points is not None:
+        lines.append(f"{len(scene.points)} points in the dataset (the fit starts from them)")
+    else:
+        lines.append("no points in the dataset: the reconstruct stage triangulates them from the given cameras")
+    if scene.depth_range is not None:
+        lines.append(f"depth range {scene.depth_range[0]:.3g} .. {scene.depth_range[1]:.3g}")
+    if scene.background is not None:
+        lines.append(f"RGBA views are composited on background {list(scene.background)}")
+    if masks := sum(v.mask_path is not None for v in scene.views):
+        lines.append(f"{masks} view(s) with a mask (passed to the masks stage as labels 1 = kept, 2 = masked out)")
+    return lines + list(scene.notes)
+
+
+def describe_photos(name: str, folder: Path, images: str | None, max_ratio: float) -> list[str]:
+    """Check a folder of photos (count, decodable headers, sizes within ``max_ratio`` of the median view's pixels:
+    ``reconstruct.max_view_size_ratio``) and say what it holds."""
+    sub = images or DEFAULT_IMAGES
+    files = image_files(folder / sub)
+    if len(files) < MIN_PHOTOS:
+        raise InputError(f"{folder / sub} holds {len(files)} image(s); structure from motion needs at least "
+                         f"{MIN_PHOTOS} overlapping photos of the scene (LLFF-style captures have 20-60)")
+    warnings = check_scene_images(name, folder / sub, max_ratio)
+    lines = [f"{len(files)} photos, {_sizes([image_size(p) for p in files])} pixels, in {sub}/; cameras: structure "
+             "from motion in the reconstruct stage"]
+    if (folder / "masks").is_dir():
+        lines.append(f"{len(list((folder / 'masks').glob('*.png')))} label map(s) in masks/")
+    return lines + warnings
+
+
+def edit_params(path: str | os.PathLike, edit: Callable[[Any], None]) -> str:
+    """Apply ``edit`` to the parsed params file and write it back atomically once the result validates; returns the
+    new text. Comments survive where ruamel.yaml is installed (a DVC dependency)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ParamsError(f"{path} not found; run from the repository root or pass --params")
+    text = path.read_text(encoding="utf-8")
+    try:
+        from ruamel.yaml import YAML
+    except ImportError:
+        doc = yaml.safe_load(text)
+        edit(doc)
+        new = yaml.safe_dump(doc, sort_keys=False, allow_unicode=True)
+    else:
+        rt = YAML()
+        rt.preserve_quotes = True
+        rt.width = 120
+        rt.indent(mapping=2, sequence=4, offset=2)
+        rt.representer.add_representer(  # null stays `null` (ruamel writes an empty value)
+            type(None), lambda r, _: r.represent_scalar("tag:yaml.org,2002:null", "null"))
+        doc = rt.load(text)
+        edit(doc)
+        buf = io.StringIO()
+        rt.dump(doc, buf)
+        new = buf.getvalue()
+    validate_params(yaml.safe_load(new), str(path))
+    write_text(path, new)
+    return new
+
+
+def _check_name(name: str, section: str, existing: Any, force: bool) -> None:
+    if not NAME_RE.fullmatch(name):
+        raise InputError(f"{name!r}: a name must match {NAME_PATTERN} (it becomes a folder and a DVC stage name)")
+    if name in (existing or {}) and not force:
+        raise InputError(f"{section}.{name} exists already in the params file; choose another name or pass --force to "
+                         "replace it")
+
+
+def scene_entry(name: str, path: str | os.PathLike, *, fmt: str = "auto", images: str | None = None,
+                background: tuple[float, float, float] | None = None, splat: str | os.PathLike | None = None,
+                max_view_size_ratio: float = ReconstructParams().max_view_size_ratio,
+                min_psnr: float = FitParams().import_min_psnr) -> tuple[dict, list[str]]:
+    """The ``data.scenes.<name>`` entry for the scene at ``path`` (absolute paths, the detected format) and the lines
+    describing it. Raises :class:`InputError` for anything its reader refuses."""
+    folder = Path(path).expanduser().resolve()
+    resolved = resolve_format(folder, fmt, images)
+    entry: dict[str, Any] = {"path": str(folder), "format": resolved}
+    if images:
+        entry["images"] = images
+    if background is not None:
+        entry["background"] = [float(c) for c in background]
+    source = None
+    if resolved == "photos":
+        lines = describe_photos(name, folder, images, max_view_size_ratio)
+    elif resolved == "splat":
+        lines = [f"a bare splat scene: {folder} (cameras are made around it; its renders are the photos)"]
+    else:
+        source = read_source(folder, resolved, images=images, background=background)
+        lines = describe_source(source, folder)
+    if splat is not None:
+        splat_path = Path(splat).expanduser().resolve()
+        if not splat_path.is_file():
+            raise InputError(f"--splat {splat_path} does not exist; give the fitted splat file (.ply, .splat, .spz)")
+        entry["splat"] = str(splat_path)
+        lines.append(_splat_check(splat_path, source, min_psnr))
+    SceneParams.model_validate(entry)
+    return entry, lines
+
+
+def _splat_check(splat: Path, source: SourceScene | None, min_psnr: float) -> str:
+    """The fit stage's render-versus-photo check of a trained splat (:func:`abcgs.splats.validate.check_splat`), run
+    now where the dataset has undistorted cameras; raises :class:`InputError` naming the likely cause when it fails."""
+    from abcgs.sfm.model import SceneData
+    from abcgs.splats.formats import read_splat
+    from abcgs.splats.validate import check_splat
+
+    plain = [v for v in source.views if v.distortion is None] if source is not None else []
+    if not plain:
+        return (f"splat {splat}: checked against the photos in the fit stage, once the reconstruct stage has "
+                "the scene's undistorted cameras")
+    none = np.zeros((0, 3), np.float32)
+    scene = SceneData([v.camera for v in plain], [v.image_path for v in plain], none, none)
+    check = check_splat(read_splat(splat, "auto", scene=scene).model, scene, min_psnr=min_psnr, source=str(splat))
+    return f"splat {splat}: its renders match the photos at {check.psnr:.1f} dB (threshold {min_psnr:g})"
+
+
+def add_scene(params_path: str | os.PathLike, name: str, path: str | os.PathLike, *, fmt: str = "auto",
+              images: str | None = None, background: tuple[float, float, float] | None = None,
+              splat: str | os.PathLike | None = None, force: bool = False, dry_run: bool = False
+              ) -> tuple[dict, list[str]]:
+    """Check the scene and write ``data.scenes.<name>`` into the params file (unless ``dry_run``)."""
+    params = load_params(params_path)
+    _check_name(name, "data.scenes", params.data.scenes, force)
+    entry, lines = scene_entry(name, path, fmt=fmt, images=images, background=background, splat=splat,
+                               max_view_size_ratio=params.reconstruct.max_view_size_ratio,
+                               min_psnr=params.fit.import_min_psnr)
+
+    def edit(doc: Any) -> None:
+        doc["data"]["scenes"][name] = entry
+
+    if not dry_run:
+        edit_params(params_path, edit)
+    return entry, lines
+
+
+def describe_labels(labels_path: Path, painting: Path) -> list[str]:
+    """Check a painting's region map (decodes, labels something, the painting's shape) and say what it holds."""
+    check_image(labels_path, "--labels")
+    labels = load_labels(labels_path)
+    if not np.any(labels):
+        raise InputError(f"{labels_path} is all 0 (unassigned): it labels no region; paint regions 1, 2, … "
+                         "(python -m abcgs.masks.paint --painting PAINTING)")
+    h, w = labels.shape
+    pw, ph = image_size(painting)
+    if not consistent_scale((pw, ph), (w, h)):
+        raise InputError(f"{labels_path} is {w}x{h} but the painting {painting} is {pw}x{ph}: a region map has the "
+                         "painting's shape (any scale); paint it on this painting")
+    values, counts = np.unique(labels[labels > 0], return_counts=True)
+    shares = ", ".join(f"{int(v)}: {c / labels.size:.0%}" for v, c in zip(values, counts))
+    return [f"region map {w}x{h}, labels {shares} of the pixels"]
+
+
+def add_style(params_path: str | os.PathLike, name: str, path: str | os.PathLike, *,
+              labels: str | os.PathLike | None = None, force: bool = False, dry_run: bool = False
+              ) -> tuple[dict, list[str]]:
+    """Check the painting (and its region map) and write ``data.styles.<name>`` (and ``data.style_masks.<name>``)."""
+    _check_name(name, "data.styles", load_params(params_path).data.styles, force)
+    painting = Path(path).expanduser().resolve()
+    check_painting(painting, "painting")
+    w, h = image_size(painting)
+    entry = {"styles": str(painting)}
+    lines = [f"painting {w}x{h}"]
+    if labels is not None:
+        labels_path = Path(labels).expanduser().resolve()
+        lines += describe_labels(labels_path, painting)
+        entry["style_masks"] = str(labels_path)
+
+    def edit(doc: Any) -> None:
+        for section, value in entry.items():
+            if doc["data"].get(section) is None:
+                doc["data"][section] = {}
+            doc["data"][section][name] = value
+
+    if not dry_run:
+        edit_params(params_path, edit)
+    return entry, lines

@@ -1,0 +1,18 @@
+"""Where a scene comes from: one reader per dataset format, behind one contract (:mod:`abcgs.sources.base`).
+
+- :mod:`~abcgs.sources.detect`: :func:`detect_format` picks the format from the folder's files.
+- :mod:`~abcgs.sources.read`: :func:`~abcgs.sources.read.read_source` runs the format's reader and checks its
+  cameras (:mod:`~abcgs.sources.validate`).
+- Readers: :mod:`~abcgs.sources.photos` (structure from motion), :mod:`~abcgs.sources.colmap`,
+  :mod:`~abcgs.sources.nerfstudio`, :mod:`~abcgs.sources.blender`, :mod:`~abcgs.sources.llff`.
+- :mod:`~abcgs.sources.model`: what the ``reconstruct`` stage writes for a scene with cameras (the undistorted COLMAP
+  layout every later stage reads, with points triangulated from the given poses where the dataset has none).
+
+This package's ``__init__`` imports only the light modules (the contract and detection): :mod:`abcgs.preflight`,
+which every stage imports, detects formats, and must not depend on the readers.
+"""
+
+from abcgs.sources.base import FORMATS, SceneFormat, SourceScene, SourceView
+from abcgs.sources.detect import detect_format
+
+__all__ = ["FORMATS", "SceneFormat", "SourceScene", "SourceView", "detect_format"]

@@ -1,0 +1,34 @@
+"""The ``preflight`` stage's check of scenes that come with cameras: each is read by its reader (files present,
+images matching cameras, camera and image sizes a consistent scale, cameras that look at the scene) before any stage
+runs. Scenes of photos are checked by :func:`abcgs.preflight.check_input_files`; bare splat scenes by the stage that
+reads them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+
+from abcgs.errors import InputError
+from abcgs.preflight import produced_by_stage
+from abcgs.sources.read import read_source, resolve_format
+
+
+def check_scene_sources(params, root: Path, produced: Iterable[str] = ()) -> list[str]:
+    """Read every ``data.scenes`` entry that is a dataset with cameras; raise :class:`InputError` prefixed with the
+    scene's key on the first problem, return the readers' notes as warnings."""
+    produced = list(produced)
+    warnings = []
+    for name, scene in params.data.scenes.items():
+        if produced_by_stage(Path(scene.path), produced, root):
+            continue
+        folder = root / scene.path
+        try:
+            fmt = resolve_format(folder, scene.format, scene.images)
+            if fmt in ("photos", "splat"):
+                continue
+            source = read_source(folder, fmt, images=scene.images, background=scene.background)
+        except InputError as exc:
+            raise InputError(f"data.scenes.{name}: {exc}") from None
+        warnings += [f"data.scenes.{name}: {note}" for note in source.notes]
+    return warnings

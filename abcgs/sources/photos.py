@@ -1,0 +1,23 @@
+"""Reader ``photos``: a folder of photos without cameras; structure from motion finds them
+(:func:`abcgs.sfm.colmap.reconstruct`: SIFT, matching, incremental mapping, undistortion).
+
+    <scene>/images/…   the photos (another subfolder: the scene entry's `images:`)
+    <scene>/masks/…    optional label PNGs named like the photos
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from abcgs.sfm.colmap import ReconstructionReport, reconstruct
+from abcgs.sfm.params import ReconstructParams
+from abcgs.sources.detect import DEFAULT_IMAGES
+
+
+def reconstruct_photos(folder: str | os.PathLike, out_dir: str | os.PathLike, params: ReconstructParams,
+                       images: str | None = None) -> ReconstructionReport:
+    """Structure from motion on ``folder/images`` (and its ``masks/``) into ``out_dir`` (the ``reconstruct``
+    stage's layout)."""
+    folder = Path(folder)
+    return reconstruct(folder / (images or DEFAULT_IMAGES), out_dir, params, masks_dir=folder / "masks")
