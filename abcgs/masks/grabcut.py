@@ -36,6 +36,11 @@ FILL_MAJORITY = 0.7
 On the tiny scene's textured views a plain majority gives large gaps of wall to an object (box IoU 0.96 → 0.63 from
 strokes that differed by 26 pixels); at 0.7 such gaps stay unassigned."""
 
+UNDECIDED = 255
+"""Value, in a saved label PNG, of a pixel the cut left undecided (no cut, stroke or gap fill claimed it). Lifted, it
+votes for nothing (:data:`abcgs.masks.lifting.NO_VOTE`): a gap the cut could not decide is not the user's "no label",
+which only the background brush (value 0) says. Labels of a numbered PNG are therefore 1..254."""
+
 GMM_COMPONENTS = 5
 """Gaussians per colour model in OpenCV's GrabCut (its model array is ``1 × 13·GMM_COMPONENTS``)."""
 
@@ -64,8 +69,8 @@ class Stroke:
             radius = float(data.get("radius", 3.0))
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"a stroke must be {{'label': int, 'points': [[x, y], ...], 'radius': float}}: {exc}") from exc
-        if label < 0 or label > 255:
-            raise InputError(f"stroke label {label} is outside 0..255 (0 is the background brush)")
+        if label < 0 or label >= UNDECIDED:
+            raise InputError(f"stroke label {label} is outside 0..{UNDECIDED - 1} (0 is the background brush)")
         if len(pts) == 0 or not np.isfinite(pts).all() or not (0 < radius < 1e4):
             raise InputError("a stroke needs at least one finite point and a radius > 0")
         return cls(label, pts, radius)
@@ -112,6 +117,11 @@ class Segmentation:
     claimed: np.ndarray
     probability: dict[int, np.ndarray] = field(default_factory=dict)
     seconds: float = 0.0
+
+    def saved_map(self) -> np.ndarray:
+        """The label PNG's content ``(H, W) int64``: the labels, 0 where the background was decided, and
+        :data:`UNDECIDED` where nothing claimed the pixel."""
+        return np.where(self.claimed, self.labels, UNDECIDED).astype(np.int64)
 
     def counts(self) -> dict[int, int]:
         vals, cnt = np.unique(self.labels, return_counts=True)

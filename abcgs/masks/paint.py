@@ -6,8 +6,9 @@
 
 The page (``static/paint.html``, plain JavaScript, nothing fetched from the network) is served on 127.0.0.1. Pick
 a label, draw strokes over the objects of one or more views, press **Segment** to see the cut over the view, add
-strokes where it is wrong, and press **Save**: every view with strokes gets a single-channel label PNG (0 =
-unassigned, 1, 2, …; the format :func:`abcgs.masks.content.read_label_files` reads), written atomically. Views
+strokes where it is wrong, and press **Save**: every view with strokes gets a single-channel label PNG (1, 2, … the labels;
+0 = no label, what the background brush or its cut decided; 255 = :data:`~abcgs.masks.grabcut.UNDECIDED`, what no
+cut claimed; the format :func:`abcgs.masks.content.read_label_files` reads), written atomically. Views
 without strokes get no file: the ``masks`` stage lifts labels from any subset of views (Eq. 2).
 
 The cut is :func:`abcgs.masks.grabcut.segment` (GrabCut per label from the strokes); the server only keeps strokes
@@ -186,7 +187,7 @@ class PaintSession:
         from abcgs.masks.content import read_label_files
 
         try:
-            return read_label_files([p], [self.size(i)])[0][0]
+            return np.maximum(read_label_files([p], [self.size(i)])[0][0], 0)  # undecided shows as unassigned
         except InputError:
             return None
 
@@ -205,7 +206,9 @@ class PaintSession:
             written = []
             for i in todo:
                 item = self.items[i]
-                save_labels(item.out_path, item.result.labels)
+                # a view's gaps the cut left undecided are saved as such (UNDECIDED), not as "no label": only the
+                # background brush says that; a painting's label map has no such value (its regions are all it has)
+                save_labels(item.out_path, item.result.saved_map() if self.mode == "scene" else item.result.labels)
                 written.append(item.out_path)
             log.info("saved %d label map(s): %s", len(written), ", ".join(str(p) for p in written))
             return written

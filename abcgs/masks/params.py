@@ -96,4 +96,7 @@ class MaskParams(BaseModel):
     lift_views: list[str] = Field(
         default_factory=list, description="given masks: lift from these views only (image stems, e.g. ['000']); the "
                                           "other given masks are held out and scored. Empty: see holdout_every")
+    warn_unlabelled: float = Field(
+        0.1, ge=0.0, le=1.0, description="a view whose re-rendered label map leaves more than this share of its "
+                                         "pixels unlabelled (0) is named in a warning (log, masks.json, report)")
     backend: str = "auto"
