@@ -5,12 +5,14 @@ background brush decided (saved as 0) seeds the background there."""
 from __future__ import annotations
 
 import numpy as np
+import torch
 from test_content_masks import cameras, wall_and_ball
 
 from abcgs.io.images import save_labels
 from abcgs.masks.content import MaskParams, label_iou, make_content_masks, read_label_files, unlabelled_warnings
 from abcgs.masks.grabcut import BACKGROUND, UNDECIDED, Stroke, segment
-from abcgs.masks.lifting import NO_VOTE, lift_labels, render_label_map
+from abcgs.masks.lifting import NO_VOTE, LiftResult, lift_labels, propagate_unseen, render_label_map
+from abcgs.masks.params import LiftParams
 from abcgs.masks.refine import render_seeds
 
 
@@ -83,3 +85,23 @@ def test_unlabelled_warnings_name_the_views_above_the_threshold() -> None:
         "view 0052: 44% of pixels unlabelled — add strokes on this view",
         "view 0030: 30% of pixels unlabelled — add strokes on this view"]
     assert unlabelled_warnings(shares, 0.5) == []
+
+
+def test_split_votes_take_their_neighbours_label_and_a_vote_for_none_stays() -> None:
+    """``propagate_split``: a Gaussian whose vote is split between labels 1 and 2 takes the label of its 3-D
+    neighbours; one whose largest share is 0 (the background brush's "no label") keeps 0; unseen ones are filled
+    either way."""
+    means = torch.tensor([[0.0, 0, 0], [0.1, 0, 0], [0.2, 0, 0], [0.15, 0.05, 0], [5.0, 0, 0], [5.1, 0, 0], [0.05, 0.1, 0],
+                          [5.05, 0.1, 0]])
+    labels = torch.tensor([1, 1, 1, 0, 2, 2, 0, 0])
+    weights = torch.tensor([[0, 1.0, 0], [0, 1, 0], [0, 1, 0], [0.1, 0.5, 0.45],  # 3: split between 1 and 2
+                            [0, 0, 1], [0, 0, 1], [0.6, 0.3, 0.2],  # 6: mostly "no label"
+                            [0, 0, 0]])  # 7: unseen
+    decided = torch.tensor([True, True, True, False, True, True, False, False])
+    lifted = LiftResult(labels, weights, decided)
+    params = LiftParams(propagate_k=2)
+    plain, n_plain = propagate_unseen(means, lifted, params)
+    assert plain.labels.tolist() == [1, 1, 1, 0, 2, 2, 0, 2] and n_plain == 1
+    split, n_split = propagate_unseen(means, lifted, params, undecided=True)
+    assert split.labels.tolist() == [1, 1, 1, 1, 2, 2, 0, 2] and n_split == 2
+    assert split.decided[3] and not split.decided[6]

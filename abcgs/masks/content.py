@@ -284,8 +284,9 @@ def make_content_masks(
         refinement = refine_labels(model, cameras, images, dict(zip(idx, maps)), lifted, n_labels, params.lift,
                                    params.refine, backend=params.backend, show_progress=show_progress)
         lifted = refinement.lifted
-        if propagate:  # what no view sees at all
-            lifted, propagated = propagate_unseen(model.means, lifted, params.lift)
+        if propagate:  # what no view sees at all (and, with propagate_split, the split votes)
+            lifted, propagated = propagate_unseen(model.means, lifted, params.lift,
+                                                  undecided=params.lift.propagate_split)
     views = [
         render_label_map(model, lifted.labels, n_labels, c, threshold=params.lift.render_threshold, backend=params.backend)
         for c in cameras

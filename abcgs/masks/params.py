@@ -27,6 +27,10 @@ class LiftParams(BaseModel):
         "views that have no mask (measured: orbit pixel agreement 0.28 → 0.81 from one mask; on a forward-facing "
         "scene it guessed occluded surfaces wrong, object IoU on the farthest view 0.68 → 0.57)")
     propagate_k: int = Field(8, ge=1, description="neighbours in the propagation vote")
+    propagate_split: bool = Field(
+        False, description="after the cross-view refinement, also give the Gaussians whose vote stayed split between "
+        "labels (undecided; not a vote for 0) their 3-D neighbours' label, where propagation runs: on a 360° capture "
+        "labelled from one view they are the seams left unlabelled between regions (docs/MASKS.md, bonsai)")
 
 
 class RefineParams(BaseModel):
