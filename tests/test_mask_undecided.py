@@ -5,6 +5,7 @@ background brush decided (saved as 0) seeds the background there."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 from test_content_masks import cameras, wall_and_ball
 
@@ -62,6 +63,26 @@ def test_an_undecided_gap_is_no_background_seed_and_a_background_stroke_is(tmp_p
     for stem in ("001", "002", "003", "004"):  # the ball's half is unlabelled in the other views (measured +2.3 to +5.0 %)
         assert bg[stem] > und[stem] + 0.015, (stem, bg[stem], und[stem])
     assert 0.0 <= results["undecided"].unlabelled_gaussians < results["background"].unlabelled_gaussians
+    # masks.json carries the shares; a view above masks.warn_unlabelled is a warning there and in the report
+    from abcgs.gaussians import render
+    from abcgs.io.images import save_image
+    from abcgs.io.metrics import read_record
+    from abcgs.masks.outputs import write_content_masks
+    from abcgs.report import collect_warnings
+
+    photos = []
+    for c in cams:
+        with torch.no_grad():
+            save_image(tmp_path / "photos" / c.name, render(model, c)[0].clamp(0, 1).numpy())
+        photos.append(tmp_path / "photos" / c.name)
+    write_content_masks(tmp_path / "out" / "scene" / "masks", results["background"], cams, photos)
+    record = read_record(tmp_path / "out" / "scene" / "masks" / "masks.json")
+    assert record["unlabelled_pixels_per_view"] == pytest.approx(bg)
+    assert record["unlabelled_gaussians"] == pytest.approx(results["background"].unlabelled_gaussians)
+    warned = [k for k, v in sorted(bg.items(), key=lambda kv: -kv[1]) if v > 0.1]
+    assert warned and record["warned_views"] == warned
+    assert record["warnings"] == results["background"].warnings and len(record["warnings"]) == len(warned)
+    assert collect_warnings(tmp_path / "out", ["scene"]) == [f"scene scene: {w}" for w in record["warnings"]]
 
 
 def test_the_page_saves_what_no_cut_claimed_as_undecided() -> None:
@@ -105,3 +126,19 @@ def test_split_votes_take_their_neighbours_label_and_a_vote_for_none_stays() -> 
     split, n_split = propagate_unseen(means, lifted, params, undecided=True)
     assert split.labels.tolist() == [1, 1, 1, 1, 2, 2, 0, 2] and n_split == 2
     assert split.decided[3] and not split.decided[6]
+
+
+def test_the_page_opens_the_warned_views_first(tmp_path) -> None:
+    from abcgs.errors import InputError
+    from abcgs.io.images import save_image
+    from abcgs.masks.paint import PaintSession, worst_views
+
+    for stem in ("a", "b", "c", "d"):
+        save_image(tmp_path / "scene" / "images" / f"{stem}.png", np.zeros((8, 8, 3), np.float32))
+    record = tmp_path / "masks.json"
+    record.write_text('{"warned_views": ["c", "a"], "warnings": []}')
+    session = PaintSession.for_scene(tmp_path / "scene", first=worst_views(record))
+    assert [it.name for it in session.items] == ["c.png", "a.png", "b.png", "d.png"]
+    record.write_text("{}")
+    with pytest.raises(InputError, match="warned_views"):
+        worst_views(record)

@@ -66,13 +66,19 @@ class ContentMasks:
     refinement: Refinement | None = None  # the cross-view re-cut (masks.refine), when it ran
     unlabelled_pixels: dict[str, float] = field(default_factory=dict)  # per view (image stem): share of pixels at 0
     unlabelled_gaussians: float = 0.0  # share of the Gaussians with label 0
-    warnings: list[str] = field(default_factory=list)  # views above masks.warn_unlabelled
+    warnings: list[str] = field(default_factory=list)  # one line per view above masks.warn_unlabelled
+    warned_views: list[str] = field(default_factory=list)  # those views' stems, worst first
+
+
+def views_above(shares: dict[str, float], threshold: float) -> list[str]:
+    """The views (keys of ``shares``) whose share of unlabelled pixels is above ``threshold``, worst first."""
+    return [k for v, k in sorted(((v, k) for k, v in shares.items() if v > threshold), reverse=True)]
 
 
 def unlabelled_warnings(shares: dict[str, float], threshold: float) -> list[str]:
-    """One line per view whose share of unlabelled pixels is above ``threshold``, worst first."""
-    worst = sorted(((v, k) for k, v in shares.items() if v > threshold), reverse=True)
-    return [f"view {k}: {v:.0%} of pixels unlabelled — add strokes on this view" for v, k in worst]
+    """One line per view of :func:`views_above`."""
+    return [f"view {k}: {shares[k]:.0%} of pixels unlabelled — add strokes on this view"
+            for k in views_above(shares, threshold)]
 
 
 def read_label_files(paths: list[Path], sizes: list[tuple[int, int]]) -> tuple[list[np.ndarray], dict]:
@@ -313,4 +319,5 @@ def make_content_masks(
                         float(np.mean(agree)) if agree else None, [cameras[i].name for i in heldout],
                         {k: float(np.mean(v)) for k, v in sorted(ho_iou.items())},
                         float(np.mean(ho_agree)) if ho_agree else None, palette, propagated, refinement,
-                        unlabelled, float((lifted.labels == 0).float().mean()), warnings)
+                        unlabelled, float((lifted.labels == 0).float().mean()), warnings,
+                        views_above(unlabelled, params.warn_unlabelled))

@@ -55,6 +55,7 @@ def write_content_masks(out: Path, result: ContentMasks, cameras: list[Camera], 
             "unlabelled_gaussians": result.unlabelled_gaussians,
             "unlabelled_pixels_per_view": result.unlabelled_pixels,
             "warnings": result.warnings,
+            "warned_views": result.warned_views,
             "refinement": None if result.refinement is None else {
                 "views_recut": len(result.refinement.views), "per_view": result.refinement.views,
             },

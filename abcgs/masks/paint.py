@@ -92,8 +92,9 @@ class PaintSession:
         self._png: dict[int, bytes] = {}
 
     @classmethod
-    def for_scene(cls, scene: str | Path, **kw) -> PaintSession:
-        """Every view in ``<scene>/images/``; Save writes ``<scene>/masks/<stem>.png``."""
+    def for_scene(cls, scene: str | Path, *, first: list[str] = (), **kw) -> PaintSession:
+        """Every view in ``<scene>/images/``; Save writes ``<scene>/masks/<stem>.png``. The views whose stems
+        ``first`` names come first, in that order (the page opens the first)."""
         scene = Path(scene)
         if not scene.is_dir():
             raise InputError(f"scene folder {scene} does not exist; give the folder that holds images/ "
@@ -111,6 +112,8 @@ class PaintSession:
                 raise InputError(f"{images} has two views with the stem {p.stem!r} ({stems[p.stem]}, {p.name}): their "
                                  f"masks would share masks/{p.stem}.png; rename one")
             stems[p.stem] = p.name
+        rank = {stem: i for i, stem in enumerate(first)}
+        files.sort(key=lambda p: rank.get(p.stem, len(rank)))  # stable: the rest keep their order
         items = [PaintItem(p.name, p, scene / "masks" / f"{p.stem}.png") for p in files]
         return cls(items, "scene", scene.resolve().name, **kw)
 
@@ -228,6 +231,16 @@ class PaintSession:
                     "counts": {str(k): v for k, v in it.result.counts().items()} if it.result is not None else None,
                 } for i, it in enumerate(self.items)],
             }
+
+
+def worst_views(masks_json: Path) -> list[str]:
+    """The stems of the views a ``masks.json`` warns about (``warned_views``), most unlabelled first."""
+    try:
+        views = json.loads(Path(masks_json).read_text())["warned_views"]
+    except (OSError, json.JSONDecodeError, KeyError, TypeError) as exc:
+        raise InputError(f"--worst-first {masks_json}: not a masks stage record with warned_views ({exc}); give "
+                         "out/<scene>/masks/masks.json") from exc
+    return [str(v) for v in views]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -357,6 +370,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--iterations", type=int, default=5, help="GrabCut iterations per label")
     ap.add_argument("--max-side", type=int, default=1024, help="cut larger images at this size (longest side)")
     ap.add_argument("--no-fill", action="store_true", help="leave gaps between the cuts unassigned (the page can switch)")
+    ap.add_argument("--worst-first", type=Path, metavar="MASKS_JSON",
+                    help="the masks stage's masks.json (out/<scene>/masks/masks.json): open the views it warns about "
+                         "first, most unlabelled first")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     try:
@@ -368,7 +384,8 @@ def main(argv: list[str] | None = None) -> int:
         elif args.scene is not None:
             if args.labels_out is not None:
                 raise InputError("--labels-out is for --painting; a scene's masks go to <scene>/masks/")
-            session = PaintSession.for_scene(args.scene, **kw)
+            session = PaintSession.for_scene(args.scene, first=worst_views(args.worst_first) if args.worst_first else (),
+                                             **kw)
         else:
             raise InputError("give a scene folder (with images/) or --painting PATH")
         server = make_server(session, args.port)
