@@ -42,6 +42,7 @@ from abcgs.io.ply import read_ply
 from abcgs.masks.content import MaskParams, label_iou, make_content_masks
 from abcgs.masks.grabcut import UNDECIDED, Stroke, segment
 from abcgs.masks.lifting import NO_VOTE
+from abcgs.masks.params import LiftParams
 from abcgs.sfm.model import read_colmap_scene
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "bonsai"
@@ -104,6 +105,7 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--data", type=Path, default=DATA, help="strokes.json and reference/")
     ap.add_argument("--make-reference", action="store_true", help="re-make reference/ from the reference strokes")
     ap.add_argument("--compare-zero", action="store_true", help="also run with undecided gaps saved as 0")
+    ap.add_argument("--propagate-split", action="store_true", help="masks.lift.propagate_split: true")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--figure", type=Path, default=None, help="the stroked view and the five others, overlaid")
     args = ap.parse_args(argv)
@@ -137,8 +139,8 @@ def main(argv: list[str] | None = None) -> dict:
         with tempfile.TemporaryDirectory(prefix="abcgs-bonsai-") as d:
             save_labels(Path(d) / f"{view}.png", saved)
             t = time.perf_counter()
-            res = make_content_masks(model, cams, Path(d), MaskParams(source="given"), scene.image_paths,
-                                     show_progress=False)
+            params = MaskParams(source="given", lift=LiftParams(propagate_split=args.propagate_split))
+            res = make_content_masks(model, cams, Path(d), params, scene.image_paths, show_progress=False)
             seconds = time.perf_counter() - t
         per_view = {}
         for s in ref_stems:
@@ -158,7 +160,7 @@ def main(argv: list[str] | None = None) -> dict:
     result, res = run(cut.saved_map())
     out = {"scene": "Mip-NeRF 360 bonsai", "views": len(cams), "n_gaussians": model.num_gaussians,
            "reference_views_scored": ref_stems, "reference_views_not_registered": missing,
-           "stroked_view": view, "strokes_per_label": {str(k): sum(s.label == k for s in strokes)
+           "stroked_view": view, "propagate_split": args.propagate_split, "strokes_per_label": {str(k): sum(s.label == k for s in strokes)
                                                        for k in range(1, n_labels + 1)},
            "page_cut_undecided": float((~cut.claimed).mean()),
            "undecided_stays_undecided": result, "goal": {"iou": GOAL_IOU, "unlabelled": GOAL_UNLABELLED},
