@@ -8,8 +8,8 @@ certain foreground (``GC_FGD``), every other stroke certain background (``GC_BGD
 background (``GC_PR_BGD``; GrabCut then moves them). The parts of k's cut that no k-stroke touches are dropped (a
 stroke marks the region it lies in). Where cuts overlap, the one with the higher GrabCut foreground probability (the
 posterior of its colour models) wins. Gaps no cut claims take, per connected gap, the label around it whose strokes
-are nearest in colour, when it clearly is (``fill``, :data:`FILL_MAJORITY`; off, gaps stay 0). Pixels the background
-wins are 0.
+are nearest in colour, when it clearly is (``fill``, :data:`FILL_MAJORITY`; off, gaps stay 0 and unclaimed: saved as
+:data:`UNDECIDED`). Pixels the background wins are 0.
 
 **Depth.** Given the view's rendered depth, GrabCut runs on :func:`grabcut_features` instead of RGB: the two
 principal components of the view's colours and its inverse depth, as the three 8-bit channels OpenCV's GrabCut takes.
@@ -324,7 +324,7 @@ def segment(
         max_side: views larger than this are cut at this size (longest side) and the labels scaled back up
             (nearest), which keeps one cut to a second or two on photo-sized views.
         keep_touching: drop the parts of a label's cut that none of its strokes touch.
-        fill: give gaps between the cuts a label from around them (off: they stay unassigned, 0).
+        fill: give gaps between the cuts a label from around them (off: they stay 0 and unclaimed, undecided).
         depth: ``(H, W)`` rendered depth of the view (world units, 0 where nothing is rendered): GrabCut and the gap
             fill then use colour and depth together (:func:`grabcut_features`). None: colour only.
         depth_weight: the depth channel's weight against colour (0: colour only).
