@@ -38,6 +38,7 @@ import yaml
 from PIL import Image
 
 from abcgs.errors import InputError, ParamsError
+from abcgs.masks.params import UNDECIDED
 from abcgs.scene.params import TINY_STYLE_FILES
 from abcgs.sources.detect import DEFAULT_IMAGES, IMAGE_SUFFIXES, detect_format
 
@@ -234,7 +235,8 @@ def mask_labels(path: Path) -> np.ndarray | None:
 
 def check_scene_masks(name: str, folder: Path, images: str = DEFAULT_IMAGES) -> list[str]:
     """The user's label PNGs in ``<scene>/masks/`` name views of ``images/`` and label something. Returns warnings:
-    numbered labels that skip values (``255`` beside ``1, 2, 3``: each value is a label of its own)."""
+    numbered labels that skip values (``7`` beside ``1, 2, 3``: each value is a label of its own; ``255``,
+    :data:`~abcgs.masks.params.UNDECIDED`, is no label but a gap left undecided)."""
     masks = folder / "masks"
     files = sorted(masks.glob("*.png")) if masks.is_dir() else []
     if not files:
@@ -246,15 +248,26 @@ def check_scene_masks(name: str, folder: Path, images: str = DEFAULT_IMAGES) -> 
             f"data.scenes.{name}: {len(orphans)} of {len(files)} mask file(s) in {masks} match no view in images/ "
             f"({', '.join(orphans[:5])}{' …' if len(orphans) > 5 else ''}). A mask is named like its view "
             f"(masks/IMG_0001.png labels images/IMG_0001.jpg); rename or remove them")
-    if all(not np.any(cv2.imread(str(p), cv2.IMREAD_UNCHANGED)) for p in files):
-        raise InputError(f"data.scenes.{name}: every mask in {masks} is all 0 (unassigned), so it labels nothing; "
+    if all(_labels_nothing(p) for p in files):
+        raise InputError(f"data.scenes.{name}: every mask in {masks} is all 0 (no label) or 255 (undecided), so it labels nothing; "
                          "paint the labels (1, 2, … or colours on black) or remove the folder for automatic masks")
     values = scene_mask_labels(folder)
     if values and max(values) > len(values):
         return [f"data.scenes.{name}: the masks in {masks} use the label value(s) {sorted(values)}: each value is a "
                 f"label of its own, so labels beyond {len(values)} ({sorted(v for v in values if v > len(values))}) "
-                "are regions too (255 is no 'ignore' value here: paint 0 to leave pixels unassigned)"]
+                "are regions too (0 is no label, 255 a gap left undecided)"]
     return []
+
+
+def _labels_nothing(path: Path) -> bool:
+    """A mask PNG with no label: a numbered one (single channel) holding only 0 (no label) and
+    :data:`~abcgs.masks.params.UNDECIDED`, or a colour one that is all black."""
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        return False
+    if img.ndim == 2:
+        return not np.any((img > 0) & (img != UNDECIDED))
+    return not np.any(img[..., :3])
 
 
 def scene_mask_labels(folder: Path) -> set[int] | None:
@@ -264,7 +277,7 @@ def scene_mask_labels(folder: Path) -> set[int] | None:
     maps = [mask_labels(p) for p in files]
     if not maps or any(m is None for m in maps):
         return None
-    return {int(v) for m in maps for v in np.unique(m)} - {0}
+    return {int(v) for m in maps for v in np.unique(m)} - {0, UNDECIDED}
 
 
 def _check_produced_file(rel: str, out: str, contents: Mapping[str, Collection[str]], root: Path, what: str) -> None:

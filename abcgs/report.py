@@ -93,10 +93,14 @@ def ablation_groups(runs: list[Run]) -> list[list[Run]]:
 
 def collect_warnings(root: Path, scenes: list[str]) -> list[str]:
     """What the run left out or changed without stopping: the preflight stage's warnings and, per scene, the views
-    that did not register (``out/<scene>/reconstruct.json``)."""
+    whose content labels leave much unlabelled (``out/<scene>/masks/masks.json``) and the views that did not register
+    (``out/<scene>/reconstruct.json``)."""
     warnings = list(read_record(root / "preflight_report.json").get("warnings", [])) \
         if (root / "preflight_report.json").is_file() else []
     for scene in scenes:
+        masks = root / scene / "masks" / "masks.json"
+        if masks.is_file():
+            warnings += [f"scene {scene}: {w}" for w in read_record(masks).get("warnings") or []]
         rec = root / scene / "reconstruct.json"
         if rec.is_file():
             dropped = read_record(rec).get("unregistered") or []

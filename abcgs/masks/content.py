@@ -2,7 +2,7 @@
 
 The user's path (``masks.source: given``, or ``auto`` when ``<scene>/masks/`` has files): label PNGs named
 like the views they label, for one view or several. A PNG may hold label numbers (single channel: 0 =
-unassigned, 1, 2, …) or colours painted in any paint program (black = unassigned; each other colour is a
+unassigned, 1, 2, …, and 255 = undecided: no vote) or colours painted in any paint program (black = unassigned; each other colour is a
 label, numbered in the order of the colours' RGB values across all the mask files; colours covering less
 than :data:`MIN_COLOUR_SHARE` of a file, such as a soft brush's edge blends, count as unassigned). Eq. 2
 lifts them to every view. With ``masks.holdout_every: k`` every k-th given mask is kept out of the lifting
@@ -36,8 +36,8 @@ from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel, render
 from abcgs.io.images import load_labels
-from abcgs.masks.lifting import lift_labels, propagate_unseen, render_label_map
-from abcgs.masks.params import AutoMaskParams, GrabCutParams, MaskParams, RefineParams  # noqa: F401  (the section's schema)
+from abcgs.masks.lifting import NO_VOTE, lift_labels, propagate_unseen, render_label_map
+from abcgs.masks.params import UNDECIDED, AutoMaskParams, GrabCutParams, MaskParams, RefineParams  # noqa: F401  (the section's schema)
 from abcgs.masks.refine import Refinement, refine_labels
 
 log = logging.getLogger(__name__)
@@ -63,12 +63,29 @@ class ContentMasks:
     palette: dict[int, tuple[int, int, int]] = field(default_factory=dict)  # colour label PNGs: label → RGB
     propagated: int = 0  # Gaussians no masked view saw, labelled from their 3-D neighbours
     refinement: Refinement | None = None  # the cross-view re-cut (masks.refine), when it ran
+    unlabelled_pixels: dict[str, float] = field(default_factory=dict)  # per view (image stem): share of pixels at 0
+    unlabelled_gaussians: float = 0.0  # share of the Gaussians with label 0
+    warnings: list[str] = field(default_factory=list)  # one line per view above masks.warn_unlabelled
+    warned_views: list[str] = field(default_factory=list)  # those views' stems, worst first
+
+
+def views_above(shares: dict[str, float], threshold: float) -> list[str]:
+    """The views (keys of ``shares``) whose share of unlabelled pixels is above ``threshold``, worst first."""
+    return [k for v, k in sorted(((v, k) for k, v in shares.items() if v > threshold), reverse=True)]
+
+
+def unlabelled_warnings(shares: dict[str, float], threshold: float) -> list[str]:
+    """One line per view of :func:`views_above`."""
+    return [f"view {k}: {shares[k]:.0%} of pixels unlabelled — add strokes on this view"
+            for k in views_above(shares, threshold)]
 
 
 def read_label_files(paths: list[Path], sizes: list[tuple[int, int]]) -> tuple[list[np.ndarray], dict]:
     """Label PNGs → ``(H, W) int64`` maps and the colour palette used (empty for numbered PNGs).
 
-    Numbered (single-channel or grey) files are read as they are. If any file holds colours, every file's
+    Numbered (single-channel or grey) files are read as they are, except the value
+    :data:`~abcgs.masks.params.UNDECIDED` (255: a pixel the page's cut left undecided), which becomes
+    :data:`~abcgs.masks.lifting.NO_VOTE`: it votes for no label, not even 0. If any file holds colours, every file's
     colours are numbered together (see the module docstring) so one colour is one label in every view.
     ``sizes`` are the views' ``(H, W)``; a size mismatch is an :class:`InputError`.
     """
@@ -84,8 +101,8 @@ def read_label_files(paths: list[Path], sizes: list[tuple[int, int]]) -> tuple[l
             img = img[..., :3]
         raws.append(img)
     coloured = [r.ndim == 3 and not (np.all(r[..., 0] == r[..., 1]) and np.all(r[..., 1] == r[..., 2])) for r in raws]
-    if not any(coloured):
-        return [load_labels(p, expect_hw=hw) for p, hw in zip(paths, sizes)], {}
+    if not any(coloured):  # numbered: UNDECIDED (what the page's cut left open) votes for nothing
+        return [np.where(m == UNDECIDED, NO_VOTE, m) for m in (load_labels(p, expect_hw=hw) for p, hw in zip(paths, sizes))], {}
     keep: set[tuple[int, int, int]] = set()
     for r in raws:
         rgb = (r if r.ndim == 3 else np.repeat(r[..., None], 3, -1))[..., ::-1].reshape(-1, 3)  # BGR → RGB
@@ -272,8 +289,9 @@ def make_content_masks(
         refinement = refine_labels(model, cameras, images, dict(zip(idx, maps)), lifted, n_labels, params.lift,
                                    params.refine, backend=params.backend, show_progress=show_progress)
         lifted = refinement.lifted
-        if propagate:  # what no view sees at all
-            lifted, propagated = propagate_unseen(model.means, lifted, params.lift)
+        if propagate:  # what no view sees at all (and, with propagate_split, the split votes)
+            lifted, propagated = propagate_unseen(model.means, lifted, params.lift,
+                                                  undecided=params.lift.propagate_split)
     views = [
         render_label_map(model, lifted.labels, n_labels, c, threshold=params.lift.render_threshold, backend=params.backend)
         for c in cameras
@@ -289,10 +307,16 @@ def make_content_masks(
             ho_agree.append(float((views[i] == truth)[truth > 0].mean()))
     counts = lifted.counts()
     log.info("lifted %s masks of %d view(s) onto %d Gaussians: %s", source, len(idx), len(lifted.labels), counts)
+    unlabelled = {Path(c.name).stem: float((v == 0).mean()) for c, v in zip(cameras, views)}
+    warnings = unlabelled_warnings(unlabelled, params.warn_unlabelled)
+    for w in warnings:
+        log.warning("masks: %s", w)
     if heldout:
         log.info("held-out views %d: per-label IoU %s", len(heldout),
                  {k: round(float(np.mean(v)), 3) for k, v in sorted(ho_iou.items())})
     return ContentMasks(lifted.labels, n_labels, views, source, [cameras[i].name for i in idx],
                         float(np.mean(agree)) if agree else None, [cameras[i].name for i in heldout],
                         {k: float(np.mean(v)) for k, v in sorted(ho_iou.items())},
-                        float(np.mean(ho_agree)) if ho_agree else None, palette, propagated, refinement)
+                        float(np.mean(ho_agree)) if ho_agree else None, palette, propagated, refinement,
+                        unlabelled, float((lifted.labels == 0).float().mean()), warnings,
+                        views_above(unlabelled, params.warn_unlabelled))

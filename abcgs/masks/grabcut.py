@@ -8,8 +8,8 @@ certain foreground (``GC_FGD``), every other stroke certain background (``GC_BGD
 background (``GC_PR_BGD``; GrabCut then moves them). The parts of k's cut that no k-stroke touches are dropped (a
 stroke marks the region it lies in). Where cuts overlap, the one with the higher GrabCut foreground probability (the
 posterior of its colour models) wins. Gaps no cut claims take, per connected gap, the label around it whose strokes
-are nearest in colour, when it clearly is (``fill``, :data:`FILL_MAJORITY`; off, gaps stay 0). Pixels the background
-wins are 0.
+are nearest in colour, when it clearly is (``fill``, :data:`FILL_MAJORITY`; off, gaps stay 0 and unclaimed: saved as
+:data:`UNDECIDED`). Pixels the background wins are 0.
 
 **Depth.** Given the view's rendered depth, GrabCut runs on :func:`grabcut_features` instead of RGB: the two
 principal components of the view's colours and its inverse depth, as the three 8-bit channels OpenCV's GrabCut takes.
@@ -27,6 +27,7 @@ import numpy as np
 
 from abcgs.errors import InputError
 from abcgs.io.images import to_uint8
+from abcgs.masks.params import UNDECIDED
 
 BACKGROUND = 0
 """Stroke label of the background brush: certain background for every label, unassigned (0) in the saved map."""
@@ -64,8 +65,8 @@ class Stroke:
             radius = float(data.get("radius", 3.0))
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"a stroke must be {{'label': int, 'points': [[x, y], ...], 'radius': float}}: {exc}") from exc
-        if label < 0 or label > 255:
-            raise InputError(f"stroke label {label} is outside 0..255 (0 is the background brush)")
+        if label < 0 or label >= UNDECIDED:
+            raise InputError(f"stroke label {label} is outside 0..{UNDECIDED - 1} (0 is the background brush)")
         if len(pts) == 0 or not np.isfinite(pts).all() or not (0 < radius < 1e4):
             raise InputError("a stroke needs at least one finite point and a radius > 0")
         return cls(label, pts, radius)
@@ -112,6 +113,11 @@ class Segmentation:
     claimed: np.ndarray
     probability: dict[int, np.ndarray] = field(default_factory=dict)
     seconds: float = 0.0
+
+    def saved_map(self) -> np.ndarray:
+        """The label PNG's content ``(H, W) int64``: the labels, 0 where the background was decided, and
+        :data:`UNDECIDED` where nothing claimed the pixel."""
+        return np.where(self.claimed, self.labels, UNDECIDED).astype(np.int64)
 
     def counts(self) -> dict[int, int]:
         vals, cnt = np.unique(self.labels, return_counts=True)
@@ -314,7 +320,7 @@ def segment(
         max_side: views larger than this are cut at this size (longest side) and the labels scaled back up
             (nearest), which keeps one cut to a second or two on photo-sized views.
         keep_touching: drop the parts of a label's cut that none of its strokes touch.
-        fill: give gaps between the cuts a label from around them (off: they stay unassigned, 0).
+        fill: give gaps between the cuts a label from around them (off: they stay 0 and unclaimed, undecided).
         depth: ``(H, W)`` rendered depth of the view (world units, 0 where nothing is rendered): GrabCut and the gap
             fill then use colour and depth together (:func:`grabcut_features`). None: colour only.
         depth_weight: the depth channel's weight against colour (0: colour only).

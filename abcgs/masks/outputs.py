@@ -2,7 +2,8 @@
 
 Layout of ``out/<scene>/masks/``: ``gaussian_labels.npy`` ``(N,) int64`` (the lifted label of every Gaussian, 0 =
 unassigned), ``views/<view>.png`` (the label map rendered back for every view), ``overlay.png`` (the first views,
-their lifted labels and both blended) and ``masks.json`` (source, label counts, agreement and held-out IoU).
+their lifted labels and both blended) and ``masks.json`` (source, label counts, agreement, held-out IoU, the share of unlabelled Gaussians and, per view, of
+unlabelled pixels, and a warning for each view above ``masks.warn_unlabelled``).
 """
 
 from __future__ import annotations
@@ -51,6 +52,10 @@ def write_content_masks(out: Path, result: ContentMasks, cameras: list[Camera], 
             "heldout_agreement": result.heldout_agreement,
             "colour_palette": {str(k): list(v) for k, v in result.palette.items()},
             "gaussians_propagated": result.propagated,
+            "unlabelled_gaussians": result.unlabelled_gaussians,
+            "unlabelled_pixels_per_view": result.unlabelled_pixels,
+            "warnings": result.warnings,
+            "warned_views": result.warned_views,
             "refinement": None if result.refinement is None else {
                 "views_recut": len(result.refinement.views), "per_view": result.refinement.views,
             },

@@ -10,8 +10,10 @@ and a request without it, whose ``Host`` is not that address (DNS rebinding), wi
 POST not declared ``application/json`` (what a cross-origin form or ``fetch`` could send without asking) is refused,
 as is a body without a plain ``Content-Length`` up to :data:`MAX_BODY`; each refusal is a 4xx with a one-line
 reason. Pick a label, draw strokes over the objects of one or more views, press **Segment** to see the cut over the
-view, add strokes where it is wrong, and press **Save**: every view with strokes gets a single-channel label PNG (0
-= unassigned, 1, 2, …; the format :func:`abcgs.masks.content.read_label_files` reads), written atomically. Views
+view, add strokes where it is wrong, and press **Save**: every view with strokes gets a single-channel label PNG (1,
+2, … the labels; 0 = no label, what the background brush or its cut decided; 255 =
+:data:`~abcgs.masks.params.UNDECIDED`, what no cut claimed; the format :func:`abcgs.masks.content.read_label_files`
+reads), written atomically. Views
 without strokes get no file: the ``masks`` stage lifts labels from any subset of views (Eq. 2).
 
 The cut is :func:`abcgs.masks.grabcut.segment` (GrabCut per label from the strokes); the server only keeps strokes
@@ -98,8 +100,9 @@ class PaintSession:
         self._png: dict[int, bytes] = {}
 
     @classmethod
-    def for_scene(cls, scene: str | Path, **kw) -> PaintSession:
-        """Every view in ``<scene>/images/``; Save writes ``<scene>/masks/<stem>.png``."""
+    def for_scene(cls, scene: str | Path, *, first: list[str] = (), **kw) -> PaintSession:
+        """Every view in ``<scene>/images/``; Save writes ``<scene>/masks/<stem>.png``. The views whose stems
+        ``first`` names come first, in that order (the page opens the first)."""
         scene = Path(scene)
         if not scene.is_dir():
             raise InputError(f"scene folder {scene} does not exist; give the folder that holds images/ "
@@ -117,6 +120,8 @@ class PaintSession:
                 raise InputError(f"{images} has two views with the stem {p.stem!r} ({stems[p.stem]}, {p.name}): their "
                                  f"masks would share masks/{p.stem}.png; rename one")
             stems[p.stem] = p.name
+        rank = {stem: i for i, stem in enumerate(first)}
+        files.sort(key=lambda p: rank.get(p.stem, len(rank)))  # stable: the rest keep their order
         items = [PaintItem(p.name, p, scene / "masks" / f"{p.stem}.png") for p in files]
         return cls(items, "scene", scene.resolve().name, **kw)
 
@@ -193,7 +198,7 @@ class PaintSession:
         from abcgs.masks.content import read_label_files
 
         try:
-            return read_label_files([p], [self.size(i)])[0][0]
+            return np.maximum(read_label_files([p], [self.size(i)])[0][0], 0)  # undecided shows as unassigned
         except InputError:
             return None
 
@@ -212,7 +217,9 @@ class PaintSession:
             written = []
             for i in todo:
                 item = self.items[i]
-                save_labels(item.out_path, item.result.labels)
+                # a view's gaps the cut left undecided are saved as such (UNDECIDED), not as "no label": only the
+                # background brush says that; a painting's label map has no such value (its regions are all it has)
+                save_labels(item.out_path, item.result.saved_map() if self.mode == "scene" else item.result.labels)
                 written.append(item.out_path)
             log.info("saved %d label map(s): %s", len(written), ", ".join(str(p) for p in written))
             return written
@@ -232,6 +239,16 @@ class PaintSession:
                     "counts": {str(k): v for k, v in it.result.counts().items()} if it.result is not None else None,
                 } for i, it in enumerate(self.items)],
             }
+
+
+def worst_views(masks_json: Path) -> list[str]:
+    """The stems of the views a ``masks.json`` warns about (``warned_views``), most unlabelled first."""
+    try:
+        views = json.loads(Path(masks_json).read_text())["warned_views"]
+    except (OSError, json.JSONDecodeError, KeyError, TypeError) as exc:
+        raise InputError(f"--worst-first {masks_json}: not a masks stage record with warned_views ({exc}); give "
+                         "out/<scene>/masks/masks.json") from exc
+    return [str(v) for v in views]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -451,6 +468,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--iterations", type=int, default=5, help="GrabCut iterations per label")
     ap.add_argument("--max-side", type=int, default=1024, help="cut larger images at this size (longest side)")
     ap.add_argument("--no-fill", action="store_true", help="leave gaps between the cuts unassigned (the page can switch)")
+    ap.add_argument("--worst-first", type=Path, metavar="MASKS_JSON",
+                    help="the masks stage's masks.json (out/<scene>/masks/masks.json): open the views it warns about "
+                         "first, most unlabelled first")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     try:
@@ -462,7 +482,8 @@ def main(argv: list[str] | None = None) -> int:
         elif args.scene is not None:
             if args.labels_out is not None:
                 raise InputError("--labels-out is for --painting; a scene's masks go to <scene>/masks/")
-            session = PaintSession.for_scene(args.scene, **kw)
+            session = PaintSession.for_scene(args.scene, first=worst_views(args.worst_first) if args.worst_first else (),
+                                             **kw)
         else:
             raise InputError("give a scene folder (with images/) or --painting PATH")
         server = make_server(session, args.port)

@@ -10,6 +10,12 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+UNDECIDED = 255
+"""Value, in a saved label PNG, of a pixel the cut left undecided (no cut, stroke or gap fill claimed it). Lifted, it
+votes for nothing (:data:`abcgs.masks.lifting.NO_VOTE`): a gap the cut could not decide is not the user's "no label",
+which only the background brush (value 0) says. Labels of a numbered PNG are therefore 1..254. Defined here, with
+the section's schema, so that the preflight checks read it without loading the masks code."""
+
 
 class LiftParams(BaseModel):
     """Thresholds of the label vote (``params.yaml``: ``masks.lift``)."""
@@ -27,6 +33,10 @@ class LiftParams(BaseModel):
         "views that have no mask (measured: orbit pixel agreement 0.28 → 0.81 from one mask; on a forward-facing "
         "scene it guessed occluded surfaces wrong, object IoU on the farthest view 0.68 → 0.57)")
     propagate_k: int = Field(8, ge=1, description="neighbours in the propagation vote")
+    propagate_split: bool = Field(
+        False, description="after the cross-view refinement, also give the Gaussians whose vote stayed split between "
+        "labels (undecided; not a vote for 0) their 3-D neighbours' label, where propagation runs: on a 360° capture "
+        "labelled from one view they are the seams left unlabelled between regions (docs/MASKS.md, bonsai)")
 
 
 class RefineParams(BaseModel):
@@ -96,4 +106,7 @@ class MaskParams(BaseModel):
     lift_views: list[str] = Field(
         default_factory=list, description="given masks: lift from these views only (image stems, e.g. ['000']); the "
                                           "other given masks are held out and scored. Empty: see holdout_every")
+    warn_unlabelled: float = Field(
+        0.1, ge=0.0, le=1.0, description="a view whose re-rendered label map leaves more than this share of its "
+                                         "pixels unlabelled (0) is named in a warning (log, masks.json, report)")
     backend: str = "auto"

@@ -7,8 +7,8 @@ object's label, seen as a tail of the object in every other view. Refinement let
 evidence, as segmenters that prompt one view from another do (here with GrabCut rather than a learned model):
 
 1. **Seeds.** The Gaussians whose vote is decided (:attr:`LiftResult.decided`) are rendered into view v with their
-   labels. Each label's region, and the region of decided 0 (what the user left unassigned, a background seed), is
-   eroded by ``masks.refine.seed_erode`` × the view's shorter side: that certain core is the seed. Edges, pixels of
+   labels. Each label's region, and the region of decided 0 (what the user marked with the background brush: a
+   background seed; a gap the page's cut left undecided votes for nothing and seeds nothing), is eroded by ``masks.refine.seed_erode`` × the view's shorter side: that certain core is the seed. Edges, pixels of
    undecided Gaussians and empty pixels are left to the cut.
 2. **Cut.** :func:`abcgs.masks.grabcut.segment` on the view's photo and its rendered depth (GrabCut per label on two
    colour components and inverse depth; ``masks.refine.depth_weight``). A seed is certain; GrabCut decides the rest,

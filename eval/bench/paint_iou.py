@@ -207,7 +207,7 @@ def main(argv: list[str] | None = None) -> dict:
         user = work / "scene"
         shutil.rmtree(user, ignore_errors=True)
         shutil.copytree(tiny / "images", user / "images")
-        save_labels(user / "masks" / f"{args.view}.png", cut.labels)
+        save_labels(user / "masks" / f"{args.view}.png", cut.saved_map())  # as the page saves it
         t_fit = time.perf_counter()
         rp = ReconstructParams()
         reconstruct(user / "images", work / "colmap", rp, masks_dir=user / "masks")
