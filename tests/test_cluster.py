@@ -357,9 +357,10 @@ def _scontrol_state(slurm, sid: str) -> str:
 
 
 def _run_cache_entries(cache: Path, script: str, key: str) -> list[Path]:
-    """Run-cache entries of the stage ``stages/<script>.py`` for key ``key``."""
+    """Run-cache entries of the stage ``stages/<script>.py`` for key ``key`` (named by its outputs, ``out/<key>/…``:
+    the command itself holds no key)."""
     return [p for p in (cache / "runs").rglob("*") if p.is_file()
-            and f"stages/{script}.py" in (text := p.read_text(errors="replace")) and f"'{key}'" in text]
+            and f"stages/{script}.py" in (text := p.read_text(errors="replace")) and f"out/{key}/" in text]
 
 
 @pytest.fixture(scope="module")
