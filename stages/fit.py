@@ -19,8 +19,7 @@ from abcgs.io.metrics import fit_headline, write_headline
 from abcgs.pipeline import StageSpec, run_stage, stage_parser
 from abcgs.runtime import resolve_device
 from abcgs.sfm.model import read_colmap_scene
-from abcgs.sources.detect import splat_file
-from abcgs.sources.read import resolve_format
+from abcgs.sources.detect import bare_splat
 from abcgs.splats.importing import import_and_save, write_fitted_source
 
 SPEC = StageSpec("fit", foreach="data.scenes", params=("fit", "data.scenes.{key}", "runtime"))
@@ -31,9 +30,7 @@ def main(args, params) -> None:
     fit = params.scene_section(args.scene, "fit")
     spec = params.data.scenes[args.scene]
     device = resolve_device(params.runtime.device)
-    splat = spec.splat_path()
-    if splat is None and resolve_format(Path(spec.path), spec.format, spec.images) == "splat":
-        splat = splat_file(spec.path)  # a bare splat: its own renders are the photos
+    splat = spec.splat_path() or bare_splat(spec.path, spec.format)  # a bare splat: its renders are the photos
     if splat is not None:
         record = import_and_save(scene, splat, spec.splat_format, fit, args.out, device=device)
     else:

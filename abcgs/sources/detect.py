@@ -54,6 +54,21 @@ def _splat_files(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in SPLAT_SUFFIXES)
 
 
+def bare_splat(folder: str | os.PathLike, fmt: str = "auto") -> Path | None:
+    """The splat of a scene that is only a splat (``fmt`` ``splat``, or ``auto`` and a splat file or a folder holding
+    nothing but one), else ``None``; never raises for other scenes (the reconstruct stage has read them)."""
+    folder = Path(folder)
+    if fmt == "splat":
+        return splat_file(folder)
+    if fmt != "auto":
+        return None
+    if folder.is_file():
+        return folder if folder.suffix.lower() in SPLAT_SUFFIXES else None
+    if folder.is_dir() and _splat_files(folder) and not any(p.is_dir() for p in folder.iterdir()):
+        return splat_file(folder)
+    return None
+
+
 def splat_file(folder: str | os.PathLike) -> Path:
     """The splat of a bare-splat scene: ``folder`` itself when it is a splat file, else the one splat file it holds."""
     folder = Path(folder)

