@@ -127,10 +127,9 @@ def test_read_colmap_scene_equals_pycolmaps_reading(tiny_colmap: Path, tmp_path:
         np.testing.assert_allclose(cam.K, pc.calibration_matrix(), rtol=0, atol=1e-9)
         np.testing.assert_allclose(cam.viewmat[:3], im.cam_from_world().matrix(), rtol=0, atol=1e-9)
         assert (cam.width, cam.height) == (pc.width, pc.height)
-    pts = sorted(rec.points3D.values(), key=lambda p: tuple(p.xyz))
-    order = np.lexsort(data.points.astype(np.float64).T[::-1])
-    np.testing.assert_allclose(data.points[order], np.array([p.xyz for p in pts], np.float32), atol=1e-6)
-    np.testing.assert_allclose(data.colors[order], np.array([p.color for p in pts], np.float32) / 255.0, atol=1e-7)
+    pts = list(rec.points3D.values())  # in pycolmap's order, which every fit starts from (its initial Gaussians)
+    np.testing.assert_array_equal(data.points, np.array([p.xyz for p in pts], np.float32))
+    np.testing.assert_allclose(data.colors, np.array([p.color for p in pts], np.float32) / 255.0, atol=1e-7)
 
 
 def test_read_colmap_scene_refuses_a_distorted_model(tiny_colmap: Path, tmp_path: Path) -> None:

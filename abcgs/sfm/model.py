@@ -3,8 +3,9 @@
 The reconstruct stage writes ``out/<scene>/colmap/sparse/{cameras,images,points3D}.bin`` with PINHOLE cameras
 (COLMAP's binary model format, https://colmap.github.io/format.html). Reading it needs no pycolmap: this module
 parses the three files with numpy (the text variant ``*.txt`` too), so the stages that only read a scene (fit,
-masks, reference, colour match, stylize, evaluate) start without loading COLMAP, and run where no pycolmap wheel
-exists. ``tests/test_sfm.py`` checks the result against pycolmap's reader.
+masks, reference, colour match, stylize, evaluate) run where no pycolmap wheel exists; where pycolmap is installed,
+the points come in pycolmap's order (:func:`_pycolmap_point_order`). ``tests/test_sfm.py`` checks the result against
+pycolmap's reader.
 """
 
 from __future__ import annotations
@@ -113,14 +114,15 @@ def _read_bin(model_dir: Path) -> tuple[dict[int, _Intrinsics], list[tuple[str, 
         r.pos += n2d * struct.calcsize("<ddq")
         images.append((name, np.array([qw, qx, qy, qz]), np.array([tx, ty, tz]), cam_id))
     r = _Reader(model_dir / "points3D.bin")
-    xyz, rgb = [], []
+    xyz, rgb, ids = [], [], []
     for _ in range(r.take("Q")[0]):
         vals = r.take("QdddBBBd")
+        ids.append(vals[0])
         xyz.append(vals[1:4])
         rgb.append(vals[4:7])
         track_length = r.take("Q")[0]
         r.pos += track_length * struct.calcsize("<ii")
-    return cams, images, np.array(xyz, np.float64).reshape(-1, 3), np.array(rgb, np.float64).reshape(-1, 3)
+    return cams, images, np.array(xyz, np.float64).reshape(-1, 3), np.array(rgb, np.float64).reshape(-1, 3), ids
 
 
 def _lines(path: Path) -> list[str]:
@@ -149,13 +151,14 @@ def _read_txt(model_dir: Path) -> tuple[dict[int, _Intrinsics], list[tuple[str, 
                              "TX TY TZ CAMERA_ID NAME)")
         images.append((" ".join(f[9:]), np.array(f[1:5], float), np.array(f[5:8], float), int(f[8])))
         k += 2
-    xyz, rgb = [], []
+    xyz, rgb, ids = [], [], []
     pts = model_dir / "points3D.txt"
     for ln in _lines(pts) if pts.is_file() else []:
         f = ln.split()
+        ids.append(int(f[0]))
         xyz.append([float(v) for v in f[1:4]])
         rgb.append([float(v) for v in f[4:7]])
-    return cams, images, np.array(xyz, np.float64).reshape(-1, 3), np.array(rgb, np.float64).reshape(-1, 3)
+    return cams, images, np.array(xyz, np.float64).reshape(-1, 3), np.array(rgb, np.float64).reshape(-1, 3), ids
 
 
 def read_colmap_scene(model_dir: str | os.PathLike, images_dir: str | os.PathLike) -> SceneData:
@@ -163,9 +166,9 @@ def read_colmap_scene(model_dir: str | os.PathLike, images_dir: str | os.PathLik
     its images into :class:`SceneData` (views sorted by image name)."""
     model_dir, images_dir = Path(model_dir), Path(images_dir)
     if (model_dir / "cameras.bin").is_file():
-        cams, images, xyz, rgb = _read_bin(model_dir)
+        cams, images, xyz, rgb, ids = _read_bin(model_dir)
     elif (model_dir / "cameras.txt").is_file():
-        cams, images, xyz, rgb = _read_txt(model_dir)
+        cams, images, xyz, rgb, ids = _read_txt(model_dir)
     else:
         raise InputError(f"{model_dir} is not a COLMAP model (no cameras.bin/.txt); run the reconstruct stage first")
     if not images:
@@ -184,4 +187,23 @@ def read_colmap_scene(model_dir: str | os.PathLike, images_dir: str | os.PathLik
     missing = [p.name for p in paths if not p.is_file()]
     if missing:
         raise InputError(f"{len(missing)} image(s) of the model are missing from {images_dir}: {', '.join(missing[:10])}")
+    order = _pycolmap_point_order(model_dir, ids)
+    xyz, rgb = xyz[order], rgb[order]
     return SceneData(cameras, paths, xyz.astype(np.float32), (rgb / 255.0).astype(np.float32))
+
+
+def _pycolmap_point_order(model_dir: Path, ids: list[int]) -> np.ndarray:
+    """Indices putting the points in the order pycolmap iterates them (its hash map's), where pycolmap is installed;
+    the file's order elsewhere (a GPU machine without it). A fit depends on the order of its initial Gaussians, and
+    every fit of this project so far started from pycolmap's order."""
+    try:
+        import cv2  # noqa: F401  (before pycolmap: abcgs/sfm/__init__.py)
+        import pycolmap
+    except ImportError:
+        return np.arange(len(ids))
+    where = {pid: k for k, pid in enumerate(ids)}
+    rec = pycolmap.Reconstruction(str(model_dir))
+    order = [where.get(pid) for pid in rec.points3D]
+    if len(order) != len(ids) or None in order:
+        raise InputError(f"{model_dir}: pycolmap reads other 3-D points than the file lists; the model is damaged")
+    return np.asarray(order, np.int64)
