@@ -79,11 +79,7 @@ def test_a_bare_splat_runs_through_import_stylization_and_give_back(tmp_path):
     record = import_and_save(scene, src, "auto", FitParams(test_every=4), tmp_path / "gs")
     assert record["imported"]["check"]["psnr"] > 40.0  # its own renders (8-bit PNGs)
     original = read_ply(tmp_path / "gs" / "point_cloud.ply")
-    vgg = VGG16Features(random_state_dict(0), ["relu3_1"])
-    style = tmp_path / "style.png"
-    save_image(style, np.random.default_rng(0).random((64, 64, 3)).astype(np.float32))
-    groups = build_groups(TransferSpec(scene="s", transfer="single", style="p"), {"p": str(style)}, {}, set(), vgg,
-                          style_height=64, layers=["relu3_1"])
+    vgg, groups = _single_transfer(tmp_path, 64)
     labels = torch.zeros(original.num_gaussians, dtype=torch.long)
     view_labels = [np.zeros((c.height, c.width), np.int64) for c in scene.cameras]
     cm = color_match_and_refit(original, scene, labels, view_labels, groups, ColorMatchParams(refit_iterations=5),
@@ -102,6 +98,16 @@ def test_a_bare_splat_runs_through_import_stylization_and_give_back(tmp_path):
     assert back.num_gaussians == model.num_gaussians
 
 
+def _single_transfer(tmp_path, size: int):
+    """A random-weight VGG (relu3_1) and the matching group of a single transfer from a random size × size painting."""
+    vgg = VGG16Features(random_state_dict(0), ["relu3_1"])
+    style = tmp_path / "style.png"
+    save_image(style, np.random.default_rng(0).random((size, size, 3)).astype(np.float32))
+    groups = build_groups(TransferSpec(scene="s", transfer="single", style="p"), {"p": str(style)}, {}, set(), vgg,
+                          style_height=size, layers=["relu3_1"])
+    return vgg, groups
+
+
 @pytest.mark.parametrize("mode", ["zero", "frozen", "optimized", "degree1"])
 def test_higher_sh_modes_start_from_and_train_what_they_say(mode, tmp_path):
     original = make_model(800, 3, seed=4)
@@ -117,11 +123,7 @@ def test_higher_sh_modes_start_from_and_train_what_they_say(mode, tmp_path):
         with torch.no_grad():
             save_image(tmp_path / c.name, render(original, c)[0].clamp(0, 1).numpy())
         paths.append(tmp_path / c.name)
-    vgg = VGG16Features(random_state_dict(0), ["relu3_1"])
-    style = tmp_path / "style.png"
-    save_image(style, np.random.default_rng(0).random((48, 48, 3)).astype(np.float32))
-    groups = build_groups(TransferSpec(scene="s", transfer="single", style="p"), {"p": str(style)}, {}, set(), vgg,
-                          style_height=48, layers=["relu3_1"])
+    vgg, groups = _single_transfer(tmp_path, 48)
     labels = torch.zeros(original.num_gaussians, dtype=torch.long)
     view_labels = [np.zeros((c.height, c.width), np.int64) for c in cams]
     sp = StylizeParams(iterations=3, color_pass_iterations=2, layers=["relu3_1"], style_height=48, higher_sh=mode,
