@@ -41,12 +41,12 @@ from types import ModuleType, SimpleNamespace
 import abcgs  # noqa: F401  (before torch: abcgs sets OpenMP's wait policy)
 
 # isort: split
-import numpy as np
 import torch
 import yaml
 
 from abcgs.io.atomic import write_json
 from abcgs.params import Params, deep_merge, validate_params
+from abcgs.runtime import synchronize
 from abcgs.sfm.model import read_colmap_scene
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -153,12 +153,10 @@ def _stage(name: str) -> ModuleType:
 
 
 def _timed(record: dict, key: str, device: torch.device, fn) -> object:
-    if device.type == "cuda":
-        torch.cuda.synchronize()
+    synchronize(device)
     t0 = time.perf_counter()
     out = fn()
-    if device.type == "cuda":
-        torch.cuda.synchronize()
+    synchronize(device)
     record[key] = round(time.perf_counter() - t0, 3)
     print(f"  {key:>28}: {record[key]:8.2f} s", flush=True)
     return out
@@ -367,5 +365,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    np.set_printoptions(precision=4)
     sys.exit(main())
