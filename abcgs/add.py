@@ -27,12 +27,14 @@ from abcgs.errors import InputError, ParamsError
 from abcgs.fit.params import FitParams
 from abcgs.io.atomic import write_text
 from abcgs.io.images import load_labels
-from abcgs.params import NAME_PATTERN, NAME_RE, SceneParams, load_params, validate_params
+from abcgs.params import load_params, validate_params
 from abcgs.preflight import check_image, check_painting, check_scene_images
+from abcgs.sections import NAME_PATTERN, NAME_RE
 from abcgs.sfm.params import ReconstructParams
 from abcgs.sources.base import SourceScene
 from abcgs.sources.detect import DEFAULT_IMAGES, image_files
 from abcgs.sources.lens import consistent_scale, image_size
+from abcgs.sources.params import SceneParams
 from abcgs.sources.read import MARKER, read_source, resolve_format
 
 MIN_PHOTOS = 3

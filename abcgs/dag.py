@@ -1,19 +1,29 @@
-"""The code each pipeline stage runs, for checking ``dvc.yaml``'s code dependencies.
+"""``dvc.yaml`` from the stage specs: each stage's command, data deps, code deps, params, outputs.
+
+``python -m abcgs.dag --write`` writes ``dvc.yaml`` from the :class:`abcgs.pipeline.StageSpec` of every script in
+:data:`STAGES` (``tests/test_dag.py`` checks that the committed file is current: ``--check``); ``python -m
+abcgs.dag`` prints each stage's code deps. A stage's code deps are the files it runs:
 
 :func:`import_closure` follows a stage script's imports through the project's own modules (``abcgs``; every
 ``import`` statement anywhere in a module, including the ones inside functions), adds each imported package's
 ``__init__.py`` (Python runs it first), and the non-Python files the code loads at run time
 (:data:`DATA_FILES`: the C++ kernels' sources, the viewer bundle). :func:`missing_deps` compares it with the deps a
-stage declares. ``tests/test_dag.py`` runs both on every stage of ``dvc.yaml``; ``python -m abcgs.dag`` prints
-each stage's closure as the shortest list of ``deps`` entries that covers it.
+stage declares. A stage validates only the params sections it reads, importing their models by name
+(:data:`abcgs.sections.SECTIONS`); :func:`stage_closure` adds those modules (and what they import), and nothing of
+the other sections, so editing one section's settings module re-runs only the stages that read that section.
 """
 
 from __future__ import annotations
 
+import argparse
 import ast
+import importlib.util
 import sys
 from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
+
+import yaml
 
 PACKAGE = "abcgs"
 DATA_FILES: dict[str, tuple[str, ...]] = {
@@ -40,13 +50,21 @@ def _is_type_checking(node: ast.AST) -> bool:
         isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
 
 
-def _run_nodes(tree: ast.AST) -> Iterable[ast.AST]:
-    """Every node of ``tree`` but the bodies of ``if TYPE_CHECKING:`` blocks (their ``else`` branches run)."""
+def _is_main_block(node: ast.AST) -> bool:
+    """``if __name__ == "__main__":``: its body runs when the module is the program, not when it is imported."""
+    return (isinstance(node, ast.If) and isinstance(node.test, ast.Compare) and isinstance(node.test.left, ast.Name)
+            and node.test.left.id == "__name__" and len(node.test.comparators) == 1
+            and isinstance(node.test.comparators[0], ast.Constant) and node.test.comparators[0].value == "__main__")
+
+
+def _run_nodes(tree: ast.AST, imported: bool = False) -> Iterable[ast.AST]:
+    """Every node of ``tree`` but the bodies of ``if TYPE_CHECKING:`` blocks (their ``else`` branches run) and, for
+    an ``imported`` module, of ``if __name__ == "__main__":``."""
     todo = [tree]
     while todo:
         node = todo.pop()
         yield node
-        if _is_type_checking(node):
+        if _is_type_checking(node) or (imported and _is_main_block(node)):
             todo.extend(node.orelse)
             continue
         todo.extend(ast.iter_child_nodes(node))
@@ -54,8 +72,9 @@ def _run_nodes(tree: ast.AST) -> Iterable[ast.AST]:
 
 def _imported_modules(tree: ast.AST, current: str | None) -> Iterable[str]:
     """Dotted names a module's import statements may load (``from a import b``: ``a`` and ``a.b``); imports under
-    ``if TYPE_CHECKING:`` load nothing when the code runs and are left out."""
-    for node in _run_nodes(tree):
+    ``if TYPE_CHECKING:`` load nothing when the code runs and are left out, as are those of an imported module's
+    ``if __name__ == "__main__":`` block (``current`` set: the module is imported, not run as the script)."""
+    for node in _run_nodes(tree, imported=current is not None):
         if isinstance(node, ast.Import):
             for alias in node.names:
                 yield alias.name
@@ -73,11 +92,16 @@ def _imported_modules(tree: ast.AST, current: str | None) -> Iterable[str]:
             yield f"{current.rsplit('.', 1)[0]}.*" if current.count(".") else f"{current}.*"
 
 
-def import_closure(script: Path, root: Path) -> set[Path]:
-    """Project files (relative to ``root``) that running ``script`` imports or loads, ``script`` included."""
+def import_closure(script: Path, root: Path, also: Iterable[str] = ()) -> set[Path]:
+    """Project files (relative to ``root``) that running ``script`` imports or loads, ``script`` included; ``also``:
+    dotted modules it imports by name at run time (importlib), followed the same way."""
     root = root.resolve()
     seen: set[Path] = set()
     todo: list[tuple[Path, str | None]] = [(script.resolve(), None)]
+    for dotted in also:
+        f = _module_file(root, dotted)
+        if f is not None:
+            todo.append((f.resolve(), dotted))
     while todo:
         path, dotted = todo.pop()
         if path in seen:
@@ -145,13 +169,98 @@ def minimal_deps(closure: set[Path], root: Path) -> list[str]:
     return sorted(set(out))
 
 
+STAGES = ("preflight", "make_tiny", "reconstruct", "fit", "masks", "reference", "colormatch", "stylize", "evaluate",
+          "export_scene", "export", "report")
+"""The stage scripts (``stages/<name>.py``), in ``dvc.yaml``'s order."""
+FOREACH = {"data.scenes": "${data.scenes}", "colormatches": "${colormatches}", "experiments": "${experiments}"}
+HEADER = """\
+# Generated by `python -m abcgs.dag --write` from the stage specs in stages/*.py (tests/test_dag.py checks that it is
+# current): edit a stage's StageSpec, or the code, and re-generate; do not edit this file by hand.
+#
+# Each stage is a short script in stages/ that takes its inputs and outputs on its command line (paths from
+# abcgs/layout.py) and reads the params it lists here; its deps are those inputs and the code it runs (its import
+# closure, with the settings modules of the params sections it reads and no others). Scenes fan out with foreach
+# over data.scenes, colour matches over colormatches, experiments over experiments. No command carries a params
+# value: a foreach stage takes its key from $DVC_STAGE (stylize@tiny_single), and '{key}' / '{item.scene}' in its
+# path arguments are filled in by abcgs.pipeline.run_stage, so no name reaches a shell. The preflight stage checks
+# the whole params file and the inputs before any other stage runs: every stage depends on its stamp.
+# Metrics and plots are git-tracked (cache: false); every other output is DVC-cached, which keeps each stage in
+# DVC's run cache: an interrupted run, a queued experiment or a cluster job restores finished stages.
+"""
+
+
+def load_spec(script: Path) -> Any:
+    """The :class:`abcgs.pipeline.StageSpec` of a stage script (its ``SPEC``)."""
+    spec = importlib.util.spec_from_file_location(f"stage_{script.stem}", script)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.SPEC
+
+
+def stage_closure(script: Path, spec: Any, root: Path) -> set[Path]:
+    """:func:`import_closure` of a stage script plus the settings modules of the params sections it reads."""
+    from abcgs.sections import SECTIONS
+
+    return import_closure(script, root, also=sorted({SECTIONS[s].module for s in spec.sections}))
+
+
+def _dvc(template: Any) -> str:
+    """A path or params template as ``dvc.yaml`` writes it: ``{key}`` → ``${key}``."""
+    return Path(template).as_posix().replace("{", "${") if not isinstance(template, str) else template.replace("{", "${")
+
+
+def stage_entry(script: Path, spec: Any, root: Path) -> dict:
+    """The ``dvc.yaml`` entry of one stage (the ``do:`` body of a ``foreach`` stage is inside)."""
+    cmd = " ".join([f"python {script.relative_to(root).as_posix()}"]
+                   + [f"--{o.option} '{Path(o.path).as_posix()}'" for o in spec.options])
+    body: dict[str, Any] = {"cmd": cmd}
+    code = minimal_deps(stage_closure(script, spec, root), root)
+    body["deps"] = [_dvc(d.path) for d in spec.inputs] + code
+    if spec.params:
+        body["params"] = [_dvc(p) for p in spec.params]
+    outs = [_dvc(o.path) for o in spec.outs if o.kind == "out"]
+    metrics = [{_dvc(o.path): {"cache": False}} for o in spec.outs if o.kind == "metric"]
+    plots = [{_dvc(o.path): {"cache": False, "x": o.plot_axes[0], "y": o.plot_axes[1]}}
+             for o in spec.outs if o.kind == "plot"]
+    for key, value in (("outs", outs), ("metrics", metrics), ("plots", plots)):
+        if value:
+            body[key] = value
+    return {"foreach": FOREACH[spec.foreach], "do": body} if spec.foreach else body
+
+
+def pipeline_yaml(root: Path) -> str:
+    """The text of ``dvc.yaml`` for the stage scripts under ``root/stages``."""
+    stages = {name: stage_entry(root / "stages" / f"{name}.py", load_spec(root / "stages" / f"{name}.py"), root)
+              for name in STAGES}
+    text = yaml.safe_dump({"stages": stages}, sort_keys=False, width=120, default_flow_style=False)
+    return HEADER + text
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Print each stage script's closure as ``deps`` entries (``python -m abcgs.dag [stages/*.py]``)."""
+    """``python -m abcgs.dag [--write | --check]``: print each stage's code deps, write ``dvc.yaml``, or check that
+    the committed one is current."""
+    ap = argparse.ArgumentParser(prog="python -m abcgs.dag", description=main.__doc__)
+    mode = ap.add_mutually_exclusive_group()
+    mode.add_argument("--write", action="store_true", help="write dvc.yaml from the stage specs")
+    mode.add_argument("--check", action="store_true", help="exit 1 when dvc.yaml is not what --write would write")
+    args = ap.parse_args(argv)
     root = Path.cwd()
-    scripts = [Path(a) for a in (argv if argv is not None else sys.argv[1:])] or sorted(Path("stages").glob("*.py"))
-    for script in scripts:
-        print(f"{script}:")
-        for dep in minimal_deps(import_closure(script, root), root):
+    if args.write or args.check:
+        text = pipeline_yaml(root)
+        current = (root / "dvc.yaml").read_text(encoding="utf-8") if (root / "dvc.yaml").is_file() else ""
+        if args.check:
+            if text != current:
+                print("dvc.yaml is not current: run `python -m abcgs.dag --write`", file=sys.stderr)
+                return 1
+            return 0
+        from abcgs.io.atomic import write_text
+
+        write_text(root / "dvc.yaml", text)
+        return 0
+    for name in STAGES:
+        script = root / "stages" / f"{name}.py"
+        print(f"{script.relative_to(root)}:")
+        for dep in minimal_deps(stage_closure(script, load_spec(script), root), root):
             print(f"  - {dep}")
     return 0
 

@@ -1,33 +1,251 @@
-"""The pipeline's output layout, and reading a fitted scene back.
+"""Every path under ``out/``: what each stage writes and where the next one finds it.
 
 Per scene ``S``, colour match ``M`` (``colormatches.M``) and experiment ``E``::
 
-    out/S/colmap/{sparse,images,masks}                                       reconstruct
-    out/S/gs/point_cloud.ply                                                 fit
+    out/preflight.json, out/preflight_report.json                            preflight
+    out/S/colmap/{sparse,images,masks}, out/S/reconstruct.json               reconstruct
+    out/S/gs/{point_cloud.ply, metrics.json, history.csv, …}, fit_metrics.json  fit
     out/S/masks/{gaussian_labels.npy, views/*.png, overlay.png, masks.json}  masks
     out/S/reference/                                                         reference
     out/S/colormatch/M/{point_cloud.ply, colormatch.json, recolored.png}     colormatch (shared by the E naming M)
-    out/E/stylize/{point_cloud.ply, renders/, grid.png, turntable.mp4}       stylize
+    out/S/point_cloud.spz                                                    export_scene
+    out/E/stylize/{point_cloud.ply, renders/, grid.png, turntable.mp4}, stylize.json, stylize_history.csv  stylize
     out/E/{eval.json, metrics.json, eval_views.csv, eval_consistency.png}    evaluate
+    out/E/point_cloud.spz, out/E/returned/                                   export
+
+The classes take a folder and name the files in it; :func:`scene` and :func:`experiment` give a scene's and an
+experiment's folders. Called with a template name (``scene("{item.scene}")``) they give the path templates that
+the stage specs (``stages/*.py``) pass on ``dvc.yaml``'s command lines, so the pipeline definition and the code
+name each path in this one place.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
-from abcgs.gaussians import GaussianModel
-from abcgs.io.ply import read_ply
-from abcgs.sfm.model import SceneData, read_colmap_scene
+OUT = Path("out")
+"""The pipeline's output root (relative to the repository root)."""
+PREFLIGHT_STAMP = OUT / "preflight.json"
+"""The preflight stage's stamp: every other stage depends on it (its content never changes)."""
+PREFLIGHT_REPORT = OUT / "preflight_report.json"
+"""The preflight stage's warnings."""
 
 
-def colormatch_dir(out_root: Path, scene: str, name: str) -> Path:
-    """Where stage ``colormatch@<name>`` writes: ``out/<scene>/colormatch/<name>`` (a per-scene output, shared by
-    every experiment that names it)."""
-    return out_root / scene / "colormatch" / name
+@dataclass(frozen=True)
+class ColmapDir:
+    """A COLMAP layout (the reconstruct stage's output): ``sparse/`` (cameras, images, points3D), ``images/``
+    (undistorted) and, when the scene has label maps, ``masks/``."""
+
+    root: Path
+
+    @property
+    def sparse(self) -> Path:
+        return self.root / "sparse"
+
+    @property
+    def images(self) -> Path:
+        return self.root / "images"
+
+    @property
+    def masks(self) -> Path:
+        return self.root / "masks"
 
 
-def load_scene(out_root: Path, scene_name: str) -> tuple[SceneData, GaussianModel]:
-    colmap = out_root / scene_name / "colmap"
-    scene = read_colmap_scene(colmap / "sparse", colmap / "images")
-    model = read_ply(out_root / scene_name / "gs" / "point_cloud.ply")
-    return scene, model
+@dataclass(frozen=True)
+class FitDir:
+    """The fit stage's folder: the fitted (or imported) 3DGS and its records."""
+
+    root: Path
+
+    @property
+    def ply(self) -> Path:
+        """The fitted Gaussians, INRIA PLY layout."""
+        return self.root / "point_cloud.ply"
+
+    @property
+    def record(self) -> Path:
+        """Held-out metrics and provenance (JSON)."""
+        return self.root / "metrics.json"
+
+    @property
+    def history(self) -> Path:
+        """Per-step training PSNR/loss (CSV, a DVC plot)."""
+        return self.root / "history.csv"
+
+    @property
+    def heldout_grid(self) -> Path:
+        return self.root / "heldout_grid.png"
+
+    @property
+    def splat_source(self) -> Path:
+        """Where the splat came from (a fit, or an imported file and its format/frame): what export gives back."""
+        return self.root / "splat_source.json"
+
+
+@dataclass(frozen=True)
+class MasksDir:
+    """The masks stage's folder: content labels per Gaussian and per view."""
+
+    root: Path
+
+    @property
+    def gaussian_labels(self) -> Path:
+        """``(N,) uint8`` label per Gaussian (numpy)."""
+        return self.root / "gaussian_labels.npy"
+
+    @property
+    def views(self) -> Path:
+        """One label PNG per view, named like the view's image."""
+        return self.root / "views"
+
+    @property
+    def overlay(self) -> Path:
+        return self.root / "overlay.png"
+
+    @property
+    def record(self) -> Path:
+        """Label names, per-view unlabelled shares, warnings (JSON)."""
+        return self.root / "masks.json"
+
+
+@dataclass(frozen=True)
+class ColorMatchDir:
+    """A colour match's folder (shared by every experiment naming it)."""
+
+    root: Path
+
+    @property
+    def ply(self) -> Path:
+        return self.root / "point_cloud.ply"
+
+    @property
+    def record(self) -> Path:
+        return self.root / "colormatch.json"
+
+    @property
+    def recolored(self) -> Path:
+        return self.root / "recolored.png"
+
+
+@dataclass(frozen=True)
+class StylizeDir:
+    """The stylize stage's folder: the stylized 3DGS and what is looked at."""
+
+    root: Path
+
+    @property
+    def ply(self) -> Path:
+        return self.root / "point_cloud.ply"
+
+    @property
+    def renders(self) -> Path:
+        """One PNG per view, named like the view's image."""
+        return self.root / "renders"
+
+    @property
+    def grid(self) -> Path:
+        return self.root / "grid.png"
+
+    @property
+    def turntable(self) -> Path:
+        return self.root / "turntable.mp4"
+
+
+@dataclass(frozen=True)
+class SceneOut:
+    """``out/<scene>/``: everything the per-scene stages write."""
+
+    root: Path
+
+    @property
+    def colmap(self) -> ColmapDir:
+        return ColmapDir(self.root / "colmap")
+
+    @property
+    def reconstruct_record(self) -> Path:
+        return self.root / "reconstruct.json"
+
+    @property
+    def fit(self) -> FitDir:
+        return FitDir(self.root / "gs")
+
+    @property
+    def fit_headline(self) -> Path:
+        """The fit's headline metrics (a DVC metric)."""
+        return self.root / "fit_metrics.json"
+
+    @property
+    def masks(self) -> MasksDir:
+        return MasksDir(self.root / "masks")
+
+    @property
+    def reference(self) -> Path:
+        """The evaluation's reference: the original scene's renders and optical flows."""
+        return self.root / "reference"
+
+    def colormatch(self, name: str) -> ColorMatchDir:
+        return ColorMatchDir(self.root / "colormatch" / name)
+
+    @property
+    def spz(self) -> Path:
+        return self.root / "point_cloud.spz"
+
+
+@dataclass(frozen=True)
+class ExperimentOut:
+    """``out/<experiment>/``: what the stylize, evaluate and export stages write for one experiment."""
+
+    root: Path
+
+    @property
+    def stylize(self) -> StylizeDir:
+        return StylizeDir(self.root / "stylize")
+
+    @property
+    def stylize_record(self) -> Path:
+        """The run's record (JSON); its provenance goes beside it (:func:`abcgs.io.metrics.info_path`)."""
+        return self.root / "stylize.json"
+
+    @property
+    def stylize_history(self) -> Path:
+        """Per-step loss terms (CSV, a DVC plot)."""
+        return self.root / "stylize_history.csv"
+
+    @property
+    def eval_record(self) -> Path:
+        """Every metric (JSON); its provenance goes beside it (:func:`abcgs.io.metrics.info_path`)."""
+        return self.root / "eval.json"
+
+    @property
+    def eval_headline(self) -> Path:
+        """The headline metrics (a DVC metric)."""
+        return self.root / "metrics.json"
+
+    @property
+    def eval_views(self) -> Path:
+        """Per-view consistency (CSV, a DVC plot)."""
+        return self.root / "eval_views.csv"
+
+    @property
+    def eval_consistency(self) -> Path:
+        return self.root / "eval_consistency.png"
+
+    @property
+    def spz(self) -> Path:
+        return self.root / "point_cloud.spz"
+
+    @property
+    def returned(self) -> Path:
+        """The stylized scene in its source's format and frame."""
+        return self.root / "returned"
+
+
+def scene(name: str, out: Path = OUT) -> SceneOut:
+    """``out/<name>/``."""
+    return SceneOut(out / name)
+
+
+def experiment(name: str, out: Path = OUT) -> ExperimentOut:
+    """``out/<name>/``."""
+    return ExperimentOut(out / name)

@@ -16,7 +16,7 @@ from typing import Any
 import yaml
 
 from abcgs.errors import ParamsError
-from abcgs.params import deep_merge
+from abcgs.sections import deep_merge
 
 REPLACED = ("data", "colormatches", "experiments")
 """Overlay sections that replace the base params' instead of merging into them."""

@@ -1,22 +1,24 @@
 """Shared plumbing of the DVC stage scripts in ``stages/``: the stage contract, params, logging, errors.
 
-A stage script declares a :class:`StageSpec` — its name, the ``foreach`` collection it fans out over, and the
-params keys it reads, written exactly as its ``params:`` list in ``dvc.yaml`` (``experiments.{key}``,
-``colormatches.{item.colormatch}``) — and a short ``main(args, params)`` that calls the library.
-:func:`run_stage` then
+A stage script declares a :class:`StageSpec` — its name, the ``foreach`` collection it fans out over, the params
+keys it reads (``experiments.{key}``, ``colormatches.{item.colormatch}``), and its data inputs and outputs
+(:class:`Dep`, :class:`Out`: path templates from :mod:`abcgs.layout`, each passed as a command-line option) — and a
+short ``main(args, params)`` that calls the library. ``dvc.yaml`` is generated from these specs
+(``python -m abcgs.dag --write``): each stage's command passes exactly its inputs and outputs, its ``deps`` are
+those inputs plus the code it runs, its ``params`` the keys it reads. :func:`run_stage` then
 
-1. validates the whole params file (a typo anywhere fails before any work) and runs
-   :func:`abcgs.preflight.preflight` (files exist and decode, every key ``dvc.yaml`` tracks is in the file);
+1. validates the params sections the stage reads (:func:`abcgs.sections.validate_sections`; the preflight stage,
+   which every stage depends on, validated the whole file);
 2. hands ``main`` a *tracked view* of the params (:func:`tracked_view`): only the declared keys can be read, any
-   other raises :class:`UntrackedParamsError`. A stage therefore cannot depend on a value DVC does not track, and
-   ``tests/test_dag.py`` checks that every declaration equals the stage's ``params:`` in ``dvc.yaml``;
+   other raises :class:`UntrackedParamsError`, so a stage cannot depend on a value DVC does not track;
 3. sets up logging and turns an :class:`abcgs.errors.AbcgsError` into a one-paragraph message and exit status 2
    instead of a traceback.
 
 A ``foreach`` stage's key (``stylize@tiny_single`` → ``tiny_single``) is the key option when given, else read
-from ``$DVC_STAGE``, which DVC sets for the command (:func:`stage_key`); its path arguments may name the key as
-``{key}`` / ``{item.F}`` (``--out out/{key}/stylize``). ``dvc.yaml``'s commands therefore carry no params value
-that a shell would parse, however a stage is selected (``-s``, ``--downstream``, ``dvc exp run``, a cluster job).
+from ``$DVC_STAGE``, which DVC sets for the command (:func:`stage_key`); its path arguments name the key as
+``{key}`` / ``{item.F}`` (``--out out/{key}/stylize``), filled in here. ``dvc.yaml``'s commands therefore carry no
+params value that a shell would parse, however a stage is selected (``-s``, ``--downstream``, ``dvc exp run``, a
+cluster job).
 """
 
 from __future__ import annotations
@@ -37,9 +39,9 @@ from typing import Any, Literal
 
 from pydantic import BaseModel
 
+from abcgs import layout
 from abcgs.errors import AbcgsError
-from abcgs.params import NAME_PATTERN, NAME_RE, Params, read_params_file, validate_params
-from abcgs.preflight import preflight
+from abcgs.sections import NAME_PATTERN, NAME_RE, ParamsBase, read_params_file, validate_sections
 
 log = logging.getLogger("abcgs")
 _STORAGE_ERRNOS = {
@@ -65,16 +67,67 @@ parsed by the shell): a ``foreach`` stage learns its key from this variable, and
 
 
 @dataclass(frozen=True)
+class Dep:
+    """A data input of a stage: passed to its script as ``--<option> <path>`` and listed in its ``deps``."""
+
+    option: str
+    path: str | Path
+    """A path template (:mod:`abcgs.layout`), with ``{key}`` / ``{item.F}`` for a ``foreach`` stage's entry."""
+    help: str = ""
+
+
+@dataclass(frozen=True)
+class Out:
+    """An output of a stage, under ``outs`` (DVC-cached), ``metrics`` or ``plots`` (git-tracked, ``cache: false``).
+
+    ``option`` set: passed to the script as ``--<option> <path>``; ``None``: a file the script writes inside or
+    beside another of its options' paths (``gs/history.csv`` in ``--out out/S/gs``, ``stylize_info.json`` beside
+    ``--metrics out/E/stylize.json``), listed on its own because DVC treats it differently (a plot, not cached).
+    """
+
+    path: str | Path
+    option: str | None = None
+    kind: Literal["out", "metric", "plot", "folder"] = "out"
+    """``folder``: a folder passed to the script whose files are listed as outputs of their own (some cached, some
+    not), not as one output."""
+    plot_axes: tuple[str, str] | None = None
+    """``(x, y)`` columns of a plot."""
+    help: str = ""
+
+
+PREFLIGHT = Dep("preflight", layout.PREFLIGHT_STAMP, "the preflight stage's stamp (every stage runs after it)")
+
+
+@dataclass(frozen=True)
 class StageSpec:
     """What a stage script is to ``dvc.yaml``.
 
     ``params``: the dotted params keys the stage reads, with ``{key}`` for the ``foreach`` key and ``{item.F}`` for
-    field ``F`` of the ``foreach`` entry — the same strings as ``dvc.yaml``'s ``${key}`` / ``${item.F}``.
+    field ``F`` of the ``foreach`` entry — written into ``dvc.yaml`` as ``${key}`` / ``${item.F}``.
+    ``deps`` / ``outs``: its data inputs and outputs; every stage but ``preflight`` also depends on the preflight
+    stamp (:data:`PREFLIGHT`).
     """
 
     name: str
     params: tuple[str, ...] = ()
     foreach: Foreach | None = None
+    deps: tuple[Dep, ...] = ()
+    outs: tuple[Out, ...] = ()
+
+    @property
+    def inputs(self) -> tuple[Dep, ...]:
+        """Every data input, the preflight stamp first."""
+        return self.deps if self.name == "preflight" else (PREFLIGHT, *self.deps)
+
+    @property
+    def options(self) -> tuple[Dep | Out, ...]:
+        """The path options the script takes, in command-line order."""
+        return (*self.inputs, *(o for o in self.outs if o.option))
+
+    @property
+    def sections(self) -> frozenset[str]:
+        """The top-level params sections the stage reads (and validates)."""
+        return frozenset(p.split(".")[0] for p in self.params)
 
     def fill(self, template: str, raw: Mapping[str, Any], key: str | None) -> str:
         """``template`` with ``{key}`` / ``{item.F}`` filled in from the raw params file, as DVC fills in
@@ -191,18 +244,25 @@ def _restrict(value: Any, tree: dict | bool, path: str, stage: str) -> Any:
     return value
 
 
-def tracked_view(params: Params, tracked: Sequence[str], stage: str = "?") -> Params:  # a view that reads like Params
+def tracked_view(params: ParamsBase, tracked: Sequence[str], stage: str = "?") -> ParamsBase:  # a view that reads like the params
     """A copy of ``params`` in which only the dotted keys ``tracked`` (and what lies under them) can be read."""
     return _restrict(params, _tree(tracked), "", stage)
 
 
 def stage_parser(spec: StageSpec, description: str) -> argparse.ArgumentParser:
+    """The script's arguments: ``--params``, the key option of a ``foreach`` stage, and one required path option per
+    input and output of the spec (:attr:`StageSpec.options`)."""
     ap = argparse.ArgumentParser(prog=f"stages/{spec.name}.py", description=description)
     ap.add_argument("--params", type=Path, default=Path("params.yaml"), help="the pipeline's params file")
     if spec.foreach:
         opt = KEY_OPTION[spec.foreach]
         ap.add_argument(f"--{opt}", help=f"a key of {spec.foreach} (under DVC: the key in ${DVC_STAGE_ENV}, "
                                          f"{spec.name}@<key>)")
+    for o in spec.options:
+        if o.option == "params":  # the params file as a data dep (the preflight stage): the option above
+            continue
+        ap.add_argument(f"--{o.option}", type=Path, required=True, metavar="PATH",
+                        help=f"{o.help} (dvc.yaml: {Path(o.path).as_posix()})".lstrip())
     return ap
 
 
@@ -234,16 +294,70 @@ def fill_paths(args: argparse.Namespace, spec: StageSpec, raw: Mapping[str, Any]
         setattr(args, name, Path(spec.fill(str(value), raw, key)))
 
 
+def stage_paths(spec: StageSpec, raw: Mapping[str, Any], key: str | None, out: Path = layout.OUT) -> dict[str, Path]:
+    """The stage's path options for the ``foreach`` entry ``key``, as ``dvc.yaml`` passes them and
+    :func:`fill_paths` fills them in, with ``out/`` moved to ``out`` (to run a stage's ``main`` elsewhere):
+    ``{"colmap": Path("out/tiny/colmap"), …}``, keyed like ``argparse`` attributes."""
+    paths = {}
+    for o in spec.options:
+        p = Path(spec.fill(Path(o.path).as_posix(), raw, key))
+        paths[o.option.replace("-", "_")] = out / p.relative_to(layout.OUT) if p.is_relative_to(layout.OUT) else p
+    return paths
+
+
+READ_AUDIT_ENV = "ABCGS_READ_AUDIT"
+"""A folder: when set, each stage writes there (``<stage>.json``) every path under ``out/`` it opened for reading
+or listed through Python (:func:`sys.addaudithook`), for checking that it reads only its declared inputs
+(``tests/test_pipeline_e2e.py``). Reads by C++ code (OpenCV, COLMAP) are not seen."""
+
+
+def _audit_reads(spec: StageSpec, environ: Mapping[str, str]) -> Callable[[], None] | None:
+    """With :data:`READ_AUDIT_ENV` set: record the stage's reads under ``out/`` from now on; the returned function
+    writes them to ``<folder>/<stage>.json``."""
+    folder = environ.get(READ_AUDIT_ENV)
+    if not folder:
+        return None
+    cwd = Path.cwd()
+    out = cwd / layout.OUT
+    seen: set[str] = set()
+
+    def reading(mode: str | None, flags: int) -> bool:
+        if mode is None:  # os.open
+            return not flags & (os.O_WRONLY | os.O_RDWR)
+        return not mode.strip("rbt")
+
+    def hook(event: str, args: tuple) -> None:
+        if event == "open" and isinstance(args[0], (str, os.PathLike)) and reading(args[1], args[2]):
+            path = args[0]
+        elif event in ("os.listdir", "os.scandir") and args and isinstance(args[0], (str, os.PathLike)):
+            path = args[0]
+        else:
+            return
+        p = cwd / os.fsdecode(path)
+        if p.is_relative_to(out):
+            seen.add(p.relative_to(cwd).as_posix())
+
+    sys.addaudithook(hook)
+
+    def write() -> None:
+        import json
+
+        name = environ.get(DVC_STAGE_ENV, spec.name).rsplit(":", 1)[-1]
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        (Path(folder) / f"{name}.json").write_text(json.dumps(sorted(seen), indent=1))
+
+    return write
+
+
 def run_stage(
-    spec: StageSpec, parser: argparse.ArgumentParser, main: Callable[[argparse.Namespace, Params], None], argv=None
+    spec: StageSpec, parser: argparse.ArgumentParser, main: Callable[[argparse.Namespace, ParamsBase], None], argv=None
 ) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s", datefmt="%H:%M:%S")
     t0 = time.perf_counter()
     try:
         raw = read_params_file(args.params)
-        params = validate_params(raw, str(args.params))
-        preflight(params, raw, args.params, files=False)  # the preflight stage checks the files
+        params = validate_sections(raw, spec.sections, str(args.params))
         key = stage_key(spec, getattr(args, KEY_OPTION[spec.foreach]) if spec.foreach else None, os.environ)
         if spec.foreach and key is None:
             raise AbcgsError(f"which entry of {spec.foreach}? pass --{KEY_OPTION[spec.foreach]} NAME")
@@ -252,7 +366,13 @@ def run_stage(
         if spec.foreach:
             setattr(args, KEY_OPTION[spec.foreach], key)  # main reads args.scene / args.experiment
         fill_paths(args, spec, raw, key)
+        if spec.name != "preflight" and not args.preflight.is_file():
+            raise AbcgsError(f"{args.preflight} is missing: the preflight stage checks the params and inputs first "
+                             "(dvc repro preflight)")
+        audit = _audit_reads(spec, os.environ)
         main(args, tracked_view(params, spec.resolved_params(raw, key), spec.name))
+        if audit is not None:
+            audit()
     except AbcgsError as exc:
         print(f"\n[{spec.name}] error: {exc}", file=sys.stderr)
         return 2

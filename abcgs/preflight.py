@@ -407,7 +407,8 @@ def main(argv: list[str] | None = None) -> int:
     import sys
 
     from abcgs.errors import AbcgsError
-    from abcgs.params import read_params_file, validate_params
+    from abcgs.params import validate_params
+    from abcgs.sections import read_params_file
 
     path = (argv if argv is not None else sys.argv[1:]) or ["params.yaml"]
     try:

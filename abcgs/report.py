@@ -16,6 +16,7 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from abcgs import layout
 from abcgs.errors import InputError
 from abcgs.io.metrics import read_record
 
@@ -32,12 +33,11 @@ class Run:
 def load_runs(root: Path, experiments: dict[str, dict]) -> list[Run]:
     runs = []
     for name, spec in experiments.items():
-        d = root / name
-        sty, ev = d / "stylize.json", d / "eval.json"
+        d = layout.experiment(name, root)
+        sty, ev = d.stylize_record, d.eval_record
         if not sty.is_file():
             raise InputError(f"run {name!r} has no {sty}; run `dvc repro` first")
-        images = {k: p for k, p in (("grid", d / "stylize" / "grid.png"), ("consistency", d / "eval_consistency.png"))
-                  if p.is_file()}
+        images = {k: p for k, p in (("grid", d.stylize.grid), ("consistency", d.eval_consistency)) if p.is_file()}
         runs.append(Run(name, spec, read_record(sty), read_record(ev) if ev.is_file() else {}, images))
     if not runs:
         raise InputError("no experiments to report; add some under params.yaml experiments")
@@ -95,13 +95,13 @@ def collect_warnings(root: Path, scenes: list[str]) -> list[str]:
     """What the run left out or changed without stopping: the preflight stage's warnings and, per scene, the views
     whose content labels leave much unlabelled (``out/<scene>/masks/masks.json``) and the views that did not register
     (``out/<scene>/reconstruct.json``)."""
-    warnings = list(read_record(root / "preflight_report.json").get("warnings", [])) \
-        if (root / "preflight_report.json").is_file() else []
+    preflight = root / layout.PREFLIGHT_REPORT.relative_to(layout.OUT)
+    warnings = list(read_record(preflight).get("warnings", [])) if preflight.is_file() else []
     for scene in scenes:
-        masks = root / scene / "masks" / "masks.json"
+        masks = layout.scene(scene, root).masks.record
         if masks.is_file():
             warnings += [f"scene {scene}: {w}" for w in read_record(masks).get("warnings") or []]
-        rec = root / scene / "reconstruct.json"
+        rec = layout.scene(scene, root).reconstruct_record
         if rec.is_file():
             dropped = read_record(rec).get("unregistered") or []
             if dropped:
@@ -211,8 +211,8 @@ def comparison_figure(runs: list[Run], root: Path, styles: dict[str, str], path:
     rows, captions = [], None
     for group in by_match.values():
         scene = group[0].spec.get("scene", "")
-        photos = sorted((root / scene / "colmap" / "images").glob("*"))
-        renders = [sorted((root / r.name / "stylize" / "renders").glob("*.png")) for r in group]
+        photos = sorted(layout.scene(scene, root).colmap.images.glob("*"))
+        renders = [sorted(layout.experiment(r.name, root).stylize.renders.glob("*.png")) for r in group]
         if not photos or not all(renders):
             continue
         style_keys = [group[0].spec.get("style")] if group[0].spec.get("style") else sorted(set((group[0].spec.get("styles") or {}).values()))
@@ -260,16 +260,23 @@ def results_markdown(runs: list[Run]) -> str:
     return _markdown(cols, rows)
 
 
+def report_siblings(out: Path) -> tuple[Path, Path, Path]:
+    """The files written beside the page ``out``: the metric bars (``<out>.png``), the results table
+    (``results.md``) and the comparison figure (``comparison.jpg``)."""
+    return out.with_suffix(".png"), out.with_name("results.md"), out.with_name("comparison.jpg")
+
+
 def write_report(out: Path, runs: list[Run], root: Path, styles: dict[str, str], viewer: str | None = None,
                  warnings: list[str] | None = None) -> None:
     """The report's files: ``out`` (self-contained HTML), ``<out>.png`` (metric bars), ``results.md`` (the table as
     markdown, what README's results block is made from) and ``comparison.jpg`` (:func:`comparison_figure`) beside it."""
     from abcgs.io.atomic import write_text
 
+    summary, results, comparison = report_siblings(out)
     write_text(out, render_html(runs, viewer=viewer, warnings=warnings))
-    summary_png(runs, out.with_suffix(".png"))
-    write_text(out.with_name("results.md"), results_markdown(runs) + "\n")
-    comparison_figure(runs, root, styles, out.with_name("comparison.jpg"))
+    summary_png(runs, summary)
+    write_text(results, results_markdown(runs) + "\n")
+    comparison_figure(runs, root, styles, comparison)
 
 
 if __name__ == "__main__":  # python -m abcgs.report [--markdown]: print the table of the runs in out/

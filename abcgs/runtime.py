@@ -8,11 +8,25 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterator
+from typing import Literal
 
 import torch
+from pydantic import BaseModel, ConfigDict, Field
 
 from abcgs.errors import InputError
-from abcgs.params import Device
+
+Device = Literal["auto", "cpu", "cuda"]
+"""Where tensors live: ``auto`` = the first CUDA GPU when torch sees one, else the CPU."""
+
+
+class RuntimeParams(BaseModel):
+    """``runtime:``: how every stage runs, not what it computes (:mod:`abcgs.runtime`)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    device: Device = Field(
+        "auto", description="auto | cpu | cuda: where every stage keeps its tensors (scenes, images, VGG, losses, "
+                            "metrics); the renders follow (gsplat on CUDA, the C++ kernels on the CPU)")
 
 
 def resolve_device(setting: Device | str = "auto") -> torch.device:

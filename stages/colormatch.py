@@ -12,33 +12,40 @@ masks re-runs it.
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
-from abcgs.pipeline import StageSpec, run_stage, stage_parser
+from abcgs import layout
+from abcgs.io.ply import read_ply
+from abcgs.masks.outputs import load_scene_masks
+from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.runtime import resolve_device, torch_threads
+from abcgs.sfm.model import read_colmap_scene
 from abcgs.stylize.colormatch import color_match_and_refit, write_colormatch
 from abcgs.stylize.experiment import (
     check_bindings,
     colormatch_spec,
     load_groups,
-    load_scene,
-    load_scene_masks,
     load_vgg,
 )
 
+_S = layout.scene("{item.scene}")
 SPEC = StageSpec("colormatch", foreach="colormatches", params=(
     "colormatches.{key}", "data.styles", "data.style_masks", "colormatch", "isolation", "vgg",
     "stylize.layers", "stylize.style_height",  # the style features of the matching groups
     "runtime",
-))
+), deps=(
+    Dep("colmap", _S.colmap.root, "the scene's COLMAP layout (reconstruct)"),
+    Dep("model", _S.fit.ply, "the fitted scene (fit)"),
+    Dep("masks", _S.masks.root, "the scene's content labels (masks)"),
+), outs=(Out(_S.colormatch("{key}").root, "out", help="the colour-matched Gaussians and their record"),))
 
 
 def main(args, params) -> None:
     spec = colormatch_spec(params, args.colormatch)
     device = resolve_device(params.runtime.device)
-    scene, model = load_scene(args.root, spec.scene)
-    masks = load_scene_masks(args.root / spec.scene / "masks", scene, model.num_gaussians)
-    check_bindings(params, args.colormatch, spec, masks.gaussian_labels, args.root / spec.scene / "masks")
+    colmap = layout.ColmapDir(args.colmap)
+    scene, model = read_colmap_scene(colmap.sparse, colmap.images), read_ply(args.model)
+    masks = load_scene_masks(args.masks, scene, model.num_gaussians)
+    check_bindings(params, args.colormatch, spec, masks.gaussian_labels, layout.MasksDir(args.masks).gaussian_labels)
     vgg, info = load_vgg(params, device)
     groups = load_groups(params, spec, vgg, masks.gaussian_labels)
     with torch_threads(params.colormatch.threads):
@@ -48,7 +55,4 @@ def main(args, params) -> None:
 
 
 if __name__ == "__main__":
-    ap = stage_parser(SPEC, __doc__.strip().splitlines()[0])
-    ap.add_argument("--root", type=Path, default=Path("out"))
-    ap.add_argument("--out", type=Path, required=True)
-    sys.exit(run_stage(SPEC, ap, main))
+    sys.exit(run_stage(SPEC, stage_parser(SPEC, __doc__.strip().splitlines()[0]), main))

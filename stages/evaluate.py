@@ -14,16 +14,32 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from abcgs import layout
 from abcgs.evaluation.evaluate import evaluate_scene, load_stylize_run, write_evaluation
 from abcgs.evaluation.reference import load_reference, model_digest
 from abcgs.io.images import load_image
+from abcgs.io.metrics import info_path
 from abcgs.io.ply import read_ply
-from abcgs.pipeline import StageSpec, run_stage, stage_parser
+from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.runtime import resolve_device
-from abcgs.stylize.experiment import colormatch_spec, experiment, load_scene
+from abcgs.sfm.model import read_colmap_scene
+from abcgs.stylize.experiment import colormatch_spec, experiment
 
+_S, _E = layout.scene("{item.scene}"), layout.experiment("{key}")
 SPEC = StageSpec("evaluate", foreach="experiments", params=(
     "evaluate", "experiments.{key}", "colormatches.{item.colormatch}", "data.styles", "vgg", "runtime",
+), deps=(
+    Dep("colmap", _S.colmap.root, "the scene's COLMAP layout (reconstruct)"),
+    Dep("model", _S.fit.ply, "the fitted scene (fit)"),
+    Dep("reference", _S.reference, "the scene's renders and flows (reference)"),
+    Dep("stylized", _E.stylize.root, "the stylized scene and its renders (stylize)"),
+    Dep("stylize-record", info_path(_E.stylize_record), "the stylization's full record (stylize)"),
+), outs=(
+    Out(_E.eval_record, "out", help="every metric (JSON)"),
+    Out(info_path(_E.eval_record)),
+    Out(_E.eval_consistency),
+    Out(_E.eval_headline, "headline", kind="metric", help="the headline metrics (the DVC metric)"),
+    Out(_E.eval_views, kind="plot", plot_axes=("view", "short_rmse")),
 ))
 
 
@@ -31,13 +47,13 @@ def main(args, params) -> None:
     ep = params.evaluate
     exp = experiment(params, args.experiment)
     spec = colormatch_spec(params, exp.colormatch)
-    scene, original = load_scene(args.root, exp.scene)
+    colmap = layout.ColmapDir(args.colmap)
+    scene, original = read_colmap_scene(colmap.sparse, colmap.images), read_ply(args.model)
     stems = [Path(c.name).stem for c in scene.cameras]
-    ply, info, pngs = load_stylize_run(args.root, args.experiment, stems)
+    ply, info, pngs = load_stylize_run(layout.StylizeDir(args.stylized), args.stylize_record, args.experiment, stems)
     n = min(len(scene.cameras), ep.max_views or len(scene.cameras))
     styles = {k: params.data.styles[k] for k in spec.style_keys()}
-    reference = load_reference(args.root / exp.scene / "reference", scene.cameras, ep, scene=exp.scene,
-                               model_digest=model_digest(args.root / exp.scene / "gs" / "point_cloud.ply"))
+    reference = load_reference(args.reference, scene.cameras, ep, scene=exp.scene, model_digest=model_digest(args.model))
     device = resolve_device(params.runtime.device)
     res = evaluate_scene(scene.cameras, original.to(device), read_ply(ply, device=device), [load_image(p) for p in styles.values()], ep,
                          stylize_info=info, saved_renders=[load_image(p) for p in pngs[:n]], vgg_params=params.vgg,
@@ -48,8 +64,4 @@ def main(args, params) -> None:
 
 
 if __name__ == "__main__":
-    ap = stage_parser(SPEC, __doc__.strip().splitlines()[0])
-    ap.add_argument("--root", type=Path, default=Path("out"))
-    ap.add_argument("--out", type=Path, required=True, help="full metrics record JSON (+ *_info.json)")
-    ap.add_argument("--headline", type=Path, required=True, help="headline metrics JSON (the DVC metric)")
-    sys.exit(run_stage(SPEC, ap, main))
+    sys.exit(run_stage(SPEC, stage_parser(SPEC, __doc__.strip().splitlines()[0]), main))

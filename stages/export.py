@@ -10,25 +10,26 @@ Reads no params; ``{item.scene}`` in a path argument is the experiment's scene.
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
-from abcgs.io.spz import export_spz
-from abcgs.pipeline import StageSpec, run_stage, stage_parser
+from abcgs import layout
+from abcgs.io.spz import export_spz, sidecar
+from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.splats.exporting import give_back
 
-SPEC = StageSpec("export", foreach="experiments")
+_S, _E = layout.scene("{item.scene}"), layout.experiment("{key}")
+SPEC = StageSpec("export", foreach="experiments", deps=(
+    Dep("ply", _E.stylize.ply, "the stylized scene (stylize)"),
+    Dep("source", _S.fit.splat_source, "where the scene's splat came from (fit)"),
+), outs=(
+    Out(_E.spz, "out", help="the .spz"), Out(sidecar(_E.spz)),
+    Out(_E.returned, "returned", help="the scene in its source's format, and returned.json"),
+))
 
 
 def main(args, params) -> None:
     export_spz(args.ply, args.out)
-    if args.returned is not None:
-        give_back(args.ply, args.source, args.returned)
+    give_back(args.ply, args.source, args.returned)
 
 
 if __name__ == "__main__":
-    ap = stage_parser(SPEC, __doc__.strip().splitlines()[0])
-    ap.add_argument("--ply", type=Path, required=True)
-    ap.add_argument("--out", type=Path, required=True, help="the .spz; its record goes to <out>.json")
-    ap.add_argument("--source", type=Path, help="the scene's splat_source.json (fit stage)")
-    ap.add_argument("--returned", type=Path, help="folder for the scene in its source's format, and returned.json")
-    sys.exit(run_stage(SPEC, ap, main))
+    sys.exit(run_stage(SPEC, stage_parser(SPEC, __doc__.strip().splitlines()[0]), main))

@@ -8,12 +8,15 @@ Reads no params.
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
-from abcgs.io.spz import export_spz
-from abcgs.pipeline import StageSpec, run_stage, stage_parser
+from abcgs import layout
+from abcgs.io.spz import export_spz, sidecar
+from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 
-SPEC = StageSpec("export_scene", foreach="data.scenes")
+_S = layout.scene("{key}")
+SPEC = StageSpec("export_scene", foreach="data.scenes", deps=(Dep("ply", _S.fit.ply, "the fitted scene (fit)"),), outs=(
+    Out(_S.spz, "out", help="the .spz"), Out(sidecar(_S.spz)),
+))
 
 
 def main(args, params) -> None:
@@ -21,7 +24,4 @@ def main(args, params) -> None:
 
 
 if __name__ == "__main__":
-    ap = stage_parser(SPEC, __doc__.strip().splitlines()[0])
-    ap.add_argument("--ply", type=Path, required=True)
-    ap.add_argument("--out", type=Path, required=True, help="the .spz; its record goes to <out>.json")
-    sys.exit(run_stage(SPEC, ap, main))
+    sys.exit(run_stage(SPEC, stage_parser(SPEC, __doc__.strip().splitlines()[0]), main))

@@ -12,25 +12,35 @@ Writes ``point_cloud.ply``, ``metrics.json`` (the full record: per-view scores, 
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
+from abcgs import layout
 from abcgs.fit.trainer import fit_and_save
 from abcgs.io.metrics import fit_headline, write_headline
-from abcgs.pipeline import StageSpec, run_stage, stage_parser
+from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.runtime import resolve_device
 from abcgs.sfm.model import read_colmap_scene
 from abcgs.sources.detect import bare_splat
 from abcgs.splats.importing import import_and_save, write_fitted_source
 
-SPEC = StageSpec("fit", foreach="data.scenes", params=("fit", "data.scenes.{key}", "runtime"))
+_S = layout.scene("{key}")
+SPEC = StageSpec("fit", foreach="data.scenes", params=("fit", "data.scenes.{key}", "runtime"), deps=(
+    Dep("colmap", _S.colmap.root, "the scene's COLMAP layout (reconstruct)"),
+    Dep("source", "{item.path}", "the scene's folder (a splat it names is imported instead of a fit)"),
+), outs=(
+    Out(_S.fit.root, "out", kind="folder", help="the folder of the files below"),
+    Out(_S.fit.ply), Out(_S.fit.heldout_grid), Out(_S.fit.record), Out(_S.fit.splat_source),
+    Out(_S.fit_headline, "headline", kind="metric", help="the scene's headline metrics (the DVC metric)"),
+    Out(_S.fit.history, kind="plot", plot_axes=("step", "psnr")),
+))
 
 
 def main(args, params) -> None:
-    scene = read_colmap_scene(args.colmap / "sparse", args.colmap / "images")
+    colmap = layout.ColmapDir(args.colmap)
+    scene = read_colmap_scene(colmap.sparse, colmap.images)
     fit = params.scene_section(args.scene, "fit")
     spec = params.data.scenes[args.scene]
     device = resolve_device(params.runtime.device)
-    splat = spec.splat_path() or bare_splat(spec.path, spec.format)  # a bare splat: its renders are the photos
+    splat = spec.splat_path(args.source) or bare_splat(args.source, spec.format)  # a bare splat: its renders are the photos
     if splat is not None:
         record = import_and_save(scene, splat, spec.splat_format, fit, args.out, device=device)
     else:
@@ -40,8 +50,4 @@ def main(args, params) -> None:
 
 
 if __name__ == "__main__":
-    ap = stage_parser(SPEC, __doc__.strip().splitlines()[0])
-    ap.add_argument("--colmap", type=Path, required=True, help="reconstruct stage output (sparse/ + images/)")
-    ap.add_argument("--out", type=Path, required=True, help="output folder for point_cloud.ply, metrics, plots")
-    ap.add_argument("--headline", type=Path, required=True, help="headline metrics JSON (the DVC metric)")
-    sys.exit(run_stage(SPEC, ap, main))
+    sys.exit(run_stage(SPEC, stage_parser(SPEC, __doc__.strip().splitlines()[0]), main))

@@ -9,12 +9,11 @@ Deterministic for a seed; options: the ``tiny`` section of params.yaml
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
-from abcgs.pipeline import StageSpec, run_stage, stage_parser
+from abcgs.pipeline import Out, StageSpec, run_stage, stage_parser
 from abcgs.scene.synthetic import make_tiny_scene
 
-SPEC = StageSpec("make_tiny", params=("tiny",))
+SPEC = StageSpec("make_tiny", params=("tiny",), outs=(Out("data/tiny", "out", help="the scene folder"),))
 
 
 def main(args, params) -> None:
@@ -22,6 +21,4 @@ def main(args, params) -> None:
 
 
 if __name__ == "__main__":
-    ap = stage_parser(SPEC, __doc__.strip().splitlines()[0])
-    ap.add_argument("--out", type=Path, default=Path("data/tiny"), help="output scene folder")
-    sys.exit(run_stage(SPEC, ap, main))
+    sys.exit(run_stage(SPEC, stage_parser(SPEC, __doc__.strip().splitlines()[0]), main))

@@ -7,28 +7,30 @@ without a mask re-cut from them (cross-view refinement), re-rendered as view-con
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
-from abcgs.layout import load_scene
+from abcgs import layout
+from abcgs.io.ply import read_ply
 from abcgs.masks.content import make_content_masks
 from abcgs.masks.outputs import write_content_masks
-from abcgs.pipeline import StageSpec, run_stage, stage_parser
+from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.runtime import resolve_device
+from abcgs.sfm.model import read_colmap_scene
 
-SPEC = StageSpec("masks", foreach="data.scenes", params=("masks", "data.scenes.{key}", "runtime"))
+_S = layout.scene("{key}")
+SPEC = StageSpec("masks", foreach="data.scenes", params=("masks", "data.scenes.{key}", "runtime"), deps=(
+    Dep("colmap", _S.colmap.root, "the scene's COLMAP layout with its label maps, if any (reconstruct)"),
+    Dep("model", _S.fit.ply, "the fitted scene (fit)"),
+), outs=(Out(_S.masks.root, "out", help="labels per Gaussian and per view, overlay, record"),))
 
 
 def main(args, params) -> None:
-    scene, model = load_scene(args.root, args.scene)
-    model = model.to(resolve_device(params.runtime.device))
-    masks_dir = args.root / args.scene / "colmap" / "masks"
-    result = make_content_masks(model, scene.cameras, masks_dir, params.scene_section(args.scene, "masks"),
+    colmap = layout.ColmapDir(args.colmap)
+    scene = read_colmap_scene(colmap.sparse, colmap.images)
+    model = read_ply(args.model, device=resolve_device(params.runtime.device))
+    result = make_content_masks(model, scene.cameras, colmap.masks, params.scene_section(args.scene, "masks"),
                                 scene.image_paths)
     write_content_masks(args.out, result, scene.cameras, scene.image_paths)
 
 
 if __name__ == "__main__":
-    ap = stage_parser(SPEC, __doc__.strip().splitlines()[0])
-    ap.add_argument("--root", type=Path, default=Path("out"))
-    ap.add_argument("--out", type=Path, required=True)
-    sys.exit(run_stage(SPEC, ap, main))
+    sys.exit(run_stage(SPEC, stage_parser(SPEC, __doc__.strip().splitlines()[0]), main))

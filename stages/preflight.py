@@ -15,17 +15,25 @@ printed (``dvc repro`` shows them) and go to ``--record``, which the report show
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
+from abcgs import layout
 from abcgs.io.atomic import write_json
-from abcgs.pipeline import StageSpec, run_stage, stage_parser
-from abcgs.preflight import check_input_files, dvc_output_files, dvc_outputs
+from abcgs.params import validate_params
+from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
+from abcgs.preflight import check_input_files, dvc_output_files, dvc_outputs, preflight
+from abcgs.sections import read_params_file
 from abcgs.sources.check import check_scene_sources
 
-SPEC = StageSpec("preflight", params=("data", "vgg", "reconstruct", "colormatches"))
+SPEC = StageSpec("preflight", deps=(Dep("params", "params.yaml", "the pipeline's params file"),), outs=(
+    Out(layout.PREFLIGHT_STAMP, "out", help="the stamp every other stage depends on"),
+    Out(layout.PREFLIGHT_REPORT, "record", help="the warnings (JSON)"),
+))
 
 
-def main(args, params) -> None:
+def main(args, _sections) -> None:
+    raw = read_params_file(args.params)
+    params = validate_params(raw, str(args.params))  # the whole file, which this stage depends on
+    preflight(params, raw, args.params, files=False)
     root = args.params.resolve().parent
     dvc_yaml = root / "dvc.yaml"
     known = dvc_yaml.is_file()
@@ -39,7 +47,4 @@ def main(args, params) -> None:
 
 
 if __name__ == "__main__":
-    ap = stage_parser(SPEC, __doc__.strip().splitlines()[0])
-    ap.add_argument("--out", type=Path, required=True, help="the stamp every other stage depends on")
-    ap.add_argument("--record", type=Path, required=True, help="the warnings (JSON)")
-    sys.exit(run_stage(SPEC, ap, main))
+    sys.exit(run_stage(SPEC, stage_parser(SPEC, __doc__.strip().splitlines()[0]), main))

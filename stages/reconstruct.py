@@ -17,23 +17,29 @@ from __future__ import annotations
 import logging
 import sys
 import tempfile
-from pathlib import Path
 
+from abcgs import layout
 from abcgs.io.atomic import write_json
-from abcgs.pipeline import StageSpec, run_stage, stage_parser
+from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.sfm.colmap import set_colmap_log_level
 from abcgs.sources.model import write_source_model
 from abcgs.sources.photos import reconstruct_photos
 from abcgs.sources.read import read_source, resolve_format
 
-SPEC = StageSpec("reconstruct", foreach="data.scenes", params=("reconstruct", "data.scenes.{key}"))
+_S = layout.scene("{key}")
+SPEC = StageSpec("reconstruct", foreach="data.scenes", params=("reconstruct", "data.scenes.{key}"), deps=(
+    Dep("source", "{item.path}", "the scene's folder: photos or a dataset with its cameras"),
+), outs=(
+    Out(_S.colmap.root, "out", help="the undistorted COLMAP layout"),
+    Out(_S.reconstruct_record, "metrics", help="the reconstruction record (JSON)"),
+))
 log = logging.getLogger("reconstruct")
 
 
 def main(args, params) -> None:
     set_colmap_log_level(args.colmap_log)
     scene = params.data.scenes[args.scene]
-    folder = Path(scene.path)
+    folder = args.source
     options = params.scene_section(args.scene, "reconstruct")
     fmt = resolve_format(folder, scene.format, scene.images)
     if fmt == "photos":
@@ -55,7 +61,5 @@ def main(args, params) -> None:
 
 if __name__ == "__main__":
     ap = stage_parser(SPEC, __doc__.strip().splitlines()[0])
-    ap.add_argument("--out", type=Path, required=True, help="output folder, e.g. out/<scene>/colmap")
-    ap.add_argument("--metrics", type=Path, required=True, help="the reconstruction record (JSON)")
     ap.add_argument("--colmap-log", choices=("info", "warning"), default="warning", help="COLMAP's own log level")
     sys.exit(run_stage(SPEC, ap, main))

@@ -12,21 +12,27 @@ from __future__ import annotations
 
 import logging
 import sys
-from pathlib import Path
 
+from abcgs import layout
 from abcgs.evaluation.reference import FLOW_SETTINGS, compute_reference, model_digest, save_reference
-from abcgs.layout import load_scene
-from abcgs.pipeline import StageSpec, run_stage, stage_parser
+from abcgs.io.ply import read_ply
+from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.progress import progress
 from abcgs.runtime import resolve_device
+from abcgs.sfm.model import read_colmap_scene
 
 log = logging.getLogger("reference")
-SPEC = StageSpec("reference", foreach="data.scenes", params=(*(f"evaluate.{k}" for k in FLOW_SETTINGS), "runtime"))
+_S = layout.scene("{key}")
+SPEC = StageSpec("reference", foreach="data.scenes", params=(*(f"evaluate.{k}" for k in FLOW_SETTINGS), "runtime"), deps=(
+    Dep("colmap", _S.colmap.root, "the scene's COLMAP layout (reconstruct)"),
+    Dep("model", _S.fit.ply, "the fitted scene (fit)"),
+), outs=(Out(_S.reference, "out", help="renders, pairs, flows and the scene's own warp error"),))
 
 
 def main(args, params) -> None:
-    scene, model = load_scene(args.root, args.scene)
-    digest = model_digest(args.root / args.scene / "gs" / "point_cloud.ply")
+    colmap = layout.ColmapDir(args.colmap)
+    scene, model = read_colmap_scene(colmap.sparse, colmap.images), read_ply(args.model)
+    digest = model_digest(args.model)
     ref = compute_reference(scene.cameras, model.to(resolve_device(params.runtime.device)), params.evaluate, model_digest=digest,
                             progress=lambda keys: progress(keys, "flows"))
     save_reference(args.out, ref)
@@ -35,7 +41,4 @@ def main(args, params) -> None:
 
 
 if __name__ == "__main__":
-    ap = stage_parser(SPEC, __doc__.strip().splitlines()[0])
-    ap.add_argument("--root", type=Path, default=Path("out"))
-    ap.add_argument("--out", type=Path, required=True)
-    sys.exit(run_stage(SPEC, ap, main))
+    sys.exit(run_stage(SPEC, stage_parser(SPEC, __doc__.strip().splitlines()[0]), main))

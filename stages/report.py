@@ -9,19 +9,26 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from abcgs.pipeline import StageSpec, run_stage, stage_parser
-from abcgs.report import collect_warnings, load_runs, write_report
+from abcgs import layout
+from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
+from abcgs.report import collect_warnings, load_runs, report_siblings, write_report
 from abcgs.view.outputs import load_experiment
 from abcgs.view.page import viewer_fragment
 
-SPEC = StageSpec("report", params=("experiments", "colormatches", "data.styles", "viewer"))
+_HTML = Path("reports/report.html")
+SPEC = StageSpec("report", params=("experiments", "colormatches", "data.styles", "viewer"), deps=(
+    Dep("root", layout.OUT, "every stage's outputs"),
+), outs=(
+    Out(_HTML, "out", help="the self-contained page"),
+    *(Out(p) for p in report_siblings(_HTML)),
+))
 
 
 def main(args, params) -> None:
     runs = load_runs(args.root, params.experiment_specs())
     viewer = None
     if params.viewer.enabled:
-        exps = [load_experiment(args.root / name, scene=exp.scene, root=args.root,
+        exps = [load_experiment(layout.experiment(name, args.root).root, scene=exp.scene, root=args.root,
                                 max_gaussians=params.viewer.max_gaussians, path_kind=params.viewer.camera_path,
                                 path_frames=params.viewer.path_frames)
                 for name, exp in params.experiments.items()]
@@ -31,7 +38,4 @@ def main(args, params) -> None:
 
 
 if __name__ == "__main__":
-    ap = stage_parser(SPEC, __doc__.strip().splitlines()[0])
-    ap.add_argument("--root", type=Path, default=Path("out"))
-    ap.add_argument("--out", type=Path, required=True)
-    sys.exit(run_stage(SPEC, ap, main))
+    sys.exit(run_stage(SPEC, stage_parser(SPEC, __doc__.strip().splitlines()[0]), main))

@@ -8,27 +8,38 @@ scale and opacity terms; write the stylized PLY, renders, a grid, a turntable vi
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
-from abcgs.io.metrics import write_metrics
-from abcgs.pipeline import StageSpec, run_stage, stage_parser
+from abcgs import layout
+from abcgs.io.metrics import info_path, write_metrics
+from abcgs.io.ply import read_ply
+from abcgs.masks.outputs import load_scene_masks
+from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.runtime import resolve_device, torch_threads
+from abcgs.sfm.model import read_colmap_scene
 from abcgs.stylize.experiment import (
-    colormatch_dir,
     colormatch_spec,
     experiment,
     load_groups,
-    load_scene,
-    load_scene_masks,
     load_vgg,
     read_colormatch,
 )
 from abcgs.stylize.loop import stylize_scene
 from abcgs.stylize.outputs import write_history, write_stylized_scene
 
+_S, _E = layout.scene("{item.scene}"), layout.experiment("{key}")
 SPEC = StageSpec("stylize", foreach="experiments", params=(
     "experiments.{key}", "colormatches.{item.colormatch}", "data.styles", "data.style_masks", "stylize",
     "isolation", "vgg", "viewer.camera_path", "viewer.path_frames", "runtime",
+), deps=(
+    Dep("colmap", _S.colmap.root, "the scene's COLMAP layout (reconstruct)"),
+    Dep("model", _S.fit.ply, "the fitted scene (fit)"),
+    Dep("masks", _S.masks.root, "the scene's content labels (masks)"),
+    Dep("colormatch", _S.colormatch("{item.colormatch}").root, "the colour-matched start (colormatch)"),
+), outs=(
+    Out(_E.stylize.root, "out", help="the stylized PLY, renders, grid, turntable"),
+    Out(_E.stylize_record, "metrics", help="the run's record JSON"),
+    Out(info_path(_E.stylize_record)),
+    Out(_E.stylize_history, "history", kind="plot", plot_axes=("step", "loss"), help="per-step loss terms CSV"),
 ))
 
 
@@ -37,9 +48,10 @@ def main(args, params) -> None:
     spec = colormatch_spec(params, exp.colormatch)
     sp = params.stylize
     device = resolve_device(params.runtime.device)
-    scene, original = load_scene(args.root, exp.scene)
-    matched = read_colormatch(colormatch_dir(args.root, exp.scene, exp.colormatch), exp.colormatch)
-    masks = load_scene_masks(args.root / exp.scene / "masks", scene, original.num_gaussians, device=device)
+    colmap = layout.ColmapDir(args.colmap)
+    scene, original = read_colmap_scene(colmap.sparse, colmap.images), read_ply(args.model)
+    matched = read_colormatch(args.colormatch, exp.colormatch)
+    masks = load_scene_masks(args.masks, scene, original.num_gaussians, device=device)
     original, matched = original.to(device), matched.to(device)
     vgg, info = load_vgg(params, device)
     groups = load_groups(params, spec, vgg, masks.gaussian_labels)
@@ -56,9 +68,4 @@ def main(args, params) -> None:
 
 
 if __name__ == "__main__":
-    ap = stage_parser(SPEC, __doc__.strip().splitlines()[0])
-    ap.add_argument("--root", type=Path, default=Path("out"))
-    ap.add_argument("--out", type=Path, required=True)
-    ap.add_argument("--metrics", type=Path, required=True, help="the run's record JSON (+ *_info.json)")
-    ap.add_argument("--history", type=Path, required=True, help="per-iteration loss terms CSV (a DVC plot)")
-    sys.exit(run_stage(SPEC, ap, main))
+    sys.exit(run_stage(SPEC, stage_parser(SPEC, __doc__.strip().splitlines()[0]), main))

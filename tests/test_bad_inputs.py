@@ -166,6 +166,8 @@ def test_a_full_disk_is_a_message_not_a_traceback(tmp_path: Path, capsys) -> Non
     def main(args, params):
         raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "out" / "point_cloud.ply"))
 
-    assert run_stage(spec, stage_parser(spec, "t"), main, ["--params", str(tmp_path / "params.yaml")]) == 2
+    (tmp_path / "stamp.json").write_text("{}")
+    argv = ["--params", str(tmp_path / "params.yaml"), "--preflight", str(tmp_path / "stamp.json")]
+    assert run_stage(spec, stage_parser(spec, "t"), main, argv) == 2
     err = capsys.readouterr().err
     assert "No space left on device writing" in err and "dvc gc" in err and "Traceback" not in err

@@ -1,5 +1,9 @@
-"""The cached DAG cannot lie: every stage's deps in dvc.yaml cover the code it runs, and its params are the ones it reads.
+"""The cached DAG cannot lie: every stage's deps in dvc.yaml cover the code it runs and the data it is given, and its
+params are the ones it reads; dvc.yaml is what ``python -m abcgs.dag --write`` makes of the stage specs.
 
+- Current: the committed dvc.yaml equals the generated one.
+- Data: a stage's data deps are exactly the paths its command line passes as inputs (``tests/test_pipeline_e2e.py``
+  checks that it reads nothing else under ``out/``).
 - Code: :func:`abcgs.dag.import_closure` of each stage script (every project module it imports, at any depth,
   with the C++ kernel sources and the viewer bundle) must be covered by the stage's ``deps``; a code dep that covers
   nothing it runs would re-run the stage for nothing and fails too.
@@ -9,14 +13,13 @@
 
 from __future__ import annotations
 
-import importlib.util
 import re
 from pathlib import Path
 
 import pytest
 import yaml
 
-from abcgs.dag import import_closure, missing_deps, unused_code_deps
+from abcgs.dag import import_closure, load_spec, missing_deps, pipeline_yaml, stage_closure, unused_code_deps
 from abcgs.params import load_params
 from abcgs.pipeline import StageSpec, UntrackedParamsError, tracked_view
 
@@ -39,16 +42,41 @@ def _deps(stage: dict) -> list[str]:
 
 
 def _spec(script: Path) -> StageSpec:
-    spec = importlib.util.spec_from_file_location(f"stage_{script.stem}", script)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.SPEC
+    return load_spec(script)
+
+
+def test_dvc_yaml_is_what_the_stage_specs_make() -> None:
+    assert (ROOT / "dvc.yaml").read_text(encoding="utf-8") == pipeline_yaml(ROOT), (
+        "dvc.yaml is not current: run `python -m abcgs.dag --write` and commit it")
+
+
+def _command_paths(cmd: str) -> dict[str, str]:
+    """``--option 'path'`` pairs of a stage command, with ``{x}`` written as dvc.yaml's ``${x}``."""
+    return {m.group(1): m.group(2).replace("{", "${") for m in re.finditer(r"--([\w-]+) '([^']*)'", cmd)}
+
+
+@pytest.mark.parametrize("name", sorted(DVC))
+def test_stage_data_deps_are_the_inputs_its_command_passes(name: str) -> None:
+    body = _body(DVC[name])
+    spec = _spec(_script(DVC[name]))
+    passed = _command_paths(body["cmd"])
+    data_deps = [d for d in _deps(DVC[name]) if not d.startswith(("abcgs/", "stages/"))]
+    inputs = [passed[d.option] for d in spec.inputs]
+    assert sorted(data_deps) == sorted(inputs), f"{name}: deps {data_deps} but its command passes inputs {inputs}"
+    outs = [next(iter(o)) if isinstance(o, dict) else o
+            for k in ("outs", "metrics", "plots") for o in body.get(k, [])]
+    for o in spec.outs:
+        if o.option and o.kind != "folder":
+            assert passed[o.option] in outs, f"{name}: --{o.option} {passed[o.option]} is not among its outputs {outs}"
+        elif o.option:  # a folder whose files are listed one by one
+            assert any(p.startswith(passed[o.option] + "/") for p in outs), f"{name}: nothing listed under --{o.option}"
+    assert set(passed) == {o.option for o in spec.options} | ({"params"} if name == "preflight" else set())
 
 
 @pytest.mark.parametrize("name", sorted(DVC))
 def test_stage_deps_cover_the_code_it_runs(name: str) -> None:
     stage = DVC[name]
-    closure = import_closure(_script(stage), ROOT)
+    closure = stage_closure(_script(stage), _spec(_script(stage)), ROOT)
     assert closure, "empty import closure"
     missing = missing_deps(closure, _deps(stage))
     assert not missing, (f"dvc.yaml stage {name!r} runs code its deps do not list: {[str(m) for m in missing]} "
@@ -104,7 +132,7 @@ def test_imports_under_type_checking_are_not_run_but_their_else_branch_is(tmp_pa
 def test_removing_one_imported_file_from_a_stage_deps_is_caught() -> None:
     stage = DVC["fit"]
     deps = _deps(stage)
-    closure = import_closure(_script(stage), ROOT)
+    closure = stage_closure(_script(stage), _spec(_script(stage)), ROOT)
     assert "abcgs/fit" in deps and not missing_deps(closure, deps)
     narrowed = [d for d in deps if d != "abcgs/fit"] + ["abcgs/fit/losses.py"]
     assert Path("abcgs/fit/trainer.py") in missing_deps(closure, narrowed)
@@ -128,3 +156,29 @@ def test_a_stage_cannot_read_params_it_does_not_track() -> None:
         _ = partial.experiments["tiny_semantic"]
     with pytest.raises(UntrackedParamsError):
         list(partial.experiments)
+
+
+@pytest.mark.parametrize("section", ["viewer"])
+def test_a_settings_module_is_a_dep_only_of_the_stages_that_read_its_section(section: str) -> None:
+    """Editing ``abcgs/view/params.py`` (say, a help text) leaves every stage up to date but those that read
+    ``viewer`` (and the preflight stage, which validates the whole file)."""
+    from abcgs.dag import covered
+    from abcgs.sections import SECTIONS
+
+    module = SECTIONS[section].file()
+    depending = {name for name, stage in DVC.items() if covered(Path(module), _deps(stage))}
+    reading = {name for name, stage in DVC.items() if section in _spec(_script(stage)).sections}
+    assert depending - reading == {"preflight"}, f"stages that depend on {module} without reading {section}"
+
+
+def test_an_imported_modules_main_block_is_not_run_but_the_scripts_is(tmp_path: Path) -> None:
+    pkg = tmp_path / "abcgs"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "cli.py").write_text("if __name__ == '__main__':\n    from abcgs import heavy\n")
+    for name in ("heavy", "tool"):
+        (pkg / f"{name}.py").write_text("")
+    script = tmp_path / "stage.py"
+    script.write_text("from abcgs import cli\nif __name__ == '__main__':\n    from abcgs import tool\n")
+    got = {p.as_posix() for p in import_closure(script, tmp_path)}
+    assert got == {"stage.py", "abcgs/__init__.py", "abcgs/cli.py", "abcgs/tool.py"}

@@ -130,6 +130,7 @@ def test_label_values_that_skip_numbers_and_resized_style_masks_are_warnings(tmp
 def test_a_file_size_limit_is_a_message_not_a_traceback(tmp_path: Path) -> None:
     """A real ``EFBIG``: the stage writes past ``ulimit -f`` (Python ignores SIGXFSZ, so the write fails)."""
     (tmp_path / "params.yaml").write_text("data: {scenes: {s: {path: s}}}\n")
+    (tmp_path / "stamp.json").write_text("{}")
     code = f"""
 import resource, sys
 from pathlib import Path
@@ -138,7 +139,8 @@ from abcgs.pipeline import StageSpec, run_stage, stage_parser
 resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
 spec = StageSpec("fit")
 sys.exit(run_stage(spec, stage_parser(spec, "t"), lambda a, p: write_text(Path({str(tmp_path)!r}) / "big.txt",
-                   "x" * (1 << 20)), ["--params", {str(tmp_path / "params.yaml")!r}]))
+                   "x" * (1 << 20)), ["--params", {str(tmp_path / "params.yaml")!r},
+                   "--preflight", {str(tmp_path / "stamp.json")!r}]))
 """
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2, proc.stderr

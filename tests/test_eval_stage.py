@@ -110,19 +110,20 @@ def test_mismatched_counts_and_missing_inputs_fail_clearly(scene, proxy, tmp_pat
     with pytest.raises(InputError, match="pairs views by their cameras"):
         evaluate_images(img, img, [img[0]], PARAMS, perceptual=proxy)
     from abcgs.evaluation.evaluate import load_stylize_run
+    from abcgs.layout import experiment
 
+    run = experiment("exp", tmp_path)
     with pytest.raises(InputError, match="run the stylize stage"):
-        load_stylize_run(tmp_path, "exp", ["a", "b", "c"])
-    run = tmp_path / "exp"
-    (run / "stylize" / "renders").mkdir(parents=True)
-    (run / "stylize" / "point_cloud.ply").write_bytes(b"")
-    (run / "stylize.json").write_text("{}")
+        load_stylize_run(run.stylize, run.stylize_record, "exp", ["a", "b", "c"])
+    run.stylize.renders.mkdir(parents=True)
+    run.stylize.ply.write_bytes(b"")
+    run.stylize_record.write_text("{}")
     for s in ("a", "b"):
-        (run / "stylize" / "renders" / f"{s}.png").write_bytes(b"")
+        (run.stylize.renders / f"{s}.png").write_bytes(b"")
     with pytest.raises(InputError, match="holds 2 renders but the scene has 3 views"):
-        load_stylize_run(tmp_path, "exp", ["a", "b", "c"])
+        load_stylize_run(run.stylize, run.stylize_record, "exp", ["a", "b", "c"])
     with pytest.raises(InputError, match="no render for views"):
-        load_stylize_run(tmp_path, "exp", ["a", "c"])
+        load_stylize_run(run.stylize, run.stylize_record, "exp", ["a", "c"])
     cams, model, styl, style = scene
     with pytest.raises(InputError, match="saved stylize renders"):
         evaluate_scene(cams[:3], model, styl, [style], PARAMS, perceptual=proxy, saved_renders=[img[0]] * 2)

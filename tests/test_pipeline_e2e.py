@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import os
 import re
 import shutil
 import subprocess
@@ -23,6 +24,7 @@ from conftest import REPO_ROOT, copy_repo, run_in
 
 from abcgs.io.metrics import numeric_leaves
 from abcgs.io.ply import read_ply
+from abcgs.pipeline import READ_AUDIT_ENV
 from eval.bench.regression import REDUCED
 from eval.bench.repo_copy import IDENTITY
 
@@ -44,9 +46,26 @@ def repo(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="module")
 def first_repro(repo: Path) -> subprocess.CompletedProcess:
-    proc = _run(["dvc", "repro"], repo, timeout=2400)  # ~8 min on an idle 2-core VM; generous for a shared one
+    env = {**os.environ, READ_AUDIT_ENV: str(repo.parent / "reads")}  # each stage records its reads under out/
+    proc = _run(["dvc", "repro"], repo, timeout=2400, env=env)  # ~8 min on an idle 2-core VM; generous when shared
     assert proc.returncode == 0, f"dvc repro failed:\n{proc.stdout[-4000:]}\n{proc.stderr[-4000:]}"
     return proc
+
+
+def test_each_stage_reads_under_out_only_its_declared_inputs(repo: Path, first_repro) -> None:
+    """What a stage opened or listed under ``out/`` through Python (``abcgs.pipeline.READ_AUDIT_ENV``) lies under
+    its deps or its own outputs in ``dvc.lock``: a stage cannot depend on an output DVC does not know it reads."""
+    lock = yaml.safe_load((repo / "dvc.lock").read_text())["stages"]
+    audits = sorted((repo.parent / "reads").glob("*.json"))
+    assert {a.stem for a in audits} >= {"preflight", "masks@tiny", "stylize@tiny_single", "evaluate@tiny_single"}
+    for audit in audits:
+        entry = lock[audit.stem]
+        allowed = [d["path"] for d in entry.get("deps", [])] + [o["path"] for o in entry.get("outs", [])]
+        reads = json.loads(audit.read_text())
+        stray = [r for r in reads if not any(r == a or r.startswith(a.rstrip("/") + "/") for a in allowed)]
+        assert not stray, f"{audit.stem} read {stray} under out/, which are not among its deps {allowed}"
+    stylize = json.loads((repo.parent / "reads" / "stylize@tiny_single.json").read_text())
+    assert any(r.startswith("out/tiny/masks/") for r in stylize), "the audit saw none of stylize's reads"
 
 
 def test_all_stages_write_their_artifacts(repo: Path, first_repro) -> None:

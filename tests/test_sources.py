@@ -424,12 +424,12 @@ def test_reconstruct_stage_reads_a_dataset_scene(tmp_path: Path, tiny_scene: Pat
     stage = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(stage)
     ap = stage.stage_parser(stage.SPEC, "reconstruct")
-    ap.add_argument("--out", type=Path)
-    ap.add_argument("--metrics", type=Path)
     ap.add_argument("--colmap-log", default="warning")
     out = tmp_path / "out"
-    assert run_stage(stage.SPEC, ap, stage.main, ["--params", str(tmp_path / "params.yaml"), "--scene", "s",
-                                                  "--out", str(out / "colmap"), "--metrics", str(out / "r.json")]) == 0
+    (tmp_path / "stamp.json").write_text("{}")
+    assert run_stage(stage.SPEC, ap, stage.main, [
+        "--params", str(tmp_path / "params.yaml"), "--scene", "s", "--preflight", str(tmp_path / "stamp.json"),
+        "--source", "{item.path}", "--out", str(out / "colmap"), "--metrics", str(out / "r.json")]) == 0
     record = json.loads((out / "r.json").read_text())
     assert record["format"] == "llff" and record["points_method"] == "triangulated" and record["seconds"] > 0
     assert_same_cameras(read_colmap_scene(out / "colmap" / "sparse", out / "colmap" / "images").cameras, cams, render)

@@ -49,7 +49,8 @@ def test_fit_stage_imports_an_inria_folder_and_export_gives_it_back(tmp_path: Pa
     assert record["psnr"] > 16.0 and json.loads((repo / "out/tiny2/fit_metrics.json").read_text())["heldout_psnr"] > 16.0
     assert read_ply(repo / "out/tiny2/gs/point_cloud.ply").num_gaussians == read_ply(repo / "out/tiny/gs/point_cloud.ply").num_gaussians
     # the export stage is the experiments' (it reads no params: the key names no file here, the paths are explicit)
-    proc = run_in(["python", "stages/export.py", "--experiment", "tiny_single", "--ply", "out/tiny2/gs/point_cloud.ply",
+    proc = run_in(["python", "stages/export.py", "--experiment", "tiny_single", "--preflight", "out/preflight.json",
+                   "--ply", "out/tiny2/gs/point_cloud.ply",
                    "--out", "out/tiny2/x.spz",
                    "--source", "out/tiny2/gs/splat_source.json", "--returned", "out/tiny2/returned"], repo, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]

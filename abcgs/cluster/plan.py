@@ -302,7 +302,7 @@ def _arrays(jobs: dict[str, Job], scenes: list[str], exp_scene: dict[str, str]) 
 # ------------------------------------------------------------------------------------------------ params
 def apply_sets(params: dict, sets: Iterable[str]) -> dict:
     """``params`` with ``KEY=VALUE`` changes (dotted keys, YAML values) applied in place; returns ``params``."""
-    from abcgs.params import set_dotted
+    from abcgs.sections import set_dotted
 
     for item in sets:
         key, eq, value = item.partition("=")

@@ -54,6 +54,7 @@ from abcgs.gaussians import GaussianModel, render
 from abcgs.io.images import save_image
 from abcgs.io.metrics import experiment_headline, read_record, write_headline, write_metrics
 from abcgs.io.tables import write_csv
+from abcgs.layout import ExperimentOut, StylizeDir
 from abcgs.viz import image_grid
 
 log = logging.getLogger(__name__)
@@ -337,11 +338,11 @@ def _evaluate_scene(cameras, original, stylized, style_images, params, *, styliz
     return res
 
 
-def load_stylize_run(root: Path, name: str, view_stems: list[str]) -> tuple[Path, dict, list[Path]]:
-    """The stylize stage's outputs for experiment ``name`` (PLY, record, one render per view in ``view_stems``'
-    order), checked against the scene's views."""
-    run = root / name
-    ply, record, renders = run / "stylize" / "point_cloud.ply", run / "stylize.json", run / "stylize" / "renders"
+def load_stylize_run(stylized: StylizeDir, record: Path, name: str,
+                     view_stems: list[str]) -> tuple[Path, dict, list[Path]]:
+    """The stylize stage's outputs for experiment ``name``: its folder ``stylized`` (PLY, one render per view in
+    ``view_stems``' order, checked against the scene's views) and its full ``record`` (``stylize_info.json``)."""
+    ply, renders = stylized.ply, stylized.renders
     for p in (ply, record, renders):
         if not p.exists():
             raise InputError(f"{p} is missing: run the stylize stage for experiment {name!r} first (dvc repro stylize@{name})")
@@ -363,9 +364,8 @@ def write_evaluation(record_path: Path, headline_path: Path, record: dict, resul
     headline DVC metric ``headline_path`` (:func:`abcgs.io.metrics.experiment_headline`), ``eval_views.csv`` (per-view
     scores, a DVC plot) and ``eval_consistency.png`` (one warped pair: error map, occlusion mask in cyan) beside the
     record."""
-    heat = result.heatmap
-    save_image(record_path.with_name("eval_consistency.png"),
-               image_grid([heat], result.heatmap_captions, height=max(160, heat[0].shape[0])))
-    write_csv(record_path.with_name("eval_views.csv"), result.per_view)
+    heat, beside = result.heatmap, ExperimentOut(record_path.parent)
+    save_image(beside.eval_consistency, image_grid([heat], result.heatmap_captions, height=max(160, heat[0].shape[0])))
+    write_csv(beside.eval_views, result.per_view)
     write_metrics(record_path, record)
     write_headline(headline_path, experiment_headline(result.metrics))

@@ -31,6 +31,7 @@ import io
 import os
 import struct
 import zlib
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -248,12 +249,17 @@ def export_record(model: GaussianModel, ply: str | os.PathLike, spz: str | os.Pa
     }
 
 
+def sidecar(spz: str | os.PathLike) -> Path:
+    """Where :func:`export_spz` writes the record of ``spz``: ``point_cloud.spz`` → ``point_cloud.spz.json``."""
+    return Path(f"{os.fspath(spz)}.json")
+
+
 def export_spz(ply: str | os.PathLike, spz: str | os.PathLike) -> dict:
-    """Convert the PLY ``ply`` to ``spz`` and write its record (:func:`export_record`) to ``<spz>.json``."""
+    """Convert the PLY ``ply`` to ``spz`` and write its record (:func:`export_record`) to :func:`sidecar`."""
     from abcgs.io.atomic import write_json
     from abcgs.io.ply import read_ply
 
     model = read_ply(ply)
     record = export_record(model, ply, spz, write_spz(spz, model))
-    write_json(f"{os.fspath(spz)}.json", record)
+    write_json(sidecar(spz), record)
     return record

@@ -19,6 +19,7 @@ from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.io.atomic import atomic_path, write_json
 from abcgs.io.images import load_image, load_labels, save_image, save_labels
+from abcgs.layout import MasksDir
 from abcgs.sfm.model import SceneData
 from abcgs.viz import colorize_labels, image_grid
 
@@ -32,18 +33,19 @@ OVERLAY_ROWS = 4
 def write_content_masks(out: Path, result: ContentMasks, cameras: list[Camera], image_paths: list[Path]) -> None:
     """Write ``out/`` (a folder, atomically) from the lifted masks ``result`` of the scene's ``cameras``."""
     with atomic_path(out, is_dir=True) as tmp:
-        np.save(tmp / "gaussian_labels.npy", result.gaussian_labels.numpy(force=True).astype(np.int64))
-        (tmp / "views").mkdir()
+        d = MasksDir(tmp)
+        np.save(d.gaussian_labels, result.gaussian_labels.numpy(force=True).astype(np.int64))
+        d.views.mkdir()
         rows = []
         for cam, path, lab in zip(cameras, image_paths, result.view_labels):
-            save_labels(tmp / "views" / f"{Path(cam.name).stem}.png", lab)
+            save_labels(d.views / f"{Path(cam.name).stem}.png", lab)
             if len(rows) < OVERLAY_ROWS:
                 img = load_image(path)
                 over = (0.5 * img + 0.5 * colorize_labels(lab) / 255.0).astype(np.float32)
                 rows.append([img, colorize_labels(lab), over])
-        save_image(tmp / "overlay.png", image_grid(rows, ["view", "lifted labels", "overlay"]))
+        save_image(d.overlay, image_grid(rows, ["view", "lifted labels", "overlay"]))
         labels, counts = np.unique(result.gaussian_labels.numpy(force=True), return_counts=True)
-        write_json(tmp / "masks.json", {
+        write_json(d.record, {
             "source": result.source, "input_views": result.input_views, "n_labels": result.n_labels,
             "gaussians_per_label": {str(k): int(v) for k, v in zip(labels, counts)},
             "agreement_with_input_masks": result.agreement,
@@ -73,11 +75,12 @@ class SceneMasks:
 def load_scene_masks(masks_dir: Path, scene: SceneData, n_gaussians: int, *,
                      device: torch.device | str = "cpu") -> SceneMasks:
     """The masks stage's output: Gaussian labels on ``device``, view label maps as host arrays."""
-    labels = torch.from_numpy(np.load(masks_dir / "gaussian_labels.npy")).long().to(device)
+    d = MasksDir(masks_dir)
+    labels = torch.from_numpy(np.load(d.gaussian_labels)).long().to(device)
     if labels.shape[0] != n_gaussians:
         raise InputError(
-            f"{masks_dir}/gaussian_labels.npy has {labels.shape[0]} labels but the scene has {n_gaussians} Gaussians; "
+            f"{d.gaussian_labels} has {labels.shape[0]} labels but the scene has {n_gaussians} Gaussians; "
             "re-run the masks stage (dvc repro)"
         )
-    views = [load_labels(masks_dir / "views" / f"{Path(c.name).stem}.png", expect_hw=(c.height, c.width)) for c in scene.cameras]
+    views = [load_labels(d.views / f"{Path(c.name).stem}.png", expect_hw=(c.height, c.width)) for c in scene.cameras]
     return SceneMasks(labels, views)

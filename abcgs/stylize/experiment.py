@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -16,9 +17,10 @@ from abcgs.features.weights import WeightsInfo, resolve_vgg16
 from abcgs.gaussians import GaussianModel
 from abcgs.io.images import load_labels
 from abcgs.io.ply import read_ply
-from abcgs.layout import colormatch_dir, load_scene
-from abcgs.masks.outputs import SceneMasks, load_scene_masks
-from abcgs.params import Params
+from abcgs.layout import ColorMatchDir
+
+if TYPE_CHECKING:  # the stages hand a view of their own sections
+    from abcgs.params import Params
 
 log = logging.getLogger(__name__)
 
@@ -41,15 +43,15 @@ def load_vgg(params: Params, device: torch.device | str = "cpu") -> tuple[VGG16F
     return vgg, info
 
 
-def check_bindings(params: Params, name: str, spec: TransferSpec, labels: torch.Tensor, masks_dir: Path) -> None:
-    """The labels colour match ``name`` binds exist among the Gaussians' ``labels`` (the masks stage's, from
-    ``masks_dir``) and in its painting's label map (:meth:`TransferSpec.check_labels`); cheap, before any work."""
+def check_bindings(params: Params, name: str, spec: TransferSpec, labels: torch.Tensor, labels_file: Path) -> None:
+    """The labels colour match ``name`` binds exist among the Gaussians' ``labels`` (the masks stage's, read from
+    ``labels_file``) and in its painting's label map (:meth:`TransferSpec.check_labels`); cheap, before any work."""
     present = {int(v) for v in torch.unique(labels)} - {0}
     regions, source = None, ""
     if spec.transfer == "semantic" and spec.style in params.data.style_masks:
         source = params.data.style_masks[spec.style]
         regions = {int(v) for v in np.unique(load_labels(source))} - {0}
-    spec.check_labels(name, present, f"the Gaussians' labels ({masks_dir}/gaussian_labels.npy)", regions, source)
+    spec.check_labels(name, present, f"the Gaussians' labels ({labels_file})", regions, source)
 
 
 def load_groups(params: Params, spec: TransferSpec, vgg: VGG16Features, labels: torch.Tensor) -> list[MatchingGroup]:
@@ -61,12 +63,10 @@ def load_groups(params: Params, spec: TransferSpec, vgg: VGG16Features, labels: 
 
 
 def read_colormatch(folder: Path, name: str) -> GaussianModel:
-    """The colour-matched Gaussians of stage ``colormatch@<name>``, with a clear error when it has not run."""
-    ply = folder / "point_cloud.ply"
+    """The colour-matched Gaussians of stage ``colormatch@<name>`` (its output ``folder``), with a clear error when
+    it has not run."""
+    ply = ColorMatchDir(folder).ply
     if not ply.is_file():
         raise InputError(f"{ply} is missing: run the colour match first (dvc repro colormatch@{name})")
     return read_ply(ply)
 
-
-__all__ = ["SceneMasks", "check_bindings", "colormatch_dir", "colormatch_spec", "experiment", "load_groups",
-           "load_scene", "load_scene_masks", "load_vgg", "read_colormatch"]

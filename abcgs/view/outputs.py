@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from abcgs import layout
 from abcgs.camera_paths import PathKind
 from abcgs.errors import InputError
 from abcgs.io.ply import read_ply
@@ -17,12 +18,12 @@ def experiment_scene(run_dir: Path, params_path: Path | None = Path("params.yaml
     """The scene key of the experiment in ``run_dir``: ``experiments.<name>.scene`` of the params file, else the
     only scene under ``run_dir``'s parent that has a fitted ``gs/point_cloud.ply``."""
     if params_path is not None and Path(params_path).is_file():
-        from abcgs.params import read_params_file
+        from abcgs.sections import read_params_file
 
         exp = (read_params_file(params_path).get("experiments") or {}).get(run_dir.name)
         if isinstance(exp, dict) and exp.get("scene"):
             return str(exp["scene"])
-    scenes = sorted(p.parent.parent.name for p in run_dir.parent.glob("*/gs/point_cloud.ply"))
+    scenes = sorted(p.name for p in run_dir.parent.iterdir() if layout.SceneOut(p).fit.ply.is_file())
     if len(scenes) == 1:
         return scenes[0]
     raise InputError(f"cannot tell which scene {run_dir} was made from (found {scenes or 'no fitted scene'}); "
@@ -37,15 +38,13 @@ def load_experiment(run_dir: Path, *, scene: str | None = None, root: Path | Non
     run_dir = Path(run_dir)
     root = Path(root) if root is not None else run_dir.parent
     scene = scene or experiment_scene(run_dir)
-    ply = run_dir / "stylize" / "point_cloud.ply"
+    ply = layout.ExperimentOut(run_dir).stylize.ply
     if not ply.is_file():
         raise InputError(f"{ply} does not exist; run the stylize stage for {run_dir.name} first")
-    scene_dir = root / scene
-    colmap = scene_dir / "colmap"
-    cams = read_colmap_scene(colmap / "sparse", colmap / "images").cameras
-    original = read_ply(scene_dir / "gs" / "point_cloud.ply") if (scene_dir / "gs" / "point_cloud.ply").is_file() else None
-    labels_path = scene_dir / "masks" / "gaussian_labels.npy"
-    labels = np.load(labels_path) if labels_path.is_file() else None
+    s = layout.scene(scene, root)
+    cams = read_colmap_scene(s.colmap.sparse, s.colmap.images).cameras
+    original = read_ply(s.fit.ply) if s.fit.ply.is_file() else None
+    labels = np.load(s.masks.gaussian_labels) if s.masks.gaussian_labels.is_file() else None
     return prepare_experiment(run_dir.name, read_ply(ply), cams, original=original, labels=labels,
                               max_gaussians=max_gaussians, full_artifact=str(ply), path_kind=path_kind,
                               path_frames=path_frames)

@@ -45,8 +45,10 @@ import torch
 import yaml
 
 from abcgs.io.atomic import write_json
-from abcgs.params import Params, deep_merge, validate_params
+from abcgs.params import Params, validate_params
+from abcgs.pipeline import stage_paths
 from abcgs.runtime import synchronize
+from abcgs.sections import deep_merge
 from abcgs.sfm.model import read_colmap_scene
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -169,21 +171,21 @@ def run_pipeline(params: Params, root: Path, scene: str, colmap: Path, experimen
     shutil.copytree(colmap, root / scene / "colmap", dirs_exist_ok=True)
     fit, masks, reference = _stage("fit"), _stage("masks"), _stage("reference")
     colormatch, stylize, evaluate = _stage("colormatch"), _stage("stylize"), _stage("evaluate")
-    ns = SimpleNamespace
-    _timed(times, f"{scene}: fit", device, lambda: fit.main(ns(
-        scene=scene, colmap=root / scene / "colmap", out=root / scene / "gs", headline=root / scene / "fit_metrics.json"), params))
-    _timed(times, f"{scene}: masks", device, lambda: masks.main(ns(root=root, scene=scene, out=root / scene / "masks"), params))
-    _timed(times, f"{scene}: reference", device, lambda: reference.main(
-        ns(root=root, scene=scene, out=root / scene / "reference"), params))
+    raw = params.model_dump()
+
+    def args(stage: ModuleType, key: str, **names: str) -> SimpleNamespace:
+        """The stage's arguments for entry ``key`` (its paths as dvc.yaml passes them, under ``root``)."""
+        return SimpleNamespace(**names, **stage_paths(stage.SPEC, raw, key, root))
+
+    _timed(times, f"{scene}: fit", device, lambda: fit.main(args(fit, scene, scene=scene), params))
+    _timed(times, f"{scene}: masks", device, lambda: masks.main(args(masks, scene, scene=scene), params))
+    _timed(times, f"{scene}: reference", device, lambda: reference.main(args(reference, scene, scene=scene), params))
     for cm in dict.fromkeys(params.experiments[e].colormatch for e in experiments):
         _timed(times, f"{cm}: colormatch", device, lambda cm=cm: colormatch.main(
-            ns(root=root, colormatch=cm, out=root / scene / "colormatch" / cm), params))
+            args(colormatch, cm, colormatch=cm), params))
     for e in experiments:
-        _timed(times, f"{e}: stylize", device, lambda e=e: stylize.main(ns(
-            root=root, experiment=e, out=root / e / "stylize", metrics=root / e / "stylize.json",
-            history=root / e / "stylize_history.csv"), params))
-        _timed(times, f"{e}: evaluate", device, lambda e=e: evaluate.main(ns(
-            root=root, experiment=e, out=root / e / "eval.json", headline=root / e / "metrics.json"), params))
+        _timed(times, f"{e}: stylize", device, lambda e=e: stylize.main(args(stylize, e, experiment=e), params))
+        _timed(times, f"{e}: evaluate", device, lambda e=e: evaluate.main(args(evaluate, e, experiment=e), params))
     return times
 
 

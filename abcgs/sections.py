@@ -1,0 +1,280 @@
+"""The sections of ``params.yaml``: where each section's model lives, and a params model made of some of them.
+
+A stage reads a few sections (its :class:`abcgs.pipeline.StageSpec`); :func:`validate_sections` validates exactly
+those, importing only their models (:data:`SECTIONS`), so a stage runs no schema code of a section it does not read
+and ``dvc.yaml`` lists only those modules (:func:`abcgs.dag.section_files`): editing the viewer's settings module
+re-runs only the stages that read ``viewer``. The whole file is validated by :mod:`abcgs.params` (the preflight
+stage, which every stage depends on, and the command-line tools), so a typo anywhere still fails before any work:
+
+    params.yaml: fit.iteratons: unknown key; allowed keys here: iterations, sh_degree, ...
+
+Each section's model lives in a ``params`` module of the package it configures (``abcgs/fit/params.py``,
+``abcgs/stylize/params.py``, …), which imports nothing heavier than pydantic; ``data`` (the scenes and paintings)
+in :mod:`abcgs.sources.params`, ``runtime`` in :mod:`abcgs.runtime`.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib
+import os
+import re
+import typing
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model, model_validator
+
+from abcgs.errors import ParamsError
+
+if TYPE_CHECKING:
+    from abcgs.features.params import TransferSpec
+
+SCENE_SECTIONS = ("reconstruct", "fit", "masks")
+"""Sections a scene may override in ``data.scenes.<name>``: the stages that run once per scene."""
+NAME_PATTERN = r"[A-Za-z0-9][A-Za-z0-9_.-]*"
+"""Names of scenes, styles, colour matches and experiments: folder names and DVC stage names, never shell syntax."""
+NAME_RE = re.compile(NAME_PATTERN)
+
+
+def deep_merge(base: dict, override: dict) -> dict:
+    """``base`` with ``override``'s keys put in, recursing into mappings present in both (neither is changed)."""
+    out = dict(base)
+    for k, v in override.items():
+        out[k] = deep_merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def set_dotted(params: dict, dotted: str, value: Any) -> None:
+    """``params[a][b][c] = value`` for ``dotted = "a.b.c"``, creating mappings on the way (``--set`` overrides)."""
+    *parents, leaf = dotted.split(".")
+    for key in parents:
+        params = params.setdefault(key, {})
+    params[leaf] = value
+
+
+@dataclass(frozen=True)
+class Section:
+    """One top-level section of ``params.yaml``: the model class that validates it, named by module and class (the
+    module is imported only when a stage reads the section), and whether it is a mapping of named entries."""
+
+    module: str
+    model: str
+    mapping: bool = False
+    required: bool = False
+    description: str = ""
+
+    def model_class(self) -> type[BaseModel]:
+        return getattr(importlib.import_module(self.module), self.model)
+
+    def file(self) -> str:
+        """The model's module as a repository path (``abcgs/fit/params.py``)."""
+        return self.module.replace(".", "/") + ".py"
+
+
+SECTIONS: dict[str, Section] = {
+    "data": Section("abcgs.sources.params", "DataParams", required=True),
+    "runtime": Section("abcgs.runtime", "RuntimeParams"),
+    "tiny": Section("abcgs.scene.params", "TinySceneParams"),
+    "reconstruct": Section("abcgs.sfm.params", "ReconstructParams"),
+    "fit": Section("abcgs.fit.params", "FitParams"),
+    "masks": Section("abcgs.masks.params", "MaskParams"),
+    "vgg": Section("abcgs.features.params", "VggWeightsParams"),
+    "isolation": Section("abcgs.features.params", "IsolationParams"),
+    "colormatch": Section("abcgs.stylize.params", "ColorMatchParams"),
+    "stylize": Section("abcgs.stylize.params", "StylizeParams"),
+    "evaluate": Section("abcgs.evaluation.params", "EvalParams"),
+    "viewer": Section("abcgs.view.params", "ViewerParams"),
+    "colormatches": Section(
+        "abcgs.features.params", "TransferSpec", mapping=True,
+        description="colour-matched starts: name → scene, transfer type, painting(s); shared by the experiments naming it"),
+    "experiments": Section(
+        "abcgs.features.params", "ExperimentParams", mapping=True,
+        description="stylization runs: name → scene, colormatch (a key of colormatches), loss method"),
+}
+"""Every top-level section of ``params.yaml``, in the file's order."""
+
+
+class ParamsBase(BaseModel):
+    """What every params model (the whole file, or a stage's sections) can answer; a question about a section the
+    model does not hold raises ``AttributeError``."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    def transfer_of(self, experiment: str) -> TransferSpec:
+        """The colour match (scene, transfer type, painting(s)) that ``experiment`` stylizes."""
+        return self.colormatches[self.experiments[experiment].colormatch]
+
+    def experiment_specs(self) -> dict[str, dict]:
+        """Every experiment as one flat record: its colour match's scene/transfer/style(s) and its own fields
+        (what reports and tables show)."""
+        return {name: {**self.transfer_of(name).model_dump(), **exp.model_dump()}
+                for name, exp in self.experiments.items()}
+
+    def scene_section(self, scene: str, section: str) -> BaseModel:
+        """The ``section`` (``reconstruct`` | ``fit`` | ``masks``) that ``scene``'s stages use: the global section
+        with the scene's override merged in (:func:`deep_merge`) and validated."""
+        if section not in SCENE_SECTIONS:
+            raise ValueError(f"{section!r} is not a per-scene section ({', '.join(SCENE_SECTIONS)})")
+        if scene not in self.data.scenes:
+            raise ParamsError(f"scene {scene!r} is not in data.scenes ({', '.join(self.data.scenes)})")
+        base = getattr(self, section)
+        override = getattr(self.data.scenes[scene], section)
+        if not override:
+            return base
+        return type(base).model_validate(deep_merge(base.model_dump(), override))
+
+    def scene_path(self, scene: str) -> str:
+        return self.data.scenes[scene].path
+
+    def _has(self, *sections: str) -> bool:
+        return all(s in type(self).model_fields for s in sections)
+
+    @model_validator(mode="after")
+    def _cross_check(self) -> ParamsBase:
+        """Checks across sections, each where the model holds the sections it needs."""
+        if self._has("data"):
+            self._check_scene_overrides()
+        self._check_names()
+        if self._has("data", "colormatches"):
+            self._check_colormatches()
+        if self._has("colormatches", "experiments"):
+            self._check_experiments()
+        return self
+
+    def _check_scene_overrides(self) -> None:
+        for name, scene in self.data.scenes.items():
+            for section in SCENE_SECTIONS:
+                if not getattr(scene, section) or not self._has(section):
+                    continue
+                try:
+                    self.scene_section(name, section)
+                except ValidationError as exc:
+                    prefix = f"data.scenes.{name}.{section}"
+                    body = format_validation_error(exc, prefix, type(getattr(self, section)))
+                    lines = body.splitlines()[1:]
+                    raise ValueError(f"{prefix}: the override does not fit `{section}`:\n" + "\n".join(
+                        f"    {prefix}.{line.strip()}" for line in lines)) from None
+
+    def _check_names(self) -> None:
+        named = [("colormatches", getattr(self, "colormatches", {})), ("experiments", getattr(self, "experiments", {}))]
+        if self._has("data"):
+            named += [("data.scenes", self.data.scenes), ("data.styles", self.data.styles),
+                      ("data.style_masks", self.data.style_masks)]
+        for section, names in named:
+            for name in names:
+                if not NAME_RE.fullmatch(str(name)):
+                    raise ValueError(f"{section}.{name!r}: a name must match {NAME_PATTERN} (letters, digits, '_', "
+                                     "'.', '-'; it becomes a folder name and a DVC stage name); rename it")
+
+    def _check_colormatches(self) -> None:
+        scenes = ", ".join(self.data.scenes)
+        for name, spec in self.colormatches.items():
+            if spec.scene not in self.data.scenes:
+                raise ValueError(f"colormatches.{name}.scene {spec.scene!r} is not in data.scenes ({scenes})")
+            for key in spec.style_keys():
+                if key not in self.data.styles:
+                    raise ValueError(f"colormatches.{name} uses style {key!r}, not in data.styles ({', '.join(self.data.styles)})")
+            if spec.transfer == "semantic" and spec.style not in self.data.style_masks:
+                raise ValueError(f"colormatches.{name} is semantic but data.style_masks has no label map for {spec.style!r}")
+
+    def _check_experiments(self) -> None:
+        for name, exp in self.experiments.items():
+            if exp.colormatch not in self.colormatches:
+                raise ValueError(f"experiments.{name}.colormatch {exp.colormatch!r} is not in colormatches "
+                                 f"({', '.join(self.colormatches) or 'none'})")
+            start = self.colormatches[exp.colormatch]
+            if exp.scene != start.scene:
+                raise ValueError(f"experiments.{name}.scene is {exp.scene!r} but its colour match colormatches."
+                                 f"{exp.colormatch} is on scene {start.scene!r}; make them the same")
+
+
+@functools.cache
+def params_model(sections: frozenset[str]) -> type[ParamsBase]:
+    """A params model holding ``sections`` (top-level names of :data:`SECTIONS`), in the file's order, with the same
+    defaults as the whole file's; it imports only those sections' modules."""
+    unknown = sorted(sections - SECTIONS.keys())
+    if unknown:
+        raise ValueError(f"not sections of params.yaml: {unknown}; the sections are {', '.join(SECTIONS)}")
+    fields: dict[str, Any] = {}
+    for name, sec in SECTIONS.items():
+        if name not in sections:
+            continue
+        model = sec.model_class()
+        if sec.mapping:
+            fields[name] = (dict[str, model], Field(default_factory=dict, description=sec.description))
+        elif sec.required:
+            fields[name] = (model, ...)
+        else:
+            fields[name] = (model, Field(default_factory=model))
+    whole = sections == frozenset(SECTIONS)
+    return create_model("Params" if whole else "StageParams", __base__=ParamsBase, **fields)
+
+
+def validate_sections(raw: Any, sections: frozenset[str], source: str = "params.yaml") -> ParamsBase:
+    """The ``sections`` of an already-parsed params file, validated; :class:`ParamsError` lists every problem.
+    The file's other sections are neither read nor validated."""
+    if not isinstance(raw, dict):
+        raise ParamsError(f"{source} must be a YAML mapping at the top level, got {type(raw).__name__}")
+    model = params_model(frozenset(sections))
+    whole = frozenset(sections) == frozenset(SECTIONS)  # the whole file: an unknown top-level key is an error too
+    try:
+        return model.model_validate(raw if whole else {k: v for k, v in raw.items() if k in sections})
+    except ValidationError as exc:
+        raise ParamsError(format_validation_error(exc, source, model)) from None
+
+
+def _model_at(model: type[BaseModel], loc: tuple[Any, ...]) -> type[BaseModel] | None:
+    """The pydantic model class that owns the key at ``loc`` (for listing allowed keys); ``dict[str, Model]``
+    fields (``data.scenes``, ``colormatches``, ``experiments``) are followed through their keys."""
+    current: Any = model
+    parts = list(loc[:-1])
+    while parts:
+        part = parts.pop(0)
+        if isinstance(part, int) or not (isinstance(current, type) and issubclass(current, BaseModel)):
+            return None
+        field = current.model_fields.get(part)
+        if field is None:
+            return None
+        current = field.annotation
+        if typing.get_origin(current) is dict and parts:
+            value = typing.get_args(current)[1]
+            parts.pop(0)  # the mapping's key (a scene or experiment name)
+            current = value
+    return current if isinstance(current, type) and issubclass(current, BaseModel) else None
+
+
+def format_validation_error(exc: ValidationError, source: str, model: type[BaseModel]) -> str:
+    lines = [f"{source} does not match the schema ({exc.error_count()} problem(s)):"]
+    for err in exc.errors():
+        loc = tuple(err["loc"])
+        path = ".".join(str(p) for p in loc) or "<top level>"
+        if err["type"] == "extra_forbidden":
+            owner = _model_at(model, loc)
+            allowed = ", ".join(owner.model_fields) if owner else "?"
+            lines.append(f"  {path}: unknown key; allowed keys here: {allowed}")
+        elif err["type"] == "missing":
+            lines.append(f"  {path}: required key is missing")
+        else:
+            got = err.get("input")
+            shown = repr(got)
+            # a whole section (e.g. the top-level mapping behind a cross-check) is noise, not the culprit
+            tail = "" if isinstance(got, (dict, list)) or len(shown) > 120 else f" (got {shown})"
+            msg = err["msg"].removeprefix("Value error, ")
+            lines.append(f"  {msg}" if not loc else f"  {path}: {msg}{tail}")
+    return "\n".join(lines)
+
+
+def read_params_file(path: str | os.PathLike = "params.yaml") -> Any:
+    """The parsed YAML of a params file (not validated), with a clear error when it is missing or not YAML."""
+    path = Path(path)
+    if not path.is_file():
+        raise ParamsError(f"{path} not found; run from the repository root or pass --params")
+    try:
+        return yaml.safe_load(path.read_text(encoding="utf-8"))
+    except yaml.YAMLError as exc:
+        raise ParamsError(f"{path} is not valid YAML: {exc}") from None
+
+

@@ -1,0 +1,98 @@
+"""The ``data`` section of ``params.yaml``: the scenes (folders, formats, per-scene overrides, trained splats) and the
+paintings."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from abcgs.sections import NAME_RE
+from abcgs.splats.params import SplatFormatParam, SplatViewsParams
+
+
+class SceneParams(BaseModel):
+    """``data.scenes.<name>``: the scene's folder, its format, and its overrides of the per-scene sections.
+
+    ``{path: data/fern, fit: {iterations: 3000}}`` fits this scene for 3000 steps and every other scene with
+    the global ``fit``. An override is a partial section, merged key by key (nested mappings too) over the
+    global one and validated as a whole: :meth:`Params.scene_section`. DVC tracks ``data.scenes.<name>`` for
+    that scene's stages only, so changing one scene's override re-runs that scene's branch alone.
+    A plain path is accepted as short for ``{path: ...}`` by the library; ``dvc.yaml`` reads ``${item.path}``,
+    so ``params.yaml`` writes the mapping (checked before any stage: :mod:`abcgs.preflight`).
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    path: str = Field(description="the scene's folder: photos in images/ (and optional masks/ with label PNGs of the "
+                      "same stem), or a dataset with its cameras (sparse/0/, transforms.json, transforms_train.json, "
+                      "poses_bounds.npy; abcgs/sources)")
+    format: Literal["auto", "photos", "colmap", "nerfstudio", "blender", "llff", "splat"] = Field(
+        "auto", description="where the cameras come from; auto = detected from the folder's files (abcgs/sources/detect.py)")
+    images: str | None = Field(
+        None, description="image subfolder (default images/), e.g. images_8 beside a full-size COLMAP model or LLFF poses")
+    background: tuple[float, float, float] | None = Field(
+        None, description="RGB in [0, 1] that RGBA views are composited on (blender; default white)")
+    reconstruct: dict[str, Any] = Field(default_factory=dict, description="overrides of `reconstruct` for this scene")
+    fit: dict[str, Any] = Field(default_factory=dict, description="overrides of `fit` for this scene")
+    masks: dict[str, Any] = Field(default_factory=dict, description="overrides of `masks` for this scene")
+    splat: str | None = Field(
+        None, description="a trained 3DGS splat (file or INRIA output folder), relative to `path` (so that DVC tracks "
+        "it with the scene) or absolute: the fit stage imports it instead of fitting (docs/SPLATS.md)")
+    splat_format: SplatFormatParam = Field("auto", description="the splat's format; auto detects it")
+    views: SplatViewsParams | None = Field(
+        None, description="for a scene that is only a splat (no photos, no cameras): the cameras made around it")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _path_shorthand(cls, data: Any) -> Any:
+        return {"path": data} if isinstance(data, str) else data
+
+    def splat_path(self, folder: str | os.PathLike | None = None) -> Path | None:
+        """The splat's path (``splat`` joined to the scene's folder, ``path`` or the given ``folder``, when relative),
+        ``None`` when the scene names none."""
+        if self.splat is None:
+            return None
+        p = Path(self.splat)
+        return p if p.is_absolute() else Path(self.path if folder is None else folder) / p
+
+    @field_validator("images")
+    @classmethod
+    def _subfolder(cls, v: str | None) -> str | None:
+        if v is not None and (not NAME_RE.fullmatch(v) or v in (".", "..")):
+            raise ValueError(f"images: {v!r} must be the name of a subfolder of the scene's folder (e.g. images_8)")
+        return v
+
+    @field_validator("background")
+    @classmethod
+    def _unit_rgb(cls, v: tuple[float, float, float] | None) -> tuple[float, float, float] | None:
+        if v is not None and not all(0.0 <= c <= 1.0 for c in v):
+            raise ValueError(f"background: {list(v)} must be RGB in [0, 1], e.g. [1, 1, 1] for white")
+        return v
+
+
+class DataParams(BaseModel):
+    """Where the scenes and style images are. Paths are relative to the repository root."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    scenes: dict[str, SceneParams] = Field(
+        description="scene name → {path: folder with images/ (and optional masks/) or a dataset with cameras, "
+        "format, images, background, reconstruct/fit/masks: overrides}"
+    )
+    styles: dict[str, str] = Field(default_factory=dict, description="style name → painting image file")
+    style_masks: dict[str, str] = Field(
+        default_factory=dict, description="style name → label PNG of that painting (semantic transfer)"
+    )
+
+    @field_validator("scenes")
+    @classmethod
+    def _some_scene(cls, v: dict[str, SceneParams]) -> dict[str, SceneParams]:
+        if not v:
+            raise ValueError("at least one scene is needed")
+        for name in v:
+            if not name.replace("_", "").replace("-", "").isalnum():
+                raise ValueError(f"scene name {name!r} must be letters, digits, '-' or '_' (it becomes a folder name)")
+        return v
