@@ -8,7 +8,7 @@ The library is organised one module per concept:
 - :mod:`abcgs.render`   — the differentiable Gaussian rasterizer (reference, fast CPU, gsplat backends).
 - :mod:`abcgs.sfm`      — structure from motion through pycolmap.
 - :mod:`abcgs.scene`    — the embedded synthetic default scene.
-- :mod:`abcgs.fit`      — baseline 3DGS fitting (losses, densification strategies, trainer).
+- :mod:`abcgs.fit`      — baseline 3DGS fitting (views, losses, densification strategies, training loop, evaluation).
 - :mod:`abcgs.style`    — ABC-GS: VGG features, FAST loss, colour match, style isolation, mask lifting.
 """
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import sys
 
 from abcgs import layout
-from abcgs.fit.trainer import fit_and_save
+from abcgs.fit.outputs import fit_and_save
 from abcgs.io.metrics import fit_headline, write_headline
 from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.runtime import resolve_device

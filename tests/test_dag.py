@@ -135,7 +135,7 @@ def test_removing_one_imported_file_from_a_stage_deps_is_caught() -> None:
     closure = stage_closure(_script(stage), _spec(_script(stage)), ROOT)
     assert "abcgs/fit" in deps and not missing_deps(closure, deps)
     narrowed = [d for d in deps if d != "abcgs/fit"] + ["abcgs/fit/losses.py"]
-    assert Path("abcgs/fit/trainer.py") in missing_deps(closure, narrowed)
+    assert Path("abcgs/fit/training.py") in missing_deps(closure, narrowed)
 
 
 def test_a_stage_cannot_read_params_it_does_not_track() -> None:

@@ -7,17 +7,11 @@ import math
 import pytest
 import torch
 
-from abcgs.fit.strategy import (
-    DefaultStrategy,
-    NoDensification,
-    StrategyParams,
-    duplicate,
-    remove,
-    reset_opacity,
-    scene_extent,
-    split,
-)
-from abcgs.fit.trainer import FitParams, make_optimizers
+from abcgs.fit.data import scene_extent
+from abcgs.fit.params import FitParams, StrategyParams
+from abcgs.fit.strategy import DefaultStrategy, NoDensification
+from abcgs.fit.strategy.ops import duplicate, remove, reset_opacity, split
+from abcgs.fit.training import make_optimizers
 from abcgs.gaussians import PARAM_NAMES, GaussianModel
 from abcgs.render import RenderMeta, quat_to_rotmat
 

@@ -13,8 +13,11 @@ import torch
 
 from abcgs.cameras import Camera, intrinsics, look_at
 from abcgs.errors import InputError, NumericalError
+from abcgs.fit.data import load_views
+from abcgs.fit.evaluation import evaluate
+from abcgs.fit.outputs import fit_and_save
 from abcgs.fit.params import FitParams, StrategyParams
-from abcgs.fit.trainer import evaluate, fit, fit_and_save, load_views
+from abcgs.fit.training import fit, view_order
 from abcgs.gaussians import GaussianModel, render
 from abcgs.io.images import load_image, save_image
 from abcgs.io.ply import read_ply
@@ -127,6 +130,15 @@ def test_no_densify_sh_degree_and_no_holdout(scene, tmp_path):
     assert result.model.sh_degree == 1 and result.model.shN.abs().sum() > 0  # band 1 trained after step 5
     assert result.heldout is None and json.loads((tmp_path / "metrics.json").read_text())["psnr"] is None
     assert (tmp_path / "heldout_grid.png").is_file()
+
+
+def test_view_order_visits_every_training_view_once_per_epoch():
+    order = view_order([1, 2, 3, 5, 6], np.random.default_rng(0))
+    epochs = [[next(order) for _ in range(5)] for _ in range(4)]
+    assert all(sorted(e) == [1, 2, 3, 5, 6] for e in epochs)
+    assert len({tuple(e) for e in epochs}) > 1  # a fresh order each epoch
+    with pytest.raises(InputError, match="no training views"):
+        next(view_order([], np.random.default_rng(0)))
 
 
 def test_nan_loss_names_step_and_term(scene):

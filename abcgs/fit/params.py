@@ -1,4 +1,4 @@
-"""The ``fit`` section's schema: the baseline 3DGS fit (:mod:`abcgs.fit.trainer`) and its densification
+"""The ``fit`` section's schema: the baseline 3DGS fit (:mod:`abcgs.fit.training`) and its densification
 strategy (:mod:`abcgs.fit.strategy`).
 
 Schema modules import nothing heavier than pydantic, so that reading ``params.yaml`` does not load the code

@@ -2,7 +2,7 @@
 
     record = import_and_save(scene, Path("data/garden/splat/point_cloud.ply"), "auto", fit_params, "out/garden/gs")
 
-Writes the same files as :func:`abcgs.fit.trainer.fit_and_save` — ``point_cloud.ply`` (INRIA layout, the scene's
+Writes the same files as :func:`abcgs.fit.outputs.fit_and_save` — ``point_cloud.ply`` (INRIA layout, the scene's
 frame, the source's SH degree), ``metrics.json`` (held-out PSNR/SSIM over the views ``fit.test_every`` holds out, as
 a fit's), ``history.csv`` (no steps: header only) and ``heldout_grid.png`` — plus ``splat_source.json``, the
 :class:`~abcgs.splats.formats.SplatProvenance` the ``export`` stage writes the stylized scene back with. A scene
@@ -17,8 +17,10 @@ from pathlib import Path
 
 import torch
 
+from abcgs.fit.data import SceneLike, load_views
+from abcgs.fit.evaluation import comparison_grid, evaluate
+from abcgs.fit.outputs import HISTORY_COLUMNS
 from abcgs.fit.params import FitParams
-from abcgs.fit.trainer import HISTORY_COLUMNS, SceneLike, comparison_grid, evaluate, load_views
 from abcgs.io.atomic import write_json
 from abcgs.io.images import save_image
 from abcgs.io.ply import write_ply
@@ -55,10 +57,8 @@ def import_and_save(scene: SceneLike, splat: str | os.PathLike, fmt: str, params
         backend = select_backend(torch.device(device), params.backend)
         check = check_splat(imported.model, scene, min_psnr=params.import_min_psnr, backend=backend, source=str(splat))
         views = load_views(scene, params.resolution_scale, params.test_every, device)
-        idx = views.test or views.train[:3]
         bg = torch.tensor(params.background, dtype=torch.float32, device=device)
-        ev = evaluate(imported.model, [views.cameras[i] for i in idx], [views.images[i] for i in idx], backend,
-                      background=bg, keep_images=True)
+        ev = evaluate(imported.model, *views.pick(views.test or views.train[:3]), backend, background=bg, keep_images=True)
     seconds = time.perf_counter() - t0
     prov = imported.provenance
     held = ev.to_dict() if views.test else None

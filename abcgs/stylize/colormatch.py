@@ -15,7 +15,9 @@ from torch import Tensor
 
 from abcgs.errors import InputError
 from abcgs.features.matching import ALL_PIXELS, MatchingGroup, TransferSpec
-from abcgs.fit.trainer import FitParams, Views, fit, load_views
+from abcgs.fit.data import Views, load_views
+from abcgs.fit.params import FitParams
+from abcgs.fit.training import fit
 from abcgs.gaussians import GaussianModel
 from abcgs.io.atomic import atomic_path, write_json
 from abcgs.io.images import save_image

@@ -23,8 +23,8 @@ import abcgs  # noqa: F401  (before torch: abcgs sets OpenMP's wait policy, see 
 # isort: split
 import torch
 
-from abcgs.fit.strategy import StrategyParams
-from abcgs.fit.trainer import FitParams, fit
+from abcgs.fit.params import FitParams, StrategyParams
+from abcgs.fit.training import fit
 from abcgs.io.atomic import write_json
 from abcgs.io.ply import write_ply
 from abcgs.sfm.colmap import ReconstructParams, reconstruct

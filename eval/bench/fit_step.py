@@ -26,8 +26,10 @@ import abcgs  # noqa: F401  (before torch: abcgs sets OpenMP's wait policy, see 
 # isort: split
 import torch
 
+from abcgs.fit.data import load_views
 from abcgs.fit.losses import reconstruction_loss
-from abcgs.fit.trainer import FitParams, load_views, make_optimizers
+from abcgs.fit.params import FitParams
+from abcgs.fit.training import make_optimizers
 from abcgs.gaussians import render
 from abcgs.io.atomic import write_json
 from abcgs.io.ply import read_ply

@@ -174,8 +174,8 @@ def main(argv: list[str] | None = None) -> dict:
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
 
-    from abcgs.fit.strategy import StrategyParams
-    from abcgs.fit.trainer import FitParams, fit
+    from abcgs.fit.params import FitParams, StrategyParams
+    from abcgs.fit.training import fit
     from abcgs.scene.synthetic import make_tiny_scene
     from abcgs.sfm.colmap import ReconstructParams, reconstruct, set_colmap_log_level
     from abcgs.sfm.model import read_colmap_scene

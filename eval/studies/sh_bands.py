@@ -30,7 +30,7 @@ from abcgs.features.matching import TransferSpec, build_groups, load_style
 from abcgs.features.vgg import VGG16Features
 from abcgs.features.weights import resolve_vgg16
 from abcgs.fit.params import FitParams, StrategyParams
-from abcgs.fit.trainer import fit
+from abcgs.fit.training import fit
 from abcgs.gaussians import GaussianModel, render
 from abcgs.io.atomic import write_json
 from abcgs.io.images import save_image
