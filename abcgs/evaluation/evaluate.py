@@ -1,7 +1,12 @@
 """Evaluate one stylized scene against its original: every metric of SPEC stage 7, with provenance.
 
-:func:`evaluate_scene` is the library entry (``stages/evaluate.py`` loads the pipeline outputs and calls it).
-Key names say what a number is: ``lpips`` / ``artfid`` appear only when the official networks ran;
+:func:`evaluate_scene` is the library entry (``stages/evaluate.py`` loads the pipeline outputs and calls it). Each
+metric is a function of its own module returning a frozen dataclass (:class:`~abcgs.evaluation.content.ContentScores`,
+:class:`~abcgs.evaluation.consistency.Consistency`, :class:`~abcgs.evaluation.reference.WarpFloor`,
+:class:`~abcgs.evaluation.fid.FidKid`, :class:`~abcgs.evaluation.style_distance.GramScores`,
+:class:`~abcgs.evaluation.artfid.ArtFID`, :class:`RenderSpeed`); :func:`evaluate_images` and :func:`evaluate_scene`
+collect them in an :class:`EvalResult`, and :func:`eval_record` / :func:`view_rows` are the one mapping from those
+fields to ``eval.json`` and ``eval_views.csv``. Key names say what a number is: ``lpips`` / ``artfid`` appear only when the official networks ran;
 offline they are ``lpips_proxy_vgg`` / ``artfid_proxy``; FID/KID are ``fid_tf_inception`` /
 ``kid_tf_inception`` (patch-based, TF-FID Inception). See the README section "Evaluation metrics".
 """
