@@ -186,6 +186,10 @@ def test_stored_reference_gives_the_same_metrics(scene, proxy, tmp_path) -> None
         load_reference(tmp_path / "ref", cams, PARAMS, model_digest="def")
     with pytest.raises(InputError, match="no evaluation reference"):
         load_reference(tmp_path / "nothing", cams, PARAMS, scene="tiny")
+    from abcgs.evaluation.reference import FLOW_SETTINGS, WarpFloor, settings_of
+
+    assert tuple(settings_of(PARAMS)) == FLOW_SETTINGS  # what the reference stage tracks is what it stores
+    assert WarpFloor.from_json(ref.floor.to_json()) == ref.floor == loaded.floor
 
 
 def test_a_reference_folder_is_the_same_bytes_when_computed_again(scene, tmp_path) -> None:

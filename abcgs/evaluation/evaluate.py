@@ -399,8 +399,10 @@ def evaluate_scene(
                            saved_renders=saved_renders, reference=reference, **kwargs)
 
 
-def _evaluate_scene(cameras, original, stylized, style_images, params, *, stylize_info=None, saved_renders=None,
-                    reference=None, **kwargs) -> EvalResult:
+def _evaluate_scene(cameras: list[Camera], original: GaussianModel, stylized: GaussianModel,
+                    style_images: list[np.ndarray], params: EvalParams, *, stylize_info: dict | None = None,
+                    saved_renders: list[np.ndarray] | None = None, reference: SceneReference | None = None,
+                    **kwargs) -> EvalResult:
     cams = evaluated_cameras(cameras, params)
     t = time.perf_counter()
     if reference is not None:

@@ -67,7 +67,10 @@ class SceneReference:
 
 
 def settings_of(params: EvalParams) -> dict:
-    return {k: getattr(params, k) for k in FLOW_SETTINGS}
+    """The :data:`FLOW_SETTINGS` of ``params``, in that order, as ``reference.json`` stores them."""
+    return {"flow": params.flow, "raft_weights": params.raft_weights, "raft_iterations": params.raft_iterations,
+            "pairs": params.pairs, "short_term_gap": params.short_term_gap, "long_term_gap": params.long_term_gap,
+            "max_views": params.max_views, "backend": params.backend}
 
 
 @torch.no_grad()
