@@ -223,8 +223,8 @@ def test_view_pairs_clip_gap() -> None:
 
 def test_consistency_of_a_static_stylization_is_zero(proxy) -> None:
     views = [shifted_pair(2 * k, k)[1] for k in range(3)]  # a camera panning over one texture
-    summary, _ = consistency(views, views, 1, FlowCache(views, FlowEstimator("dis")), proxy)
-    assert summary["n_pairs"] == 2 and summary["rmse"] < 0.02 and summary["valid_fraction"] > 0.8
+    summary = consistency(views, views, 1, FlowCache(views, FlowEstimator("dis")), proxy)
+    assert summary.n_pairs == 2 and summary.rmse < 0.02 and summary.valid_fraction > 0.8
 
 
 def test_consistency_pairs_views_of_different_sizes_on_one_grid(proxy) -> None:
@@ -232,15 +232,15 @@ def test_consistency_pairs_views_of_different_sizes_on_one_grid(proxy) -> None:
     on its first view's grid, the other resampled; a static stylization still scores ~0 and the count is reported."""
     views = [shifted_pair(2 * k, k)[1] for k in range(4)]
     views = [v if k % 2 == 0 else np.ascontiguousarray(v[:, :-1]) for k, v in enumerate(views)]  # odd views 159 px
-    summary, pairs = consistency(views, views, 1, FlowCache(views, FlowEstimator("dis")), proxy)
-    assert summary["n_pairs"] == 3 and summary["n_pairs_resampled"] == 3
-    assert summary["rmse"] < 0.03 and summary["valid_fraction"] > 0.8
-    assert all(p.warped.shape == views[p.i].shape for p in pairs)
+    summary = consistency(views, views, 1, FlowCache(views, FlowEstimator("dis")), proxy)
+    assert summary.n_pairs == 3 and summary.n_pairs_resampled == 3
+    assert summary.rmse < 0.03 and summary.valid_fraction > 0.8
+    assert all(p.warped.shape == views[p.i].shape for p in summary.pairs)
     # stylizing one view differently is still seen as an inconsistency across the size change
     changed = [v.copy() for v in views]
     changed[1] = 1.0 - changed[1]
-    worse, _ = consistency(views, changed, 1, FlowCache(views, FlowEstimator("dis")), proxy)
-    assert worse["rmse"] > 5 * summary["rmse"]
+    worse = consistency(views, changed, 1, FlowCache(views, FlowEstimator("dis")), proxy)
+    assert worse.rmse > 5 * summary.rmse
 
 
 def test_on_grid_keeps_matching_images_and_resamples_others() -> None:
@@ -415,7 +415,7 @@ def test_consistency_and_content_are_the_same_numbers_on_several_workers(proxy) 
     runs = []
     for workers in (1, 2, 3):
         flows = FlowCache(views, FlowEstimator("dis"))
-        summary, pairs = consistency(views, stylized, 1, flows, proxy, workers=workers)
-        runs.append((summary, [(p.i, p.j, p.rmse, p.perceptual) for p in pairs]))
-    assert runs[0][0]["n_pairs"] == 4 and np.isfinite(runs[0][0]["perceptual"])
+        summary = consistency(views, stylized, 1, flows, proxy, workers=workers)
+        runs.append((summary, [(p.i, p.j, p.rmse, p.perceptual) for p in summary.pairs]))
+    assert runs[0][0].n_pairs == 4 and np.isfinite(runs[0][0].perceptual)
     assert runs[1] == runs[0] and runs[2] == runs[0]

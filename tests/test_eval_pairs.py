@@ -162,9 +162,9 @@ def fern_consistency(cams: list[Camera], photos: list[np.ndarray], mode: str) ->
     floor = compute_floor(photos, pairs, flows)
     out = {}
     for kind in ("short", "long"):
-        summary, _ = consistency(photos, stylized, pairs.of(kind), flows, None)
-        out |= {f"{kind}_rmse": summary["rmse"], f"{kind}_valid": summary["valid_fraction"],
-                f"{kind}_floor": floor[kind]["rmse"]}
+        summary = consistency(photos, stylized, pairs.of(kind), flows, None)
+        out |= {f"{kind}_rmse": summary.rmse, f"{kind}_valid": summary.valid_fraction,
+                f"{kind}_floor": floor.of(kind).rmse}
     return out
 
 

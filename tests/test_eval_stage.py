@@ -4,7 +4,9 @@ bad inputs (missing runs, mismatched view counts) fail with clear errors."""
 from __future__ import annotations
 
 import json
+import re
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +19,7 @@ from abcgs.evaluation.content import PerceptualDistance
 from abcgs.evaluation.evaluate import evaluate_images, evaluate_scene
 from abcgs.evaluation.params import EvalParams
 from abcgs.gaussians import GaussianModel
+from abcgs.io.metrics import EXPERIMENT_HEADLINE, experiment_headline
 from abcgs.render.sh import rgb_to_sh0
 from abcgs.runtime import torch_threads
 
@@ -184,6 +187,10 @@ def test_stored_reference_gives_the_same_metrics(scene, proxy, tmp_path) -> None
         load_reference(tmp_path / "ref", cams, PARAMS, model_digest="def")
     with pytest.raises(InputError, match="no evaluation reference"):
         load_reference(tmp_path / "nothing", cams, PARAMS, scene="tiny")
+    from abcgs.evaluation.reference import FLOW_SETTINGS, WarpFloor, settings_of
+
+    assert tuple(settings_of(PARAMS)) == FLOW_SETTINGS  # what the reference stage tracks is what it stores
+    assert WarpFloor.from_json(ref.floor.to_json()) == ref.floor == loaded.floor
 
 
 def test_a_reference_folder_is_the_same_bytes_when_computed_again(scene, tmp_path) -> None:
@@ -212,3 +219,39 @@ def test_pair_workers_give_the_same_metrics(scene, proxy) -> None:
     two = evaluate_scene(cams, model, styl, [style], PARAMS.model_copy(update={"workers": 2}), perceptual=proxy)
     assert _numbers(two.metrics) == _numbers(one.metrics)
     assert one.metrics["speed"]["pair_workers"] == 1 and two.metrics["speed"]["pair_workers"] == 2
+
+
+def _headline_table() -> set[str]:
+    """The keys in the first column of docs/METRICS.md's per-experiment headline table."""
+    text = (REPO / "docs" / "METRICS.md").read_text().split("Per experiment (`out/<exp>/metrics.json`):", 1)[1]
+    rows = text.strip().splitlines()
+    rows = rows[: next((k for k, line in enumerate(rows) if not line.startswith("|")), len(rows))]
+    return {key for line in rows for key in re.findall(r"`([a-z_]+)`", line.split("|")[1])}
+
+
+def test_the_record_gives_the_documented_headline_and_view_columns(scene, proxy) -> None:
+    """``eval_record`` is the one mapping from the typed results to ``eval.json``: the headline picked from it has one
+    key per :data:`EXPERIMENT_HEADLINE` name, the same keys as the committed tiny experiment's ``metrics.json`` and
+    docs/METRICS.md's table; ``eval_views.csv`` the committed columns. With the official components (real LPIPS,
+    art-Inception) the same fields go under the official names, and no proxy name is left."""
+    from abcgs.evaluation.reference import render_views
+
+    cams, model, styl, style = scene
+    res = evaluate_scene(cams, model, styl, [style], PARAMS, perceptual=proxy, stylize_info={"stylize_seconds": 30.0},
+                         saved_renders=render_views(styl, cams, "auto")[0])
+    head = experiment_headline(res.metrics)
+    committed = json.loads((REPO / "out" / "tiny_single" / "metrics.json").read_text())
+    assert len(head) == len(EXPERIMENT_HEADLINE)
+    assert set(head) == set(committed) == _headline_table()
+    header = (REPO / "out" / "tiny_single" / "eval_views.csv").read_text().splitlines()[0].split(",")
+    assert list(res.per_view[0]) == header and len(res.per_view) == len(cams)
+
+    ev = res.images
+    official = replace(res, images=replace(ev, content=replace(ev.content, perceptual_name="lpips"),
+                                           artfid=replace(ev.artfid, official=True)))
+    m = official.metrics
+    assert set(experiment_headline(m)) == {k.replace("_proxy_vgg", "").replace("artfid_proxy", "artfid") for k in head}
+    assert not [k for k in m if "proxy" in k] and m["artfid"] == res.metrics["artfid_proxy"]
+    assert m["short_lpips"] == res.metrics["short_lpips_proxy_vgg"]
+    assert m["consistency_pairs"]["short"][0]["lpips"] == res.metrics["consistency_pairs"]["short"][0]["lpips_proxy_vgg"]
+    assert list(official.per_view[0]) == [c.replace("_proxy_vgg", "") for c in header]

@@ -21,6 +21,7 @@ Hugging Face access). So:
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +29,8 @@ import torch
 import torch.nn.functional as F
 
 from abcgs.errors import InputError
-from abcgs.evaluation.fid import INCEPTION_SIZE, _sha
+from abcgs.evaluation.content import ContentScores
+from abcgs.evaluation.fid import INCEPTION_SIZE, FidKid, _sha, fid_from_features
 
 ART_INCEPTION_HUB_FILE = "art_inception_torchscript.pt"
 
@@ -78,3 +80,46 @@ class ArtInception:
     def provenance(self) -> dict:
         return {"network": "art-trained Inception-v3 (ArtFID), TorchScript export", "path": str(self.path),
                 "sha256": _sha(str(self.path))}
+
+
+@dataclass(frozen=True)
+class ArtFID:
+    """ArtFID = (1 + content distance) × (1 + style FID), official or the named proxy (module docstring)."""
+
+    value: float | None
+    """The combination, >= 1, lower is better; None when ``evaluate.fid`` is false."""
+    official: bool
+    """True: both official components ran (record key ``artfid``); False: the proxy (``artfid_proxy``)."""
+    content_name: str
+    """The content distance used: ``lpips`` or ``lpips_proxy_vgg``."""
+    content_value: float
+    """Its mean over the views."""
+    style_name: str
+    """The FID used: ``fid_art_inception`` (official) or ``fid_tf_inception``."""
+    style_value: float | None
+    """That FID between the style and the stylized patches; None when not computed."""
+    style_network: dict | None
+    """:meth:`ArtInception.provenance` when the art-trained Inception ran, else None."""
+    note: str
+    """Why the value is official or a proxy (recorded under ``artfid_components``)."""
+
+
+def artfid(content: ContentScores, fid: FidKid, perceptual_note: str, art_inception_path: str | None, *,
+           batch: int = 16, device: torch.device | str = "cpu") -> ArtFID:
+    """ArtFID when real LPIPS ran and an art-Inception is found (:func:`find_art_inception`), on the same random
+    patches as ``fid``; else the proxy with ``fid``'s TF-Inception FID. ``perceptual_note``: why the perceptual
+    distance is what it is (:attr:`~abcgs.evaluation.content.PerceptualDistance.note`)."""
+    art_path, art_why = find_art_inception(art_inception_path)
+    name, mean = content.perceptual_name, content.perceptual_mean
+    if fid.fid is None:
+        return ArtFID(None, False, name, mean, "fid_tf_inception", None, None, "not computed: evaluate.fid is false")
+    if art_path is not None and name == "lpips":
+        art = ArtInception(art_path, batch, device)
+        fid_art = fid_from_features(art.features(fid.style_patches), art.features(fid.stylized_patches))
+        return ArtFID(artfid_formula(mean, fid_art), True, name, mean, "fid_art_inception", fid_art, art.provenance(),
+                      "official components (LPIPS-alex, art-trained Inception); FID on the same random patches as "
+                      "fid_tf_inception")
+    reasons = [r for r in ((None if name == "lpips" else f"content distance is {name}: {perceptual_note}"),
+                           (None if art_path is not None else art_why)) if r]
+    return ArtFID(artfid_formula(mean, fid.fid), False, name, mean, "fid_tf_inception", fid.fid, None,
+                  "proxy, NOT comparable to the paper's ArtFID: " + "; ".join(reasons))

@@ -52,12 +52,16 @@ from abcgs.evaluation.content import (
     check_pair,
     check_same_count,
     masked_rmse,
+    nan_mean,
 )
 from abcgs.evaluation.pairs import path_pairs
 from abcgs.evaluation.parallel import ordered_map
 
 FB_ALPHA = 0.01
 FB_BETA = 0.5
+OCCLUSION_TEST = ("forward-backward check |f_fw + f_bw(x+f_fw)|^2 < 0.01(|f_fw|^2+|f_bw|^2) + 0.5 (Sundaram et al. 2010) "
+                  "and target inside the frame")
+"""The mask :func:`fb_consistency_mask` applies, in words (recorded with the numbers)."""
 
 
 def flow_status(method: str) -> tuple[bool, str]:
@@ -339,11 +343,34 @@ def evaluate_pair(i: int, j: int, stylized: list[np.ndarray], flows: FlowCache, 
     return warp_error(i, j, stylized, f_ij, fb_consistency_mask(f_ij, f_ji), perceptual)
 
 
+@dataclass(frozen=True)
+class Consistency:
+    """Warp error of one kind of view pair (e.g. the short- or the long-range pairs) over a set of views."""
+
+    rmse: float
+    """Mean over the pairs of the masked RMSE, image values in [0, 1] averaged over the 3 channels; pairs without a
+    valid pixel left out (NaN when no pair has one)."""
+    perceptual: float
+    """Mean over the pairs of the masked perceptual distance (its name: the ``PerceptualDistance``'s); NaN when none
+    was given."""
+    valid_fraction: float
+    """Mean over the pairs of the fraction of view ``i``'s pixels the occlusion/in-frame mask keeps, in [0, 1]."""
+    n_pairs_resampled: int
+    """Pairs whose view ``j`` differed in size and was resampled onto view ``i``'s grid."""
+    pairs: tuple[PairResult, ...] = field(repr=False, compare=False)
+    """Per pair ``(i, j)`` (view ``j`` warped into view ``i``), in the order the pairs were given (not compared:
+    they hold images)."""
+
+    @property
+    def n_pairs(self) -> int:
+        return len(self.pairs)
+
+
 def consistency(
     originals: list[np.ndarray], stylized: list[np.ndarray], pairs: int | Sequence[tuple[int, int]], flows: FlowCache,
     perceptual: PerceptualDistance | None, *, workers: int = 1,
-) -> tuple[dict, list[PairResult]]:
-    """Mean masked RMSE / perceptual distance / valid fraction over ``pairs``; per-pair results.
+) -> Consistency:
+    """Mean masked RMSE / perceptual distance / valid fraction over ``pairs``, and the per-pair results.
 
     ``pairs``: ``(i, j)`` list indices (view ``j`` warped into view ``i``; e.g. a
     :class:`~abcgs.evaluation.pairs.ViewPairs`' ``short``), or an int: that gap in list order (:func:`view_pairs`).
@@ -360,20 +387,17 @@ def consistency(
         hw = tuple(np.shape(stylized[i])[:2])
         flows(i, j, hw), flows(j, i, hw)
     results = ordered_map(lambda ij: evaluate_pair(ij[0], ij[1], stylized, flows, perceptual), pairs, workers)
-    rm = np.array([r.rmse for r in results])
-    pc = np.array([r.perceptual for r in results])
-    summary = {
-        "n_pairs": len(results),
-        "rmse": float(np.nanmean(rm)) if np.isfinite(rm).any() else float("nan"),
-        "perceptual": float(np.nanmean(pc)) if np.isfinite(pc).any() else float("nan"),
-        "valid_fraction": float(np.mean([r.valid_fraction for r in results])),
-        "n_pairs_resampled": sum(r.resampled for r in results),
-    }
-    return summary, results
+    return Consistency(
+        pairs=tuple(results),
+        rmse=nan_mean([r.rmse for r in results]),
+        perceptual=nan_mean([r.perceptual for r in results]),
+        valid_fraction=float(np.mean([r.valid_fraction for r in results])),
+        n_pairs_resampled=sum(r.resampled for r in results),
+    )
 
 
 def warp_floor(originals: list[np.ndarray], pairs: int | Sequence[tuple[int, int]], flows: FlowCache, *,
-               workers: int = 1) -> tuple[dict, list[PairResult]]:
+               workers: int = 1) -> Consistency:
     """The unstylized scene's own warp error: :func:`consistency` of the original renders against themselves.
 
     Original view ``j`` warped into view ``i`` with the same flows and masks a stylization is measured with; the

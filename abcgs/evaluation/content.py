@@ -35,6 +35,7 @@ import importlib.metadata
 import importlib.util
 import logging
 from collections.abc import Sequence
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
@@ -44,6 +45,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from abcgs.errors import InputError
+from abcgs.evaluation.parallel import ordered_map
 
 log = logging.getLogger(__name__)
 
@@ -110,7 +112,8 @@ def pyiqa_available() -> bool:
     return importlib.util.find_spec("pyiqa") is not None
 
 
-def _version(dist: str) -> str | None:
+def package_version(dist: str) -> str | None:
+    """The installed version of distribution ``dist``; None when it is not installed."""
     try:
         return importlib.metadata.version(dist)
     except importlib.metadata.PackageNotFoundError:
@@ -141,7 +144,14 @@ class SSIM:
     def provenance(self) -> dict:
         if self.impl == "wang":
             return {"ssim_impl": "abcgs_wang", "ssim_params": SSIM_DOC}
-        return {"ssim_impl": "pyiqa", "ssim_params": "pyiqa.create_metric('ssim') defaults", "pyiqa_version": _version("pyiqa")}
+        return {"ssim_impl": "pyiqa", "ssim_params": "pyiqa.create_metric('ssim') defaults", "pyiqa_version": package_version("pyiqa")}
+
+
+def nan_mean(values: Sequence[float]) -> float:
+    """Mean over the finite-or-infinite entries, NaNs left out; NaN when every entry is NaN (e.g. pairs with no
+    valid pixel)."""
+    a = np.asarray(values, np.float64)
+    return float(np.nanmean(a)) if np.isfinite(a).any() else float("nan")
 
 
 def masked_rmse(a, b, mask: np.ndarray | None = None) -> float:
@@ -206,7 +216,7 @@ class PerceptualDistance:
             self._lpips_spatial.spatial = True
             self.name = "lpips"
             self.info = {"name": "lpips", "implementation": "lpips.LPIPS(net='alex') v0.1, inputs in [-1, 1]",
-                         "lpips_version": _version("lpips"), "backbone": str(lpips_backbone_file())}
+                         "lpips_version": package_version("lpips"), "backbone": str(lpips_backbone_file())}
             return
         from abcgs.features.vgg import VGG16Features
 
@@ -255,3 +265,39 @@ class PerceptualDistance:
                 w = float(mk.sum())
                 total += float((d * mk).sum() / w) if w > 0 else 0.0
         return total
+
+
+# ---------------------------------------------------------------------------------------------- scores
+@dataclass(frozen=True)
+class ContentScores:
+    """Content preservation of a stylization: each stylized render against the original render of its view."""
+
+    ssim: tuple[float, ...]
+    """``(n_views,)`` SSIM per view (:attr:`ssim_impl`), in [-1, 1]; 1 = identical."""
+    perceptual: tuple[float, ...]
+    """``(n_views,)`` perceptual distance per view (:attr:`perceptual_name`), >= 0; 0 = identical."""
+    perceptual_name: str
+    """``lpips`` (real LPIPS-alex) or ``lpips_proxy_vgg`` (:class:`PerceptualDistance`)."""
+    ssim_impl: str
+    """Which SSIM ran: ``abcgs_wang`` or ``pyiqa`` (:meth:`SSIM.provenance`)."""
+
+    @property
+    def ssim_mean(self) -> float:
+        """Mean SSIM over the views (NaNs left out)."""
+        return nan_mean(self.ssim)
+
+    @property
+    def perceptual_mean(self) -> float:
+        """Mean perceptual distance over the views (NaNs left out)."""
+        return nan_mean(self.perceptual)
+
+
+def content_scores(originals: Sequence[np.ndarray], stylized: Sequence[np.ndarray], ssim: SSIM,
+                   perceptual: PerceptualDistance, workers: int = 1) -> ContentScores:
+    """SSIM and perceptual distance of every (original, stylized) render pair, channels-last in [0, 1], on
+    ``workers`` threads (:func:`abcgs.evaluation.parallel.ordered_map`: the same numbers for any count)."""
+    check_same_count(originals, stylized)
+    pairs = list(zip(originals, stylized))
+    return ContentScores(tuple(ordered_map(lambda pair: ssim(*pair), pairs, workers)),
+                         tuple(ordered_map(lambda pair: perceptual(*pair), pairs, workers)),
+                         perceptual.name, ssim.provenance()["ssim_impl"])

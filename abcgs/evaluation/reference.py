@@ -29,7 +29,7 @@ import torch
 
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
-from abcgs.evaluation.consistency import FlowCache, PairResult, make_flow_estimator, warp_floor
+from abcgs.evaluation.consistency import Consistency, FlowCache, make_flow_estimator, warp_floor
 from abcgs.evaluation.pairs import ViewPairs, consistency_pairs
 from abcgs.evaluation.params import EvalParams
 from abcgs.gaussians import GaussianModel, render
@@ -53,8 +53,8 @@ class SceneReference:
     flows: dict[FlowKey, np.ndarray]
     """``(i, j, (H, W))`` → ``(H, W, 2)`` float32 flow in pixels from view ``i`` to ``j`` on the grid ``(H, W)``."""
     pairs: ViewPairs
-    floor: dict
-    """:func:`floor_record`: per kind (``short``, ``long``) the unstylized scene's mean warp RMSE and per pair."""
+    floor: WarpFloor
+    """Per kind (``short``, ``long``) the unstylized scene's mean warp RMSE and per pair (:func:`compute_floor`)."""
     info: dict = field(default_factory=dict)
     """What ``reference.json`` stores: views, settings, pairs, floor, provenance. Deterministic: the folder's hash
     is a dependency of every evaluation of the scene."""
@@ -67,7 +67,10 @@ class SceneReference:
 
 
 def settings_of(params: EvalParams) -> dict:
-    return {k: getattr(params, k) for k in FLOW_SETTINGS}
+    """The :data:`FLOW_SETTINGS` of ``params``, in that order, as ``reference.json`` stores them."""
+    return {"flow": params.flow, "raft_weights": params.raft_weights, "raft_iterations": params.raft_iterations,
+            "pairs": params.pairs, "short_term_gap": params.short_term_gap, "long_term_gap": params.long_term_gap,
+            "max_views": params.max_views, "backend": params.backend}
 
 
 @torch.no_grad()
@@ -106,15 +109,58 @@ def flow_pairs(originals: list[np.ndarray], pairs: ViewPairs) -> list[FlowKey]:
     return keys
 
 
-def floor_record(summary: dict, results: list[PairResult]) -> dict:
-    """One kind's floor as stored: mean masked RMSE, mean valid fraction and per pair ``[i, j, rmse]``."""
-    return {"rmse": summary["rmse"], "valid_fraction": summary["valid_fraction"],
-            "per_pair": [[r.i, r.j, r.rmse] for r in results]}
+@dataclass(frozen=True)
+class KindFloor:
+    """The unstylized scene's warp error over one kind of consistency pair (short or long)."""
+
+    rmse: float
+    """Mean masked warp RMSE over the pairs, image values in [0, 1] (the units of ``short_rmse``/``long_rmse``)."""
+    valid_fraction: float
+    """Mean fraction of the pairs' first-view pixels the occlusion/in-frame mask keeps, in [0, 1]."""
+    per_pair: tuple[tuple[int, int, float], ...]
+    """``(i, j, rmse)`` per pair: view ``j`` warped into view ``i``."""
+
+    def rmse_of(self, i: int, j: int) -> float | None:
+        """The RMSE of pair ``(i, j)``; None when the floor has no such pair."""
+        return next((r for a, b, r in self.per_pair if (a, b) == (i, j)), None)
+
+    @classmethod
+    def of_consistency(cls, c: Consistency) -> KindFloor:
+        return cls(c.rmse, c.valid_fraction, tuple((r.i, r.j, r.rmse) for r in c.pairs))
+
+    def to_json(self) -> dict:
+        return {"rmse": self.rmse, "valid_fraction": self.valid_fraction,
+                "per_pair": [[i, j, r] for i, j, r in self.per_pair]}
+
+    @classmethod
+    def from_json(cls, d: dict) -> KindFloor:
+        return cls(d["rmse"], d["valid_fraction"], tuple((int(i), int(j), r) for i, j, r in d["per_pair"]))
 
 
-def compute_floor(originals: list[np.ndarray], pairs: ViewPairs, flows: FlowCache) -> dict:
+@dataclass(frozen=True)
+class WarpFloor:
+    """The floor of the consistency metrics: :func:`~abcgs.evaluation.consistency.warp_floor` over the short- and
+    the long-range pairs. Stored in ``reference.json`` as ``{"short": ..., "long": ...}`` (:meth:`to_json`)."""
+
+    short: KindFloor
+    long: KindFloor
+
+    def of(self, kind: str) -> KindFloor:
+        """``kind``: ``short`` or ``long``."""
+        return {"short": self.short, "long": self.long}[kind]
+
+    def to_json(self) -> dict:
+        return {"short": self.short.to_json(), "long": self.long.to_json()}
+
+    @classmethod
+    def from_json(cls, d: dict) -> WarpFloor:
+        return cls(KindFloor.from_json(d["short"]), KindFloor.from_json(d["long"]))
+
+
+def compute_floor(originals: list[np.ndarray], pairs: ViewPairs, flows: FlowCache) -> WarpFloor:
     """The unstylized scene's warp error over the short and long pairs (:func:`~abcgs.evaluation.consistency.warp_floor`)."""
-    return {kind: floor_record(*warp_floor(originals, pairs.of(kind), flows)) for kind in ("short", "long")}
+    return WarpFloor(KindFloor.of_consistency(warp_floor(originals, pairs.short, flows)),
+                     KindFloor.of_consistency(warp_floor(originals, pairs.long, flows)))
 
 
 def compute_reference(cameras: list[Camera], original: GaussianModel, params: EvalParams, *,
@@ -137,7 +183,7 @@ def compute_reference(cameras: list[Camera], original: GaussianModel, params: Ev
     info = {
         "version": REFERENCE_VERSION, "view_names": [c.name for c in cams],
         "sizes": [list(np.shape(o)[:2]) for o in originals], "settings": settings_of(params),
-        "pairs": pairs.to_json(), "floor": floor,
+        "pairs": pairs.to_json(), "floor": floor.to_json(),
         "render_backend": backend, "flow_provenance": flows.provenance(), "n_flows": len(keys),
         "model_digest": model_digest,
     }
@@ -189,7 +235,7 @@ def load_reference(folder: Path, cameras: list[Camera], params: EvalParams, *, m
         for name in z.files:
             i, j, h, w = (int(v) for v in name.split("_"))
             flows[(i, j, (h, w))] = z[name]
-    ref = SceneReference(info["view_names"], originals, flows, pairs, info["floor"], info)
+    ref = SceneReference(info["view_names"], originals, flows, pairs, WarpFloor.from_json(info["floor"]), info)
     missing = [k for k in flow_pairs(originals, pairs) if k not in flows]
     if missing:
         raise InputError(f"{folder} lacks {len(missing)} flows the consistency pairs need (e.g. {missing[0]}): {redo}")

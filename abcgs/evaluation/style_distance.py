@@ -17,14 +17,19 @@ activation scale (``feature_scale``), so it compares across weight sources bette
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 
 from abcgs.errors import InputError
+from abcgs.evaluation.content import nan_mean
+from abcgs.evaluation.parallel import ordered_map
+from abcgs.features.matching import resize_to_height
 from abcgs.features.vgg import VGG16Features, downsample_half
 
 GRAM_LAYERS = ("relu1_2", "relu2_2", "relu3_3")
+GRAM_DEFINITION = "mean over renders and taps of ||G(render) - G(style)||_F / ||G(style)||_F, G = F F^T / N"
 
 
 def _bchw(img: np.ndarray) -> torch.Tensor:
@@ -87,4 +92,33 @@ class GramDistance:
     @property
     def info(self) -> dict:
         return {"name": "gram_distance", "layers": list(self.layers), "downsample_renders": self.downsample,
-                "definition": "mean over renders and taps of ||G(render) - G(style)||_F / ||G(style)||_F, G = F F^T / N"}
+                "definition": GRAM_DEFINITION}
+
+
+@dataclass(frozen=True)
+class GramScores:
+    """The Gram style distance of each stylized render to the style image(s) (module docstring)."""
+
+    per_view: tuple[float, ...]
+    """``(n_views,)`` relative Gram distance per render, >= 0 (unitless; 0 = the painting's statistics)."""
+    layers: tuple[str, ...]
+    """The VGG-16 taps compared."""
+    downsample_renders: bool
+    """Renders were halved before VGG (as the stylization losses see them)."""
+    style_height: int
+    """Height in px the style images were resized to."""
+
+    @property
+    def mean(self) -> float:
+        """``gram_distance``: the mean over the renders (NaNs left out)."""
+        return nan_mean(self.per_view)
+
+
+def gram_scores(vgg_state: dict, stylized: Sequence[np.ndarray], style_images: Sequence[np.ndarray],
+                layers: Sequence[str] = GRAM_LAYERS, style_height: int = 256, *, workers: int = 1,
+                device: torch.device | str = "cpu") -> GramScores:
+    """:class:`GramDistance` of every stylized render to ``style_images`` resized to ``style_height``, on ``workers``
+    threads (the same numbers for any count)."""
+    gram = GramDistance(vgg_state, [resize_to_height(s, style_height) for s in style_images], layers, device=device)
+    return GramScores(tuple(ordered_map(gram.per_image, list(stylized), workers)), gram.layers, gram.downsample,
+                      style_height)

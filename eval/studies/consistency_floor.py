@@ -99,14 +99,14 @@ def main(argv=None) -> dict:
         styled = originals if k == 0 else render_views(read_ply(path), cams, "auto")[0]
         row = {"name": name, "ply": str(path)}
         for kind in kinds:
-            row[f"{kind}_rmse_flow"] = (floor[kind]["rmse"] if k == 0 else
-                                        consistency(originals, styled, pairs.of(kind), flows, None)[0]["rmse"])
+            row[f"{kind}_rmse_flow"] = (floor.of(kind).rmse if k == 0 else
+                                        consistency(originals, styled, pairs.of(kind), flows, None).rmse)
             row[f"{kind}_rmse_depth"] = depth_rmse(styled, corr, pairs.of(kind))
         rows.append(row)
         print(f"{name:34s} flow short/long {row['short_rmse_flow']:.4f}/{row['long_rmse_flow']:.4f}   "
               f"depth short/long {row['short_rmse_depth']:.4f}/{row['long_rmse_depth']:.4f}", flush=True)
     valid = {kind: float(np.mean([corr[p][1].mean() for p in pairs.of(kind)])) for kind in kinds}
-    flow_valid = {kind: floor[kind]["valid_fraction"] for kind in kinds}
+    flow_valid = {kind: floor.of(kind).valid_fraction for kind in kinds}
     out = {"rows": rows, "gaps": [pairs.short_gap, pairs.long_gap], "pairs": pairs.to_json(),
            "flow": estimator.provenance(), "n_views": len(cams), "depth_valid_fraction": valid,
            "flow_valid_fraction": flow_valid, "seconds": time.perf_counter() - t0,
