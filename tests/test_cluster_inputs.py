@@ -93,9 +93,9 @@ def test_a_bad_overlay_names_the_argument(tmp_path: Path, text: str, match: str)
 
 def test_a_bad_set_or_resources_file_names_the_argument(tmp_path: Path) -> None:
     for item, match in (("x=!!python/object/apply:os.system [id]", "not plain YAML"), ("a=[1", "not plain YAML"),
-                        ("stylize.iterations.x=1", "not a mapping")):
+                        ("stylize.optim.iterations.x=1", "not a mapping")):
         with pytest.raises(PlanError, match=rf"--set .*{match}"):
-            apply_sets({"stylize": {"iterations": 3}}, [item])
+            apply_sets({"stylize": {"optim": {"iterations": 3}}}, [item])
     for text, match in (("[1, 2]", "a mapping"), ("defaults: [", "not YAML"), ("defaults: 3", "a mapping")):
         (tmp_path / "r.yaml").write_text(text)
         with pytest.raises(PlanError, match=rf"--resources .*{match}"):

@@ -310,7 +310,7 @@ def test_experiments_of_one_scene_share_its_stages(repo: Path, first_repro) -> N
         params["evaluate"]["long_term_gap"] += 1  # a flow setting: the reference too
         (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
         assert "reference@tiny" in _changed_stages(repo)
-        params["stylize"]["lambda_style"] *= 2  # a stylization setting: the stylize runs, not their colour match
+        params["stylize"]["weights"]["style"] *= 2  # a stylization setting: the stylize runs, not their colour match
         (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
         changed = _changed_stages(repo)
         assert "stylize@tiny_single_nnfm" in changed and "colormatch@tiny_single" not in changed, changed
@@ -361,7 +361,7 @@ def shared(repo: Path, first_repro, tmp_path_factory: pytest.TempPathFactory) ->
 @pytest.fixture(scope="module")
 def queued(repo: Path, shared: dict) -> dict[str, str]:
     """A queued sweep of two experiments, run two at a time: experiment name → lambda_style."""
-    proc = _run(["dvc", "exp", "run", "--queue", "-S", "stylize.lambda_style=1,4", "evaluate@tiny_single"], repo)
+    proc = _run(["dvc", "exp", "run", "--queue", "-S", "stylize.weights.style=1,4", "evaluate@tiny_single"], repo)
     assert proc.returncode == 0 and proc.stdout.count("Queued experiment") == 2, proc.stdout + proc.stderr
     assert _run(["dvc", "queue", "start", "-j", "2"], repo).returncode == 0
     deadline = time.monotonic() + 1800
@@ -371,11 +371,11 @@ def queued(repo: Path, shared: dict) -> dict[str, str]:
             break
         time.sleep(10)
     assert status.count("Success") == 2, status
-    return {name: r["stylize.lambda_style"] for name, r in _exp_rows(repo).items()}
+    return {name: r["stylize.weights.style"] for name, r in _exp_rows(repo).items()}
 
 
 def test_a_queued_sweep_runs_two_experiments_at_once(repo: Path, queued: dict) -> None:
-    """`dvc exp run --queue -S stylize.lambda_style=1,4` then `dvc queue start -j 2`: both in `dvc exp show`,
+    """`dvc exp run --queue -S stylize.weights.style=1,4` then `dvc queue start -j 2`: both in `dvc exp show`,
     each with its own headline metrics."""
     assert sorted(queued.values()) == ["1", "4"], queued
     rows = _exp_rows(repo)
