@@ -43,7 +43,7 @@ from abcgs.cluster.plan import (
 from abcgs.cluster.run import RunInfo, StageLog, configure_cache, load_run, read_state, save_run
 from abcgs.cluster.slurm import _expand_tasks, dependency, render_script
 from abcgs.overlay import apply_overlay
-from eval.bench.regression import REDUCED
+from eval.bench.regression import reduce
 
 SLURM = (pytest.mark.slow, pytest.mark.slurm)
 
@@ -324,10 +324,6 @@ def slurm(tmp_path_factory: pytest.TempPathFactory):
 @pytest.fixture(scope="module")
 def workspace(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """A git + DVC copy of the working tree with REDUCED iteration counts, and a shared folder for the cluster."""
-    def reduce(params: dict) -> None:
-        for (section, key), value in REDUCED.items():
-            params[section][key] = value
-
     root = tmp_path_factory.mktemp("cluster")
     (root / "resources.yaml").write_text(yaml.safe_dump(RESOURCES))
     return {"repo": copy_repo(root / "repo", reduce), "shared": root / "shared", "resources": root / "resources.yaml"}

@@ -74,8 +74,8 @@ def test_the_data_folder_goes_into_the_parsed_overlay_not_its_text(tmp_path: Pat
         assert doc == {"data": {"scenes": {"fern": {"path": f"{shared.resolve()}/fern"}},
                                 "styles": {"s": f"{shared.resolve()}/s.jpg"}}}, name
     plain = tmp_path / "plain.yaml"
-    plain.write_text("stylize: {iterations: 3}\n")
-    assert read_overlay(plain, None) == {"stylize": {"iterations": 3}}  # no ${shared}: no folder needed
+    plain.write_text("stylize: {optim: {iterations: 3}}\n")
+    assert read_overlay(plain, None) == {"stylize": {"optim": {"iterations": 3}}}  # no ${shared}: no folder needed
 
 
 @pytest.mark.parametrize("text, match", [("data: [unclosed", "not a YAML params overlay"), ("- a\n- b\n", "a mapping"),

@@ -23,7 +23,7 @@ from conftest import REPO_ROOT, copy_repo, run_in
 
 from abcgs.io.metrics import numeric_leaves
 from abcgs.io.ply import read_ply
-from eval.bench.regression import REDUCED
+from eval.bench.regression import REDUCED, reduce
 from eval.bench.repo_copy import IDENTITY
 
 pytestmark = pytest.mark.slow
@@ -31,15 +31,10 @@ pytestmark = pytest.mark.slow
 _run = run_in
 
 
-def _reduce(params: dict) -> None:
-    for (section, key), value in REDUCED.items():
-        params[section][key] = value
-
-
 @pytest.fixture(scope="module")
 def repo(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A git+DVC copy of the working tree with reduced params (:func:`conftest.copy_repo`)."""
-    return copy_repo(tmp_path_factory.mktemp("e2e") / "repo", _reduce)
+    return copy_repo(tmp_path_factory.mktemp("e2e") / "repo", reduce)
 
 
 @pytest.fixture(scope="module")
@@ -66,7 +61,7 @@ def test_all_stages_write_their_artifacts(repo: Path, first_repro) -> None:
             assert (d / name).stat().st_size > 0, f"{exp}: {name} missing or empty"
         assert len(list((d / "renders").glob("*.png"))) == 16
         metrics = json.loads((out / exp / "stylize.json").read_text())
-        assert metrics["iterations"] == REDUCED[("stylize", "iterations")]
+        assert metrics["iterations"] == REDUCED["stylize.optim.iterations"]
         assert numeric_leaves(metrics) == metrics  # names, paths, hashes live in the info file, not in the metric
         info = json.loads((out / exp / "stylize_info.json").read_text())
         assert info["vgg_weights"]["sha256"] and info["iterations"] == metrics["iterations"]
@@ -401,7 +396,7 @@ def test_a_second_clone_pulls_instead_of_recomputing(repo: Path, shared: dict, q
     assert got.returncode == 0, got.stderr
     applied = _run(["dvc", "exp", "apply", name], clone)
     assert applied.returncode == 0, applied.stdout + applied.stderr
-    assert yaml.safe_load((clone / "params.yaml").read_text())["stylize"]["lambda_style"] == 4
+    assert yaml.safe_load((clone / "params.yaml").read_text())["stylize"]["weights"]["style"] == 4
     assert (clone / "out/tiny_single/stylize/point_cloud.ply").stat().st_size > 0  # its outputs came from the store
     here = json.loads((clone / "out/tiny_single/metrics.json").read_text())["content_ssim"]
     assert abs(here - float(_exp_rows(repo)[name]["content_ssim"])) < 1e-9
