@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import csv
+
 import numpy as np
 import pytest
 import torch
@@ -15,6 +17,7 @@ from abcgs.io.images import save_image, save_labels
 from abcgs.masks.lifting import LiftParams, lift_labels, one_hot_labels, render_label_map
 from abcgs.render import rgb_to_sh0
 from abcgs.stylize.loop import stylize
+from abcgs.stylize.outputs import HISTORY_COLUMNS, write_history
 from abcgs.stylize.params import StyleWeights, StylizeCompute, StylizeOptim, StylizeParams
 
 W, H = 48, 36
@@ -125,7 +128,7 @@ def test_build_groups_errors(vgg, styles) -> None:
                      {"paint": styles["labels"]}, {1, 2}, vgg, style_height=64)
 
 
-def test_stylize_reduces_style_loss_and_stops_on_nan(vgg, styles) -> None:
+def test_stylize_reduces_style_loss_and_stops_on_nan(vgg, styles, tmp_path) -> None:
     model, truth = _two_blob_scene(2)
     cams = _cameras(3)
     groups = build_groups(TransferSpec(scene="s", style="paint"), styles, {}, {1, 2}, vgg, style_height=64)
@@ -136,6 +139,10 @@ def test_stylize_reduces_style_loss_and_stops_on_nan(vgg, styles) -> None:
     style = [s.terms["style"] for s in res.history if s.pass_name == "main"]
     assert len(style) == 12 and [s.pass_name for s in res.history][-1] == "color"
     assert [s.step for s in res.history] == list(range(15))  # the colour pass counts on from the main pass
+    write_history(tmp_path / "h.csv", res.history)
+    rows = list(csv.DictReader((tmp_path / "h.csv").open()))
+    assert tuple(rows[0]) == HISTORY_COLUMNS and [int(r["step"]) for r in rows] == list(range(15))
+    assert [float(r["style"]) for r in rows[:12]] == pytest.approx(style, rel=1e-5) and rows[-1]["style"] == ""
     assert np.mean(style[-3:]) < np.mean(style[:3])
     assert res.model.num_gaussians == model.num_gaussians
     broken = model.detach()

@@ -4,7 +4,8 @@ A linear map ``p' = A p + b`` makes the content colours' mean and covariance equ
 ``A = U_s Λ_s^½ U_sᵀ · U_c Λ_c^-½ U_cᵀ``, ``b = μ_s − A μ_c`` with eigen-decompositions of the population
 covariances (divide by n, as ARF's ``match_colors_for_image_set``) and eigenvalues clamped to
 ``eps_clamp``. Computed in float64; returned in the content pixels' floating dtype (float32 for
-non-float input). Colours are RGB, any range (the pipeline uses [0, 1]).
+non-float input). Colours are RGB, any range (the pipeline uses [0, 1]). :func:`apply_group_transforms` applies one
+transform per matching group, to Gaussians' DC colours or to an image's pixels.
 """
 
 from __future__ import annotations

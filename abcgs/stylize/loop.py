@@ -89,8 +89,11 @@ class PassLog:
 
 @dataclass
 class StylizeResult:
+    """A stylization run: the stylized model and what it logged (``stylize_history.csv``, ``stylize.json``)."""
+
     model: GaussianModel
     history: list[LoggedStep]
+    """The logged steps of the main pass, then of the colour pass."""
     timings: dict[str, float]
     fast_stats: dict
     seconds: float
