@@ -55,10 +55,10 @@ def main(args, params) -> None:
     original, matched = original.to(device), matched.to(device)
     vgg, info = load_vgg(params, device)
     groups = load_groups(params, spec, vgg, masks.gaussian_labels)
-    with torch_threads(sp.threads):
+    with torch_threads(sp.compute.threads):
         res = stylize_scene(matched, original, scene.cameras, masks, groups, vgg, sp, method=exp.method)
         written = write_stylized_scene(
-            args.out, res.model, original, scene.cameras, masks.view_labels, groups, backend=sp.backend,
+            args.out, res.model, original, scene.cameras, masks.view_labels, groups, backend=sp.compute.backend,
             path_kind=params.viewer.camera_path, path_frames=params.viewer.path_frames)
     write_history(args.history, res.history)
     write_metrics(args.metrics, {

@@ -43,7 +43,7 @@ from abcgs.cluster.plan import (
 from abcgs.cluster.run import RunInfo, StageLog, configure_cache, load_run, read_state, save_run
 from abcgs.cluster.slurm import _expand_tasks, dependency, render_script
 from abcgs.overlay import apply_overlay
-from eval.bench.regression import REDUCED
+from eval.bench.regression import reduce
 
 SLURM = (pytest.mark.slow, pytest.mark.slurm)
 
@@ -110,24 +110,24 @@ def test_a_stage_that_needs_a_job_it_does_not_wait_for_is_an_error() -> None:
 def test_an_overlay_replaces_the_collections_and_merges_the_other_sections() -> None:
     base = _yaml("params.yaml")
     overlay = yaml.safe_load((REPO_ROOT / "eval/params/fern_starry.yaml").read_text())
-    merged = apply_sets(apply_overlay(base, overlay), ["stylize.iterations=7", "data.scenes.fern.path=/x/fern"])
+    merged = apply_sets(apply_overlay(base, overlay), ["stylize.optim.iterations=7", "data.scenes.fern.path=/x/fern"])
     assert set(merged["data"]["scenes"]) == {"fern"} and merged["data"]["scenes"]["fern"]["path"] == "/x/fern"
     assert set(merged["experiments"]) == set(overlay["experiments"])
-    assert merged["stylize"]["iterations"] == 7
-    assert merged["stylize"]["lambda_tv"] == overlay.get("stylize", {}).get("lambda_tv", base["stylize"]["lambda_tv"])
-    assert base["stylize"]["iterations"] != 7  # the base is not changed
+    assert merged["stylize"]["optim"]["iterations"] == 7
+    assert merged["stylize"]["weights"]["tv"] == overlay["stylize"].get("weights", {}).get("tv", base["stylize"]["weights"]["tv"])
+    assert base["stylize"]["optim"]["iterations"] != 7  # the base is not changed
     with pytest.raises(PlanError, match="KEY=VALUE"):
-        apply_sets({}, ["stylize.iterations"])
+        apply_sets({}, ["stylize.optim.iterations"])
 
 
 def test_a_kind_with_a_gpu_gets_its_backends_set_to_auto() -> None:
     res = load_resources()
     params = _yaml("params.yaml")
     params["fit"]["backend"] = "cpu"
-    params["stylize"]["backend"] = "reference"
+    params["stylize"]["compute"] = {"backend": "reference"}
     assert gpu_overrides(res, params) == {}  # the default resources have no GPU
     res = {**res, "experiment": Resources(cpus=8, mem="16G", gres="gpu:1")}
-    assert gpu_overrides(res, params) == {"stylize.backend": "auto"}
+    assert gpu_overrides(res, params) == {"stylize.compute.backend": "auto"}
     assert "--gres=gpu:1" in res["experiment"].sbatch_options()
 
 
@@ -324,10 +324,6 @@ def slurm(tmp_path_factory: pytest.TempPathFactory):
 @pytest.fixture(scope="module")
 def workspace(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """A git + DVC copy of the working tree with REDUCED iteration counts, and a shared folder for the cluster."""
-    def reduce(params: dict) -> None:
-        for (section, key), value in REDUCED.items():
-            params[section][key] = value
-
     root = tmp_path_factory.mktemp("cluster")
     (root / "resources.yaml").write_text(yaml.safe_dump(RESOURCES))
     return {"repo": copy_repo(root / "repo", reduce), "shared": root / "shared", "resources": root / "resources.yaml"}

@@ -74,8 +74,8 @@ def test_the_data_folder_goes_into_the_parsed_overlay_not_its_text(tmp_path: Pat
         assert doc == {"data": {"scenes": {"fern": {"path": f"{shared.resolve()}/fern"}},
                                 "styles": {"s": f"{shared.resolve()}/s.jpg"}}}, name
     plain = tmp_path / "plain.yaml"
-    plain.write_text("stylize: {iterations: 3}\n")
-    assert read_overlay(plain, None) == {"stylize": {"iterations": 3}}  # no ${shared}: no folder needed
+    plain.write_text("stylize: {optim: {iterations: 3}}\n")
+    assert read_overlay(plain, None) == {"stylize": {"optim": {"iterations": 3}}}  # no ${shared}: no folder needed
 
 
 @pytest.mark.parametrize("text, match", [("data: [unclosed", "not a YAML params overlay"), ("- a\n- b\n", "a mapping"),
@@ -93,9 +93,9 @@ def test_a_bad_overlay_names_the_argument(tmp_path: Path, text: str, match: str)
 
 def test_a_bad_set_or_resources_file_names_the_argument(tmp_path: Path) -> None:
     for item, match in (("x=!!python/object/apply:os.system [id]", "not plain YAML"), ("a=[1", "not plain YAML"),
-                        ("stylize.iterations.x=1", "not a mapping")):
+                        ("stylize.optim.iterations.x=1", "not a mapping")):
         with pytest.raises(PlanError, match=rf"--set .*{match}"):
-            apply_sets({"stylize": {"iterations": 3}}, [item])
+            apply_sets({"stylize": {"optim": {"iterations": 3}}}, [item])
     for text, match in (("[1, 2]", "a mapping"), ("defaults: [", "not YAML"), ("defaults: 3", "a mapping")):
         (tmp_path / "r.yaml").write_text(text)
         with pytest.raises(PlanError, match=rf"--resources .*{match}"):

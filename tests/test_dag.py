@@ -145,7 +145,7 @@ def test_a_stage_cannot_read_params_it_does_not_track() -> None:
     assert view.data.scenes["tiny"].path == params.data.scenes["tiny"].path
     assert view.scene_section("tiny", "fit") == params.fit
     with pytest.raises(UntrackedParamsError, match="stylize"):
-        _ = view.stylize.iterations
+        _ = view.stylize.optim.iterations
     with pytest.raises(UntrackedParamsError, match="data.styles"):
         _ = view.data.styles["tiny_paint"]
     partial = tracked_view(params, ["evaluate.flow", "experiments.tiny_single"], "x")

@@ -47,6 +47,18 @@ def test_nested_unknown_key(raw) -> None:
     assert "stylize.fast.kk: unknown key; allowed keys here: cosine, k, eps" in _error(bad)
 
 
+def test_a_flat_stylize_key_names_its_section(raw) -> None:
+    bad = copy.deepcopy(raw)
+    bad["stylize"]["lambda_style"] = 3.0
+    bad["stylize"]["lr_sh0"] = 0.01
+    msg = _error(bad)
+    assert "stylize.lambda_style moved to stylize.weights.style" in msg
+    assert "stylize.lr_sh0 moved to stylize.optim.lr_sh0" in msg
+    bad = copy.deepcopy(raw)
+    bad["stylize"]["weights"]["lambda_style"] = 3.0
+    assert "stylize.weights.lambda_style: unknown key; allowed keys here: style, content" in _error(bad)
+
+
 def test_wrong_type_and_literal_values(raw) -> None:
     bad = copy.deepcopy(raw)
     bad["fit"]["sh_degree"] = "two"

@@ -25,7 +25,7 @@ from conftest import REPO_ROOT, copy_repo, run_in
 from abcgs.io.metrics import numeric_leaves
 from abcgs.io.ply import read_ply
 from abcgs.pipeline import READ_AUDIT_ENV
-from eval.bench.regression import REDUCED
+from eval.bench.regression import REDUCED, reduce
 from eval.bench.repo_copy import IDENTITY
 
 pytestmark = pytest.mark.slow
@@ -33,15 +33,10 @@ pytestmark = pytest.mark.slow
 _run = run_in
 
 
-def _reduce(params: dict) -> None:
-    for (section, key), value in REDUCED.items():
-        params[section][key] = value
-
-
 @pytest.fixture(scope="module")
 def repo(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A git+DVC copy of the working tree with reduced params (:func:`conftest.copy_repo`)."""
-    return copy_repo(tmp_path_factory.mktemp("e2e") / "repo", _reduce)
+    return copy_repo(tmp_path_factory.mktemp("e2e") / "repo", reduce)
 
 
 @pytest.fixture(scope="module")
@@ -85,7 +80,7 @@ def test_all_stages_write_their_artifacts(repo: Path, first_repro) -> None:
             assert (d / name).stat().st_size > 0, f"{exp}: {name} missing or empty"
         assert len(list((d / "renders").glob("*.png"))) == 16
         metrics = json.loads((out / exp / "stylize.json").read_text())
-        assert metrics["iterations"] == REDUCED[("stylize", "iterations")]
+        assert metrics["iterations"] == REDUCED["stylize.optim.iterations"]
         assert numeric_leaves(metrics) == metrics  # names, paths, hashes live in the info file, not in the metric
         info = json.loads((out / exp / "stylize_info.json").read_text())
         assert info["vgg_weights"]["sha256"] and info["iterations"] == metrics["iterations"]
@@ -329,7 +324,7 @@ def test_experiments_of_one_scene_share_its_stages(repo: Path, first_repro) -> N
         params["evaluate"]["long_term_gap"] += 1  # a flow setting: the reference too
         (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
         assert "reference@tiny" in _changed_stages(repo)
-        params["stylize"]["lambda_style"] *= 2  # a stylization setting: the stylize runs, not their colour match
+        params["stylize"]["weights"]["style"] *= 2  # a stylization setting: the stylize runs, not their colour match
         (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
         changed = _changed_stages(repo)
         assert "stylize@tiny_single_nnfm" in changed and "colormatch@tiny_single" not in changed, changed
@@ -380,7 +375,7 @@ def shared(repo: Path, first_repro, tmp_path_factory: pytest.TempPathFactory) ->
 @pytest.fixture(scope="module")
 def queued(repo: Path, shared: dict) -> dict[str, str]:
     """A queued sweep of two experiments, run two at a time: experiment name → lambda_style."""
-    proc = _run(["dvc", "exp", "run", "--queue", "-S", "stylize.lambda_style=1,4", "evaluate@tiny_single"], repo)
+    proc = _run(["dvc", "exp", "run", "--queue", "-S", "stylize.weights.style=1,4", "evaluate@tiny_single"], repo)
     assert proc.returncode == 0 and proc.stdout.count("Queued experiment") == 2, proc.stdout + proc.stderr
     assert _run(["dvc", "queue", "start", "-j", "2"], repo).returncode == 0
     deadline = time.monotonic() + 1800
@@ -390,11 +385,11 @@ def queued(repo: Path, shared: dict) -> dict[str, str]:
             break
         time.sleep(10)
     assert status.count("Success") == 2, status
-    return {name: r["stylize.lambda_style"] for name, r in _exp_rows(repo).items()}
+    return {name: r["stylize.weights.style"] for name, r in _exp_rows(repo).items()}
 
 
 def test_a_queued_sweep_runs_two_experiments_at_once(repo: Path, queued: dict) -> None:
-    """`dvc exp run --queue -S stylize.lambda_style=1,4` then `dvc queue start -j 2`: both in `dvc exp show`,
+    """`dvc exp run --queue -S stylize.weights.style=1,4` then `dvc queue start -j 2`: both in `dvc exp show`,
     each with its own headline metrics."""
     assert sorted(queued.values()) == ["1", "4"], queued
     rows = _exp_rows(repo)
@@ -420,7 +415,7 @@ def test_a_second_clone_pulls_instead_of_recomputing(repo: Path, shared: dict, q
     assert got.returncode == 0, got.stderr
     applied = _run(["dvc", "exp", "apply", name], clone)
     assert applied.returncode == 0, applied.stdout + applied.stderr
-    assert yaml.safe_load((clone / "params.yaml").read_text())["stylize"]["lambda_style"] == 4
+    assert yaml.safe_load((clone / "params.yaml").read_text())["stylize"]["weights"]["style"] == 4
     assert (clone / "out/tiny_single/stylize/point_cloud.ply").stat().st_size > 0  # its outputs came from the store
     here = json.loads((clone / "out/tiny_single/metrics.json").read_text())["content_ssim"]
     assert abs(here - float(_exp_rows(repo)[name]["content_ssim"])) < 1e-9

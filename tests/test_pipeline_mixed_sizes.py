@@ -18,7 +18,7 @@ def _mixed(params: dict) -> None:
     params["tiny"].update(n_views=8, odd_view_width_delta=1)
     params["fit"]["iterations"] = 200
     params["colormatch"]["refit_iterations"] = 10
-    params["stylize"].update(iterations=10, color_pass_iterations=5)
+    params["stylize"]["optim"].update(iterations=10, color_pass_iterations=5)
     params["colormatches"] = {"tiny_single": params["colormatches"]["tiny_single"]}
     params["experiments"] = {"tiny_single": params["experiments"]["tiny_single"]}
 

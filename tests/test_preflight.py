@@ -110,8 +110,8 @@ def test_run_stage_stops_before_work_and_says_why(tmp_path, capsys) -> None:
 
 
 def test_schema_errors_do_not_print_the_whole_params(tmp_path) -> None:
-    with pytest.raises(ParamsError, match=r"stylize\.iterations: .*\(got 'many'\)"):  # a scalar culprit is shown
-        validate_params({"data": {"scenes": {"s": "scene"}}, "stylize": {"iterations": "many"}})
+    with pytest.raises(ParamsError, match=r"stylize\.optim\.iterations: .*\(got 'many'\)"):  # a scalar culprit is shown
+        validate_params({"data": {"scenes": {"s": "scene"}}, "stylize": {"optim": {"iterations": "many"}}})
     raw = {"data": {"scenes": {"s": "scene"}, "styles": {}},
            "colormatches": {"e": {"scene": "s", "transfer": "single", "style": "missing"}}}
     with pytest.raises(ParamsError) as exc:

@@ -26,7 +26,7 @@ from abcgs.splats.params import SplatViewsParams
 from abcgs.splats.splat import write_splat_file
 from abcgs.stylize.colormatch import ColorMatchParams, color_match_and_refit
 from abcgs.stylize.loop import stylize, with_higher_sh
-from abcgs.stylize.params import StylizeParams
+from abcgs.stylize.params import StylizeOptim, StylizeParams
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_splats import make_model  # noqa: E402
@@ -84,7 +84,7 @@ def test_a_bare_splat_runs_through_import_stylization_and_give_back(tmp_path):
     view_labels = [np.zeros((c.height, c.width), np.int64) for c in scene.cameras]
     cm = color_match_and_refit(original, scene, labels, view_labels, groups, ColorMatchParams(refit_iterations=5),
                                progress=False)
-    sp = StylizeParams(iterations=4, color_pass_iterations=2, layers=["relu3_1"], style_height=64)
+    sp = StylizeParams(optim=StylizeOptim(iterations=4, color_pass_iterations=2), layers=["relu3_1"], style_height=64)
     res = stylize(cm.model, scene.cameras, view_labels, labels, groups, vgg, sp, depth_model=original, progress=False)
     with torch.no_grad():
         assert not torch.equal(res.model.sh0, original.sh0)
@@ -126,8 +126,8 @@ def test_higher_sh_modes_start_from_and_train_what_they_say(mode, tmp_path):
     vgg, groups = _single_transfer(tmp_path, 48)
     labels = torch.zeros(original.num_gaussians, dtype=torch.long)
     view_labels = [np.zeros((c.height, c.width), np.int64) for c in cams]
-    sp = StylizeParams(iterations=3, color_pass_iterations=2, layers=["relu3_1"], style_height=48, higher_sh=mode,
-                       lr_shN=0.01)
+    sp = StylizeParams(optim=StylizeOptim(iterations=3, color_pass_iterations=2, lr_shN=0.01), layers=["relu3_1"],
+                       style_height=48, higher_sh=mode)
     res = stylize(start, cams, view_labels, labels, groups, vgg, sp, depth_model=original, progress=False)
     out = res.model.shN
     assert out.shape == original.shN.shape  # the degree is kept in every mode

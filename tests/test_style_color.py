@@ -61,10 +61,11 @@ def test_apply_shapes_clip_and_grad():
 def test_per_group_transforms():
     pc1, pc2 = _pixels(500, 4, 0.5), _pixels(500, 5, 0.8)
     ps1, ps2 = _pixels(500, 6, 0.2), _pixels(500, 7, 0.4)
-    tf = color.fit_color_transforms_by_group({1: (pc1, ps1), 2: (pc2, ps2)})
+    tf = {1: color.fit_color_transform(pc1, ps1), 2: color.fit_color_transform(pc2, ps2)}
     x = torch.cat([pc1, pc2, pc1[:10]])
     labels = torch.cat([torch.ones(500), torch.full((500,), 2), torch.zeros(10)]).long()
-    out = color.apply_color_transforms_by_label(x, labels, tf)
+    out = color.apply_group_transforms(x, [labels == 1, labels == 2], [tf[1], tf[2]])
+    assert torch.equal(x, torch.cat([pc1, pc2, pc1[:10]]))  # the input is not changed
     for lab, ps in ((1, ps1), (2, ps2)):
         mu_o, cov_o = _mean_cov(out[labels == lab])
         mu_s, cov_s = _mean_cov(ps)
@@ -95,7 +96,7 @@ def test_bad_inputs():
         color.fit_color_transform(torch.full((5, 3), float("nan")), torch.rand(10, 3))
     with pytest.raises(InputError):
         color.apply_color_transform(torch.rand(4, 2), torch.eye(3), torch.zeros(3))
-    with pytest.raises(InputError, match="group 3"):
-        color.fit_color_transforms_by_group({3: (torch.rand(1, 3), torch.rand(5, 3))})
+    with pytest.raises(InputError, match="selection shape"):
+        color.apply_group_transforms(torch.rand(4, 3), [torch.ones(5, dtype=torch.bool)], [(torch.eye(3), torch.zeros(3))])
     with pytest.raises(InputError):
         color.preserve_color(torch.rand(4, 4, 3), torch.rand(4, 4, 2))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import csv
+
 import numpy as np
 import pytest
 import torch
@@ -14,7 +16,9 @@ from abcgs.gaussians import GaussianModel
 from abcgs.io.images import save_image, save_labels
 from abcgs.masks.lifting import LiftParams, lift_labels, one_hot_labels, render_label_map
 from abcgs.render import rgb_to_sh0
-from abcgs.stylize.loop import StylizeParams, stylize
+from abcgs.stylize.loop import stylize
+from abcgs.stylize.outputs import HISTORY_COLUMNS, write_history
+from abcgs.stylize.params import StyleWeights, StylizeCompute, StylizeOptim, StylizeParams
 
 W, H = 48, 36
 
@@ -124,16 +128,21 @@ def test_build_groups_errors(vgg, styles) -> None:
                      {"paint": styles["labels"]}, {1, 2}, vgg, style_height=64)
 
 
-def test_stylize_reduces_style_loss_and_stops_on_nan(vgg, styles) -> None:
+def test_stylize_reduces_style_loss_and_stops_on_nan(vgg, styles, tmp_path) -> None:
     model, truth = _two_blob_scene(2)
     cams = _cameras(3)
     groups = build_groups(TransferSpec(scene="s", style="paint"), styles, {}, {1, 2}, vgg, style_height=64)
     labels = [np.zeros((H, W), np.int64)] * len(cams)
-    params = StylizeParams(iterations=12, log_every=1, downsample_render=False, lambda_depth=0.0, lr_sh0=0.05,
-                           color_pass_iterations=3)
+    params = StylizeParams(optim=StylizeOptim(iterations=12, lr_sh0=0.05, color_pass_iterations=3),
+                           compute=StylizeCompute(log_every=1), downsample_render=False, weights=StyleWeights(depth=0.0))
     res = stylize(model, cams, labels, truth, groups, vgg, params, progress=False)
-    style = [r["style"] for r in res.history if r["pass"] == "main"]
-    assert len(style) == 12 and [r["pass"] for r in res.history][-1] == "color"
+    style = [s.terms["style"] for s in res.history if s.pass_name == "main"]
+    assert len(style) == 12 and [s.pass_name for s in res.history][-1] == "color"
+    assert [s.step for s in res.history] == list(range(15))  # the colour pass counts on from the main pass
+    write_history(tmp_path / "h.csv", res.history)
+    rows = list(csv.DictReader((tmp_path / "h.csv").open()))
+    assert tuple(rows[0]) == HISTORY_COLUMNS and [int(r["step"]) for r in rows] == list(range(15))
+    assert [float(r["style"]) for r in rows[:12]] == pytest.approx(style, rel=1e-5) and rows[-1]["style"] == ""
     assert np.mean(style[-3:]) < np.mean(style[:3])
     assert res.model.num_gaussians == model.num_gaussians
     broken = model.detach()
@@ -145,16 +154,16 @@ def test_stylize_reduces_style_loss_and_stops_on_nan(vgg, styles) -> None:
 def test_lr_preset_fills_unset_rates_and_explicit_keys_win() -> None:
     from abcgs.stylize.loop import LR_PRESETS
 
-    authors = StylizeParams(lr_preset="authors_code")
+    authors = StylizeOptim(lr_preset="authors_code")
     assert {k: getattr(authors, k) for k in LR_PRESETS["authors_code"]} == LR_PRESETS["authors_code"]
     assert authors.lr_means == 0.0
-    mixed = StylizeParams(lr_preset="authors_code", lr_sh0=0.02)
+    mixed = StylizeParams.model_validate({"optim": {"lr_preset": "authors_code", "lr_sh0": 0.02}}).optim
     assert mixed.lr_sh0 == 0.02 and mixed.lr_opacity == LR_PRESETS["authors_code"]["lr_opacity"]
-    assert StylizeParams().lr_sh0 == LR_PRESETS["authors_code"]["lr_sh0"] and StylizeParams().lr_means == 0.0
-    ours = StylizeParams(lr_preset="ours")
+    assert StylizeParams().optim.lr_sh0 == LR_PRESETS["authors_code"]["lr_sh0"] and StylizeParams().optim.lr_means == 0.0
+    ours = StylizeOptim(lr_preset="ours")
     assert {k: getattr(ours, k) for k in LR_PRESETS["ours"]} == LR_PRESETS["ours"]
     with pytest.raises(ValueError):
-        StylizeParams(lr_preset="inria")
+        StylizeOptim(lr_preset="inria")
 
 
 def test_authors_preset_freezes_means_and_color_pass_freezes_geometry(vgg, styles) -> None:
@@ -163,18 +172,18 @@ def test_authors_preset_freezes_means_and_color_pass_freezes_geometry(vgg, style
     cams = _cameras(3)
     groups = build_groups(TransferSpec(scene="s", style="paint"), styles, {}, {1, 2}, vgg, style_height=64)
     labels = [np.zeros((H, W), np.int64)] * len(cams)
-    params = StylizeParams(iterations=4, lr_preset="authors_code", downsample_render=False, lambda_depth=0.0,
-                           color_pass_iterations=0)
+    params = StylizeParams(optim=StylizeOptim(iterations=4, lr_preset="authors_code", color_pass_iterations=0),
+                           downsample_render=False, weights=StyleWeights(depth=0.0))
     main = stylize(model, cams, labels, truth, groups, vgg, params, progress=False).model
     assert torch.equal(main.means, model.means)
     assert not torch.equal(main.opacity_logits, model.opacity_logits)  # opacity does learn (lr 0.05)
 
-    both = stylize(model, cams, labels, truth, groups, vgg, params.model_copy(update={"color_pass_iterations": 6}),
+    both = stylize(model, cams, labels, truth, groups, vgg, params.with_schedule(color_pass_iterations=6),
                    progress=False)
     out = both.model
     for name in ("means", "log_scales", "opacity_logits"):
         assert torch.equal(getattr(out, name), getattr(main, name)), name
-    assert both.color_pass_seconds > 0 and [r["pass"] for r in both.history].count("color") >= 1
+    assert both.color_pass_seconds > 0 and [s.pass_name for s in both.history].count("color") >= 1
     # the style (uniform noise) has mean colour ~0.5 per channel: the pass pulls the rendered red/blue blobs toward it
     from abcgs.gaussians import render
 

@@ -307,7 +307,7 @@ def apply_sets(params: dict, sets: Iterable[str]) -> dict:
     for item in sets:
         key, eq, value = item.partition("=")
         if not eq or not key:
-            raise PlanError(f"--set {item!r}: expected KEY=VALUE, e.g. stylize.iterations=300")
+            raise PlanError(f"--set {item!r}: expected KEY=VALUE, e.g. stylize.optim.iterations=300")
         try:
             parsed = yaml.safe_load(value)
         except yaml.YAMLError as exc:
@@ -380,7 +380,7 @@ def load_resources(path: Path | None = None) -> dict[str, Resources]:
 
 GPU_BACKENDS: dict[str, tuple[str, ...]] = {
     "scene": ("fit.backend", "masks.backend", "colormatch.backend"),
-    "experiment": ("stylize.backend", "evaluate.backend"),
+    "experiment": ("stylize.compute.backend", "evaluate.backend"),
 }
 """Params keys of the rasterizer backend of each job kind's stages."""
 CPU_ONLY_BACKENDS = ("cpu", "reference")

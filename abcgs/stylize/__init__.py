@@ -1,6 +1,7 @@
 """The stylization stage (paper Sec. "Stylization"): colour match, then the optimisation loop.
 
-- :mod:`abcgs.stylize.color`      — the linear colour transform (mean and covariance match) and colour preservation.
+- :mod:`abcgs.stylize.color`      — the linear colour transform (mean and covariance match), its per-group application
+  and colour preservation.
 - :mod:`abcgs.stylize.colormatch` — colour match per matching group, applied to images and Gaussians, and the re-fit.
 - :mod:`abcgs.stylize.loop`       — Eq. 8: FAST (or a baseline) + content, TV, depth, scale and opacity terms;
   the authors' colour pass.

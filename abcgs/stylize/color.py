@@ -4,12 +4,13 @@ A linear map ``p' = A p + b`` makes the content colours' mean and covariance equ
 ``A = U_s Λ_s^½ U_sᵀ · U_c Λ_c^-½ U_cᵀ``, ``b = μ_s − A μ_c`` with eigen-decompositions of the population
 covariances (divide by n, as ARF's ``match_colors_for_image_set``) and eigenvalues clamped to
 ``eps_clamp``. Computed in float64; returned in the content pixels' floating dtype (float32 for
-non-float input). Colours are RGB, any range (the pipeline uses [0, 1]).
+non-float input). Colours are RGB, any range (the pipeline uses [0, 1]). :func:`apply_group_transforms` applies one
+transform per matching group, to Gaussians' DC colours or to an image's pixels.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Sequence
 
 import numpy as np
 import torch
@@ -81,39 +82,27 @@ def apply_color_transform(
     return out.clamp(*clip) if clip is not None else out
 
 
-def fit_color_transforms_by_group(
-    groups: Mapping[int, tuple[ArrayLike, ArrayLike]],
-    eps_clamp: tuple[float, float] = (1e-8, 1e8),
-) -> dict[int, tuple[torch.Tensor, torch.Tensor]]:
-    """Per matching group ``{label: (content_pixels, style_pixels)}`` → ``{label: (A, b)}``."""
-    out: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
-    for label, (pc, ps) in groups.items():
-        try:
-            out[label] = fit_color_transform(pc, ps, eps_clamp)
-        except InputError as exc:
-            raise InputError(f"colour match of group {label}: {exc}") from exc
-    return out
-
-
-def apply_color_transforms_by_label(
-    x: ArrayLike,
-    labels: ArrayLike,
-    transforms: Mapping[int, tuple[torch.Tensor, torch.Tensor]],
+def apply_group_transforms(
+    x: torch.Tensor,
+    selections: Sequence[torch.Tensor],
+    transforms: Sequence[tuple[torch.Tensor, torch.Tensor]],
     clip: tuple[float, float] | None = None,
 ) -> torch.Tensor:
-    """Apply each label's transform to the elements of ``x`` ``(..., 3)`` whose ``labels`` ``(...)`` match.
+    """Per matching group, its ``A x + b`` (:func:`apply_color_transform`) on the elements of ``x`` ``(..., 3)`` that
+    its selection ``(...)`` bool covers: the Gaussians of its content label (DC colours ``(N, 3)``) or the pixels of its
+    region in one view (an image ``(H, W, 3)``). Elements no group covers are left as they are.
 
-    Elements with a label absent from ``transforms`` are left unchanged (e.g. unassigned Gaussians).
+    The groups are disjoint (one content label each) or one group covers everything (single transfer); each
+    transform maps the input colours, not another group's output. Returns a new tensor.
     """
-    t = torch.as_tensor(x)
-    lab = torch.as_tensor(labels)
-    if tuple(lab.shape) != tuple(t.shape[:-1]):
-        raise InputError(f"labels shape {tuple(lab.shape)} does not match colours {tuple(t.shape)} (without the 3)")
-    out = t.to(t.dtype if t.is_floating_point() else torch.float32).clone()
-    for label, (a, b) in transforms.items():
-        sel = lab == label
-        if bool(sel.any()):
-            out[sel] = apply_color_transform(out[sel], a, b, clip)
+    if len(selections) != len(transforms):
+        raise InputError(f"apply_group_transforms: {len(selections)} selections for {len(transforms)} transforms")
+    out = x.clone()
+    for sel, (a, b) in zip(selections, transforms):
+        if tuple(sel.shape) != tuple(x.shape[:-1]):
+            raise InputError(f"apply_group_transforms: selection shape {tuple(sel.shape)} does not match colours "
+                             f"{tuple(x.shape)} (without the 3)")
+        out[sel] = apply_color_transform(x[sel], a, b, clip)
     return out
 
 

@@ -23,7 +23,7 @@ from abcgs.io.atomic import atomic_path, write_json
 from abcgs.io.images import save_image
 from abcgs.io.ply import write_ply
 from abcgs.sfm.model import SceneData
-from abcgs.stylize.color import apply_color_transform
+from abcgs.stylize.color import apply_group_transforms
 from abcgs.stylize.loop import color_match_model, group_pixel_masks
 from abcgs.stylize.params import ColorMatchParams  # noqa: F401  (the section's schema)
 from abcgs.viz import image_grid
@@ -49,15 +49,12 @@ def content_pixels_by_group(images: list[Tensor], view_labels: list[np.ndarray],
 
 def recolor_images(images: list[Tensor], view_labels: list[np.ndarray], groups: list[MatchingGroup],
                    transforms: dict[int, tuple[Tensor, Tensor]]) -> list[Tensor]:
-    out = []
-    for img, lab in zip(images, view_labels):
-        new = img.clone()
-        for g, m in zip(groups, group_pixel_masks(groups, lab)):
-            A, b = transforms[g.content_label]
-            sel = torch.from_numpy(m).to(img.device)
-            new[sel] = apply_color_transform(img[sel], A, b, clip=(0.0, 1.0))
-        out.append(new)
-    return out
+    """Each training image ``(H, W, 3)`` with every group's transform on the pixels its label map gives the group,
+    clipped to [0, 1]."""
+    per_group = [transforms[g.content_label] for g in groups]
+    return [apply_group_transforms(img, [torch.from_numpy(m).to(img.device) for m in group_pixel_masks(groups, lab)],
+                                   per_group, clip=(0.0, 1.0))
+            for img, lab in zip(images, view_labels)]
 
 
 def color_match_and_refit(

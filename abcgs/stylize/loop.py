@@ -17,6 +17,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -38,20 +39,61 @@ from abcgs.losses.terms import content_loss, style_loss, tv_loss
 from abcgs.masks.outputs import SceneMasks
 from abcgs.progress import progress as progress_bar
 from abcgs.render import rgb_to_sh0, sh0_to_rgb
-from abcgs.stylize.color import apply_color_transform, fit_color_transform, preserve_color
-from abcgs.stylize.params import LR_PRESETS, StylizeParams  # noqa: F401  (the section's schema)
+from abcgs.stylize.color import apply_group_transforms, fit_color_transform, preserve_color
+from abcgs.stylize.params import LR_PRESETS, StyleWeights, StylizeParams  # noqa: F401  (the section's schema)
 
 log = logging.getLogger(__name__)
 
 
+TIMED_PARTS = ("render", "vgg", "style_loss", "backward", "step")
+"""The parts of a main-pass step timed in ``stylize.json``'s ``seconds_per_iteration``."""
 
 
+@dataclass(frozen=True)
+class LoggedStep:
+    """One logged step of a stylization pass: a row of ``stylize_history.csv``."""
+
+    step: int
+    """The step number; the colour pass counts on from the main pass's ``iterations``."""
+    seconds: float
+    """Wall seconds since the pass began."""
+    pass_name: Literal["main", "color"]
+    loss: float
+    """The step's total loss."""
+    terms: dict[str, float]
+    """Each loss term as it is added to ``loss`` (weighted by its λ): in the main pass those switched on of style,
+    content, tv, depth, scale, opacity; in the colour pass the reconstruction's ``l1``."""
+
+    def row(self) -> dict[str, float | int | str]:
+        """The step as a table row: ``step``, ``seconds``, ``loss``, ``pass`` and the terms."""
+        return {"step": self.step, "seconds": self.seconds, "loss": self.loss, "pass": self.pass_name, **self.terms}
+
+
+@dataclass
+class PassLog:
+    """What the main pass records besides the model."""
+
+    steps: list[LoggedStep] = field(default_factory=list)
+    """Every ``stylize.compute.log_every``-th step and the last."""
+    timings: dict[str, float] = field(default_factory=dict)
+    """Wall seconds per part of a step (:data:`TIMED_PARTS`) summed over the steps, and ``iterations`` (the count)."""
+    fast: FastStats = field(default_factory=FastStats)
+    """The FAST solves' counters."""
+
+    def add_step_times(self, ticks: list[float]) -> None:
+        """Add one step's ``perf_counter`` readings at the bounds of :data:`TIMED_PARTS` to :attr:`timings`."""
+        for key, t_begin, t_end in zip(TIMED_PARTS, ticks, ticks[1:]):
+            self.timings[key] = self.timings.get(key, 0.0) + (t_end - t_begin)
+        self.timings["iterations"] = self.timings.get("iterations", 0) + 1
 
 
 @dataclass
 class StylizeResult:
+    """A stylization run: the stylized model and what it logged (``stylize_history.csv``, ``stylize.json``)."""
+
     model: GaussianModel
-    history: list[dict]
+    history: list[LoggedStep]
+    """The logged steps of the main pass, then of the colour pass."""
     timings: dict[str, float]
     fast_stats: dict
     seconds: float
@@ -99,8 +141,9 @@ def color_match_model(
             raise InputError(f"colour match: no content pixels for content label {g.content_label}")
         A, b = fit_color_transform(pix, g.style_pixels)
         transforms[g.content_label] = (A, b)
-        sel = torch.ones_like(labels, dtype=torch.bool) if g.content_label == ALL_PIXELS else labels == g.content_label
-        rgb[sel] = apply_color_transform(rgb[sel], A, b)
+    selections = [torch.ones_like(labels, dtype=torch.bool) if g.content_label == ALL_PIXELS else labels == g.content_label
+                  for g in groups]
+    rgb = apply_group_transforms(rgb, selections, [transforms[g.content_label] for g in groups])
     out.sh0 = rgb_to_sh0(rgb)[:, None, :].contiguous()
     if out.shN.numel() and zero_higher_sh:
         out.shN = torch.zeros_like(out.shN)  # view-dependent colour would undo the match
@@ -131,8 +174,8 @@ def _keep_bands_above_1_zero(model: GaussianModel, params: StylizeParams) -> Non
 
 
 def higher_sh_lr(params: StylizeParams, model: GaussianModel) -> float:
-    """The higher SH bands' learning rate: ``lr_shN`` when ``higher_sh`` optimises them (and the scene has them)."""
-    return params.lr_shN if params.higher_sh in ("optimized", "degree1") and model.shN.numel() else 0.0
+    """The higher SH bands' learning rate: ``optim.lr_shN`` when ``higher_sh`` optimises them (and the scene has them)."""
+    return params.optim.lr_shN if params.higher_sh in ("optimized", "degree1") and model.shN.numel() else 0.0
 
 
 def group_pixel_masks(groups: list[MatchingGroup], label_map: np.ndarray) -> list[np.ndarray]:
@@ -161,9 +204,10 @@ def prepare_targets(
     with torch.no_grad():
         for cam, lab in zip(cameras, label_maps):
             # one render gives both when the depth comes from the content scene itself
-            img, _, meta = render(model_content, cam, backend=params.backend, render_depth=model_original is model_content)
+            img, _, meta = render(model_content, cam, backend=params.compute.backend,
+                                  render_depth=model_original is model_content)
             if model_original is not model_content:
-                _, _, meta = render(model_original, cam, backend=params.backend, render_depth=True)
+                _, _, meta = render(model_original, cam, backend=params.compute.backend, render_depth=True)
             feats = _features(vgg, img.clamp(0, 1), params)
             hw = tuple(feats.shape[-2:])
             masks = [downsample_mask(m, hw).to(feats.device) if m.any() else torch.zeros(hw, dtype=torch.bool, device=feats.device)
@@ -192,10 +236,11 @@ def _optimizer(model: GaussianModel, lrs: dict[str, float]) -> torch.optim.Adam:
 
 
 def main_pass_lrs(params: StylizeParams) -> dict[str, float]:
-    """Learning rate per :class:`GaussianModel` field in the main pass (geometry 0 unless ``optimize_geometry``)."""
-    geo = params.optimize_geometry
-    return {"sh0": params.lr_sh0, "means": params.lr_means if geo else 0.0, "log_scales": params.lr_scales if geo else 0.0,
-            "opacity_logits": params.lr_opacity if geo else 0.0, "quats": params.lr_quats if geo else 0.0}
+    """Learning rate per :class:`GaussianModel` field in the main pass (geometry 0 unless ``optim.optimize_geometry``)."""
+    o = params.optim
+    geo = o.optimize_geometry
+    return {"sh0": o.lr_sh0, "means": o.lr_means if geo else 0.0, "log_scales": o.lr_scales if geo else 0.0,
+            "opacity_logits": o.lr_opacity if geo else 0.0, "quats": o.lr_quats if geo else 0.0}
 
 
 def _check_finite(value: Tensor, name: str, step: int) -> None:
@@ -219,6 +264,30 @@ def _random_views(n: int, seed: int):
         yield from torch.randperm(n, generator=gen).tolist()
 
 
+def _view_terms(img: Tensor, depth: Tensor | None, feats: Tensor, target: ViewTargets, w: StyleWeights) -> dict[str, Tensor]:
+    """Eq. 8's terms of one view besides the style: content (VGG features), TV (the render ``(H, W, 3)``), depth
+    (``(H, W, 1)``, when rendered), each weighted by its λ; a term whose λ is 0 is left out."""
+    terms = {}
+    if w.content > 0:
+        terms["content"] = w.content * content_loss(feats, target.content_feats)
+    if w.tv > 0:
+        terms["tv"] = w.tv * tv_loss(img.permute(2, 0, 1)[None])
+    if w.depth > 0 and depth is not None:
+        terms["depth"] = w.depth * F.mse_loss(depth, target.depth)
+    return terms
+
+
+def _drift_terms(m: GaussianModel, start_scales: Tensor, start_opacities: Tensor, w: StyleWeights,
+                 lrs: dict[str, float]) -> dict[str, Tensor]:
+    """Eq. 8's geometry terms: mean ‖Δ scale‖ and mean |Δ opacity| from the start, weighted, for the optimised fields."""
+    terms = {}
+    if w.scale > 0 and lrs["log_scales"] > 0:
+        terms["scale"] = w.scale * (m.scales - start_scales).norm(dim=-1).mean()
+    if w.opacity > 0 and lrs["opacity_logits"] > 0:
+        terms["opacity"] = w.opacity * (m.opacities - start_opacities).abs().mean()
+    return terms
+
+
 def style_pass(
     model: GaussianModel,
     targets: list[ViewTargets],
@@ -227,96 +296,64 @@ def style_pass(
     params: StylizeParams,
     *,
     iterations: int,
-    progress: bool = True,
-    history: list[dict] | None = None,
-    timings: dict[str, float] | None = None,
-    fast_stats: FastStats | None = None,
     method: str = "fast",
-) -> GaussianModel:
-    """The main stylization pass over random views; returns the optimised (detached) model."""
-    history = [] if history is None else history
-    timings = {} if timings is None else timings
-    orig = model.detach()
-    orig_scales, orig_opac = orig.scales, orig.opacities
+    progress: bool = True,
+) -> tuple[GaussianModel, PassLog]:
+    """The main stylization pass over random views: the optimised (detached) model and the pass's log."""
+    start = model.detach()
+    start_scales, start_opacities = start.scales, start.opacities
     m = model.as_parameters()
-    lrs = main_pass_lrs(params)
-    lrs["shN"] = higher_sh_lr(params, m)
+    lrs = main_pass_lrs(params) | {"shN": higher_sh_lr(params, m)}
     opt = _optimizer(m, lrs)
     _keep_bands_above_1_zero(m, params)
     views = _random_views(len(targets), params.seed)
     style_feats = [StyleFeatures.of(g.features) for g in groups]  # fixed for the run: prepared once
+    w, fast, backend, log_every = params.weights, params.fast, params.compute.backend, params.compute.log_every
+    record = PassLog()
     bar = progress_bar(range(iterations), "stylize", enabled=progress)
     t_start = time.perf_counter()
     for step in bar:
         tgt = targets[next(views)]
-        t0 = time.perf_counter()
-        img, alpha, meta = render(m, tgt.camera, backend=params.backend, render_depth=params.lambda_depth > 0)
-        t1 = time.perf_counter()
+        ticks = [time.perf_counter()]
+        img, _, meta = render(m, tgt.camera, backend=backend, render_depth=w.depth > 0)
+        ticks.append(time.perf_counter())
         feats = _features(vgg, img, params)
-        t2 = time.perf_counter()
+        ticks.append(time.perf_counter())
         pairs = [(group_features(feats, mask), fs) for mask, fs in zip(tgt.group_masks, style_feats) if bool(mask.any())]
         terms: dict[str, Tensor] = {}
-        if pairs and params.lambda_style > 0:
-            terms["style"] = params.lambda_style * style_loss(
-                method, pairs, k=params.fast.k, fast_params=params.fast, stats=fast_stats,
-                max_block_elems=params.fast.max_block_elems,
-            )
-        t3 = time.perf_counter()
-        if params.lambda_content > 0:
-            terms["content"] = params.lambda_content * content_loss(feats, tgt.content_feats)
-        if params.lambda_tv > 0:
-            terms["tv"] = params.lambda_tv * tv_loss(img.permute(2, 0, 1)[None])
-        if params.lambda_depth > 0 and meta.depth is not None:
-            terms["depth"] = params.lambda_depth * F.mse_loss(meta.depth, tgt.depth)
-        if params.lambda_scale > 0 and lrs["log_scales"] > 0:
-            terms["scale"] = params.lambda_scale * (m.scales - orig_scales).norm(dim=-1).mean()
-        if params.lambda_opacity > 0 and lrs["opacity_logits"] > 0:
-            terms["opacity"] = params.lambda_opacity * (m.opacities - orig_opac).abs().mean()
+        if pairs and w.style > 0:
+            terms["style"] = w.style * style_loss(method, pairs, k=fast.k, fast_params=fast, stats=record.fast,
+                                                  max_block_elems=fast.max_block_elems)
+        ticks.append(time.perf_counter())
+        terms |= _view_terms(img, meta.depth, feats, tgt, w)
+        terms |= _drift_terms(m, start_scales, start_opacities, w, lrs)
         loss = torch.stack(list(terms.values())).sum()
         if not torch.isfinite(loss):  # one device-to-host read per step; then name the culprit
             for name, value in terms.items():
                 _check_finite(value, name, step)
         opt.zero_grad(set_to_none=True)
         loss.backward()
-        t4 = time.perf_counter()
+        ticks.append(time.perf_counter())
         opt.step()
         _renormalize_quats(m)
-        t5 = time.perf_counter()
-        for key, dt in (("render", t1 - t0), ("vgg", t2 - t1), ("style_loss", t3 - t2), ("backward", t4 - t3),
-                        ("step", t5 - t4)):
-            timings[key] = timings.get(key, 0.0) + dt
-        timings["iterations"] = timings.get("iterations", 0) + 1
-        if step % params.log_every == 0 or step == iterations - 1:
-            row = {"step": step, "seconds": time.perf_counter() - t_start, "loss": float(loss.detach()), "pass": "main"}
-            row.update({k: float(v.detach()) for k, v in terms.items()})
-            history.append(row)
-            bar.set_postfix({k: f"{float(v.detach()):.4f}" for k, v in terms.items()}, refresh=False)
+        ticks.append(time.perf_counter())
+        record.add_step_times(ticks)
+        if step % log_every == 0 or step == iterations - 1:
+            values = {k: float(v.detach()) for k, v in terms.items()}
+            record.steps.append(LoggedStep(step, time.perf_counter() - t_start, "main", float(loss.detach()), values))
+            bar.set_postfix({k: f"{v:.4f}" for k, v in values.items()}, refresh=False)
     bar.close()
-    return m.detach()
+    return m.detach(), record
 
 
-def color_pass(
-    model: GaussianModel,
-    gaussian_labels: Tensor,
-    targets: list[ViewTargets],
-    groups: list[MatchingGroup],
+def _recolored_targets(
+    model: GaussianModel, gaussian_labels: Tensor, targets: list[ViewTargets], groups: list[MatchingGroup],
     params: StylizeParams,
-    *,
-    iterations: int,
-    start_step: int = 0,
-    progress: bool = True,
-    history: list[dict] | None = None,
-) -> GaussianModel:
-    """The authors' post-process: colour-match the re-rendered views to the style again, then re-fit.
-
-    Every view is rendered, each group's covered pixels (alpha > 0.5) get the mean/covariance colour transform to its style
-    region (the transform is applied to the group's Gaussians too, as in the colour-match stage), and the
-    DC colours and rotations are re-fitted to those images with ``0.8·L1 + 0.2·D-SSIM`` while means,
-    scales and opacities stay frozen (``post_process_phase.py`` freezes ``_xyz``, ``_scaling``, ``_opacity``).
-    """
-    history = [] if history is None else history
+) -> tuple[GaussianModel, list[Tensor]]:
+    """The colour pass's start and targets: every view rendered, each group colour-matched to its style again on the
+    pixels it covers that the scene covers (alpha > 0.5), the same transforms applied to the group's Gaussians."""
     with torch.no_grad():
-        outs = [render(model, t.camera, backend=params.backend) for t in targets]
+        outs = [render(model, t.camera, backend=params.compute.backend) for t in targets]
     renders = [o[0].clamp(0, 1) for o in outs]
     pix: dict[int, list[Tensor]] = {g.content_label: [] for g in groups}
     full_masks = []
@@ -332,34 +369,53 @@ def color_pass(
     content = {k: torch.cat(v).numpy(force=True) if v else np.zeros((0, 3), np.float32) for k, v in pix.items()}
     recolored, transforms = color_match_model(model, gaussian_labels, groups, content,
                                               zero_higher_sh=params.higher_sh == "zero")
-    images = []
-    for img, masks in zip(renders, full_masks):
-        new = img.clone()
-        for g, m in zip(groups, masks):
-            a, b = transforms[g.content_label]
-            new[m] = apply_color_transform(img[m], a, b, clip=(0.0, 1.0))
-        images.append(new)
+    per_group = [transforms[g.content_label] for g in groups]
+    images = [apply_group_transforms(img, masks, per_group, clip=(0.0, 1.0)) for img, masks in zip(renders, full_masks)]
+    return recolored, images
+
+
+def color_pass(
+    model: GaussianModel,
+    gaussian_labels: Tensor,
+    targets: list[ViewTargets],
+    groups: list[MatchingGroup],
+    params: StylizeParams,
+    *,
+    iterations: int,
+    start_step: int = 0,
+    progress: bool = True,
+) -> tuple[GaussianModel, list[LoggedStep]]:
+    """The authors' post-process: colour-match the re-rendered views to the style again, then re-fit.
+
+    Every view is rendered, each group's covered pixels (alpha > 0.5) get the mean/covariance colour transform to its style
+    region (the transform is applied to the group's Gaussians too, as in the colour-match stage), and the
+    DC colours and rotations are re-fitted to those images with ``0.8·L1 + 0.2·D-SSIM`` while means,
+    scales and opacities stay frozen (``post_process_phase.py`` freezes ``_xyz``, ``_scaling``, ``_opacity``).
+    Returns the re-fitted (detached) model and the logged steps, numbered from ``start_step``.
+    """
+    recolored, images = _recolored_targets(model, gaussian_labels, targets, groups, params)
     m = recolored.as_parameters()
-    opt = _optimizer(m, {"sh0": params.lr_sh0, "quats": params.lr_quats, "means": 0.0, "log_scales": 0.0,
+    opt = _optimizer(m, {"sh0": params.optim.lr_sh0, "quats": params.optim.lr_quats, "means": 0.0, "log_scales": 0.0,
                          "opacity_logits": 0.0, "shN": higher_sh_lr(params, m)})
     _keep_bands_above_1_zero(m, params)
     views = _random_views(len(targets), params.seed + 1)
+    steps: list[LoggedStep] = []
     bar = progress_bar(range(iterations), "colour pass", enabled=progress)
     t_start = time.perf_counter()
     for it in bar:
         i = next(views)
-        img, _, _ = render(m, targets[i].camera, backend=params.backend)
+        img, _, _ = render(m, targets[i].camera, backend=params.compute.backend)
         terms = reconstruction_loss(img, images[i])
         _check_finite(terms.total, "colour-pass reconstruction", start_step + it)
         opt.zero_grad(set_to_none=True)
         terms.total.backward()
         opt.step()
         _renormalize_quats(m)
-        if it % params.log_every == 0 or it == iterations - 1:
-            history.append({"step": start_step + it, "seconds": time.perf_counter() - t_start, "pass": "color",
-                            "loss": float(terms.total.detach()), "l1": float(terms.l1.detach())})
+        if it % params.compute.log_every == 0 or it == iterations - 1:
+            steps.append(LoggedStep(start_step + it, time.perf_counter() - t_start, "color", float(terms.total.detach()),
+                                    {"l1": float(terms.l1.detach())}))
     bar.close()
-    return m.detach()
+    return m.detach(), steps
 
 
 def stylize(
@@ -392,23 +448,22 @@ def stylize(
         return StylizeResult(model.detach(), [], {"iterations": 0}, {}, 0.0)
     torch.manual_seed(params.seed)
     t0 = time.perf_counter()
-    history: list[dict] = []
-    timings: dict[str, float] = {}
-    stats = FastStats()
     targets = prepare_targets(model, depth_model or model, cameras, label_maps, groups, vgg, params)
     for g, z in enumerate(groups):
         if not any(bool(t.group_masks[g].any()) for t in targets):
             raise InputError(f"matching group for content label {z.content_label} covers no pixel in any view")
-    styled = style_pass(model, targets, groups, vgg, params, iterations=params.iterations, progress=progress,
-                        history=history, timings=timings, fast_stats=stats, method=method)
+    n_main, n_color = params.optim.iterations, params.optim.color_pass_iterations
+    styled, main = style_pass(model, targets, groups, vgg, params, iterations=n_main, method=method, progress=progress)
+    history = list(main.steps)
     t_cp = time.perf_counter()
-    if params.color_pass_iterations > 0:
-        styled = color_pass(styled, gaussian_labels, targets, groups, params, iterations=params.color_pass_iterations,
-                            start_step=params.iterations, progress=progress, history=history)
+    if n_color > 0:
+        styled, color_steps = color_pass(styled, gaussian_labels, targets, groups, params, iterations=n_color,
+                                         start_step=n_main, progress=progress)
+        history += color_steps
     t_cp = time.perf_counter() - t_cp
     if params.preserve_color:
         styled = recolor_to_content(styled, model)
-    return StylizeResult(styled, history, timings, stats.as_dict(), time.perf_counter() - t0, t_cp)
+    return StylizeResult(styled, history, main.timings, main.fast.as_dict(), time.perf_counter() - t0, t_cp)
 
 
 def stylize_scene(

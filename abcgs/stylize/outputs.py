@@ -21,10 +21,12 @@ from abcgs.io.atomic import atomic_path
 from abcgs.io.images import save_image
 from abcgs.io.ply import write_ply
 from abcgs.io.tables import write_csv
+from abcgs.stylize.loop import LoggedStep
 from abcgs.viz import colorize_labels, image_grid, style_legend, write_video
 
 HISTORY_COLUMNS = ("step", "seconds", "loss", "style", "content", "tv", "depth", "scale", "opacity")
-"""Columns of ``stylize_history.csv``: the loss terms of Eq. 8 per logged step (unweighted sums as logged)."""
+"""Columns of ``stylize_history.csv``: per logged step the total loss and Eq. 8's terms, each weighted by its λ
+(:class:`abcgs.stylize.loop.LoggedStep`); a term that is off is empty."""
 
 GRID_ROWS = 3
 """Views shown in ``grid.png``."""
@@ -72,6 +74,6 @@ def write_stylized_scene(
     return {"render_fps": fps, "camera_path": kind}
 
 
-def write_history(path: Path, history: list[dict]) -> None:
+def write_history(path: Path, history: list[LoggedStep]) -> None:
     """``stylize_history.csv`` (columns :data:`HISTORY_COLUMNS`)."""
-    write_csv(path, history, HISTORY_COLUMNS)
+    write_csv(path, [s.row() for s in history], HISTORY_COLUMNS)

@@ -31,8 +31,25 @@ original's bands kept and optimised with the DC colour (the authors' code); ``de
 bands 2–3 zeroed (StylizedGS's degree 1)."""
 
 
-class StylizeParams(BaseModel):
-    """``params.yaml``: ``stylize``."""
+class StyleWeights(BaseModel):
+    """``params.yaml``: ``stylize.weights``, the λ of Eq. 8 (paper {2, 0.005, 0.02, 0.01, 1, 1}); 0 drops a term."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    style: float = Field(2.0, ge=0, description="λ_FAST: stylization strength")
+    content: float = Field(
+        0.0005, ge=0, description="λ_c: content preservation (paper 0.005; with the Keras/Oxford VGG features here "
+        "that value pins the colour-matched start, see docs/FIDELITY.md 'λ balance')")
+    tv: float = Field(0.02, ge=0, description="λ_tv: total variation of the render")
+    depth: float = Field(0.01, ge=0, description="λ_dep: MSE to the original scene's depth")
+    scale: float = Field(1.0, ge=0, description="λ_sca: mean ‖Δ scale‖ from the start (main pass, geometry optimised)")
+    opacity: float = Field(1.0, ge=0, description="λ_opa: mean |Δ opacity| from the start (main pass, geometry "
+                           "optimised)")
+
+
+class StylizeOptim(BaseModel):
+    """``params.yaml``: ``stylize.optim``, the schedule and the Adam learning rates (eps 1e-15, as 3DGS) per
+    Gaussian parameter group; densification stays off."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -42,19 +59,7 @@ class StylizeParams(BaseModel):
         200, ge=0, description="authors' post-process after the main pass: re-render, colour-match again, re-fit colours "
         "and rotations with L1 + D-SSIM (authors: 400; 200 measured on fern: Gram distance 0.315 → 0.267, "
         "docs/FIDELITY.md); 0 turns it off")
-    lambda_style: float = Field(2.0, ge=0, description="λ_FAST: stylization strength")
-    lambda_content: float = Field(
-        0.0005, ge=0, description="λ_c: content preservation (paper 0.005; with the Keras/Oxford VGG features here "
-        "that value pins the colour-matched start, see docs/FIDELITY.md 'λ balance')")
-    lambda_tv: float = Field(0.02, ge=0)
-    lambda_depth: float = Field(0.01, ge=0)
-    lambda_scale: float = Field(1.0, ge=0)
-    lambda_opacity: float = Field(1.0, ge=0)
-    fast: FastParams = Field(default_factory=FastParams)
-    layers: list[str] = Field(default_factory=lambda: ["relu3_1", "relu3_2", "relu3_3"])
-    downsample_render: bool = Field(True, description="render ×0.5 before VGG (authors' code)")
-    style_height: int = Field(256, ge=16, description="style images are resized to this height")
-    resolution_scale: float = Field(1.0, gt=0, le=1.0, description="stylize at this fraction of the view size")
+    optimize_geometry: bool = Field(True, description="also optimise xyz/scale/opacity/rotation in the main pass")
     lr_preset: Literal["authors_code", "ours"] = Field(
         "authors_code", description="learning rates: 'authors_code' (INRIA's training_setup rates with xyz frozen, as "
         "the authors' code runs; the default, measured on fern × 3 paintings: docs/FIDELITY.md) or 'ours' (this "
@@ -64,19 +69,9 @@ class StylizeParams(BaseModel):
     lr_scales: float = Field(LR_PRESETS["authors_code"]["lr_scales"], ge=0)
     lr_opacity: float = Field(LR_PRESETS["authors_code"]["lr_opacity"], ge=0)
     lr_quats: float = Field(LR_PRESETS["authors_code"]["lr_quats"], ge=0)
-    higher_sh: HigherSH = Field(
-        "zero", description="the SH bands above DC of a degree 1-3 scene: zero | frozen | optimized | degree1 (HigherSH; "
-        "measured on a degree-3 scene in docs/SPLATS.md); no effect on a degree-0 scene")
     lr_shN: float = Field(LR_PRESETS["authors_code"]["lr_sh0"] / 20.0, ge=0,
-                          description="learning rate of the higher SH bands when higher_sh is optimized or degree1 "
-                          "(INRIA: the DC rate / 20)")
-    optimize_geometry: bool = Field(True, description="also optimise xyz/scale/opacity/rotation in the main pass")
-    preserve_color: bool = Field(False, description="keep the scene's colours: transfer luminance only")
-    seed: int = 0
-    backend: str = "auto"
-    log_every: int = Field(10, ge=1)
-    threads: int = Field(0, ge=0, description="torch CPU threads for this stage (0: torch's default, all cores); "
-                         "with `dvc queue start -j N` on C cores, C // N (README 'Benchmarks at scale')")
+                          description="learning rate of the higher SH bands when stylize.higher_sh is optimized or "
+                          "degree1 (INRIA: the DC rate / 20)")
 
     @model_validator(mode="before")
     @classmethod
@@ -86,6 +81,64 @@ class StylizeParams(BaseModel):
             preset = data.get("lr_preset", "authors_code")
             if preset in LR_PRESETS:
                 data = {**LR_PRESETS[preset], **data}
+        return data
+
+
+class StylizeCompute(BaseModel):
+    """``params.yaml``: ``stylize.compute``, where and how the loop runs and how often it logs; no effect on the
+    numbers but through the rasterizer chosen."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    backend: str = Field("auto", description="rasterizer (abcgs.render)")
+    threads: int = Field(0, ge=0, description="torch CPU threads for this stage (0: torch's default, all cores); "
+                         "with `dvc queue start -j N` on C cores, C // N (README 'Benchmarks at scale')")
+    log_every: int = Field(10, ge=1, description="a row of stylize_history.csv every this many steps (and the last)")
+
+
+MOVED_KEYS: dict[str, str] = {
+    **{f"lambda_{k}": f"weights.{k}" for k in ("style", "content", "tv", "depth", "scale", "opacity")},
+    **{k: f"optim.{k}" for k in ("iterations", "color_pass_iterations", "optimize_geometry", "lr_preset", "lr_sh0",
+                                 "lr_means", "lr_scales", "lr_opacity", "lr_quats", "lr_shN")},
+    **{k: f"compute.{k}" for k in ("backend", "threads", "log_every")},
+}
+"""Flat ``stylize.<key>`` of earlier params files → its place in the sections (``stylize.<section>.<key>``)."""
+
+
+class StylizeParams(BaseModel):
+    """``params.yaml``: ``stylize``."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    layers: list[str] = Field(default_factory=lambda: ["relu3_1", "relu3_2", "relu3_3"],
+                              description="VGG-16 taps of the style and content features")
+    style_height: int = Field(256, ge=16, description="style images are resized to this height")
+    downsample_render: bool = Field(True, description="render ×0.5 before VGG (authors' code)")
+    resolution_scale: float = Field(1.0, gt=0, le=1.0, description="stylize at this fraction of the view size")
+    higher_sh: HigherSH = Field(
+        "zero", description="the SH bands above DC of a degree 1-3 scene: zero | frozen | optimized | degree1 (HigherSH; "
+        "measured on a degree-3 scene in docs/SPLATS.md); no effect on a degree-0 scene")
+    preserve_color: bool = Field(False, description="keep the scene's colours: transfer luminance only")
+    seed: int = 0
+    weights: StyleWeights = Field(default_factory=StyleWeights)
+    fast: FastParams = Field(default_factory=FastParams)
+    optim: StylizeOptim = Field(default_factory=StylizeOptim)
+    compute: StylizeCompute = Field(default_factory=StylizeCompute)
+
+    def with_schedule(self, iterations: int | None = None, color_pass_iterations: int | None = None) -> StylizeParams:
+        """A copy with ``optim.iterations`` / ``optim.color_pass_iterations`` replaced where given (≥ 0)."""
+        update = {k: v for k, v in (("iterations", iterations), ("color_pass_iterations", color_pass_iterations))
+                  if v is not None}
+        return self.model_copy(update={"optim": StylizeOptim.model_validate({**self.optim.model_dump(), **update})})
+
+    @model_validator(mode="before")
+    @classmethod
+    def _moved_keys(cls, data):
+        """A flat key of the earlier layout fails naming its new place (before the generic unknown-key error)."""
+        if isinstance(data, dict):
+            moved = [f"stylize.{k} moved to stylize.{MOVED_KEYS[k]}" for k in data if k in MOVED_KEYS]
+            if moved:
+                raise ValueError("; ".join(moved))
         return data
 
 

@@ -44,18 +44,13 @@ import yaml
 
 from abcgs.cluster.local import LocalSlurm, install
 from abcgs.cluster.run import load_run, read_state
-from eval.bench.regression import REDUCED
+from eval.bench.regression import REDUCED, reduce
 from eval.bench.repo_copy import copy_repo, run_in
 
 TIMING_KEYS = re.compile(r"minutes|seconds|timings|_fps|speed")
 """Metric keys that measure time, not the result."""
 DEFAULT_RESOURCES = {kind: {"cpus": os.cpu_count() or 1, "mem": "2G", "time": "01:00:00"}
                      for kind in ("prep", "scene", "experiment", "report")}
-
-
-def reduce(params: dict) -> None:
-    for (section, key), value in REDUCED.items():
-        params[section][key] = value
 
 
 def results(repo: Path) -> dict:
@@ -195,7 +190,7 @@ def main(argv: list[str] | None = None) -> dict:
     out = {"command": "python -m eval.bench.cluster " + " ".join(argv if argv is not None else sys.argv[1:]),
            "date": time.strftime("%Y-%m-%d %H:%M"), "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
                                                                 "loadavg_before": [round(x, 2) for x in load_before]},
-           "reduced": {f"{s}.{k}": v for (s, k), v in REDUCED.items()}, "order": order, "repeat": a.repeat,
+           "reduced": dict(REDUCED), "order": order, "repeat": a.repeat,
            "plain_wall_s": [r["wall_s"] for r in runs["plain"]], "cluster_wall_s": [r["wall_s"] for r in runs["cluster"]],
            "plain_median_s": plain, "cluster_median_s": cluster, "ratio": round(ratio, 3),
            "metrics_equal": not any(d["metrics"] for d in diffs), "ply_equal": not any(d["ply"] for d in diffs),

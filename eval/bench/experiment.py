@@ -186,7 +186,7 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("overlay", type=Path)
     r.add_argument("--name", required=True, help="the experiment's name (dvc exp show lists it)")
     r.add_argument("--shared", type=Path, help="folder that ${shared} in the overlay stands for")
-    r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="one more override, e.g. stylize.iterations=600")
+    r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="one more override, e.g. stylize.optim.iterations=600")
     r.add_argument("--dry-run", action="store_true", help="print the overrides and stop")
     s = sub.add_parser("show", help="print an experiment's results table; optionally publish it")
     s.add_argument("name")

@@ -136,7 +136,7 @@ def prepare(bundle: Path, shared: Path) -> None:
 
 
 QUICK = {"fit": {"iterations": 60}, "colormatch": {"refit_iterations": 5},
-         "stylize": {"iterations": 6, "color_pass_iterations": 3}, "evaluate": {"fps_passes": 1, "max_views": 4}}
+         "stylize": {"optim": {"iterations": 6, "color_pass_iterations": 3}}, "evaluate": {"fps_passes": 1, "max_views": 4}}
 """``--quick``: schedules cut to a few steps, for the dry run that checks the script itself (its metrics compare with
 nothing)."""
 

@@ -47,7 +47,7 @@ from abcgs.splats.formats import read_splat, write_splat
 from abcgs.splats.preview import decimate
 from abcgs.splats.validate import check_splat
 from abcgs.stylize.loop import stylize
-from abcgs.stylize.params import StylizeParams
+from abcgs.stylize.params import StylizeCompute, StylizeOptim, StylizeParams
 
 
 def peak_rss_gib() -> float:
@@ -141,7 +141,8 @@ def main(argv=None) -> dict:
         feats = extract_features(vgg, style[None], ["relu3_1", "relu3_2", "relu3_3"])[0]
     pixels = style.permute(1, 2, 0).reshape(-1, 3).numpy()
     groups = [MatchingGroup(ALL_PIXELS, "style", pixels, feats.reshape(feats.shape[0], -1))]
-    sp = StylizeParams(iterations=args.steps, color_pass_iterations=args.color_steps, log_every=1)
+    sp = StylizeParams(optim=StylizeOptim(iterations=args.steps, color_pass_iterations=args.color_steps),
+                       compute=StylizeCompute(log_every=1))
 
     def stylize_phase(name: str, m: GaussianModel) -> GaussianModel:
         labels = torch.zeros(m.num_gaussians, dtype=torch.long)

@@ -5,12 +5,20 @@ gates :data:`GATED` against ``tests/baselines/tiny_seed_spread.json``, whose tol
 ``python -m eval.studies.seed_spread`` measures with the same settings.
 """
 
+from abcgs.params import set_dotted
+
 GATED = ("ssim", "short_rmse", "long_rmse")
 """Metrics (keys of ``out/<experiment>/eval.json``) whose regression fails CI."""
 
 REDUCED = {
-    ("fit", "iterations"): 300,
-    ("colormatch", "refit_iterations"): 20,
-    ("stylize", "iterations"): 20,
+    "fit.iterations": 300,
+    "colormatch.refit_iterations": 20,
+    "stylize.optim.iterations": 20,
 }
-"""(section, key) → value: the shortened schedule of the regression runs."""
+"""Dotted params key → value: the shortened schedule of the regression runs."""
+
+
+def reduce(params: dict) -> None:
+    """Set the :data:`REDUCED` schedule in a parsed params file (in place)."""
+    for dotted, value in REDUCED.items():
+        set_dotted(params, dotted, value)

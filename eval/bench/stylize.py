@@ -63,9 +63,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--style", type=Path, required=True)
     ap.add_argument("--work", type=Path, default=Path("out/bench"))
     ap.add_argument("--params", type=Path, default=Path("params.yaml"))
-    ap.add_argument("--iterations", type=int, default=None, help="override stylize.iterations")
+    ap.add_argument("--iterations", type=int, default=None, help="override stylize.optim.iterations")
     ap.add_argument("--color-pass-iterations", type=int, default=None,
-                    help="override stylize.color_pass_iterations (the authors' schedule: 600 + 400)")
+                    help="override stylize.optim.color_pass_iterations (the authors' schedule: 600 + 400)")
     ap.add_argument("--refit-iterations", type=int, default=200)
     ap.add_argument("--method", default="fast", choices=["fast", "nnfm", "knnfm", "gram"])
     ap.add_argument("--threads", type=int, default=0)
@@ -82,9 +82,7 @@ def main(argv=None) -> dict:
         torch.set_num_threads(args.threads)
 
     params = load_params(args.params)
-    update = {k: v for k, v in (("iterations", args.iterations), ("color_pass_iterations", args.color_pass_iterations))
-              if v is not None}
-    sp = params.stylize.model_copy(update=update)
+    sp = params.stylize.with_schedule(args.iterations, args.color_pass_iterations)
     fast_update = {key: value for key, value in (("knn_search", args.knn_search), ("projection_rank", args.projection_rank),
                                                  ("projection_candidates", args.projection_candidates),
                                                  ("projection_products", args.projection_products)) if value is not None}
@@ -124,7 +122,7 @@ def main(argv=None) -> dict:
     out = {
         "scene": str(args.scene), "style": str(args.style), "method": args.method,
         "iterations": int(res.timings.get("iterations", 0)), "refit_iterations": args.refit_iterations,
-        "color_pass_iterations": sp.color_pass_iterations,
+        "color_pass_iterations": sp.optim.color_pass_iterations,
         "ssim_mean": float(np.mean(ssims)), "ssim_per_view": ssims,
         "gram_distance": {"original": g_orig, "color_matched": g_start, "stylized": g_end,
                           "drop_from_color_matched": 1.0 - g_end / g_start},

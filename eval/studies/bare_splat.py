@@ -79,7 +79,7 @@ def main(argv=None) -> dict:
     original = read_ply(work / "gs" / "point_cloud.ply")
     params = load_params(args.params)
     sd, info = resolve_vgg16(params.vgg)
-    sp = params.stylize.model_copy(update={"iterations": args.iterations, "color_pass_iterations": args.color_pass_iterations})
+    sp = params.stylize.with_schedule(args.iterations, args.color_pass_iterations)
     vgg = VGG16Features(sd, sp.layers, feature_scale=info.feature_scale)
     groups = build_groups(TransferSpec(scene="bare", transfer="single", style="style"), {"style": str(args.style)}, {},
                           set(), vgg, style_height=sp.style_height, layers=sp.layers)

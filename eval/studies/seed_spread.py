@@ -18,7 +18,7 @@ import numpy as np
 import yaml
 
 from abcgs.io.atomic import write_json
-from eval.bench.regression import GATED, REDUCED
+from eval.bench.regression import GATED, REDUCED, reduce
 from eval.bench.repo_copy import copy_repo, run_in
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -28,8 +28,7 @@ SEEDED = ("fit", "colormatch", "stylize", "evaluate")
 
 def run_once(seed: int, work: Path) -> dict[str, dict[str, float]]:
     def edit(params: dict) -> None:
-        for (section, key), value in REDUCED.items():
-            params[section][key] = value
+        reduce(params)
         for section in SEEDED:
             params.setdefault(section, {})["seed"] = seed
 
@@ -60,7 +59,7 @@ def main(argv=None) -> dict:
             summary[exp][k] = {"mean": float(vals.mean()), "std": float(vals.std(ddof=1)) if len(vals) > 1 else 0.0,
                                "values": vals.tolist()}
             print(f"{exp:22s} {k:12s} mean {vals.mean():.4f} std {summary[exp][k]['std']:.4f} {vals.round(4).tolist()}")
-    result = {"seeds": args.seeds, "reduced": {f"{a}.{b}": v for (a, b), v in REDUCED.items()}, "metrics": summary}
+    result = {"seeds": args.seeds, "reduced": dict(REDUCED), "metrics": summary}
     if args.json:
         write_json(args.json, result)
     return result

@@ -87,7 +87,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--params", type=Path, default=Path("params.yaml"))
     ap.add_argument("--fit-iterations", type=int, default=2000)
     ap.add_argument("--fit-scale", type=float, default=0.5, help="fit and stylize at this fraction of the image size")
-    ap.add_argument("--iterations", type=int, default=150, help="stylize.iterations")
+    ap.add_argument("--iterations", type=int, default=150, help="stylize.optim.iterations")
     ap.add_argument("--color-pass-iterations", type=int, default=50)
     ap.add_argument("--refit-iterations", type=int, default=100)
     ap.add_argument("--fit-only", action="store_true")
@@ -101,7 +101,7 @@ def main(argv=None) -> dict:
     cams = [c.scaled(args.fit_scale) for c in scene.cameras]
     params = load_params(args.params)
     sd, info = resolve_vgg16(params.vgg)
-    base = params.stylize.model_copy(update={"iterations": args.iterations, "color_pass_iterations": args.color_pass_iterations})
+    base = params.stylize.with_schedule(args.iterations, args.color_pass_iterations)
     vgg = VGG16Features(sd, base.layers, feature_scale=info.feature_scale)
     groups = build_groups(TransferSpec(scene=args.scene.name, transfer="single", style="style"), {"style": str(args.style)},
                           {}, set(), vgg, style_height=base.style_height, layers=base.layers)
