@@ -18,6 +18,7 @@ from abcgs.io.atomic import write_json
 from abcgs.io.images import save_image
 from abcgs.io.ply import write_ply
 from abcgs.io.tables import write_csv
+from abcgs.layout import FitDir
 from abcgs.render.cpu import kernel_threads
 from abcgs.runtime import torch_threads
 
@@ -37,12 +38,12 @@ def fit_and_save(
     - ``heldout_grid.png``: one row per held-out view, ground truth | render (training views 0–2 when
       nothing is held out).
     """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = FitDir(Path(out_dir))
+    out.root.mkdir(parents=True, exist_ok=True)
     result = fit(scene, params, progress, device=device)
-    write_ply(out / "point_cloud.ply", result.model)
-    write_json(out / "metrics.json", result.metrics())
-    write_csv(out / "history.csv", result.history, HISTORY_COLUMNS)
+    write_ply(out.ply, result.model)
+    write_json(out.record, result.metrics())
+    write_csv(out.history, result.history, HISTORY_COLUMNS)
     if result.heldout is not None:
         pairs = [(v.target, v.render) for v in result.heldout.views]
     else:
@@ -54,5 +55,5 @@ def fit_and_save(
                 keep_images=True,
             )
         pairs = [(v.target, v.render) for v in ev.views]
-    save_image(out / "heldout_grid.png", comparison_grid(pairs))
+    save_image(out.heldout_grid, comparison_grid(pairs))
     return result

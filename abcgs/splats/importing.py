@@ -25,6 +25,7 @@ from abcgs.io.atomic import write_json
 from abcgs.io.images import save_image
 from abcgs.io.ply import write_ply
 from abcgs.io.tables import write_csv
+from abcgs.layout import FitDir
 from abcgs.render import select_backend
 from abcgs.render.cpu import kernel_threads
 from abcgs.runtime import torch_threads
@@ -32,12 +33,10 @@ from abcgs.splats.formats import read_splat
 from abcgs.splats.preview import decimate
 from abcgs.splats.validate import check_splat
 
-SOURCE_FILE = "splat_source.json"
-
 
 def write_fitted_source(out_dir: str | os.PathLike) -> None:
     """``splat_source.json`` of a scene fitted from its photos (nothing to give back in another format)."""
-    write_json(Path(out_dir) / SOURCE_FILE, {"format": None, "note": "fitted from the photos by abcgs"})
+    write_json(FitDir(Path(out_dir)).splat_source, {"format": None, "note": "fitted from the photos by abcgs"})
 
 
 def import_and_save(scene: SceneLike, splat: str | os.PathLike, fmt: str, params: FitParams,
@@ -73,9 +72,10 @@ def import_and_save(scene: SceneLike, splat: str | os.PathLike, fmt: str, params
                      "check": check.to_dict()},
     }
     out.mkdir(parents=True, exist_ok=True)
-    write_ply(out / "point_cloud.ply", imported.model)
-    write_json(out / "metrics.json", record)
-    write_csv(out / "history.csv", [], HISTORY_COLUMNS)
-    save_image(out / "heldout_grid.png", comparison_grid([(v.target, v.render) for v in ev.views]))
-    write_json(out / SOURCE_FILE, prov.to_dict())
+    d = FitDir(out)
+    write_ply(d.ply, imported.model)
+    write_json(d.record, record)
+    write_csv(d.history, [], HISTORY_COLUMNS)
+    save_image(d.heldout_grid, comparison_grid([(v.target, v.render) for v in ev.views]))
+    write_json(d.splat_source, prov.to_dict())
     return record

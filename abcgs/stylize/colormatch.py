@@ -22,6 +22,7 @@ from abcgs.gaussians import GaussianModel
 from abcgs.io.atomic import atomic_path, write_json
 from abcgs.io.images import save_image
 from abcgs.io.ply import write_ply
+from abcgs.layout import ColorMatchDir
 from abcgs.sfm.model import SceneData
 from abcgs.stylize.color import apply_group_transforms
 from abcgs.stylize.loop import color_match_model, group_pixel_masks
@@ -96,12 +97,13 @@ def write_colormatch(out: Path, name: str, spec: TransferSpec, result: ColorMatc
     ``colormatch.json`` (the transforms ``A``, ``b`` per group, the re-fit's length and final loss, the VGG weights'
     provenance) and ``recolored.png`` (the first recoloured training images)."""
     with atomic_path(out, is_dir=True) as tmp:
-        write_ply(tmp / "point_cloud.ply", result.model)
-        write_json(tmp / "colormatch.json", {
+        d = ColorMatchDir(tmp)
+        write_ply(d.ply, result.model)
+        write_json(d.record, {
             "colormatch": name, **spec.model_dump(mode="json"), "groups": [g.style_name for g in groups],
             "transforms": {str(k): {"A": A.tolist(), "b": b.tolist()} for k, (A, b) in result.transforms.items()},
             "refit_steps": len(result.history),
             "refit_final_loss": result.history[-1]["loss"] if result.history else None,
             "vgg_weights": vgg_weights,
         })
-        save_image(tmp / "recolored.png", image_grid([[img.numpy(force=True) for img in result.images[:4]]]))
+        save_image(d.recolored, image_grid([[img.numpy(force=True) for img in result.images[:4]]]))

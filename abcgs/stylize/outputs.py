@@ -21,6 +21,7 @@ from abcgs.io.atomic import atomic_path
 from abcgs.io.images import save_image
 from abcgs.io.ply import write_ply
 from abcgs.io.tables import write_csv
+from abcgs.layout import StylizeDir
 from abcgs.stylize.loop import LoggedStep
 from abcgs.viz import colorize_labels, image_grid, style_legend, write_video
 
@@ -55,22 +56,23 @@ def write_stylized_scene(
     Returns ``{"render_fps": renders per second over the cameras, "camera_path": the path kind used}``.
     """
     with atomic_path(out, is_dir=True) as tmp, torch.no_grad():
-        write_ply(tmp / "point_cloud.ply", stylized)
-        (tmp / "renders").mkdir()
+        d = StylizeDir(tmp)
+        write_ply(d.ply, stylized)
+        d.renders.mkdir()
         t0 = time.perf_counter()
         renders = [_image(stylized, c, backend) for c in cameras]
         fps = len(renders) / max(time.perf_counter() - t0, 1e-9)
         for cam, img in zip(cameras, renders):
-            save_image(tmp / "renders" / f"{Path(cam.name).stem}.png", img)
+            save_image(d.renders / f"{Path(cam.name).stem}.png", img)
         legend = style_legend(
             [(None if g.content_label == ALL_PIXELS else colorize_labels(np.array([g.content_label]))[0],
               g.style_image, g.style_region) for g in groups],
             height=cameras[0].height)
         rows = [[_image(original, cameras[i], backend), colorize_labels(view_labels[i]), legend, renders[i]]
                 for i in range(min(GRID_ROWS, len(renders)))]
-        save_image(tmp / "grid.png", image_grid(rows, ["content", "labels", "label: painting", "stylized"]))
+        save_image(d.grid, image_grid(rows, ["content", "labels", "label: painting", "stylized"]))
         path, kind = camera_path(cameras, path_kind, path_frames)
-        write_video(tmp / "turntable.mp4", [_image(stylized, c, backend) for c in path], fps=24)
+        write_video(d.turntable, [_image(stylized, c, backend) for c in path], fps=24)
     return {"render_fps": fps, "camera_path": kind}
 
 
