@@ -105,14 +105,6 @@ def deep_merge(base: dict, override: dict) -> dict:
     return out
 
 
-def set_dotted(params: dict, dotted: str, value: Any) -> None:
-    """``params[a][b][c] = value`` for ``dotted = "a.b.c"``, creating mappings on the way (``--set`` overrides)."""
-    *parents, leaf = dotted.split(".")
-    for key in parents:
-        params = params.setdefault(key, {})
-    params[leaf] = value
-
-
 Device = Literal["auto", "cpu", "cuda"]
 """Where tensors live: ``auto`` = the first CUDA GPU when torch sees one, else the CPU."""
 

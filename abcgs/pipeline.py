@@ -37,6 +37,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel
 
+from abcgs.dotted import lookup
 from abcgs.errors import AbcgsError
 from abcgs.params import NAME_PATTERN, NAME_RE, Params, read_params_file, validate_params
 from abcgs.preflight import preflight
@@ -96,9 +97,7 @@ class StageSpec:
 
 
 def _lookup(raw: Mapping[str, Any], dotted: str) -> Mapping[str, Any]:
-    node: Any = raw
-    for part in dotted.split("."):
-        node = node.get(part, {}) if isinstance(node, Mapping) else {}
+    node = lookup(raw, dotted, {})
     return node if isinstance(node, Mapping) else {}
 
 
