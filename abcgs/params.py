@@ -29,6 +29,7 @@ from abcgs.scene.params import TinySceneParams
 from abcgs.sfm.params import ReconstructParams
 from abcgs.splats.params import SplatFormatParam, SplatViewsParams
 from abcgs.stylize.params import ColorMatchParams, StylizeParams
+from abcgs.types import Device
 from abcgs.view.params import ViewerParams
 
 SCENE_SECTIONS = ("reconstruct", "fit", "masks")
@@ -103,10 +104,6 @@ def deep_merge(base: dict, override: dict) -> dict:
     for k, v in override.items():
         out[k] = deep_merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
     return out
-
-
-Device = Literal["auto", "cpu", "cuda"]
-"""Where tensors live: ``auto`` = the first CUDA GPU when torch sees one, else the CPU."""
 
 
 class RuntimeParams(BaseModel):

@@ -12,7 +12,7 @@ from collections.abc import Iterator
 import torch
 
 from abcgs.errors import InputError
-from abcgs.params import Device
+from abcgs.types import Device
 
 
 def resolve_device(setting: Device | str = "auto") -> torch.device:

@@ -14,17 +14,12 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from abcgs.layout import load_scene
+from abcgs.masks.outputs import load_scene_masks
 from abcgs.pipeline import StageSpec, run_stage, stage_parser
 from abcgs.runtime import resolve_device, torch_threads
 from abcgs.stylize.colormatch import color_match_and_refit, write_colormatch
-from abcgs.stylize.experiment import (
-    check_bindings,
-    colormatch_spec,
-    load_groups,
-    load_scene,
-    load_scene_masks,
-    load_vgg,
-)
+from abcgs.stylize.experiment import check_bindings, load_groups, load_vgg
 
 SPEC = StageSpec("colormatch", foreach="colormatches", params=(
     "colormatches.{key}", "data.styles", "data.style_masks", "colormatch", "isolation", "vgg",
@@ -34,13 +29,15 @@ SPEC = StageSpec("colormatch", foreach="colormatches", params=(
 
 
 def main(args, params) -> None:
-    spec = colormatch_spec(params, args.colormatch)
+    spec = params.colormatches[args.colormatch]
     device = resolve_device(params.runtime.device)
     scene, model = load_scene(args.root, spec.scene)
     masks = load_scene_masks(args.root / spec.scene / "masks", scene, model.num_gaussians)
-    check_bindings(params, args.colormatch, spec, masks.gaussian_labels, args.root / spec.scene / "masks")
-    vgg, info = load_vgg(params, device)
-    groups = load_groups(params, spec, vgg, masks.gaussian_labels)
+    check_bindings(args.colormatch, spec, masks.gaussian_labels, args.root / spec.scene / "masks",
+                   params.data.style_masks)
+    vgg, info = load_vgg(params.vgg, params.stylize.layers, device)
+    groups = load_groups(spec, vgg, masks.gaussian_labels, params.data.styles, params.data.style_masks,
+                         params.isolation, params.stylize)
     with torch_threads(params.colormatch.threads):
         res = color_match_and_refit(model.to(device), scene, masks.gaussian_labels.to(device), masks.view_labels,
                                     groups, params.colormatch)

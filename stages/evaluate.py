@@ -18,9 +18,9 @@ from abcgs.evaluation.evaluate import evaluate_scene, load_stylize_run, write_ev
 from abcgs.evaluation.reference import load_reference, model_digest
 from abcgs.io.images import load_image
 from abcgs.io.ply import read_ply
+from abcgs.layout import load_scene
 from abcgs.pipeline import StageSpec, run_stage, stage_parser
 from abcgs.runtime import resolve_device
-from abcgs.stylize.experiment import colormatch_spec, experiment, load_scene
 
 SPEC = StageSpec("evaluate", foreach="experiments", params=(
     "evaluate", "experiments.{key}", "colormatches.{item.colormatch}", "data.styles", "vgg", "runtime",
@@ -29,8 +29,8 @@ SPEC = StageSpec("evaluate", foreach="experiments", params=(
 
 def main(args, params) -> None:
     ep = params.evaluate
-    exp = experiment(params, args.experiment)
-    spec = colormatch_spec(params, exp.colormatch)
+    exp = params.experiments[args.experiment]
+    spec = params.colormatches[exp.colormatch]
     scene, original = load_scene(args.root, exp.scene)
     stems = [Path(c.name).stem for c in scene.cameras]
     ply, info, pngs = load_stylize_run(args.root, args.experiment, stems)

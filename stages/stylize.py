@@ -11,18 +11,11 @@ import sys
 from pathlib import Path
 
 from abcgs.io.metrics import write_metrics
+from abcgs.layout import colormatch_dir, load_scene
+from abcgs.masks.outputs import load_scene_masks
 from abcgs.pipeline import StageSpec, run_stage, stage_parser
 from abcgs.runtime import resolve_device, torch_threads
-from abcgs.stylize.experiment import (
-    colormatch_dir,
-    colormatch_spec,
-    experiment,
-    load_groups,
-    load_scene,
-    load_scene_masks,
-    load_vgg,
-    read_colormatch,
-)
+from abcgs.stylize.experiment import load_groups, load_vgg, read_colormatch
 from abcgs.stylize.loop import stylize_scene
 from abcgs.stylize.outputs import write_history, write_stylized_scene
 
@@ -33,16 +26,17 @@ SPEC = StageSpec("stylize", foreach="experiments", params=(
 
 
 def main(args, params) -> None:
-    exp = experiment(params, args.experiment)
-    spec = colormatch_spec(params, exp.colormatch)
+    exp = params.experiments[args.experiment]
+    spec = params.colormatches[exp.colormatch]
     sp = params.stylize
     device = resolve_device(params.runtime.device)
     scene, original = load_scene(args.root, exp.scene)
     matched = read_colormatch(colormatch_dir(args.root, exp.scene, exp.colormatch), exp.colormatch)
     masks = load_scene_masks(args.root / exp.scene / "masks", scene, original.num_gaussians, device=device)
     original, matched = original.to(device), matched.to(device)
-    vgg, info = load_vgg(params, device)
-    groups = load_groups(params, spec, vgg, masks.gaussian_labels)
+    vgg, info = load_vgg(params.vgg, sp.layers, device)
+    groups = load_groups(spec, vgg, masks.gaussian_labels, params.data.styles, params.data.style_masks,
+                         params.isolation, sp)
     with torch_threads(sp.threads):
         res = stylize_scene(matched, original, scene.cameras, masks, groups, vgg, sp, method=exp.method)
         written = write_stylized_scene(

@@ -7,17 +7,9 @@ import math
 import pytest
 import torch
 
-from abcgs.fit.strategy import (
-    DefaultStrategy,
-    NoDensification,
-    StrategyParams,
-    duplicate,
-    remove,
-    reset_opacity,
-    scene_extent,
-    split,
-)
-from abcgs.fit.trainer import FitParams, make_optimizers
+from abcgs.fit.params import FitParams, StrategyParams
+from abcgs.fit.strategy import DefaultStrategy, NoDensification, duplicate, remove, reset_opacity, scene_extent, split
+from abcgs.fit.trainer import make_optimizers
 from abcgs.gaussians import PARAM_NAMES, GaussianModel
 from abcgs.render import RenderMeta, quat_to_rotmat
 

@@ -19,7 +19,7 @@ import torch
 
 from abcgs.errors import InputError
 from abcgs.features.isolation import region_features
-from abcgs.features.params import ALL_PIXELS, ExperimentParams, IsolationParams, TransferSpec, TransferType  # noqa: F401  (the section's schema)
+from abcgs.features.params import ALL_PIXELS, IsolationParams, TransferSpec
 from abcgs.features.vgg import VGG16Features, extract_features
 from abcgs.io.images import load_image, load_labels
 

@@ -29,7 +29,7 @@ from typing import Any, Protocol, runtime_checkable
 import torch
 from torch import Tensor
 
-from abcgs.fit.params import StrategyParams  # noqa: F401  (the section's schema)
+from abcgs.fit.params import StrategyParams
 from abcgs.gaussians import PARAM_NAMES, GaussianModel
 from abcgs.render import RenderMeta, quat_to_rotmat
 

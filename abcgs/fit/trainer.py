@@ -30,7 +30,7 @@ from abcgs.cameras import Camera
 from abcgs.errors import InputError, NumericalError
 from abcgs.fit import metrics as M
 from abcgs.fit.losses import reconstruction_loss
-from abcgs.fit.params import REFERENCE_ITERATIONS, FitParams  # noqa: F401  (the section's schema)
+from abcgs.fit.params import FitParams
 from abcgs.fit.strategy import DefaultStrategy, NoDensification, RefineReport, Strategy, scene_extent
 from abcgs.gaussians import PARAM_NAMES, GaussianModel, render
 from abcgs.io.atomic import write_json

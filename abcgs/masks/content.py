@@ -37,7 +37,7 @@ from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel, render
 from abcgs.io.images import load_labels
 from abcgs.masks.lifting import NO_VOTE, lift_labels, propagate_unseen, render_label_map
-from abcgs.masks.params import UNDECIDED, AutoMaskParams, GrabCutParams, MaskParams, RefineParams  # noqa: F401  (the section's schema)
+from abcgs.masks.params import UNDECIDED, AutoMaskParams, GrabCutParams, MaskParams
 from abcgs.masks.refine import Refinement, refine_labels
 
 log = logging.getLogger(__name__)

@@ -24,7 +24,7 @@ from torch import Tensor
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
-from abcgs.masks.params import LiftParams  # noqa: F401  (the section's schema)
+from abcgs.masks.params import LiftParams
 from abcgs.render import accumulate_weights, rasterize
 
 NO_VOTE = -1

@@ -14,8 +14,10 @@ import torch
 from torch import Tensor
 
 from abcgs.errors import InputError
-from abcgs.features.matching import ALL_PIXELS, MatchingGroup, TransferSpec
-from abcgs.fit.trainer import FitParams, Views, fit, load_views
+from abcgs.features.matching import MatchingGroup
+from abcgs.features.params import ALL_PIXELS, TransferSpec
+from abcgs.fit.params import FitParams
+from abcgs.fit.trainer import Views, fit, load_views
 from abcgs.gaussians import GaussianModel
 from abcgs.io.atomic import atomic_path, write_json
 from abcgs.io.images import save_image
@@ -23,7 +25,7 @@ from abcgs.io.ply import write_ply
 from abcgs.sfm.model import SceneData
 from abcgs.stylize.color import apply_color_transform
 from abcgs.stylize.loop import color_match_model, group_pixel_masks
-from abcgs.stylize.params import ColorMatchParams  # noqa: F401  (the section's schema)
+from abcgs.stylize.params import ColorMatchParams
 from abcgs.viz import image_grid
 
 

@@ -29,17 +29,19 @@ from abcgs.errors import InputError, NumericalError
 from abcgs.features import knn
 from abcgs.features.isolation import downsample_mask
 from abcgs.features.knn import StyleFeatures
-from abcgs.features.matching import ALL_PIXELS, MatchingGroup
+from abcgs.features.matching import MatchingGroup
+from abcgs.features.params import ALL_PIXELS
 from abcgs.features.vgg import VGG16Features, downsample_half, extract_features
 from abcgs.fit.losses import reconstruction_loss
 from abcgs.gaussians import GaussianModel, render
-from abcgs.losses.fast import FastParams, FastStats
+from abcgs.losses.fast import FastStats
+from abcgs.losses.params import FastParams
 from abcgs.losses.terms import content_loss, style_loss, tv_loss
 from abcgs.masks.outputs import SceneMasks
 from abcgs.progress import progress as progress_bar
 from abcgs.render import rgb_to_sh0, sh0_to_rgb
 from abcgs.stylize.color import apply_color_transform, fit_color_transform, preserve_color
-from abcgs.stylize.params import LR_PRESETS, StylizeParams  # noqa: F401  (the section's schema)
+from abcgs.stylize.params import StylizeParams
 
 log = logging.getLogger(__name__)
 

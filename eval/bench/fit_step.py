@@ -27,7 +27,8 @@ import abcgs  # noqa: F401  (before torch: abcgs sets OpenMP's wait policy, see 
 import torch
 
 from abcgs.fit.losses import reconstruction_loss
-from abcgs.fit.trainer import FitParams, load_views, make_optimizers
+from abcgs.fit.params import FitParams
+from abcgs.fit.trainer import load_views, make_optimizers
 from abcgs.gaussians import render
 from abcgs.io.atomic import write_json
 from abcgs.io.ply import read_ply

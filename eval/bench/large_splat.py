@@ -35,7 +35,8 @@ import numpy as np
 import torch
 
 from abcgs.cameras import Camera, intrinsics, look_at
-from abcgs.features.matching import ALL_PIXELS, MatchingGroup
+from abcgs.features.matching import MatchingGroup
+from abcgs.features.params import ALL_PIXELS
 from abcgs.features.vgg import VGG16Features, extract_features, random_state_dict
 from abcgs.gaussians import GaussianModel, render
 from abcgs.io.atomic import write_json

@@ -1,0 +1,86 @@
+"""The contracts that several packages share: the modes a setting or argument may take, and the interfaces one
+floor of abcgs asks of another (in the spirit of nerfbaselines' ``_types.py``).
+
+Modes are ``typing.Literal``s, as in gsplat: the params schema (pydantic) rejects any other value with the
+allowed ones listed, and a function taking one says in its signature what it accepts. Interfaces are
+``typing.Protocol``s: what a function needs of an object, satisfied by the classes that have those members.
+
+This module sits on the lowest floor (``tests/test_layers.py``) and imports nothing at run time but ``typing``: the
+params schema modules use its modes.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Literal, Protocol
+
+if TYPE_CHECKING:  # annotations only: reading params.yaml (the schema modules use this one) loads no torch
+    from pathlib import Path
+
+    import numpy as np
+
+    from abcgs.cameras import Camera
+
+# ------------------------------------------------------------------------------------------------ modes
+Backend = Literal["auto", "reference", "cpu", "gsplat"]
+"""Rasterizer backend (:mod:`abcgs.render.rasterize`): ``reference`` pure PyTorch, ``cpu`` the compiled C++
+kernels, ``gsplat`` gsplat on CUDA, ``auto`` gsplat for CUDA tensors and the C++ kernels for CPU tensors."""
+
+Device = Literal["auto", "cpu", "cuda"]
+"""Where tensors live (``runtime.device``): ``auto`` = the first CUDA GPU when torch sees one, else the CPU."""
+
+StyleMethod = Literal["fast", "nnfm", "knnfm", "gram"]
+"""Style loss (:func:`abcgs.losses.terms.style_loss`): ABC-GS's FAST, ARF's NNFM, the k-NN average, Gatys' Gram."""
+
+KnnSearch = Literal["auto", "exact", "bf16"]
+"""Nearest-neighbour search over VGG features (:mod:`abcgs.features.knn`): ``exact`` float32 products, ``bf16``
+candidates from bfloat16 products re-ranked exactly (the same neighbours), ``auto`` bf16 where it pays."""
+
+CandidateProducts = Literal["auto", "float32", "bfloat16"]
+"""Dtype of the projected products that pick the approximate search's candidates (:mod:`abcgs.features.knn`)."""
+
+PathKind = Literal["auto", "spiral", "orbit"]
+"""Camera path of the videos and the viewer (:mod:`abcgs.camera_paths`): ``spiral`` for forward-facing captures,
+``orbit`` around an object, ``auto`` chosen from the capture's layout."""
+
+FlowMethod = Literal["auto", "raft", "dis", "deepflow", "dualtvl1"]
+"""Optical flow of the consistency metrics (:mod:`abcgs.evaluation.consistency`): torchvision's RAFT, OpenCV's
+DIS, DeepFlow or Dual TV-L1; ``auto`` = RAFT when its weights are on disk, else DIS."""
+
+
+# ------------------------------------------------------------------------------------------------ interfaces
+class SceneLike(Protocol):
+    """A captured scene as fitting reads it (:class:`abcgs.sfm.model.SceneData` is one)."""
+
+    cameras: list[Camera]
+    """One per view, at the photos' full resolution."""
+    image_paths: list[Path]
+    """The photos, in the order of ``cameras``."""
+    points: np.ndarray
+    """``(P, 3) float``: the sparse point cloud the Gaussians start from (world units)."""
+    colors: np.ndarray
+    """``(P, 3) float``: the points' RGB in [0, 1]."""
+
+
+class FlowEstimatorLike(Protocol):
+    """Dense optical flow between two renders (:func:`abcgs.evaluation.consistency.make_flow_estimator`)."""
+
+    def __call__(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Flow ``a → b`` of two ``(H, W, 3)`` images: ``(H, W, 2) float32`` px, with ``a(x) ≈ b(x + f(x))``."""
+        ...
+
+    def provenance(self) -> dict:
+        """What computed the flows (method, implementation, versions), for the evaluation record."""
+        ...
+
+
+class ProjectionSettings(Protocol):
+    """The approximate neighbour search's settings (``stylize.fast``; :func:`abcgs.features.knn.projection_of`)."""
+
+    projection_rank: int
+    """0: exact search; ``r > 0``: candidates from the features projected on ``r`` principal directions."""
+    projection_candidates: int
+    """Candidates per feature and direction."""
+    projection_min_similarities: int
+    """Searches of fewer ``N_r · N_s`` similarities run exactly."""
+    projection_products: CandidateProducts
+    """Dtype of the projected products."""
