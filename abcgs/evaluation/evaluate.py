@@ -54,6 +54,7 @@ from abcgs.gaussians import GaussianModel, render
 from abcgs.io.images import save_image
 from abcgs.io.metrics import experiment_headline, read_record, write_headline, write_metrics
 from abcgs.io.tables import write_csv
+from abcgs.types import Backend
 from abcgs.viz import image_grid
 
 log = logging.getLogger(__name__)
@@ -77,7 +78,7 @@ def _versions() -> dict:
 
 
 @torch.no_grad()
-def render_fps(model: GaussianModel, cameras: list[Camera], backend: str, passes: int) -> tuple[float, list[float]]:
+def render_fps(model: GaussianModel, cameras: list[Camera], backend: Backend, passes: int) -> tuple[float, list[float]]:
     """Median over ``passes`` full passes of (views / seconds); the caller renders once before (warm-up)."""
     times = []
     for _ in range(passes):

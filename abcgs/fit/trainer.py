@@ -19,7 +19,6 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol
 
 import cv2
 import numpy as np
@@ -41,18 +40,10 @@ from abcgs.progress import progress as progress_bar
 from abcgs.render import select_backend
 from abcgs.render.cpu import kernel_threads
 from abcgs.runtime import resolve_device, torch_threads
+from abcgs.types import Backend, SceneLike
 
 log = logging.getLogger(__name__)
 
-
-
-class SceneLike(Protocol):
-    """What :func:`fit` needs from a scene (:class:`abcgs.sfm.model.SceneData` has it)."""
-
-    cameras: list[Camera]
-    image_paths: list[Path]
-    points: np.ndarray
-    colors: np.ndarray
 
 
 
@@ -166,7 +157,7 @@ class FitResult:
     views: Views
     scene_extent: float
     seconds: float
-    backend: str
+    backend: Backend
     params: FitParams = field(default_factory=FitParams)
 
     def metrics(self) -> dict:
@@ -197,7 +188,7 @@ def evaluate(
     model: GaussianModel,
     cameras: Sequence[Camera],
     images: Sequence[Tensor | np.ndarray],
-    backend: str = "auto",
+    backend: Backend = "auto",
     *,
     background: Tensor | None = None,
     keep_images: bool = False,

@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import typing
 import warnings
 from dataclasses import dataclass
 
@@ -28,8 +29,9 @@ from abcgs.render.cpu import BackendUnavailable
 from abcgs.render.projection import project_gaussians, screen_bounds
 from abcgs.render.reference import rasterize_reference
 from abcgs.render.sh import sh_to_color
+from abcgs.types import Backend
 
-BACKENDS = ("auto", "reference", "cpu", "gsplat")
+BACKENDS: tuple[Backend, ...] = typing.get_args(Backend)
 _warned: set[str] = set()
 
 
@@ -55,12 +57,12 @@ class RenderMeta:
     depths: Tensor
     visible: Tensor
     depth: Tensor | None
-    backend: str
+    backend: Backend
     width: int
     height: int
 
 
-def select_backend(device: torch.device, requested: str = "auto") -> str:
+def select_backend(device: torch.device, requested: Backend = "auto") -> Backend:
     """Resolve ``requested`` (or ``$ABCGS_RENDER_BACKEND`` when ``"auto"``) to a runnable backend name."""
     if requested == "auto":
         requested = os.environ.get("ABCGS_RENDER_BACKEND", "auto") or "auto"
@@ -165,7 +167,7 @@ def rasterize(
     far: float = 1e10,
     eps2d: float = 0.3,
     tile_size: int = 16,
-    backend: str = "auto",
+    backend: Backend = "auto",
 ) -> tuple[Tensor, Tensor, RenderMeta]:
     """Render N 3-D Gaussians into one pinhole view (differentiable in every float input).
 
@@ -289,7 +291,7 @@ def accumulate_weights(
     K: Tensor,
     pixel_weights: Tensor,
     *,
-    backend: str = "auto",
+    backend: Backend = "auto",
     **kwargs,
 ) -> Tensor:
     """Per-Gaussian sums of blending weight × pixel weight (ABC-GS Eq. 2).

@@ -18,7 +18,7 @@ from pathlib import Path
 import torch
 
 from abcgs.fit.params import FitParams
-from abcgs.fit.trainer import HISTORY_COLUMNS, SceneLike, comparison_grid, evaluate, load_views
+from abcgs.fit.trainer import HISTORY_COLUMNS, comparison_grid, evaluate, load_views
 from abcgs.io.atomic import write_json
 from abcgs.io.images import save_image
 from abcgs.io.ply import write_ply
@@ -29,6 +29,7 @@ from abcgs.runtime import torch_threads
 from abcgs.splats.formats import read_splat
 from abcgs.splats.preview import decimate
 from abcgs.splats.validate import check_splat
+from abcgs.types import SceneLike
 
 SOURCE_FILE = "splat_source.json"
 

@@ -42,6 +42,7 @@ from abcgs.progress import progress as progress_bar
 from abcgs.render import rgb_to_sh0, sh0_to_rgb
 from abcgs.stylize.color import apply_color_transform, fit_color_transform, preserve_color
 from abcgs.stylize.params import StylizeParams
+from abcgs.types import StyleMethod
 
 log = logging.getLogger(__name__)
 
@@ -233,7 +234,7 @@ def style_pass(
     history: list[dict] | None = None,
     timings: dict[str, float] | None = None,
     fast_stats: FastStats | None = None,
-    method: str = "fast",
+    method: StyleMethod = "fast",
 ) -> GaussianModel:
     """The main stylization pass over random views; returns the optimised (detached) model."""
     history = [] if history is None else history
@@ -373,7 +374,7 @@ def stylize(
     vgg: VGG16Features,
     params: StylizeParams,
     *,
-    method: str = "fast",
+    method: StyleMethod = "fast",
     progress: bool = True,
     depth_model: GaussianModel | None = None,
 ) -> StylizeResult:
@@ -422,7 +423,7 @@ def stylize_scene(
     vgg: VGG16Features,
     params: StylizeParams,
     *,
-    method: str = "fast",
+    method: StyleMethod = "fast",
 ) -> StylizeResult:
     """:func:`stylize` a colour-matched scene at ``params.resolution_scale`` of its views' size (label maps resized
     with nearest neighbours), keeping the depth of the ``original`` scene."""

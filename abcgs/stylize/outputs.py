@@ -22,7 +22,7 @@ from abcgs.io.atomic import atomic_path
 from abcgs.io.images import save_image
 from abcgs.io.ply import write_ply
 from abcgs.io.tables import write_csv
-from abcgs.types import PathKind
+from abcgs.types import Backend, PathKind
 from abcgs.viz import colorize_labels, image_grid, style_legend, write_video
 
 HISTORY_COLUMNS = ("step", "seconds", "loss", "style", "content", "tv", "depth", "scale", "opacity")
@@ -32,7 +32,7 @@ GRID_ROWS = 3
 """Views shown in ``grid.png``."""
 
 
-def _image(model: GaussianModel, camera: Camera, backend: str) -> np.ndarray:
+def _image(model: GaussianModel, camera: Camera, backend: Backend) -> np.ndarray:
     return render(model, camera, backend=backend)[0].clamp(0, 1).numpy(force=True)
 
 
@@ -44,7 +44,7 @@ def write_stylized_scene(
     view_labels: list[np.ndarray],
     groups: list[MatchingGroup],
     *,
-    backend: str,
+    backend: Backend,
     path_kind: PathKind,
     path_frames: int,
 ) -> dict:

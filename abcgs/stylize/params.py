@@ -11,6 +11,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from abcgs.losses.params import FastParams
+from abcgs.types import Backend
 
 LR_PRESETS: dict[str, dict[str, float]] = {
     # this project's first rates (colour 4× INRIA's, geometry 5× slower, means free); the default until the
@@ -73,7 +74,7 @@ class StylizeParams(BaseModel):
     optimize_geometry: bool = Field(True, description="also optimise xyz/scale/opacity/rotation in the main pass")
     preserve_color: bool = Field(False, description="keep the scene's colours: transfer luminance only")
     seed: int = 0
-    backend: str = "auto"
+    backend: Backend = "auto"
     log_every: int = Field(10, ge=1)
     threads: int = Field(0, ge=0, description="torch CPU threads for this stage (0: torch's default, all cores); "
                          "with `dvc queue start -j N` on C cores, C // N (README 'Benchmarks at scale')")
@@ -98,6 +99,6 @@ class ColorMatchParams(BaseModel):
     refit_iterations: int = Field(400, ge=0, description="re-fit steps on the recoloured images (authors: 400)")
     resolution_scale: float = Field(1.0, gt=0, le=1.0)
     seed: int = 0
-    backend: str = "auto"
+    backend: Backend = "auto"
     threads: int = Field(0, ge=0, description="torch CPU threads for this stage (0: torch's default, all cores); "
                          "with `dvc queue start -j N` on C cores, C // N (README 'Benchmarks at scale')")
