@@ -42,6 +42,14 @@ PathKind = Literal["auto", "spiral", "orbit"]
 """Camera path of the videos and the viewer (:mod:`abcgs.camera_paths`): ``spiral`` for forward-facing captures,
 ``orbit`` around an object, ``auto`` chosen from the capture's layout."""
 
+SceneFormat = Literal["photos", "colmap", "nerfstudio", "blender", "llff", "splat"]
+"""Where a scene's cameras come from (:mod:`abcgs.sources`): ``photos`` = none (structure from motion finds them),
+``colmap`` = a COLMAP model, ``nerfstudio`` = ``transforms.json``, ``blender`` = ``transforms_{train,test}.json``
+(NeRF-synthetic), ``llff`` = ``poses_bounds.npy``, ``splat`` = only a splat file (cameras generated around it)."""
+
+SplatFormat = Literal["inria", "ply", "splatfacto", "gsplat_ckpt", "gsplat_ply", "opensplat", "supersplat", "splat", "spz"]
+"""A trained splat's file format (:mod:`abcgs.splats.formats`)."""
+
 FlowMethod = Literal["auto", "raft", "dis", "deepflow", "dualtvl1"]
 """Optical flow of the consistency metrics (:mod:`abcgs.evaluation.consistency`): torchvision's RAFT, OpenCV's
 DIS, DeepFlow or Dual TV-L1; ``auto`` = RAFT when its weights are on disk, else DIS."""
