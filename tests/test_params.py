@@ -56,6 +56,20 @@ def test_wrong_type_and_literal_values(raw) -> None:
     assert "isolation.method" in msg and "mirror" in msg and "translate" in msg and "fill" in msg
 
 
+def test_the_modes_of_abcgs_types_list_their_values(raw) -> None:
+    """Every backend setting takes one of the rasterizer's backends, and a scene's format is auto or a known one:
+    a typo names the key and the values allowed there."""
+    bad = copy.deepcopy(raw)
+    bad["stylize"]["backend"] = "cuda"
+    bad["masks"]["backend"] = "gsplatt"
+    bad["data"]["scenes"]["tiny"] = {**bad["data"]["scenes"]["tiny"], "format": "colmapp"}
+    msg = _error(bad)
+    for key, got in (("stylize.backend", "cuda"), ("masks.backend", "gsplatt")):
+        assert f"{key}: Input should be 'auto', 'reference', 'cpu' or 'gsplat' (got '{got}')" in msg
+    assert ("data.scenes.tiny.format: Input should be 'auto', 'photos', 'colmap', 'nerfstudio', 'blender', 'llff' or "
+            "'splat' (got 'colmapp')") in msg
+
+
 def test_out_of_range_value(raw) -> None:
     bad = copy.deepcopy(raw)
     bad["fit"]["sh_degree"] = 7
