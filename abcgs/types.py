@@ -3,7 +3,8 @@ floor of abcgs asks of another (in the spirit of nerfbaselines' ``_types.py``).
 
 Modes are ``typing.Literal``s, as in gsplat: the params schema (pydantic) rejects any other value with the
 allowed ones listed, and a function taking one says in its signature what it accepts. Interfaces are
-``typing.Protocol``s: what a function needs of an object, satisfied by the classes that have those members.
+``typing.Protocol``s: what a function needs of an object, satisfied by the classes that have those members. The
+records that one package makes and others read are dataclasses here (shapes and units in their docstrings).
 
 This module sits on the lowest floor (``tests/test_layers.py``) and imports nothing at run time but ``typing``: the
 params schema modules use its modes.
@@ -11,12 +12,14 @@ params schema modules use its modes.
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Literal, Protocol
 
 if TYPE_CHECKING:  # annotations only: reading params.yaml (the schema modules use this one) loads no torch
     from pathlib import Path
 
     import numpy as np
+    from torch import Tensor
 
     from abcgs.cameras import Camera
 
@@ -92,3 +95,67 @@ class ProjectionSettings(Protocol):
     """Searches of fewer ``N_r · N_s`` similarities run exactly."""
     projection_products: CandidateProducts
     """Dtype of the projected products."""
+
+
+# ------------------------------------------------------------------------------------------------ records
+@dataclass
+class RenderMeta:
+    """What a render returns besides the image (:func:`abcgs.render.rasterize`).
+
+    Attributes:
+        means2d: ``(N, 2)`` screen positions in px, part of the autograd graph: call ``retain_grad()`` on it
+            before ``backward()`` to read the view-space positional gradient the densifier needs (loss per px
+            of screen motion on every backend). Rows of the Gaussians that gsplat culls are 0 with the
+            gsplat backend.
+        radii: ``(N, 2)`` int32 3.33-sigma screen half-extent in px (0 = not rendered).
+        depths: ``(N,)`` camera-space z (world units), for every Gaussian.
+        visible: ``(N,)`` bool, rendered in this view: in depth range, with a box of alpha ≥ 1/255 that
+            overlaps the image.
+        depth: ``(H, W, 1)`` expected depth Σ T_i α_i z_i (or normalised by alpha), when requested.
+        backend: the backend that produced the image.
+        width, height: the image size in px.
+    """
+
+    means2d: Tensor
+    radii: Tensor
+    depths: Tensor
+    visible: Tensor
+    depth: Tensor | None
+    backend: Backend
+    width: int
+    height: int
+
+
+@dataclass
+class SceneMasks:
+    """The masks stage's output read back (:func:`abcgs.masks.outputs.load_scene_masks`).
+
+    Attributes:
+        gaussian_labels: ``(N,) int64``: the lifted content label of each Gaussian (0 = none).
+        view_labels: per camera, the ``(H, W)`` integer label map of its view.
+    """
+
+    gaussian_labels: Tensor
+    view_labels: list[np.ndarray]
+
+
+@dataclass
+class MatchingGroup:
+    """One matching group Ω^z of a colour match (:func:`abcgs.features.matching.build_groups`).
+
+    Attributes:
+        content_label: the content label it styles (``abcgs.features.params.ALL_PIXELS`` = every pixel, a single
+            transfer).
+        style_name: the painting's key in ``data.styles``.
+        style_pixels: ``(M, 3) float32`` RGB in [0, 1] of the painting's region (the colour match's target).
+        features: ``(C, N_s)`` VGG features of the region.
+        style_image: the painting ``(H, W, 3) float32`` (for reports).
+        style_region: ``(H, W) bool``: the painting's region of a semantic group; None otherwise.
+    """
+
+    content_label: int
+    style_name: str
+    style_pixels: np.ndarray
+    features: Tensor
+    style_image: np.ndarray = field(repr=False, default=None)
+    style_region: np.ndarray | None = field(repr=False, default=None)

@@ -19,7 +19,6 @@ import os
 import re
 import typing
 import warnings
-from dataclasses import dataclass
 
 import torch
 from torch import Tensor
@@ -29,37 +28,10 @@ from abcgs.render.cpu import BackendUnavailable
 from abcgs.render.projection import project_gaussians, screen_bounds
 from abcgs.render.reference import rasterize_reference
 from abcgs.render.sh import sh_to_color
-from abcgs.types import Backend
+from abcgs.types import Backend, RenderMeta
 
 BACKENDS: tuple[Backend, ...] = typing.get_args(Backend)
 _warned: set[str] = set()
-
-
-@dataclass
-class RenderMeta:
-    """What a render returns besides the image.
-
-    Attributes:
-        means2d: ``(N, 2)`` screen positions in px, part of the autograd graph: call ``retain_grad()`` on it
-            before ``backward()`` to read the view-space positional gradient the densifier needs (loss per px
-            of screen motion on every backend). Rows of the Gaussians that gsplat culls are 0 with the
-            gsplat backend.
-        radii: ``(N, 2)`` int32 3.33-sigma screen half-extent in px (0 = not rendered).
-        depths: ``(N,)`` camera-space z (world units), for every Gaussian.
-        visible: ``(N,)`` bool, rendered in this view: in depth range, with a box of alpha ≥ 1/255 that
-            overlaps the image.
-        depth: ``(H, W, 1)`` expected depth Σ T_i α_i z_i (or normalised by alpha), when requested.
-        backend: the backend that produced the image.
-    """
-
-    means2d: Tensor
-    radii: Tensor
-    depths: Tensor
-    visible: Tensor
-    depth: Tensor | None
-    backend: Backend
-    width: int
-    height: int
 
 
 def select_backend(device: torch.device, requested: Backend = "auto") -> Backend:

@@ -14,7 +14,6 @@ import torch
 from torch import Tensor
 
 from abcgs.errors import InputError
-from abcgs.features.matching import MatchingGroup
 from abcgs.features.params import ALL_PIXELS, TransferSpec
 from abcgs.fit.params import FitParams
 from abcgs.fit.trainer import Views, fit, load_views
@@ -26,6 +25,7 @@ from abcgs.sfm.model import SceneData
 from abcgs.stylize.color import apply_color_transform
 from abcgs.stylize.loop import color_match_model, group_pixel_masks
 from abcgs.stylize.params import ColorMatchParams
+from abcgs.types import MatchingGroup
 from abcgs.viz import image_grid
 
 

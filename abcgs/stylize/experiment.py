@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from abcgs.errors import InputError
-from abcgs.features.matching import MatchingGroup, build_groups
+from abcgs.features.matching import build_groups
 from abcgs.features.params import IsolationParams, TransferSpec, VggWeightsParams
 from abcgs.features.vgg import VGG16Features
 from abcgs.features.weights import WeightsInfo, resolve_vgg16
@@ -19,6 +19,7 @@ from abcgs.gaussians import GaussianModel
 from abcgs.io.images import load_labels
 from abcgs.io.ply import read_ply
 from abcgs.stylize.params import StylizeParams
+from abcgs.types import MatchingGroup
 
 log = logging.getLogger(__name__)
 

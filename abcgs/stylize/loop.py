@@ -29,7 +29,6 @@ from abcgs.errors import InputError, NumericalError
 from abcgs.features import knn
 from abcgs.features.isolation import downsample_mask
 from abcgs.features.knn import StyleFeatures
-from abcgs.features.matching import MatchingGroup
 from abcgs.features.params import ALL_PIXELS
 from abcgs.features.vgg import VGG16Features, downsample_half, extract_features
 from abcgs.fit.losses import reconstruction_loss
@@ -37,12 +36,11 @@ from abcgs.gaussians import GaussianModel, render
 from abcgs.losses.fast import FastStats
 from abcgs.losses.params import FastParams
 from abcgs.losses.terms import content_loss, style_loss, tv_loss
-from abcgs.masks.outputs import SceneMasks
 from abcgs.progress import progress as progress_bar
 from abcgs.render import rgb_to_sh0, sh0_to_rgb
 from abcgs.stylize.color import apply_color_transform, fit_color_transform, preserve_color
 from abcgs.stylize.params import StylizeParams
-from abcgs.types import StyleMethod
+from abcgs.types import MatchingGroup, SceneMasks, StyleMethod
 
 log = logging.getLogger(__name__)
 

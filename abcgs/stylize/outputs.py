@@ -15,14 +15,13 @@ import torch
 
 from abcgs.camera_paths import camera_path
 from abcgs.cameras import Camera
-from abcgs.features.matching import MatchingGroup
 from abcgs.features.params import ALL_PIXELS
 from abcgs.gaussians import GaussianModel, render
 from abcgs.io.atomic import atomic_path
 from abcgs.io.images import save_image
 from abcgs.io.ply import write_ply
 from abcgs.io.tables import write_csv
-from abcgs.types import Backend, PathKind
+from abcgs.types import Backend, MatchingGroup, PathKind
 from abcgs.viz import colorize_labels, image_grid, style_legend, write_video
 
 HISTORY_COLUMNS = ("step", "seconds", "loss", "style", "content", "tv", "depth", "scale", "opacity")
