@@ -26,8 +26,8 @@ log = logging.getLogger(__name__)
 
 def load_vgg(weights: VggWeightsParams, layers: Sequence[str],
              device: torch.device | str = "cpu") -> tuple[VGG16Features, WeightsInfo]:
-    """The VGG-16 feature extractor of ``layers`` (``stylize.layers``) with the weights ``vgg`` names, on ``device``,
-    and its weights' provenance."""
+    """The VGG-16 feature extractor of ``layers`` (``stylize.layers``) with the weights that ``weights`` (``vgg``)
+    names, on ``device``, and the weights' provenance."""
     sd, info = resolve_vgg16(weights)
     vgg = VGG16Features(sd, layers, feature_scale=info.feature_scale).to(device)
     log.info("VGG-16 weights: %s (%s, sha256 %s…)", info.source, info.path, info.sha256[:12])
@@ -66,4 +66,3 @@ def read_colormatch(folder: Path, name: str) -> GaussianModel:
     if not ply.is_file():
         raise InputError(f"{ply} is missing: run the colour match first (dvc repro colormatch@{name})")
     return read_ply(ply)
-

@@ -55,8 +55,10 @@ def main(argv=None) -> int:
     out = args.out or Path("reports") / "viewers" / f"{args.run_dir.resolve().name}.html"
     try:
         check_page_path(out, "--out" if args.out else "the page")
-        experiments = read_params_file(args.params).get("experiments") if args.params.is_file() else None
-        scene = args.scene or experiment_scene(args.run_dir, experiments)
+        scene = args.scene
+        if scene is None:
+            experiments = read_params_file(args.params).get("experiments") if args.params.is_file() else None
+            scene = experiment_scene(args.run_dir, experiments)
         exp = load_experiment(args.run_dir, scene=scene, max_gaussians=args.max_gaussians)
         write_text(out, viewer_page([exp], title=f"abcgs: {exp.name}"))
     except AbcgsError as exc:
