@@ -2,7 +2,9 @@
 
 The library is organised one module per concept:
 
+- :mod:`abcgs.types`    — the modes (``Literal``) and interfaces (``Protocol``) shared across packages.
 - :mod:`abcgs.params`   — the ``params.yaml`` schema (pydantic) and its loader.
+- :mod:`abcgs.dotted`   — dotted params keys (``stylize.fast.k``) and DVC's ``${...}`` interpolation.
 - :mod:`abcgs.io`       — atomic writes, image loading, INRIA-layout PLY.
 - :mod:`abcgs.cameras`  — pinhole cameras and COLMAP-model reading.
 - :mod:`abcgs.render`   — the differentiable Gaussian rasterizer (reference, fast CPU, gsplat backends).
@@ -10,6 +12,10 @@ The library is organised one module per concept:
 - :mod:`abcgs.scene`    — the embedded synthetic default scene.
 - :mod:`abcgs.fit`      — baseline 3DGS fitting (views, losses, densification strategies, training loop, evaluation).
 - :mod:`abcgs.style`    — ABC-GS: VGG features, FAST loss, colour match, style isolation, mask lifting.
+
+A module imports only from its own floor or lower ones: foundations (errors, types, io, cameras), rendering,
+scenes and features, losses, methods (fit, masks, stylize, evaluation), presentation (view, report),
+orchestration (params, pipeline, preflight, cluster); ``tests/test_layers.py`` checks it.
 """
 
 import os

@@ -13,7 +13,7 @@ from typing import Literal
 import numpy as np
 
 from abcgs.cameras import Camera, look_at
-from abcgs.view.params import PathKind  # noqa: F401  (the section's schema)
+from abcgs.types import PathKind
 
 
 def spiral_path(cameras: list[Camera], n_frames: int = 60, focus_depth: float | None = None, rots: float = 1.0) -> list[Camera]:

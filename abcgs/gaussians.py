@@ -30,6 +30,7 @@ from torch import Tensor
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.render import RenderMeta, num_sh_bases, rasterize, rgb_to_sh0, sh0_to_rgb
+from abcgs.types import Backend
 
 PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh0", "shN")
 """Names of the per-Gaussian parameter tensors, in a fixed order (also the optimiser keys)."""
@@ -203,7 +204,7 @@ def render(
     model: GaussianModel,
     camera: Camera,
     *,
-    backend: str = "auto",
+    backend: Backend = "auto",
     sh_degree: int | None = None,
     background: Tensor | None = None,
     **kwargs,

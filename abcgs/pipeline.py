@@ -40,6 +40,7 @@ from typing import Any, Literal
 from pydantic import BaseModel
 
 from abcgs import layout
+from abcgs.dotted import lookup
 from abcgs.errors import AbcgsError
 from abcgs.sections import NAME_PATTERN, NAME_RE, ParamsBase, read_params_file, validate_sections
 
@@ -149,9 +150,7 @@ class StageSpec:
 
 
 def _lookup(raw: Mapping[str, Any], dotted: str) -> Mapping[str, Any]:
-    node: Any = raw
-    for part in dotted.split("."):
-        node = node.get(part, {}) if isinstance(node, Mapping) else {}
+    node = lookup(raw, dotted, {})
     return node if isinstance(node, Mapping) else {}
 
 

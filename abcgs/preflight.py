@@ -37,6 +37,7 @@ import numpy as np
 import yaml
 from PIL import Image
 
+from abcgs.dotted import has_key
 from abcgs.errors import InputError, ParamsError
 from abcgs.masks.params import UNDECIDED
 from abcgs.scene.params import TINY_STYLE_FILES
@@ -73,18 +74,9 @@ def dvc_tracked_keys(dvc_yaml: Path) -> dict[str, list[str]]:
     return out
 
 
-def _has_key(raw: Any, dotted: str) -> bool:
-    node = raw
-    for part in dotted.split("."):
-        if not isinstance(node, dict) or part not in node:
-            return False
-        node = node[part]
-    return True
-
-
 def check_dvc_tracked_keys(raw: dict, dvc_yaml: Path, source: str = "params.yaml") -> None:
     """Raise :class:`ParamsError` listing every key ``dvc.yaml`` tracks that the params file lacks."""
-    missing = {k: v for k, v in dvc_tracked_keys(dvc_yaml).items() if not _has_key(raw, k)}
+    missing = {k: v for k, v in dvc_tracked_keys(dvc_yaml).items() if not has_key(raw, k)}
     if missing:
         lines = [f"{source} lacks key(s) that {dvc_yaml.name} tracks (DVC would stop at those stages after running the "
                  "earlier ones):"]

@@ -8,15 +8,12 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterator
-from typing import Literal
 
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 from abcgs.errors import InputError
-
-Device = Literal["auto", "cpu", "cuda"]
-"""Where tensors live: ``auto`` = the first CUDA GPU when torch sees one, else the CPU."""
+from abcgs.types import Device
 
 
 class RuntimeParams(BaseModel):

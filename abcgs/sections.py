@@ -22,15 +22,12 @@ import re
 import typing
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model, model_validator
 
 from abcgs.errors import ParamsError
-
-if TYPE_CHECKING:
-    from abcgs.features.params import TransferSpec
 
 SCENE_SECTIONS = ("reconstruct", "fit", "masks")
 """Sections a scene may override in ``data.scenes.<name>``: the stages that run once per scene."""
@@ -45,14 +42,6 @@ def deep_merge(base: dict, override: dict) -> dict:
     for k, v in override.items():
         out[k] = deep_merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
     return out
-
-
-def set_dotted(params: dict, dotted: str, value: Any) -> None:
-    """``params[a][b][c] = value`` for ``dotted = "a.b.c"``, creating mappings on the way (``--set`` overrides)."""
-    *parents, leaf = dotted.split(".")
-    for key in parents:
-        params = params.setdefault(key, {})
-    params[leaf] = value
 
 
 @dataclass(frozen=True)
@@ -103,8 +92,9 @@ class ParamsBase(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    def transfer_of(self, experiment: str) -> TransferSpec:
-        """The colour match (scene, transfer type, painting(s)) that ``experiment`` stylizes."""
+    def transfer_of(self, experiment: str) -> BaseModel:
+        """The colour match (scene, transfer type, painting(s): a :class:`abcgs.features.params.TransferSpec`) that
+        ``experiment`` stylizes."""
         return self.colormatches[self.experiments[experiment].colormatch]
 
     def experiment_specs(self) -> dict[str, dict]:

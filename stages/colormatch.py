@@ -20,12 +20,7 @@ from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.runtime import resolve_device, torch_threads
 from abcgs.sfm.model import read_colmap_scene
 from abcgs.stylize.colormatch import color_match_and_refit, write_colormatch
-from abcgs.stylize.experiment import (
-    check_bindings,
-    colormatch_spec,
-    load_groups,
-    load_vgg,
-)
+from abcgs.stylize.experiment import check_bindings, load_groups, load_vgg
 
 _S = layout.scene("{item.scene}")
 SPEC = StageSpec("colormatch", foreach="colormatches", params=(
@@ -40,14 +35,16 @@ SPEC = StageSpec("colormatch", foreach="colormatches", params=(
 
 
 def main(args, params) -> None:
-    spec = colormatch_spec(params, args.colormatch)
+    spec = params.colormatches[args.colormatch]
     device = resolve_device(params.runtime.device)
     colmap = layout.ColmapDir(args.colmap)
     scene, model = read_colmap_scene(colmap.sparse, colmap.images), read_ply(args.model)
     masks = load_scene_masks(args.masks, scene, model.num_gaussians)
-    check_bindings(params, args.colormatch, spec, masks.gaussian_labels, layout.MasksDir(args.masks).gaussian_labels)
-    vgg, info = load_vgg(params, device)
-    groups = load_groups(params, spec, vgg, masks.gaussian_labels)
+    check_bindings(args.colormatch, spec, masks.gaussian_labels, layout.MasksDir(args.masks).gaussian_labels,
+                   params.data.style_masks)
+    vgg, info = load_vgg(params.vgg, params.stylize.layers, device)
+    groups = load_groups(spec, vgg, masks.gaussian_labels, params.data.styles, params.data.style_masks,
+                         params.isolation, params.stylize)
     with torch_threads(params.colormatch.threads):
         res = color_match_and_refit(model.to(device), scene, masks.gaussian_labels.to(device), masks.view_labels,
                                     groups, params.colormatch)

@@ -23,7 +23,6 @@ from abcgs.io.ply import read_ply
 from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.runtime import resolve_device
 from abcgs.sfm.model import read_colmap_scene
-from abcgs.stylize.experiment import colormatch_spec, experiment
 
 _S, _E = layout.scene("{item.scene}"), layout.experiment("{key}")
 SPEC = StageSpec("evaluate", foreach="experiments", params=(
@@ -45,8 +44,8 @@ SPEC = StageSpec("evaluate", foreach="experiments", params=(
 
 def main(args, params) -> None:
     ep = params.evaluate
-    exp = experiment(params, args.experiment)
-    spec = colormatch_spec(params, exp.colormatch)
+    exp = params.experiments[args.experiment]
+    spec = params.colormatches[exp.colormatch]
     colmap = layout.ColmapDir(args.colmap)
     scene, original = read_colmap_scene(colmap.sparse, colmap.images), read_ply(args.model)
     stems = [Path(c.name).stem for c in scene.cameras]

@@ -16,13 +16,7 @@ from abcgs.masks.outputs import load_scene_masks
 from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.runtime import resolve_device, torch_threads
 from abcgs.sfm.model import read_colmap_scene
-from abcgs.stylize.experiment import (
-    colormatch_spec,
-    experiment,
-    load_groups,
-    load_vgg,
-    read_colormatch,
-)
+from abcgs.stylize.experiment import load_groups, load_vgg, read_colormatch
 from abcgs.stylize.loop import stylize_scene
 from abcgs.stylize.outputs import write_history, write_stylized_scene
 
@@ -44,8 +38,8 @@ SPEC = StageSpec("stylize", foreach="experiments", params=(
 
 
 def main(args, params) -> None:
-    exp = experiment(params, args.experiment)
-    spec = colormatch_spec(params, exp.colormatch)
+    exp = params.experiments[args.experiment]
+    spec = params.colormatches[exp.colormatch]
     sp = params.stylize
     device = resolve_device(params.runtime.device)
     colmap = layout.ColmapDir(args.colmap)
@@ -53,8 +47,9 @@ def main(args, params) -> None:
     matched = read_colormatch(args.colormatch, exp.colormatch)
     masks = load_scene_masks(args.masks, scene, original.num_gaussians, device=device)
     original, matched = original.to(device), matched.to(device)
-    vgg, info = load_vgg(params, device)
-    groups = load_groups(params, spec, vgg, masks.gaussian_labels)
+    vgg, info = load_vgg(params.vgg, sp.layers, device)
+    groups = load_groups(spec, vgg, masks.gaussian_labels, params.data.styles, params.data.style_masks,
+                         params.isolation, sp)
     with torch_threads(sp.compute.threads):
         res = stylize_scene(matched, original, scene.cameras, masks, groups, vgg, sp, method=exp.method)
         written = write_stylized_scene(

@@ -18,7 +18,8 @@ import cv2  # noqa: F401  (load before anything imports pycolmap; see abcgs/sfm/
 import pytest
 
 from abcgs.runtime import torch_threads
-from abcgs.scene.synthetic import TinySceneParams, make_tiny_scene
+from abcgs.scene.params import TinySceneParams
+from abcgs.scene.synthetic import make_tiny_scene
 from eval.bench.browser import INSTALL_HINT, find_chromium
 from eval.bench.browser import launch_chromium as launch_browser
 from eval.bench.repo_copy import copy_repo, run_in  # noqa: F401  (re-exported for the end-to-end tests)
@@ -66,7 +67,8 @@ def tiny_scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="session")
 def tiny_colmap(tiny_scene: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """``reconstruct`` output for :func:`tiny_scene` with default parameters."""
-    from abcgs.sfm.colmap import ReconstructParams, reconstruct
+    from abcgs.sfm.colmap import reconstruct
+    from abcgs.sfm.params import ReconstructParams
 
     out = tmp_path_factory.mktemp("tiny_colmap") / "colmap"
     reconstruct(tiny_scene / "images", out, ReconstructParams(), masks_dir=tiny_scene / "masks")

@@ -7,7 +7,8 @@ import pytest
 
 from abcgs.camera_paths import camera_path, capture_layout, orbit_path, spiral_path
 from abcgs.cameras import Camera, intrinsics, look_at
-from abcgs.scene.synthetic import TinySceneParams, grid_cameras
+from abcgs.scene.params import TinySceneParams
+from abcgs.scene.synthetic import grid_cameras
 
 
 def ring_cameras(n: int = 24, arc_deg: float = 300.0, radius: float = 3.0, height: float = 1.0,

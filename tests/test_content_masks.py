@@ -12,16 +12,9 @@ from abcgs.cameras import Camera, intrinsics, look_at
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
 from abcgs.io.images import save_labels
-from abcgs.masks.content import (
-    GrabCutParams,
-    MaskParams,
-    RefineParams,
-    find_given_masks_with_palette,
-    grabcut_view,
-    label_iou,
-    make_content_masks,
-)
+from abcgs.masks.content import find_given_masks_with_palette, grabcut_view, label_iou, make_content_masks
 from abcgs.masks.lifting import render_label_map
+from abcgs.masks.params import GrabCutParams, MaskParams, RefineParams
 from abcgs.render import rgb_to_sh0
 
 W, H = 96, 72
@@ -166,7 +159,7 @@ def test_lift_views_lifts_from_one_mask_and_scores_the_rest(tmp_path) -> None:
 
 
 def test_propagation_labels_the_unseen_side_and_keeps_unpainted_pixels_unpainted() -> None:
-    from abcgs.masks.lifting import LiftParams
+    from abcgs.masks.params import LiftParams
 
     model, truth = wall_and_ball(3)
     cams = cameras(3)
@@ -193,7 +186,7 @@ def make_content_masks_from(model, cams, maps, propagate: str):
     import tempfile
     from pathlib import Path
 
-    from abcgs.masks.lifting import LiftParams
+    from abcgs.masks.params import LiftParams
 
     with tempfile.TemporaryDirectory() as tmp:
         for c, m in zip(cams, maps):
@@ -229,7 +222,8 @@ def test_orbit_capture_propagates_by_default(tmp_path) -> None:
 
 def test_the_orbit_tiny_scene_is_object_centred(tmp_path) -> None:
     from abcgs.camera_paths import capture_layout
-    from abcgs.scene.synthetic import TinySceneParams, make_tiny_scene
+    from abcgs.scene.params import TinySceneParams
+    from abcgs.scene.synthetic import make_tiny_scene
 
     p = TinySceneParams(layout="orbit", n_views=8, width=64, height=48, supersample=1, mask_views=1)
     out = make_tiny_scene(tmp_path / "orbit", p)

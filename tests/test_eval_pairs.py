@@ -21,7 +21,8 @@ from abcgs.evaluation.pairs import (
     pose_path,
 )
 from abcgs.evaluation.reference import compute_floor
-from abcgs.scene.synthetic import TinySceneParams, grid_cameras, ring_cameras
+from abcgs.scene.params import TinySceneParams
+from abcgs.scene.synthetic import grid_cameras, ring_cameras
 
 
 def cam(name: str, eye, target=(0.0, 0.0, 10.0)) -> Camera:

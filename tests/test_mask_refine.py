@@ -11,9 +11,10 @@ from test_content_masks import cameras, wall_and_ball
 from abcgs.errors import InputError
 from abcgs.gaussians import render
 from abcgs.io.images import save_labels, to_uint8
-from abcgs.masks.content import MaskParams, RefineParams, label_iou, make_content_masks
+from abcgs.masks.content import label_iou, make_content_masks
 from abcgs.masks.grabcut import Stroke, grabcut_features, inverse_depth, segment
 from abcgs.masks.lifting import NO_VOTE, LiftResult, lift_labels, one_hot_labels, render_label_map
+from abcgs.masks.params import MaskParams, RefineParams
 from abcgs.masks.refine import NO_SEED, render_seeds
 from abcgs.render import accumulate_weights, rgb_to_sh0
 

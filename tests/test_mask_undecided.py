@@ -10,10 +10,10 @@ import torch
 from test_content_masks import cameras, wall_and_ball
 
 from abcgs.io.images import save_labels
-from abcgs.masks.content import MaskParams, label_iou, make_content_masks, read_label_files, unlabelled_warnings
-from abcgs.masks.grabcut import BACKGROUND, UNDECIDED, Stroke, segment
+from abcgs.masks.content import label_iou, make_content_masks, read_label_files, unlabelled_warnings
+from abcgs.masks.grabcut import BACKGROUND, Stroke, segment
 from abcgs.masks.lifting import NO_VOTE, LiftResult, lift_labels, propagate_unseen, render_label_map
-from abcgs.masks.params import LiftParams
+from abcgs.masks.params import UNDECIDED, LiftParams, MaskParams
 from abcgs.masks.refine import render_seeds
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import copy
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 import yaml
@@ -68,6 +69,20 @@ def test_wrong_type_and_literal_values(raw) -> None:
     assert "isolation.method" in msg and "mirror" in msg and "translate" in msg and "fill" in msg
 
 
+def test_the_modes_of_abcgs_types_list_their_values(raw) -> None:
+    """Every backend setting takes one of the rasterizer's backends, and a scene's format is auto or a known one:
+    a typo names the key and the values allowed there."""
+    bad = copy.deepcopy(raw)
+    bad["stylize"].setdefault("compute", {})["backend"] = "cuda"
+    bad["masks"]["backend"] = "gsplatt"
+    bad["data"]["scenes"]["tiny"] = {**bad["data"]["scenes"]["tiny"], "format": "colmapp"}
+    msg = _error(bad)
+    for key, got in (("stylize.compute.backend", "cuda"), ("masks.backend", "gsplatt")):
+        assert f"{key}: Input should be 'auto', 'reference', 'cpu' or 'gsplat' (got '{got}')" in msg
+    assert ("data.scenes.tiny.format: Input should be 'auto', 'photos', 'colmap', 'nerfstudio', 'blender', 'llff' or "
+            "'splat' (got 'colmapp')") in msg
+
+
 def test_out_of_range_value(raw) -> None:
     bad = copy.deepcopy(raw)
     bad["fit"]["sh_degree"] = 7
@@ -120,19 +135,37 @@ def test_missing_section_and_non_mapping() -> None:
         validate_params([1, 2])
 
 
-def test_stage_reports_schema_error_without_traceback(tmp_path, raw) -> None:
-    bad = copy.deepcopy(raw)
-    bad["reconstruct"]["matcher"] = "vocab"
+def _run_fit_stage(tmp_path: Path, params: dict) -> subprocess.CompletedProcess:
     path = tmp_path / "params.yaml"
-    path.write_text(yaml.safe_dump(bad))
-    proc = subprocess.run(
-        [sys.executable, str(REPO_ROOT / "stages" / "fit.py"), "--params", str(path), "--scene", "tiny", "--colmap", "x",
-         "--out", "y", "--headline", "z"],
+    path.write_text(yaml.safe_dump(params))
+    (tmp_path / "stamp.json").write_text("{}")
+    return subprocess.run(
+        [sys.executable, str(REPO_ROOT / "stages" / "fit.py"), "--params", str(path), "--scene", "tiny",
+         "--preflight", str(tmp_path / "stamp.json"), "--colmap", str(tmp_path / "missing"), "--source", "{item.path}",
+         "--out", str(tmp_path / "y"), "--headline", str(tmp_path / "z.json")],
         capture_output=True, text=True, timeout=120,
     )
+
+
+def test_stage_reports_schema_error_without_traceback(tmp_path, raw) -> None:
+    """A stage validates the sections it reads before any work: a mistake there is a message naming the key."""
+    bad = copy.deepcopy(raw)
+    bad["fit"]["backend"] = "vocab"
+    proc = _run_fit_stage(tmp_path, bad)
     assert proc.returncode == 2
-    assert "reconstruct.matcher" in proc.stderr and "exhaustive" in proc.stderr
+    assert "fit.backend" in proc.stderr and "gsplat" in proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+def test_a_stage_validates_only_the_sections_it_reads(tmp_path, raw) -> None:
+    """A mistake in a section the fit stage does not read is the preflight stage's to report (every stage runs after
+    it): the fit stage gets past validation (and fails later, on its missing input folder)."""
+    bad = copy.deepcopy(raw)
+    bad["reconstruct"]["matcher"] = "vocab"
+    with pytest.raises(ParamsError, match="reconstruct.matcher"):
+        validate_params(bad)
+    proc = _run_fit_stage(tmp_path, bad)
+    assert "reconstruct.matcher" not in proc.stderr and "missing" in proc.stderr, proc.stderr
 
 
 # ------------------------------------------------------------------------------------------------ per-scene overrides

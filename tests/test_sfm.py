@@ -13,8 +13,9 @@ from abcgs.errors import InputError, ReconstructionError
 from abcgs.io.images import list_images, load_image, load_labels, save_image
 from abcgs.scene.synthetic import cameras_from_json
 from abcgs.sfm.align import alignment_residual, umeyama
-from abcgs.sfm.colmap import ReconstructParams, reconstruct
+from abcgs.sfm.colmap import reconstruct
 from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.params import ReconstructParams
 from abcgs.sources.llff import llff_camera_centres
 
 FERN = Path(__file__).resolve().parents[2] / "shared" / "data" / "scenes" / "fern"  # ../shared next to the repo

@@ -22,7 +22,8 @@ from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.fit.metrics import psnr
 from abcgs.io.images import load_image, load_labels, save_image
-from abcgs.scene.synthetic import TinySceneParams, _textures, cameras_from_json, render_view, scene_layout
+from abcgs.scene.params import TinySceneParams
+from abcgs.scene.synthetic import _textures, cameras_from_json, render_view, scene_layout
 from abcgs.sfm.model import read_colmap_scene
 from abcgs.sfm.params import ReconstructParams
 from abcgs.sources.detect import detect_format

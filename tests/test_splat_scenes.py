@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 import torch
 
-from abcgs.features.matching import TransferSpec, build_groups
+from abcgs.features.matching import build_groups
+from abcgs.features.params import TransferSpec
 from abcgs.features.vgg import VGG16Features, random_state_dict
 from abcgs.fit.params import FitParams
 from abcgs.gaussians import GaussianModel, render
@@ -24,9 +25,9 @@ from abcgs.splats.formats import read_splat
 from abcgs.splats.importing import import_and_save
 from abcgs.splats.params import SplatViewsParams
 from abcgs.splats.splat import write_splat_file
-from abcgs.stylize.colormatch import ColorMatchParams, color_match_and_refit
+from abcgs.stylize.colormatch import color_match_and_refit
 from abcgs.stylize.loop import stylize, with_higher_sh
-from abcgs.stylize.params import StylizeOptim, StylizeParams
+from abcgs.stylize.params import ColorMatchParams, StylizeOptim, StylizeParams
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_splats import make_model  # noqa: E402

@@ -19,6 +19,7 @@ from abcgs.gaussians import GaussianModel, render
 from abcgs.io.images import save_image
 from abcgs.io.ply import PlyLayout, read_ply, read_ply_layout, write_ply
 from abcgs.io.spz import write_spz
+from abcgs.sfm.align import Similarity
 from abcgs.sfm.model import SceneData
 from abcgs.splats import frames
 from abcgs.splats.exporting import give_back
@@ -78,7 +79,7 @@ def scene_and_model(tmp_path_factory) -> tuple[SceneData, GaussianModel]:
     return SceneData(cams, paths, pts, np.full_like(pts, 0.5)), model
 
 
-def moved_cameras(cams: list[Camera], sim: frames.Similarity) -> list[Camera]:
+def moved_cameras(cams: list[Camera], sim: Similarity) -> list[Camera]:
     """The same views in the frame ``x' = sim(x)``."""
     T = frames.similarity_matrix(sim)
     out = []
@@ -94,7 +95,7 @@ def moved_cameras(cams: list[Camera], sim: frames.Similarity) -> list[Camera]:
 
 def test_transform_model_moves_view_dependent_colour_with_the_world():
     model, cams = make_model(500), ring_cameras(4)
-    sim = frames.Similarity(2.5, frames.AXIS_FLIP.R @ np.array([[0, -1, 0], [1, 0, 0], [0, 0, 1.0]]), np.array([1.0, 2, 3]))
+    sim = Similarity(2.5, frames.AXIS_FLIP.R @ np.array([[0, -1, 0], [1, 0, 0], [0, 0, 1.0]]), np.array([1.0, 2, 3]))
     moved = frames.transform_model(model, sim)
     # the moved scene seen by the moved cameras is the same image (SH bands rotated, not just the means)
     assert psnr_between(model, model, cams) == math.inf
@@ -124,7 +125,7 @@ def _write(fmt: str, model: GaussianModel, scene: SceneData, root: Path) -> Path
     root.mkdir(parents=True, exist_ok=True)
     if fmt == "inria":
         # trained in a frame of its own: the model and the cameras.json moved by the same similarity
-        sim = frames.Similarity(0.7, frames.AXIS_FLIP.R, np.array([0.3, -1.0, 2.0]))
+        sim = Similarity(0.7, frames.AXIS_FLIP.R, np.array([0.3, -1.0, 2.0]))
         write_ply(root / "point_cloud" / "iteration_7000" / "point_cloud.ply", make_model(200, 3, seed=5))
         write_ply(root / "point_cloud" / "iteration_30000" / "point_cloud.ply", frames.transform_model(model, sim))
         cams = moved_cameras(scene.cameras, sim)
@@ -135,7 +136,7 @@ def _write(fmt: str, model: GaussianModel, scene: SceneData, root: Path) -> Path
         (root / "cfg_args").write_text("Namespace(sh_degree=3, source_path='/data/garden', model_path='out', eval=False)")
         return root
     if fmt == "splatfacto":
-        sim = frames.Similarity(0.25, np.array([[0, 0, 1.0], [1, 0, 0], [0, 1, 0]]), np.array([0.1, 0.2, -0.3]))
+        sim = Similarity(0.25, np.array([[0, 0, 1.0], [1, 0, 0], [0, 1, 0]]), np.array([0.1, 0.2, -0.3]))
         tf = {"transform": (frames.similarity_matrix(sim)[:3] / sim.scale).tolist(), "scale": sim.scale}
         run = root / "outputs" / "scene" / "splatfacto" / "2024-01-01"
         run.mkdir(parents=True)

@@ -10,6 +10,7 @@ from abcgs.errors import InputError, NumericalError
 from abcgs.features import knn
 from abcgs.losses import fast
 from abcgs.losses import terms as losses
+from abcgs.losses.params import FastParams
 
 
 def _feats(c: int, n_r: int, n_s: int, seed: int = 0, dtype=torch.float64):
@@ -52,7 +53,7 @@ def test_cosine_topk_both_directions(budget):
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_chunked_loss_equals_dense(budget, dtype):
     f_r, f_s = _feats(24, 60, 45, seed=7, dtype=dtype)
-    params = fast.FastParams(max_block_elems=budget)
+    params = FastParams(max_block_elems=budget)
     got = fast.fast_loss([(f_r, f_s)], params)
     ref = fast.fast_loss_dense(f_r, f_s)
     tol = 1e-5 if dtype == torch.float32 else 1e-12
@@ -62,7 +63,7 @@ def test_chunked_loss_equals_dense(budget, dtype):
 def test_alignment_equals_weighted_least_squares():
     """P minimises Σ A_ij ||Pᵀ v_i − s_j||²: compare with lstsq on the stacked pair system."""
     f_r, f_s = _feats(10, 70, 55, seed=11)
-    p = fast.alignment_matrix(f_r, f_s, fast.FastParams(eps=0.0, max_block_elems=64))
+    p = fast.alignment_matrix(f_r, f_s, FastParams(eps=0.0, max_block_elems=64))
     rows, cols = knn.mutual_knn_pairs(f_r, f_s, 5)
     v = f_r[:, rows].t()  # (N_pair, C): one equation block per pair, weight A_ij = 1
     s = f_s[:, cols].t()
@@ -148,12 +149,12 @@ def test_singular_solve_falls_back_to_identity_and_counts():
     f_r, f_s = _feats(6, 20, 15, seed=4)
     f_r[2] = 0.0  # dead channel: singular without the ridge
     stats = fast.FastStats()
-    p = fast.alignment_matrix(f_r, f_s, fast.FastParams(eps=0.0), stats)
+    p = fast.alignment_matrix(f_r, f_s, FastParams(eps=0.0), stats)
     assert stats.fallbacks == 1 and stats.solves == 1 and stats.fallback_reasons
     assert torch.equal(p, torch.eye(6, dtype=p.dtype))
     # with the default ridge the dead channel decouples and the solve succeeds
     stats2 = fast.FastStats()
-    p2 = fast.alignment_matrix(f_r, f_s, fast.FastParams(), stats2)
+    p2 = fast.alignment_matrix(f_r, f_s, FastParams(), stats2)
     assert stats2.fallbacks == 0 and torch.isfinite(p2).all() and stats2.last_pairs > 0
     assert torch.all(p2[2] == 0)
 
@@ -221,7 +222,7 @@ def test_bad_inputs():
     with pytest.raises(InputError):
         knn.mutual_knn_pairs(f_r, f_s, 0)
     with pytest.raises(ValidationError, match="bogus"):
-        fast.FastParams(k=5, bogus=1)
+        FastParams(k=5, bogus=1)
 
 
 # --------------------------------------------------------------------------- both cosine axes, pinned
@@ -254,7 +255,7 @@ def test_both_cosine_axes_equal_dense_rederivation(cosine, dim, shape):
     c, n_r, n_s = shape
     f_r0, f_s = _feats(c, n_r, n_s, seed=c + n_r)
     f_r = f_r0.clone().requires_grad_(True)
-    got = fast.fast_loss([(f_r, f_s)], fast.FastParams(cosine=cosine, max_block_elems=97))
+    got = fast.fast_loss([(f_r, f_s)], FastParams(cosine=cosine, max_block_elems=97))
     (g_got,) = torch.autograd.grad(got, f_r)
     f_r2 = f_r0.clone().requires_grad_(True)
     ref = _dense_fast_rederived(f_r2, f_s, 5, dim)
@@ -268,8 +269,8 @@ def test_both_cosine_axes_equal_dense_rederivation(cosine, dim, shape):
 
 def test_cosine_axes_differ_and_channel_axis_is_per_row():
     f_r, f_s = _feats(8, 40, 30, seed=21)
-    pix = fast.fast_loss([(f_r, f_s)], fast.FastParams(cosine="pixel"))
-    ch = fast.fast_loss([(f_r, f_s)], fast.FastParams(cosine="channel"))
+    pix = fast.fast_loss([(f_r, f_s)], FastParams(cosine="pixel"))
+    ch = fast.fast_loss([(f_r, f_s)], FastParams(cosine="channel"))
     assert abs(float(pix) - float(ch)) > 1e-4
     # channel axis: scaling one channel's row leaves that row's cosine unchanged; pixel axis: a column's
     t = fast.fast_target(f_r, f_s)
@@ -285,7 +286,7 @@ def test_cosine_axes_differ_and_channel_axis_is_per_row():
     with pytest.raises(InputError, match="axis"):
         fast.cosine_distance_loss(f_r, t, axis="row")
     with pytest.raises(ValidationError):
-        fast.FastParams(cosine="row")
+        FastParams(cosine="row")
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])

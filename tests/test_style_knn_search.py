@@ -11,6 +11,7 @@ from abcgs.errors import InputError
 from abcgs.features import knn
 from abcgs.losses import fast
 from abcgs.losses import terms as losses
+from abcgs.losses.params import FastParams
 from abcgs.render import cpu as cpu_kernels
 
 needs_kernels = pytest.mark.skipif(
@@ -87,11 +88,11 @@ def test_bf16_similarity_bound_holds():
 def test_fast_loss_is_the_same_with_either_search():
     f_r, f_s = _feats(64, 400, 700, seed=5)
     style = knn.StyleFeatures.of(f_s)
-    exact = fast.fast_loss([(f_r, style)], fast.FastParams(knn_search="exact", projection_rank=0))
-    low = fast.fast_loss([(f_r, style)], fast.FastParams(knn_search="bf16", projection_rank=0))
+    exact = fast.fast_loss([(f_r, style)], FastParams(knn_search="exact", projection_rank=0))
+    low = fast.fast_loss([(f_r, style)], FastParams(knn_search="bf16", projection_rank=0))
     assert torch.equal(exact, low)
-    nn_exact = losses.style_loss("nnfm", [(f_r, style)], fast_params=fast.FastParams(knn_search="exact", projection_rank=0))
-    nn_low = losses.style_loss("nnfm", [(f_r, style)], fast_params=fast.FastParams(knn_search="bf16", projection_rank=0))
+    nn_exact = losses.style_loss("nnfm", [(f_r, style)], fast_params=FastParams(knn_search="exact", projection_rank=0))
+    nn_low = losses.style_loss("nnfm", [(f_r, style)], fast_params=FastParams(knn_search="bf16", projection_rank=0))
     assert torch.equal(nn_exact, nn_low)
 
 
@@ -105,7 +106,7 @@ def test_search_choice_and_errors():
     with pytest.raises(InputError, match="knn search"):
         knn.resolve_search("fast", 10, 10, cpu)
     with pytest.raises(ValidationError):
-        fast.FastParams(knn_search="approximate")
+        FastParams(knn_search="approximate")
 
 
 @needs_kernels
@@ -272,23 +273,23 @@ def test_projected_search_in_the_losses():
     result equals the exact search's (how close it is otherwise depends on the features: eval/bench/knn_recall.py)."""
     f_r, f_s = _feats(96, 300, 120, seed=7)
     style = knn.StyleFeatures.of(f_s)
-    exact = fast.FastParams(knn_search="exact", projection_rank=0)
+    exact = FastParams(knn_search="exact", projection_rank=0)
     # every feature is a candidate both ways, and the size threshold is off
-    full = fast.FastParams(projection_rank=8, projection_candidates=300, projection_min_similarities=0)
+    full = FastParams(projection_rank=8, projection_candidates=300, projection_min_similarities=0)
     assert knn.projection_of(full) == knn.Projection(8, 300, 0, "auto") and knn.projection_of(exact) is None
     for method in ("fast", "nnfm", "knnfm"):
         a = losses.style_loss(method, [(f_r, style)], fast_params=exact)
         b = losses.style_loss(method, [(f_r, style)], fast_params=full)
         assert torch.allclose(a, b, rtol=1e-5, atol=1e-7), method
     with pytest.raises(ValidationError):
-        fast.FastParams(projection_rank=-1)
+        FastParams(projection_rank=-1)
     with pytest.raises(InputError, match="projection search"):
         knn.Projection(rank=0)
     with pytest.raises(InputError, match="auto, float32 or bfloat16"):
         knn.Projection(rank=8, products="float16")
     with pytest.raises(ValidationError):
-        fast.FastParams(projection_products="bf16")
-    assert knn.projection_of(fast.FastParams()).products == "auto"
+        FastParams(projection_products="bf16")
+    assert knn.projection_of(FastParams()).products == "auto"
     assert knn.Projection(8, products="auto").bf16_products() == knn.bf16_dot_available()
     assert knn.Projection(8, products="bfloat16").bf16_products() and not knn.Projection(8).bf16_products()
 
@@ -296,7 +297,7 @@ def test_projected_search_in_the_losses():
 def test_projected_search_runs_only_where_it_applies(monkeypatch):
     """The default FastParams ask for the projected search, but below ``projection_min_similarities`` (the tiny scene's
     searches), at a rank not below the channel count and on a GPU the exact search runs."""
-    proj = knn.projection_of(fast.FastParams())
+    proj = knn.projection_of(FastParams())
     assert proj is not None and proj.rank == 128 and proj.min_similarities == 2**22
     cpu, gpu = torch.device("cpu"), torch.device("cuda")
     assert proj.applies(2852, 6528, 768, cpu) and not proj.applies(300, 1000, 768, cpu)

@@ -10,11 +10,13 @@ import torch
 
 from abcgs.cameras import Camera, intrinsics, look_at
 from abcgs.errors import InputError, NumericalError
-from abcgs.features.matching import ALL_PIXELS, TransferSpec, build_groups, load_style
+from abcgs.features.matching import build_groups, load_style
+from abcgs.features.params import ALL_PIXELS, TransferSpec
 from abcgs.features.vgg import VGG16Features, random_state_dict
 from abcgs.gaussians import GaussianModel
 from abcgs.io.images import save_image, save_labels
-from abcgs.masks.lifting import LiftParams, lift_labels, one_hot_labels, render_label_map
+from abcgs.masks.lifting import lift_labels, one_hot_labels, render_label_map
+from abcgs.masks.params import LiftParams
 from abcgs.render import rgb_to_sh0
 from abcgs.stylize.loop import stylize
 from abcgs.stylize.outputs import HISTORY_COLUMNS, write_history
@@ -152,7 +154,7 @@ def test_stylize_reduces_style_loss_and_stops_on_nan(vgg, styles, tmp_path) -> N
 
 
 def test_lr_preset_fills_unset_rates_and_explicit_keys_win() -> None:
-    from abcgs.stylize.loop import LR_PRESETS
+    from abcgs.stylize.params import LR_PRESETS
 
     authors = StylizeOptim(lr_preset="authors_code")
     assert {k: getattr(authors, k) for k in LR_PRESETS["authors_code"]} == LR_PRESETS["authors_code"]

@@ -7,7 +7,8 @@ import torch
 
 from abcgs.errors import InputError
 from abcgs.losses import terms as losses
-from abcgs.losses.fast import FastParams, FastStats, fast_loss
+from abcgs.losses.fast import FastStats, fast_loss
+from abcgs.losses.params import FastParams
 
 
 def _feats(c=12, n_r=40, n_s=33, seed=0, dtype=torch.float64):

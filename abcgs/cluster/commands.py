@@ -37,7 +37,6 @@ from abcgs.cluster.run import (
     read_state,
     repro,
     save_run,
-    write_json,
 )
 from abcgs.cluster.slurm import (
     SlurmError,
@@ -48,6 +47,7 @@ from abcgs.cluster.slurm import (
     script_path,
     task_states,
 )
+from abcgs.io.atomic import write_json
 from abcgs.overlay import apply_overlay, read_overlay
 
 CLUSTER_DIR_ENV = "ABCGS_CLUSTER_DIR"

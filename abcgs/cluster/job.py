@@ -34,8 +34,8 @@ from abcgs.cluster.run import (
     read_state,
     repro,
     state_path,
-    write_json,
 )
+from abcgs.io.atomic import write_json
 
 
 def clone_dir(run: Path, job: str) -> Path:

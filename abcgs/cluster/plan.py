@@ -25,7 +25,6 @@ benchmark overlay from ``eval/params`` merged over them: :func:`abcgs.overlay.ap
 
 from __future__ import annotations
 
-import re
 from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -33,6 +32,7 @@ from typing import Any
 
 import yaml
 
+from abcgs.dotted import DVC_VARIABLE, interpolate, lookup, set_dotted
 from abcgs.errors import AbcgsError
 
 KINDS = ("prep", "scene", "experiment", "report")
@@ -40,7 +40,6 @@ KINDS = ("prep", "scene", "experiment", "report")
 COLLECTIONS: dict[str, str] = {"data.scenes": "scene", "colormatches": "scene", "experiments": "experiment"}
 """``foreach`` collection → the kind of job its stages go to."""
 RESOURCES_FILE = Path(__file__).with_name("resources.yaml")
-_INTERP = re.compile(r"\$\{\s*([A-Za-z0-9_.]+)\s*\}")
 
 
 class PlanError(AbcgsError):
@@ -108,32 +107,12 @@ class Plan:
 
 
 # ------------------------------------------------------------------------------------------------ stages
-def _lookup(tree: Any, dotted: str) -> Any:
-    node = tree
-    for part in dotted.split("."):
-        if not isinstance(node, Mapping) or part not in node:
-            raise KeyError(dotted)
-        node = node[part]
-    return node
-
-
 def _interpolate(text: str, key: str | None, item: Any, params: Mapping[str, Any]) -> str:
-    """``text`` with ``${key}``, ``${item.F}`` and ``${section.key}`` (params) filled in, as DVC fills them in."""
-
-    def fill(m: re.Match) -> str:
-        name = m.group(1)
-        try:
-            if name == "key":
-                return str(key)
-            if name == "item":
-                return str(item)
-            if name.startswith("item."):
-                return str(_lookup(item, name.removeprefix("item.")))
-            return str(_lookup(params, name))
-        except KeyError:
-            raise PlanError(f"dvc.yaml: cannot resolve ${{{name}}} for key {key!r}") from None
-
-    return _INTERP.sub(fill, text)
+    """``text`` with DVC's ``${...}`` filled in (:func:`abcgs.dotted.interpolate`)."""
+    try:
+        return interpolate(text, key, item, params)
+    except KeyError as exc:
+        raise PlanError(f"dvc.yaml: cannot resolve ${{{exc.args[0]}}} for key {key!r}") from None
 
 
 def _paths(entries: Iterable[Any] | None) -> list[str]:
@@ -150,7 +129,7 @@ def _collection_of(spec: Mapping[str, Any], stage: str) -> str | None:
         if "matrix" in spec:
             raise PlanError(f"dvc.yaml stage {stage!r}: `matrix` stages are not supported by the cluster plan")
         return None
-    m = _INTERP.fullmatch(str(foreach).strip())
+    m = DVC_VARIABLE.fullmatch(str(foreach).strip())
     if not m:
         raise PlanError(f"dvc.yaml stage {stage!r}: foreach must name a params collection (${{...}}), got {foreach!r}")
     if m.group(1) not in COLLECTIONS:
@@ -166,7 +145,7 @@ def expand_stages(dvc_yaml: Mapping[str, Any], params: Mapping[str, Any]) -> lis
         collection = _collection_of(spec, base)
         body = spec.get("do", {}) if collection else spec
         try:
-            items = _lookup(params, collection) if collection else {None: None}
+            items = lookup(params, collection) if collection else {None: None}
         except KeyError:
             items = {}
         for key, item in (items or {}).items():
@@ -194,7 +173,7 @@ def stage_edges(stages: list[Stage]) -> set[tuple[str, str]]:
 # ------------------------------------------------------------------------------------------------ the plan
 def _entry_scene(params: Mapping[str, Any], collection: str, key: str) -> str:
     """The ``scene`` of entry ``key`` of ``collection`` (``colormatches``, ``experiments``)."""
-    entry = _lookup(params, f"{collection}.{key}")
+    entry = lookup(params, f"{collection}.{key}")
     scene = entry.get("scene") if isinstance(entry, Mapping) else None
     if scene is None:
         raise PlanError(f"{collection}.{key} names no scene: the plan puts its stages after that scene's job")
@@ -302,8 +281,6 @@ def _arrays(jobs: dict[str, Job], scenes: list[str], exp_scene: dict[str, str]) 
 # ------------------------------------------------------------------------------------------------ params
 def apply_sets(params: dict, sets: Iterable[str]) -> dict:
     """``params`` with ``KEY=VALUE`` changes (dotted keys, YAML values) applied in place; returns ``params``."""
-    from abcgs.sections import set_dotted
-
     for item in sets:
         key, eq, value = item.partition("=")
         if not eq or not key:
@@ -395,7 +372,7 @@ def gpu_overrides(resources: Mapping[str, Resources], params: Mapping[str, Any])
             continue
         for key in keys:
             try:
-                value = _lookup(params, key)
+                value = lookup(params, key)
             except KeyError:
                 continue
             if value in CPU_ONLY_BACKENDS:

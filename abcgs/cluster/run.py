@@ -29,6 +29,7 @@ from typing import Any
 
 from abcgs.cluster.plan import Plan, Resources
 from abcgs.errors import AbcgsError
+from abcgs.io.atomic import write_json
 
 DVC_RUN = Path(__file__).with_name("dvc_run.py")
 
@@ -66,14 +67,6 @@ class RunInfo:
         d["plan"] = Plan.from_dict(d["plan"])
         d["resources"] = {k: Resources(**{**r, "extra": tuple(r.get("extra") or ())}) for k, r in d["resources"].items()}
         return cls(**d)
-
-
-def write_json(path: Path, data: Any) -> None:
-    """Write ``data`` as JSON atomically (a reader never sees half a file)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
-    os.replace(tmp, path)
 
 
 def save_run(run: Path, info: RunInfo) -> None:

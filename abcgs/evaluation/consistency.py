@@ -56,6 +56,7 @@ from abcgs.evaluation.content import (
 )
 from abcgs.evaluation.pairs import path_pairs
 from abcgs.evaluation.parallel import ordered_map
+from abcgs.types import FlowEstimatorLike, FlowMethod
 
 FB_ALPHA = 0.01
 FB_BETA = 0.5
@@ -144,7 +145,8 @@ class RaftFlow:
                 "computed_on": "original (pre-stylization) renders, RGB in [-1, 1]"}
 
 
-def make_flow_estimator(method: str = "auto", raft_weights: str | None = None, raft_iterations: int = 12):
+def make_flow_estimator(method: FlowMethod = "auto", raft_weights: str | None = None,
+                        raft_iterations: int = 12) -> FlowEstimatorLike:
     """The flow estimator for ``evaluate.flow``; ``auto`` picks RAFT when :func:`raft_status` allows, else DIS."""
     if method != "auto":
         return RaftFlow(raft_weights, raft_iterations) if method == "raft" else FlowEstimator(method)
@@ -300,7 +302,7 @@ class FlowCache:
     per-scene evaluation reference, :mod:`abcgs.evaluation.reference`).
     """
 
-    def __init__(self, originals: list[np.ndarray], estimator: FlowEstimator | RaftFlow | None,
+    def __init__(self, originals: list[np.ndarray], estimator: FlowEstimatorLike | None,
                  flows: dict | None = None, provenance: dict | None = None) -> None:
         self.originals, self.estimator, self._c = originals, estimator, dict(flows or {})
         self._provenance = provenance

@@ -66,6 +66,7 @@ from abcgs.io.images import save_image
 from abcgs.io.metrics import experiment_headline, read_record, write_headline, write_metrics
 from abcgs.io.tables import write_csv
 from abcgs.layout import ExperimentOut, StylizeDir
+from abcgs.types import Backend
 from abcgs.viz import image_grid
 
 log = logging.getLogger(__name__)
@@ -246,7 +247,7 @@ class EvalResult:
 
 # ------------------------------------------------------------------------------------------------ the metrics
 @torch.no_grad()
-def render_speed(model: GaussianModel, cameras: list[Camera], params: EvalParams, backend: str) -> RenderSpeed:
+def render_speed(model: GaussianModel, cameras: list[Camera], params: EvalParams, backend: Backend) -> RenderSpeed:
     """Median over ``params.fps_passes`` full passes of (views / seconds); the caller renders once before (warm-up).
     ``backend``: the one that rendered then (recorded)."""
     times = []

@@ -6,6 +6,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from abcgs.types import Backend, FlowMethod
+
 LPIPS_VGG_LAYERS = ("relu1_2", "relu2_2", "relu3_3", "relu4_3", "relu5_3")
 """The five VGG-16 taps of LPIPS-vgg (Zhang et al. 2018), used by the ``lpips_proxy_vgg`` distance."""
 
@@ -16,7 +18,7 @@ class EvalParams(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     max_views: int | None = Field(None, ge=2, description="evaluate only the first N training views (None: all)")
-    backend: str = Field("auto", description="rasterizer backend for the original/stylized renders and the FPS timing")
+    backend: Backend = Field("auto", description="rasterizer backend for the original/stylized renders and the FPS timing")
     # content preservation
     ssim_impl: Literal["auto", "wang", "pyiqa"] = Field(
         "auto", description="auto: pyiqa's ssim when pyiqa imports, else the built-in Wang et al. SSIM"
@@ -28,7 +30,7 @@ class EvalParams(BaseModel):
     )
     proxy_layers: list[str] = Field(default_factory=lambda: list(LPIPS_VGG_LAYERS), description="VGG taps of the proxy")
     # consistency
-    flow: Literal["auto", "raft", "dis", "deepflow", "dualtvl1"] = Field(
+    flow: FlowMethod = Field(
         "auto",
         description="optical flow on the original renders: auto = RAFT when torchvision and its weights are on disk, "
         "else OpenCV DIS; deepflow/dualtvl1 need opencv-contrib's cv2.optflow",

@@ -34,6 +34,7 @@ from abcgs.evaluation.pairs import ViewPairs, consistency_pairs
 from abcgs.evaluation.params import EvalParams
 from abcgs.gaussians import GaussianModel, render
 from abcgs.io.atomic import atomic_path, write_json
+from abcgs.types import Backend
 
 REFERENCE_VERSION = 2
 FLOW_SETTINGS = ("flow", "raft_weights", "raft_iterations", "pairs", "short_term_gap", "long_term_gap", "max_views",
@@ -74,7 +75,7 @@ def settings_of(params: EvalParams) -> dict:
 
 
 @torch.no_grad()
-def render_views(model: GaussianModel, cameras: list[Camera], backend: str) -> tuple[list[np.ndarray], str]:
+def render_views(model: GaussianModel, cameras: list[Camera], backend: Backend) -> tuple[list[np.ndarray], str]:
     """Renders ``(H, W, 3)`` float32 clamped to [0, 1] and the backend that made them."""
     imgs, used = [], backend
     for cam in cameras:

@@ -25,7 +25,7 @@ import torch
 import torch.nn.functional as F
 
 from abcgs.errors import InputError
-from abcgs.features.params import IsolationMethod  # noqa: F401  (the section's schema)
+from abcgs.features.params import IsolationMethod
 from abcgs.features.vgg import VGG16Features, extract_features
 
 

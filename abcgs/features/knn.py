@@ -44,7 +44,8 @@ from typing import Literal
 import torch
 
 from abcgs.errors import InputError, NumericalError
-from abcgs.losses.params import DEFAULT_MAX_BLOCK_ELEMS, CandidateProducts, FastParams, KnnSearch  # noqa: F401  (the section's schema)
+from abcgs.features.params import DEFAULT_MAX_BLOCK_ELEMS
+from abcgs.types import CandidateProducts, KnnSearch, ProjectionSettings
 
 BF16_MIN_ELEMS = 2**22
 """``search="auto"`` uses the bf16 search from this many similarities (``N_r · N_s``) on: below it the float32
@@ -117,7 +118,7 @@ class Projection:
         return device.type == "cpu" and self.rank < channels and n_r * n_s >= self.min_similarities
 
 
-def projection_of(params: FastParams) -> Projection | None:
+def projection_of(params: ProjectionSettings) -> Projection | None:
     """The approximate search that ``stylize.fast`` asks for (``projection_rank > 0``), or None for the exact one."""
     if params.projection_rank == 0:
         return None

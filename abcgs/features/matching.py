@@ -11,29 +11,16 @@ another region.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import cv2
 import numpy as np
 import torch
 
 from abcgs.errors import InputError
 from abcgs.features.isolation import region_features
-from abcgs.features.params import ALL_PIXELS, ExperimentParams, IsolationParams, TransferSpec, TransferType  # noqa: F401  (the section's schema)
+from abcgs.features.params import ALL_PIXELS, IsolationParams, TransferSpec
 from abcgs.features.vgg import VGG16Features, extract_features
 from abcgs.io.images import load_image, load_labels
-
-
-@dataclass
-class MatchingGroup:
-    """One Ω^z: content label (``ALL_PIXELS`` for single), style pixels and style features."""
-
-    content_label: int
-    style_name: str
-    style_pixels: np.ndarray  # (M, 3) float32 RGB of the style region (colour match)
-    features: torch.Tensor  # (C, N_s) style features of the region
-    style_image: np.ndarray = field(repr=False, default=None)  # the painting (for reports)
-    style_region: np.ndarray | None = field(repr=False, default=None)  # (H, W) bool: the region of a semantic group
+from abcgs.types import MatchingGroup
 
 
 def resize_to_height(img: np.ndarray, height: int) -> np.ndarray:

@@ -12,9 +12,15 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from abcgs.errors import InputError
-from abcgs.losses.params import StyleMethod
+from abcgs.types import StyleMethod
 
 TransferType = Literal["single", "compositional", "semantic"]
+
+
+DEFAULT_MAX_BLOCK_ELEMS = 2**22
+"""Neighbour search (:mod:`abcgs.features.knn`): 16 MiB of float32 similarities per tile. Below glibc's 32 MiB mmap
+ceiling, the tile's memory is reused from the heap instead of being mapped and faulted in anew every step: on fern ×
+Starry Night (``eval/bench/stylize.py``, 30 steps) the FAST loss took 463 ms per step with 2**22, 511 ms with 2**24."""
 
 
 ALL_PIXELS = -1

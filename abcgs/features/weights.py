@@ -44,7 +44,7 @@ import torch
 from pydantic import BaseModel, ConfigDict
 
 from abcgs.errors import InputError
-from abcgs.features.params import VggWeightsParams  # noqa: F401  (the section's schema)
+from abcgs.features.params import VggWeightsParams
 from abcgs.features.vgg import CONV_INDICES, IMAGENET_MEAN, IMAGENET_STD
 from abcgs.io.atomic import atomic_path
 from abcgs.io.digest import sha256_file

@@ -6,8 +6,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import cv2
 import numpy as np
@@ -17,16 +16,7 @@ from torch import Tensor
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.io.images import load_image
-
-
-class SceneLike(Protocol):
-    """What :func:`load_views` and :func:`abcgs.fit.training.fit` need from a scene (:class:`abcgs.sfm.model.SceneData`
-    has it)."""
-
-    cameras: list[Camera]
-    image_paths: list[Path]
-    points: np.ndarray
-    colors: np.ndarray
+from abcgs.types import SceneLike
 
 
 @dataclass

@@ -10,7 +10,6 @@ from pathlib import Path
 
 import torch
 
-from abcgs.fit.data import SceneLike
 from abcgs.fit.evaluation import comparison_grid, evaluate
 from abcgs.fit.params import FitParams
 from abcgs.fit.training import FitResult, fit
@@ -21,6 +20,7 @@ from abcgs.io.tables import write_csv
 from abcgs.layout import FitDir
 from abcgs.render.cpu import kernel_threads
 from abcgs.runtime import torch_threads
+from abcgs.types import SceneLike
 
 HISTORY_COLUMNS = ("step", "seconds", "loss", "psnr", "n_gaussians")
 """Columns of ``history.csv``: one row per training step (training-view PSNR in dB, ``seconds`` of training so far)."""

@@ -24,7 +24,7 @@ import torch
 from abcgs.cameras import Camera
 from abcgs.errors import InputError, NumericalError
 from abcgs.fit import metrics as M
-from abcgs.fit.data import SceneLike, Views, load_views, scene_extent
+from abcgs.fit.data import Views, load_views, scene_extent
 from abcgs.fit.evaluation import Evaluation, evaluate
 from abcgs.fit.losses import LossTerms, reconstruction_loss
 from abcgs.fit.params import FitParams
@@ -34,6 +34,7 @@ from abcgs.progress import progress as progress_bar
 from abcgs.render import select_backend
 from abcgs.render.cpu import kernel_threads
 from abcgs.runtime import resolve_device, torch_threads
+from abcgs.types import Backend, SceneLike
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +62,7 @@ class FitResult:
     views: Views
     scene_extent: float
     seconds: float
-    backend: str
+    backend: Backend
     params: FitParams = field(default_factory=FitParams)
 
     def metrics(self) -> dict:

@@ -86,12 +86,19 @@ def jsonable(data: Any) -> Any:
     return _finite(json.loads(json.dumps(data, default=_json_default)))
 
 
-def write_json(path: str | os.PathLike, data: Any) -> None:
+def write_json(path: str | os.PathLike, data: Any, *, indent: int = 2) -> None:
     """Write ``data`` (see :func:`jsonable`) as indented JSON, atomically."""
-    write_text(path, json.dumps(jsonable(data), indent=2, sort_keys=False) + "\n")
+    write_text(path, json.dumps(jsonable(data), indent=indent, sort_keys=False) + "\n")
 
 
 def write_text(path: str | os.PathLike, text: str) -> None:
     """Write ``text`` (UTF-8), atomically."""
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
+
+
+def write_bytes(path: str | os.PathLike, data: bytes) -> int:
+    """Write ``data``, atomically; returns its size in bytes."""
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+    return len(data)

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from abcgs.errors import InputError
-from abcgs.io.atomic import atomic_path
+from abcgs.io.atomic import write_bytes
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 
@@ -91,8 +91,7 @@ def save_image(path: str | os.PathLike, img: np.ndarray) -> None:
     ok, buf = cv2.imencode(path.suffix or ".png", arr)
     if not ok:
         raise InputError(f"could not encode image for {path}")
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(buf.tobytes())
+    write_bytes(path, buf.tobytes())
 
 
 def save_labels(path: str | os.PathLike, labels: np.ndarray) -> None:
@@ -101,5 +100,4 @@ def save_labels(path: str | os.PathLike, labels: np.ndarray) -> None:
     ok, buf = cv2.imencode(".png", arr)
     if not ok:
         raise InputError(f"could not encode label map for {path}")
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(buf.tobytes())
+    write_bytes(path, buf.tobytes())

@@ -38,7 +38,7 @@ import torch
 
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
-from abcgs.io.atomic import atomic_path
+from abcgs.io.atomic import write_bytes
 
 MAGIC = 0x5053474E
 HEADER = struct.Struct("<IIIBBBB")
@@ -217,10 +217,7 @@ def decode_spz(data: bytes, *, source: str = "spz data") -> GaussianModel:
 
 def write_spz(path: str | os.PathLike, model: GaussianModel, *, version: int = 3) -> int:
     """Write ``model`` to ``path`` atomically; returns the file size in bytes."""
-    data = encode_spz(model, version=version)
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(data)
-    return len(data)
+    return write_bytes(path, encode_spz(model, version=version))
 
 
 def read_spz(path: str | os.PathLike) -> GaussianModel:

@@ -58,7 +58,7 @@ from abcgs.features.knn import (
     mutual_knn_pairs,
     normalize_columns,
 )
-from abcgs.losses.params import SMALL_GROUP_RATIO, CosineAxis, FastParams  # noqa: F401  (the section's schema)
+from abcgs.losses.params import SMALL_GROUP_RATIO, CosineAxis, FastParams
 
 
 @dataclass

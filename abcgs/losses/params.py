@@ -10,20 +10,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-DEFAULT_MAX_BLOCK_ELEMS = 2**22
-"""16 MiB of float32 similarities per tile. Below glibc's 32 MiB mmap ceiling, the tile's memory is reused
-from the heap instead of being mapped and faulted in anew every step: on fern × Starry Night
-(``eval/bench/stylize.py``, 30 steps) the FAST loss took 463 ms per step with 2**22, 511 ms with 2**24."""
-
-
-KnnSearch = Literal["auto", "exact", "bf16"]
-
-
-CandidateProducts = Literal["auto", "float32", "bfloat16"]
-
-
-StyleMethod = Literal["fast", "nnfm", "knnfm", "gram"]
-
+from abcgs.features.params import DEFAULT_MAX_BLOCK_ELEMS
+from abcgs.types import CandidateProducts, KnnSearch
 
 CosineAxis = Literal["pixel", "channel"]
 

@@ -21,17 +21,11 @@ import torch
 
 from abcgs.errors import InputError
 from abcgs.features import knn
-from abcgs.features.knn import (
-    DEFAULT_MAX_BLOCK_ELEMS,
-    KnnSearch,
-    Projection,
-    StyleFeatures,
-    as_style_features,
-    check_feature_pair,
-    cosine_topk,
-)
-from abcgs.losses.fast import FastParams, FastStats, cosine_distance_loss, fast_loss
-from abcgs.losses.params import StyleMethod  # noqa: F401  (the section's schema)
+from abcgs.features.knn import Projection, StyleFeatures, as_style_features, check_feature_pair, cosine_topk
+from abcgs.features.params import DEFAULT_MAX_BLOCK_ELEMS
+from abcgs.losses.fast import FastStats, cosine_distance_loss, fast_loss
+from abcgs.losses.params import FastParams
+from abcgs.types import KnnSearch, StyleMethod
 
 Groups = Sequence[tuple[torch.Tensor, "torch.Tensor | StyleFeatures"]]
 

@@ -37,8 +37,9 @@ from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel, render
 from abcgs.io.images import load_labels
 from abcgs.masks.lifting import NO_VOTE, lift_labels, propagate_unseen, render_label_map
-from abcgs.masks.params import UNDECIDED, AutoMaskParams, GrabCutParams, MaskParams, RefineParams  # noqa: F401  (the section's schema)
+from abcgs.masks.params import UNDECIDED, AutoMaskParams, GrabCutParams, MaskParams
 from abcgs.masks.refine import Refinement, refine_labels
+from abcgs.types import Backend
 
 log = logging.getLogger(__name__)
 
@@ -148,7 +149,7 @@ def find_given_masks_with_palette(masks_dir: Path, cameras: list[Camera]) -> tup
     return {i: m for (i, _), m in zip(found, maps)}, palette
 
 
-def cluster_view(model: GaussianModel, camera: Camera, params: AutoMaskParams, backend: str = "auto") -> np.ndarray:
+def cluster_view(model: GaussianModel, camera: Camera, params: AutoMaskParams, backend: Backend = "auto") -> np.ndarray:
     """k-means labels 1..n of one rendered view from Lab colour + depth ``(H, W) int64``."""
     with torch.no_grad():
         img, alpha, meta = render(model, camera, backend=backend, render_depth=True, normalize_depth=True)
@@ -169,7 +170,7 @@ def cluster_view(model: GaussianModel, camera: Camera, params: AutoMaskParams, b
     return cv2.medianBlur(out.astype(np.uint8), 5).astype(np.int64)
 
 
-def grabcut_view(model: GaussianModel, camera: Camera, params: GrabCutParams, backend: str = "auto") -> np.ndarray:
+def grabcut_view(model: GaussianModel, camera: Camera, params: GrabCutParams, backend: Backend = "auto") -> np.ndarray:
     """Object (1) vs rest (2) of one rendered view by GrabCut seeded with a box and depth ``(H, W) int64``
     (0 where nothing is rendered)."""
     with torch.no_grad():

@@ -24,8 +24,9 @@ from torch import Tensor
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
-from abcgs.masks.params import LiftParams  # noqa: F401  (the section's schema)
+from abcgs.masks.params import LiftParams
 from abcgs.render import accumulate_weights, rasterize
+from abcgs.types import Backend
 
 NO_VOTE = -1
 """Label-map value of a pixel that votes for nothing (not even 0 = unassigned): e.g. what a re-cut view left
@@ -64,7 +65,7 @@ def lift_labels(
     n_labels: int,
     params: LiftParams | None = None,
     *,
-    backend: str = "auto",
+    backend: Backend = "auto",
 ) -> LiftResult:
     """Vote per-Gaussian labels from label maps of some views.
 
@@ -141,7 +142,7 @@ def propagate_unseen(means: Tensor, lifted: LiftResult, params: LiftParams, *,
 
 
 def render_label_map(
-    model: GaussianModel, labels: Tensor, n_labels: int, camera: Camera, *, threshold: float = 0.5, backend: str = "auto"
+    model: GaussianModel, labels: Tensor, n_labels: int, camera: Camera, *, threshold: float = 0.5, backend: Backend = "auto"
 ) -> np.ndarray:
     """Render per-Gaussian labels into ``camera``: ``(H, W) int64``.
 

@@ -8,7 +8,6 @@ unlabelled pixels, and a warning for each view above ``masks.warn_unlabelled``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -21,6 +20,7 @@ from abcgs.io.atomic import atomic_path, write_json
 from abcgs.io.images import load_image, load_labels, save_image, save_labels
 from abcgs.layout import MasksDir
 from abcgs.sfm.model import SceneData
+from abcgs.types import SceneMasks
 from abcgs.viz import colorize_labels, image_grid
 
 if TYPE_CHECKING:  # the writer takes the computed masks; the stages that only read them do not import that code
@@ -62,14 +62,6 @@ def write_content_masks(out: Path, result: ContentMasks, cameras: list[Camera], 
                 "views_recut": len(result.refinement.views), "per_view": result.refinement.views,
             },
         })
-
-
-@dataclass
-class SceneMasks:
-    """The masks stage's output read back: the lifted label of each Gaussian and the label map of each view."""
-
-    gaussian_labels: torch.Tensor  # (N,)
-    view_labels: list[np.ndarray]  # per camera
 
 
 def load_scene_masks(masks_dir: Path, scene: SceneData, n_gaussians: int, *,

@@ -10,6 +10,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from abcgs.types import Backend
+
 UNDECIDED = 255
 """Value, in a saved label PNG, of a pixel the cut left undecided (no cut, stroke or gap fill claimed it). Lifted, it
 votes for nothing (:data:`abcgs.masks.lifting.NO_VOTE`): a gap the cut could not decide is not the user's "no label",
@@ -109,4 +111,4 @@ class MaskParams(BaseModel):
     warn_unlabelled: float = Field(
         0.1, ge=0.0, le=1.0, description="a view whose re-rendered label map leaves more than this share of its "
                                          "pixels unlabelled (0) is named in a warning (log, masks.json, report)")
-    backend: str = "auto"
+    backend: Backend = "auto"

@@ -39,6 +39,7 @@ from abcgs.masks.lifting import NO_VOTE, LiftResult, lift_labels
 from abcgs.masks.params import LiftParams, RefineParams
 from abcgs.progress import progress
 from abcgs.render import rasterize
+from abcgs.types import Backend
 
 log = logging.getLogger(__name__)
 
@@ -64,7 +65,7 @@ class Refinement:
 
 
 def render_seeds(
-    model: GaussianModel, lifted: LiftResult, n_labels: int, camera: Camera, erode_px: int, *, backend: str = "auto"
+    model: GaussianModel, lifted: LiftResult, n_labels: int, camera: Camera, erode_px: int, *, backend: Backend = "auto"
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The decided labels rendered into ``camera`` and their eroded cores.
 
@@ -111,7 +112,7 @@ def refine_labels(
     lift_params: LiftParams,
     params: RefineParams,
     *,
-    backend: str = "auto",
+    backend: Backend = "auto",
     show_progress: bool = True,
 ) -> Refinement:
     """Re-cut every camera not in ``given`` from the lifted labels, then lift from all cameras (module docstring).

@@ -17,8 +17,8 @@ from __future__ import annotations
 import math
 import os
 import re
+import typing
 import warnings
-from dataclasses import dataclass
 
 import torch
 from torch import Tensor
@@ -28,39 +28,13 @@ from abcgs.render.cpu import BackendUnavailable
 from abcgs.render.projection import project_gaussians, screen_bounds
 from abcgs.render.reference import rasterize_reference
 from abcgs.render.sh import sh_to_color
+from abcgs.types import Backend, RenderMeta
 
-BACKENDS = ("auto", "reference", "cpu", "gsplat")
+BACKENDS: tuple[Backend, ...] = typing.get_args(Backend)
 _warned: set[str] = set()
 
 
-@dataclass
-class RenderMeta:
-    """What a render returns besides the image.
-
-    Attributes:
-        means2d: ``(N, 2)`` screen positions in px, part of the autograd graph: call ``retain_grad()`` on it
-            before ``backward()`` to read the view-space positional gradient the densifier needs (loss per px
-            of screen motion on every backend). Rows of the Gaussians that gsplat culls are 0 with the
-            gsplat backend.
-        radii: ``(N, 2)`` int32 3.33-sigma screen half-extent in px (0 = not rendered).
-        depths: ``(N,)`` camera-space z (world units), for every Gaussian.
-        visible: ``(N,)`` bool, rendered in this view: in depth range, with a box of alpha ≥ 1/255 that
-            overlaps the image.
-        depth: ``(H, W, 1)`` expected depth Σ T_i α_i z_i (or normalised by alpha), when requested.
-        backend: the backend that produced the image.
-    """
-
-    means2d: Tensor
-    radii: Tensor
-    depths: Tensor
-    visible: Tensor
-    depth: Tensor | None
-    backend: str
-    width: int
-    height: int
-
-
-def select_backend(device: torch.device, requested: str = "auto") -> str:
+def select_backend(device: torch.device, requested: Backend = "auto") -> Backend:
     """Resolve ``requested`` (or ``$ABCGS_RENDER_BACKEND`` when ``"auto"``) to a runnable backend name."""
     if requested == "auto":
         requested = os.environ.get("ABCGS_RENDER_BACKEND", "auto") or "auto"
@@ -165,7 +139,7 @@ def rasterize(
     far: float = 1e10,
     eps2d: float = 0.3,
     tile_size: int = 16,
-    backend: str = "auto",
+    backend: Backend = "auto",
 ) -> tuple[Tensor, Tensor, RenderMeta]:
     """Render N 3-D Gaussians into one pinhole view (differentiable in every float input).
 
@@ -289,7 +263,7 @@ def accumulate_weights(
     K: Tensor,
     pixel_weights: Tensor,
     *,
-    backend: str = "auto",
+    backend: Backend = "auto",
     **kwargs,
 ) -> Tensor:
     """Per-Gaussian sums of blending weight × pixel weight (ABC-GS Eq. 2).

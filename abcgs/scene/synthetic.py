@@ -33,7 +33,7 @@ import numpy as np
 from abcgs.cameras import Camera, intrinsics, look_at
 from abcgs.io.atomic import atomic_path, write_json
 from abcgs.io.images import save_image, save_labels
-from abcgs.scene.params import TinySceneParams  # noqa: F401  (the section's schema)
+from abcgs.scene.params import TinySceneParams
 
 LABEL_NAMES = {1: "wall", 2: "box", 3: "sphere"}
 """Content labels written to ``masks/``; 0 = no surface."""

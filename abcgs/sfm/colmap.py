@@ -35,7 +35,7 @@ from abcgs.cameras import Camera
 from abcgs.errors import InputError, ReconstructionError
 from abcgs.io.atomic import atomic_path, write_json
 from abcgs.io.images import list_images, load_image, load_labels, save_labels
-from abcgs.sfm.params import EXHAUSTIVE_MAX_IMAGES, ReconstructParams  # noqa: F401  (the section's schema)
+from abcgs.sfm.params import EXHAUSTIVE_MAX_IMAGES, ReconstructParams
 
 log = logging.getLogger(__name__)
 

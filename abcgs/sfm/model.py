@@ -197,7 +197,6 @@ def _pycolmap_point_order(model_dir: Path, ids: list[int]) -> np.ndarray:
     the file's order elsewhere (a GPU machine without it). A fit depends on the order of its initial Gaussians, and
     every fit of this project so far started from pycolmap's order."""
     try:
-        import cv2  # noqa: F401  (before pycolmap: abcgs/sfm/__init__.py)
         import pycolmap
     except ImportError:
         return np.arange(len(ids))

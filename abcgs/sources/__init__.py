@@ -12,7 +12,7 @@ This package's ``__init__`` imports only the light modules (the contract and det
 which every stage imports, detects formats, and must not depend on the readers.
 """
 
-from abcgs.sources.base import FORMATS, SceneFormat, SourceScene, SourceView
+from abcgs.sources.base import FORMATS, SourceScene, SourceView
 from abcgs.sources.detect import detect_format
 
-__all__ = ["FORMATS", "SceneFormat", "SourceScene", "SourceView", "detect_format"]
+__all__ = ["FORMATS", "SourceScene", "SourceView", "detect_format"]

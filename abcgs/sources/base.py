@@ -19,18 +19,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, get_args
 
 import numpy as np
+
+from abcgs.types import SceneFormat
 
 if TYPE_CHECKING:
     from abcgs.cameras import Camera
 
-SceneFormat = Literal["photos", "colmap", "nerfstudio", "blender", "llff", "splat"]
-"""Where a scene's cameras come from: ``photos`` = none (structure from motion finds them), ``colmap`` = a COLMAP
-model, ``nerfstudio`` = ``transforms.json``, ``blender`` = ``transforms_{train,test}.json`` (NeRF-synthetic),
-``llff`` = ``poses_bounds.npy``, ``splat`` = only a splat file (cameras generated around it)."""
-FORMATS: tuple[str, ...] = SceneFormat.__args__  # type: ignore[attr-defined]
+FORMATS: tuple[str, ...] = get_args(SceneFormat)
 
 
 @dataclass(frozen=True)

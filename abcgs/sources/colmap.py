@@ -18,7 +18,6 @@ import logging
 import os
 from pathlib import Path
 
-import cv2  # noqa: F401  (before pycolmap: see abcgs/sfm/__init__.py)
 import numpy as np
 import pycolmap
 

@@ -25,7 +25,7 @@ import os
 from pathlib import Path
 
 from abcgs.errors import InputError
-from abcgs.sources.base import SceneFormat
+from abcgs.types import SceneFormat
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 SPLAT_SUFFIXES = (".ply", ".splat", ".spz", ".pt")

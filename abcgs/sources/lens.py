@@ -12,7 +12,6 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-import cv2  # noqa: F401  (before pycolmap: see abcgs/sfm/__init__.py)
 import numpy as np
 import pycolmap
 from PIL import Image

@@ -32,7 +32,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Literal
 
-import cv2  # noqa: F401  (before pycolmap: see abcgs/sfm/__init__.py)
+import cv2
 import numpy as np
 import pycolmap
 

@@ -11,6 +11,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from abcgs.sections import NAME_RE
 from abcgs.splats.params import SplatFormatParam, SplatViewsParams
+from abcgs.types import SceneFormat
 
 
 class SceneParams(BaseModel):
@@ -29,7 +30,7 @@ class SceneParams(BaseModel):
     path: str = Field(description="the scene's folder: photos in images/ (and optional masks/ with label PNGs of the "
                       "same stem), or a dataset with its cameras (sparse/0/, transforms.json, transforms_train.json, "
                       "poses_bounds.npy; abcgs/sources)")
-    format: Literal["auto", "photos", "colmap", "nerfstudio", "blender", "llff", "splat"] = Field(
+    format: Literal["auto", SceneFormat] = Field(
         "auto", description="where the cameras come from; auto = detected from the folder's files (abcgs/sources/detect.py)")
     images: str | None = Field(
         None, description="image subfolder (default images/), e.g. images_8 beside a full-size COLMAP model or LLFF poses")

@@ -11,8 +11,9 @@ import os
 from pathlib import Path
 
 from abcgs.errors import InputError
-from abcgs.sources.base import FORMATS, SceneFormat, SourceScene
+from abcgs.sources.base import FORMATS, SourceScene
 from abcgs.sources.detect import detect_format
+from abcgs.types import SceneFormat
 
 MARKER = {"colmap": "sparse/0", "nerfstudio": "transforms.json", "blender": "transforms_train.json",
           "llff": "poses_bounds.npy", "photos": "images/", "splat": "the splat file"}

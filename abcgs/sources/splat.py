@@ -22,13 +22,14 @@ from abcgs.sources.base import SourceScene, SourceView
 from abcgs.splats.cameras import cameras_around
 from abcgs.splats.formats import read_splat
 from abcgs.splats.params import SplatViewsParams
+from abcgs.types import Backend
 
 MAX_POINTS = 100_000
 
 
 @torch.no_grad()
 def read_splat_source(path: Path, out_images_dir: Path, params: SplatViewsParams | None = None, *,
-                      fmt: str = "auto", backend: str = "auto") -> SourceScene:
+                      fmt: str = "auto", backend: Backend = "auto") -> SourceScene:
     """Read the splat at ``path``, make ``params``' cameras around it, write its render from each into
     ``out_images_dir`` (PNG, named like the cameras) and return the :class:`SourceScene` (``format`` ``"splat"``)."""
     params = params or SplatViewsParams()

@@ -32,7 +32,7 @@ import os
 import struct
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Literal, get_args
+from typing import get_args
 
 import numpy as np
 
@@ -45,8 +45,8 @@ from abcgs.sfm.align import Similarity
 from abcgs.splats import frames, inria, splatfacto, supersplat
 from abcgs.splats.gsplat_ckpt import read_gsplat_ckpt, write_gsplat_ckpt
 from abcgs.splats.splat import read_splat_file, write_splat_file
+from abcgs.types import SplatFormat
 
-SplatFormat = Literal["inria", "ply", "splatfacto", "gsplat_ckpt", "gsplat_ply", "opensplat", "supersplat", "splat", "spz"]
 FORMATS: tuple[str, ...] = get_args(SplatFormat)
 LOSSY: frozenset[str] = frozenset({"supersplat", "splat", "spz"})
 """Formats that quantise (their round trip is bounded, not exact)."""

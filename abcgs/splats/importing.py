@@ -17,7 +17,7 @@ from pathlib import Path
 
 import torch
 
-from abcgs.fit.data import SceneLike, load_views
+from abcgs.fit.data import load_views
 from abcgs.fit.evaluation import comparison_grid, evaluate
 from abcgs.fit.outputs import HISTORY_COLUMNS
 from abcgs.fit.params import FitParams
@@ -32,6 +32,7 @@ from abcgs.runtime import torch_threads
 from abcgs.splats.formats import read_splat
 from abcgs.splats.preview import decimate
 from abcgs.splats.validate import check_splat
+from abcgs.types import SceneLike
 
 
 def write_fitted_source(out_dir: str | os.PathLike) -> None:

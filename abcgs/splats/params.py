@@ -10,9 +10,10 @@ from typing import Literal
 
 from pydantic import BaseModel, Field
 
-SplatFormatParam = Literal[
-    "auto", "inria", "ply", "splatfacto", "gsplat_ckpt", "gsplat_ply", "opensplat", "supersplat", "splat", "spz"]
-"""``auto`` or a format of :data:`abcgs.splats.formats.SplatFormat`."""
+from abcgs.types import SplatFormat
+
+SplatFormatParam = Literal["auto", SplatFormat]
+"""``auto`` or a format of :data:`abcgs.types.SplatFormat`."""
 
 
 class SplatViewsParams(BaseModel, extra="forbid"):

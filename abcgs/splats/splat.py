@@ -23,7 +23,7 @@ import torch
 
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
-from abcgs.io.atomic import atomic_path
+from abcgs.io.atomic import write_bytes
 from abcgs.render.sh import C0
 
 RECORD = np.dtype([("pos", "<f4", 3), ("scale", "<f4", 3), ("rgba", "u1", 4), ("rot", "u1", 4)])
@@ -81,7 +81,4 @@ def read_splat_file(path: str | os.PathLike) -> GaussianModel:
 
 
 def write_splat_file(path: str | os.PathLike, model: GaussianModel, *, drop_sh: bool = False) -> int:
-    data = encode_splat(model, drop_sh=drop_sh)
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(data)
-    return len(data)
+    return write_bytes(path, encode_splat(model, drop_sh=drop_sh))

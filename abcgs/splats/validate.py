@@ -26,6 +26,7 @@ from abcgs.gaussians import GaussianModel, render
 from abcgs.io.images import load_image
 from abcgs.sfm.align import Similarity
 from abcgs.splats import frames
+from abcgs.types import Backend
 
 MAX_CHECK_WIDTH = 320
 """Views are compared at most this wide (cheap; the PSNR of a misaligned scene does not depend on resolution)."""
@@ -95,7 +96,7 @@ def _views(scene, idx: Sequence[int]) -> tuple[list[Camera], list[torch.Tensor]]
 
 
 @torch.no_grad()
-def _score(model: GaussianModel, cams: list[Camera], imgs: list[torch.Tensor], backend: str) -> dict[str, float]:
+def _score(model: GaussianModel, cams: list[Camera], imgs: list[torch.Tensor], backend: Backend) -> dict[str, float]:
     out = {}
     for cam, gt in zip(cams, imgs):
         img, _, _ = render(model, cam, backend=backend)
@@ -146,7 +147,7 @@ def _alternatives(model: GaussianModel, scene) -> dict[str, Callable[[], Gaussia
     return alts
 
 
-def check_splat(model: GaussianModel, scene, *, min_psnr: float, max_views: int = 8, backend: str = "auto",
+def check_splat(model: GaussianModel, scene, *, min_psnr: float, max_views: int = 8, backend: Backend = "auto",
                 source: str = "the splat") -> SplatCheck:
     """Render ``model`` into up to ``max_views`` of ``scene``'s views (``cameras``, ``image_paths``; at most
     :data:`MAX_CHECK_WIDTH` px wide) and compare with the photos.

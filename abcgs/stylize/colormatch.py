@@ -14,7 +14,7 @@ import torch
 from torch import Tensor
 
 from abcgs.errors import InputError
-from abcgs.features.matching import ALL_PIXELS, MatchingGroup, TransferSpec
+from abcgs.features.params import ALL_PIXELS, TransferSpec
 from abcgs.fit.data import Views, load_views
 from abcgs.fit.params import FitParams
 from abcgs.fit.training import fit
@@ -26,7 +26,8 @@ from abcgs.layout import ColorMatchDir
 from abcgs.sfm.model import SceneData
 from abcgs.stylize.color import apply_group_transforms
 from abcgs.stylize.loop import color_match_model, group_pixel_masks
-from abcgs.stylize.params import ColorMatchParams  # noqa: F401  (the section's schema)
+from abcgs.stylize.params import ColorMatchParams
+from abcgs.types import MatchingGroup
 from abcgs.viz import image_grid
 
 

@@ -4,61 +4,60 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
 from abcgs.errors import InputError
-from abcgs.features.matching import ExperimentParams, MatchingGroup, TransferSpec, build_groups
+from abcgs.features.matching import build_groups
+from abcgs.features.params import IsolationParams, TransferSpec, VggWeightsParams
 from abcgs.features.vgg import VGG16Features
 from abcgs.features.weights import WeightsInfo, resolve_vgg16
 from abcgs.gaussians import GaussianModel
 from abcgs.io.images import load_labels
 from abcgs.io.ply import read_ply
 from abcgs.layout import ColorMatchDir
-
-if TYPE_CHECKING:  # the stages hand a view of their own sections
-    from abcgs.params import Params
+from abcgs.stylize.params import StylizeParams
+from abcgs.types import MatchingGroup
 
 log = logging.getLogger(__name__)
 
 
-def experiment(params: Params, name: str) -> ExperimentParams:
-    """``experiments.<name>`` (the schema has checked that its colour match and scene exist and agree)."""
-    return params.experiments[name]
-
-
-def colormatch_spec(params: Params, name: str) -> TransferSpec:
-    """``colormatches.<name>``: the scene, transfer type and painting(s) of a colour-matched start."""
-    return params.colormatches[name]
-
-
-def load_vgg(params: Params, device: torch.device | str = "cpu") -> tuple[VGG16Features, WeightsInfo]:
-    """The VGG-16 feature extractor of ``stylize.layers`` on ``device``, and its weights' provenance."""
-    sd, info = resolve_vgg16(params.vgg)
-    vgg = VGG16Features(sd, params.stylize.layers, feature_scale=info.feature_scale).to(device)
+def load_vgg(weights: VggWeightsParams, layers: Sequence[str],
+             device: torch.device | str = "cpu") -> tuple[VGG16Features, WeightsInfo]:
+    """The VGG-16 feature extractor of ``layers`` (``stylize.layers``) with the weights that ``weights`` (``vgg``)
+    names, on ``device``, and the weights' provenance."""
+    sd, info = resolve_vgg16(weights)
+    vgg = VGG16Features(sd, layers, feature_scale=info.feature_scale).to(device)
     log.info("VGG-16 weights: %s (%s, sha256 %s…)", info.source, info.path, info.sha256[:12])
     return vgg, info
 
 
-def check_bindings(params: Params, name: str, spec: TransferSpec, labels: torch.Tensor, labels_file: Path) -> None:
+def check_bindings(name: str, spec: TransferSpec, labels: torch.Tensor, labels_file: Path,
+                   style_masks: Mapping[str, str]) -> None:
     """The labels colour match ``name`` binds exist among the Gaussians' ``labels`` (the masks stage's, read from
-    ``labels_file``) and in its painting's label map (:meth:`TransferSpec.check_labels`); cheap, before any work."""
+    ``labels_file``) and in its painting's label map (``style_masks``: ``data.style_masks``;
+    :meth:`TransferSpec.check_labels`); cheap, before any work."""
     present = {int(v) for v in torch.unique(labels)} - {0}
     regions, source = None, ""
-    if spec.transfer == "semantic" and spec.style in params.data.style_masks:
-        source = params.data.style_masks[spec.style]
+    if spec.transfer == "semantic" and spec.style in style_masks:
+        source = style_masks[spec.style]
         regions = {int(v) for v in np.unique(load_labels(source))} - {0}
     spec.check_labels(name, present, f"the Gaussians' labels ({labels_file})", regions, source)
 
 
-def load_groups(params: Params, spec: TransferSpec, vgg: VGG16Features, labels: torch.Tensor) -> list[MatchingGroup]:
+def load_groups(spec: TransferSpec, vgg: VGG16Features, labels: torch.Tensor, styles: Mapping[str, str],
+                style_masks: Mapping[str, str], isolation: IsolationParams,
+                stylize: StylizeParams) -> list[MatchingGroup]:
+    """The matching groups of colour match ``spec`` over the content labels present in ``labels``: the paintings of
+    ``styles`` / ``style_masks`` (``data.*``), isolated (``isolation``), at ``stylize.style_height`` and
+    ``stylize.layers``."""
     present = {int(v) for v in torch.unique(labels)} - {0}
     return build_groups(
-        spec, params.data.styles, params.data.style_masks, present, vgg,
-        style_height=params.stylize.style_height, isolation=params.isolation, layers=params.stylize.layers,
+        spec, styles, style_masks, present, vgg,
+        style_height=stylize.style_height, isolation=isolation, layers=stylize.layers,
     )
 
 
@@ -69,4 +68,3 @@ def read_colormatch(folder: Path, name: str) -> GaussianModel:
     if not ply.is_file():
         raise InputError(f"{ply} is missing: run the colour match first (dvc repro colormatch@{name})")
     return read_ply(ply)
-

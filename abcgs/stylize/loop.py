@@ -30,17 +30,18 @@ from abcgs.errors import InputError, NumericalError
 from abcgs.features import knn
 from abcgs.features.isolation import downsample_mask
 from abcgs.features.knn import StyleFeatures
-from abcgs.features.matching import ALL_PIXELS, MatchingGroup
+from abcgs.features.params import ALL_PIXELS
 from abcgs.features.vgg import VGG16Features, downsample_half, extract_features
 from abcgs.fit.losses import reconstruction_loss
 from abcgs.gaussians import GaussianModel, render
-from abcgs.losses.fast import FastParams, FastStats
+from abcgs.losses.fast import FastStats
+from abcgs.losses.params import FastParams
 from abcgs.losses.terms import content_loss, style_loss, tv_loss
-from abcgs.masks.outputs import SceneMasks
 from abcgs.progress import progress as progress_bar
 from abcgs.render import rgb_to_sh0, sh0_to_rgb
 from abcgs.stylize.color import apply_group_transforms, fit_color_transform, preserve_color
-from abcgs.stylize.params import LR_PRESETS, StyleWeights, StylizeParams  # noqa: F401  (the section's schema)
+from abcgs.stylize.params import StyleWeights, StylizeParams
+from abcgs.types import MatchingGroup, SceneMasks, StyleMethod
 
 log = logging.getLogger(__name__)
 
@@ -296,7 +297,7 @@ def style_pass(
     params: StylizeParams,
     *,
     iterations: int,
-    method: str = "fast",
+    method: StyleMethod = "fast",
     progress: bool = True,
 ) -> tuple[GaussianModel, PassLog]:
     """The main stylization pass over random views: the optimised (detached) model and the pass's log."""
@@ -427,7 +428,7 @@ def stylize(
     vgg: VGG16Features,
     params: StylizeParams,
     *,
-    method: str = "fast",
+    method: StyleMethod = "fast",
     progress: bool = True,
     depth_model: GaussianModel | None = None,
 ) -> StylizeResult:
@@ -475,7 +476,7 @@ def stylize_scene(
     vgg: VGG16Features,
     params: StylizeParams,
     *,
-    method: str = "fast",
+    method: StyleMethod = "fast",
 ) -> StylizeResult:
     """:func:`stylize` a colour-matched scene at ``params.resolution_scale`` of its views' size (label maps resized
     with nearest neighbours), keeping the depth of the ``original`` scene."""

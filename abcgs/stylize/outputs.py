@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from abcgs.camera_paths import PathKind, camera_path
+from abcgs.camera_paths import camera_path
 from abcgs.cameras import Camera
-from abcgs.features.matching import ALL_PIXELS, MatchingGroup
+from abcgs.features.params import ALL_PIXELS
 from abcgs.gaussians import GaussianModel, render
 from abcgs.io.atomic import atomic_path
 from abcgs.io.images import save_image
@@ -23,6 +23,7 @@ from abcgs.io.ply import write_ply
 from abcgs.io.tables import write_csv
 from abcgs.layout import StylizeDir
 from abcgs.stylize.loop import LoggedStep
+from abcgs.types import Backend, MatchingGroup, PathKind
 from abcgs.viz import colorize_labels, image_grid, style_legend, write_video
 
 HISTORY_COLUMNS = ("step", "seconds", "loss", "style", "content", "tv", "depth", "scale", "opacity")
@@ -33,7 +34,7 @@ GRID_ROWS = 3
 """Views shown in ``grid.png``."""
 
 
-def _image(model: GaussianModel, camera: Camera, backend: str) -> np.ndarray:
+def _image(model: GaussianModel, camera: Camera, backend: Backend) -> np.ndarray:
     return render(model, camera, backend=backend)[0].clamp(0, 1).numpy(force=True)
 
 
@@ -45,7 +46,7 @@ def write_stylized_scene(
     view_labels: list[np.ndarray],
     groups: list[MatchingGroup],
     *,
-    backend: str,
+    backend: Backend,
     path_kind: PathKind,
     path_frames: int,
 ) -> dict:

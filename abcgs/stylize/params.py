@@ -11,6 +11,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from abcgs.losses.params import FastParams
+from abcgs.types import Backend
 
 LR_PRESETS: dict[str, dict[str, float]] = {
     # this project's first rates (colour 4× INRIA's, geometry 5× slower, means free); the default until the
@@ -90,7 +91,7 @@ class StylizeCompute(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    backend: str = Field("auto", description="rasterizer (abcgs.render)")
+    backend: Backend = Field("auto", description="rasterizer (abcgs.render)")
     threads: int = Field(0, ge=0, description="torch CPU threads for this stage (0: torch's default, all cores); "
                          "with `dvc queue start -j N` on C cores, C // N (README 'Benchmarks at scale')")
     log_every: int = Field(10, ge=1, description="a row of stylize_history.csv every this many steps (and the last)")
@@ -151,6 +152,6 @@ class ColorMatchParams(BaseModel):
     refit_iterations: int = Field(400, ge=0, description="re-fit steps on the recoloured images (authors: 400)")
     resolution_scale: float = Field(1.0, gt=0, le=1.0)
     seed: int = 0
-    backend: str = "auto"
+    backend: Backend = "auto"
     threads: int = Field(0, ge=0, description="torch CPU threads for this stage (0: torch's default, all cores); "
                          "with `dvc queue start -j N` on C cores, C // N (README 'Benchmarks at scale')")

@@ -17,6 +17,7 @@ from pathlib import Path
 
 from abcgs.errors import AbcgsError, InputError
 from abcgs.io.atomic import write_text
+from abcgs.sections import read_params_file
 from abcgs.view.outputs import experiment_scene, load_experiment
 from abcgs.view.page import viewer_page
 
@@ -54,7 +55,10 @@ def main(argv=None) -> int:
     out = args.out or Path("reports") / "viewers" / f"{args.run_dir.resolve().name}.html"
     try:
         check_page_path(out, "--out" if args.out else "the page")
-        scene = args.scene or experiment_scene(args.run_dir, args.params)
+        scene = args.scene
+        if scene is None:
+            experiments = read_params_file(args.params).get("experiments") if args.params.is_file() else None
+            scene = experiment_scene(args.run_dir, experiments)
         exp = load_experiment(args.run_dir, scene=scene, max_gaussians=args.max_gaussians)
         write_text(out, viewer_page([exp], title=f"abcgs: {exp.name}"))
     except AbcgsError as exc:

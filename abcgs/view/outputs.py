@@ -2,27 +2,27 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from abcgs import layout
-from abcgs.camera_paths import PathKind
 from abcgs.errors import InputError
 from abcgs.io.ply import read_ply
 from abcgs.sfm.model import read_colmap_scene
+from abcgs.types import PathKind
 from abcgs.view.page import ViewerExperiment, prepare_experiment
 
 
-def experiment_scene(run_dir: Path, params_path: Path | None = Path("params.yaml")) -> str:
-    """The scene key of the experiment in ``run_dir``: ``experiments.<name>.scene`` of the params file, else the
-    only scene under ``run_dir``'s parent that has a fitted ``gs/point_cloud.ply``."""
-    if params_path is not None and Path(params_path).is_file():
-        from abcgs.sections import read_params_file
-
-        exp = (read_params_file(params_path).get("experiments") or {}).get(run_dir.name)
-        if isinstance(exp, dict) and exp.get("scene"):
-            return str(exp["scene"])
+def experiment_scene(run_dir: Path, experiments: Mapping[str, Any] | None = None) -> str:
+    """The scene key of the experiment in ``run_dir``: ``<name>.scene`` of ``experiments`` (the params file's
+    ``experiments`` section, unvalidated), else the only scene under ``run_dir``'s parent that has a fitted
+    ``gs/point_cloud.ply``."""
+    exp = (experiments or {}).get(run_dir.name)
+    if isinstance(exp, Mapping) and exp.get("scene"):
+        return str(exp["scene"])
     scenes = sorted(p.name for p in run_dir.parent.iterdir() if layout.SceneOut(p).fit.ply.is_file())
     if len(scenes) == 1:
         return scenes[0]

@@ -22,13 +22,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from abcgs.camera_paths import PathKind, camera_path, capture_layout
+from abcgs.camera_paths import camera_path, capture_layout
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
 from abcgs.io.spz import encode_spz
 from abcgs.render import rgb_to_sh0
-from abcgs.view.params import ViewerParams  # noqa: F401  (the section's schema)
+from abcgs.types import PathKind
 
 BUNDLE = Path(__file__).resolve().parent / "static" / "abcgs-viewer.js.gz"
 """The viewer bundle, gzip-compressed (``make viewer`` builds it; 1.0 MB instead of 2.9 MB in git)."""

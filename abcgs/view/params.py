@@ -6,11 +6,9 @@ it configures (each stage's code dependencies stay its own: ``abcgs/dag.py``).
 
 from __future__ import annotations
 
-from typing import Literal
-
 from pydantic import BaseModel, ConfigDict, Field
 
-PathKind = Literal["auto", "spiral", "orbit"]
+from abcgs.types import PathKind
 
 
 class ViewerParams(BaseModel):

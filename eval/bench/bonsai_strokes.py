@@ -39,10 +39,10 @@ import numpy as np
 from abcgs.io.atomic import write_json
 from abcgs.io.images import load_image, load_labels, save_image, save_labels, to_uint8
 from abcgs.io.ply import read_ply
-from abcgs.masks.content import MaskParams, label_iou, make_content_masks
-from abcgs.masks.grabcut import UNDECIDED, Stroke, segment
+from abcgs.masks.content import label_iou, make_content_masks
+from abcgs.masks.grabcut import Stroke, segment
 from abcgs.masks.lifting import NO_VOTE
-from abcgs.masks.params import LiftParams
+from abcgs.masks.params import UNDECIDED, LiftParams, MaskParams
 from abcgs.sfm.model import read_colmap_scene
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "bonsai"

@@ -23,7 +23,9 @@ import abcgs  # noqa: F401  (before torch: abcgs sets OpenMP's wait policy, see 
 import torch
 
 from abcgs.features import knn
+from abcgs.features.params import DEFAULT_MAX_BLOCK_ELEMS
 from abcgs.losses import fast
+from abcgs.losses.params import FastParams
 from eval.bench.timing import repeat_seconds
 
 
@@ -56,7 +58,7 @@ def main() -> None:
         f"(dense N_r*N_s={n_r * n_s:,} sims)"
     )
 
-    params = fast.FastParams()
+    params = FastParams()
     t_prep = _best(lambda: knn.StyleFeatures.of(f_s), args.repeats)
     style = knn.StyleFeatures.of(f_s)
     rows, cols = knn.mutual_knn_pairs(f_r, style, params.k)
@@ -78,7 +80,7 @@ def main() -> None:
     def run_chunked(budget: int, projection_rank: int = 0):
         def f():
             f_r.grad = None
-            params = fast.FastParams(max_block_elems=budget, projection_rank=projection_rank)
+            params = FastParams(max_block_elems=budget, projection_rank=projection_rank)
             fast.fast_loss([(f_r, style)], params).backward()
 
         return f
@@ -89,13 +91,13 @@ def main() -> None:
 
     for b in (int(x) for x in args.budgets.split(",")):
         print(f"chunked total (max_block_elems={b:>9,}): {_best(run_chunked(b), args.repeats):.3f}s")
-    rank = fast.FastParams().projection_rank
+    rank = FastParams().projection_rank
     print(f"projected search (rank {rank}, the default; approximate): "
-          f"{_best(run_chunked(knn.DEFAULT_MAX_BLOCK_ELEMS, rank), args.repeats):.3f}s "
+          f"{_best(run_chunked(DEFAULT_MAX_BLOCK_ELEMS, rank), args.repeats):.3f}s "
           "(random features: its recall on real ones is eval/bench/knn_recall.py's)")
     print(f"dense reference total:                     {_best(run_dense, args.repeats):.3f}s")
     with torch.no_grad():
-        lc = float(fast.fast_loss([(f_r, f_s)], fast.FastParams(max_block_elems=1 << 20, projection_rank=0)))
+        lc = float(fast.fast_loss([(f_r, f_s)], FastParams(max_block_elems=1 << 20, projection_rank=0)))
         ld = float(fast.fast_loss_dense(f_r, f_s))
     print(f"loss chunked {lc:.7f} dense {ld:.7f} |diff| {abs(lc - ld):.2e}")
 

@@ -48,6 +48,7 @@ import torch
 from abcgs.features import knn
 from abcgs.io.atomic import write_json
 from abcgs.losses import fast
+from abcgs.losses.params import FastParams
 from eval.bench.real_features import add_feature_arguments, load_bench_features
 from eval.bench.timing import median_ms
 
@@ -79,7 +80,7 @@ def reference_target(f_r: torch.Tensor, style: knn.StyleFeatures, rows, cols, ep
     return p.t() @ f64
 
 
-def variant_target(name: str, f_r, style, rows, cols, fp: fast.FastParams, stats: fast.FastStats) -> torch.Tensor:
+def variant_target(name: str, f_r, style, rows, cols, fp: FastParams, stats: fast.FastStats) -> torch.Tensor:
     """The target of one variant (module docstring) from the given pairs; all but ``library`` use float32 products
     whatever the group's size."""
     if name == "library":
@@ -93,7 +94,7 @@ def variant_target(name: str, f_r, style, rows, cols, fp: fast.FastParams, stats
     return target_bf16(p, f_r) if name == "target bfloat16" else p.t() @ f_r
 
 
-def part_functions(f_r: torch.Tensor, style: knn.StyleFeatures, fp: fast.FastParams) -> dict:
+def part_functions(f_r: torch.Tensor, style: knn.StyleFeatures, fp: FastParams) -> dict:
     """The parts of one FAST step on ``f_r`` as zero-argument callables, by name (each arithmetic's variant)."""
     rows, cols = knn.mutual_knn_pairs(f_r, style, fp.k, search=fp.knn_search, projection=knn.projection_of(fp))
     m, rhs = fast.pair_statistics(f_r, style, rows, cols)

@@ -27,8 +27,9 @@ from abcgs.fit.params import FitParams, StrategyParams
 from abcgs.fit.training import fit
 from abcgs.io.atomic import write_json
 from abcgs.io.ply import write_ply
-from abcgs.sfm.colmap import ReconstructParams, reconstruct
+from abcgs.sfm.colmap import reconstruct
 from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.params import ReconstructParams
 from abcgs.sources.base import FORMATS
 from abcgs.sources.model import write_source_model
 from abcgs.sources.read import read_source, resolve_format

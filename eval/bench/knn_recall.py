@@ -35,6 +35,7 @@ import torch
 from abcgs.features import knn
 from abcgs.io.atomic import write_json
 from abcgs.losses import fast
+from abcgs.losses.params import FastParams
 from eval.bench.real_features import add_feature_arguments, load_bench_features
 from eval.bench.timing import median_ms
 
@@ -67,7 +68,7 @@ def main(argv=None) -> dict:
     print(f"{len(features)} feature sets ({len(args.ply)} scenes x {len(cameras)} views), N_r={n_r} N_s={n_s} "
           f"C={style.shape[0]}, k={args.k}; {platform.machine()}, {os.cpu_count()} CPUs, torch threads {args.threads}")
 
-    exact_params = fast.FastParams(k=args.k, knn_search=args.knn_search, projection_rank=0)
+    exact_params = FastParams(k=args.k, knn_search=args.knn_search, projection_rank=0)
     exact = []
     for _, f in features:
         nn_rs, nn_sr = knn.cosine_topk(f, style, args.k, args.k, search=args.knn_search)
@@ -90,7 +91,7 @@ def main(argv=None) -> dict:
                 for prod in args.products.split(",")]
     for rank, cand, products in settings:
         proj = knn.Projection(rank, cand, products=products)
-        fp = fast.FastParams(k=args.k, projection_rank=rank, projection_candidates=cand, projection_min_similarities=0,
+        fp = FastParams(k=args.k, projection_rank=rank, projection_candidates=cand, projection_min_similarities=0,
                              projection_products=products)
         rec_rs, rec_sr, rec_nn, jac, tdiff, ldiff = [], [], [], [], [], []
         for (_, f), (ex_rs, ex_sr, ex_nn, ex_pairs, ex_target, ex_loss) in zip(features, exact):

@@ -35,7 +35,7 @@ import numpy as np
 import torch
 
 from abcgs.cameras import Camera, intrinsics, look_at
-from abcgs.features.matching import ALL_PIXELS, MatchingGroup
+from abcgs.features.params import ALL_PIXELS
 from abcgs.features.vgg import VGG16Features, extract_features, random_state_dict
 from abcgs.gaussians import GaussianModel, render
 from abcgs.io.atomic import write_json
@@ -48,6 +48,7 @@ from abcgs.splats.preview import decimate
 from abcgs.splats.validate import check_splat
 from abcgs.stylize.loop import stylize
 from abcgs.stylize.params import StylizeCompute, StylizeOptim, StylizeParams
+from abcgs.types import MatchingGroup
 
 
 def peak_rss_gib() -> float:

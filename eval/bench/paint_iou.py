@@ -40,8 +40,9 @@ import numpy as np
 
 from abcgs.io.atomic import write_json
 from abcgs.io.images import load_image, load_labels, save_labels
-from abcgs.masks.content import MaskParams, RefineParams, label_iou, make_content_masks
+from abcgs.masks.content import label_iou, make_content_masks
 from abcgs.masks.grabcut import Stroke, segment
+from abcgs.masks.params import MaskParams, RefineParams
 
 GOAL = 0.9
 """Per-label IoU the lifted stroke masks should reach on every other view (the worst one counts)."""
@@ -177,8 +178,9 @@ def main(argv: list[str] | None = None) -> dict:
     from abcgs.fit.params import FitParams, StrategyParams
     from abcgs.fit.training import fit
     from abcgs.scene.synthetic import make_tiny_scene
-    from abcgs.sfm.colmap import ReconstructParams, reconstruct, set_colmap_log_level
+    from abcgs.sfm.colmap import reconstruct, set_colmap_log_level
     from abcgs.sfm.model import read_colmap_scene
+    from abcgs.sfm.params import ReconstructParams
 
     set_colmap_log_level("error")
     t0 = time.perf_counter()

@@ -40,8 +40,8 @@ from pathlib import Path
 
 import yaml
 
+from abcgs.dotted import set_dotted
 from abcgs.io.atomic import write_json
-from abcgs.sections import set_dotted
 from eval.bench.repo_copy import copy_repo, copy_revision, run_in
 
 ROOT = Path(__file__).resolve().parents[2]

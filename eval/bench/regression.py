@@ -5,7 +5,7 @@ gates :data:`GATED` against ``tests/baselines/tiny_seed_spread.json``, whose tol
 ``python -m eval.studies.seed_spread`` measures with the same settings.
 """
 
-from abcgs.params import set_dotted
+from abcgs.dotted import set_dotted
 
 GATED = ("ssim", "short_rmse", "long_rmse")
 """Metrics (keys of ``out/<experiment>/eval.json``) whose regression fails CI."""

@@ -28,8 +28,8 @@ import abcgs  # noqa: F401  (before torch: abcgs sets OpenMP's wait policy, see 
 import numpy as np
 import torch
 
-from abcgs.features.knn import CandidateProducts, KnnSearch
-from abcgs.features.matching import TransferSpec, build_groups, load_style
+from abcgs.features.matching import build_groups, load_style
+from abcgs.features.params import TransferSpec
 from abcgs.features.vgg import VGG16Features, downsample_half, extract_features
 from abcgs.features.weights import resolve_vgg16
 from abcgs.fit.metrics import ssim as ssim_metric
@@ -40,8 +40,10 @@ from abcgs.io.ply import read_ply, write_ply
 from abcgs.losses.terms import gram_matrix
 from abcgs.params import load_params
 from abcgs.sfm.model import read_colmap_scene
-from abcgs.stylize.colormatch import ColorMatchParams, color_match_and_refit
+from abcgs.stylize.colormatch import color_match_and_refit
 from abcgs.stylize.loop import stylize
+from abcgs.stylize.params import ColorMatchParams
+from abcgs.types import CandidateProducts, KnnSearch
 from abcgs.viz import image_grid
 
 

@@ -25,7 +25,8 @@ import abcgs  # noqa: F401  (before torch: abcgs sets OpenMP's wait policy, see 
 import numpy as np
 import torch
 
-from abcgs.features.matching import TransferSpec, build_groups, load_style
+from abcgs.features.matching import build_groups, load_style
+from abcgs.features.params import TransferSpec
 from abcgs.features.vgg import VGG16Features
 from abcgs.features.weights import resolve_vgg16
 from abcgs.fit.params import FitParams
@@ -41,8 +42,9 @@ from abcgs.splats.formats import read_splat
 from abcgs.splats.importing import import_and_save
 from abcgs.splats.params import SplatViewsParams
 from abcgs.splats.splat import write_splat_file
-from abcgs.stylize.colormatch import ColorMatchParams, color_match_and_refit
+from abcgs.stylize.colormatch import color_match_and_refit
 from abcgs.stylize.loop import stylize
+from abcgs.stylize.params import ColorMatchParams
 from abcgs.viz import image_grid
 from eval.bench.stylize import gram_distance
 

@@ -21,8 +21,9 @@ import numpy as np
 
 from abcgs.io.images import list_images
 from abcgs.sfm.align import alignment_residual
-from abcgs.sfm.colmap import ReconstructParams, reconstruct
+from abcgs.sfm.colmap import reconstruct
 from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.params import ReconstructParams
 from abcgs.sources.llff import llff_camera_centres
 
 DEFAULT_SCENE = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "scenes" / "fern"

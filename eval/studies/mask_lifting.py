@@ -27,13 +27,9 @@ from abcgs.errors import InputError
 from abcgs.io.atomic import write_json
 from abcgs.io.images import load_image, save_image
 from abcgs.io.ply import read_ply
-from abcgs.masks.content import (
-    GrabCutParams,
-    find_given_masks_with_palette,
-    grabcut_view,
-    label_iou,
-)
-from abcgs.masks.lifting import LiftParams, lift_labels, propagate_unseen, render_label_map
+from abcgs.masks.content import find_given_masks_with_palette, grabcut_view, label_iou
+from abcgs.masks.lifting import lift_labels, propagate_unseen, render_label_map
+from abcgs.masks.params import GrabCutParams, LiftParams
 from abcgs.sfm.model import read_colmap_scene
 from abcgs.viz import colorize_labels, image_grid
 

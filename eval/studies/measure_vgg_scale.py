@@ -21,8 +21,9 @@ import abcgs  # noqa: F401  (before torch: abcgs sets OpenMP's wait policy, see 
 import cv2
 import torch
 
+from abcgs.features.params import VggWeightsParams
 from abcgs.features.vgg import DEFAULT_LAYERS, VGG16Features, downsample_half
-from abcgs.features.weights import VggWeightsParams, resolve_vgg16
+from abcgs.features.weights import resolve_vgg16
 from abcgs.io.images import load_image
 
 

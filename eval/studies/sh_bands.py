@@ -26,7 +26,8 @@ import abcgs  # noqa: F401  (before torch: abcgs sets OpenMP's wait policy, see 
 import numpy as np
 import torch
 
-from abcgs.features.matching import TransferSpec, build_groups, load_style
+from abcgs.features.matching import build_groups, load_style
+from abcgs.features.params import TransferSpec
 from abcgs.features.vgg import VGG16Features
 from abcgs.features.weights import resolve_vgg16
 from abcgs.fit.params import FitParams, StrategyParams
@@ -36,11 +37,12 @@ from abcgs.io.atomic import write_json
 from abcgs.io.images import save_image
 from abcgs.io.ply import read_ply, write_ply
 from abcgs.params import load_params
-from abcgs.sfm.colmap import ReconstructParams, reconstruct
+from abcgs.sfm.colmap import reconstruct
 from abcgs.sfm.model import read_colmap_scene
-from abcgs.stylize.colormatch import ColorMatchParams, color_match_and_refit
+from abcgs.sfm.params import ReconstructParams
+from abcgs.stylize.colormatch import color_match_and_refit
 from abcgs.stylize.loop import stylize, with_higher_sh
-from abcgs.stylize.params import HigherSH
+from abcgs.stylize.params import ColorMatchParams, HigherSH
 from abcgs.viz import image_grid
 from eval.bench.stylize import gram_distance
 
