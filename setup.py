@@ -6,12 +6,14 @@ installed with ``pip install --no-build-isolation`` (``make install`` does both)
 to compile is left out; without torch or a compiler none is built. The install succeeds either way and
 ``abcgs/render/_kernels_build.json`` records what was built or why nothing was, which
 ``abcgs.render.cpu.load_extension`` reports (the rasterizer then falls back to its reference backend).
-``ABCGS_KERNEL_VARIANTS=portable,x86_64_v3`` builds the listed variants instead; ``MAX_JOBS`` caps the parallel
-compiles of one variant (ninja).
+``ABCGS_KERNEL_VARIANTS=portable,x86_64_v3`` builds the listed variants instead. With ninja (the Makefile installs
+it) the variants build side by side, each in its own folder, and ``MAX_JOBS`` caps the parallel compiles of one
+variant (default: this machine's cores + 2, shared among the variants); without ninja, one file after the other.
 """
 
 from __future__ import annotations
 
+import copy
 import importlib.util
 import json
 import os
@@ -105,19 +107,26 @@ else:
             })
 
         def build_extensions(self):
+            if self.use_ninja and len(self.extensions) > 1:
+                # the variants side by side (setuptools' thread pool; ninja compiles each in its own folder), the
+                # cores shared among them. Without ninja, torch swaps compiler flags on the shared compiler per file,
+                # so the variants build one after the other.
+                self.parallel = len(self.extensions)
+                cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+                os.environ.setdefault("MAX_JOBS", str(max(1, -(-(cores + 2) // len(self.extensions)))))
             super().build_extensions()  # torch's flag setup, then build_extension() per variant
             # later steps (copying into the source tree, the wheel's file list) only see what was built
             self.extensions = [e for e in self.extensions if e.name not in self.failed]
 
         def build_extension(self, ext):
-            temp = self.build_temp
-            self.build_temp = os.path.join(temp, ext.name)
+            # a shallow copy with this variant's temp folder: the variants may build in parallel threads, which
+            # share the compiler and self.failed but not build_temp
+            one = copy.copy(self)
+            one.build_temp = os.path.join(self.build_temp, ext.name)
             try:
-                super().build_extension(ext)
+                super(BuildKernels, one).build_extension(ext)
             except Exception as exc:  # compiler missing or rejecting the flags, build error
                 self.failed[ext.name] = f"{reason(exc)} (`pip install -v` shows the compiler's messages)"
-            finally:
-                self.build_temp = temp
 
     setup(
         ext_modules=[

@@ -23,9 +23,9 @@ import sys
 
 # The CPU path alternates torch's OpenMP regions (VGG, Adam, small tensor ops) with the extension's own
 # kernel threads (abcgs.render.cpu: rasterizer, SSIM, neighbour search). Under GNU OpenMP's default wait
-# policy torch's idle workers spin after each region and take cores from those kernel threads. Passive
-# waiting measured on fern, 2 cores (docs/SCALING.md "Idle OpenMP workers"): a fit 8 % faster, a FAST
-# stylization step 3–4 %, results identical. libgomp reads the variable when it loads, i.e. at torch's first
+# policy torch's idle workers spin after each region and take cores from those kernel threads; passive
+# waiting makes the fit and the stylization faster with identical results (docs/SCALING.md "One machine: the
+# queue", "Threads and `-j`", has the measurement). libgomp reads the variable when it loads, i.e. at torch's first
 # import, so this only acts when abcgs is imported first; a value set by the user always wins.
 if "torch" not in sys.modules:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")

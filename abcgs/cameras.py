@@ -8,9 +8,12 @@ maps world → camera coordinates; ``K`` maps camera coordinates to pixels with 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
+
+if TYPE_CHECKING:  # torch is imported by the two methods that make tensors: stages without tensors skip its import
+    import torch
 
 
 @dataclass(frozen=True)
@@ -47,9 +50,13 @@ class Camera:
         return Camera(self.name, K, self.viewmat.copy(), w, h, dict(self.meta))
 
     def torch_viewmat(self, device: torch.device | str = "cpu") -> torch.Tensor:
+        import torch
+
         return torch.as_tensor(self.viewmat, dtype=torch.float32, device=device)
 
     def torch_K(self, device: torch.device | str = "cpu") -> torch.Tensor:
+        import torch
+
         return torch.as_tensor(self.K, dtype=torch.float32, device=device)
 
 

@@ -95,7 +95,8 @@ class GaussianModel:
         m = pts.shape[0]
         if m > 1:
             k = min(4, m)  # the point itself + up to 3 neighbours
-            from scipy.spatial import cKDTree  # here, not at module level: 0.25 s of every stage's start
+            # here, not at module level, where it would slow every stage's start (docs/measurements/settings.yaml)
+            from scipy.spatial import cKDTree
 
             dist, _ = cKDTree(pts).query(pts, k=k)
             dist2 = (dist[:, 1:] ** 2).mean(axis=1)

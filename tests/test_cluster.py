@@ -306,7 +306,7 @@ def _wait(what: str, check: Callable[[], Any], timeout: float, every: float = 1.
 @pytest.fixture(scope="module")
 def slurm(tmp_path_factory: pytest.TempPathFactory):
     """A one-node Slurm on localhost (munged, slurmctld, slurmd), torn down at the end of the module."""
-    from abcgs.cluster.local import LocalSlurm, SlurmUnavailable, install
+    from eval.slurm_local import LocalSlurm, SlurmUnavailable, install
 
     try:
         if os.geteuid() != 0:

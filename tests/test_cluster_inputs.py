@@ -4,6 +4,7 @@ into a script or into YAML text. (Pure functions and the CLI up to its first Slu
 
 from __future__ import annotations
 
+import os
 import shlex
 from pathlib import Path
 
@@ -12,7 +13,7 @@ import yaml
 
 from abcgs.cluster.__main__ import main
 from abcgs.cluster.plan import PlanError, Resources, apply_sets, load_resources, make_plan
-from abcgs.cluster.slurm import SlurmError, render_script, script_path
+from abcgs.cluster.slurm import SlurmError, check_reachable, render_script, script_path
 from abcgs.errors import ParamsError
 from abcgs.overlay import read_overlay
 
@@ -63,6 +64,25 @@ def test_submit_refuses_a_newline_in_a_path_argument_before_any_work(tmp_path: P
     assert not any(tmp_path.iterdir())  # nothing written
 
 
+def test_without_a_reachable_slurm_submit_names_the_local_cluster_script_and_writes_nothing(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
+    """abcgs sets no Slurm up: with no Slurm commands, or a controller that does not answer, it says how to get one."""
+    path = os.environ["PATH"]
+    monkeypatch.setenv("PATH", str(tmp_path / "empty"))
+    with pytest.raises(SlurmError, match=r"sinfo not found.*python -m eval\.slurm_local install"):
+        check_reachable()
+    fake = tmp_path / "bin"
+    fake.mkdir()
+    (fake / "sinfo").write_text("#!/bin/sh\necho 'sinfo: error: Unable to contact slurm controller' >&2\nexit 1\n")
+    (fake / "sinfo").chmod(0o755)
+    monkeypatch.setenv("PATH", f"{fake}{os.pathsep}{path}")
+    run = tmp_path / "run"
+    assert main(["submit", "--run-dir", str(run), "--cache", str(tmp_path / "cache")]) == 2
+    err = capsys.readouterr().err
+    assert "no Slurm controller answers `sinfo` (sinfo: error: Unable to contact slurm controller)" in err
+    assert "python -m eval.slurm_local start DIR" in err and not run.exists()
+
+
 def test_the_data_folder_goes_into_the_parsed_overlay_not_its_text(tmp_path: Path) -> None:
     overlay = tmp_path / "o.yaml"
     overlay.write_text("# ${shared} in a comment is no value\ndata:\n  scenes:\n    fern:\n      path: ${shared}/fern\n"
@@ -108,3 +128,30 @@ def test_a_bad_rev_names_the_argument(capsys) -> None:
     assert main(["plan", "--rev", "--upload-pack=touch x"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: --rev '--upload-pack=touch x' is not a commit") and len(err.strip().splitlines()) == 1
+
+
+def test_an_untested_dvc_is_refused_by_submit_collect_and_the_jobs_dvc(monkeypatch: pytest.MonkeyPatch, capsys) -> None:
+    """dvc_run.py replaces private DVC functions: a DVC outside DVC_TESTED stops before anything runs."""
+    from abcgs.cluster import dvc_run
+    from abcgs.cluster.run import DvcVersionError, check_dvc_version
+
+    check_dvc_version()  # the DVC installed here is a tested one
+    monkeypatch.setattr(dvc_run, "installed_dvc_version", lambda: "3.71.2")
+    with pytest.raises(DvcVersionError, match=r"^abcgs.cluster was tested with DVC 3\.67; this is 3\.71\.2: "):
+        check_dvc_version()
+    for argv in (["submit", "--dry-run"], ["collect", "/nonexistent/run"]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error: abcgs.cluster was tested with DVC 3.67; this is 3.71.2:"), err
+        assert "pip install 'dvc>=3.67,<3.68'" in err
+    assert dvc_run.main(["repro", "--dry"]) == 2
+    assert "tested with DVC 3.67; this is 3.71.2" in capsys.readouterr().err
+    assert dvc_run.dvc_version_problem("3.66.9") and dvc_run.dvc_version_problem("4.0.0")
+    assert dvc_run.dvc_version_problem("3.67.0") is None and dvc_run.dvc_version_problem("3.67.5rc1") is None
+
+
+def test_pyproject_pins_dvc_to_the_tested_versions() -> None:
+    from abcgs.cluster.dvc_run import DVC_TESTED
+
+    (a, b), (c, d) = DVC_TESTED
+    assert f'"dvc>={a}.{b},<{c}.{d}",' in (ROOT / "pyproject.toml").read_text()

@@ -10,8 +10,11 @@
 - :mod:`abcgs.cluster.job`: one array task: a clone of the commit, ``dvc repro`` of the job's stages against the
   shared cache, its progress in the run folder (:mod:`abcgs.cluster.run`).
 - :mod:`abcgs.cluster.dvc_run`: ``dvc`` that keeps every finished stage in the run cache.
-- :mod:`abcgs.cluster.commands`: the commands above; :mod:`abcgs.cluster.local`: a one-node Slurm on localhost
-  for the tests and the benchmark.
+- :mod:`abcgs.cluster.commands`: the commands above.
+
+The package submits to a Slurm that is there; it installs and starts nothing on the host. A one-node Slurm on
+localhost, for a try on one machine, the tests and the benchmark, comes from ``python -m eval.slurm_local`` in the
+checkout (:data:`abcgs.cluster.slurm.LOCAL_SLURM_HINT`).
 
 docs/SCALING.md "A Slurm cluster" describes the whole flow.
 """

@@ -50,7 +50,10 @@ def main(argv: list[str] | None = None) -> int:
 
             return run_job(a.run, a.array, a.task)
         from abcgs.cluster import commands
+        from abcgs.cluster.run import check_dvc_version
 
+        if a.cmd in ("submit", "collect"):  # both run DVC through abcgs/cluster/dvc_run.py (the jobs check there)
+            check_dvc_version()
         return {"plan": commands.cmd_plan, "submit": commands.cmd_submit, "status": commands.cmd_status,
                 "collect": commands.cmd_collect}[a.cmd](a)
     except AbcgsError as exc:

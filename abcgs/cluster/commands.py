@@ -40,6 +40,7 @@ from abcgs.cluster.run import (
 )
 from abcgs.cluster.slurm import (
     SlurmError,
+    check_reachable,
     dependency,
     python_executable,
     render_script,
@@ -162,6 +163,8 @@ def cmd_submit(a: argparse.Namespace) -> int:
     if a.remote and not _default_remote(repo, commit):
         raise RunError("--remote: the commit's .dvc/config names no default remote (`dvc remote add -d NAME URL`, "
                        "then commit .dvc/config)")
+    if not a.dry_run:
+        check_reachable()  # before the run folder exists
     for d in (run / "logs", run / "state", run / "scripts", *(() if a.remote else (cache,))):
         d.mkdir(parents=True, exist_ok=True)
     params_file = None

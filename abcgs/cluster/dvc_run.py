@@ -18,11 +18,45 @@ workspace, so a restore elsewhere would miss the uncached outputs).
 
 The cluster job runs this file by path, not with ``-m``, so that it imports only DVC and not the ``abcgs``
 package of the clone it runs in.
+
+**Tested DVC versions.** The two changes replace private DVC functions (``Stage.save``, ``Stage.dump``,
+``StageCache.restore``, ``dvc.repo.reproduce._reproduce``, ``dvcfile.dump_stages``, which DVC has since 3.63), so
+they hold only for the DVC versions they were tested with, :data:`DVC_TESTED` (``pyproject.toml`` pins ``dvc`` to
+it). On another version this script exits with :func:`dvc_version_problem`'s message before running anything, and
+``python -m abcgs.cluster`` refuses to start (:func:`abcgs.cluster.run.check_dvc_version`).
 """
 
 from __future__ import annotations
 
+import re
 import sys
+
+DVC_TESTED = ((3, 67), (3, 68))
+"""``[first, end)`` of the DVC ``major.minor`` versions this file was tested with; ``pyproject.toml`` says
+``dvc>=3.67,<3.68``."""
+
+
+def installed_dvc_version() -> str:
+    """The version of the DVC installed with this interpreter (its package metadata; DVC is not imported)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("dvc")
+    except PackageNotFoundError:
+        return "not installed"
+
+
+def dvc_version_problem(version: str | None = None) -> str | None:
+    """Why DVC ``version`` (default: the installed one) cannot run the cluster code; None within :data:`DVC_TESTED`."""
+    version = installed_dvc_version() if version is None else version
+    (a, b), (c, d) = DVC_TESTED
+    tested = f"{a}.{b}" if (c, d) == (a, b + 1) else f"{a}.{b}–{c}.{d - 1}"
+    match = re.match(r"(\d+)\.(\d+)", version)
+    if match and (a, b) <= (int(match[1]), int(match[2])) < (c, d):
+        return None
+    return (f"abcgs.cluster was tested with DVC {tested}; this is {version}: it replaces private DVC functions "
+            f"(abcgs/cluster/dvc_run.py), which other versions may not have; install the tested one with "
+            f"`pip install 'dvc>={a}.{b},<{c}.{d}'`")
 
 
 def keep_every_stage_in_the_run_cache() -> None:
@@ -97,6 +131,10 @@ def write_the_lock_once() -> None:
 
 
 def main(argv: list[str]) -> int:
+    problem = dvc_version_problem()
+    if problem:
+        print(f"error: {problem}", file=sys.stderr)
+        return 2
     if argv[:1] == ["push-run-cache"]:
         return push_run_cache()
     write_the_lock_once()

@@ -38,6 +38,20 @@ class RunError(AbcgsError):
     """A run folder is missing or inconsistent."""
 
 
+class DvcVersionError(AbcgsError):
+    """The installed DVC is outside the versions :mod:`abcgs.cluster.dvc_run` was tested with."""
+
+
+def check_dvc_version(version: str | None = None) -> None:
+    """Raise :class:`DvcVersionError` when DVC ``version`` (default: the installed one) is untested
+    (:data:`abcgs.cluster.dvc_run.DVC_TESTED`)."""
+    from abcgs.cluster.dvc_run import dvc_version_problem
+
+    problem = dvc_version_problem(version)
+    if problem:
+        raise DvcVersionError(problem)
+
+
 @dataclass
 class RunInfo:
     """``run.json``: everything a job needs to find its work."""

@@ -100,14 +100,31 @@ def dependency(array: Array, ids: Mapping[str, str]) -> list[str]:
     return [f"--dependency={array.wait}:{':'.join(deps)}", *kill]
 
 
+LOCAL_SLURM_HINT = (
+    "run on a Slurm login node, or set SLURM_CONF to the cluster's slurm.conf; to try it on this machine, start a "
+    "one-node Slurm from the abcgs checkout: `sudo python -m eval.slurm_local install`, then "
+    "`sudo python -m eval.slurm_local start DIR` and `export SLURM_CONF=DIR/slurm.conf`"
+)
+"""What to do when no Slurm is reachable: abcgs submits to a Slurm that is there and sets none up
+(``eval/slurm_local.py`` does, for a try on one machine and for the tests)."""
+
+
 def _run(cmd: list[str], check: bool = True) -> subprocess.CompletedProcess:
     try:
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     except FileNotFoundError:
-        raise SlurmError(f"{cmd[0]} not found: run on a Slurm login node (or install slurm-client)") from None
+        raise SlurmError(f"{cmd[0]} not found, so no Slurm is reachable from here: {LOCAL_SLURM_HINT}") from None
     if check and proc.returncode != 0:
         raise SlurmError(f"`{shlex.join(cmd)}` failed ({proc.returncode}): {proc.stderr.strip() or proc.stdout.strip()}")
     return proc
+
+
+def check_reachable() -> None:
+    """Raise :class:`SlurmError` (with :data:`LOCAL_SLURM_HINT`) unless ``sinfo`` reaches a Slurm controller."""
+    proc = _run(["sinfo", "-h", "-o", "%P"], check=False)
+    if proc.returncode != 0:
+        raise SlurmError(f"no Slurm controller answers `sinfo` ({(proc.stderr or proc.stdout).strip()[-300:]}): "
+                         f"{LOCAL_SLURM_HINT}")
 
 
 def sbatch(script: Path, options: Iterable[str] = ()) -> str:

@@ -11,14 +11,14 @@ unit-normalised columns and a row-major copy, so a step normalises and transpose
 Two searches give the same neighbour sets (``search``):
 
 - ``exact``: float32 similarities, top-k of each tile merged across tiles;
-- ``bf16``: a *certified* search. The similarities are computed in bfloat16 (oneDNN's bf16 GEMM: 2.7× the
-  float32 product on a Zen 4 core with AVX512-BF16), with a proven bound ``δ`` on their error from the
+- ``bf16``: a *certified* search. The similarities are computed in bfloat16 (oneDNN's bf16 GEMM, faster than
+  the float32 product on a CPU with AVX512-BF16), with a proven bound ``δ`` on their error from the
   columns' own rounding residuals (``|uᵀv − ũᵀṽ| ≤ ‖u−ũ‖ + ‖ũ‖‖v−ṽ‖``, plus float32 accumulation and the
   bf16 rounding of the result). Each feature takes its ``K`` best approximate candidates; when the k-th
   and the (K+1)-th approximate similarities differ by more than ``2δ``, no feature outside the candidates
   can be among the true k best, and the candidates are re-ranked with exact float32 dot products
-  (:func:`pair_dots`). Features that fail the test (about 1 % at K = 16 on the relu3 features of fern's
-  photos × Starry Night) get the exact float32 search. The result equals the exact search's up to ties
+  (:func:`pair_dots`). Features that fail the test get the exact float32 search (their share on fern, and the
+  speed of the bf16 product: ``docs/measurements/settings.yaml``, ``knn_bf16_certified_search``). The result equals the exact search's up to ties
   within float32 rounding (the re-ranking sums in another order than the float32 product).
 
 ``auto`` picks ``bf16`` on a CPU whose oneDNN runs bf16 natively and for at least :data:`BF16_MIN_ELEMS`
@@ -52,8 +52,8 @@ BF16_MIN_ELEMS = 2**22
 product is cheap and the certification's fixed costs do not pay (the tiny scene stays on the exact path)."""
 
 BF16_CANDIDATES = 16
-"""Candidates per feature of the bf16 search (K). On fern's photos × Starry Night (relu3, 2852 × 6528 features) K = 8
-certifies 55–63 % of the features, 12: 91–95 %, 16: 99 %; the rest fall back to the exact search."""
+"""Candidates per feature of the bf16 search (K): the more, the more features are certified; the rest fall back to
+the exact search (the share certified by K: ``docs/measurements/settings.yaml``, ``knn_bf16_certified_search``)."""
 
 _BF16_ROUNDING = 2.0**-8
 """Unit roundoff of bfloat16 (8 significant bits, round to nearest)."""

@@ -19,8 +19,8 @@ TransferType = Literal["single", "compositional", "semantic"]
 
 DEFAULT_MAX_BLOCK_ELEMS = 2**22
 """Neighbour search (:mod:`abcgs.features.knn`): 16 MiB of float32 similarities per tile. Below glibc's 32 MiB mmap
-ceiling, the tile's memory is reused from the heap instead of being mapped and faulted in anew every step: on fern ×
-Starry Night (``eval/bench/stylize.py``, 30 steps) the FAST loss took 463 ms per step with 2**22, 511 ms with 2**24."""
+ceiling, the tile's memory is reused from the heap instead of being mapped and faulted in anew every step (the step
+times of both budgets: ``docs/measurements/settings.yaml``, ``fast_max_block_elems``)."""
 
 
 ALL_PIXELS = -1

@@ -197,8 +197,9 @@ def read_ply_layout(
         raise InputError(f"{path} is not a PLY file (it does not start with the 'ply' magic line)")
     try:
         # Memory-mapped (copy-on-write): plyfile's only bulk path for binary rows. From a byte stream it reads
-        # property by property, row by row: 1.8 s for fern's 92k Gaussians against 0.012 s, in every stage that
-        # loads a scene. The columns are copied out below, so nothing keeps the mapping once this returns.
+        # property by property, row by row, two orders of magnitude slower in every stage that loads a scene
+        # (docs/measurements/settings.yaml, ply_read_mmap). The columns are copied out below, so nothing keeps the
+        # mapping once this returns.
         data = PlyData.read(str(path), mmap="c")
     except (PlyParseError, ValueError, EOFError, IndexError, UnicodeDecodeError) as exc:
         raise InputError(f"{path} is a malformed or truncated PLY file: {exc}") from exc

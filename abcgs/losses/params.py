@@ -47,10 +47,10 @@ class FastParams(BaseModel):
     """0: the exact neighbour search (``knn_search`` says how). ``r > 0``: the approximate search for CPU searches of at
     least ``projection_min_similarities`` (on CUDA the exact search runs) — candidates from the features projected onto
     the painting's ``r`` principal feature directions, re-ranked by their exact similarities
-    (:class:`abcgs.features.knn.Projection`); used by FAST, NNFM and KNNFM. Measured on fern × Starry Night
-    (``eval/bench/knn_recall.py``, docs/SCALING.md): rank 128 with 16 candidates finds 99.8 % of FAST's neighbours
-    (99.98 % of NNFM's), FAST's aligned features within 1.3 %, in 141 ms against the exact search's 358–526 ms on a
-    2-core AVX2 CPU."""
+    (:class:`abcgs.features.knn.Projection`); used by FAST, NNFM and KNNFM. Its recall by rank and candidates, and
+    what it changes in a whole run: docs/SCALING.md "The neighbour search of FAST and NNFM"
+    (``python -m eval.bench.knn_recall``); its time: ``docs/measurements/settings.yaml``,
+    ``knn_projected_search_time``."""
     projection_candidates: int = Field(16, ge=1)
     """Candidates per feature and direction of the approximate search (at least ``k``)."""
     projection_min_similarities: int = Field(2**22, ge=0)

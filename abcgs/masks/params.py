@@ -32,8 +32,8 @@ class LiftParams(BaseModel):
     propagate: Literal["auto", "always", "never"] = Field(
         "auto", description="Gaussians no masked view sees (the far side of an object lifted from one view) take the "
         "majority label of their nearest labelled Gaussians in 3-D; auto: for object-centred (orbit) captures with "
-        "views that have no mask (measured: orbit pixel agreement 0.28 → 0.81 from one mask; on a forward-facing "
-        "scene it guessed occluded surfaces wrong, object IoU on the farthest view 0.68 → 0.57)")
+        "views that have no mask (on a forward-facing scene it guesses occluded surfaces wrong; the measurements: "
+        "docs/MASKS.md, 'Object-centred captures')")
     propagate_k: int = Field(8, ge=1, description="neighbours in the propagation vote")
     propagate_split: bool = Field(
         False, description="after the cross-view refinement, also give the Gaussians whose vote stayed split between "
@@ -48,9 +48,9 @@ class RefineParams(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     enabled: bool = Field(
-        True, description="re-cut the views that have no mask and lift from all of them (measured on the tiny scene, "
-        "one stroke-cut view lifted: per-label IoU on the other views 0.85 / 0.94 / 0.85 → 0.99 / 0.98 / 0.97, "
-        "docs/MASKS.md); false: lift the given or automatic masks alone")
+        True, description="re-cut the views that have no mask and lift from all of them (the IoU with and without: "
+        "docs/MASKS.md, 'How well it works', python -m eval.bench.paint_iou); false: lift the given or automatic "
+        "masks alone")
     seed_erode: float = Field(
         0.04, ge=0.0, le=0.25, description="each rendered label region is eroded by this share of the view's shorter "
                                            "side; its core seeds the cut, the rest is the cut's to decide")

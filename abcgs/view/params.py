@@ -18,7 +18,7 @@ class ViewerParams(BaseModel):
 
     enabled: bool = Field(True, description="embed the splat viewer in reports/report.html")
     max_gaussians: int = Field(150_000, ge=100, description="Gaussians per layer on the page (most visible kept; "
-                               "fern × Starry Night: 60k of 94k → 34.2 dB against the full render, 80k → 49.3 dB)")
+                               "the PSNR of fewer against the full render: docs/RENDERING.md, 'The browser viewer')")
     max_width: int = Field(960, ge=64, description="largest canvas width in CSS pixels")
     camera_path: PathKind = Field(
         "auto", description="path of the turntable video and the viewer's ▷ button: orbit (object-centred "

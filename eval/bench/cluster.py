@@ -6,7 +6,7 @@ Both runs start from a clean copy of the working tree (``eval/bench/repo_copy.py
 counts of the regression test (``eval/bench/regression.py``) and an empty DVC cache:
 
 - **plain**: ``dvc repro`` in the copy;
-- **cluster**: a one-node Slurm on localhost (``abcgs.cluster.local``), ``python -m abcgs.cluster submit``, wait
+- **cluster**: a one-node Slurm on localhost (``eval/slurm_local.py``), ``python -m abcgs.cluster submit``, wait
   for the queue to empty, then ``collect`` (``dvc repro`` in the copy, restoring every stage from the run cache).
   Its wall time runs from ``submit`` to the end of ``collect``, and the per-job times come from the run folder.
   By default every job asks for all of the node's cores, so the jobs run one after the other with the thread
@@ -42,10 +42,10 @@ from pathlib import Path
 
 import yaml
 
-from abcgs.cluster.local import LocalSlurm, install
 from abcgs.cluster.run import load_run, read_state
 from eval.bench.regression import REDUCED, reduce
 from eval.bench.repo_copy import copy_repo, run_in
+from eval.slurm_local import LocalSlurm, install
 
 TIMING_KEYS = re.compile(r"minutes|seconds|timings|_fps|speed")
 """Metric keys that measure time, not the result."""

@@ -13,7 +13,9 @@ the run cache, not recomputed (``dvc exp show`` lists the runs with their headli
 ``show`` checks the experiment's commit out into a temporary git worktree that shares this repository's DVC cache,
 restores its outputs, prints the results table (the report stage's ``reports/results.md``) and, when asked, copies
 the comparison figure to ``--figure`` (and any other output with ``--copy SRC=DST``) and writes the table between
-README's ``<!-- results:begin -->`` and ``<!-- results:end -->`` lines. The workspace's params, dvc.lock and outputs stay as they are.
+README's ``<!-- results:begin -->`` and ``<!-- results:end -->`` lines, followed by the averages and comparisons
+the README's text quotes (:func:`summary`, computed from the table). The workspace's params, dvc.lock and outputs
+stay as they are.
 """
 
 from __future__ import annotations
@@ -125,6 +127,68 @@ def replace_block(text: str, table: str) -> str:
     return pattern.sub(lambda _: f"{BEGIN}\n{table.strip()}\n{END}", text, count=1)
 
 
+def _rows(table: str) -> list[dict[str, str]]:
+    """The rows of a markdown results table as ``{header: cell}``, an empty painting cell filled from the row above."""
+    lines = [line.strip().strip("|").split("|") for line in table.strip().splitlines() if line.startswith("|")]
+    if len(lines) < 3:
+        return []
+    head = [h.strip() for h in lines[0]]
+    rows, painting = [], ""
+    for cells in lines[2:]:
+        row = dict(zip(head, (c.strip() for c in cells)))
+        painting = row[head[0]] or painting
+        rows.append({**row, head[0]: painting})
+    return rows
+
+
+def _column(rows: list[dict[str, str]], name: str) -> str | None:
+    return next((h for h in (rows[0] if rows else {}) if name.lower() in h.lower()), None)
+
+
+def summary(table: str) -> str:
+    """The README's sentence of averages and comparisons, from the results table: FAST's mean content SSIM and warp
+    RMSE over the paintings, the unstylized floor, FAST's SSIM below NNFM's and its Gram distance against NNFM's and
+    the colour match's, painting by painting. Empty when the table lacks a column or a method this needs."""
+    rows = _rows(table)
+    cols = {k: _column(rows, k) for k in ("method", "content SSIM", "warp RMSE", "floor", "Gram")}
+    if not rows or None in cols.values():
+        return ""
+    first = next(iter(rows[0]))
+
+    def by(method: str) -> dict[str, dict[str, str]]:
+        return {r[first]: r for r in rows if r[cols["method"]].lower().startswith(method)}
+
+    def pair(cell: str) -> tuple[float, float]:
+        a, b = (float(x) for x in cell.split("/"))
+        return a, b
+
+    fast, nnfm, colour = by("fast"), by("nnfm"), by("colour match")
+    if not fast:
+        return ""
+    n = len(fast)
+    ssim = sum(float(r[cols["content SSIM"]]) for r in fast.values()) / n
+    rmse = [sum(pair(r[cols["warp RMSE"]])[i] for r in fast.values()) / n for i in (0, 1)]
+    floor = pair(next(iter(fast.values()))[cols["floor"]])
+    text = (f"Averaged over the {n} paintings, FAST: content SSIM {ssim:.3f}, short / long warp RMSE "
+            f"{rmse[0]:.3f} / {rmse[1]:.3f}; the unstylized floor is {floor[0]:.3f} / {floor[1]:.3f}.")
+    both = [p for p in fast if p in nnfm]
+    if both:
+        gap = [float(nnfm[p][cols["content SSIM"]]) - float(fast[p][cols["content SSIM"]]) for p in both]
+        below = sum(float(fast[p][cols["Gram"]]) <= float(nnfm[p][cols["Gram"]]) for p in both)
+        text += (f" Against NNFM, FAST's SSIM is {min(gap):.3f}–{max(gap):.3f} lower and its Gram distance at or "
+                 f"below NNFM's on {below} of {len(both)} paintings.")
+    done = [p for p in fast if p in colour]
+    if done:
+        past = sum(float(fast[p][cols["Gram"]]) < float(colour[p][cols["Gram"]]) for p in done)
+        text += f" FAST's Gram distance is below the colour match alone's on {past} of {len(done)}."
+    return text
+
+
+def results_block(table: str) -> str:
+    """What goes between the README's markers: the table, then :func:`summary`."""
+    return table.strip() + (f"\n\n{summary(table)}" if summary(table) else "")
+
+
 def _copy_arg(text: str) -> tuple[str, Path]:
     """``--copy SRC=DST``: SRC relative to the experiment's workspace, DST a path here."""
     src, sep, dst = text.partition("=")
@@ -165,7 +229,8 @@ def cmd_show(a: argparse.Namespace) -> int:
             table = results.read_text(encoding="utf-8")
             print(f"experiment {a.name} ({sha[:10]}):\n{table}")
             if a.readme:
-                a.readme.write_text(replace_block(a.readme.read_text(encoding="utf-8"), table), encoding="utf-8")
+                a.readme.write_text(replace_block(a.readme.read_text(encoding="utf-8"), results_block(table)),
+                                    encoding="utf-8")
                 print(f"wrote the table into {a.readme}")
             if a.figure and (wt / "reports" / "comparison.jpg").is_file():
                 a.figure.parent.mkdir(parents=True, exist_ok=True)

@@ -1,20 +1,28 @@
-"""A one-node Slurm cluster on localhost, for the tests and the benchmark (``tests/test_cluster.py``,
-``eval/bench/cluster.py``).
+"""A one-node Slurm cluster on localhost, for trying ``python -m abcgs.cluster`` on one machine, for the tests
+(``tests/test_cluster.py``) and for the benchmark (``eval/bench/cluster.py``). It administers this host, which is why
+it is not part of the installed ``abcgs`` package::
+
+    sudo python -m eval.slurm_local install          # Debian's slurm-wlm and munge (apt-get; root)
+    sudo python -m eval.slurm_local start /tmp/slurm # munged, slurmctld, slurmd; prints the SLURM_CONF to export
+    SLURM_CONF=/tmp/slurm/slurm.conf python -m abcgs.cluster submit --cluster-dir /tmp/abcgs-cluster
+    sudo python -m eval.slurm_local stop /tmp/slurm  # cancels every job, stops the daemons
 
 :class:`LocalSlurm` starts ``munged`` with a generated key, then ``slurmctld`` and ``slurmd`` with a generated
 ``slurm.conf`` (one node ``localhost`` with this machine's cores, ``select/cons_tres``, ``proctrack/linuxproc``,
 ``task/none``, no accounting storage, every state folder and socket under ``root``, free ports), and stops them on
 :meth:`LocalSlurm.stop`. Client commands find the cluster through ``SLURM_CONF`` (:attr:`LocalSlurm.env`).
-Debian's ``slurm-wlm`` and ``munge`` provide the daemons (:func:`install`).
+``slurmd`` starts the jobs as their users, so it runs as root.
 """
 
 from __future__ import annotations
 
+import argparse
 import os
 import shutil
 import signal
 import socket
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -106,7 +114,6 @@ class LocalSlurm:
         self.cpus = cpus or os.cpu_count() or 1
         self.conf = self.root / "slurm.conf"
         self.env = {**os.environ, "SLURM_CONF": str(self.conf)}
-        self._munged_pid: int | None = None
 
     def _run(self, cmd: list[str], check: bool = True) -> subprocess.CompletedProcess:
         proc = subprocess.run(cmd, env=self.env, capture_output=True, text=True, timeout=60)
@@ -134,7 +141,6 @@ class LocalSlurm:
         self._run(["munged", "--force", f"--key-file={key}", f"--socket={munge / 'munge.socket'}",
                    f"--pid-file={munge / 'munged.pid'}", f"--log-file={munge / 'munged.log'}",
                    f"--seed-file={munge / 'munged.seed'}"])
-        self._munged_pid = int((munge / "munged.pid").read_text().split()[0])
         self.conf.write_text(CONF_TEMPLATE.format(
             root=self.root, ctld_port=_free_port(), slurmd_port=_free_port(), cpus=self.cpus,
             memory_mb=_memory_mb(), user=os.environ.get("USER") or "root"))
@@ -162,7 +168,7 @@ class LocalSlurm:
             deadline = time.monotonic() + timeout
             while time.monotonic() < deadline and self._run(["squeue", "-h"], check=False).stdout.strip():
                 time.sleep(0.5)
-        for pid in (self._pid("slurmd.pid"), self._pid("slurmctld.pid"), self._munged_pid):
+        for pid in (self._pid("slurmd.pid"), self._pid("slurmctld.pid"), self._pid("munge/munged.pid")):
             if pid is None:
                 continue
             try:
@@ -181,3 +187,36 @@ class LocalSlurm:
 
     def __exit__(self, *exc) -> None:
         self.stop()
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m eval.slurm_local", description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    sub.add_parser("install", help="apt-get install slurm-wlm munge where a command is missing (root)")
+    for name, text in (("start", "start a one-node cluster with its state under ROOT"),
+                       ("stop", "cancel its jobs and stop the cluster started under ROOT")):
+        c = sub.add_parser(name, help=text)
+        c.add_argument("root", type=Path)
+        if name == "start":
+            c.add_argument("--cpus", type=int, help="the node's cores (default: this machine's)")
+    a = ap.parse_args(argv)
+    try:
+        if a.cmd == "install":
+            install()
+            print("slurm-wlm and munge are installed")
+        elif a.cmd == "start":
+            if missing_commands():
+                raise SlurmUnavailable(f"{', '.join(missing_commands())} missing: "
+                                       "run `sudo python -m eval.slurm_local install` first")
+            cluster = LocalSlurm(a.root, a.cpus).start()
+            print(f"export SLURM_CONF={cluster.conf}")
+        else:
+            LocalSlurm(a.root).stop()
+    except SlurmUnavailable as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
