@@ -45,7 +45,6 @@ def spiral_path(cameras: list[Camera], n_frames: int = 60, focus_depth: float | 
     return out
 
 
-
 ORBIT_MIN_SPAN_DEG = 100.0
 """A capture whose cameras surround their common look-at point over at least this azimuth span (seen along
 the mean up axis) is object-centred; forward-facing LLFF captures span 5–30°."""

@@ -23,8 +23,6 @@ from abcgs.runtime import torch_threads  # noqa: F401  (re-exported for the test
 GRAD_FIELDS = ("means", "quats", "scales", "opacities", "colors")
 
 
-
-
 @dataclass
 class Scene:
     means: Tensor  # (N, 3) world

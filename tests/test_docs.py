@@ -90,7 +90,6 @@ def test_readme_has_one_results_block():
     assert "|" in block, "README.md: the results block holds no table"
 
 
-
 def test_the_readme_results_block_is_what_make_quality_writes():
     """The averages under the table are computed from it (eval.bench.experiment.summary), so they follow the table."""
     from eval.bench.experiment import results_block, summary

@@ -121,7 +121,6 @@ def test_schema_errors_do_not_print_the_whole_params(tmp_path) -> None:
     assert "'scenes'" not in msg and "{'data'" not in msg  # the mapping behind a cross-check is not printed
 
 
-
 def test_a_bare_scene_path_is_caught_before_dvc_reads_item_path(tmp_path, capsys) -> None:
     """dvc.yaml reads ${item.path}; DVC itself would stop with "Could not find 'item.path'" before any stage."""
     from abcgs.preflight import main

@@ -26,7 +26,6 @@ REPO = Path(__file__).resolve().parents[1]
 needs_cpu = pytest.mark.skipif(not cpu_backend.is_available(), reason="C++ backend not built")
 
 
-
 def _render_and_grads(scene, backend, weights, **kw):
     """Render, backprop a random weighting of image/alpha/depth; return outputs and input gradients."""
     s = scene.leaves()

@@ -14,7 +14,6 @@ BACKENDS = ["reference", pytest.param("cpu", marks=pytest.mark.skipif(not is_ava
 W, H = 16, 12
 
 
-
 def _camera(dtype, width=W, height=H, f=16.0):
     """Identity pose (world = camera, OpenCV axes: +z forward), principal point at the image centre."""
     K = torch.tensor([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1]], dtype=dtype)

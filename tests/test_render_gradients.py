@@ -31,7 +31,6 @@ CAMERA_GRAD_BACKENDS = ("reference",)
 BACKENDS = ["reference", pytest.param("cpu", marks=pytest.mark.skipif(not is_available(), reason="C++ backend not built"))]
 
 
-
 def _check_margins(scene, *, clamped=False, stopped=False):
     m = blend_margins(scene)
     assert min(m["threshold"], m["clamp"], m["stop"]) > MIN_MARGIN, f"scene too close to a blending threshold: {m}"

@@ -16,7 +16,6 @@ BACKENDS = ["reference", pytest.param("cpu", marks=pytest.mark.skipif(not is_ava
 F64 = torch.float64
 
 
-
 def _basis(degree, dirs):
     """(N, K) values of each real SH basis function, via eval_sh on one-hot coefficients."""
     K = num_sh_bases(degree)

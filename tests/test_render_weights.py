@@ -19,7 +19,6 @@ def _weights(scene, pixel_weights, backend):
     return accumulate_weights(s.means, s.quats, s.scales, s.opacities, s.viewmat, s.K, pixel_weights, backend=backend)
 
 
-
 def naive_blend_weights(scene):
     """(N, H, W) blending weights α_i(p)·T_i(p), one pixel and one Gaussian at a time in plain Python,
     following the rule in reference.py's docstring. Also counts clamps and early stops (coverage)."""

@@ -13,7 +13,6 @@ from abcgs.features.vgg import VGG16Features, random_state_dict
 METHODS = ("mirror", "translate", "fill")
 
 
-
 @pytest.fixture(scope="module")
 def vgg():
     return VGG16Features(random_state_dict(seed=0))

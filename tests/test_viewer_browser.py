@@ -28,8 +28,6 @@ W, H = 320, 240
 CHROMIUM_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--no-sandbox", "--disable-gpu-sandbox"]
 
 
-
-
 def _scene(seed: int = 0) -> tuple[GaussianModel, GaussianModel, np.ndarray]:
     """A textured wall (colour gradient + stripes) and a ball in front of it; the 'stylized' copy recolours both."""
     g = torch.Generator().manual_seed(seed)
@@ -111,7 +109,6 @@ def test_loads_from_file_without_network(viewer):
     remote = [u for u in requests if not u.startswith(("file:", "data:", "blob:"))]
     assert remote == [], f"the page asked the network for {remote}"
     assert "all 2,328 Gaussians" in page.locator("#abcgs-note").inner_text()  # says how many Gaussians it shows
-
 
 
 def test_camera_path_frames_match_our_rasterizer_and_play(viewer):

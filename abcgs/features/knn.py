@@ -77,8 +77,6 @@ def bf16_with_residuals(x: torch.Tensor, dim: int) -> tuple[torch.Tensor, torch.
     return low, (x - low.float()).norm(dim=dim)
 
 
-
-
 @functools.lru_cache(maxsize=1)
 def bf16_dot_available() -> bool:
     """Whether the CPU kernels' extension here has the AVX512-BF16 candidate products (``topk_dots_both``'s

@@ -82,8 +82,6 @@ obtainable offline, so the ratio to them could not be measured directly.
 """
 
 
-
-
 class WeightsInfo(BaseModel):
     """Provenance of resolved VGG-16 weights (record it with every stage output that used them)."""
 

@@ -41,8 +41,6 @@ LABEL_NAMES = {1: "wall", 2: "box", 3: "sphere"}
 _FAR = np.float32(1e9)
 
 
-
-
 @dataclass
 class TinyScene:
     """A generated scene held in memory.

@@ -43,8 +43,6 @@ log = logging.getLogger(__name__)
 MIN_IMAGES = 3
 
 
-
-
 @dataclass
 class ReconstructionReport:
     """What :func:`reconstruct` did; ``metrics()`` is what goes into ``metrics.json``."""

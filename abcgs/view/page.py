@@ -41,8 +41,6 @@ LABEL_PALETTE = np.array(
 """RGB of content labels 0, 1, … (cycled) in the ``labels`` layer."""
 
 
-
-
 @dataclass
 class ViewerExperiment:
     """One experiment as the page shows it: layers (already subsampled) and cameras."""
