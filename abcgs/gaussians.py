@@ -214,7 +214,7 @@ def render(
 
     ``sh_degree`` caps the active SH band (default: all stored bands). ``background`` ``(3,)`` in
     ``[0, 1]`` is composited behind. Other keywords go to :func:`abcgs.render.rasterize`
-    (e.g. ``render_depth=True``). Differentiable in every model parameter.
+    (e.g. ``render_mode="RGB+D"``). Differentiable in every model parameter.
     """
     device = model.device
     colors, degree = model.colors_or_sh(sh_degree)

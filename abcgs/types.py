@@ -28,6 +28,10 @@ Backend = Literal["auto", "reference", "cpu", "gsplat"]
 """Rasterizer backend (:mod:`abcgs.render.rasterize`): ``reference`` pure PyTorch, ``cpu`` the compiled C++
 kernels, ``gsplat`` gsplat on CUDA, ``auto`` gsplat for CUDA tensors and the C++ kernels for CPU tensors."""
 
+RenderMode = Literal["RGB", "RGB+D", "RGB+ED"]
+"""What a render returns besides the image (gsplat's names): nothing; the accumulated depth Σ T_i α_i z_i; or the
+expected depth, that divided by alpha."""
+
 Device = Literal["auto", "cpu", "cuda"]
 """Where tensors live (``runtime.device``): ``auto`` = the first CUDA GPU when torch sees one, else the CPU."""
 

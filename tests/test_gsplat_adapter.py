@@ -100,10 +100,15 @@ class Case:
     channels: int = 3
     background: bool = False
     normalize_depth: bool = False
+    """The expected depth (``RGB+ED``) instead of the accumulated depth (``RGB+D``)."""
     near: float = 0.01
     far: float = 1e10
     dense: bool = False
     seed: int = 0
+
+    @property
+    def render_mode(self) -> str:
+        return "RGB+ED" if self.normalize_depth else "RGB+D"
 
 
 # each seed: the first from a round number whose scene passes test_scene_covers_the_edge_cases
@@ -146,7 +151,7 @@ def render(scene, case: Case, backend: str, device: torch.device, weights):
         bg = torch.linspace(0.1, 0.9, scene.colors.shape[-1], dtype=scene.means.dtype)
         bg = bg.to(device).requires_grad_(True)
     image, alpha, meta = rasterize(
-        *s.args(), sh_degree=case.sh_degree, background=bg, render_depth=True, normalize_depth=case.normalize_depth,
+        *s.args(), sh_degree=case.sh_degree, background=bg, render_mode=case.render_mode,
         near=case.near, far=case.far, backend=backend,
     )
     assert meta.backend == backend
@@ -289,13 +294,13 @@ def test_adapter_equals_gsplat_rasterization(gsplat_impl, name):
         if use_public:
             out, alpha, info = gsplat.rasterization(
                 *s.args()[:5], s.viewmat[None], s.K[None], WIDTH, HEIGHT, sh_degree=case.sh_degree, packed=False,
-                backgrounds=bg[None], render_mode="RGB+ED" if case.normalize_depth else "RGB+D",
+                backgrounds=bg[None], render_mode=case.render_mode,
             )
             image, depth, alpha = out[0, ..., :-1], out[0, ..., -1:], alpha[0]
             vis = (info["radii"][0] > 0).all(-1)
         else:
-            image, alpha, meta = rasterize(*s.args(), sh_degree=case.sh_degree, background=bg, render_depth=True,
-                                           normalize_depth=case.normalize_depth, backend="gsplat")
+            image, alpha, meta = rasterize(*s.args(), sh_degree=case.sh_degree, background=bg,
+                                           render_mode=case.render_mode, backend="gsplat")
             depth, vis = meta.depth, meta.visible
         loss = sum((o * w).sum() for o, w in zip((image, alpha, depth), weights))
         loss.backward()

@@ -43,7 +43,7 @@ def ball_and_wall_strokes(true: np.ndarray) -> list[Stroke]:
 def _view(model, cam) -> tuple[np.ndarray, np.ndarray]:
     """The render of ``cam`` as a photo ``(H, W, 3) uint8`` and its depth ``(H, W)`` (0 where empty)."""
     with torch.no_grad():
-        img, alpha, meta = render(model, cam, render_depth=True, normalize_depth=True)
+        img, alpha, meta = render(model, cam, render_mode="RGB+ED")
     depth = torch.where(alpha[..., 0] > 1e-3, meta.depth[..., 0], torch.zeros_like(alpha[..., 0]))
     return to_uint8(img.clamp(0, 1).numpy()), depth.numpy()
 

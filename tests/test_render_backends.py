@@ -32,7 +32,7 @@ def _render_and_grads(scene, backend, weights, **kw):
     bg = kw.pop("background", None)
     if bg is not None:
         bg = bg.clone().requires_grad_(True)
-    image, alpha, meta = rasterize(*s.args(), render_depth=True, background=bg, backend=backend, **kw)
+    image, alpha, meta = rasterize(*s.args(), background=bg, backend=backend, **{"render_mode": "RGB+D", **kw})
     assert meta.backend == backend
     meta.means2d.retain_grad()
     loss = sum((o * w).sum() for o, w in zip((image, alpha, meta.depth), weights))
@@ -50,7 +50,7 @@ CONFIGS = {
     "64x48-200-rgb-f32": (64, 48, 200, 3, (0.02, 0.12), (0.1, 0.9), torch.float32, 0, {}),
     "96x64-800-16ch-f32-bg-normdepth": (
         96, 64, 800, 16, (0.02, 0.1), (0.1, 0.9), torch.float32, 1,
-        {"background": torch.linspace(0, 1, 16), "normalize_depth": True},
+        {"background": torch.linspace(0, 1, 16), "render_mode": "RGB+ED"},
     ),
     "128x96-2000-32ch-f32": (128, 96, 2000, 32, (0.01, 0.06), (0.1, 0.9), torch.float32, 2, {}),
     "64x48-500-rgb-f64-opaque": (64, 48, 500, 3, (0.05, 0.2), (0.6, 1.0), torch.float64, 3, {"tile_size": 8}),

@@ -87,7 +87,7 @@ def _render(g, width, height, backend, dtype, **kw):
     bg = torch.tensor([0.1, 0.6, 0.3], dtype=dtype, requires_grad=True)
     image, alpha, meta = rasterize(
         leaves["means"], leaves["quats"], leaves["scales"], leaves["opacities"], leaves["colors"], viewmat, K, width, height,
-        background=bg, render_depth=True, backend=backend, **kw,
+        background=bg, render_mode="RGB+D", backend=backend, **kw,
     )
     meta.means2d.retain_grad()
     wts = torch.Generator().manual_seed(0)
@@ -184,16 +184,16 @@ def test_empty_scene_is_background(backend, dtype):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_expected_depth_single_gaussian(backend):
-    """One Gaussian facing the camera at z = d: depth = alpha·d; normalize_depth gives d where alpha > 0."""
+    """One Gaussian facing the camera at z = d: depth = alpha·d (RGB+D); RGB+ED gives d where alpha > 0."""
     dtype, d = torch.float64, 3.7
     viewmat, K = _camera(dtype)
     means = torch.tensor([[0.1, -0.05, d]], dtype=dtype)
     args = (means, torch.tensor([[1.0, 0, 0, 0]], dtype=dtype), torch.tensor([[0.25, 0.15, 1e-3]], dtype=dtype),
             torch.tensor([0.9], dtype=dtype), torch.ones(1, 3, dtype=dtype), viewmat, K, W, H)
-    _, alpha, meta = rasterize(*args, render_depth=True, backend=backend)
+    _, alpha, meta = rasterize(*args, render_mode="RGB+D", backend=backend)
     assert alpha.max() > 0.5 and (alpha == 0).any(), "test scene should have covered and empty pixels"
     torch.testing.assert_close(meta.depth, alpha * d, atol=1e-12, rtol=1e-12)
-    _, alpha_n, meta_n = rasterize(*args, render_depth=True, normalize_depth=True, backend=backend)
+    _, alpha_n, meta_n = rasterize(*args, render_mode="RGB+ED", backend=backend)
     torch.testing.assert_close(alpha_n, alpha)
     covered = alpha[..., 0] > 0
     torch.testing.assert_close(meta_n.depth[covered], torch.full_like(meta_n.depth[covered], d), atol=1e-9, rtol=0)
@@ -217,7 +217,7 @@ def test_expected_depth_two_layers_front_to_back(backend):
     def render(m, s, o):
         n = m.shape[0]
         ones = torch.ones(n, 1, dtype=dtype)
-        _, a, meta = rasterize(m, q.expand(n, 4), s, o, ones, viewmat, K, W, H, render_depth=True, backend=backend)
+        _, a, meta = rasterize(m, q.expand(n, 4), s, o, ones, viewmat, K, W, H, render_mode="RGB+D", backend=backend)
         return a, meta.depth
 
     a1, _ = render(m1, s1, o1)

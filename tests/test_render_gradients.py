@@ -52,7 +52,7 @@ def _render_losses(scene, backend, weights, **kw):
     def f(means, quats, scales, opacities, colors, background, viewmat=scene.viewmat):
         image, alpha, meta = rasterize(
             means, quats, scales, opacities, colors, viewmat, scene.K, W, H, background=background,
-            render_depth=True, tile_size=TILE, backend=backend, **kw,
+            tile_size=TILE, backend=backend, **{"render_mode": "RGB+D", **kw},
         )
         outs = (image, alpha, meta.depth)
         return torch.stack([(o * w).sum() for o, w in zip(outs, weights)])
@@ -91,11 +91,11 @@ def test_fd_clamp_and_stop(backend):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_fd_normalized_depth_many_channels(backend):
-    """normalize_depth divides by alpha inside the graph; 5 colour channels."""
+    """The expected depth (RGB+ED) divides by alpha inside the graph; 5 colour channels."""
     scene = random_scene(5, W, H, F64, 2, scale_range=(0.15, 0.5), opacity_range=(0.2, 0.7), channels=5)
     _check_margins(scene)
     finite_difference_check(
-        _render_losses(scene, backend, _weights(2, 5), normalize_depth=True),
+        _render_losses(scene, backend, _weights(2, 5), render_mode="RGB+ED"),
         _inputs(scene, torch.zeros(5, dtype=F64), backend),
     )
 

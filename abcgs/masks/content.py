@@ -152,7 +152,7 @@ def find_given_masks_with_palette(masks_dir: Path, cameras: list[Camera]) -> tup
 def cluster_view(model: GaussianModel, camera: Camera, params: AutoMaskParams, backend: Backend = "auto") -> np.ndarray:
     """k-means labels 1..n of one rendered view from Lab colour + depth ``(H, W) int64``."""
     with torch.no_grad():
-        img, alpha, meta = render(model, camera, backend=backend, render_depth=True, normalize_depth=True)
+        img, alpha, meta = render(model, camera, backend=backend, render_mode="RGB+ED")
     rgb = img.clamp(0, 1).numpy(force=True).astype(np.float32)
     lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB) / np.array([100.0, 127.0, 127.0], np.float32)
     depth = meta.depth[..., 0].numpy(force=True)
@@ -174,7 +174,7 @@ def grabcut_view(model: GaussianModel, camera: Camera, params: GrabCutParams, ba
     """Object (1) vs rest (2) of one rendered view by GrabCut seeded with a box and depth ``(H, W) int64``
     (0 where nothing is rendered)."""
     with torch.no_grad():
-        img, alpha, meta = render(model, camera, backend=backend, render_depth=True, normalize_depth=True)
+        img, alpha, meta = render(model, camera, backend=backend, render_mode="RGB+ED")
     rgb = (img.clamp(0, 1).numpy(force=True) * 255 + 0.5).astype(np.uint8)
     depth = meta.depth[..., 0].numpy(force=True)
     valid = alpha[..., 0].numpy(force=True) > 0.5

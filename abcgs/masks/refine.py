@@ -84,7 +84,7 @@ def render_seeds(
     with torch.no_grad():
         img, alpha, meta = rasterize(
             act["means"], act["quats"], act["scales"], act["opacities"], onehot, camera.torch_viewmat(model.device),
-            camera.torch_K(model.device), camera.width, camera.height, render_depth=True, normalize_depth=True, backend=backend,
+            camera.torch_K(model.device), camera.width, camera.height, render_mode="RGB+ED", backend=backend,
         )
     a = alpha[..., 0]
     best_w, best = img.max(-1)

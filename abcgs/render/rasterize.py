@@ -28,7 +28,7 @@ from abcgs.render.cpu import BackendUnavailable
 from abcgs.render.projection import project_gaussians, screen_bounds
 from abcgs.render.reference import rasterize_reference
 from abcgs.render.sh import sh_to_color
-from abcgs.types import Backend, RenderMeta
+from abcgs.types import Backend, RenderMeta, RenderMode
 
 BACKENDS: tuple[Backend, ...] = typing.get_args(Backend)
 _warned: set[str] = set()
@@ -133,8 +133,7 @@ def rasterize(
     *,
     sh_degree: int | None = None,
     background: Tensor | None = None,
-    render_depth: bool = False,
-    normalize_depth: bool = False,
+    render_mode: RenderMode = "RGB",
     near: float = 0.01,
     far: float = 1e10,
     eps2d: float = 0.3,
@@ -153,8 +152,9 @@ def rasterize(
         width, height: output size in px.
         sh_degree: evaluate ``colors`` as SH of this degree (0..3); ``None`` = plain colours.
         background: ``(C,)`` colour composited behind: ``image + (1 - alpha) · background``.
-        render_depth: also return the expected depth Σ T_i α_i z_i in ``meta.depth``
-            (divided by alpha where alpha > 0 when ``normalize_depth``).
+        render_mode: ``RGB``; ``RGB+D`` also returns the accumulated depth Σ T_i α_i z_i in ``meta.depth``
+            ``(H, W, 1)`` (world units × alpha); ``RGB+ED`` the expected depth, that divided by alpha where
+            alpha > 0 (gsplat's modes of the same names).
         near, far: clip planes on camera z. eps2d: px² added to the projected covariance.
         backend: see the module docstring.
 
@@ -167,8 +167,7 @@ def rasterize(
     if name == "gsplat":
         return _rasterize_gsplat(
             means, quats, scales, opacities, colors, viewmat, K, width, height, sh_degree=sh_degree,
-            background=background, render_depth=render_depth, normalize_depth=normalize_depth, near=near,
-            far=far, eps2d=eps2d, tile_size=tile_size,
+            background=background, render_mode=render_mode, near=near, far=far, eps2d=eps2d, tile_size=tile_size,
         )
     # The fused C++ projection treats the camera as constant; camera optimisation takes the autograd path.
     camera_grad = viewmat.requires_grad or K.requires_grad
@@ -177,10 +176,10 @@ def rasterize(
     if sh_degree is not None:
         colors = sh_to_color(sh_degree, colors, means, camera_position(viewmat))
     n_color = colors.shape[1]
-    feats = torch.cat([colors, proj.depths[:, None]], dim=1) if render_depth else colors
+    feats = torch.cat([colors, proj.depths[:, None]], dim=1) if render_mode != "RGB" else colors
     blend = cpu_backend.rasterize_cpu if name == "cpu" else rasterize_reference
     out, alpha = blend(proj.means2d, proj.conics, feats, opacities, proj.depths, proj.extents, width, height, tile_size=tile_size)
-    image, depth = _finish(out, alpha, n_color, render_depth, normalize_depth, background)
+    image, depth = _finish(out, alpha, n_color, render_mode, background)
     meta = RenderMeta(proj.means2d, proj.radii, proj.depths, proj.visible, depth, name, width, height)
     return image, alpha, meta
 
@@ -191,12 +190,13 @@ def camera_position(viewmat: Tensor) -> Tensor:
     return -R.T @ t
 
 
-def _finish(out: Tensor, alpha: Tensor, n_color: int, render_depth: bool, normalize_depth: bool, background):
-    """Split the blended features ``(H, W, C [+ 1])`` into image and depth; normalise the depth; add the background."""
+def _finish(out: Tensor, alpha: Tensor, n_color: int, render_mode: RenderMode, background):
+    """Split the blended features ``(H, W, C [+ 1])`` into image and depth; normalise an expected depth; add the
+    background."""
     image, depth = out[..., :n_color], None
-    if render_depth:
+    if render_mode != "RGB":
         depth = out[..., n_color:]
-        if normalize_depth:
+        if render_mode == "RGB+ED":
             depth = torch.where(alpha > 0, depth / alpha.clamp_min(1e-10), torch.zeros_like(depth))
     if background is not None:
         image = image + (1.0 - alpha) * background.to(image)
@@ -208,8 +208,8 @@ GSPLAT_CHANNEL_CHUNK = 32
 
 
 def _rasterize_gsplat(
-    means, quats, scales, opacities, colors, viewmat, K, width, height, *, sh_degree, background, render_depth,
-    normalize_depth, near, far, eps2d, tile_size,
+    means, quats, scales, opacities, colors, viewmat, K, width, height, *, sh_degree, background, render_mode, near, far,
+    eps2d, tile_size,
 ):
     """``rasterize`` on gsplat's kernels: the steps of ``gsplat.rasterization`` (one camera, unpacked), composed here
     so that ``meta.means2d`` is the ``(N, 2)`` tensor the rasterizer reads (``retain_grad()`` on a view of gsplat's
@@ -229,7 +229,7 @@ def _rasterize_gsplat(
         sh = gsplat.spherical_harmonics(sh_degree, means - camera_position(viewmat), colors, masks=kept)
         colors = torch.clamp_min(sh + 0.5, 0.0)
     n_color = colors.shape[1]
-    feats = torch.cat([colors, depths[:, None]], dim=1) if render_depth else colors
+    feats = torch.cat([colors, depths[:, None]], dim=1) if render_mode != "RGB" else colors
     tiles_x, tiles_y = math.ceil(width / tile_size), math.ceil(height / tile_size)
     _, isect_ids, flatten_ids = gsplat.isect_tiles(means2d[None], radii_c, depths[None], tile_size, tiles_x, tiles_y)
     isect_offsets = gsplat.isect_offset_encode(isect_ids, 1, tiles_x, tiles_y).reshape(1, tiles_y, tiles_x)
@@ -241,7 +241,7 @@ def _rasterize_gsplat(
         )
         chunks.append(out_c[0])
         alpha = alpha_c[0] if alpha is None else alpha
-    image, depth = _finish(torch.cat(chunks, dim=-1), alpha, n_color, render_depth, normalize_depth, background)
+    image, depth = _finish(torch.cat(chunks, dim=-1), alpha, n_color, render_mode, background)
     # gsplat keeps a Gaussian when its integer, opacity-aware radius box overlaps the image; meta.visible and
     # meta.radii follow the other backends' rule (the float box of alpha ≥ 1/255, 3.33-sigma radii), so that the
     # densifier's statistics do not depend on the backend. The 2-D covariance is the inverse of the conic.

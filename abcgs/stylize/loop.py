@@ -206,9 +206,9 @@ def prepare_targets(
         for cam, lab in zip(cameras, label_maps):
             # one render gives both when the depth comes from the content scene itself
             img, _, meta = render(model_content, cam, backend=params.compute.backend,
-                                  render_depth=model_original is model_content)
+                                  render_mode="RGB+D" if model_original is model_content else "RGB")
             if model_original is not model_content:
-                _, _, meta = render(model_original, cam, backend=params.compute.backend, render_depth=True)
+                _, _, meta = render(model_original, cam, backend=params.compute.backend, render_mode="RGB+D")
             feats = _features(vgg, img.clamp(0, 1), params)
             hw = tuple(feats.shape[-2:])
             masks = [downsample_mask(m, hw).to(feats.device) if m.any() else torch.zeros(hw, dtype=torch.bool, device=feats.device)
@@ -316,7 +316,7 @@ def style_pass(
     for step in bar:
         tgt = targets[next(views)]
         ticks = [time.perf_counter()]
-        img, _, meta = render(m, tgt.camera, backend=backend, render_depth=w.depth > 0)
+        img, _, meta = render(m, tgt.camera, backend=backend, render_mode="RGB+D" if w.depth > 0 else "RGB")
         ticks.append(time.perf_counter())
         feats = _features(vgg, img, params)
         ticks.append(time.perf_counter())

@@ -82,7 +82,7 @@ def main(argv=None) -> dict:
     depths, alphas, originals = [], [], []
     with torch.no_grad():
         for c in cams:
-            img, alpha, meta = render(base, c, render_depth=True, normalize_depth=True)
+            img, alpha, meta = render(base, c, render_mode="RGB+ED")
             originals.append(img.clamp(0, 1).numpy())
             depths.append(meta.depth[..., 0].numpy())
             alphas.append(alpha[..., 0].numpy())
