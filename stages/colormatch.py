@@ -1,7 +1,7 @@
 """Stage ``colormatch``: per matching group, match the colour statistics of the training images and of the
 Gaussians' DC colours to the style, then re-fit briefly.
 
-    python stages/colormatch.py --colormatch tiny_single --out out/tiny/colormatch/tiny_single
+    dvc repro colormatch@tiny_single     # its command, with every input and output path: dvc.yaml or --help
 
 One run per ``colormatches.<name>`` (scene × transfer type × painting(s)): every experiment that names it, e.g.
 FAST and NNFM of the same painting, starts from this output, so changing ``stylize.*`` (but the style features'

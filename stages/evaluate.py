@@ -1,7 +1,6 @@
 """Stage ``evaluate``: content preservation (SSIM, perceptual), multi-view consistency, FID/KID, ArtFID, speed.
 
-    python stages/evaluate.py --experiment tiny_single --out out/tiny_single/eval.json \
-        --headline out/tiny_single/metrics.json
+    dvc repro evaluate@tiny_single     # its command, with every input and output path: dvc.yaml or --help
 
 Reads the scene's evaluation reference (``out/S/reference``: the original scene's renders and the optical
 flows between them, made once per scene by ``stages/reference.py``), renders the stylized scene

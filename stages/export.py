@@ -1,8 +1,7 @@
 """Stage ``export``: a stylized scene as ``.spz`` (Niantic's compressed splat format) beside its PLY, and, for a scene
 imported from a trained splat, in that splat's format, frame and layout (docs/SPLATS.md "Giving it back").
 
-    python stages/export.py --ply out/tiny_single/stylize/point_cloud.ply --out out/tiny_single/point_cloud.spz \\
-        --source out/tiny/gs/splat_source.json --returned out/tiny_single/returned
+    dvc repro export@tiny_single     # its command, with every input and output path: dvc.yaml or --help
 
 Reads no params; ``{item.scene}`` in a path argument is the experiment's scene.
 """

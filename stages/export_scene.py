@@ -1,6 +1,6 @@
 """Stage ``export_scene``: a fitted (or imported) scene as ``.spz`` (Niantic's compressed splat format) beside its PLY.
 
-    python stages/export_scene.py --ply out/tiny/gs/point_cloud.ply --out out/tiny/point_cloud.spz
+    dvc repro export_scene@tiny     # its command, with every input and output path: dvc.yaml or --help
 
 Reads no params.
 """

@@ -1,7 +1,7 @@
 """Stage ``fit``: baseline 3DGS (Kerbl et al. 2023) from a COLMAP reconstruction, or the import of the trained splat
 the scene names (``data.scenes.<scene>.splat``: checked against the photos, docs/SPLATS.md).
 
-    python stages/fit.py --scene tiny --colmap out/tiny/colmap --out out/tiny/gs --headline out/tiny/fit_metrics.json
+    dvc repro fit@tiny     # its command, with every input and output path: dvc.yaml or --help
 
 Writes ``point_cloud.ply``, ``metrics.json`` (the full record: per-view scores, evaluation history),
 ``history.csv``, ``heldout_grid.png`` and ``splat_source.json`` (what the export stage gives the scene back as) into

@@ -1,6 +1,6 @@
 """Stage ``make_tiny``: generate the embedded default scene (views, label maps, cameras, paintings).
 
-    python stages/make_tiny.py --out data/tiny
+    dvc repro make_tiny     # its command, with every input and output path: dvc.yaml or --help
 
 Deterministic for a seed; options: the ``tiny`` section of params.yaml
 (:class:`abcgs.scene.synthetic.TinySceneParams`).

@@ -1,7 +1,7 @@
 """Stage ``masks``: content label maps (given or automatic) lifted onto the fitted Gaussians (Eq. 2), the views
 without a mask re-cut from them (cross-view refinement), re-rendered as view-consistent masks for every view.
 
-    python stages/masks.py --scene tiny --out out/tiny/masks
+    dvc repro masks@tiny     # its command, with every input and output path: dvc.yaml or --help
 """
 
 from __future__ import annotations

@@ -1,9 +1,9 @@
 """Stage ``preflight``: every check that needs no stage's output, before any stage runs or loses its outputs.
 
-    python stages/preflight.py --out out/preflight.json --record out/preflight_report.json
+    dvc repro preflight     # its command, with every input and output path: dvc.yaml or --help
 
-:func:`abcgs.pipeline.run_stage` validates the whole params file (schema, names, references between sections) and
-checks it against ``dvc.yaml`` (every tracked key present), as for every stage; this stage then checks the inputs
+It validates the whole params file (schema, names, references between sections; every other stage validates only
+the sections it reads) and checks it against ``dvc.yaml`` (every tracked key present); then it checks the inputs
 (:func:`abcgs.preflight.check_input_files`: scene folders, views, masks, paintings, weights, and the labels
 the colour matches bind where the label maps are given files; :func:`abcgs.sources.check.check_scene_sources`:
 datasets with cameras read by their readers). Every other stage

@@ -1,6 +1,6 @@
 """Stage ``reconstruct``: the scene's calibrated views as an undistorted COLMAP model, from its photos or its dataset.
 
-    python stages/reconstruct.py --scene tiny --out out/tiny/colmap --metrics out/tiny/reconstruct.json
+    dvc repro reconstruct@tiny     # its command, with every input and output path: dvc.yaml or --help
 
 Reads the scene folder ``data.scenes.<scene>.path`` in its format (``format:``, default detected:
 :mod:`abcgs.sources`). Photos (``images/``, optional ``masks/``) go through COLMAP via pycolmap: SIFT, matching,

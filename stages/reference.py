@@ -2,7 +2,7 @@
 unstylized scene's warp error over those pairs (the floor), which every experiment's evaluation of this scene
 compares against, computed once per scene.
 
-    python stages/reference.py --scene tiny --out out/tiny/reference
+    dvc repro reference@tiny     # its command, with every input and output path: dvc.yaml or --help
 
 Tracks only the ``evaluate`` keys of :data:`abcgs.evaluation.reference.FLOW_SETTINGS` (views, pairs and flows), so
 new experiments, or changed metric, ``stylize`` or ``colormatch`` settings, do not re-run it.

@@ -1,7 +1,7 @@
 """Stage ``report``: one self-contained HTML page, a PNG summary, the results table (markdown) and a comparison
 figure across all experiments.
 
-    python stages/report.py --out reports/report.html
+    dvc repro report     # its command, with every input and output path: dvc.yaml or --help
 """
 
 from __future__ import annotations

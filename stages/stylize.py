@@ -2,7 +2,7 @@
 scale and opacity terms; write the stylized PLY, renders, a grid, a turntable video (the camera path of
 ``viewer.camera_path``: an orbit for object-centred captures, else a spiral) and the loss curves.
 
-    python stages/stylize.py --experiment tiny_single --out out/tiny_single/stylize
+    dvc repro stylize@tiny_single     # its command, with every input and output path: dvc.yaml or --help
 """
 
 from __future__ import annotations
