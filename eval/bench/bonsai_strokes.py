@@ -106,6 +106,8 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--make-reference", action="store_true", help="re-make reference/ from the reference strokes")
     ap.add_argument("--compare-zero", action="store_true", help="also run with undecided gaps saved as 0")
     ap.add_argument("--propagate-split", action="store_true", help="masks.lift.propagate_split: true")
+    ap.add_argument("--propagate-along", choices=("position", "surface"), default="position",
+                    help="masks.lift.propagate_along")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--figure", type=Path, default=None, help="the stroked view and the five others, overlaid")
     args = ap.parse_args(argv)
@@ -139,7 +141,8 @@ def main(argv: list[str] | None = None) -> dict:
         with tempfile.TemporaryDirectory(prefix="abcgs-bonsai-") as d:
             save_labels(Path(d) / f"{view}.png", saved)
             t = time.perf_counter()
-            params = MaskParams(source="given", lift=LiftParams(propagate_split=args.propagate_split))
+            params = MaskParams(source="given", lift=LiftParams(propagate_split=args.propagate_split,
+                                                                 propagate_along=args.propagate_along))
             res = make_content_masks(model, cams, Path(d), params, scene.image_paths, show_progress=False)
             seconds = time.perf_counter() - t
         per_view = {}
@@ -160,7 +163,8 @@ def main(argv: list[str] | None = None) -> dict:
     result, res = run(cut.saved_map())
     out = {"scene": "Mip-NeRF 360 bonsai", "views": len(cams), "n_gaussians": model.num_gaussians,
            "reference_views_scored": ref_stems, "reference_views_not_registered": missing,
-           "stroked_view": view, "propagate_split": args.propagate_split, "strokes_per_label": {str(k): sum(s.label == k for s in strokes)
+           "stroked_view": view, "propagate_split": args.propagate_split,
+           "propagate_along": args.propagate_along, "strokes_per_label": {str(k): sum(s.label == k for s in strokes)
                                                        for k in range(1, n_labels + 1)},
            "page_cut_undecided": float((~cut.claimed).mean()),
            "undecided_stays_undecided": result, "goal": {"iou": GOAL_IOU, "unlabelled": GOAL_UNLABELLED},
