@@ -170,6 +170,9 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--radius", type=float, default=3.0, help="brush radius (px)")
     ap.add_argument("--iterations", type=int, default=1500, help="fit steps (the tiny pipeline's fit.iterations)")
     ap.add_argument("--work", type=Path, default=None, help="keep the scene, reconstruction and fit here")
+    ap.add_argument("--layout", choices=("forward", "orbit"), default="forward",
+                    help="the tiny scene's layout (orbit: object-centred, --views cameras on a ring)")
+    ap.add_argument("--views", type=int, default=16, help="the tiny scene's n_views")
     ap.add_argument("--propagate-along", choices=("position", "surface"), default="position",
                     help="masks.lift.propagate_along of every lift")
     ap.add_argument("--json", type=Path, default=None)
@@ -179,6 +182,7 @@ def main(argv: list[str] | None = None) -> dict:
 
     from abcgs.fit.strategy import StrategyParams
     from abcgs.fit.trainer import FitParams, fit
+    from abcgs.scene.params import TinySceneParams
     from abcgs.scene.synthetic import make_tiny_scene
     from abcgs.sfm.colmap import ReconstructParams, reconstruct, set_colmap_log_level
     from abcgs.sfm.model import read_colmap_scene
@@ -193,7 +197,7 @@ def main(argv: list[str] | None = None) -> dict:
         work = args.work
         work.mkdir(parents=True, exist_ok=True)
     try:
-        tiny = make_tiny_scene(work / "tiny_source")
+        tiny = make_tiny_scene(work / "tiny_source", TinySceneParams(layout=args.layout, n_views=args.views))
         stems = sorted(p.stem for p in (tiny / "images").glob("*.png"))
         if args.view not in stems:
             raise SystemExit(f"--view {args.view}: the tiny scene's views are {stems[0]}..{stems[-1]}")
@@ -249,7 +253,7 @@ def main(argv: list[str] | None = None) -> dict:
         ceiling_score = _score(ceiling.view_labels, truth, src, n_labels)
 
         result = {
-            "scene": "tiny (make_tiny_scene defaults)", "view": args.view, "radius": args.radius,
+            "scene": f"tiny (layout {args.layout}, {args.views} views)", "view": args.view, "radius": args.radius,
             "propagate_along": args.propagate_along,
             "strokes_per_label": {str(k): sum(s.label == k for s in strokes) for k in range(1, n_labels + 1)},
             "strokes": [{"label": s.label, "radius": s.radius, "from": s.points[0].round(2).tolist(),
