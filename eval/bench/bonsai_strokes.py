@@ -1,8 +1,10 @@
 """Masks from strokes on ONE view of a 360° capture, scored on five views round it: Mip-NeRF 360 "bonsai".
 
-    python -m eval.bench.fit --scene ../shared/data/scenes/bonsai --work out/bench --iterations 2000   # once
+    python -m eval.bench.fit --scene ../shared/data/scenes/bonsai --work out/bench --iterations 1500 \
+        --reconstruct '{"sift_peak_threshold": 0.002, "sift_domain_size_pooling": true, \
+                        "mapper_abs_pose_min_inliers": 15, "mapper_init_min_tri_angle": 8}'   # once
     python -m eval.bench.bonsai_strokes --work out/bench --json docs/measurements/bonsai_strokes.json \\
-        --figure docs/img/bonsai_strokes.jpg
+        --figure docs/img/masks/bonsai_strokes.jpg
 
 Data (``eval/data/bonsai/``): ``strokes.json`` holds the strokes of a reference annotation on six views spread round
 the capture (labels: 1 the tree, 2 the pot, 3 the stool with its cloth, 4 the rest) and the test strokes, at most
