@@ -9,6 +9,7 @@ import pytest
 import torch
 from test_content_masks import cameras, wall_and_ball
 
+from abcgs.gaussians import GaussianModel
 from abcgs.io.images import save_labels
 from abcgs.masks.content import label_iou, make_content_masks, read_label_files, unlabelled_warnings
 from abcgs.masks.grabcut import BACKGROUND, Stroke, segment
@@ -121,9 +122,10 @@ def test_split_votes_take_their_neighbours_label_and_a_vote_for_none_stays() -> 
     decided = torch.tensor([True, True, True, False, True, True, False, False])
     lifted = LiftResult(labels, weights, decided)
     params = LiftParams(propagate_k=2)
-    plain, n_plain = propagate_unseen(means, lifted, params)
+    model = GaussianModel.from_points(means, torch.full_like(means, 0.5))
+    plain, n_plain = propagate_unseen(model, lifted, params)
     assert plain.labels.tolist() == [1, 1, 1, 0, 2, 2, 0, 2] and n_plain == 1
-    split, n_split = propagate_unseen(means, lifted, params, undecided=True)
+    split, n_split = propagate_unseen(model, lifted, params, undecided=True)
     assert split.labels.tolist() == [1, 1, 1, 1, 2, 2, 0, 2] and n_split == 2
     assert split.decided[3] and not split.decided[6]
 

@@ -212,6 +212,30 @@ def test_params_reject_unknown_fields() -> None:
         ReconstructParams(min_registered=0.5)
 
 
+def test_sift_options_reach_the_extractor(tiny_scene: Path, tmp_path: Path) -> None:
+    """``sift_peak_threshold`` and ``sift_domain_size_pooling`` are what COLMAP extracts with: a lower peak threshold
+    finds more keypoints on the same views, and DSP gives other descriptors."""
+    import pycolmap
+
+    from abcgs.sfm.colmap import extract_features
+
+    names = [p.name for p in list_images(tiny_scene / "images")][:2]
+
+    def extracted(**kw) -> tuple[int, np.ndarray]:
+        db = tmp_path / f"{len(list(tmp_path.iterdir()))}.db"
+        extract_features(db, tiny_scene / "images", names, ReconstructParams(**kw), True)
+        with pycolmap.Database.open(db) as d:
+            image_id = d.read_all_images()[0].image_id
+            return sum(d.num_keypoints_for_image(im.image_id) for im in d.read_all_images()), d.read_descriptors(image_id)
+
+    n_default, desc_default = extracted()
+    n_low, _ = extracted(sift_peak_threshold=0.001)
+    assert n_low > n_default > 0
+    n_dsp, desc_dsp = extracted(sift_domain_size_pooling=True)
+    a, b = np.asarray(desc_dsp.data), np.asarray(desc_default.data)
+    assert a.shape != b.shape or not np.array_equal(a, b)
+
+
 # ---------------------------------------------------------------------------------- real data
 
 

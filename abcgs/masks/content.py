@@ -282,7 +282,7 @@ def make_content_masks(
     )
     propagated = 0
     if propagate:
-        lifted, propagated = propagate_unseen(model.means, lifted, params.lift)
+        lifted, propagated = propagate_unseen(model, lifted, params.lift)
         log.info("propagated labels to %d Gaussians no masked view sees", propagated)
     refinement = None
     if params.refine.enabled and len(idx) < len(cameras):
@@ -291,7 +291,7 @@ def make_content_masks(
                                    params.refine, backend=params.backend, show_progress=show_progress)
         lifted = refinement.lifted
         if propagate:  # what no view sees at all (and, with propagate_split, the split votes)
-            lifted, propagated = propagate_unseen(model.means, lifted, params.lift,
+            lifted, propagated = propagate_unseen(model, lifted, params.lift,
                                                   undecided=params.lift.propagate_split)
     views = [
         render_label_map(model, lifted.labels, n_labels, c, threshold=params.lift.render_threshold, backend=params.backend)

@@ -127,16 +127,24 @@ def propagate_labels(means: Tensor, labels: Tensor, unseen: Tensor, k: int = 8) 
     return out
 
 
-def propagate_unseen(means: Tensor, lifted: LiftResult, params: LiftParams, *,
+def propagate_unseen(model: GaussianModel, lifted: LiftResult, params: LiftParams, *,
                      undecided: bool = False) -> tuple[LiftResult, int]:
-    """:func:`propagate_labels` to the Gaussians whose summed vote is below ``params.min_weight`` (no masked view saw
-    them) and, with ``undecided``, also to those whose vote was split between labels (undecided, and "no label" (0)
-    not the largest share: a vote for 0 is the user's and stays); the filled ones count as decided. Returns the new
-    result and how many Gaussians changed label."""
+    """Labels for the Gaussians whose summed vote is below ``params.min_weight`` (no masked view saw them) and, with
+    ``undecided``, also for those whose vote was split between labels (undecided, and "no label" (0) not the largest
+    share: a vote for 0 is the user's and stays); the filled ones count as decided. ``params.propagate_along``:
+    ``position``: :func:`propagate_labels` from the nearest labelled Gaussians; ``surface``:
+    :func:`abcgs.masks.spread.spread_labels` from the decided ones along position and colour. Returns the new result
+    and how many Gaussians changed label."""
     unseen = lifted.weights.sum(1) < params.min_weight
     if undecided and lifted.weights.shape[1] > 1:
         unseen |= ~lifted.decided & (lifted.weights[:, 0] < lifted.weights[:, 1:].max(1).values)
-    labels = propagate_labels(means, lifted.labels, unseen, params.propagate_k)
+    if params.propagate_along == "surface":
+        from abcgs.masks.spread import spread_labels, surface_features
+
+        labels, _ = spread_labels(surface_features(model, params.propagate_colour_weight), lifted.labels,
+                                  lifted.decided & ~unseen, unseen, model.opacities.detach().cpu(), params.propagate_k)
+    else:
+        labels = propagate_labels(model.means, lifted.labels, unseen, params.propagate_k)
     changed = labels != lifted.labels
     return LiftResult(labels, lifted.weights, lifted.decided | (unseen & (labels > 0))), int(changed.sum())
 

@@ -35,6 +35,13 @@ class LiftParams(BaseModel):
         "views that have no mask (on a forward-facing scene it guesses occluded surfaces wrong; the measurements: "
         "docs/MASKS.md, 'Object-centred captures')")
     propagate_k: int = Field(8, ge=1, description="neighbours in the propagation vote")
+    propagate_along: Literal["position", "surface"] = Field(
+        "position", description="position: the majority of the k nearest labelled Gaussians (world distance); "
+        "surface: rounds of opacity-weighted k-NN votes from the decided Gaussians over centres scaled by the scene's "
+        "extent and base colour, so that a label follows the surface it was painted on (abcgs/masks/spread.py)")
+    propagate_colour_weight: float = Field(
+        1.0, ge=0.0, description="propagate_along: surface: weight of the base colour (RGB 0..1) against the centres "
+        "(scene extent = 1) in the neighbour graph; 0: position only")
     propagate_split: bool = Field(
         False, description="after the cross-view refinement, also give the Gaussians whose vote stayed split between "
         "labels (undecided; not a vote for 0) their 3-D neighbours' label, where propagation runs: on a 360° capture "

@@ -116,6 +116,8 @@ def resolve_single_camera(params: ReconstructParams, sizes: dict[str, tuple[int,
 def extract_features(db: Path, images_dir: Path, names: list[str], params: ReconstructParams, single: bool) -> None:
     """SIFT features of ``names`` (in ``images_dir``) into the database ``db``; one shared camera when ``single``."""
     opts = pycolmap.FeatureExtractionOptions(num_threads=params.num_threads, max_image_size=params.max_image_size)
+    opts.sift.peak_threshold = params.sift_peak_threshold
+    opts.sift.domain_size_pooling = params.sift_domain_size_pooling
     pycolmap.extract_features(
         db,
         images_dir,
@@ -152,6 +154,8 @@ def _map(db: Path, images_dir: Path, sparse_dir: Path, params: ReconstructParams
     """Incremental mapping; the model with the most registered images (ties: most points), or None."""
     opts = pycolmap.IncrementalPipelineOptions(num_threads=params.num_threads, random_seed=params.seed, min_model_size=MIN_IMAGES)
     opts.mapper.random_seed = params.seed
+    opts.mapper.abs_pose_min_num_inliers = params.mapper_abs_pose_min_inliers
+    opts.mapper.init_min_tri_angle = params.mapper_init_min_tri_angle
     opts.triangulation.random_seed = params.seed
     sparse_dir.mkdir(parents=True, exist_ok=True)
     models = pycolmap.incremental_mapping(db, images_dir, sparse_dir, options=opts)

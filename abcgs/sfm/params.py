@@ -23,6 +23,18 @@ class ReconstructParams(BaseModel, extra="forbid"):
     )
     sequential_overlap: int = Field(10, ge=1, description="sequential matcher: neighbours matched on each side")
     max_image_size: int = Field(3200, ge=-1, description="SIFT runs on images downscaled to this longest side (-1 = no limit)")
+    sift_peak_threshold: float = Field(
+        0.02 / 3, gt=0.0, description="SIFT's difference-of-Gaussians peak threshold (COLMAP's default 0.02 / 3); "
+        "lower finds more, weaker features: small images (bonsai at 504 x 336 registered all 48 views with 0.002, "
+        "docs/MASKS.md)")
+    sift_domain_size_pooling: bool = Field(
+        False, description="DSP-SIFT: descriptors pooled over several patch sizes (slower to extract; matches better "
+        "across changes of viewpoint and scale)")
+    mapper_abs_pose_min_inliers: int = Field(
+        30, ge=3, description="incremental mapper: least 2-D–3-D inliers to register a view (COLMAP's default 30)")
+    mapper_init_min_tri_angle: float = Field(
+        16.0, gt=0.0, description="incremental mapper: least triangulation angle (degrees) of the initial pair's "
+                                  "points (COLMAP's default 16)")
     camera_model: Literal["SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"] = "SIMPLE_RADIAL"
     single_camera: Literal["auto"] | bool = Field(
         "auto", description="share intrinsics between all images; auto = when all images have the same size"

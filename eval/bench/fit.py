@@ -48,15 +48,19 @@ def main(argv=None) -> dict:
     ap.add_argument("--refine-every", type=int, default=100)
     ap.add_argument("--refine-stop-fraction", type=float, default=0.6, help="densify until this fraction of the steps")
     ap.add_argument("--reset-every", type=int, default=1500)
+    ap.add_argument("--reconstruct", default="{}",
+                    help="reconstruct params as JSON (abcgs.sfm.params.ReconstructParams), e.g. "
+                         "'{\"matcher\": \"sequential\"}'; the reconstruction is cached in --work: use a new one")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
+    reconstruct_params = ReconstructParams.model_validate_json(args.reconstruct)
 
     fmt = resolve_format(args.scene, args.format)
     run = args.scene.name if fmt == "photos" else f"{args.scene.name}-{fmt}"
     colmap = args.work / run / "colmap"
     if not (colmap / "sparse").is_dir():
         if fmt == "photos":
-            reconstruct(args.scene / "images", colmap, ReconstructParams())
+            reconstruct(args.scene / "images", colmap, reconstruct_params)
         else:
             write_source_model(read_source(args.scene, fmt), colmap, ReconstructParams())
     scene = read_colmap_scene(colmap / "sparse", colmap / "images")
@@ -78,7 +82,7 @@ def main(argv=None) -> dict:
     for row in result.eval_history:
         print(f"{row['step']:>6} {row['seconds']:8.1f} {row['psnr']:8.2f} {row['ssim']:6.3f}")
     out = {"scene": str(args.scene), "format": fmt, "points": int(len(scene.points)), "width": cam.width,
-           "height": cam.height, "params": params.model_dump(),
+           "height": cam.height, "params": params.model_dump(), "reconstruct": reconstruct_params.model_dump(),
            "n_gaussians": result.model.num_gaussians, "curve": result.eval_history, "backend": result.backend,
            "cpus": os.cpu_count()}
     if args.json:

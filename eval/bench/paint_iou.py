@@ -42,7 +42,7 @@ from abcgs.io.atomic import write_json
 from abcgs.io.images import load_image, load_labels, save_labels
 from abcgs.masks.content import label_iou, make_content_masks
 from abcgs.masks.grabcut import Stroke, segment
-from abcgs.masks.params import MaskParams, RefineParams
+from abcgs.masks.params import LiftParams, MaskParams, RefineParams
 
 GOAL = 0.9
 """Per-label IoU the lifted stroke masks should reach on every other view (the worst one counts)."""
@@ -170,6 +170,11 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--radius", type=float, default=3.0, help="brush radius (px)")
     ap.add_argument("--iterations", type=int, default=1500, help="fit steps (the tiny pipeline's fit.iterations)")
     ap.add_argument("--work", type=Path, default=None, help="keep the scene, reconstruction and fit here")
+    ap.add_argument("--layout", choices=("forward", "orbit"), default="forward",
+                    help="the tiny scene's layout (orbit: object-centred, --views cameras on a ring)")
+    ap.add_argument("--views", type=int, default=16, help="the tiny scene's n_views")
+    ap.add_argument("--propagate-along", choices=("position", "surface"), default="position",
+                    help="masks.lift.propagate_along of every lift")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--figure", type=Path, default=None, help="strokes, cut, and the lifted labels in three other views")
     args = ap.parse_args(argv)
@@ -177,6 +182,7 @@ def main(argv: list[str] | None = None) -> dict:
 
     from abcgs.fit.params import FitParams, StrategyParams
     from abcgs.fit.training import fit
+    from abcgs.scene.params import TinySceneParams
     from abcgs.scene.synthetic import make_tiny_scene
     from abcgs.sfm.colmap import reconstruct, set_colmap_log_level
     from abcgs.sfm.model import read_colmap_scene
@@ -192,7 +198,7 @@ def main(argv: list[str] | None = None) -> dict:
         work = args.work
         work.mkdir(parents=True, exist_ok=True)
     try:
-        tiny = make_tiny_scene(work / "tiny_source")
+        tiny = make_tiny_scene(work / "tiny_source", TinySceneParams(layout=args.layout, n_views=args.views))
         stems = sorted(p.stem for p in (tiny / "images").glob("*.png"))
         if args.view not in stems:
             raise SystemExit(f"--view {args.view}: the tiny scene's views are {stems[0]}..{stems[-1]}")
@@ -235,18 +241,21 @@ def main(argv: list[str] | None = None) -> dict:
         shutil.copy(work / "colmap_truth" / "masks" / f"{args.view}.png", only_truth)
         photos = scene.image_paths
         t_lift = time.perf_counter()
-        lifted = make_content_masks(model, cams, work / "colmap" / "masks", MaskParams(source="given"), photos,
+        lift = LiftParams(propagate_along=args.propagate_along)
+        lifted = make_content_masks(model, cams, work / "colmap" / "masks", MaskParams(source="given", lift=lift), photos,
                                     show_progress=False)
         seconds_lift = time.perf_counter() - t_lift
         lift_only = make_content_masks(model, cams, work / "colmap" / "masks",
-                                       MaskParams(source="given", refine=RefineParams(enabled=False)))
-        ceiling = make_content_masks(model, cams, only_truth, MaskParams(source="given"), photos, show_progress=False)
+                                       MaskParams(source="given", lift=lift, refine=RefineParams(enabled=False)))
+        ceiling = make_content_masks(model, cams, only_truth, MaskParams(source="given", lift=lift), photos,
+                                     show_progress=False)
         strokes_score = _score(lifted.view_labels, truth, src, n_labels)
         lift_only_score = _score(lift_only.view_labels, truth, src, n_labels)
         ceiling_score = _score(ceiling.view_labels, truth, src, n_labels)
 
         result = {
-            "scene": "tiny (make_tiny_scene defaults)", "view": args.view, "radius": args.radius,
+            "scene": f"tiny (layout {args.layout}, {args.views} views)", "view": args.view, "radius": args.radius,
+            "propagate_along": args.propagate_along,
             "strokes_per_label": {str(k): sum(s.label == k for s in strokes) for k in range(1, n_labels + 1)},
             "strokes": [{"label": s.label, "radius": s.radius, "from": s.points[0].round(2).tolist(),
                          "to": s.points[-1].round(2).tolist()}

@@ -80,7 +80,7 @@ def main(argv: list[str] | None = None) -> dict:
     lp = LiftParams()
     lifted = lift_labels(model, [cams[i] for i in lift_idx], [given[i] for i in lift_idx], n_labels, lp)
     if not args.no_propagate:  # Gaussians no lifted view sees take their 3-D neighbours' label (LiftParams.propagate)
-        lifted, _ = propagate_unseen(model.means, lifted, lp)
+        lifted, _ = propagate_unseen(model, lifted, lp)
     views = {i: render_label_map(model, lifted.labels, n_labels, cams[i]) for i in range(len(cams))}
     per_label: dict[int, list[float]] = {}
     agree = []
