@@ -24,8 +24,9 @@ import numpy as np
 
 from abcgs.camera_paths import _plane_basis, capture_layout
 from abcgs.io.atomic import write_json
-from abcgs.sfm.colmap import ReconstructParams, reconstruct, set_colmap_log_level
+from abcgs.sfm.colmap import reconstruct, set_colmap_log_level
 from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.params import ReconstructParams
 
 
 def main(argv: list[str] | None = None) -> dict:
