@@ -66,13 +66,13 @@ inline void filter_column(const scalar_t* rows, int64_t maps, int64_t h0, int64_
   }
 }
 
-// acc[k] += row[j] for j = k mod kLanes, in float64: a fixed summation order that vectorises without -ffast-math.
-constexpr int kLanes = 8;
+// acc[k] += row[j] for j = k mod kSumLanes, in float64: a fixed summation order that vectorises without -ffast-math.
+constexpr int kSumLanes = 8;
 template <typename scalar_t>
 inline void add_row(const scalar_t* row, int64_t W, double* acc) {
   int64_t j = 0;
-  for (; j + kLanes <= W; j += kLanes)
-    for (int k = 0; k < kLanes; ++k) acc[k] += double(row[j + k]);
+  for (; j + kSumLanes <= W; j += kSumLanes)
+    for (int k = 0; k < kSumLanes; ++k) acc[k] += double(row[j + k]);
   for (int k = 0; j < W; ++j, ++k) acc[k] += double(row[j]);
 }
 
@@ -166,7 +166,7 @@ std::vector<at::Tensor> l1_ssim_forward(const at::Tensor& render, const at::Tens
         for (int64_t m = 0; m < 5; ++m)
           filter_row(src[m], W, g, R, pad.data(), rows.data() + (m * span + (r - h0)) * W);
       }
-      double s_acc[kLanes] = {}, l_acc[kLanes] = {};
+      double s_acc[kSumLanes] = {}, l_acc[kSumLanes] = {};
       for (int64_t r = r0; r < r1; ++r) {
         filter_column(rows.data(), 5, h0, h1, W, r, g, R, stats.data());
         scalar_t* d_mu = deriv.data() + p * plane_size + r * W;
@@ -181,7 +181,7 @@ std::vector<at::Tensor> l1_ssim_forward(const at::Tensor& render, const at::Tens
         for (int64_t j = 0; j < W; ++j) out_l1[j * C] = sign[j];
       }
       double s_sum = 0.0, l_sum = 0.0;
-      for (int k = 0; k < kLanes; ++k) {
+      for (int k = 0; k < kSumLanes; ++k) {
         s_sum += s_acc[k];
         l_sum += l_acc[k];
       }

@@ -19,6 +19,7 @@
 #include <torch/extension.h>
 
 #include "parallel.h"
+#include "thresholds.h"
 #include "vec_width.h"
 
 #if defined(__SSE2__)
@@ -32,7 +33,6 @@
 
 namespace {
 
-constexpr double kAlphaThreshold = 1.0 / 255.0;
 constexpr double kRadiusSigmas = 3.33;
 
 // V: a vector of T, M: the integer vector a comparison of two V gives (all ones where true).

@@ -24,6 +24,7 @@
 #include <torch/extension.h>
 
 #include "parallel.h"
+#include "thresholds.h"
 #include "vec_width.h"
 
 #if defined(__AVX2__) || defined(__AVX512F__)
@@ -40,7 +41,6 @@
 
 namespace {
 
-constexpr double kAlphaThreshold = 1.0 / 255.0;
 constexpr double kMaxAlpha = 0.99;
 constexpr double kTransmittanceEps = 1e-4;
 
