@@ -103,12 +103,12 @@ def test_the_colormatch_stage_checks_bindings_against_the_lifted_labels_first(tm
     check_input_files(params, tmp_path)  # no mask files: nothing to check yet
     with pytest.raises(InputError, match=r"colormatches\.m\.styles binds content label\(s\) \[4\], which the "
                                          r"Gaussians' labels \(out/s/masks/gaussian_labels\.npy\)"):
-        check_bindings("m", params.colormatches["m"], lifted, Path("out/s/masks"), params.data.style_masks)
+        check_bindings("m", params.colormatches["m"], lifted, Path("out/s/masks/gaussian_labels.npy"), params.data.style_masks)
     save_labels(tmp_path / "p_labels.png", np.ones((64, 64), np.int64))
     semantic = _params(tmp_path, {"transfer": "semantic", "style": "p", "binding": {3: 1}},
                        {"p": str(tmp_path / "p_labels.png")})
     with pytest.raises(InputError, match=r"colormatches\.m\.binding\.3: content label 3 is not in"):
-        check_bindings("m", semantic.colormatches["m"], lifted, Path("out/s/masks"),
+        check_bindings("m", semantic.colormatches["m"], lifted, Path("out/s/masks/gaussian_labels.npy"),
                        semantic.data.style_masks)
     source = (REPO_ROOT / "stages" / "colormatch.py").read_text()
     assert source.index("check_bindings(") < source.index("load_vgg(")
