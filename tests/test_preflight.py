@@ -12,7 +12,7 @@ from conftest import REPO_ROOT
 from abcgs.errors import InputError, ParamsError
 from abcgs.io.images import save_image
 from abcgs.params import validate_params
-from abcgs.pipeline import StageSpec, run_stage, stage_parser
+from abcgs.pipeline import run_stage, stage_parser
 from abcgs.preflight import check_dvc_tracked_keys, check_input_files, dvc_outputs, dvc_tracked_keys, preflight
 
 DVC = {"stages": {
@@ -86,27 +86,30 @@ def test_scene_folders_must_hold_readable_images_unless_a_stage_makes_them(tmp_p
         check_input_files(params, tmp_path)
 
 
-SPEC = StageSpec("colormatch")
+def test_the_preflight_stage_stops_before_work_and_says_why(tmp_path, capsys) -> None:
+    """A key dvc.yaml tracks that the params file lacks: the preflight stage, which every other stage runs after,
+    fails naming the key and writes no stamp; with the key given it writes the stamp."""
+    import importlib.util
 
-
-def test_run_stage_stops_before_work_and_says_why(tmp_path, capsys) -> None:
+    spec = importlib.util.spec_from_file_location("stage_preflight", REPO_ROOT / "stages" / "preflight.py")
+    stage = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(stage)
     (tmp_path / "dvc.yaml").write_text(yaml.safe_dump(DVC))
     _scene(tmp_path)
-    (tmp_path / "params.yaml").write_text(yaml.safe_dump({"data": {"scenes": {"s": "scene"}, "styles": {}}}))
-    called = []
-    rc = run_stage(SPEC, stage_parser(SPEC, "t"), lambda a, p: called.append(1), ["--params", str(tmp_path / "params.yaml")])
-    assert rc == 2 and not called
+    params, stamp = tmp_path / "params.yaml", tmp_path / "out" / "preflight.json"
+    argv = ["--params", str(params), "--out", str(stamp), "--record", str(tmp_path / "out" / "report.json")]
+    params.write_text(yaml.safe_dump({"data": {"scenes": {"s": "scene"}, "styles": {}}}))
+    assert run_stage(stage.SPEC, stage_parser(stage.SPEC, "t"), stage.main, argv) == 2 and not stamp.exists()
     err = capsys.readouterr().err
     assert "data.style_masks" in err and "colormatch" in err
-    (tmp_path / "params.yaml").write_text(yaml.safe_dump({"data": {"scenes": {"s": "scene"}, "styles": {}, "style_masks": {}},
-                                                          "colormatch": {}}))
-    assert run_stage(SPEC, stage_parser(SPEC, "t"), lambda a, p: called.append(1),
-                     ["--params", str(tmp_path / "params.yaml")]) == 0 and called == [1]
-    complete = yaml.safe_load((tmp_path / "params.yaml").read_text())
-    preflight(validate_params(complete), complete, tmp_path / "params.yaml")
+    params.write_text(yaml.safe_dump({"data": {"scenes": {"s": "scene"}, "styles": {}, "style_masks": {}},
+                                      "colormatch": {}}))
+    assert run_stage(stage.SPEC, stage_parser(stage.SPEC, "t"), stage.main, argv) == 0 and stamp.is_file()
+    complete = yaml.safe_load(params.read_text())
+    preflight(validate_params(complete), complete, params)
     raw = {"data": {"scenes": {"s": "scene"}}}
     with pytest.raises(ParamsError, match="data.style_masks"):  # the raw mapping, not the filled-in defaults
-        preflight(validate_params(raw), raw, tmp_path / "params.yaml")
+        preflight(validate_params(raw), raw, params)
 
 
 def test_schema_errors_do_not_print_the_whole_params(tmp_path) -> None:
