@@ -50,7 +50,7 @@ def _is_type_checking(node: ast.AST) -> bool:
         isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
 
 
-def _is_main_block(node: ast.AST) -> bool:
+def is_main_block(node: ast.AST) -> bool:
     """``if __name__ == "__main__":``: its body runs when the module is the program, not when it is imported."""
     return (isinstance(node, ast.If) and isinstance(node.test, ast.Compare) and isinstance(node.test.left, ast.Name)
             and node.test.left.id == "__name__" and len(node.test.comparators) == 1
@@ -64,7 +64,7 @@ def _run_nodes(tree: ast.AST, imported: bool = False) -> Iterable[ast.AST]:
     while todo:
         node = todo.pop()
         yield node
-        if _is_type_checking(node) or (imported and _is_main_block(node)):
+        if _is_type_checking(node) or (imported and is_main_block(node)):
             todo.extend(node.orelse)
             continue
         todo.extend(ast.iter_child_nodes(node))
@@ -206,7 +206,7 @@ def stage_closure(script: Path, spec: Any, root: Path) -> set[Path]:
 
 def _dvc(template: Any) -> str:
     """A path or params template as ``dvc.yaml`` writes it: ``{key}`` → ``${key}``."""
-    return Path(template).as_posix().replace("{", "${") if not isinstance(template, str) else template.replace("{", "${")
+    return (template if isinstance(template, str) else Path(template).as_posix()).replace("{", "${")
 
 
 def stage_entry(script: Path, spec: Any, root: Path) -> dict:

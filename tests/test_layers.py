@@ -15,6 +15,8 @@ from pathlib import Path
 
 import pytest
 
+from abcgs.dag import is_main_block
+
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "abcgs"
 
@@ -54,16 +56,11 @@ def floor_of(module: str) -> int | None:
     return best
 
 
-def _is_main_block(node: ast.AST) -> bool:
-    return (isinstance(node, ast.If) and isinstance(node.test, ast.Compare) and isinstance(node.test.left, ast.Name)
-            and node.test.left.id == "__name__")
-
-
 def abcgs_imports(source: str, module: str, is_package: bool) -> list[tuple[int, str]]:
     """``(line, imported module)`` for every ``abcgs`` import of ``source`` outside its ``__main__`` block
     (``from P import name`` counts as P, or as P.name where that is a module)."""
     tree = ast.parse(source)
-    skip = {id(n) for top in tree.body if _is_main_block(top) for n in ast.walk(top)}
+    skip = {id(n) for top in tree.body if is_main_block(top) for n in ast.walk(top)}
     out = []
     for node in ast.walk(tree):
         if id(node) in skip:
