@@ -27,12 +27,11 @@ from abcgs.fit.params import FitParams, StrategyParams
 from abcgs.fit.training import fit
 from abcgs.io.atomic import write_json
 from abcgs.io.ply import write_ply
-from abcgs.sfm.colmap import reconstruct
+from abcgs.runtime import resolve_device
 from abcgs.sfm.model import read_colmap_scene
 from abcgs.sfm.params import ReconstructParams
 from abcgs.sources.base import FORMATS
-from abcgs.sources.model import write_source_model
-from abcgs.sources.read import read_source, resolve_format
+from abcgs.sources.read import resolve_format
 
 
 def main(argv=None) -> dict:
@@ -45,6 +44,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--eval-every", type=int, default=250)
     ap.add_argument("--max-gaussians", type=int, default=200_000)
     ap.add_argument("--threads", type=int, default=0, help="torch threads (0 = all cores)")
+    ap.add_argument("--device", default="auto", help="runtime.device: auto, cpu, cuda, cuda:N")
+    ap.add_argument("--sh-degree", type=int, default=0, help="fit.sh_degree")
+    ap.add_argument("--test-every", type=int, default=8, help="fit.test_every (0: train on every view, no held-out PSNR)")
     ap.add_argument("--refine-every", type=int, default=100)
     ap.add_argument("--refine-stop-fraction", type=float, default=0.6, help="densify until this fraction of the steps")
     ap.add_argument("--reset-every", type=int, default=1500)
@@ -60,19 +62,24 @@ def main(argv=None) -> dict:
     colmap = args.work / run / "colmap"
     if not (colmap / "sparse").is_dir():
         if fmt == "photos":
+            from abcgs.sfm.colmap import reconstruct  # pycolmap: only where the cameras are still to be found
+
             reconstruct(args.scene / "images", colmap, reconstruct_params)
         else:
+            from abcgs.sources.model import write_source_model
+            from abcgs.sources.read import read_source
+
             write_source_model(read_source(args.scene, fmt), colmap, ReconstructParams())
     scene = read_colmap_scene(colmap / "sparse", colmap / "images")
     params = FitParams(
         iterations=args.iterations, eval_every=args.eval_every, max_gaussians=args.max_gaussians,
-        threads=args.threads,
+        threads=args.threads, sh_degree=args.sh_degree, test_every=args.test_every,
         strategy=StrategyParams(
             refine_start=min(500, args.iterations // 10), refine_every=args.refine_every,
             refine_stop=int(args.refine_stop_fraction * args.iterations), reset_every=args.reset_every,
         ),
     )
-    result = fit(scene, params, progress=True)
+    result = fit(scene, params, progress=True, device=resolve_device(args.device))
     write_ply(args.work / run / "gs" / "point_cloud.ply", result.model)
     cam = scene.cameras[0]
     print(f"\n# {args.scene.name} ({fmt}): {len(scene.cameras)} views at {cam.width}x{cam.height}, "
@@ -84,7 +91,8 @@ def main(argv=None) -> dict:
     out = {"scene": str(args.scene), "format": fmt, "points": int(len(scene.points)), "width": cam.width,
            "height": cam.height, "params": params.model_dump(), "reconstruct": reconstruct_params.model_dump(),
            "n_gaussians": result.model.num_gaussians, "curve": result.eval_history, "backend": result.backend,
-           "cpus": os.cpu_count()}
+           "cpus": os.cpu_count(), "device": str(resolve_device(args.device)),
+           "gpu": torch.cuda.get_device_name() if torch.cuda.is_available() else None}
     if args.json:
         write_json(args.json, out)
         import matplotlib
