@@ -3,6 +3,7 @@
 Per scene ``S``, colour match ``M`` (``colormatches.M``) and experiment ``E``::
 
     out/preflight.json, out/preflight_report.json                            preflight
+    out/styles/P.png, out/styles/P.labels.png                                styles, style_masks (painting P)
     out/S/colmap/{sparse,images,masks}, out/S/reconstruct.json               reconstruct
     out/S/gs/{point_cloud.ply, metrics.json, history.csv, …}, fit_metrics.json  fit
     out/S/masks/{gaussian_labels.npy, views/*.png, overlay.png, masks.json}  masks
@@ -21,6 +22,7 @@ name each path in this one place.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,6 +32,36 @@ PREFLIGHT_STAMP = OUT / "preflight.json"
 """The preflight stage's stamp: every other stage depends on it (its content never changes)."""
 PREFLIGHT_REPORT = OUT / "preflight_report.json"
 """The preflight stage's warnings."""
+STYLES = OUT / "styles"
+"""The paintings of ``data.styles`` and the region maps of ``data.style_masks``, as :class:`StylesDir` names them."""
+
+
+@dataclass(frozen=True)
+class StylesDir:
+    """The paintings (``<key>.png``) and their region maps (``<key>.labels.png``), each copied here by its own stage
+    (``styles``, ``style_masks``): the stages that read a painting depend on this folder, so DVC re-runs them when a
+    painting's content changes, where the params hold only its path."""
+
+    root: Path
+
+    def painting(self, key: str) -> Path:
+        return self.root / f"{key}.png"
+
+    def labels(self, key: str) -> Path:
+        return self.root / f"{key}.labels.png"
+
+    def paintings(self, keys: Iterable[str]) -> dict[str, str]:
+        """``{key: path}`` of the paintings ``keys`` (``data.styles``' keys), as the matching groups take them."""
+        return {k: str(self.painting(k)) for k in keys}
+
+    def label_maps(self, keys: Iterable[str]) -> dict[str, str]:
+        """``{key: path}`` of the region maps ``keys`` (``data.style_masks``' keys)."""
+        return {k: str(self.labels(k)) for k in keys}
+
+
+def styles(out: str | Path = OUT) -> StylesDir:
+    """The paintings' folder under the output root ``out``."""
+    return StylesDir(Path(out) / STYLES.relative_to(OUT))
 
 
 @dataclass(frozen=True)

@@ -57,7 +57,8 @@ _STORAGE_ERRNOS = {
 """Storage errors a stage reports as a message (what to do) instead of a traceback."""
 
 Foreach = Literal["data.scenes", "colormatches", "experiments"]
-KEY_OPTION: dict[str, str] = {"data.scenes": "scene", "colormatches": "colormatch", "experiments": "experiment"}
+KEY_OPTION: dict[str, str] = {"data.scenes": "scene", "data.styles": "style", "data.style_masks": "style",
+                              "colormatches": "colormatch", "experiments": "experiment"}
 """The command-line option that names a ``foreach`` stage's key by hand (``--scene tiny``, ``--experiment
 tiny_single``); under DVC the key comes from :data:`DVC_STAGE_ENV` instead (:func:`stage_key`)."""
 DVC_STAGE_ENV = "DVC_STAGE"
@@ -139,10 +140,12 @@ class StageSpec:
             name = m.group(1)
             if name == "key":
                 return str(key)
+            if name == "item":  # a foreach over a mapping of scalars (data.styles: key → path)
+                return str(item)
             value = item.get(name.removeprefix("item.")) if isinstance(item, Mapping) else None
             return str(value)
 
-        return re.sub(r"\{(key|item\.[A-Za-z_]+)\}", fill, template)
+        return re.sub(r"\{(key|item(?:\.[A-Za-z_]+)?)\}", fill, template)
 
     def resolved_params(self, raw: Mapping[str, Any], key: str | None) -> tuple[str, ...]:
         """``params`` with ``{key}`` / ``{item.F}`` filled in (:meth:`fill`)."""

@@ -31,6 +31,7 @@ SPEC = StageSpec("colormatch", foreach="colormatches", params=(
     Dep("colmap", _S.colmap.root, "the scene's COLMAP layout (reconstruct)"),
     Dep("model", _S.fit.ply, "the fitted scene (fit)"),
     Dep("masks", _S.masks.root, "the scene's content labels (masks)"),
+    Dep("styles", layout.STYLES, "the paintings and their region maps (styles, style_masks)"),
 ), outs=(Out(_S.colormatch("{key}").root, "out", help="the colour-matched Gaussians and their record"),))
 
 
@@ -40,10 +41,12 @@ def main(args, params) -> None:
     colmap = layout.ColmapDir(args.colmap)
     scene, model = read_colmap_scene(colmap.sparse, colmap.images), read_ply(args.model)
     masks = load_scene_masks(args.masks, scene, model.num_gaussians)
+    styles = layout.StylesDir(args.styles)
+    region_maps = styles.label_maps(params.data.style_masks)
     check_bindings(args.colormatch, spec, masks.gaussian_labels, layout.MasksDir(args.masks).gaussian_labels,
-                   params.data.style_masks)
+                   region_maps)
     vgg, info = load_vgg(params.vgg, params.stylize.layers, device)
-    groups = load_groups(spec, vgg, masks.gaussian_labels, params.data.styles, params.data.style_masks,
+    groups = load_groups(spec, vgg, masks.gaussian_labels, styles.paintings(params.data.styles), region_maps,
                          params.isolation, params.stylize)
     with torch_threads(params.colormatch.threads):
         res = color_match_and_refit(model.to(device), scene, masks.gaussian_labels.to(device), masks.view_labels,

@@ -32,6 +32,7 @@ SPEC = StageSpec("evaluate", foreach="experiments", params=(
     Dep("reference", _S.reference, "the scene's renders and flows (reference)"),
     Dep("stylized", _E.stylize.root, "the stylized scene and its renders (stylize)"),
     Dep("stylize-record", info_path(_E.stylize_record), "the stylization's full record (stylize)"),
+    Dep("styles", layout.STYLES, "the paintings (styles)"),
 ), outs=(
     Out(_E.eval_record, "out", help="every metric (JSON)"),
     Out(info_path(_E.eval_record)),
@@ -53,7 +54,9 @@ def main(args, params) -> None:
     styles = {k: params.data.styles[k] for k in spec.style_keys()}
     reference = load_reference(args.reference, scene.cameras, ep, scene=exp.scene, model_digest=model_digest(args.model))
     device = resolve_device(params.runtime.device)
-    res = evaluate_scene(scene.cameras, original.to(device), read_ply(ply, device=device), [load_image(p) for p in styles.values()], ep,
+    paintings = layout.StylesDir(args.styles).paintings(styles)
+    res = evaluate_scene(scene.cameras, original.to(device), read_ply(ply, device=device),
+                         [load_image(paintings[k]) for k in styles], ep,
                          stylize_info=info, saved_renders=[load_image(p) for p in pngs[:n]], vgg_params=params.vgg,
                          reference=reference)
     record = {"experiment": args.experiment, "scene": exp.scene, "colormatch": exp.colormatch,

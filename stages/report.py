@@ -34,7 +34,8 @@ def main(args, params) -> None:
                 for name, exp in params.experiments.items()]
         viewer = viewer_fragment(exps, max_width=params.viewer.max_width)
     scenes = sorted({exp.scene for exp in params.experiments.values()})
-    write_report(args.out, runs, args.root, dict(params.data.styles), viewer, collect_warnings(args.root, scenes))
+    paintings = layout.styles(args.root).paintings(params.data.styles)
+    write_report(args.out, runs, args.root, paintings, viewer, collect_warnings(args.root, scenes))
 
 
 if __name__ == "__main__":

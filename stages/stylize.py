@@ -28,6 +28,7 @@ SPEC = StageSpec("stylize", foreach="experiments", params=(
     Dep("colmap", _S.colmap.root, "the scene's COLMAP layout (reconstruct)"),
     Dep("model", _S.fit.ply, "the fitted scene (fit)"),
     Dep("masks", _S.masks.root, "the scene's content labels (masks)"),
+    Dep("styles", layout.STYLES, "the paintings and their region maps (styles, style_masks)"),
     Dep("colormatch", _S.colormatch("{item.colormatch}").root, "the colour-matched start (colormatch)"),
 ), outs=(
     Out(_E.stylize.root, "out", help="the stylized PLY, renders, grid, turntable"),
@@ -48,8 +49,9 @@ def main(args, params) -> None:
     masks = load_scene_masks(args.masks, scene, original.num_gaussians, device=device)
     original, matched = original.to(device), matched.to(device)
     vgg, info = load_vgg(params.vgg, sp.layers, device)
-    groups = load_groups(spec, vgg, masks.gaussian_labels, params.data.styles, params.data.style_masks,
-                         params.isolation, sp)
+    styles = layout.StylesDir(args.styles)
+    groups = load_groups(spec, vgg, masks.gaussian_labels, styles.paintings(params.data.styles),
+                         styles.label_maps(params.data.style_masks), params.isolation, sp)
     with torch_threads(sp.compute.threads):
         res = stylize_scene(matched, original, scene.cameras, masks, groups, vgg, sp, method=exp.method)
         written = write_stylized_scene(

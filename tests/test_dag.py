@@ -93,7 +93,8 @@ def test_stage_params_are_the_params_it_reads(name: str) -> None:
     tracked = [p for p in _body(stage).get("params", []) if isinstance(p, str)]
     assert sorted(tracked) == sorted(declared), (
         f"dvc.yaml stage {name!r} tracks params {tracked} but {_script(stage).relative_to(ROOT)} declares {declared}")
-    foreach = {"${data.scenes}": "data.scenes", "${colormatches}": "colormatches", "${experiments}": "experiments"}
+    foreach = {"${data.scenes}": "data.scenes", "${data.styles}": "data.styles",
+               "${data.style_masks}": "data.style_masks", "${colormatches}": "colormatches", "${experiments}": "experiments"}
     if spec.foreach:  # a script that takes no key (export: a PLY path) may serve several foreach stages
         assert spec.foreach == foreach.get(stage.get("foreach")), f"{name}: StageSpec.foreach does not match dvc.yaml"
 
@@ -182,3 +183,16 @@ def test_an_imported_modules_main_block_is_not_run_but_the_scripts_is(tmp_path: 
     script.write_text("from abcgs import cli\nif __name__ == '__main__':\n    from abcgs import tool\n")
     got = {p.as_posix() for p in import_closure(script, tmp_path)}
     assert got == {"stage.py", "abcgs/__init__.py", "abcgs/cli.py", "abcgs/tool.py"}
+
+
+def test_a_paintings_content_is_a_dep_of_every_stage_that_reads_it() -> None:
+    """The params hold a painting's path, which DVC tracks as text: the ``styles`` / ``style_masks`` stages depend on
+    the files themselves and copy them under out/styles, and the stages that read paintings depend on that folder, so
+    replacing a painting at the same path re-runs them."""
+    for name, section in (("styles", "data.styles"), ("style_masks", "data.style_masks")):
+        assert DVC[name]["foreach"] == "${" + section + "}"
+        assert "${item}" in _deps(DVC[name])
+        assert _body(DVC[name])["outs"] == [f"out/styles/${{key}}{'.png' if name == 'styles' else '.labels.png'}"]
+    for name in ("colormatch", "stylize", "evaluate"):
+        assert "out/styles" in _deps(DVC[name]), f"{name} reads paintings but does not depend on out/styles"
+    assert "out" in _deps(DVC["report"])

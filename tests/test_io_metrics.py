@@ -49,3 +49,4 @@ def test_headlines_keep_the_computed_names_and_only_headline_numbers(tmp_path) -
                                                                                              "fit_minutes": 1.0}
     p = write_headline(tmp_path / "m.json", {**fit, "note": "dropped"})
     assert json.loads(p.read_text()) == fit
+

@@ -41,8 +41,8 @@ def _hostile(params: dict) -> None:
     params["data"]["scenes"][SCENE] = dict(params["data"]["scenes"]["tiny"])
 
 
-UPSTREAM = {"preflight": None, "make_tiny": None, "reconstruct": "tiny", "fit": "tiny", "masks": "tiny",
-            "colormatch": "hostile_match"}
+UPSTREAM = {"preflight": None, "make_tiny": None, "styles": "tiny_paint", "reconstruct": "tiny", "fit": "tiny",
+            "masks": "tiny", "colormatch": "hostile_match"}
 """The stages upstream of the hostile ones, with their ``foreach`` key: recorded as done, with stand-in outputs."""
 
 
@@ -59,6 +59,9 @@ def _stand_ins(repo: Path) -> list[str]:
             else:
                 path.mkdir(parents=True, exist_ok=True)
                 (path / "stand_in.txt").write_text("x")
+    painting = repo / "data" / "tiny" / "styles" / "paint.png"  # styles@tiny_paint's input, inside make_tiny's output
+    painting.parent.mkdir(parents=True, exist_ok=True)
+    painting.write_text("x")
     return [name if key is None else f"{name}@{key}" for name, key in UPSTREAM.items()]
 
 

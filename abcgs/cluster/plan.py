@@ -3,7 +3,8 @@
 :func:`make_plan` expands every ``foreach`` stage of ``dvc.yaml`` over its collection in the params (as DVC does)
 and assigns each stage to one job:
 
-- **prep** (one job): the stages that need no stage of a scene or an experiment (``preflight``, ``make_tiny``);
+- **prep** (one job): the stages that need no stage of a scene or an experiment (``preflight``, ``make_tiny``, and
+  ``styles`` / ``style_masks``: one per painting);
 - **scene@S** (one per scene): the stages of ``data.scenes`` (``reconstruct``, ``fit``, ``masks``, ``reference``,
   ``export_scene``) and the colour matches of that scene (``colormatch@M`` with ``colormatches.M.scene == S``);
 - **experiment@E** (one per experiment): the stages of ``experiments`` (``stylize``, ``evaluate``, ``export``);
@@ -37,7 +38,8 @@ from abcgs.errors import AbcgsError
 
 KINDS = ("prep", "scene", "experiment", "report")
 """Job kinds, in the order they run; each has its own resources (:class:`Resources`)."""
-COLLECTIONS: dict[str, str] = {"data.scenes": "scene", "colormatches": "scene", "experiments": "experiment"}
+COLLECTIONS: dict[str, str] = {"data.scenes": "scene", "data.styles": "prep", "data.style_masks": "prep",
+                               "colormatches": "scene", "experiments": "experiment"}
 """``foreach`` collection → the kind of job its stages go to."""
 RESOURCES_FILE = Path(__file__).with_name("resources.yaml")
 
@@ -190,6 +192,8 @@ def _scene_of(stage: Stage, params: Mapping[str, Any]) -> str:
 def _job_of(stage: Stage, params: Mapping[str, Any], downstream: set[str]) -> str:
     if stage.collection is None:
         return "report" if stage.name in downstream else "prep"
+    if COLLECTIONS[stage.collection] == "prep":
+        return "prep"
     if COLLECTIONS[stage.collection] == "scene":
         return f"scene@{_scene_of(stage, params)}"
     return f"experiment@{stage.key}"

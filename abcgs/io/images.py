@@ -94,6 +94,23 @@ def save_image(path: str | os.PathLike, img: np.ndarray) -> None:
     write_bytes(path, buf.tobytes())
 
 
+def copy_as_png(src: str | os.PathLike, dst: str | os.PathLike) -> tuple[int, int]:
+    """Rewrite the image ``src`` (any format OpenCV decodes) as the PNG ``dst`` with the same decoded pixels (bit
+    depth and channels kept, so :func:`load_image` and :func:`load_labels` read the same array from either),
+    atomically; returns its ``(width, height)``. An undecodable file raises :class:`InputError` naming it."""
+    src = Path(src)
+    if not src.is_file():
+        raise InputError(f"image {src} does not exist")
+    img = cv2.imdecode(np.fromfile(str(src), dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    if img is None or img.dtype not in (np.uint8, np.uint16):
+        raise InputError(f"image {src} could not be decoded as an 8- or 16-bit image; save it as PNG or JPEG")
+    ok, buf = cv2.imencode(".png", img)
+    if not ok:
+        raise InputError(f"could not encode {src} as PNG for {dst}")
+    write_bytes(dst, buf.tobytes())
+    return int(img.shape[1]), int(img.shape[0])
+
+
 def save_labels(path: str | os.PathLike, labels: np.ndarray) -> None:
     """Write an ``(H, W)`` integer label map as an 8-bit (or 16-bit if needed) PNG, atomically."""
     arr = labels.astype(np.uint16 if labels.max(initial=0) > 255 else np.uint8)

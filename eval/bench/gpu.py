@@ -177,6 +177,11 @@ def run_pipeline(params: Params, root: Path, scene: str, colmap: Path, experimen
         """The stage's arguments for entry ``key`` (its paths as dvc.yaml passes them, under ``root``)."""
         return SimpleNamespace(**names, **stage_paths(stage.SPEC, raw, key, root))
 
+    styles, style_masks = _stage("styles"), _stage("style_masks")
+    for key in params.data.styles:
+        styles.main(args(styles, key, style=key), params)
+    for key in params.data.style_masks:
+        style_masks.main(args(style_masks, key, style=key), params)
     _timed(times, f"{scene}: fit", device, lambda: fit.main(args(fit, scene, scene=scene), params))
     _timed(times, f"{scene}: masks", device, lambda: masks.main(args(masks, scene, scene=scene), params))
     _timed(times, f"{scene}: reference", device, lambda: reference.main(args(reference, scene, scene=scene), params))
