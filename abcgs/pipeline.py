@@ -56,7 +56,7 @@ _STORAGE_ERRNOS = {
 }
 """Storage errors a stage reports as a message (what to do) instead of a traceback."""
 
-Foreach = Literal["data.scenes", "colormatches", "experiments"]
+Foreach = Literal["data.scenes", "data.styles", "data.style_masks", "colormatches", "experiments"]
 KEY_OPTION: dict[str, str] = {"data.scenes": "scene", "data.styles": "style", "data.style_masks": "style",
                               "colormatches": "colormatch", "experiments": "experiment"}
 """The command-line option that names a ``foreach`` stage's key by hand (``--scene tiny``, ``--experiment
@@ -74,7 +74,8 @@ class Dep:
 
     option: str
     path: str | Path
-    """A path template (:mod:`abcgs.layout`), with ``{key}`` / ``{item.F}`` for a ``foreach`` stage's entry."""
+    """A path template (:mod:`abcgs.layout`), with ``{key}`` / ``{item.F}`` for a ``foreach`` stage's entry, or
+    ``{item}`` for the entry itself where it is a path (``data.styles``)."""
     help: str = ""
 
 
