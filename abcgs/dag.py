@@ -21,6 +21,7 @@ import importlib.util
 import sys
 from collections.abc import Iterable
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 import yaml
@@ -191,12 +192,18 @@ HEADER = """\
 """
 
 
-def load_spec(script: Path) -> Any:
-    """The :class:`abcgs.pipeline.StageSpec` of a stage script (its ``SPEC``)."""
+def load_stage(script: Path) -> ModuleType:
+    """A stage script (``stages/<name>.py``) as a module: its ``SPEC`` and its ``main(args, params)``, which is what
+    ``dvc repro`` runs."""
     spec = importlib.util.spec_from_file_location(f"stage_{script.stem}", script)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    return module.SPEC
+    return module
+
+
+def load_spec(script: Path) -> Any:
+    """The :class:`abcgs.pipeline.StageSpec` of a stage script (its ``SPEC``)."""
+    return load_stage(script).SPEC
 
 
 def stage_closure(script: Path, spec: Any, root: Path) -> set[Path]:

@@ -9,6 +9,7 @@ import pytest
 import yaml
 from conftest import REPO_ROOT
 
+from abcgs.dag import load_stage
 from abcgs.errors import InputError, ParamsError
 from abcgs.io.images import save_image
 from abcgs.params import validate_params
@@ -89,11 +90,7 @@ def test_scene_folders_must_hold_readable_images_unless_a_stage_makes_them(tmp_p
 def test_the_preflight_stage_stops_before_work_and_says_why(tmp_path, capsys) -> None:
     """A key dvc.yaml tracks that the params file lacks: the preflight stage, which every other stage runs after,
     fails naming the key and writes no stamp; with the key given it writes the stamp."""
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("stage_preflight", REPO_ROOT / "stages" / "preflight.py")
-    stage = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(stage)
+    stage = load_stage(REPO_ROOT / "stages" / "preflight.py")
     (tmp_path / "dvc.yaml").write_text(yaml.safe_dump(DVC))
     _scene(tmp_path)
     params, stamp = tmp_path / "params.yaml", tmp_path / "out" / "preflight.json"

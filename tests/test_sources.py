@@ -412,7 +412,6 @@ def test_llff_wrong_pairing_and_convention_fail(tmp_path: Path, tiny_scene: Path
 def test_reconstruct_stage_reads_a_dataset_scene(tmp_path: Path, tiny_scene: Path, truth) -> None:
     """stages/reconstruct.py on an LLFF scene named in params (format detected): the dataset's cameras, points
     triangulated, the record saying so; the preflight check reads the scene and names its key on a problem."""
-    import importlib.util
 
     from abcgs.params import load_params
     from abcgs.pipeline import run_stage
@@ -421,9 +420,9 @@ def test_reconstruct_stage_reads_a_dataset_scene(tmp_path: Path, tiny_scene: Pat
     cams, render = truth
     write_llff(tmp_path / "scene", tiny_scene, cams)
     (tmp_path / "params.yaml").write_text(json.dumps({"data": {"scenes": {"s": {"path": str(tmp_path / "scene")}}}}))
-    spec = importlib.util.spec_from_file_location("stage_reconstruct", Path(__file__).parents[1] / "stages" / "reconstruct.py")
-    stage = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(stage)
+    from abcgs.dag import load_stage
+
+    stage = load_stage(Path(__file__).parents[1] / "stages" / "reconstruct.py")
     ap = stage.stage_parser(stage.SPEC, "reconstruct")
     ap.add_argument("--colmap-log", default="warning")
     out = tmp_path / "out"

@@ -161,7 +161,9 @@ def main(argv: list[str] | None = None) -> dict:
     src = by_stem[view]
     missing = [s for s in spec["reference"] if s not in by_stem]
     ref_stems = [s for s in spec["reference"] if s != view and s in by_stem]
-    refs = {s: reference_map(args.data / "reference" / f"{s}.png", cams[by_stem[s]]) for s in ref_stems}
+    all_refs = {s: reference_map(args.data / "reference" / f"{s}.png", cams[by_stem[s]])
+                for s in spec["reference"] if s in by_stem}
+    refs = {s: all_refs[s] for s in ref_stems}
     n_labels = len(spec["labels"])
     strokes = _strokes(spec["test"]["strokes"], spec, cams[src])
     photo = load_image(scene.image_paths[src])
@@ -191,8 +193,6 @@ def main(argv: list[str] | None = None) -> dict:
                 and max(v["unlabelled"] for v in per_view.values()) <= GOAL_UNLABELLED}, res
 
     result, res = run(cut.saved_map())
-    all_refs = {s: reference_map(args.data / "reference" / f"{s}.png", cams[by_stem[s]])
-                for s in spec["reference"] if s in by_stem}
     bound = geometry_bound(model, cams, by_stem, all_refs, ref_stems, n_labels)
     psnr = {s: render_psnr(model, cams[by_stem[s]], load_image(scene.image_paths[by_stem[s]])) for s in ref_stems}
     out = {"scene": "Mip-NeRF 360 bonsai", "views": len(cams), "n_gaussians": model.num_gaussians,

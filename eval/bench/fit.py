@@ -79,7 +79,8 @@ def main(argv=None) -> dict:
             refine_stop=int(args.refine_stop_fraction * args.iterations), reset_every=args.reset_every,
         ),
     )
-    result = fit(scene, params, progress=True, device=resolve_device(args.device))
+    device = resolve_device(args.device)
+    result = fit(scene, params, progress=True, device=device)
     write_ply(args.work / run / "gs" / "point_cloud.ply", result.model)
     cam = scene.cameras[0]
     print(f"\n# {args.scene.name} ({fmt}): {len(scene.cameras)} views at {cam.width}x{cam.height}, "
@@ -91,7 +92,7 @@ def main(argv=None) -> dict:
     out = {"scene": str(args.scene), "format": fmt, "points": int(len(scene.points)), "width": cam.width,
            "height": cam.height, "params": params.model_dump(), "reconstruct": reconstruct_params.model_dump(),
            "n_gaussians": result.model.num_gaussians, "curve": result.eval_history, "backend": result.backend,
-           "cpus": os.cpu_count(), "device": str(resolve_device(args.device)),
+           "cpus": os.cpu_count(), "device": str(device),
            "gpu": torch.cuda.get_device_name() if torch.cuda.is_available() else None}
     if args.json:
         write_json(args.json, out)

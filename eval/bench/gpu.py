@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import importlib.metadata
-import importlib.util
 import json
 import os
 import platform
@@ -44,6 +43,7 @@ import abcgs  # noqa: F401  (before torch: abcgs sets OpenMP's wait policy)
 import torch
 import yaml
 
+from abcgs.dag import load_stage
 from abcgs.io.atomic import write_json
 from abcgs.params import Params, validate_params
 from abcgs.pipeline import stage_paths
@@ -147,11 +147,8 @@ def _params(overrides: dict) -> Params:
 
 
 def _stage(name: str) -> ModuleType:
-    """A stage script of stages/ as a module (its ``main(args, params)`` is what ``dvc repro`` runs)."""
-    spec = importlib.util.spec_from_file_location(f"_stage_{name}", ROOT / "stages" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    """The stage script ``stages/<name>.py`` as a module (:func:`abcgs.dag.load_stage`)."""
+    return load_stage(ROOT / "stages" / f"{name}.py")
 
 
 def _timed(record: dict, key: str, device: torch.device, fn) -> object:
