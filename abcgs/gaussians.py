@@ -201,6 +201,18 @@ class GaussianModel:
 assert tuple(f.name for f in fields(GaussianModel)) == PARAM_NAMES
 
 
+def freeze_gaussians(model: GaussianModel, frozen: Tensor | None) -> None:
+    """Zero every gradient of the ``frozen`` ``(N,)`` bool Gaussians of ``model`` (its fields that take gradients):
+    Adam then leaves their values exactly as they are, whatever the loss. ``None`` freezes nothing."""
+    if frozen is None or not bool(frozen.any()):
+        return
+    keep = (~frozen).to(model.device)
+    for _, t in model.items():
+        if t.requires_grad:
+            mask = keep.view((-1,) + (1,) * (t.dim() - 1)).to(t.dtype)
+            t.register_hook(lambda g, m=mask: g * m)
+
+
 def render(
     model: GaussianModel,
     camera: Camera,

@@ -22,9 +22,13 @@ name each path in this one place.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
+
+from abcgs.errors import InputError
+from abcgs.types import Background
 
 OUT = Path("out")
 """The pipeline's output root (relative to the repository root)."""
@@ -82,6 +86,20 @@ class ColmapDir:
     @property
     def masks(self) -> Path:
         return self.root / "masks"
+
+    @property
+    def background(self) -> Path:
+        """The scene's :class:`~abcgs.types.Background` as JSON (absent: a frame-filling scene on black)."""
+        return self.root / "background.json"
+
+    def read_background(self) -> Background:
+        """The scene's :class:`~abcgs.types.Background` (:attr:`background`; the default when the file is absent)."""
+        if not self.background.is_file():
+            return Background()
+        try:
+            return Background.from_json(json.loads(self.background.read_text()))
+        except (ValueError, TypeError, AttributeError) as exc:
+            raise InputError(f"{self.background} is not a background record ({exc}); re-run the reconstruct stage") from None
 
 
 @dataclass(frozen=True)

@@ -163,3 +163,39 @@ class MatchingGroup:
     features: Tensor
     style_image: np.ndarray = field(repr=False, default=None)
     style_region: np.ndarray | None = field(repr=False, default=None)
+
+
+@dataclass(frozen=True)
+class Background:
+    """What a scene shows where no Gaussian covers a pixel, and whether that empty space is kept empty.
+
+    The ``reconstruct`` stage resolves it from the scene's entry (``data.scenes.<name>.background``) and its format
+    (:meth:`abcgs.sources.params.SceneParams.resolved_background`) and records it beside the scene's model; every
+    stage that renders reads it from there (:func:`abcgs.layout.read_background`).
+
+    Attributes:
+        color: RGB in ``[0, 1]`` composited behind the Gaussians in every render and loss
+            (``image + (1 - alpha) · color``).
+        transparent: renders are written as RGBA (straight alpha); the composited ``color`` is black.
+        object: the scene is an object on nothing: the original scene's own alpha says where the object is, colour
+            match and stylization act on the object only, and empty space keeps ``color``
+            (:mod:`abcgs.silhouette`). False: a frame-filling scene, every pixel is content.
+    """
+
+    color: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    transparent: bool = False
+    object: bool = False
+
+    def to_json(self) -> dict:
+        return {"color": list(self.color), "transparent": self.transparent, "object": self.object}
+
+    @classmethod
+    def from_json(cls, d: dict) -> Background:
+        color = tuple(float(c) for c in d.get("color", (0.0, 0.0, 0.0)))
+        if len(color) != 3:
+            raise ValueError(f"a background colour has 3 channels, got {list(color)}")
+        return cls(color, bool(d.get("transparent", False)), bool(d.get("object", False)))  # type: ignore[arg-type]
+
+
+FRAME_FILLING = Background()
+"""The background of a frame-filling scene (every pixel is content; renders on black): the default."""

@@ -26,6 +26,7 @@ _S = layout.scene("{item.scene}")
 SPEC = StageSpec("colormatch", foreach="colormatches", params=(
     "colormatches.{key}", "data.styles", "data.style_masks", "colormatch", "isolation", "vgg",
     "stylize.layers", "stylize.style_height",  # the style features of the matching groups
+    "stylize.color_only",  # the re-fit changes only the colours
     "runtime",
 ), deps=(
     Dep("colmap", _S.colmap.root, "the scene's COLMAP layout (reconstruct)"),
@@ -50,7 +51,8 @@ def main(args, params) -> None:
                          params.isolation, params.stylize)
     with torch_threads(params.colormatch.threads):
         res = color_match_and_refit(model.to(device), scene, masks.gaussian_labels.to(device), masks.view_labels,
-                                    groups, params.colormatch)
+                                    groups, params.colormatch, background=colmap.read_background(),
+                                    color_only=params.stylize.color_only)
     write_colormatch(args.out, args.colormatch, spec, res, groups, info.model_dump())
 
 

@@ -16,7 +16,7 @@ from pathlib import Path
 from abcgs import layout
 from abcgs.evaluation.evaluate import evaluate_scene, load_stylize_run, write_evaluation
 from abcgs.evaluation.reference import load_reference, model_digest
-from abcgs.io.images import load_image
+from abcgs.io.images import load_image, load_render
 from abcgs.io.metrics import info_path
 from abcgs.io.ply import read_ply
 from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
@@ -55,10 +55,11 @@ def main(args, params) -> None:
     reference = load_reference(args.reference, scene.cameras, ep, scene=exp.scene, model_digest=model_digest(args.model))
     device = resolve_device(params.runtime.device)
     paintings = layout.StylesDir(args.styles).paintings(styles)
+    background = colmap.read_background()
     res = evaluate_scene(scene.cameras, original.to(device), read_ply(ply, device=device),
                          [load_image(paintings[k]) for k in styles], ep,
-                         stylize_info=info, saved_renders=[load_image(p) for p in pngs[:n]], vgg_params=params.vgg,
-                         reference=reference)
+                         stylize_info=info, saved_renders=[load_render(p, background) for p in pngs[:n]],
+                         vgg_params=params.vgg, reference=reference, background=background)
     record = {"experiment": args.experiment, "scene": exp.scene, "colormatch": exp.colormatch,
               "transfer": spec.transfer, "method": exp.method, "styles": styles, **res.metrics}
     write_evaluation(args.out, args.headline, record, res)

@@ -38,6 +38,9 @@ def main(args, params) -> None:
     colmap = layout.ColmapDir(args.colmap)
     scene = read_colmap_scene(colmap.sparse, colmap.images)
     fit = params.scene_section(args.scene, "fit")
+    background = colmap.read_background()
+    if background.object:  # an object on nothing: fitted, checked and evaluated on its own background
+        fit = fit.model_copy(update={"background": background.color})
     spec = params.data.scenes[args.scene]
     device = resolve_device(params.runtime.device)
     splat = spec.splat_path(args.source) or bare_splat(args.source, spec.format)  # a bare splat: its renders are the photos

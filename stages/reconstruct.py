@@ -48,12 +48,13 @@ def main(args, params) -> None:
         log.info("%d/%d registered, %d points, reprojection error %.3f px, %.1f s", report.registered, report.total,
                  report.points, report.mean_reprojection_error_px, report.seconds)
         return
+    background = scene.resolved_background(fmt)
     with tempfile.TemporaryDirectory() as work:  # a bare splat's renders, until the model's images/ holds them
-        source = read_source(folder, fmt, images=scene.images, background=scene.background, views=scene.views,
-                             work=work)
+        source = read_source(folder, fmt, images=scene.images, background=background.color if background.object else None,
+                             views=scene.views, work=work)
         for note in source.notes:
             log.info("%s: %s", fmt, note)
-        record = write_source_model(source, args.out, options, masks_dir=folder / "masks")
+        record = write_source_model(source, args.out, options, masks_dir=folder / "masks", background=background)
     write_json(args.metrics, record.metrics())
     log.info("%s: %d views with the dataset's cameras, %d points (%s), %.1f s", fmt, record.total, record.points,
              record.points_method, record.seconds)

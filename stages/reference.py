@@ -34,7 +34,7 @@ def main(args, params) -> None:
     scene, model = read_colmap_scene(colmap.sparse, colmap.images), read_ply(args.model)
     digest = model_digest(args.model)
     ref = compute_reference(scene.cameras, model.to(resolve_device(params.runtime.device)), params.evaluate, model_digest=digest,
-                            progress=lambda keys: progress(keys, "flows"))
+                            progress=lambda keys: progress(keys, "flows"), background=colmap.read_background())
     save_reference(args.out, ref)
     log.info("%d views, %d flows; %s", len(ref.view_names), len(ref.flows),
              ", ".join(f"{k} {v:.1f} s" for k, v in ref.timings_s.items()))

@@ -45,6 +45,7 @@ def main(args, params) -> None:
     device = resolve_device(params.runtime.device)
     colmap = layout.ColmapDir(args.colmap)
     scene, original = read_colmap_scene(colmap.sparse, colmap.images), read_ply(args.model)
+    background = colmap.read_background()
     matched = read_colormatch(args.colormatch, exp.colormatch)
     masks = load_scene_masks(args.masks, scene, original.num_gaussians, device=device)
     original, matched = original.to(device), matched.to(device)
@@ -53,10 +54,11 @@ def main(args, params) -> None:
     groups = load_groups(spec, vgg, masks.gaussian_labels, styles.paintings(params.data.styles),
                          styles.label_maps(params.data.style_masks), params.isolation, sp)
     with torch_threads(sp.compute.threads):
-        res = stylize_scene(matched, original, scene.cameras, masks, groups, vgg, sp, method=exp.method)
+        res = stylize_scene(matched, original, scene.cameras, masks, groups, vgg, sp, method=exp.method,
+                            background=background)
         written = write_stylized_scene(
             args.out, res.model, original, scene.cameras, masks.view_labels, groups, backend=sp.compute.backend,
-            path_kind=params.viewer.camera_path, path_frames=params.viewer.path_frames)
+            path_kind=params.viewer.camera_path, path_frames=params.viewer.path_frames, background=background)
     write_history(args.history, res.history)
     write_metrics(args.metrics, {
         "experiment": args.experiment, "method": exp.method, "colormatch": exp.colormatch, "transfer": spec.transfer,

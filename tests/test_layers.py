@@ -27,7 +27,7 @@ FLOORS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "abcgs.io", "abcgs.io.atomic", "abcgs.io.digest", "abcgs.io.images", "abcgs.io.metrics", "abcgs.io.tables",
     )),
     ("rendering", ("abcgs.render", "abcgs.gaussians", "abcgs.io.ply", "abcgs.io.spz", "abcgs.viz",
-                   "abcgs.camera_paths")),
+                   "abcgs.camera_paths", "abcgs.silhouette")),
     ("scenes and features", ("abcgs.sfm", "abcgs.scene", "abcgs.layout", "abcgs.features")),
     ("losses", ("abcgs.losses",)),
     ("methods", ("abcgs.fit", "abcgs.splats", "abcgs.sources", "abcgs.masks", "abcgs.stylize", "abcgs.evaluation")),

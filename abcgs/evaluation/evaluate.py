@@ -48,6 +48,7 @@ from abcgs.evaluation.content import (
     package_version,
 )
 from abcgs.evaluation.fid import PATCH_PROTOCOL, FidKid, TFInception, fid_kid
+from abcgs.evaluation.objects import ObjectScores, object_scores
 from abcgs.evaluation.pairs import ViewPairs, index_pairs
 from abcgs.evaluation.parallel import resolve_workers
 from abcgs.evaluation.params import EvalParams
@@ -57,6 +58,7 @@ from abcgs.evaluation.reference import (
     compute_floor,
     evaluated_cameras,
     pairs_for,
+    render_alphas,
     render_views,
 )
 from abcgs.evaluation.style_distance import GRAM_DEFINITION, GramScores, gram_scores
@@ -66,7 +68,7 @@ from abcgs.io.images import save_image
 from abcgs.io.metrics import experiment_headline, read_record, write_headline, write_metrics
 from abcgs.io.tables import write_csv
 from abcgs.layout import ExperimentOut, StylizeDir
-from abcgs.types import Backend
+from abcgs.types import FRAME_FILLING, Backend, Background
 from abcgs.viz import image_grid
 
 log = logging.getLogger(__name__)
@@ -235,6 +237,8 @@ class EvalResult:
     """Largest RMSE between a re-render and the stylize stage's 8-bit PNG of the view (~quantisation noise)."""
     reference: ReferenceUse | None = None
     """The stored reference the original renders and flows came from, when one was used."""
+    objects: ObjectScores | None = None
+    """An object scene's own metrics (:mod:`abcgs.evaluation.objects`); None for a frame-filling scene."""
 
     @property
     def metrics(self) -> dict:
@@ -242,7 +246,13 @@ class EvalResult:
 
     @property
     def per_view(self) -> list[dict]:
-        return view_rows(self.images)
+        rows = view_rows(self.images)
+        if self.objects is not None:
+            o = self.objects
+            for row, ssim, change, iou in zip(rows, o.per_view_ssim, o.per_view_background_change,
+                                              o.per_view_silhouette_iou):
+                row.update(ssim_object=ssim, background_change=change, silhouette_iou=iou)
+        return rows
 
 
 # ------------------------------------------------------------------------------------------------ the metrics
@@ -382,50 +392,63 @@ def evaluate_scene(
     stylize_info: dict | None = None,
     saved_renders: list[np.ndarray] | None = None,
     reference: SceneReference | None = None,
+    background: Background = FRAME_FILLING,
     **kwargs,
 ) -> EvalResult:
     """Render both scenes for ``cameras`` (first ``params.max_views``), compute all metrics, time rendering.
 
     ``reference``: the original scene's stored renders and flows (the per-scene ``reference`` stage; see
     :mod:`abcgs.evaluation.reference`), used instead of rendering ``original`` and estimating flows here.
+    ``background``: the scene's; both scenes render on an object scene's colour, and its object metrics are added
+    (:mod:`abcgs.evaluation.objects`).
     """
     if params.num_threads is not None:
         old = torch.get_num_threads()
         torch.set_num_threads(params.num_threads)
         try:
             return _evaluate_scene(cameras, original, stylized, style_images, params, stylize_info=stylize_info,
-                                   saved_renders=saved_renders, reference=reference, **kwargs)
+                                   saved_renders=saved_renders, reference=reference, background=background, **kwargs)
         finally:
             torch.set_num_threads(old)
     return _evaluate_scene(cameras, original, stylized, style_images, params, stylize_info=stylize_info,
-                           saved_renders=saved_renders, reference=reference, **kwargs)
+                           saved_renders=saved_renders, reference=reference, background=background, **kwargs)
 
 
 def _evaluate_scene(cameras: list[Camera], original: GaussianModel, stylized: GaussianModel,
                     style_images: list[np.ndarray], params: EvalParams, *, stylize_info: dict | None = None,
                     saved_renders: list[np.ndarray] | None = None, reference: SceneReference | None = None,
-                    **kwargs) -> EvalResult:
+                    background: Background = FRAME_FILLING, **kwargs) -> EvalResult:
     cams = evaluated_cameras(cameras, params)
     t = time.perf_counter()
+    ref_alphas = None
     if reference is not None:
         if reference.view_names != [c.name for c in cams]:
             raise InputError("the evaluation reference was made for other views; re-run the reference stage")
+        if reference.info.get("background", Background().to_json()) != background.to_json():
+            raise InputError("the evaluation reference was rendered on another background than the scene's; re-run "
+                             "the reference stage")
         originals, backend = reference.originals, reference.info.get("render_backend", "stored")
+        ref_alphas = reference.alphas
         kwargs.update(flows=reference.flow_cache(), pairs=reference.pairs, floor=reference.floor)
     else:
-        originals, backend = render_views(original, cams, params.backend)
+        originals, backend = render_views(original, cams, params.backend, background)
         kwargs.setdefault("pairs", pairs_for(cams, params))
-    styl, backend_s = render_views(stylized, cams, params.backend)
+    styl, backend_s = render_views(stylized, cams, params.backend, background)
     render_s = time.perf_counter() - t
     # the stylize stage's PNGs must be these views (fail before the slow metrics)
     saved_rmse = saved_renders_rmse(styl, saved_renders) if saved_renders is not None else None
     speed = render_speed(stylized, cams, params, backend_s)
     res = evaluate_images(originals, styl, style_images, params, view_names=[Path(c.name).stem for c in cams],
                           device=stylized.device, **kwargs)
+    objects = None
+    if background.object:
+        ref_alphas = ref_alphas if ref_alphas is not None else render_alphas(original, cams, params.backend)
+        objects = object_scores(originals, styl, ref_alphas, render_alphas(stylized, cams, params.backend),
+                                res.images.short, res.images.long)
     return EvalResult(
         res.images, speed, render_s, (backend, backend_s),
         StylizeTiming.of_record(stylize_info) if stylize_info is not None else None, saved_rmse,
-        None if reference is None else ReferenceUse.of(reference),
+        None if reference is None else ReferenceUse.of(reference), objects,
     )
 
 
@@ -544,6 +567,8 @@ def eval_record(res: EvalResult) -> dict:
         record.setdefault("speed", {}).update({"stylize_seconds": st.seconds, "iterations": st.iterations,
                                                "seconds_per_iteration": st.seconds_per_iteration,
                                                "n_gaussians": st.n_gaussians})
+    if res.objects is not None:
+        record.update(res.objects.record())
     if res.saved_renders_rmse is not None:
         record["saved_renders_rmse"] = res.saved_renders_rmse  # re-render vs stylize's 8-bit PNGs: ~quantisation noise
     return record

@@ -10,7 +10,8 @@ On disk (one folder per scene)::
 
     reference.json   view names and sizes, the pairs (:class:`~abcgs.evaluation.pairs.ViewPairs`), the floor,
                      which flows, settings they were made with, provenance
-    renders.npz      view_0000 … : (H_i, W_i, 3) float32 renders in [0, 1] (exact, not 8-bit)
+    renders.npz      view_0000 … : (H_i, W_i, 3) float32 renders in [0, 1] (exact, not 8-bit), on the scene's
+                     background; alpha_0000 … : (H_i, W_i) float32 their alpha (object scenes)
     flows.npz        i_j_H_W : (H, W, 2) float32 flow from view i to view j on the grid (H, W)
 
 The arrays stay float32, so metrics computed from a stored reference equal those computed in memory.
@@ -34,9 +35,10 @@ from abcgs.evaluation.pairs import ViewPairs, consistency_pairs
 from abcgs.evaluation.params import EvalParams
 from abcgs.gaussians import GaussianModel, render
 from abcgs.io.atomic import atomic_path, write_json
-from abcgs.types import Backend
+from abcgs.silhouette import background_tensor
+from abcgs.types import FRAME_FILLING, Backend, Background
 
-REFERENCE_VERSION = 2
+REFERENCE_VERSION = 3
 FLOW_SETTINGS = ("flow", "raft_weights", "raft_iterations", "pairs", "short_term_gap", "long_term_gap", "max_views",
                  "backend")
 """The ``evaluate`` settings a reference is made with; ``dvc.yaml``'s reference stage tracks these keys."""
@@ -56,6 +58,8 @@ class SceneReference:
     pairs: ViewPairs
     floor: WarpFloor
     """Per kind (``short``, ``long``) the unstylized scene's mean warp RMSE and per pair (:func:`compute_floor`)."""
+    alphas: list[np.ndarray] | None = None
+    """An object scene's original alpha ``(H_i, W_i)`` float32 per view (:mod:`abcgs.evaluation.objects`); else None."""
     info: dict = field(default_factory=dict)
     """What ``reference.json`` stores: views, settings, pairs, floor, provenance. Deterministic: the folder's hash
     is a dependency of every evaluation of the scene."""
@@ -75,14 +79,23 @@ def settings_of(params: EvalParams) -> dict:
 
 
 @torch.no_grad()
-def render_views(model: GaussianModel, cameras: list[Camera], backend: Backend) -> tuple[list[np.ndarray], str]:
-    """Renders ``(H, W, 3)`` float32 clamped to [0, 1] and the backend that made them."""
+def render_views(model: GaussianModel, cameras: list[Camera], backend: Backend,
+                 background: Background = FRAME_FILLING) -> tuple[list[np.ndarray], str]:
+    """Renders ``(H, W, 3)`` float32 clamped to [0, 1] (an object scene's on its ``background`` colour) and the
+    backend that made them."""
     imgs, used = [], backend
+    bg = background_tensor(background, model.means) if background.object else None
     for cam in cameras:
-        img, _, meta = render(model, cam, backend=backend)
+        img, _, meta = render(model, cam, backend=backend, background=bg)
         imgs.append(img.clamp(0, 1).cpu().numpy().astype(np.float32))
         used = meta.backend
     return imgs, used
+
+
+@torch.no_grad()
+def render_alphas(model: GaussianModel, cameras: list[Camera], backend: Backend) -> list[np.ndarray]:
+    """The alpha ``(H, W)`` float32 of ``model`` in each of ``cameras``."""
+    return [render(model, cam, backend=backend)[1][..., 0].cpu().numpy().astype(np.float32) for cam in cameras]
 
 
 def evaluated_cameras(cameras: list[Camera], params: EvalParams) -> list[Camera]:
@@ -165,13 +178,15 @@ def compute_floor(originals: list[np.ndarray], pairs: ViewPairs, flows: FlowCach
 
 
 def compute_reference(cameras: list[Camera], original: GaussianModel, params: EvalParams, *,
-                      model_digest: str | None = None, progress=None) -> SceneReference:
-    """Render the original scene for the evaluated views, pick the consistency pairs, estimate every flow they
-    need and measure the floor."""
+                      model_digest: str | None = None, progress=None,
+                      background: Background = FRAME_FILLING) -> SceneReference:
+    """Render the original scene for the evaluated views (on an object scene's ``background``, with its alphas),
+    pick the consistency pairs, estimate every flow they need and measure the floor."""
     cams = evaluated_cameras(cameras, params)
     pairs = pairs_for(cams, params)
     t = time.perf_counter()
-    originals, backend = render_views(original, cams, params.backend)
+    originals, backend = render_views(original, cams, params.backend, background)
+    alphas = render_alphas(original, cams, params.backend) if background.object else None
     render_s = time.perf_counter() - t
     flows = FlowCache(originals, make_flow_estimator(params.flow, params.raft_weights, params.raft_iterations))
     t = time.perf_counter()
@@ -186,10 +201,11 @@ def compute_reference(cameras: list[Camera], original: GaussianModel, params: Ev
         "sizes": [list(np.shape(o)[:2]) for o in originals], "settings": settings_of(params),
         "pairs": pairs.to_json(), "floor": floor.to_json(),
         "render_backend": backend, "flow_provenance": flows.provenance(), "n_flows": len(keys),
-        "model_digest": model_digest,
+        "model_digest": model_digest, "background": background.to_json(),
     }
     timings = {"render": render_s, "flow": flow_s, "floor": time.perf_counter() - t}
-    return SceneReference([c.name for c in cams], originals, {k: flows(*k) for k in keys}, pairs, floor, info, timings)
+    return SceneReference([c.name for c in cams], originals, {k: flows(*k) for k in keys}, pairs, floor, alphas, info,
+                          timings)
 
 
 def model_digest(path: Path) -> str:
@@ -200,7 +216,8 @@ def model_digest(path: Path) -> str:
 def save_reference(folder: Path, ref: SceneReference) -> None:
     """Write ``ref`` to ``folder`` atomically (a half-written reference never appears)."""
     with atomic_path(folder, is_dir=True) as tmp:
-        np.savez(tmp / "renders.npz", **{f"view_{k:04d}": o for k, o in enumerate(ref.originals)})
+        np.savez(tmp / "renders.npz", **{f"view_{k:04d}": o for k, o in enumerate(ref.originals)},
+                 **{f"alpha_{k:04d}": a for k, a in enumerate(ref.alphas or [])})
         np.savez(tmp / "flows.npz", **{f"{i}_{j}_{h}_{w}": f for (i, j, (h, w)), f in ref.flows.items()})
         write_json(tmp / "reference.json", ref.info)
 
@@ -228,6 +245,7 @@ def load_reference(folder: Path, cameras: list[Camera], params: EvalParams, *, m
         raise InputError(f"{folder} was rendered from another fit of the scene: {redo}")
     with np.load(folder / "renders.npz") as z:
         originals = [z[f"view_{k:04d}"] for k in range(len(cams))]
+        alphas = [z[f"alpha_{k:04d}"] for k in range(len(cams))] if "alpha_0000" in z.files else None
     for k, (o, c) in enumerate(zip(originals, cams)):
         if o.shape != (c.height, c.width, 3):
             raise InputError(f"{folder}: stored render {k} is {o.shape[1]}x{o.shape[0]}, view is {c.width}x{c.height}: {redo}")
@@ -236,7 +254,7 @@ def load_reference(folder: Path, cameras: list[Camera], params: EvalParams, *, m
         for name in z.files:
             i, j, h, w = (int(v) for v in name.split("_"))
             flows[(i, j, (h, w))] = z[name]
-    ref = SceneReference(info["view_names"], originals, flows, pairs, WarpFloor.from_json(info["floor"]), info)
+    ref = SceneReference(info["view_names"], originals, flows, pairs, WarpFloor.from_json(info["floor"]), alphas, info)
     missing = [k for k in flow_pairs(originals, pairs) if k not in flows]
     if missing:
         raise InputError(f"{folder} lacks {len(missing)} flows the consistency pairs need (e.g. {missing[0]}): {redo}")

@@ -21,12 +21,14 @@ from abcgs.types import SceneLike
 
 @dataclass
 class Views:
-    """Training data in memory: cameras at the training resolution and ``(H, W, 3) float32`` image tensors."""
+    """Training data in memory: cameras at the training resolution and ``(H, W, 3) float32`` image tensors (and an
+    object's ``(H, W, 1) float32`` alpha maps, when the dataset gave them: ``alphas``)."""
 
     cameras: list[Camera]
     images: list[Tensor]
     train: list[int]
     test: list[int]
+    alphas: list[Tensor] | None = None
 
     def pick(self, indices: Sequence[int]) -> tuple[list[Camera], list[Tensor]]:
         """The cameras and images of the views ``indices``."""
@@ -55,20 +57,29 @@ def load_views(scene: SceneLike, resolution_scale: float = 1.0, test_every: int 
     if not scene.cameras:
         raise InputError("scene has no cameras")
     cams, imgs = [], []
-    for cam, path in zip(scene.cameras, scene.image_paths):
+    alpha_paths = getattr(scene, "alpha_paths", None)
+    alphas: list[Tensor] | None = None if alpha_paths is None else []
+    for k, (cam, path) in enumerate(zip(scene.cameras, scene.image_paths)):
         img = load_image(path)
         if img.shape[:2] != (cam.height, cam.width):
             raise InputError(
                 f"image {path} is {img.shape[1]}x{img.shape[0]} but its camera {cam.name} is {cam.width}x{cam.height}; "
                 "use the undistorted images written with the COLMAP model"
             )
+        alpha = None if alphas is None else load_image(alpha_paths[k])[..., :1]
+        if alpha is not None and alpha.shape[:2] != img.shape[:2]:
+            raise InputError(f"alpha map {alpha_paths[k]} is not the size of its image {path}")
         if resolution_scale != 1.0:
             cam = cam.scaled(resolution_scale)
             img = cv2.resize(img, (cam.width, cam.height), interpolation=cv2.INTER_AREA)
+            if alpha is not None:
+                alpha = cv2.resize(alpha, (cam.width, cam.height), interpolation=cv2.INTER_AREA)[..., None]
         cams.append(cam)
         imgs.append(torch.from_numpy(np.ascontiguousarray(img, dtype=np.float32)).to(device))
+        if alphas is not None:
+            alphas.append(torch.from_numpy(np.ascontiguousarray(alpha, dtype=np.float32)).to(device))
     train, test = split_views(len(cams), test_every)
-    return Views(cams, imgs, train, test)
+    return Views(cams, imgs, train, test, alphas)
 
 
 def scene_extent(camera_centers: Tensor | Any, points: Tensor | Any | None = None) -> float:

@@ -17,7 +17,7 @@ checks values and gradients against them, and the fused gradient against finite 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import torch
@@ -96,6 +96,10 @@ class LossTerms:
 
     def items(self) -> dict[str, Tensor]:
         return {"l1": self.l1, "ssim": self.ssim, "total": self.total}
+
+    def plus(self, term: Tensor) -> LossTerms:
+        """The same terms with ``term`` added to :attr:`total`."""
+        return replace(self, total=self.total + term)
 
 
 class _FusedL1Ssim(torch.autograd.Function):

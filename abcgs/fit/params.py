@@ -80,6 +80,13 @@ class FitParams(BaseModel, extra="forbid"):
     background: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="RGB in [0, 1] behind the Gaussians")
     random_background: bool = Field(False, description="a random background colour each step (3DGS option)")
     densify: bool = Field(True, description="False = keep the initial Gaussians (NoDensification)")
+    alpha_weight: float = Field(
+        1.0, ge=0.0, description="an object's RGBA dataset: weight of the mean |α − α_gt| between the render's alpha "
+        "and the dataset's, added to the photometric loss, so that empty space is learnt empty rather than as haze of "
+        "the background colour (no effect on scenes without alpha maps)")
+    color_only: bool = Field(False, description="optimise only the colours (sh0, shN): means, scales, rotations and "
+                             "opacities stay bit-identical, and nothing densifies (the colour match's re-fit under "
+                             "stylize.color_only)")
     strategy: StrategyParams = Field(default_factory=StrategyParams)
     scale_schedule: bool = Field(
         False, description=f"multiply the strategy's step counts by iterations / {REFERENCE_ITERATIONS}"

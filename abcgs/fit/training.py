@@ -29,11 +29,13 @@ from abcgs.fit.evaluation import Evaluation, evaluate
 from abcgs.fit.losses import LossTerms, reconstruction_loss
 from abcgs.fit.params import FitParams
 from abcgs.fit.strategy import DefaultStrategy, NoDensification, Optimizers, RefineReport, Strategy
-from abcgs.gaussians import PARAM_NAMES, GaussianModel, render
+from abcgs.gaussians import PARAM_NAMES, GaussianModel, freeze_gaussians, render
+from abcgs.losses.terms import silhouette_loss
 from abcgs.progress import progress as progress_bar
 from abcgs.render import select_backend
 from abcgs.render.cpu import kernel_threads
 from abcgs.runtime import resolve_device, torch_threads
+from abcgs.silhouette import over, unpremultiply
 from abcgs.types import Backend, SceneLike
 
 log = logging.getLogger(__name__)
@@ -84,7 +86,8 @@ class FitResult:
 
 
 def make_optimizers(model: GaussianModel, params: FitParams, extent: float) -> Optimizers:
-    """One Adam (eps = 1e-15, as 3DGS) per parameter tensor with the 3DGS learning rates."""
+    """One Adam (eps = 1e-15, as 3DGS) per parameter tensor with the 3DGS learning rates; with ``color_only`` only
+    for the colours (the other tensors then take no gradient)."""
     lrs = {
         "means": params.lr_means * extent,
         "quats": params.lr_quats,
@@ -93,7 +96,10 @@ def make_optimizers(model: GaussianModel, params: FitParams, extent: float) -> O
         "sh0": params.lr_sh0,
         "shN": params.lr_shN,
     }
-    return {name: torch.optim.Adam([getattr(model, name)], lr=lrs[name], eps=1e-15) for name in PARAM_NAMES}
+    names = ("sh0", "shN") if params.color_only else PARAM_NAMES
+    for name in set(PARAM_NAMES) - set(names):
+        getattr(model, name).requires_grad_(False)
+    return {name: torch.optim.Adam([getattr(model, name)], lr=lrs[name], eps=1e-15) for name in names}
 
 
 def means_lr(step: int, params: FitParams, extent: float) -> float:
@@ -104,7 +110,7 @@ def means_lr(step: int, params: FitParams, extent: float) -> float:
 
 def make_strategy(params: FitParams, extent: float, generator: torch.Generator | None = None) -> Strategy:
     """The strategy ``params`` asks for: 3DGS densification (:class:`DefaultStrategy`), or none (``densify: false``)."""
-    if not params.densify:
+    if not params.densify or params.color_only:
         return NoDensification()
     return DefaultStrategy(params.strategy_params(), extent, params.max_gaussians, generator)
 
@@ -154,6 +160,7 @@ def fit(
     initial: GaussianModel | None = None,
     strategy: Strategy | None = None,
     device: torch.device | None = None,
+    frozen: torch.Tensor | None = None,
 ) -> FitResult:
     """Fit 3-D Gaussians to ``scene`` (cameras, image paths, SfM points and colours).
 
@@ -165,6 +172,8 @@ def fit(
             the SfM points. strategy: override the densification strategy built from ``params``.
         device: where to train (``runtime.device`` resolved); default: the device of ``views`` when given, else
             :func:`abcgs.runtime.resolve_device` of ``auto``.
+        frozen: ``(N,)`` bool over ``initial``: Gaussians that keep their values (:func:`freeze_gaussians`); only
+            without densification.
 
     Raises:
         InputError: unusable scene (no points, image/camera size mismatch, …).
@@ -174,7 +183,7 @@ def fit(
     with torch_threads(params.threads), kernel_threads(params.rasterizer_threads):
         if device is None:
             device = views.images[0].device if views is not None and views.images else resolve_device("auto")
-        return _fit(scene, params, progress, views, initial, strategy, device)
+        return _fit(scene, params, progress, views, initial, strategy, device, frozen)
 
 
 def _fit(
@@ -185,6 +194,7 @@ def _fit(
     initial: GaussianModel | None,
     strategy: Strategy | None,
     device: torch.device,
+    frozen: torch.Tensor | None = None,
 ) -> FitResult:
     backend = select_backend(device, params.backend)
     torch.manual_seed(params.seed)
@@ -196,6 +206,10 @@ def _fit(
     model = initial.to(device).as_parameters()
     optimizers = make_optimizers(model, params, extent)
     strategy = strategy or make_strategy(params, extent, gen)
+    if frozen is not None:
+        if not isinstance(strategy, NoDensification):
+            raise ValueError("fit: frozen Gaussians need a fit without densification (the rows would move)")
+        freeze_gaussians(model, frozen)
     state = strategy.initialize_state(model)
     fixed_bg = torch.tensor(params.background, dtype=torch.float32, device=device)
     test_cams, test_imgs = views.pick(views.test)
@@ -208,16 +222,20 @@ def _fit(
     bar = progress_bar(range(1, params.iterations + 1), "fit", enabled=progress)
     for step in bar:
         t0 = time.perf_counter()
-        for group in optimizers["means"].param_groups:
+        for group in optimizers["means"].param_groups if "means" in optimizers else ():
             group["lr"] = means_lr(step, params, extent)
         idx = next(order)
         cam, gt = views.cameras[idx], views.images[idx]
         bg = torch.rand(3, generator=gen, device=device) if params.random_background else fixed_bg
         degree = min(params.sh_degree, step // params.sh_degree_interval)
 
-        image, _, meta = render(model, cam, backend=backend, sh_degree=degree, background=bg)
+        if views.alphas is not None and params.random_background:  # the dataset's object on this step's colour
+            gt = over(unpremultiply(gt, views.alphas[idx], fixed_bg), views.alphas[idx], bg)
+        image, alpha, meta = render(model, cam, backend=backend, sh_degree=degree, background=bg)
         strategy.step_pre_backward(model, optimizers, state, step, meta)
         terms = reconstruction_loss(image, gt, params.ssim_lambda)
+        if views.alphas is not None and params.alpha_weight > 0:
+            terms = terms.plus(params.alpha_weight * silhouette_loss(alpha, views.alphas[idx]))
         _check_finite(terms, step, cam, model.num_gaussians)
         terms.total.backward()
         _optimizer_step(optimizers)

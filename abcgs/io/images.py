@@ -14,6 +14,7 @@ import numpy as np
 
 from abcgs.errors import InputError
 from abcgs.io.atomic import write_bytes
+from abcgs.types import Background
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 
@@ -53,6 +54,19 @@ def load_image(path: str | os.PathLike) -> np.ndarray:
     return (img.astype(np.float32) / scale).clip(0.0, 1.0)
 
 
+def load_render(path: str | os.PathLike, background: Background) -> np.ndarray:
+    """A render the pipeline wrote, ``(H, W, 3) float32``: as :func:`load_image`, except that a straight-alpha RGBA
+    file of a transparent ``background`` is composited on black (the colour renders are made on)."""
+    if not background.transparent:
+        return load_image(path)
+    raw = cv2.imdecode(np.fromfile(str(path), dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    if raw is None or raw.ndim != 3 or raw.shape[2] != 4:
+        raise InputError(f"render {path} is not an RGBA image, but the scene's background is transparent; re-run "
+                         "the stylize stage")
+    rgba = cv2.cvtColor(raw, cv2.COLOR_BGRA2RGBA).astype(np.float32) / (65535.0 if raw.dtype == np.uint16 else 255.0)
+    return (rgba[..., :3] * rgba[..., 3:]).clip(0.0, 1.0)
+
+
 def load_labels(path: str | os.PathLike, *, expect_hw: tuple[int, int] | None = None) -> np.ndarray:
     """Read a label PNG as ``(H, W) int64``.
 
@@ -83,11 +97,11 @@ def to_uint8(img: np.ndarray) -> np.ndarray:
 
 
 def save_image(path: str | os.PathLike, img: np.ndarray) -> None:
-    """Write an RGB float ``[0, 1]`` or uint8 image (PNG/JPEG by suffix), atomically."""
+    """Write an RGB (or RGBA, straight alpha) float ``[0, 1]`` or uint8 image (PNG/JPEG by suffix), atomically."""
     path = Path(path)
     arr = img if img.dtype == np.uint8 else to_uint8(img)
     if arr.ndim == 3:
-        arr = cv2.cvtColor(arr, cv2.COLOR_RGB2BGR)
+        arr = cv2.cvtColor(arr, cv2.COLOR_RGBA2BGRA if arr.shape[2] == 4 else cv2.COLOR_RGB2BGR)
     ok, buf = cv2.imencode(path.suffix or ".png", arr)
     if not ok:
         raise InputError(f"could not encode image for {path}")

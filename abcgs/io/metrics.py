@@ -65,7 +65,9 @@ trained on, against the photos), its size and wall time."""
 EXPERIMENT_HEADLINE: dict[str, str] = {
     "content_ssim": "ssim", "short_rmse": "short_rmse", "long_rmse": "long_rmse", "short_rmse_floor": "short_rmse_floor",
     "long_rmse_floor": "long_rmse_floor", "short_lpips": "short_lpips", "long_lpips": "long_lpips",
-    "gram_distance": "gram_distance", "kid": "kid", "artfid": "artfid", "stylize_minutes": "stylize_minutes"}
+    "gram_distance": "gram_distance", "kid": "kid", "artfid": "artfid", "stylize_minutes": "stylize_minutes",
+    # object scenes only (abcgs.evaluation.objects): absent from a frame-filling scene's record
+    "content_ssim_object": "ssim_object", "background_change": "background_change", "silhouette_iou": "silhouette_iou"}
 """Per experiment, headline name → key of the evaluate record: content (SSIM between the original and the stylized
 renders), consistency (warp RMSE, the unstylized scene's warp RMSE over the same pairs — the floor the stylized
 number is read against — and the perceptual distance), style (Gram distance, KID, ArtFID) and stylization

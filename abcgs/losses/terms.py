@@ -11,6 +11,8 @@ losses are summed, like FAST's.
 - :func:`content_loss` — MSE over all feature elements (ARF/ABC-GS code's convention: mean over
   channels and pixels; the paper writes a sum over channels / pixels, which is C × this).
 - :func:`tv_loss` — mean squared differences of horizontally and vertically adjacent pixels (ARF).
+- :func:`silhouette_loss`, :func:`background_loss` — an object scene's hold on its silhouette and its empty space
+  (:mod:`abcgs.silhouette`).
 """
 
 from __future__ import annotations
@@ -148,3 +150,18 @@ def style_loss(
     if method == "gram":
         return gram_loss(groups)
     raise InputError(f"unknown style loss {method!r}; choose one of fast, nnfm, knnfm, gram")
+
+
+def silhouette_loss(alpha: torch.Tensor, ref_alpha: torch.Tensor) -> torch.Tensor:
+    """Mean ``|α − α_ref|`` over the pixels of a render's alpha ``(H, W, 1)`` and the original scene's: holds an
+    object's silhouette (no Gaussian grows or spreads into empty space, none fades from the object)."""
+    return (alpha - ref_alpha).abs().mean()
+
+
+def background_loss(image: torch.Tensor, background: torch.Tensor, empty: torch.Tensor) -> torch.Tensor:
+    """Mean ``|image − background|`` over the ``empty`` ``(H, W)`` pixels of a render ``(H, W, 3)`` composited on
+    ``background`` ``(3,)``: what a faint Gaussian would add there (a brightened or recoloured haze) is penalised;
+    0 when no pixel is empty."""
+    if not bool(empty.any()):
+        return image.sum() * 0.0
+    return (image[empty] - background).abs().mean()

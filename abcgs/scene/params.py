@@ -23,9 +23,11 @@ class TinySceneParams(BaseModel, extra="forbid"):
     wall_depth: float = Field(6.0, gt=1.0, description="distance of the back wall from the camera plane")
     supersample: int = Field(2, ge=1, le=4, description="rays per pixel along each axis (anti-aliasing)")
     style_height: int = Field(256, ge=32, le=2048, description="height of the generated paintings in pixels")
-    layout: Literal["forward", "orbit"] = Field(
+    layout: Literal["forward", "orbit", "object"] = Field(
         "forward", description="forward: a wall behind the objects, cameras on a forward-facing grid; orbit: the "
-                               "objects inside a textured dome, cameras on a ring all around them")
+                               "objects inside a textured dome, cameras on a ring all around them; object: the objects "
+                               "on nothing (RGBA views, alpha = coverage), cameras on three rings around and above them "
+                               "(abcgs.scene.synthetic.write_object_dataset writes it as a NeRF-synthetic dataset)")
     mask_views: int = Field(0, ge=0, description="write label maps for the first this many views only (0: all); "
                                                  "e.g. 1 = one user mask to lift")
     odd_view_width_delta: int = Field(

@@ -137,7 +137,7 @@ class _Sphere:
 
 @dataclass(frozen=True)
 class _Layout:
-    wall: _Wall
+    wall: _Wall | None  # None: the object layout (nothing behind the objects)
     box: _Box
     sphere: _Sphere
     light: np.ndarray  # (3,) unit vector towards the light
@@ -157,7 +157,7 @@ def _rot_x(deg: float) -> np.ndarray:
 def scene_layout(p: TinySceneParams) -> _Layout:
     """Object placement, scaled with the wall depth (box left of centre, sphere right and nearer)."""
     d = p.wall_depth
-    wall = _Wall(depth=d, half_w=d * 1.2, half_h=d * 0.9)
+    wall = None if p.layout == "object" else _Wall(depth=d, half_w=d * 1.2, half_h=d * 0.9)
     box = _Box(center=np.array([-0.17 * d, 0.05 * d, 0.62 * d]), half=np.full(3, 0.085 * d), R=_rot_y(35.0) @ _rot_x(-20.0))
     sphere = _Sphere(center=np.array([0.14 * d, -0.02 * d, 0.45 * d]), radius=0.08 * d)
     light = np.array([-0.4, -0.6, -0.7])
@@ -253,7 +253,12 @@ def _sample(tex: np.ndarray, uv: np.ndarray) -> np.ndarray:
 def _cast(cam: Camera, lay: _Layout, tex: dict[int, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """Render one camera: RGB ``(H, W, 3) float32`` and labels ``(H, W) int64``."""
     o, d = _rays(cam)
-    t_wall, uv_wall = _hit_wall(o, d, lay.wall) if lay.dome is None else _hit_dome(o, d, lay.dome)
+    if lay.dome is not None:
+        t_wall, uv_wall = _hit_dome(o, d, lay.dome)
+    elif lay.wall is not None:
+        t_wall, uv_wall = _hit_wall(o, d, lay.wall)
+    else:  # the object layout: nothing behind the objects
+        t_wall, uv_wall = np.full(d.shape[0], _FAR), np.zeros((d.shape[0], 2))
     t_box, uv_box, n_box = _hit_box(o, d, lay.box)
     t_sph, uv_sph, n_sph = _hit_sphere(o, d, lay.sphere)
     ts = np.stack([np.full_like(t_wall, _FAR), t_wall, t_box, t_sph], axis=1)
@@ -287,6 +292,26 @@ def ring_cameras(p: TinySceneParams, rng: np.random.Generator) -> list[Camera]:
         width = p.width - (p.odd_view_width_delta if i % 2 else 0)
         K = intrinsics(p.focal_factor * p.width, width, p.height)
         cams.append(Camera(f"{i:03d}.png", K, look_at(eye, c, up=np.array([0.0, 1.0, 0.0])), width, p.height))
+    return cams
+
+
+def dome_cameras(p: TinySceneParams, rng: np.random.Generator) -> list[Camera]:
+    """``n_views`` cameras on three rings around :func:`orbit_center` at 10°, 25° and 40° above it (world ``-y`` is
+    up), each ring's azimuths offset from the one below, looking at it (an object captured from all round and above,
+    as NeRF-synthetic's hemisphere of views); a small seeded jitter breaks the regularity."""
+    c = orbit_center(p)
+    radius = 0.85 * p.wall_depth  # the whole object in every view
+    sizes = [p.n_views // 3 + (1 if r < p.n_views % 3 else 0) for r in range(3)]
+    cams = []
+    for r, (elev, n) in enumerate(zip((10.0, 25.0, 40.0), sizes)):
+        e = math.radians(elev)
+        for k in range(n):
+            a = 2 * math.pi * (k + 0.5 * r) / n
+            eye = c + radius * np.array([math.cos(e) * math.sin(a), -math.sin(e), -math.cos(e) * math.cos(a)])
+            eye = eye + rng.normal(0.0, 0.01 * radius, size=3)
+            K = intrinsics(p.focal_factor * p.width, p.width, p.height)
+            cams.append(Camera(f"{len(cams):03d}.png", K, look_at(eye, c, up=np.array([0.0, 1.0, 0.0])), p.width,
+                               p.height))
     return cams
 
 
@@ -411,7 +436,7 @@ def generate_tiny_scene(p: TinySceneParams | None = None) -> TinyScene:
     p = p or TinySceneParams()
     rng = np.random.default_rng(p.seed)
     layout, textures = scene_layout(p), _textures(rng, p)
-    cams = ring_cameras(p, rng) if p.layout == "orbit" else grid_cameras(p, rng)
+    cams = {"orbit": ring_cameras, "object": dome_cameras}.get(p.layout, grid_cameras)(p, rng)
     images, labels = [], []
     for cam in cams:
         rgb, lab = render_view(cam, layout, textures, p.supersample)
@@ -419,6 +444,47 @@ def generate_tiny_scene(p: TinySceneParams | None = None) -> TinyScene:
         labels.append(lab)
     styles, style_labels = make_paintings(rng, p.style_height)
     return TinyScene(images, labels, cams, styles, style_labels)
+
+
+def render_rgba(cam: Camera, layout: _Layout, textures: dict[int, np.ndarray], supersample: int) -> np.ndarray:
+    """Straight-alpha RGBA ``(H, W, 4) float32`` of the object layout: alpha is the share of the ``supersample²`` rays
+    per pixel that hit an object, the colour their mean."""
+    s = max(1, supersample)
+    rgb, labels = _cast(cam.scaled(s) if s > 1 else cam, layout, textures)
+    hit = (labels > 0).astype(np.float32)[..., None]
+    alpha = hit.reshape(cam.height, s, cam.width, s, 1).mean(axis=(1, 3))
+    premult = (rgb * hit).reshape(cam.height, s, cam.width, s, 3).mean(axis=(1, 3))
+    color = np.where(alpha > 0, premult / np.maximum(alpha, 1e-6), 0.0)
+    return np.concatenate([color, alpha], axis=-1).astype(np.float32)
+
+
+OPENGL_AXES = np.diag([1.0, -1.0, -1.0, 1.0])
+"""OpenCV camera axes → OpenGL/Blender ones (y up, z backwards)."""
+
+
+def write_object_dataset(out_dir: str | os.PathLike, params: TinySceneParams | None = None) -> Path:
+    """The object layout (``params.layout`` is set to ``object``) as a NeRF-synthetic dataset, atomically:
+    ``train/NNN.png`` straight-alpha RGBA views, ``transforms_train.json`` (``camera_angle_x``, OpenGL
+    camera-to-world matrices) and the paintings in ``styles/``. The object is the tiny scene's box and sphere on
+    nothing, seen from three rings of views around and above it."""
+    p = (params or TinySceneParams()).model_copy(update={"layout": "object"})
+    rng = np.random.default_rng(p.seed)
+    layout, textures = scene_layout(p), _textures(rng, p)
+    cams = dome_cameras(p, rng)
+    styles, style_labels = make_paintings(rng, p.style_height)
+    with atomic_path(out_dir, is_dir=True) as tmp:
+        frames = []
+        for cam in cams:
+            stem = Path(cam.name).stem
+            save_image(tmp / "train" / f"{stem}.png", render_rgba(cam, layout, textures, p.supersample))
+            frames.append({"file_path": f"./train/{stem}", "rotation": 0.0,
+                           "transform_matrix": (np.linalg.inv(cam.viewmat) @ OPENGL_AXES).tolist()})
+        angle = 2 * math.atan(p.width / (2 * p.focal_factor * p.width))
+        write_json(tmp / "transforms_train.json", {"camera_angle_x": angle, "frames": frames})
+        for name, img in styles.items():
+            save_image(tmp / "styles" / f"{name}.png", img)
+        save_labels(tmp / "styles" / "paint_labels.png", style_labels)
+    return Path(out_dir)
 
 
 def cameras_to_json(cams: list[Camera]) -> dict:

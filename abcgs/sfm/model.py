@@ -38,12 +38,15 @@ class SceneData:
         image_paths: the image file of each camera, same order.
         points: ``(M, 3) float32`` sparse SfM points in world coordinates.
         colors: ``(M, 3) float32`` their RGB colours in ``[0, 1]``.
+        alpha_paths: the object's alpha map of each view (single-channel PNG, 0 = empty), same order, when the
+            dataset gave one (RGBA views: ``alpha/`` beside ``images/``, :mod:`abcgs.sources.model`); else None.
     """
 
     cameras: list[Camera]
     image_paths: list[Path]
     points: np.ndarray
     colors: np.ndarray
+    alpha_paths: list[Path] | None = None
 
 
 @dataclass(frozen=True)
@@ -189,7 +192,11 @@ def read_colmap_scene(model_dir: str | os.PathLike, images_dir: str | os.PathLik
         raise InputError(f"{len(missing)} image(s) of the model are missing from {images_dir}: {', '.join(missing[:10])}")
     order = _pycolmap_point_order(model_dir, ids)
     xyz, rgb = xyz[order], rgb[order]
-    return SceneData(cameras, paths, xyz.astype(np.float32), (rgb / 255.0).astype(np.float32))
+    alpha_dir = images_dir.parent / "alpha"
+    alphas = [alpha_dir / c.name for c in cameras] if alpha_dir.is_dir() else None
+    if alphas is not None and not all(p.is_file() for p in alphas):
+        raise InputError(f"{alpha_dir} lacks the alpha map of some views; re-run the reconstruct stage")
+    return SceneData(cameras, paths, xyz.astype(np.float32), (rgb / 255.0).astype(np.float32), alphas)
 
 
 def _pycolmap_point_order(model_dir: Path, ids: list[int]) -> np.ndarray:

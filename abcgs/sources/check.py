@@ -27,7 +27,7 @@ def check_scene_sources(params, root: Path, produced: Iterable[str] = ()) -> lis
             fmt = resolve_format(folder, scene.format, scene.images)
             if fmt in ("photos", "splat"):
                 continue
-            source = read_source(folder, fmt, images=scene.images, background=scene.background)
+            source = read_source(folder, fmt, images=scene.images, background=scene.resolved_background(fmt).color)
         except InputError as exc:
             raise InputError(f"data.scenes.{name}: {exc}") from None
         warnings += [f"data.scenes.{name}: {note}" for note in source.notes]

@@ -51,6 +51,7 @@ from abcgs.sfm.params import ReconstructParams
 from abcgs.sources.base import SourceScene, SourceView
 from abcgs.sources.lens import colmap_camera
 from abcgs.sources.validate import axes_meeting_point
+from abcgs.types import Background
 
 log = logging.getLogger(__name__)
 
@@ -87,12 +88,13 @@ class SourceReport:
         return data
 
 
-def _stage_image(view: SourceView, dst: Path, background: tuple[float, float, float] | None) -> None:
-    """Copy the view's image to ``dst``, or composite an RGBA image on ``background`` (written as PNG)."""
+def _stage_image(view: SourceView, dst: Path, background: tuple[float, float, float] | None) -> np.ndarray | None:
+    """Copy the view's image to ``dst``, or composite an RGBA image on ``background`` (written as PNG); returns the
+    RGBA image's alpha ``(H, W)`` float32, else None."""
     dst.parent.mkdir(parents=True, exist_ok=True)
     if background is None:
         shutil.copyfile(view.image_path, dst)
-        return
+        return None
     raw = cv2.imdecode(np.fromfile(str(view.image_path), np.uint8), cv2.IMREAD_UNCHANGED)
     if raw is None:
         raise InputError(f"image {view.image_path} could not be decoded; replace it")
@@ -101,8 +103,9 @@ def _stage_image(view: SourceView, dst: Path, background: tuple[float, float, fl
         rgba = cv2.cvtColor(raw, cv2.COLOR_BGRA2RGBA).astype(np.float32) / scale
         alpha = rgba[..., 3:4]
         save_image(dst, rgba[..., :3] * alpha + np.asarray(background, np.float32) * (1.0 - alpha))
-    else:
-        save_image(dst, load_image(view.image_path))
+        return alpha[..., 0]
+    save_image(dst, load_image(view.image_path))
+    return None
 
 
 def _camera(view: SourceView, camera_id: int) -> pycolmap.Camera:
@@ -272,8 +275,9 @@ def _masks(source: SourceScene, masks_dir: Path | None, dist: dict[str, pycolmap
 
 
 def write_source_model(source: SourceScene, out_dir: str | os.PathLike, params: ReconstructParams,
-                       masks_dir: str | os.PathLike | None = None) -> SourceReport:
-    """Write ``out_dir`` (module docstring) atomically for ``source``; ``masks_dir``: the scene's label PNGs."""
+                       masks_dir: str | os.PathLike | None = None, background: Background | None = None) -> SourceReport:
+    """Write ``out_dir`` (module docstring) atomically for ``source``; ``masks_dir``: the scene's label PNGs;
+    ``background``: the scene's, recorded as ``background.json`` (:meth:`abcgs.layout.ColmapDir.read_background`)."""
     t0 = time.perf_counter()
     views = list(source.views)
     masks_dir = Path(masks_dir) if masks_dir is not None and Path(masks_dir).is_dir() else None
@@ -282,9 +286,14 @@ def write_source_model(source: SourceScene, out_dir: str | os.PathLike, params: 
     pycolmap.set_random_seed(params.seed)
     with tempfile.TemporaryDirectory(prefix="abcgs-source-") as scratch, atomic_path(out_dir, is_dir=True) as tmp:
         work = Path(scratch)
+        if background is not None:
+            write_json(tmp / "background.json", background.to_json())
         staged = work / "images"
-        for v in views:
-            _stage_image(v, staged / v.name, source.background)
+        alphas = {v.name: _stage_image(v, staged / v.name, source.background) for v in views}
+        if background is not None and background.object and not distorted and all(
+                a is not None for a in alphas.values()):  # an object's RGBA views: their alpha supervises the fit
+            for name, a in alphas.items():
+                save_image(tmp / "alpha" / name, a)
         rec = posed_model(views)
         if distorted:
             model_dir = work / "model"

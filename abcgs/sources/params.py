@@ -11,7 +11,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from abcgs.sections import NAME_RE
 from abcgs.splats.params import SplatFormatParam, SplatViewsParams
-from abcgs.types import SceneFormat
+from abcgs.types import Background, SceneFormat
 
 
 class SceneParams(BaseModel):
@@ -34,8 +34,11 @@ class SceneParams(BaseModel):
         "auto", description="where the cameras come from; auto = detected from the folder's files (abcgs/sources/detect.py)")
     images: str | None = Field(
         None, description="image subfolder (default images/), e.g. images_8 beside a full-size COLMAP model or LLFF poses")
-    background: tuple[float, float, float] | None = Field(
-        None, description="RGB in [0, 1] that RGBA views are composited on (blender; default white)")
+    background: tuple[float, float, float] | Literal["transparent"] | None = Field(
+        None, description="an object on nothing: RGB in [0, 1] behind it in every render and loss (RGBA views are "
+        "composited on it), or transparent (RGBA renders); colour match and stylization then act on the object only "
+        "and keep empty space empty. Default: white for blender, black for a bare splat, none (a frame-filling scene) "
+        "otherwise (resolved_background)")
     reconstruct: dict[str, Any] = Field(default_factory=dict, description="overrides of `reconstruct` for this scene")
     fit: dict[str, Any] = Field(default_factory=dict, description="overrides of `fit` for this scene")
     masks: dict[str, Any] = Field(default_factory=dict, description="overrides of `masks` for this scene")
@@ -66,10 +69,24 @@ class SceneParams(BaseModel):
             raise ValueError(f"images: {v!r} must be the name of a subfolder of the scene's folder (e.g. images_8)")
         return v
 
+    def resolved_background(self, fmt: str) -> Background:
+        """The scene's :class:`~abcgs.types.Background` when read as ``fmt``: the entry's ``background`` when given
+        (an object scene), else white for ``blender`` (NeRF-synthetic's convention) and black for a bare ``splat``
+        (objects both), else a frame-filling scene on black."""
+        if self.background == "transparent":
+            return Background(transparent=True, object=True)
+        if self.background is not None:
+            return Background(tuple(float(c) for c in self.background), object=True)  # type: ignore[arg-type]
+        if fmt == "blender":
+            return Background((1.0, 1.0, 1.0), object=True)
+        if fmt == "splat":
+            return Background(object=True)
+        return Background()
+
     @field_validator("background")
     @classmethod
-    def _unit_rgb(cls, v: tuple[float, float, float] | None) -> tuple[float, float, float] | None:
-        if v is not None and not all(0.0 <= c <= 1.0 for c in v):
+    def _unit_rgb(cls, v):
+        if isinstance(v, tuple) and not all(0.0 <= c <= 1.0 for c in v):
             raise ValueError(f"background: {list(v)} must be RGB in [0, 1], e.g. [1, 1, 1] for white")
         return v
 

@@ -34,7 +34,7 @@ def read_source(folder: str | os.PathLike, fmt: SceneFormat, *, images: str | No
                 work: str | os.PathLike | None = None) -> SourceScene:
     """The scene at ``folder`` read as ``fmt`` (not ``photos``: those get their cameras from structure from motion,
     :mod:`abcgs.sources.photos`). ``images``: the image subfolder (``colmap``, ``llff``, ``nerfstudio``; default
-    ``images``); ``background``: RGB in ``[0, 1]`` for RGBA images (``blender``); ``views`` (a
+    ``images``); ``background``: RGB in ``[0, 1]`` behind RGBA images (``blender``) and a bare splat's renders; ``views`` (a
     :class:`~abcgs.splats.params.SplatViewsParams`) and ``work`` (a folder for its renders) for a bare splat."""
     from abcgs.sources.validate import check_cameras
 
@@ -64,7 +64,7 @@ def read_source(folder: str | os.PathLike, fmt: SceneFormat, *, images: str | No
 
         if work is None:
             raise ValueError("a bare splat's views are rendered into `work`; give a folder")
-        return read_splat_source(splat_file(folder), Path(work), views)
+        return read_splat_source(splat_file(folder), Path(work), views, background=background)
     elif fmt == "photos":
         raise ValueError("a photos scene has no cameras to read: structure from motion finds them (abcgs.sources.photos)")
     else:

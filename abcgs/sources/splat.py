@@ -29,17 +29,20 @@ MAX_POINTS = 100_000
 
 @torch.no_grad()
 def read_splat_source(path: Path, out_images_dir: Path, params: SplatViewsParams | None = None, *,
-                      fmt: str = "auto", backend: Backend = "auto") -> SourceScene:
-    """Read the splat at ``path``, make ``params``' cameras around it, write its render from each into
-    ``out_images_dir`` (PNG, named like the cameras) and return the :class:`SourceScene` (``format`` ``"splat"``)."""
+                      fmt: str = "auto", backend: Backend = "auto",
+                      background: tuple[float, float, float] | None = None) -> SourceScene:
+    """Read the splat at ``path``, make ``params``' cameras around it, write its render from each on ``background``
+    (RGB in ``[0, 1]``, default black) into ``out_images_dir`` (PNG, named like the cameras) and return the
+    :class:`SourceScene` (``format`` ``"splat"``)."""
     params = params or SplatViewsParams()
     model = read_splat(path, fmt).model
-    cams, _ = cameras_around(model, params.kind, params.count, params.width, params.height, params.fov_deg)
+    cams, _ = cameras_around(model, params)
     out_images_dir = Path(out_images_dir)
     out_images_dir.mkdir(parents=True, exist_ok=True)
     views = []
+    bg = torch.tensor(background if background is not None else (0.0, 0.0, 0.0), dtype=torch.float32)
     for cam in cams:
-        img, _, _ = render(model, cam, backend=backend)
+        img, _, _ = render(model, cam, backend=backend, background=bg)
         save_image(out_images_dir / cam.name, img.clamp(0, 1).numpy())
         views.append(SourceView(cam.name, out_images_dir / cam.name, cam))
     keep = torch.nonzero(model.opacities >= 0.5)[:, 0]
@@ -47,5 +50,5 @@ def read_splat_source(path: Path, out_images_dir: Path, params: SplatViewsParams
         keep = keep[:: -(-len(keep) // MAX_POINTS)]
     points = model.means[keep].numpy().astype(np.float32)
     colors = sh0_to_rgb(model.sh0[keep, 0, :]).clamp(0, 1).numpy().astype(np.float32)
-    return SourceScene("splat", tuple(views), points, colors)
+    return SourceScene("splat", tuple(views), points, colors, background=background)
 

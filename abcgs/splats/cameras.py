@@ -1,30 +1,29 @@
 """Cameras made around a splat that comes without any, so that a bare ``.splat``/``.ply``/``.spz`` can be stylized.
 
-    cams, kind = cameras_around(model, "auto", count=24, width=480, height=360)
+    cams, kind = cameras_around(model, SplatViewsParams(count=24, width=480, height=360))
 
-Sizes come from robust bounds of the Gaussians (opacity-weighted 5 % / 95 % quantiles of the means along their
-principal axes, :func:`splat_frame`), so floaters and a far background do not push the cameras away:
+Every view is upright: the world direction ``params.up`` (``auto``: ``-y``, the COLMAP/INRIA convention that 3DGS
+trainers save in) points up in the image.
 
-- ``orbit``: a ring around the axis of least spread (the "up" of an object on a table), 20° above its equator, at the
-  distance where the bounds fill the field of view (× 1.2), every camera looking at the centre; image "down" is
-  that axis;
-- ``forward``: a 4 × ⌈count/4⌉ grid of cameras in a plane facing the splat along its size gradient (below), spread
-  over ±15 % of the width, from the side of the small Gaussians, at the distance where the 10–90 % quantiles across
-  fill the field of view, all looking at their centre;
+- ``orbit`` (an object): ``count`` views on rings at elevations spread over ``params.elevation_deg`` above the
+  horizon (3 rings from 12 views, 2 from 6), each ring's azimuths offset by half a step from the one below, all
+  looking at the centre of the box around the Gaussians that matter (opacity ≥ ``params.min_opacity``), from one
+  distance: the least at which every such Gaussian, two standard deviations around its centre, lies inside every view
+  (:func:`framing_distance`), × :data:`FRAME_MARGIN`. The whole object is in every view; nothing is cropped.
+- ``forward`` (a scene seen from one side): a 4 × ⌈count/4⌉ grid of views on a sphere around the splat's centre,
+  ``params.parallax_deg`` between the outermost columns (a quarter of it between the outermost rows), facing the
+  splat along its size gradient (below) from the side of the small Gaussians, at the distance where the 10–90 %
+  quantiles across fill the field of view (floaters and a far background would otherwise push the cameras back).
 - ``auto``: ``forward`` when the Gaussians grow across the splat: a splat trained from one side has Gaussians whose
   size grows with their distance from the cameras (each covers a few pixels there), so ``log σ_max`` regressed on
-  position (opacity-weighted, inside the bounds) has a gradient pointing away from them; when it changes ``log σ_max``
-  by :data:`FORWARD_MIN_LOG_GROWTH` or more across the bounds, the views come from the small side (fern: 2.9, its
-  gradient 16° from the capture's mean viewing direction). Else ``orbit`` (an object seen from all round).
-
-The roll of the views follows the principal axes, whose sign is arbitrary, so a generated view may be tilted or upside
-down relative to the capture that trained the splat; stylization does not depend on it.
+  position (opacity-weighted, inside the robust bounds of :func:`splat_frame`) has a gradient pointing away from them;
+  when it changes ``log σ_max`` by :data:`FORWARD_MIN_LOG_GROWTH` or more across the bounds, the views come from the
+  small side (fern: 2.9, its gradient 16° from the capture's mean viewing direction). Else ``orbit``.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 import torch
@@ -32,6 +31,7 @@ import torch
 from abcgs.cameras import Camera, intrinsics, look_at
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
+from abcgs.splats.params import SplatViewsParams, UpAxis
 
 FORWARD_MIN_LOG_GROWTH = 0.7
 """``auto`` picks forward-facing views when the Gaussians' ``log σ_max`` grows by this much across the bounds
@@ -40,6 +40,14 @@ QUANTILE = 0.05
 FORWARD_QUANTILE = 0.1
 """Forward-facing views frame the 10–90 % quantiles across and along the viewing direction (a facing capture's
 floaters and far background would otherwise push the cameras back)."""
+FRAME_MARGIN = 1.08
+"""Orbit views stand this much further back than the least distance that frames every Gaussian that matters."""
+SIGMA_EXTENT = 2.0
+"""A Gaussian that matters must lie inside a view with this many standard deviations around its centre."""
+UP_AXES: dict[str, tuple[float, float, float]] = {
+    "+x": (1.0, 0.0, 0.0), "-x": (-1.0, 0.0, 0.0), "+y": (0.0, 1.0, 0.0), "-y": (0.0, -1.0, 0.0),
+    "+z": (0.0, 0.0, 1.0), "-z": (0.0, 0.0, -1.0),
+}
 
 
 @dataclass(frozen=True)
@@ -94,56 +102,114 @@ def splat_frame(model: GaussianModel) -> SplatFrame:
     return SplatFrame(med + axes.T @ ((qs[:, 0] + qs[:, 2]) / 2), axes, half, axes.T @ coef[1:])
 
 
-def cameras_around(
-    model: GaussianModel, kind: Literal["auto", "orbit", "forward"] = "auto", count: int = 24,
-    width: int = 480, height: int = 360, fov_deg: float = 50.0,
-) -> tuple[list[Camera], str]:
-    """``count`` pinhole cameras ``width`` × ``height`` with horizontal field of view ``fov_deg`` placed around
-    ``model`` (module docstring); returns them and the kind used (``orbit`` or ``forward``, also in each camera's
+def world_up(up: UpAxis) -> np.ndarray:
+    """``(3,)`` the unit world direction that ``up`` names (``auto``: ``-y``)."""
+    return np.array(UP_AXES["-y" if up == "auto" else up])
+
+
+def view_basis(direction: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Image right and image down ``(3,)`` (world, unit) of a camera looking along ``-direction`` with ``up`` up in the
+    image; a view along ``up`` itself takes the world axis least aligned with it as its up."""
+    forward = -direction / np.linalg.norm(direction)
+    u = up - (up @ forward) * forward
+    if np.linalg.norm(u) < 1e-6:
+        alt = np.eye(3)[int(np.argmin(np.abs(forward)))]
+        u = alt - (alt @ forward) * forward
+    u /= np.linalg.norm(u)
+    right = np.cross(-u, forward)  # OpenCV axes: x = y × z with y = -u (down), z = forward
+    return right, -u
+
+
+def framing_distance(points: np.ndarray, radii: np.ndarray, centre: np.ndarray, directions: np.ndarray,
+                     up: np.ndarray, tan_half_x: float, tan_half_y: float) -> float:
+    """The least distance from ``centre`` along every unit ``directions`` ``(V, 3)`` at which a camera looking at
+    ``centre`` sees every ball (``points`` ``(N, 3)``, ``radii`` ``(N,)``, world units) inside its field of view
+    (half-angle tangents ``tan_half_x``, ``tan_half_y``), and stands outside them all.
+
+    For a point ``p`` (from the centre) with image offsets ``x``, ``y`` and depth ``d - p·v`` from a camera at distance
+    ``d`` along ``v``, it is inside when ``|x| + r ≤ tan_half_x · (d - p·v)`` (and likewise for ``y``), so
+    ``d = max(|x| + r) / tan_half_x + p·v`` over the points, the larger of the two axes, the largest over the views.
+    """
+    p = points - centre
+    need = float(np.max(np.linalg.norm(p, axis=1) + radii))  # outside every ball
+    for v in directions:
+        right, down = view_basis(v, up)
+        along = p @ v
+        x = (np.abs(p @ right) + radii) / tan_half_x + along
+        y = (np.abs(p @ down) + radii) / tan_half_y + along
+        need = max(need, float(np.max(np.maximum(x, y))))
+    return need
+
+
+def orbit_directions(count: int, elevation_deg: tuple[float, float], up: np.ndarray) -> np.ndarray:
+    """``(count, 3)`` unit directions from the centre: rings at elevations spread over ``elevation_deg`` (3 rings from
+    12 views, 2 from 6, else 1, lowest first), ``count`` split as evenly as possible, each ring's azimuths offset
+    by half a step from the ring below."""
+    rings = 3 if count >= 12 else 2 if count >= 6 else 1
+    lo, hi = np.radians(elevation_deg[0]), np.radians(elevation_deg[1])
+    elevations = [0.5 * (lo + hi)] if rings == 1 else np.linspace(lo, hi, rings)
+    sizes = [count // rings + (1 if r < count % rings else 0) for r in range(rings)]
+    a = np.eye(3)[int(np.argmin(np.abs(up)))]
+    e0 = a - (a @ up) * up
+    e0 /= np.linalg.norm(e0)
+    e1 = np.cross(up, e0)
+    out = []
+    for r, (elev, n) in enumerate(zip(elevations, sizes)):
+        for t in (np.arange(n) + 0.5 * (r % 2)) * (2 * np.pi / n):
+            out.append(np.cos(elev) * (np.cos(t) * e0 + np.sin(t) * e1) + np.sin(elev) * up)
+    return np.asarray(out)
+
+
+def cameras_around(model: GaussianModel, params: SplatViewsParams | None = None) -> tuple[list[Camera], str]:
+    """The pinhole cameras of ``params`` (count, size, horizontal field of view, kind, up; module docstring) around
+    ``model``; returns them and the kind used (``orbit`` or ``forward``, also in each camera's
     ``meta["views_kind"]``)."""
+    params = params or SplatViewsParams()
+    count, width, height, fov_deg = params.count, params.width, params.height, params.fov_deg
     if count < 1:
         raise InputError(f"views.count must be at least 1, got {count}")
     fr = splat_frame(model)
-    used = kind
-    if kind == "auto":
+    used = params.kind
+    if used == "auto":
         used = "forward" if fr.log_growth() >= FORWARD_MIN_LOG_GROWTH else "orbit"
     focal = width / 2 / np.tan(np.radians(fov_deg) / 2)
     K = intrinsics(focal, width, height)
-    tan_half = min(width, height) / 2 / focal  # the narrower half-angle: the bounds must fit both ways
-    a0, a1, a2 = fr.axes
-    out = []
+    up = world_up(params.up)
+    with torch.no_grad():
+        x = model.means.double().cpu().numpy()
+        opacity = model.opacities.double().cpu().numpy()
+        sigma = model.scales.double().max(dim=1).values.cpu().numpy()
     if used == "orbit":
-        radius = 1.2 * float(np.linalg.norm(fr.half_extent)) / tan_half
-        up = a2
-        elev = np.radians(20.0)
-        for i, t in enumerate(np.linspace(0.0, 2 * np.pi, count, endpoint=False)):
-            eye = fr.centre + radius * (np.cos(elev) * (np.cos(t) * a0 + np.sin(t) * a1) + np.sin(elev) * up)
-            out.append(Camera(f"view_{i:03d}.png", K.copy(), look_at(eye, fr.centre, up=-up), width, height,
-                              {"views_kind": used}))
+        keep = opacity >= params.min_opacity
+        if keep.sum() < 4:
+            keep = opacity >= np.sort(opacity)[-4]
+        pts, radii = x[keep], SIGMA_EXTENT * sigma[keep]
+        centre = 0.5 * ((pts - radii[:, None]).min(axis=0) + (pts + radii[:, None]).max(axis=0))
+        dirs = orbit_directions(count, params.elevation_deg, up)
+        dist = FRAME_MARGIN * framing_distance(pts, radii, centre, dirs, up, width / 2 / focal, height / 2 / focal)
+        eyes = [centre + dist * v for v in dirs]
+        target = centre
     elif used == "forward":
         g = fr.size_gradient
         a2 = g / np.linalg.norm(g) if np.linalg.norm(g) > 0 else fr.axes[2]  # viewing direction: towards larger
-        a0 = fr.axes[0] - (fr.axes[0] @ a2) * a2 if abs(fr.axes[0] @ a2) < 0.9 else fr.axes[1] - (fr.axes[1] @ a2) * a2
-        a0 /= np.linalg.norm(a0)
-        a1 = np.cross(a2, a0)
-        with torch.no_grad():
-            x = model.means.double().cpu().numpy() - fr.centre
-            w = model.opacities.double().cpu().numpy() + 1e-6
-        q = np.stack([_wquantile(x @ a, w, (FORWARD_QUANTILE, 1 - FORWARD_QUANTILE)) for a in (a0, a1, a2)])
+        a0, a1 = view_basis(-a2, up)  # image right and down of the central view
+        w = opacity + 1e-6
+        q = np.stack([_wquantile((x - fr.centre) @ a, w, (FORWARD_QUANTILE, 1 - FORWARD_QUANTILE))
+                      for a in (a0, a1, a2)])
         h0, h1, h2 = np.maximum((q[:, 1] - q[:, 0]) / 2, 1e-6)
-        centre = fr.centre + np.stack([a0, a1, a2]).T @ q.mean(axis=1)
+        target = fr.centre + np.stack([a0, a1, a2]).T @ q.mean(axis=1)
         dist = max(h0, h1 * width / height) / np.tan(np.radians(fov_deg) / 2) + h2
-        side = -1.0  # cameras on the small-Gaussian side
         cols = 4 if count >= 4 else count
         rows = -(-count // cols)
-        spread = 0.15 * h0
+        half_az, half_el = np.radians(params.parallax_deg) / 2, np.radians(params.parallax_deg) / 8
+        eyes = []
         for i in range(count):
             r, c = divmod(i, cols)
-            u = (c / max(cols - 1, 1) - 0.5) * 2 * spread
-            v = (r / max(rows - 1, 1) - 0.5) * 2 * spread * height / width if rows > 1 else 0.0
-            eye = centre + side * dist * a2 + u * a0 + v * a1
-            out.append(Camera(f"view_{i:03d}.png", K.copy(), look_at(eye, centre, up=-a1), width, height,
-                              {"views_kind": used}))
+            az = (c / max(cols - 1, 1) - 0.5) * 2 * half_az if cols > 1 else 0.0
+            el = (r / max(rows - 1, 1) - 0.5) * 2 * half_el if rows > 1 else 0.0
+            v = -a2 * np.cos(az) * np.cos(el) + a0 * np.sin(az) * np.cos(el) - a1 * np.sin(el)
+            eyes.append(target + dist * v)
     else:
-        raise InputError(f"views.kind must be auto, orbit or forward, got {kind!r}")
-    return out, used
+        raise InputError(f"views.kind must be auto, orbit or forward, got {params.kind!r}")
+    return [Camera(f"view_{i:03d}.png", K.copy(), look_at(eye, target, up=-up), width, height, {"views_kind": used})
+            for i, eye in enumerate(eyes)], used

@@ -24,10 +24,19 @@ from abcgs.io.images import save_image
 from abcgs.io.ply import write_ply
 from abcgs.layout import ColorMatchDir
 from abcgs.sfm.model import SceneData
+from abcgs.silhouette import (
+    Silhouette,
+    background_tensor,
+    object_gaussians,
+    object_weight,
+    over,
+    silhouettes,
+    unpremultiply,
+)
 from abcgs.stylize.color import apply_group_transforms
 from abcgs.stylize.loop import color_match_model, group_pixel_masks
 from abcgs.stylize.params import ColorMatchParams
-from abcgs.types import MatchingGroup
+from abcgs.types import FRAME_FILLING, Backend, Background, MatchingGroup
 from abcgs.viz import image_grid
 
 
@@ -39,32 +48,71 @@ class ColorMatchResult:
     history: list[dict]
 
 
-def content_pixels_by_group(images: list[Tensor], view_labels: list[np.ndarray], groups: list[MatchingGroup]) -> dict[int, np.ndarray]:
-    """Pixels of the training images covered by each group (all pixels for single transfer)."""
+@dataclass(frozen=True)
+class ObjectViews:
+    """An object scene's views as the colour match sees them: each image's object colour and alpha.
+
+    ``colors[i]`` ``(H, W, 3)``: the object's own colour under view ``i`` (:func:`abcgs.silhouette.unpremultiply` of
+    the image on ``background`` ``(3,)``); ``silhouettes[i]``: the fitted scene's alpha there; ``gaussians``
+    ``(N,)`` bool: the object's Gaussians (:func:`abcgs.silhouette.object_gaussians`), the only ones recoloured."""
+
+    colors: list[Tensor]
+    silhouettes: list[Silhouette]
+    background: Tensor
+    gaussians: Tensor
+
+    @classmethod
+    def of(cls, model: GaussianModel, cameras: list, images: list[Tensor], background: Background,
+           backend: Backend = "auto") -> ObjectViews:
+        sils = silhouettes(model, cameras, backend)
+        bg = background_tensor(background, images[0])
+        return cls([unpremultiply(img, s.alpha.to(img), bg) for img, s in zip(images, sils)], sils, bg,
+                   object_gaussians(model, cameras, sils, backend))
+
+
+def content_pixels_by_group(images: list[Tensor], view_labels: list[np.ndarray], groups: list[MatchingGroup],
+                            objects: ObjectViews | None = None) -> dict[int, np.ndarray]:
+    """Pixels of the training images covered by each group (all pixels for single transfer); of an object scene
+    (``objects``), the object's own colour on its object pixels only."""
     out: dict[int, list[np.ndarray]] = {g.content_label: [] for g in groups}
-    for img, lab in zip(images, view_labels):
-        arr = img.numpy(force=True)
+    for k, (img, lab) in enumerate(zip(images, view_labels)):
+        arr = (img if objects is None else objects.colors[k]).numpy(force=True)
+        on_object = None if objects is None else objects.silhouettes[k].object.numpy(force=True)
         for g, m in zip(groups, group_pixel_masks(groups, lab)):
-            out[g.content_label].append(arr[m])
+            out[g.content_label].append(arr[m if on_object is None else m & on_object])
     return {k: np.concatenate(v) for k, v in out.items()}
 
 
 def recolor_images(images: list[Tensor], view_labels: list[np.ndarray], groups: list[MatchingGroup],
-                   transforms: dict[int, tuple[Tensor, Tensor]]) -> list[Tensor]:
+                   transforms: dict[int, tuple[Tensor, Tensor]], objects: ObjectViews | None = None) -> list[Tensor]:
     """Each training image ``(H, W, 3)`` with every group's transform on the pixels its label map gives the group,
-    clipped to [0, 1]."""
+    clipped to [0, 1]. Of an object scene (``objects``) the object's own colour is transformed and composited back
+    with its alpha, blended in by :func:`abcgs.silhouette.object_weight`: object pixels take it whole, empty pixels
+    keep the background, the faint edge and haze between stay nearly as they were."""
     per_group = [transforms[g.content_label] for g in groups]
-    return [apply_group_transforms(img, [torch.from_numpy(m).to(img.device) for m in group_pixel_masks(groups, lab)],
-                                   per_group, clip=(0.0, 1.0))
-            for img, lab in zip(images, view_labels)]
+    out = []
+    for k, (img, lab) in enumerate(zip(images, view_labels)):
+        masks = [torch.from_numpy(m).to(img.device) for m in group_pixel_masks(groups, lab)]
+        if objects is None:
+            out.append(apply_group_transforms(img, masks, per_group, clip=(0.0, 1.0)))
+            continue
+        sil = objects.silhouettes[k]
+        covered = ~sil.empty.to(img.device)
+        color = apply_group_transforms(objects.colors[k], [m & covered for m in masks], per_group, clip=(0.0, 1.0))
+        w = object_weight(sil.alpha.to(img))
+        out.append(img + w * (over(color, sil.alpha.to(img), objects.background) - img))
+    return out
 
 
 def color_match_and_refit(
     model: GaussianModel, scene: SceneData, gaussian_labels: Tensor, view_labels: list[np.ndarray],
     groups: list[MatchingGroup], params: ColorMatchParams, *, progress: bool = True,
+    background: Background = FRAME_FILLING, color_only: bool = False,
 ) -> ColorMatchResult:
     """Colour-match ``model`` and its training images per group, then re-fit; everything on ``model``'s device
-    (``gaussian_labels`` ``(N,)`` too)."""
+    (``gaussian_labels`` ``(N,)`` too). An object scene (``background``) is matched on its object pixels, keeps its
+    empty pixels and re-fits on its background colour; ``color_only`` re-fits the colours alone (``stylize.color_only``:
+    the geometry stays bit-identical)."""
     views = load_views(scene, params.resolution_scale, test_every=0, device=model.device)
     if params.resolution_scale != 1.0:
         import cv2
@@ -73,21 +121,26 @@ def color_match_and_refit(
                        for v, c in zip(view_labels, views.cameras)]
     if not params.enabled:
         return ColorMatchResult(model.detach(), {}, views.images, [])
-    pix = content_pixels_by_group(views.images, view_labels, groups)
+    objects = None
+    if background.object:
+        objects = ObjectViews.of(model, views.cameras, views.images, background, params.backend)
+    pix = content_pixels_by_group(views.images, view_labels, groups, objects)
     for g in groups:
         if len(pix[g.content_label]) < 2:
             label = "the scene" if g.content_label == ALL_PIXELS else f"content label {g.content_label}"
             raise InputError(f"colour match: {label} covers no pixel of the training images")
-    recolored, transforms = color_match_model(model, gaussian_labels, groups, pix)
-    images = recolor_images(views.images, view_labels, groups, transforms)
+    recolored, transforms = color_match_model(model, gaussian_labels, groups, pix,
+                                              gaussians=None if objects is None else objects.gaussians)
+    images = recolor_images(views.images, view_labels, groups, transforms, objects)
     history: list[dict] = []
     if params.refit_iterations > 0:
         # No densification: the Gaussians keep their lifted labels (the authors densify every 50 steps and
         # keep per-view 2-D masks instead; with 3-D labels the set of Gaussians must stay fixed).
         fp = FitParams(iterations=params.refit_iterations, test_every=0, densify=False, seed=params.seed,
                        backend=params.backend, resolution_scale=params.resolution_scale, lr_means=1.6e-6,
-                       lr_means_final=1.6e-6)
-        res = fit(scene, fp, progress, views=Views(views.cameras, images, views.train, []), initial=recolored)
+                       lr_means_final=1.6e-6, background=background.color, color_only=color_only)
+        res = fit(scene, fp, progress, views=Views(views.cameras, images, views.train, [], views.alphas), initial=recolored,
+                  frozen=None if objects is None else ~objects.gaussians)
         recolored, history = res.model, res.history
     return ColorMatchResult(recolored, transforms, images, history)
 

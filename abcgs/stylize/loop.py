@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import cv2
@@ -33,15 +33,16 @@ from abcgs.features.knn import StyleFeatures
 from abcgs.features.params import ALL_PIXELS
 from abcgs.features.vgg import VGG16Features, downsample_half, extract_features
 from abcgs.fit.losses import reconstruction_loss
-from abcgs.gaussians import GaussianModel, render
+from abcgs.gaussians import GaussianModel, freeze_gaussians, render
 from abcgs.losses.fast import FastStats
 from abcgs.losses.params import FastParams
-from abcgs.losses.terms import content_loss, style_loss, tv_loss
+from abcgs.losses.terms import background_loss, content_loss, silhouette_loss, style_loss, tv_loss
 from abcgs.progress import progress as progress_bar
 from abcgs.render import rgb_to_sh0, sh0_to_rgb
+from abcgs.silhouette import Silhouette, background_tensor, object_gaussians
 from abcgs.stylize.color import apply_group_transforms, fit_color_transform, preserve_color
 from abcgs.stylize.params import StyleWeights, StylizeParams
-from abcgs.types import MatchingGroup, SceneMasks, StyleMethod
+from abcgs.types import FRAME_FILLING, Background, MatchingGroup, SceneMasks, StyleMethod
 
 log = logging.getLogger(__name__)
 
@@ -119,19 +120,41 @@ class ViewTargets:
     camera: Camera
     content_feats: Tensor  # (C, h, w)
     depth: Tensor  # (H, W, 1)
-    group_masks: list[Tensor] = field(default_factory=list)  # per group (h, w) bool
+    group_masks: list[Tensor] = field(default_factory=list)  # per group (h, w) bool; object pixels only (object scene)
     content_image: Tensor | None = None  # (H, W, 3) the colour-matched render
+    silhouette: Silhouette | None = None  # object scenes: the original scene's alpha in this view
+
+
+@dataclass(frozen=True)
+class Backdrop:
+    """How the loop composites and what it holds: the scene's :class:`~abcgs.types.Background`, as a tensor.
+
+    ``color`` ``(3,)`` is composited behind every render of an object scene; ``None`` for a frame-filling scene,
+    which renders as it always has (on black, no silhouette or background terms). ``gaussians`` ``(N,)`` bool: an
+    object scene's object (:func:`abcgs.silhouette.object_gaussians`), the only Gaussians that change."""
+
+    color: Tensor | None
+    gaussians: Tensor | None = None
+
+    @classmethod
+    def of(cls, background: Background, device: torch.device) -> Backdrop:
+        return cls(background_tensor(background).to(device) if background.object else None)
+
+    @property
+    def object(self) -> bool:
+        return self.color is not None
 
 
 def color_match_model(
     model: GaussianModel, labels: Tensor, groups: list[MatchingGroup], content_pixels: dict[int, np.ndarray],
-    *, zero_higher_sh: bool = True,
+    *, zero_higher_sh: bool = True, gaussians: Tensor | None = None,
 ) -> tuple[GaussianModel, dict[int, tuple[Tensor, Tensor]]]:
     """Apply each group's mean/covariance colour transform to the DC colours of its Gaussians.
 
     ``content_pixels[z]``: ``(n, 3)`` pixels of the content (training images) covered by group z.
-    Single transfer (one group over all pixels) recolours every Gaussian. The higher SH bands are zeroed unless
-    ``zero_higher_sh`` is False (``stylize.higher_sh`` other than ``zero``).
+    Single transfer (one group over all pixels) recolours every Gaussian; ``gaussians`` ``(N,)`` bool limits it to
+    those (an object scene's object). The higher SH bands are zeroed unless ``zero_higher_sh`` is False
+    (``stylize.higher_sh`` other than ``zero``); those of Gaussians outside ``gaussians`` are kept.
     """
     out = model.detach()
     rgb = sh0_to_rgb(out.sh0[:, 0, :])
@@ -144,10 +167,16 @@ def color_match_model(
         transforms[g.content_label] = (A, b)
     selections = [torch.ones_like(labels, dtype=torch.bool) if g.content_label == ALL_PIXELS else labels == g.content_label
                   for g in groups]
+    if gaussians is not None:
+        selections = [sel & gaussians.to(sel.device) for sel in selections]
     rgb = apply_group_transforms(rgb, selections, [transforms[g.content_label] for g in groups])
-    out.sh0 = rgb_to_sh0(rgb)[:, None, :].contiguous()
-    if out.shN.numel() and zero_higher_sh:
-        out.shN = torch.zeros_like(out.shN)  # view-dependent colour would undo the match
+    if gaussians is None:
+        out.sh0 = rgb_to_sh0(rgb)[:, None, :].contiguous()
+    else:  # the others keep their exact coefficients
+        out.sh0 = torch.where(gaussians.to(rgb.device)[:, None, None], rgb_to_sh0(rgb)[:, None, :], out.sh0).contiguous()
+    if out.shN.numel() and zero_higher_sh:  # view-dependent colour would undo the match
+        out.shN = (torch.zeros_like(out.shN) if gaussians is None
+                   else torch.where(gaussians.to(out.shN.device)[:, None, None], 0.0, out.shN).contiguous())
     return out, transforms
 
 
@@ -199,21 +228,30 @@ def prepare_targets(
     groups: list[MatchingGroup],
     vgg: VGG16Features,
     params: StylizeParams,
+    backdrop: Backdrop = Backdrop(None),
 ) -> list[ViewTargets]:
-    """Content features (from the colour-matched scene), depth (from the original scene), group masks."""
+    """Content features (from the colour-matched scene), depth (from the original scene), group masks; for an object
+    scene (``backdrop``) also the original scene's silhouette, and the group masks keep its object pixels only."""
     targets = []
+    backend = params.compute.backend
     with torch.no_grad():
         for cam, lab in zip(cameras, label_maps):
             # one render gives both when the depth comes from the content scene itself
-            img, _, meta = render(model_content, cam, backend=params.compute.backend,
-                                  render_mode="RGB+D" if model_original is model_content else "RGB")
+            img, alpha, meta = render(model_content, cam, backend=backend, background=backdrop.color,
+                                      render_mode="RGB+D" if model_original is model_content else "RGB")
             if model_original is not model_content:
-                _, _, meta = render(model_original, cam, backend=params.compute.backend, render_mode="RGB+D")
+                _, alpha, meta = render(model_original, cam, backend=backend, render_mode="RGB+D")
             feats = _features(vgg, img.clamp(0, 1), params)
             hw = tuple(feats.shape[-2:])
+            pixel_masks = group_pixel_masks(groups, lab)
+            sil = None
+            if backdrop.object:
+                sil = Silhouette(alpha.float())
+                on_object = sil.object.numpy(force=True)
+                pixel_masks = [m & on_object for m in pixel_masks]
             masks = [downsample_mask(m, hw).to(feats.device) if m.any() else torch.zeros(hw, dtype=torch.bool, device=feats.device)
-                     for m in group_pixel_masks(groups, lab)]
-            targets.append(ViewTargets(cam, feats, meta.depth, masks, img))
+                     for m in pixel_masks]
+            targets.append(ViewTargets(cam, feats, meta.depth, masks, img, sil))
     return targets
 
 
@@ -237,9 +275,10 @@ def _optimizer(model: GaussianModel, lrs: dict[str, float]) -> torch.optim.Adam:
 
 
 def main_pass_lrs(params: StylizeParams) -> dict[str, float]:
-    """Learning rate per :class:`GaussianModel` field in the main pass (geometry 0 unless ``optim.optimize_geometry``)."""
+    """Learning rate per :class:`GaussianModel` field in the main pass (geometry 0 unless ``optim.optimize_geometry``,
+    and never with ``color_only``)."""
     o = params.optim
-    geo = o.optimize_geometry
+    geo = o.optimize_geometry and not params.color_only
     return {"sh0": o.lr_sh0, "means": o.lr_means if geo else 0.0, "log_scales": o.lr_scales if geo else 0.0,
             "opacity_logits": o.lr_opacity if geo else 0.0, "quats": o.lr_quats if geo else 0.0}
 
@@ -253,9 +292,12 @@ def _check_finite(value: Tensor, name: str, step: int) -> None:
 
 
 @torch.no_grad()
-def _renormalize_quats(model: GaussianModel) -> None:
-    """Project the rotations back onto unit quaternions after an optimiser step (in place)."""
-    model.quats.data = model.quats.data / model.quats.data.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+def _renormalize_quats(model: GaussianModel, rows: Tensor | None = None) -> None:
+    """Project the rotations back onto unit quaternions after an optimiser step (in place); only ``rows`` ``(N,)``
+    bool when given (the Gaussians that may change: an object scene's object)."""
+    q = model.quats.data
+    unit = q / q.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    model.quats.data = unit if rows is None else torch.where(rows[:, None], unit, q)
 
 
 def _random_views(n: int, seed: int):
@@ -263,6 +305,21 @@ def _random_views(n: int, seed: int):
     gen = torch.Generator().manual_seed(seed)
     while True:
         yield from torch.randperm(n, generator=gen).tolist()
+
+
+def _object_terms(img: Tensor, alpha: Tensor, target: ViewTargets, w: StyleWeights, backdrop: Backdrop,
+                  lrs: dict[str, float]) -> dict[str, Tensor]:
+    """An object scene's hold on its shape and its empty space, weighted: ``silhouette`` (alpha ``(H, W, 1)`` against
+    the original's, when opacities or scales move) and ``background`` (the render ``(H, W, 3)`` on the empty pixels);
+    nothing for a frame-filling scene."""
+    if not backdrop.object or target.silhouette is None:
+        return {}
+    terms = {}
+    if w.silhouette > 0 and (lrs["opacity_logits"] > 0 or lrs["log_scales"] > 0 or lrs["means"] > 0):
+        terms["silhouette"] = w.silhouette * silhouette_loss(alpha, target.silhouette.alpha)
+    if w.background > 0:
+        terms["background"] = w.background * background_loss(img, backdrop.color, target.silhouette.empty)
+    return terms
 
 
 def _view_terms(img: Tensor, depth: Tensor | None, feats: Tensor, target: ViewTargets, w: StyleWeights) -> dict[str, Tensor]:
@@ -299,8 +356,10 @@ def style_pass(
     iterations: int,
     method: StyleMethod = "fast",
     progress: bool = True,
+    backdrop: Backdrop = Backdrop(None),
 ) -> tuple[GaussianModel, PassLog]:
-    """The main stylization pass over random views: the optimised (detached) model and the pass's log."""
+    """The main stylization pass over random views: the optimised (detached) model and the pass's log. An object
+    scene (``backdrop``) renders on its background and adds :func:`_object_terms`."""
     start = model.detach()
     start_scales, start_opacities = start.scales, start.opacities
     m = model.as_parameters()
@@ -310,13 +369,15 @@ def style_pass(
     views = _random_views(len(targets), params.seed)
     style_feats = [StyleFeatures.of(g.features) for g in groups]  # fixed for the run: prepared once
     w, fast, backend, log_every = params.weights, params.fast, params.compute.backend, params.compute.log_every
+    freeze_gaussians(m, None if backdrop.gaussians is None else ~backdrop.gaussians)
     record = PassLog()
     bar = progress_bar(range(iterations), "stylize", enabled=progress)
     t_start = time.perf_counter()
     for step in bar:
         tgt = targets[next(views)]
         ticks = [time.perf_counter()]
-        img, _, meta = render(m, tgt.camera, backend=backend, render_mode="RGB+D" if w.depth > 0 else "RGB")
+        img, alpha, meta = render(m, tgt.camera, backend=backend, background=backdrop.color,
+                                  render_mode="RGB+D" if w.depth > 0 else "RGB")
         ticks.append(time.perf_counter())
         feats = _features(vgg, img, params)
         ticks.append(time.perf_counter())
@@ -328,6 +389,7 @@ def style_pass(
         ticks.append(time.perf_counter())
         terms |= _view_terms(img, meta.depth, feats, tgt, w)
         terms |= _drift_terms(m, start_scales, start_opacities, w, lrs)
+        terms |= _object_terms(img, alpha, tgt, w, backdrop, lrs)
         loss = torch.stack(list(terms.values())).sum()
         if not torch.isfinite(loss):  # one device-to-host read per step; then name the culprit
             for name, value in terms.items():
@@ -336,7 +398,8 @@ def style_pass(
         loss.backward()
         ticks.append(time.perf_counter())
         opt.step()
-        _renormalize_quats(m)
+        if lrs["quats"] > 0:
+            _renormalize_quats(m, backdrop.gaussians)
         ticks.append(time.perf_counter())
         record.add_step_times(ticks)
         if step % log_every == 0 or step == iterations - 1:
@@ -349,19 +412,20 @@ def style_pass(
 
 def _recolored_targets(
     model: GaussianModel, gaussian_labels: Tensor, targets: list[ViewTargets], groups: list[MatchingGroup],
-    params: StylizeParams,
+    params: StylizeParams, backdrop: Backdrop = Backdrop(None),
 ) -> tuple[GaussianModel, list[Tensor]]:
     """The colour pass's start and targets: every view rendered, each group colour-matched to its style again on the
-    pixels it covers that the scene covers (alpha > 0.5), the same transforms applied to the group's Gaussians."""
+    pixels it covers that the scene covers (alpha > 0.5; an object scene: its original object pixels), the same
+    transforms applied to the group's Gaussians."""
     with torch.no_grad():
-        outs = [render(model, t.camera, backend=params.compute.backend) for t in targets]
+        outs = [render(model, t.camera, backend=params.compute.backend, background=backdrop.color) for t in targets]
     renders = [o[0].clamp(0, 1) for o in outs]
     pix: dict[int, list[Tensor]] = {g.content_label: [] for g in groups}
     full_masks = []
     for t, img, (_, alpha, _) in zip(targets, renders, outs):
         h, w = img.shape[:2]
-        # pixels the scene covers (alpha > 0.5): the black background is neither measured nor recoloured
-        covered = alpha.reshape(h, w) > 0.5
+        # pixels the scene covers (alpha > 0.5): the background is neither measured nor recoloured
+        covered = t.silhouette.object if t.silhouette is not None else alpha.reshape(h, w) > 0.5
         masks = [(F.interpolate(m[None, None].float(), size=(h, w), mode="nearest")[0, 0] > 0.5) & covered
                  for m in t.group_masks]
         full_masks.append(masks)
@@ -369,7 +433,7 @@ def _recolored_targets(
             pix[g.content_label].append(img[m])
     content = {k: torch.cat(v).numpy(force=True) if v else np.zeros((0, 3), np.float32) for k, v in pix.items()}
     recolored, transforms = color_match_model(model, gaussian_labels, groups, content,
-                                              zero_higher_sh=params.higher_sh == "zero")
+                                              zero_higher_sh=params.higher_sh == "zero", gaussians=backdrop.gaussians)
     per_group = [transforms[g.content_label] for g in groups]
     images = [apply_group_transforms(img, masks, per_group, clip=(0.0, 1.0)) for img, masks in zip(renders, full_masks)]
     return recolored, images
@@ -385,33 +449,39 @@ def color_pass(
     iterations: int,
     start_step: int = 0,
     progress: bool = True,
+    backdrop: Backdrop = Backdrop(None),
 ) -> tuple[GaussianModel, list[LoggedStep]]:
     """The authors' post-process: colour-match the re-rendered views to the style again, then re-fit.
 
     Every view is rendered, each group's covered pixels (alpha > 0.5) get the mean/covariance colour transform to its style
     region (the transform is applied to the group's Gaussians too, as in the colour-match stage), and the
     DC colours and rotations are re-fitted to those images with ``0.8·L1 + 0.2·D-SSIM`` while means,
-    scales and opacities stay frozen (``post_process_phase.py`` freezes ``_xyz``, ``_scaling``, ``_opacity``).
-    Returns the re-fitted (detached) model and the logged steps, numbered from ``start_step``.
+    scales and opacities stay frozen (``post_process_phase.py`` freezes ``_xyz``, ``_scaling``, ``_opacity``;
+    ``color_only`` freezes the rotations too). An object scene (``backdrop``) renders on its background, so its
+    empty pixels are fitted to it. Returns the re-fitted (detached) model and the logged steps, numbered from
+    ``start_step``.
     """
-    recolored, images = _recolored_targets(model, gaussian_labels, targets, groups, params)
+    recolored, images = _recolored_targets(model, gaussian_labels, targets, groups, params, backdrop)
     m = recolored.as_parameters()
-    opt = _optimizer(m, {"sh0": params.optim.lr_sh0, "quats": params.optim.lr_quats, "means": 0.0, "log_scales": 0.0,
+    lr_quats = 0.0 if params.color_only else params.optim.lr_quats
+    opt = _optimizer(m, {"sh0": params.optim.lr_sh0, "quats": lr_quats, "means": 0.0, "log_scales": 0.0,
                          "opacity_logits": 0.0, "shN": higher_sh_lr(params, m)})
     _keep_bands_above_1_zero(m, params)
+    freeze_gaussians(m, None if backdrop.gaussians is None else ~backdrop.gaussians)
     views = _random_views(len(targets), params.seed + 1)
     steps: list[LoggedStep] = []
     bar = progress_bar(range(iterations), "colour pass", enabled=progress)
     t_start = time.perf_counter()
     for it in bar:
         i = next(views)
-        img, _, _ = render(m, targets[i].camera, backend=params.compute.backend)
+        img, _, _ = render(m, targets[i].camera, backend=params.compute.backend, background=backdrop.color)
         terms = reconstruction_loss(img, images[i])
         _check_finite(terms.total, "colour-pass reconstruction", start_step + it)
         opt.zero_grad(set_to_none=True)
         terms.total.backward()
         opt.step()
-        _renormalize_quats(m)
+        if lr_quats > 0:
+            _renormalize_quats(m, backdrop.gaussians)
         if it % params.compute.log_every == 0 or it == iterations - 1:
             steps.append(LoggedStep(start_step + it, time.perf_counter() - t_start, "color", float(terms.total.detach()),
                                     {"l1": float(terms.l1.detach())}))
@@ -431,6 +501,7 @@ def stylize(
     method: StyleMethod = "fast",
     progress: bool = True,
     depth_model: GaussianModel | None = None,
+    background: Background = FRAME_FILLING,
 ) -> StylizeResult:
     """Run the stylization passes on a (colour-matched) model.
 
@@ -442,6 +513,8 @@ def stylize(
         depth_model: the original (pre-colour-match) scene whose depth the depth loss keeps (paper: "we use
             the original Gaussians to render the initial depth map"); default ``model``.
         groups: matching groups with style features (:func:`abcgs.features.matching.build_groups`).
+        background: the scene's; an object scene renders on its colour, styles its object pixels only and holds its
+            silhouette and empty space (:mod:`abcgs.silhouette`).
     """
     if not cameras:
         raise InputError("stylize: no views")
@@ -449,17 +522,22 @@ def stylize(
         return StylizeResult(model.detach(), [], {"iterations": 0}, {}, 0.0)
     torch.manual_seed(params.seed)
     t0 = time.perf_counter()
-    targets = prepare_targets(model, depth_model or model, cameras, label_maps, groups, vgg, params)
+    backdrop = Backdrop.of(background, model.device)
+    targets = prepare_targets(model, depth_model or model, cameras, label_maps, groups, vgg, params, backdrop)
+    if backdrop.object:
+        backdrop = replace(backdrop, gaussians=object_gaussians(depth_model or model, cameras,
+                                                                [t.silhouette for t in targets], params.compute.backend))
     for g, z in enumerate(groups):
         if not any(bool(t.group_masks[g].any()) for t in targets):
             raise InputError(f"matching group for content label {z.content_label} covers no pixel in any view")
     n_main, n_color = params.optim.iterations, params.optim.color_pass_iterations
-    styled, main = style_pass(model, targets, groups, vgg, params, iterations=n_main, method=method, progress=progress)
+    styled, main = style_pass(model, targets, groups, vgg, params, iterations=n_main, method=method, progress=progress,
+                              backdrop=backdrop)
     history = list(main.steps)
     t_cp = time.perf_counter()
     if n_color > 0:
         styled, color_steps = color_pass(styled, gaussian_labels, targets, groups, params, iterations=n_color,
-                                         start_step=n_main, progress=progress)
+                                         start_step=n_main, progress=progress, backdrop=backdrop)
         history += color_steps
     t_cp = time.perf_counter() - t_cp
     if params.preserve_color:
@@ -477,16 +555,17 @@ def stylize_scene(
     params: StylizeParams,
     *,
     method: StyleMethod = "fast",
+    background: Background = FRAME_FILLING,
 ) -> StylizeResult:
     """:func:`stylize` a colour-matched scene at ``params.resolution_scale`` of its views' size (label maps resized
-    with nearest neighbours), keeping the depth of the ``original`` scene."""
+    with nearest neighbours), keeping the depth of the ``original`` scene; ``background``: the scene's."""
     cams, labels = cameras, masks.view_labels
     if params.resolution_scale != 1.0:
         cams = [c.scaled(params.resolution_scale) for c in cameras]
         labels = [cv2.resize(v.astype(np.int32), (c.width, c.height), interpolation=cv2.INTER_NEAREST).astype(np.int64)
                   for v, c in zip(labels, cams)]
     res = stylize(with_higher_sh(matched, original, params.higher_sh), cams, labels, masks.gaussian_labels, groups,
-                  vgg, params, method=method, depth_model=original)
+                  vgg, params, method=method, depth_model=original, background=background)
     res.projected_search = projected_search_record(params.fast)
     return res
 

@@ -22,11 +22,13 @@ from abcgs.io.images import save_image
 from abcgs.io.ply import write_ply
 from abcgs.io.tables import write_csv
 from abcgs.layout import StylizeDir
+from abcgs.silhouette import background_tensor, composite_rgba
 from abcgs.stylize.loop import LoggedStep
-from abcgs.types import Backend, MatchingGroup, PathKind
+from abcgs.types import FRAME_FILLING, Backend, Background, MatchingGroup, PathKind
 from abcgs.viz import colorize_labels, image_grid, style_legend, write_video
 
-HISTORY_COLUMNS = ("step", "seconds", "loss", "style", "content", "tv", "depth", "scale", "opacity")
+HISTORY_COLUMNS = ("step", "seconds", "loss", "style", "content", "tv", "depth", "scale", "opacity", "silhouette",
+                   "background")
 """Columns of ``stylize_history.csv``: per logged step the total loss and Eq. 8's terms, each weighted by its λ
 (:class:`abcgs.stylize.loop.LoggedStep`); a term that is off is empty."""
 
@@ -34,8 +36,18 @@ GRID_ROWS = 3
 """Views shown in ``grid.png``."""
 
 
-def _image(model: GaussianModel, camera: Camera, backend: Backend) -> np.ndarray:
-    return render(model, camera, backend=backend)[0].clamp(0, 1).numpy(force=True)
+def _image(model: GaussianModel, camera: Camera, backend: Backend, background: Background) -> np.ndarray:
+    """The render ``(H, W, 3)`` on the scene's background (an object scene's colour; black for a frame-filling one)."""
+    bg = background_tensor(background) if background.object else None
+    return render(model, camera, backend=backend, background=bg)[0].clamp(0, 1).numpy(force=True)
+
+
+def _view_file(model: GaussianModel, camera: Camera, backend: Backend, background: Background) -> np.ndarray:
+    """What ``renders/<view>.png`` holds: the render on the background, or straight-alpha RGBA when it is
+    transparent (:func:`abcgs.silhouette.composite_rgba`)."""
+    bg = background_tensor(background) if background.object else None
+    img, alpha, _ = render(model, camera, backend=backend, background=bg)
+    return composite_rgba(img.clamp(0, 1).numpy(force=True), alpha.numpy(force=True), background)
 
 
 def write_stylized_scene(
@@ -49,10 +61,12 @@ def write_stylized_scene(
     backend: Backend,
     path_kind: PathKind,
     path_frames: int,
+    background: Background = FRAME_FILLING,
 ) -> dict:
     """Write ``out/`` (a folder, atomically): the stylized PLY, a render of every camera, ``grid.png`` (content,
     labels, each label beside its painting or painting region, stylized; :data:`GRID_ROWS` views) and
-    ``turntable.mp4`` along :func:`abcgs.camera_paths.camera_path`.
+    ``turntable.mp4`` along :func:`abcgs.camera_paths.camera_path`, all on the scene's ``background`` (the renders
+    as RGBA when it is transparent; the grid and video then on black).
 
     Returns ``{"render_fps": renders per second over the cameras, "camera_path": the path kind used}``.
     """
@@ -61,19 +75,20 @@ def write_stylized_scene(
         write_ply(d.ply, stylized)
         d.renders.mkdir()
         t0 = time.perf_counter()
-        renders = [_image(stylized, c, backend) for c in cameras]
-        fps = len(renders) / max(time.perf_counter() - t0, 1e-9)
-        for cam, img in zip(cameras, renders):
+        files = [_view_file(stylized, c, backend, background) for c in cameras]
+        fps = len(files) / max(time.perf_counter() - t0, 1e-9)
+        for cam, img in zip(cameras, files):
             save_image(d.renders / f"{Path(cam.name).stem}.png", img)
+        renders = [f[..., :3] * f[..., 3:] if f.shape[-1] == 4 else f for f in files]  # on black for the grid
         legend = style_legend(
             [(None if g.content_label == ALL_PIXELS else colorize_labels(np.array([g.content_label]))[0],
               g.style_image, g.style_region) for g in groups],
             height=cameras[0].height)
-        rows = [[_image(original, cameras[i], backend), colorize_labels(view_labels[i]), legend, renders[i]]
+        rows = [[_image(original, cameras[i], backend, background), colorize_labels(view_labels[i]), legend, renders[i]]
                 for i in range(min(GRID_ROWS, len(renders)))]
         save_image(d.grid, image_grid(rows, ["content", "labels", "label: painting", "stylized"]))
         path, kind = camera_path(cameras, path_kind, path_frames)
-        write_video(d.turntable, [_image(stylized, c, backend) for c in path], fps=24)
+        write_video(d.turntable, [_image(stylized, c, backend, background) for c in path], fps=24)
     return {"render_fps": fps, "camera_path": kind}
 
 

@@ -46,6 +46,10 @@ class StyleWeights(BaseModel):
     scale: float = Field(1.0, ge=0, description="λ_sca: mean ‖Δ scale‖ from the start (main pass, geometry optimised)")
     opacity: float = Field(1.0, ge=0, description="λ_opa: mean |Δ opacity| from the start (main pass, geometry "
                            "optimised)")
+    silhouette: float = Field(10.0, ge=0, description="object scenes: mean |α − α_ref| between the render's alpha and "
+                              "the original scene's (abcgs.silhouette); holds the object's outline")
+    background: float = Field(10.0, ge=0, description="object scenes: mean |render − background| over the pixels "
+                              "the original scene leaves empty; keeps empty space empty")
 
 
 class StylizeOptim(BaseModel):
@@ -120,6 +124,10 @@ class StylizeParams(BaseModel):
         "zero", description="the SH bands above DC of a degree 1-3 scene: zero | frozen | optimized | degree1 (HigherSH; "
         "measured on a degree-3 scene in docs/SPLATS.md); no effect on a degree-0 scene")
     preserve_color: bool = Field(False, description="keep the scene's colours: transfer luminance only")
+    color_only: bool = Field(
+        False, description="change only the colours (sh0 and the higher SH bands): means, scales, rotations and "
+        "opacities stay bit-identical to the fitted scene through the colour match's re-fit, the main pass and the "
+        "colour pass, as in the optimisation-free stylizers; for shapes that must be kept exactly")
     seed: int = 0
     weights: StyleWeights = Field(default_factory=StyleWeights)
     fast: FastParams = Field(default_factory=FastParams)

@@ -22,6 +22,7 @@ from abcgs.io.images import save_image
 from abcgs.io.ply import read_ply
 from abcgs.splats.cameras import cameras_around
 from abcgs.splats.formats import read_splat
+from abcgs.splats.params import SplatViewsParams
 from abcgs.view.page import prepare_experiment, viewer_page
 from eval.bench.viewer import CHROMIUM_ARGS, canvas
 
@@ -38,7 +39,7 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
 
     original = read_splat(args.splat, "auto").model
-    cams, kind = cameras_around(original, args.kind, args.count, 640, 480)
+    cams, kind = cameras_around(original, SplatViewsParams(kind=args.kind, count=args.count, width=640, height=480))
     exp = prepare_experiment("bare splat, stylized", read_ply(args.stylized), cams, original=original)
     from playwright.sync_api import sync_playwright
 
