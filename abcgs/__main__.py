@@ -1,6 +1,6 @@
 """``python -m abcgs``: add a scene or a painting to ``params.yaml`` (:mod:`abcgs.add`).
 
-    python -m abcgs add-scene NAME PATH [--format F] [--images SUBFOLDER] [--background R G B] [--splat FILE]
+    python -m abcgs add-scene NAME PATH [--format F] [--images SUBFOLDER] [--background R G B | transparent] [--splat FILE]
     python -m abcgs add-style NAME PAINTING [--labels REGION_MAP]
 
 Each prints what it found and the entry it wrote; a problem is one line naming the file and the fix (exit status 2).
@@ -17,6 +17,26 @@ from abcgs.errors import AbcgsError
 from abcgs.sources.base import FORMATS
 
 
+def _background_word(word: str) -> float | str:
+    if word == "transparent":
+        return word
+    try:
+        return float(word)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{word!r} is neither a number in [0, 1] nor 'transparent'") from None
+
+
+def _background(words: list | None) -> tuple[float, float, float] | str | None:
+    """``--background``: three numbers, or ``transparent``."""
+    if words is None:
+        return None
+    if words == ["transparent"]:
+        return "transparent"
+    if len(words) != 3 or "transparent" in words:
+        raise SystemExit("--background takes R G B (three numbers in [0, 1]) or the word transparent")
+    return tuple(float(w) for w in words)  # type: ignore[return-value]
+
+
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="python -m abcgs", description=__doc__.strip().splitlines()[0])
     sub = ap.add_subparsers(dest="command", required=True)
@@ -26,8 +46,9 @@ def _parser() -> argparse.ArgumentParser:
     scene.add_argument("--format", default="auto", choices=("auto", *FORMATS), help="where the cameras come from "
                        "(default: detected from the folder's files)")
     scene.add_argument("--images", default=None, help="image subfolder, e.g. images_8 (default: images)")
-    scene.add_argument("--background", nargs=3, type=float, metavar=("R", "G", "B"), default=None,
-                       help="RGB in [0, 1] that RGBA views are composited on (NeRF-synthetic; default white)")
+    scene.add_argument("--background", nargs="+", metavar="R G B | transparent", default=None, type=_background_word,
+                       help="an object on nothing: RGB in [0, 1] behind it (RGBA views are composited on it), or "
+                       "transparent (RGBA renders); default: white for NeRF-synthetic, black for a bare splat")
     scene.add_argument("--splat", default=None, help="a splat already fitted to this scene (.ply, .splat, .spz)")
     style = sub.add_parser("add-style", help="check a painting and add it to data.styles")
     style.add_argument("name", help="the painting's name (letters, digits, _ . -)")
@@ -47,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "add-scene":
             entry, lines = add_scene(args.params, args.name, args.path, fmt=args.format, images=args.images,
-                                     background=tuple(args.background) if args.background else None, splat=args.splat,
+                                     background=_background(args.background), splat=args.splat,
                                      force=args.force, dry_run=args.dry_run)
             where, body = "data.scenes", {args.name: entry}
         else:

@@ -122,7 +122,7 @@ def _check_name(name: str, section: str, existing: Any, force: bool) -> None:
 
 
 def scene_entry(name: str, path: str | os.PathLike, *, fmt: str = "auto", images: str | None = None,
-                background: tuple[float, float, float] | None = None, splat: str | os.PathLike | None = None,
+                background: tuple[float, float, float] | str | None = None, splat: str | os.PathLike | None = None,
                 max_view_size_ratio: float = ReconstructParams().max_view_size_ratio,
                 min_psnr: float = FitParams().import_min_psnr) -> tuple[dict, list[str]]:
     """The ``data.scenes.<name>`` entry for the scene at ``path`` (absolute paths, the detected format) and the lines
@@ -133,15 +133,20 @@ def scene_entry(name: str, path: str | os.PathLike, *, fmt: str = "auto", images
     if images:
         entry["images"] = images
     if background is not None:
-        entry["background"] = [float(c) for c in background]
+        entry["background"] = background if background == "transparent" else [float(c) for c in background]
     source = None
     if resolved == "photos":
         lines = describe_photos(name, folder, images, max_view_size_ratio)
     elif resolved == "splat":
         lines = [f"a bare splat scene: {folder} (cameras are made around it; its renders are the photos)"]
     else:
-        source = read_source(folder, resolved, images=images, background=background)
+        source = read_source(folder, resolved, images=images,
+                             background=SceneParams.model_validate(entry).resolved_background(resolved).color)
         lines = describe_source(source, folder)
+    bg = SceneParams.model_validate(entry).resolved_background(resolved)
+    if bg.object:
+        lines.append("an object on nothing: colour match and stylization act on the object, empty space stays "
+                     + ("transparent (RGBA renders)" if bg.transparent else f"{list(bg.color)}"))
     if splat is not None:
         splat_path = Path(splat).expanduser().resolve()
         if not splat_path.is_file():
@@ -170,7 +175,7 @@ def _splat_check(splat: Path, source: SourceScene | None, min_psnr: float) -> st
 
 
 def add_scene(params_path: str | os.PathLike, name: str, path: str | os.PathLike, *, fmt: str = "auto",
-              images: str | None = None, background: tuple[float, float, float] | None = None,
+              images: str | None = None, background: tuple[float, float, float] | str | None = None,
               splat: str | os.PathLike | None = None, force: bool = False, dry_run: bool = False
               ) -> tuple[dict, list[str]]:
     """Check the scene and write ``data.scenes.<name>`` into the params file (unless ``dry_run``)."""

@@ -42,13 +42,15 @@ def main(args, params) -> None:
     folder = args.source
     options = params.scene_section(args.scene, "reconstruct")
     fmt = resolve_format(folder, scene.format, scene.images)
+    background = scene.resolved_background(fmt)
     if fmt == "photos":
         report = reconstruct_photos(folder, args.out, options, scene.images)
+        if background.object:  # photos have no alpha: the fit's own says where the object is
+            write_json(layout.ColmapDir(args.out).background, background.to_json())
         write_json(args.metrics, report.metrics())
         log.info("%d/%d registered, %d points, reprojection error %.3f px, %.1f s", report.registered, report.total,
                  report.points, report.mean_reprojection_error_px, report.seconds)
         return
-    background = scene.resolved_background(fmt)
     with tempfile.TemporaryDirectory() as work:  # a bare splat's renders, until the model's images/ holds them
         source = read_source(folder, fmt, images=scene.images, background=background.color if background.object else None,
                              views=scene.views, work=work)

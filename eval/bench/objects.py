@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import time
 from dataclasses import dataclass
@@ -223,20 +224,19 @@ def run_case(case: ObjectCase, painting_name: str, painting_path: Path, mode: st
 
 
 # ------------------------------------------------------------------------------------------------ the figure
-def figure(cases: list[ObjectCase], paintings: list[str], work: Path, path: Path, views: tuple[int, ...]) -> None:
-    """Per object and view: the original, then per painting the frame-filling treatment and the object one."""
-    rows, captions = [], ["original"]
-    for p in paintings:
-        captions += [f"{p}: as frame-filling", f"{p}: as an object"]
+def figure(cases: list[ObjectCase], runs: list[tuple[str, str]], work: Path, path: Path,
+           views: tuple[float, ...]) -> None:
+    """Per object and view (``views``: fractions of the way through its views): the original, then each run
+    ``(painting, mode)``."""
+    rows, captions = [], ["original"] + [f"{p}: as {'an object' if m == 'object' else 'frame-filling'}" for p, m in runs]
     for case in cases:
         for v in views:
-            cam = case.scene.cameras[min(v, len(case.scene.cameras) - 1)]
+            cam = case.scene.cameras[min(int(v * len(case.scene.cameras)), len(case.scene.cameras) - 1)]
             with torch.no_grad():
                 row = [render(case.original, cam)[0].clamp(0, 1).numpy()]
-                for p in paintings:
-                    for mode in ("frame", "object"):
-                        m = read_ply(work / f"{case.name}_{p}_{mode}.ply")
-                        row.append(render(m, cam, background=background_tensor(MODES[mode]))[0].clamp(0, 1).numpy())
+                for p, mode in runs:
+                    m = read_ply(work / f"{case.name}_{p}_{mode}.ply")
+                    row.append(render(m, cam, background=background_tensor(MODES[mode]))[0].clamp(0, 1).numpy())
             rows.append(row)
     path.parent.mkdir(parents=True, exist_ok=True)
     save_image(path, image_grid(rows, captions, height=200))
@@ -250,14 +250,15 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--styles", type=Path, default=SHARED / "styles")
     ap.add_argument("--miku-fit", type=Path, default=None, help="gs/point_cloud.ply of an eval.bench.fit run of miku")
     ap.add_argument("--miku-up", default="-y", help="views.up of the doll's generated views")
-    ap.add_argument("--doll-radius", type=float, default=1.0)
-    ap.add_argument("--doll-below", type=float, default=1.0)
+    ap.add_argument("--doll-radius", type=float, default=1.7, help="cut_doll's cylinder (capture units)")
+    ap.add_argument("--doll-below", type=float, default=1.3)
     ap.add_argument("--doll-above", type=float, default=2.0)
     ap.add_argument("--miku-views", type=int, default=24, help="photos of the miku_scene object (every k-th)")
     ap.add_argument("--splat-width", type=int, default=400)
     ap.add_argument("--rgba-width", type=int, default=320)
     ap.add_argument("--fit-iterations", type=int, default=2000)
-    ap.add_argument("--modes", default="object,frame")
+    ap.add_argument("--frame-paintings", default="starry_night",
+                    help="the paintings also run with the object treated as frame-filling (for comparison)")
     ap.add_argument("--quick", action="store_true", help="a short schedule (30 + 20 steps, 40-step re-fit)")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--figure", type=Path, default=None)
@@ -279,7 +280,10 @@ def main(argv: list[str] | None = None) -> dict:
     state, info = resolve_vgg16(VggWeightsParams())
     vgg = VGG16Features(state, sp.layers, feature_scale=info.feature_scale)
     paintings = args.paintings.split(",")
-    record = {"machine": {"cpu": platform.processor() or platform.machine(), "threads": torch.get_num_threads()},
+    framed = set(args.frame_paintings.split(",")) if args.frame_paintings else set()
+    runs = [(p, m) for p in paintings for m in ("frame", "object") if m == "object" or p in framed]
+    record = {"machine": {"cpu": platform.processor() or platform.machine(), "threads": torch.get_num_threads(),
+                          "load_average_at_start": list(os.getloadavg())},
               "schedule": {"refit": cm.refit_iterations, "stylize": sp.optim.iterations,
                            "color_pass": sp.optim.color_pass_iterations}, "objects": {}}
     for case in cases:
@@ -288,19 +292,18 @@ def main(argv: list[str] | None = None) -> dict:
         entry = {"views": len(case.scene.cameras), "size": [case.scene.cameras[0].width, case.scene.cameras[0].height],
                  "n_gaussians": case.original.num_gaussians, "border_alpha": border_alpha(case, alphas),
                  "generated_views": case.generated_views, "runs": {}}
-        for p in paintings:
-            for mode in args.modes.split(","):
-                r = run_case(case, p, args.styles / f"{p}.jpg", mode, vgg, state, sp, cm, work)
-                entry["runs"][f"{p}/{mode}"] = r
-                print(f"{case.name:11s} {p:14s} {mode:7s} background_change {r['background_change']:.4f}  "
-                      f"silhouette_iou {r['silhouette_iou']:.3f}  ssim_object {r['ssim_object']:.3f}  gram "
-                      f"{r['gram_distance']:.3f} (colour match {r['gram_distance_colormatch']:.3f})  "
-                      f"{r['stylize_seconds']:.0f} s", flush=True)
+        for p, mode in runs:
+            r = run_case(case, p, args.styles / f"{p}.jpg", mode, vgg, state, sp, cm, work)
+            entry["runs"][f"{p}/{mode}"] = r
+            print(f"{case.name:11s} {p:14s} {mode:7s} background_change {r['background_change']:.4f}  "
+                  f"silhouette_iou {r['silhouette_iou']:.3f}  ssim_object {r['ssim_object']:.3f}  gram "
+                  f"{r['gram_distance']:.3f} (colour match {r['gram_distance_colormatch']:.3f})  "
+                  f"{r['stylize_seconds']:.0f} s", flush=True)
         record["objects"][case.name] = entry
         if args.json:
             write_json(args.json, record)
     if args.figure:
-        figure(cases, paintings, work, args.figure, (0, 8))
+        figure(cases, runs, work, args.figure, (0.0, 0.4))
     print(json.dumps({k: {"border_alpha": v["border_alpha"]} for k, v in record["objects"].items()}))
     return record
 
