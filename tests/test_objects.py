@@ -238,3 +238,29 @@ def test_object_metrics_count_moved_empty_pixels_and_the_silhouette():
     assert s.background_change == pytest.approx(10 / empty)
     assert s.silhouette_iou == pytest.approx(90 / 100)
     assert s.object_fraction == pytest.approx(100 / (h * w))
+
+
+def test_a_nerfstudio_capture_with_masks_is_cut_out_by_them_on_its_background(tmp_path, tiny_scene):
+    from test_sources import write_nerfstudio
+
+    from abcgs.io.images import load_image, load_labels
+    from abcgs.scene.synthetic import cameras_from_json
+    from abcgs.sources.nerfstudio import read_nerfstudio_source
+
+    cams = cameras_from_json(json.loads((tiny_scene / "cameras.json").read_text()))[:6]
+    folder = tmp_path / "ns"
+    folder.mkdir()
+    write_nerfstudio(folder, tiny_scene, cams)
+    meta = json.loads((folder / "transforms.json").read_text())
+    for frame, c in zip(meta["frames"], cams):  # every frame masked: the box and the sphere are the object
+        labels = load_labels(tiny_scene / "masks" / c.name)
+        save_image(folder / "masks" / c.name, np.where(labels >= 2, 1.0, 0.0).astype(np.float32))
+        frame["mask_path"] = f"masks/{c.name}"
+    (folder / "transforms.json").write_text(json.dumps(meta))
+    bg = Background((0.2, 0.4, 0.6), object=True)
+    write_source_model(read_nerfstudio_source(folder), tmp_path / "colmap", ReconstructParams(), background=bg)
+    scene = read_colmap_scene(tmp_path / "colmap" / "sparse", tmp_path / "colmap" / "images")
+    assert scene.alpha_paths is not None
+    img, alpha = load_image(scene.image_paths[0]), load_image(scene.alpha_paths[0])[..., 0]
+    assert 0.05 < alpha.mean() < 0.95
+    np.testing.assert_allclose(img[alpha == 0], np.broadcast_to([0.2, 0.4, 0.6], img[alpha == 0].shape), atol=1 / 255)

@@ -90,11 +90,17 @@ class SourceReport:
 
 def _stage_image(view: SourceView, dst: Path, background: tuple[float, float, float] | None) -> np.ndarray | None:
     """Copy the view's image to ``dst``, or composite an RGBA image on ``background`` (written as PNG); returns the
-    RGBA image's alpha ``(H, W)`` float32, else None."""
+    RGBA image's alpha ``(H, W)`` float32, else None. A view with a mask (nerfstudio's ``mask_path``, non-zero = the
+    object) is composited on ``background`` by that mask when a background is given."""
     dst.parent.mkdir(parents=True, exist_ok=True)
     if background is None:
         shutil.copyfile(view.image_path, dst)
         return None
+    if view.mask_path is not None:
+        img = load_image(view.image_path)
+        keep = (load_labels(view.mask_path, expect_hw=img.shape[:2]) > 0).astype(np.float32)
+        save_image(dst, img * keep[..., None] + np.asarray(background, np.float32) * (1.0 - keep[..., None]))
+        return keep
     raw = cv2.imdecode(np.fromfile(str(view.image_path), np.uint8), cv2.IMREAD_UNCHANGED)
     if raw is None:
         raise InputError(f"image {view.image_path} could not be decoded; replace it")
@@ -289,7 +295,10 @@ def write_source_model(source: SourceScene, out_dir: str | os.PathLike, params: 
         if background is not None:
             write_json(tmp / "background.json", background.to_json())
         staged = work / "images"
-        alphas = {v.name: _stage_image(v, staged / v.name, source.background) for v in views}
+        behind = source.background
+        if behind is None and background is not None and background.object:  # e.g. nerfstudio masks: cut out by them
+            behind = background.color
+        alphas = {v.name: _stage_image(v, staged / v.name, behind) for v in views}
         if background is not None and background.object and not distorted and all(
                 a is not None for a in alphas.values()):  # an object's RGBA views: their alpha supervises the fit
             for name, a in alphas.items():
