@@ -20,6 +20,7 @@ from conftest import launch_chromium
 from abcgs.cameras import Camera, intrinsics, look_at
 from abcgs.gaussians import GaussianModel, render
 from abcgs.render import rgb_to_sh0
+from abcgs.types import Background
 from abcgs.view.page import prepare_experiment, viewer_page
 
 pytestmark = pytest.mark.browser
@@ -205,3 +206,32 @@ def test_bad_splat_data_shows_a_readable_error(browser, tmp_path, mutate, expect
         assert expected in box.inner_text()
     finally:
         page.close()
+
+
+@pytest.mark.parametrize("background", [Background((0.2, 0.4, 0.6), object=True),
+                                        Background(transparent=True, object=True)], ids=["colour", "transparent"])
+def test_an_object_shows_on_its_background(browser, tmp_path, background):
+    """The ball alone (an object on nothing): empty canvas pixels are the scene's background colour, or clear."""
+    from PIL import Image
+
+    original, stylized, _ = _scene()
+    ball = torch.arange(original.num_gaussians - 600, original.num_gaussians)
+    exp = prepare_experiment("object", stylized.index(ball), _cameras(), original=original.index(ball),
+                             max_gaussians=10_000, background=background)
+    (tmp_path / "object.html").write_text(viewer_page([exp], max_width=W), encoding="utf-8")
+    page = browser.new_page(viewport={"width": W + 40, "height": H + 200})
+    try:
+        page.goto((tmp_path / "object.html").resolve().as_uri())
+        page.wait_for_function("window.abcgsViewer && window.abcgsViewer.ready", timeout=120_000)
+        page.evaluate("window.abcgsViewer.ready")
+        url = page.evaluate("document.getElementById('abcgs-canvas').toDataURL('image/png')")
+    finally:
+        page.close()
+    rgba = np.asarray(Image.open(io.BytesIO(base64.b64decode(url.split(",", 1)[1]))).convert("RGBA"), np.float32) / 255
+    corner = rgba[:10, :10].reshape(-1, 4)
+    if background.transparent:
+        assert corner[:, 3].max() == 0.0
+    else:
+        np.testing.assert_allclose(corner[:, :3], np.broadcast_to(background.color, corner[:, :3].shape), atol=2 / 255)
+        assert corner[:, 3].min() == 1.0
+    assert (rgba[..., 3] > 0.5).mean() > 0.01  # the ball is drawn

@@ -47,4 +47,4 @@ def load_experiment(run_dir: Path, *, scene: str | None = None, root: Path | Non
     labels = np.load(s.masks.gaussian_labels) if s.masks.gaussian_labels.is_file() else None
     return prepare_experiment(run_dir.name, read_ply(ply), cams, original=original, labels=labels,
                               max_gaussians=max_gaussians, full_artifact=str(ply), path_kind=path_kind,
-                              path_frames=path_frames)
+                              path_frames=path_frames, background=s.colmap.read_background())

@@ -28,7 +28,7 @@ from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
 from abcgs.io.spz import encode_spz
 from abcgs.render import rgb_to_sh0
-from abcgs.types import PathKind
+from abcgs.types import FRAME_FILLING, Background, PathKind
 
 BUNDLE = Path(__file__).resolve().parent / "static" / "abcgs-viewer.js.gz"
 """The viewer bundle, gzip-compressed (``make viewer`` builds it; 1.0 MB instead of 2.9 MB in git)."""
@@ -54,6 +54,8 @@ class ViewerExperiment:
     path: list[Camera] = field(default_factory=list)
     path_kind: str = ""
     spz_bytes: dict[str, int] = field(default_factory=dict)
+    background: Background = FRAME_FILLING
+    """The scene's: an object scene shows on its colour, or over the page when transparent."""
 
 
 def visibility_order(model: GaussianModel) -> torch.Tensor:
@@ -143,6 +145,7 @@ def prepare_experiment(
     full_artifact: str = "the PLY beside the experiment",
     path_kind: PathKind = "auto",
     path_frames: int = 48,
+    background: Background = FRAME_FILLING,
 ) -> ViewerExperiment:
     """Subsample (the same Gaussians in every layer) and build the layers of one experiment.
 
@@ -163,7 +166,8 @@ def prepare_experiment(
         layers["labels"] = label_colored(layers["stylized"], np.asarray(labels)[idx.numpy()])
     path, used = camera_path(list(cameras), path_kind, path_frames) if len(cameras) > 1 else ([], "")
     target = capture_layout(list(cameras)).center if used == "orbit" else orbit_target(layers["stylized"], cameras[0])
-    return ViewerExperiment(name, layers, list(cameras), stylized.num_gaussians, full_artifact, target, path, used)
+    return ViewerExperiment(name, layers, list(cameras), stylized.num_gaussians, full_artifact, target, path, used,
+                            background=background)
 
 
 _SCRIPT_ESCAPES = str.maketrans({"<": "\\u003c", ">": "\\u003e", "&": "\\u0026"})
@@ -201,6 +205,7 @@ def viewer_fragment(experiments: list[ViewerExperiment], *, max_width: int = 960
             "path": [three_camera(c) for c in exp.path], "path_kind": exp.path_kind,
             "n_gaussians_page": exp.layers["stylized"].num_gaussians,
             "n_gaussians_full": exp.n_gaussians_full, "full_artifact": exp.full_artifact, "max_width": max_width,
+            "background": exp.background.to_json() if exp.background.object else None,
         })
     payload = script_json(data)
     js = gzip.decompress(bundle.read_bytes()).decode("utf-8").replace("</script", "<\\/script")

@@ -70,7 +70,7 @@ class Viewer {
     this.canvasHolder = el("div", { class: "abcgs-canvas" });
     this.root.append(bar, this.canvasHolder, this.note, this.error);
 
-    this.renderer = new THREE.WebGLRenderer({ antialias: false, preserveDrawingBuffer: true });
+    this.renderer = new THREE.WebGLRenderer({ antialias: false, preserveDrawingBuffer: true, alpha: true });
     this.renderer.setPixelRatio(1);
     this.renderer.setClearColor(0xffffff, 1);
     this.canvas = this.renderer.domElement;
@@ -119,6 +119,11 @@ class Viewer {
     this.meshes = {};
     this.exp = exp;
     this.select.value = String(i);
+    // An object scene shows on its background colour, or over the page (transparent); a frame-filling one on white.
+    const bg = exp.background;
+    if (bg && bg.transparent) this.renderer.setClearColor(0x000000, 0);
+    else if (bg) this.renderer.setClearColor(new THREE.Color().setRGB(bg.color[0], bg.color[1], bg.color[2], THREE.SRGBColorSpace), 1);
+    else this.renderer.setClearColor(0xffffff, 1);
     const cam0 = exp.cameras[0];
     const width = Math.min(this.root.clientWidth || 800, exp.max_width || 960);
     this.renderer.setSize(width, Math.round(width / cam0.aspect), true);
