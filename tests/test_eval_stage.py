@@ -255,3 +255,20 @@ def test_the_record_gives_the_documented_headline_and_view_columns(scene, proxy)
     assert m["short_lpips"] == res.metrics["short_lpips_proxy_vgg"]
     assert m["consistency_pairs"]["short"][0]["lpips"] == res.metrics["consistency_pairs"]["short"][0]["lpips_proxy_vgg"]
     assert list(official.per_view[0]) == [c.replace("_proxy_vgg", "") for c in header]
+
+
+def test_an_object_scene_adds_its_object_metrics_to_the_headline(scene, proxy) -> None:
+    """An object scene's evaluation: the three keys of OBJECT_HEADLINE join the headline, documented in METRICS.md,
+    and its per-view rows carry the object columns."""
+    from abcgs.io.metrics import OBJECT_HEADLINE
+    from abcgs.types import Background
+
+    cams, model, styl, style = scene
+    res = evaluate_scene(cams, model, styl, [style], PARAMS, perceptual=proxy, stylize_info={"stylize_seconds": 30.0},
+                         background=Background(object=True))
+    head = experiment_headline(res.metrics)
+    assert set(OBJECT_HEADLINE) <= set(head) and len(head) == len(EXPERIMENT_HEADLINE) + len(OBJECT_HEADLINE)
+    assert 0.0 <= head["background_change"] <= 1.0 and 0.0 <= head["silhouette_iou"] <= 1.0
+    text = (REPO / "docs" / "METRICS.md").read_text()
+    assert all(f"`{k}`" in text for k in OBJECT_HEADLINE)
+    assert {"ssim_object", "background_change", "silhouette_iou"} <= set(res.per_view[0])

@@ -65,9 +65,11 @@ trained on, against the photos), its size and wall time."""
 EXPERIMENT_HEADLINE: dict[str, str] = {
     "content_ssim": "ssim", "short_rmse": "short_rmse", "long_rmse": "long_rmse", "short_rmse_floor": "short_rmse_floor",
     "long_rmse_floor": "long_rmse_floor", "short_lpips": "short_lpips", "long_lpips": "long_lpips",
-    "gram_distance": "gram_distance", "kid": "kid", "artfid": "artfid", "stylize_minutes": "stylize_minutes",
-    # object scenes only (abcgs.evaluation.objects): absent from a frame-filling scene's record
+    "gram_distance": "gram_distance", "kid": "kid", "artfid": "artfid", "stylize_minutes": "stylize_minutes"}
+OBJECT_HEADLINE: dict[str, str] = {
     "content_ssim_object": "ssim_object", "background_change": "background_change", "silhouette_iou": "silhouette_iou"}
+"""An object scene's headline numbers besides :data:`EXPERIMENT_HEADLINE` (:mod:`abcgs.evaluation.objects`); a
+frame-filling scene's record has none of them."""
 """Per experiment, headline name → key of the evaluate record: content (SSIM between the original and the stylized
 renders), consistency (warp RMSE, the unstylized scene's warp RMSE over the same pairs — the floor the stylized
 number is read against — and the perceptual distance), style (Gram distance, KID, ArtFID) and stylization
@@ -87,13 +89,13 @@ def fit_headline(record: dict[str, Any]) -> dict[str, Any]:
 def experiment_headline(record: dict[str, Any]) -> dict[str, Any]:
     """The experiment's headline numbers from an evaluate record, under the names that were computed.
 
-    Picks each key of :data:`EXPERIMENT_HEADLINE` by exact key, or for ``short_lpips``/``long_lpips``/``kid``/
+    Picks each key of :data:`EXPERIMENT_HEADLINE` (and of :data:`OBJECT_HEADLINE`, for an object scene) by exact key, or for ``short_lpips``/``long_lpips``/``kid``/
     ``artfid`` the first key of the record that starts with it (e.g. ``short_lpips_proxy_vgg``,
     ``kid_tf_inception``, ``artfid_proxy``; the ``_std`` companions are left out)."""
     numbers = {k: v for k, v in record.items()
                if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)}
     out: dict[str, Any] = {}
-    for name, want in EXPERIMENT_HEADLINE.items():
+    for name, want in (EXPERIMENT_HEADLINE | OBJECT_HEADLINE).items():
         if want in numbers:
             out[name] = numbers[want]
             continue

@@ -12,9 +12,9 @@ Objects (each made here, from the project's generator or the shared data):
 - ``miku_splat``: the doll of ``../shared/data/scenes/miku`` cut from a fit of the scene (``--miku-fit``, e.g.
   ``python -m eval.bench.fit --scene ../shared/data/scenes/miku --format colmap --test-every 0``) by a box and
   opacity (:func:`cut_doll`), written as a bare ``.splat`` and read back as a scene the way ``add-scene`` takes one:
-  views generated around it (:func:`abcgs.splats.cameras.cameras_around`), its renders as the photos.
-- ``miku_scene``: the same doll with the capture's photos: each photo cut out by the doll's alpha in that view (an
-  RGBA photo set, like a capture with masks), on black.
+  16 views generated around it (:func:`abcgs.splats.cameras.cameras_around`) at 320 × 240, its renders as the photos.
+- ``miku_scene``: the same doll with 16 of the capture's photos (every 6th, at half size): each photo cut out by the
+  doll's alpha in that view (an RGBA photo set, like a capture with masks), on black.
 
 Each object is stylized with each painting at the photo-size schedule (colour match with a 400-step re-fit, 300
 stylization steps + a 200-step colour pass) twice: as an **object** scene (its background recorded: colour match and
@@ -38,6 +38,7 @@ from pathlib import Path
 import abcgs  # noqa: F401  (before torch: abcgs sets OpenMP's wait policy, see abcgs/__init__.py)
 
 # isort: split
+import cv2
 import numpy as np
 import torch
 
@@ -134,21 +135,24 @@ def miku_objects(work: Path, fit_ply: Path, args) -> list[ObjectCase]:
         from abcgs.sources.splat import read_splat_source
         from abcgs.splats.formats import read_splat
 
-        views = SplatViewsParams(count=24, width=args.splat_width, height=args.splat_width * 3 // 4, up=args.miku_up)
+        views = SplatViewsParams(count=args.miku_views, width=args.splat_width, height=args.splat_width * 3 // 4, up=args.miku_up)
         source: SourceScene = read_splat_source(splat, out / "splat_views", views, background=(0.0, 0.0, 0.0))
         scene = SceneData([v.camera for v in source.views], [v.image_path for v in source.views], source.points,
                           source.colors)
         cases.append(ObjectCase("miku_splat", scene, read_splat(splat).model, True))
     if "miku_scene" in args.objects:
-        cams = capture.cameras[:: max(1, len(capture.cameras) // args.miku_views)][: args.miku_views]
+        step = max(1, len(capture.cameras) // args.miku_views)
+        picked = list(range(0, len(capture.cameras), step))[: args.miku_views]
+        cams = [capture.cameras[i].scaled(args.miku_scale) for i in picked]
         photos = out / "photos"
         paths = []
-        for cam, path in zip(cams, [capture.image_paths[capture.cameras.index(c)] for c in cams]):
+        for cam, i in zip(cams, picked):
             with torch.no_grad():
                 alpha = render(doll, cam)[1].numpy()
             dst = photos / f"{Path(cam.name).stem}.png"
-            if not dst.is_file():
-                save_image(dst, load_image(path) * alpha)  # the photo cut out by the doll, on black
+            if not dst.is_file():  # the photo at the camera's size, cut out by the doll, on black
+                photo = cv2.resize(load_image(capture.image_paths[i]), (cam.width, cam.height), interpolation=cv2.INTER_AREA)
+                save_image(dst, photo * alpha)
             paths.append(dst)
         cases.append(ObjectCase("miku_scene", SceneData(cams, paths, capture.points, capture.colors), doll, False))
     return cases
@@ -253,8 +257,9 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--doll-radius", type=float, default=1.7, help="cut_doll's cylinder (capture units)")
     ap.add_argument("--doll-below", type=float, default=1.3)
     ap.add_argument("--doll-above", type=float, default=2.0)
-    ap.add_argument("--miku-views", type=int, default=24, help="photos of the miku_scene object (every k-th)")
-    ap.add_argument("--splat-width", type=int, default=400)
+    ap.add_argument("--miku-views", type=int, default=16, help="photos of the miku_scene object (every k-th)")
+    ap.add_argument("--miku-scale", type=float, default=0.5, help="the miku_scene photos' scale (of 493 x 370)")
+    ap.add_argument("--splat-width", type=int, default=320)
     ap.add_argument("--rgba-width", type=int, default=320)
     ap.add_argument("--fit-iterations", type=int, default=2000)
     ap.add_argument("--frame-paintings", default="starry_night",
@@ -293,7 +298,10 @@ def main(argv: list[str] | None = None) -> dict:
                  "n_gaussians": case.original.num_gaussians, "border_alpha": border_alpha(case, alphas),
                  "generated_views": case.generated_views, "runs": {}}
         for p, mode in runs:
-            r = run_case(case, p, args.styles / f"{p}.jpg", mode, vgg, state, sp, cm, work)
+            done = work / f"{case.name}_{p}_{mode}.json"  # a finished run is kept: the benchmark resumes
+            r = (json.loads(done.read_text()) if done.is_file() and not args.quick
+                 else run_case(case, p, args.styles / f"{p}.jpg", mode, vgg, state, sp, cm, work))
+            write_json(done, r)
             entry["runs"][f"{p}/{mode}"] = r
             print(f"{case.name:11s} {p:14s} {mode:7s} background_change {r['background_change']:.4f}  "
                   f"silhouette_iou {r['silhouette_iou']:.3f}  ssim_object {r['ssim_object']:.3f}  gram "
