@@ -310,6 +310,26 @@ def test_the_api_takes_strokes_cuts_and_saves(tmp_path, served) -> None:
     assert request(url + "/api/nothing")[0] == 404
 
 
+def test_a_late_stroke_list_of_an_older_revision_is_ignored(tmp_path, served) -> None:
+    """The page sends each view's whole list with its revision; one that arrives after a newer one changes nothing."""
+    url = served(PaintSession.for_scene(make_scene(tmp_path / "scene", 2)))
+    strokes = [s.to_json() for s in SHAPE_STROKES]
+    assert json.loads(request(url + "/api/strokes/0")[1]) == {"strokes": [], "revision": 0}
+    status, body, _ = request(url + "/api/strokes/0", {"strokes": strokes[:3], "revision": 3})
+    assert status == 200 and json.loads(body)["accepted"] and json.loads(body)["revision"] == 3
+    status, body, _ = request(url + "/api/strokes/0", {"strokes": strokes[:2], "revision": 2})  # late
+    item = json.loads(body)
+    assert status == 200 and not item["accepted"] and item["strokes"] == 3 and item["revision"] == 3
+    assert json.loads(request(url + "/api/strokes/0")[1])["revision"] == 3
+    status, body, _ = request(url + "/api/segment/0", {"strokes": strokes[:1], "revision": 1})  # cuts the newest
+    assert status == 200 and json.loads(body)["item"]["strokes"] == 3
+    status, body, _ = request(url + "/api/strokes/0", {"strokes": strokes, "revision": 4})
+    assert json.loads(body)["strokes"] == len(strokes) and json.loads(body)["stale"]
+    for bad in (-1, "5", True, 1.5):
+        status, body, _ = request(url + "/api/strokes/1", {"strokes": strokes, "revision": bad})
+        assert status == 400 and "revision" in json.loads(body)["error"]
+
+
 def test_the_api_segments_a_painting_into_its_label_map(tmp_path, served) -> None:
     img, truth = two_shapes(3)
     save_image(tmp_path / "painting.png", img)

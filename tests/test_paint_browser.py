@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import shutil
+import time
 
 import numpy as np
 import pytest
@@ -80,3 +81,43 @@ def test_the_painting_mode_writes_its_label_map(browser, serve, tiny_scene, tmp_
     iou = label_iou(labels, truth, 3)
     assert all(v >= 0.7 for v in iou.values()), iou
     assert not errors, errors
+
+
+def test_fast_strokes_while_switching_views_all_reach_a_slow_server(browser, serve, tiny_scene, tmp_path,
+                                                                     monkeypatch) -> None:
+    """A user who draws 12 quick strokes on a loaded server, switching views between them without waiting for a view
+    to load: every stroke is kept, on the server and in the page's view list. The server answers stroke lists after
+    a random 0–0.25 s (in threads, so answers come back out of order)."""
+    scene = tmp_path / "scene"
+    shutil.copytree(tiny_scene / "images", scene / "images")
+    session = PaintSession.for_scene(scene)
+    rng = np.random.default_rng(0)
+    delays = iter(rng.uniform(0.0, 0.25, 1000))
+    slow_set = session.set_strokes
+
+    def set_strokes(*args, **kw):
+        time.sleep(next(delays))
+        return slow_set(*args, **kw)
+
+    monkeypatch.setattr(session, "set_strokes", set_strokes)
+    page, _, errors = open_page(browser, serve(session))
+    box = page.locator("#canvas").bounding_box()
+    for k in range(12):
+        if k % 3 == 2:  # switch view, then draw at once (the next view may not have loaded yet)
+            page.select_option("#view", index=int(k // 3) % 3)
+        y = box["y"] + box["height"] * (0.2 + 0.05 * k)
+        page.mouse.move(box["x"] + 10, y)
+        page.mouse.down()
+        page.mouse.move(box["x"] + box["width"] / 2, y, steps=3)
+        page.mouse.up()
+    page.wait_for_function("Object.values(window.abcgsPaint.state.views).every((v) => !v.sending)", timeout=30_000)
+    local = page.evaluate("Object.fromEntries(Object.entries(window.abcgsPaint.state.views)"
+                          ".map(([i, v]) => [i, v.strokes.length]))")
+    server = {str(i): len(it.strokes) for i, it in enumerate(session.items) if it.strokes}
+    listed = page.evaluate("Array.from(document.querySelectorAll('#views li .tags')).map((t) => t.textContent)")
+    shown = page.evaluate("window.abcgsPaint.state.state.items.map((it) => it.strokes)")
+    page.close()
+    assert sum(server.values()) == 12, server
+    assert {i: n for i, n in local.items() if n} == server
+    assert [int(t.split(" stroke")[0]) if "stroke" in t else 0 for t in listed] == shown
+    assert sum(shown) == 12 and not errors, errors

@@ -80,6 +80,7 @@ class PaintItem:
     strokes: list[Stroke] = field(default_factory=list)
     result: Segmentation | None = None
     stale: bool = False  # strokes changed since ``result``
+    revision: int = 0  # the page's count of edits to ``strokes``: a list of a lower revision is older and ignored
 
 
 class PaintSession:
@@ -168,13 +169,22 @@ class PaintSession:
         """``(H, W)`` of image ``i``."""
         return tuple(self.image(i).shape[:2])
 
-    def set_strokes(self, i: int, strokes: list[Stroke]) -> None:
+    def set_strokes(self, i: int, strokes: list[Stroke], revision: int | None = None) -> bool:
+        """Replace image ``i``'s strokes by ``strokes``, the page's list at ``revision`` (its count of edits to
+        this image's strokes). A list of a revision not above the one kept is older than it (a request that arrived
+        late) and is ignored: returns False. ``None`` replaces the strokes whatever their revision."""
         with self._lock:
             item = self._item(i)
+            if revision is not None:
+                if revision <= item.revision:
+                    log.debug("%s: strokes of revision %d ignored (have %d)", item.name, revision, item.revision)
+                    return False
+                item.revision = revision
             item.strokes = list(strokes)
             item.stale = True
             if not strokes:
                 item.result = None
+            return True
 
     def segment(self, i: int, fill: bool | None = None) -> Segmentation:
         """Cut image ``i`` from its strokes (:func:`segment`) and keep the result; ``fill`` sets the session's."""
@@ -236,6 +246,7 @@ class PaintSession:
                 "items": [{
                     "index": i, "name": it.name, "strokes": len(it.strokes), "cut": it.result is not None,
                     "stale": it.stale, "saved": it.out_path.is_file(), "out": str(it.out_path),
+                    "revision": it.revision,
                     "counts": {str(k): v for k, v in it.result.counts().items()} if it.result is not None else None,
                 } for i, it in enumerate(self.items)],
             }
@@ -274,6 +285,14 @@ def _strokes(body: dict) -> list[Stroke]:
     if not isinstance(strokes, list):
         raise InputError(f"'strokes' must be a list of stroke objects, not {type(strokes).__name__}")
     return [Stroke.from_json(d) for d in strokes]
+
+
+def _revision(body: dict) -> int | None:
+    """``body["revision"]``: the page's count of edits to a view's strokes (a non-negative integer), or ``None``."""
+    value = body.get("revision")
+    if value is not None and (not isinstance(value, int) or isinstance(value, bool) or value < 0):
+        raise InputError(f"'revision' must be a non-negative integer, not {json.dumps(value)[:40]}")
+    return value
 
 
 def _flag(body: dict, key: str) -> bool | None:
@@ -391,15 +410,18 @@ class _Handler(BaseHTTPRequestHandler):
             if method == "GET" and what == "image":
                 return self._send(200, s.image_png(idx), "image/png")
             if method == "GET" and what == "strokes":
-                return self._json({"strokes": [st.to_json() for st in s._item(idx).strokes]})
+                with s._lock:
+                    item = s._item(idx)
+                    return self._json({"strokes": [st.to_json() for st in item.strokes], "revision": item.revision})
             if method == "POST" and what == "strokes":
-                s.set_strokes(idx, _strokes(self._body()))
-                return self._json(s.state()["items"][idx])
+                body = self._body()
+                accepted = s.set_strokes(idx, _strokes(body), _revision(body))
+                return self._json({**s.state()["items"][idx], "accepted": accepted})
             if method == "POST" and what == "segment":
                 body = self._body()
                 fill = _flag(body, "fill")
                 if "strokes" in body:
-                    s.set_strokes(idx, _strokes(body))
+                    s.set_strokes(idx, _strokes(body), _revision(body))
                 seg = s.segment(idx, fill)
                 return self._json({"counts": {str(k): v for k, v in seg.counts().items()},
                                    "seconds": round(seg.seconds, 3), "item": s.state()["items"][idx]})
