@@ -44,12 +44,11 @@ def test_the_same_picture_at_another_scale_is_scaled_with_the_nearest_label() ->
         labels_for_view(labels, (480, 480), "masks/a.png", "a.jpg")
 
 
-@pytest.fixture()
-def quarter_scene(tmp_path: Path, tiny_scene: Path) -> Path:
-    """The tiny scene as nerfstudio with images_4/; masks/ holds a user's full-size label map of view 000."""
+def nerfstudio_quarter(folder: Path, tiny_scene: Path) -> Path:
+    """The tiny scene as a nerfstudio dataset in ``folder`` with a ¼-size copy of its views in ``images_4/`` and an
+    empty ``masks/`` for the user's label maps (the dataset's own keep-masks removed)."""
     cams = cameras_from_json(json.loads((tiny_scene / "cameras.json").read_text()))
-    folder = tmp_path / "ns"
-    folder.mkdir()
+    folder.mkdir(parents=True)
     write_nerfstudio(folder, tiny_scene, cams)
     shutil.rmtree(folder / "masks")  # the dataset's own keep-masks: this scene's masks/ are the user's label maps
     (folder / "masks").mkdir()
@@ -58,6 +57,13 @@ def quarter_scene(tmp_path: Path, tiny_scene: Path) -> Path:
         f.pop("mask_path", None)
     (folder / "transforms.json").write_text(json.dumps(meta))
     _copy_images(tiny_scene / "images", folder / "images_4", scale=0.25)
+    return folder
+
+
+@pytest.fixture()
+def quarter_scene(tmp_path: Path, tiny_scene: Path) -> Path:
+    """:func:`nerfstudio_quarter`; masks/ holds a user's full-size label map of view 000."""
+    folder = nerfstudio_quarter(tmp_path / "ns", tiny_scene)
     shutil.copy(tiny_scene / "masks" / "000.png", folder / "masks" / "000.png")
     return folder
 

@@ -11,9 +11,13 @@ missing browser is a failure (as in tests/test_viewer_browser.py).
 from __future__ import annotations
 
 import contextlib
+import json
 import shutil
+import tempfile
 import time
+from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from conftest import launch_chromium
@@ -121,3 +125,77 @@ def test_fast_strokes_while_switching_views_all_reach_a_slow_server(browser, ser
     assert {i: n for i, n in local.items() if n} == server
     assert [int(t.split(" stroke")[0]) if "stroke" in t else 0 for t in listed] == shown
     assert sum(shown) == 12 and not errors, errors
+
+
+def _draw_label_strokes(page, truth: np.ndarray) -> None:
+    """Two labels' strokes from ``truth`` drawn with the mouse, then Segment and Save."""
+    draw(page, simulated_strokes(truth, 2, radius=1.5), truth.shape[1])
+    press(page, "segment", "segmented")
+    press(page, "save", "saved")
+
+
+def test_a_nerfstudio_scene_is_painted_through_images_4(browser, serve, tiny_scene, tmp_path) -> None:
+    """data.scenes.ns = {path: a nerfstudio dataset, images: images_4}: the page shows the 40×30 views the pipeline
+    reads, saves a 40×30 label map to the scene's masks/, and the reconstruct stage's reader takes it as it is."""
+    from test_label_scale import nerfstudio_quarter
+
+    from abcgs.sfm.params import ReconstructParams
+    from abcgs.sources.model import write_source_model
+    from abcgs.sources.read import read_source
+
+    folder = nerfstudio_quarter(tmp_path / "ns", tiny_scene)
+    (tmp_path / "params.yaml").write_text(json.dumps({"data": {"scenes": {"ns": {"path": "ns", "images": "images_4"}}}}))
+    truth = cv2.resize(load_labels(tiny_scene / "masks" / "000.png").astype(np.uint8), (40, 30),
+                       interpolation=cv2.INTER_NEAREST).astype(np.int64)
+    page, _, errors = open_page(browser, serve(PaintSession.for_params(tmp_path / "params.yaml", "ns")))
+    assert page.evaluate("[window.abcgsPaint.state.image.naturalWidth, window.abcgsPaint.state.image.naturalHeight]") \
+        == [40, 30]
+    assert page.locator("#view option").count() == 16
+    _draw_label_strokes(page, truth)
+    page.close()
+    assert not errors, errors
+    saved = load_labels(folder / "masks" / "000.png")
+    assert saved.shape == (30, 40) and {1, 2} <= set(np.unique(saved))
+    source = read_source(folder, "nerfstudio", images="images_4")
+    write_source_model(source, tmp_path / "colmap", ReconstructParams(), masks_dir=folder / "masks")
+    assert np.array_equal(load_labels(tmp_path / "colmap" / "masks" / "000.png"), saved)
+
+
+def test_a_bare_splat_is_painted_on_its_generated_views(browser, serve, tmp_path) -> None:
+    """data.scenes.sp = {path: a folder with one splat}: the page shows the views the reconstruct stage rendered
+    (out/sp/colmap/images/), saves to the splat's masks/, and the next reconstruct carries them to the masks stage."""
+    from test_splats import make_model
+
+    from abcgs.sfm.params import ReconstructParams
+    from abcgs.sources.detect import detect_format
+    from abcgs.sources.model import write_source_model
+    from abcgs.sources.read import read_source
+    from abcgs.splats.params import SplatViewsParams
+    from abcgs.splats.splat import write_splat_file
+
+    folder = tmp_path / "sp"
+    folder.mkdir()
+    write_splat_file(folder / "scene.splat", make_model(2500, 0, seed=3))
+    views = {"count": 6, "width": 64, "height": 48}
+    (tmp_path / "params.yaml").write_text(json.dumps({"data": {"scenes": {"sp": {"path": "sp", "views": views}}}}))
+    colmap = tmp_path / "out" / "sp" / "colmap"
+
+    def reconstruct() -> None:  # as stages/reconstruct.py does for a bare splat
+        with tempfile.TemporaryDirectory() as work:
+            source = read_source(folder, detect_format(folder), views=SplatViewsParams(**views), work=work)
+            write_source_model(source, colmap, ReconstructParams(), masks_dir=folder / "masks")
+
+    reconstruct()
+    names = sorted(p.name for p in (colmap / "images").iterdir())
+    page, _, errors = open_page(browser, serve(PaintSession.for_params(tmp_path / "params.yaml", "sp")))
+    assert page.locator("#view option").all_text_contents() == names
+    image = cv2.imread(str(colmap / "images" / names[0]))
+    truth = np.where(image.max(axis=2) > 20, 1, 2)  # the splat against its background
+    _draw_label_strokes(page, truth)
+    page.close()
+    assert not errors, errors
+    saved = load_labels(folder / "masks" / f"{Path(names[0]).stem}.png")
+    assert saved.shape == (48, 64) and {1, 2} <= set(np.unique(saved))
+    assert detect_format(folder) == "splat"  # masks/ beside the splat keeps it a bare splat scene
+    reconstruct()
+    assert np.array_equal(load_labels(colmap / "masks" / f"{Path(names[0]).stem}.png"), saved)
