@@ -133,10 +133,10 @@ class PaintSession:
         and background; a bare splat's views from ``<out>/<name>/colmap/images/``, ``out`` default the
         ``out/`` beside the params file), as :meth:`for_scene`."""
         from abcgs import layout
-        from abcgs.params import load_params
+        from abcgs.sections import read_params_file, validate_sections
 
         params_path = Path(params_path)
-        params = load_params(params_path)
+        params = validate_sections(read_params_file(params_path), frozenset({"data"}), str(params_path))
         if name not in params.data.scenes:
             raise InputError(f"data.scenes has no scene {name!r} in {params_path} (it has "
                              f"{', '.join(params.data.scenes)})")
