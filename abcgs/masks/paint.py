@@ -90,7 +90,8 @@ class PaintItem:
 class PaintSession:
     """The images of one page, their strokes and cuts; thread-safe (the server handles requests in threads).
 
-    ``mode`` is ``"scene"`` (every view of ``<scene>/images/``, masks to ``<scene>/masks/<stem>.png``) or
+    ``mode`` is ``"scene"`` (every view the pipeline reads of a scene, :func:`scene_views`; masks to
+    ``<scene>/masks/<stem>.png``) or
     ``"painting"`` (one painting, its label map to ``labels_out``).
     """
 
