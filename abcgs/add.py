@@ -28,7 +28,7 @@ from abcgs.fit.params import FitParams
 from abcgs.io.atomic import write_text
 from abcgs.io.images import load_labels
 from abcgs.params import load_params, validate_params
-from abcgs.preflight import check_image, check_painting, check_scene_images
+from abcgs.preflight import check_image, check_label_map_sizes, check_painting, check_scene_images, view_sizes
 from abcgs.sections import NAME_PATTERN, NAME_RE
 from abcgs.sfm.params import ReconstructParams
 from abcgs.sources.base import SourceScene
@@ -78,9 +78,22 @@ def describe_photos(name: str, folder: Path, images: str | None, max_ratio: floa
     warnings = check_scene_images(name, folder / sub, max_ratio)
     lines = [f"{len(files)} photos, {_sizes([image_size(p) for p in files])} pixels, in {sub}/; cameras: structure "
              "from motion in the reconstruct stage"]
-    if (folder / "masks").is_dir():
-        lines.append(f"{len(list((folder / 'masks').glob('*.png')))} label map(s) in masks/")
+    stems = {p.stem for p in files}
+    lines += label_map_lines(name, folder, view_sizes(folder / sub, stems), images)
     return lines + warnings
+
+
+def label_map_lines(name: str, folder: Path, views: dict[str, tuple[str, tuple[int, int]]],
+                    images: str | None) -> list[str]:
+    """Check the label maps in ``<folder>/masks/`` against their views' sizes (``views``: stem → ``(file name,
+    (H, W))``; :func:`abcgs.preflight.check_label_map_sizes`) and say what there is."""
+    masks = folder / "masks"
+    if not masks.is_dir():
+        return []
+    scaled = check_label_map_sizes(name, masks, views, images)
+    n = len(list(masks.glob("*.png")))
+    return [f"{n} label map(s) in masks/" + (f", {scaled} of another size than their views: scaled to them (nearest "
+                                             "label)" if scaled else "")]
 
 
 def edit_params(path: str | os.PathLike, edit: Callable[[Any], None]) -> str:
@@ -143,10 +156,15 @@ def scene_entry(name: str, path: str | os.PathLike, *, fmt: str = "auto", images
         source = read_source(folder, resolved, images=images,
                              background=SceneParams.model_validate(entry).resolved_background(resolved).color)
         lines = describe_source(source, folder)
+<<<<<<< HEAD
     bg = SceneParams.model_validate(entry).resolved_background(resolved)
     if bg.object:
         lines.append("an object on nothing: colour match and stylization act on the object, empty space stays "
                      + ("transparent (RGBA renders)" if bg.transparent else f"{list(bg.color)}"))
+=======
+        lines += label_map_lines(name, folder, {Path(v.name).stem: (v.name, (v.camera.height, v.camera.width))
+                                                for v in source.views}, images)
+>>>>>>> h-regions
     if splat is not None:
         splat_path = Path(splat).expanduser().resolve()
         if not splat_path.is_file():

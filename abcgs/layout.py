@@ -2,7 +2,7 @@
 
 Per scene ``S``, colour match ``M`` (``colormatches.M``) and experiment ``E``::
 
-    out/preflight.json, out/preflight_report.json                            preflight
+    out/preflight.json, out/preflight_report.json, out/label_use/S.json      preflight
     out/styles/P.png, out/styles/P.labels.png                                styles, style_masks (painting P)
     out/S/colmap/{sparse,images,masks}, out/S/reconstruct.json               reconstruct
     out/S/gs/{point_cloud.ply, metrics.json, history.csv, …}, fit_metrics.json  fit
@@ -36,6 +36,15 @@ PREFLIGHT_STAMP = OUT / "preflight.json"
 """The preflight stage's stamp: every other stage depends on it (its content never changes)."""
 PREFLIGHT_REPORT = OUT / "preflight_report.json"
 """The preflight stage's warnings."""
+LABEL_USE = OUT / "label_use"
+"""Per scene ``S``, ``S.json``: whether a colour match reads the scene's content labels (:func:`label_use`)."""
+
+
+def label_use(scene: str, out: Path = OUT) -> Path:
+    """``out/label_use/<scene>.json``, written by the preflight stage: ``{"content_labels_read": bool}``, true when
+    a colour match of the scene is compositional or semantic. The ``masks`` stage of the scene depends on this
+    file alone, not on the colour matches, so it re-runs only when that answer changes."""
+    return Path(out) / LABEL_USE.relative_to(OUT) / f"{scene}.json"
 STYLES = OUT / "styles"
 """The paintings of ``data.styles`` and the region maps of ``data.style_masks``, as :class:`StylesDir` names them."""
 

@@ -10,7 +10,8 @@ checks the params against the two other things a run depends on:
 - the inputs (:func:`check_input_files`): every scene folder exists and its format is known (given or detected:
   :mod:`abcgs.sources.detect`); a folder of photos holds decodable views of similar sizes (:func:`check_scene_images`;
   an alpha channel or a grey view among colour ones is a warning), its ``masks/`` name views and label something
-  (:func:`check_scene_masks`; numbered labels that skip values are a warning); a dataset with cameras is read and
+  (:func:`check_scene_masks`; numbered labels that skip values are a warning) at their views' size or its scale
+  (:func:`check_label_map_sizes`); a dataset with cameras is read and
   checked by the ``preflight`` stage (:mod:`abcgs.sources.check`: the model is present, images match cameras, sizes
   are a consistent scale); paintings and label maps exist, decode, are large enough and do not live in a folder stages write (a label map of another
   size than its painting is a warning), and ``vgg.path`` exists. A scene or painting a ``dvc.yaml`` stage produces
@@ -39,6 +40,7 @@ from PIL import Image
 
 from abcgs.dotted import has_key
 from abcgs.errors import InputError, ParamsError
+from abcgs.io.images import check_label_size
 from abcgs.masks.params import UNDECIDED
 from abcgs.scene.params import TINY_STYLE_FILES
 from abcgs.sources.detect import DEFAULT_IMAGES, IMAGE_SUFFIXES, detect_format
@@ -225,6 +227,38 @@ def mask_labels(path: Path) -> np.ndarray | None:
     return img
 
 
+def paint_command(folder: Path, images: str | None = None) -> str:
+    """The command that opens the strokes page on a scene's views (what a label map of the right size comes from)."""
+    return f"python -m abcgs.masks.paint {folder}" + (f" --images {images}" if images and images != DEFAULT_IMAGES else "")
+
+
+def check_label_map_sizes(name: str, masks: Path, views: Mapping[str, tuple[str, tuple[int, int]]],
+                          images: str | None = None) -> int:
+    """Every label PNG in ``masks`` is its view at some scale (:func:`abcgs.io.images.check_label_size`, from the
+    files' headers: nothing is decoded). ``views``: view stem → ``(file name, (H, W))``; maps of no view are left to
+    the caller. Raises :class:`InputError` naming the file, both sizes and the fix; returns how many maps are of
+    another size (the ``reconstruct`` stage scales them to their views, nearest label)."""
+    scaled = 0
+    for p in sorted(masks.glob("*.png")) if masks.is_dir() else []:
+        if p.stem not in views:
+            continue
+        view, hw = views[p.stem]
+        w, h = _size(p)
+        if (h, w) != tuple(hw):
+            check_label_size(p, (h, w), hw, view, f"or paint it on the views: {paint_command(masks.parent, images)}")
+            scaled += 1
+    if scaled:
+        log.info("data.scenes.%s: %d label map(s) in %s are scaled to their views (nearest label)", name, scaled, masks)
+    return scaled
+
+
+def view_sizes(images: Path, stems: Collection[str]) -> dict[str, tuple[str, tuple[int, int]]]:
+    """View stem → ``(file name, (H, W))`` of the images in the folder ``images`` whose stems are in ``stems`` (from
+    the files' headers), for :func:`check_label_map_sizes`."""
+    return {p.stem: (p.name, _size(p)[::-1]) for p in sorted(images.iterdir())
+            if p.suffix.lower() in IMAGE_SUFFIXES and p.stem in stems}
+
+
 def check_scene_masks(name: str, folder: Path, images: str = DEFAULT_IMAGES) -> list[str]:
     """The user's label PNGs in ``<scene>/masks/`` name views of ``images/`` and label something. Returns warnings:
     numbered labels that skip values (``7`` beside ``1, 2, 3``: each value is a label of its own; ``255``,
@@ -240,6 +274,10 @@ def check_scene_masks(name: str, folder: Path, images: str = DEFAULT_IMAGES) -> 
             f"data.scenes.{name}: {len(orphans)} of {len(files)} mask file(s) in {masks} match no view in images/ "
             f"({', '.join(orphans[:5])}{' …' if len(orphans) > 5 else ''}). A mask is named like its view "
             f"(masks/IMG_0001.png labels images/IMG_0001.jpg); rename or remove them")
+    try:
+        check_label_map_sizes(name, masks, view_sizes(folder / images, {p.stem for p in files}), images)
+    except InputError as exc:
+        raise InputError(f"data.scenes.{name}: {exc}") from None
     if all(_labels_nothing(p) for p in files):
         raise InputError(f"data.scenes.{name}: every mask in {masks} is all 0 (no label) or 255 (undecided), so it labels nothing; "
                          "paint the labels (1, 2, … or colours on black) or remove the folder for automatic masks")

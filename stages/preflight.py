@@ -9,7 +9,9 @@ the colour matches bind where the label maps are given files; :func:`abcgs.sourc
 datasets with cameras read by their readers). Every other stage
 depends on its stamp, so ``dvc repro`` stops here, with the key named, before DVC deletes any stage's outputs. The
 stamp's content does not depend on the params, so a passing preflight re-runs nothing downstream; the warnings are
-printed (``dvc repro`` shows them) and go to ``--record``, which the report shows.
+printed (``dvc repro`` shows them) and go to ``--record``, which the report shows. For each scene it also writes
+whether a colour match reads its content labels (``--label-use``, :func:`abcgs.layout.label_use`): the scene's
+``masks`` stage depends on that file, which changes only when the answer does.
 """
 
 from __future__ import annotations
@@ -17,7 +19,8 @@ from __future__ import annotations
 import sys
 
 from abcgs import layout
-from abcgs.io.atomic import write_json
+from abcgs.features.params import content_label_readers
+from abcgs.io.atomic import atomic_path, write_json
 from abcgs.params import validate_params
 from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.preflight import check_input_files, dvc_output_files, dvc_outputs, preflight
@@ -27,6 +30,7 @@ from abcgs.sources.check import check_scene_sources
 SPEC = StageSpec("preflight", deps=(Dep("params", "params.yaml", "the pipeline's params file"),), outs=(
     Out(layout.PREFLIGHT_STAMP, "out", help="the stamp every other stage depends on"),
     Out(layout.PREFLIGHT_REPORT, "record", help="the warnings (JSON)"),
+    Out(layout.LABEL_USE, "label-use", help="per scene, whether a colour match reads its content labels (JSON)"),
 ))
 
 
@@ -43,6 +47,10 @@ def main(args, _sections) -> None:
     for w in warnings:  # on the terminal of `dvc repro`, and in the record the report shows
         print(f"[preflight] warning: {w}", file=sys.stderr, flush=True)
     write_json(args.record, {"warnings": warnings})
+    with atomic_path(args.label_use, is_dir=True) as tmp:
+        for scene in params.data.scenes:
+            write_json(tmp / layout.label_use(scene).name,
+                       {"content_labels_read": bool(content_label_readers(params.colormatches, scene))})
     write_json(args.out, {"checks": "passed"})
 
 

@@ -214,7 +214,7 @@ def test_save_writes_label_pngs_of_the_views_with_strokes_that_read_back(tmp_pat
 
 def test_scene_and_painting_errors(tmp_path) -> None:
     (tmp_path / "empty").mkdir()
-    with pytest.raises(InputError, match="no images/ folder"):
+    with pytest.raises(InputError, match=r"no scene found \(it is empty\); put the photos in .*empty/images/"):
         PaintSession.for_scene(tmp_path / "empty")
     with pytest.raises(InputError, match="does not exist"):
         PaintSession.for_scene(tmp_path / "nowhere")
@@ -227,9 +227,42 @@ def test_scene_and_painting_errors(tmp_path) -> None:
         s.save()
 
 
+def test_the_views_are_the_ones_the_pipeline_reads(tmp_path, capsys) -> None:
+    """An ``images_N`` folder (given, or a params scene's ``images:``), and a bare splat's generated views, with
+    their label maps in the scene's masks/."""
+    scene = make_scene(tmp_path / "scene", 2)
+    small = tmp_path / "scene" / "images_2"
+    small.mkdir()
+    for p in (scene / "images").iterdir():
+        save_image(small / p.name, cv2.resize(cv2.imread(str(p))[..., ::-1], (W // 2, H // 2)))
+    s = PaintSession.for_scene(scene, images="images_2")
+    assert [it.image_path for it in s.items] == sorted(small.iterdir()) and s.size(0) == (H // 2, W // 2)
+    assert s.items[1].out_path == scene / "masks" / "view01.png"
+    (tmp_path / "params.yaml").write_text(json.dumps({"data": {"scenes": {
+        "s": {"path": "scene", "images": "images_2"}, "sp": {"path": "splat"}}}}))
+    assert [it.image_path for it in PaintSession.for_params(tmp_path / "params.yaml", "s").items] == sorted(small.iterdir())
+    (tmp_path / "splat").mkdir()
+    (tmp_path / "splat" / "model.spz").write_bytes(b"")
+    with pytest.raises(InputError, match=r"holds no views yet: run dvc repro reconstruct@sp first"):
+        PaintSession.for_params(tmp_path / "params.yaml", "sp")
+    assert main(["--scene", "sp", "--params", str(tmp_path / "params.yaml"), "--no-open"]) == 2
+    assert "dvc repro reconstruct@sp" in capsys.readouterr().err
+    with pytest.raises(InputError, match=r"is a bare splat: its views are the ones the reconstruct stage"):
+        PaintSession.for_scene(tmp_path / "splat")
+    views = tmp_path / "out" / "sp" / "colmap" / "images"
+    views.mkdir(parents=True)
+    save_image(views / "view_000.png", two_shapes()[0])
+    (tmp_path / "splat" / "masks").mkdir()  # label maps beside the splat: still a bare splat scene
+    s = PaintSession.for_params(tmp_path / "params.yaml", "sp")
+    assert [(it.image_path, it.out_path) for it in s.items] == [(views / "view_000.png",
+                                                                  tmp_path / "splat" / "masks" / "view_000.png")]
+    with pytest.raises(InputError, match="no scene 'x'"):
+        PaintSession.for_params(tmp_path / "params.yaml", "x")
+
+
 def test_cli_explains_a_missing_images_folder(tmp_path, capsys) -> None:
     assert main([str(tmp_path), "--no-open"]) == 2
-    assert "no images/ folder" in capsys.readouterr().err
+    assert f"put the photos in {tmp_path / 'images'}/" in capsys.readouterr().err
     assert main(["--no-open"]) == 2
     assert "--painting" in capsys.readouterr().err
 
@@ -308,6 +341,26 @@ def test_the_api_takes_strokes_cuts_and_saves(tmp_path, served) -> None:
     maps, _ = read_label_files([scene / "masks" / "view00.png"], [(H, W)])
     assert np.array_equal(maps[0], labels)
     assert request(url + "/api/nothing")[0] == 404
+
+
+def test_a_late_stroke_list_of_an_older_revision_is_ignored(tmp_path, served) -> None:
+    """The page sends each view's whole list with its revision; one that arrives after a newer one changes nothing."""
+    url = served(PaintSession.for_scene(make_scene(tmp_path / "scene", 2)))
+    strokes = [s.to_json() for s in SHAPE_STROKES]
+    assert json.loads(request(url + "/api/strokes/0")[1]) == {"strokes": [], "revision": 0}
+    status, body, _ = request(url + "/api/strokes/0", {"strokes": strokes[:3], "revision": 3})
+    assert status == 200 and json.loads(body)["accepted"] and json.loads(body)["revision"] == 3
+    status, body, _ = request(url + "/api/strokes/0", {"strokes": strokes[:2], "revision": 2})  # late
+    item = json.loads(body)
+    assert status == 200 and not item["accepted"] and item["strokes"] == 3 and item["revision"] == 3
+    assert json.loads(request(url + "/api/strokes/0")[1])["revision"] == 3
+    status, body, _ = request(url + "/api/segment/0", {"strokes": strokes[:1], "revision": 1})  # cuts the newest
+    assert status == 200 and json.loads(body)["item"]["strokes"] == 3
+    status, body, _ = request(url + "/api/strokes/0", {"strokes": strokes, "revision": 4})
+    assert json.loads(body)["strokes"] == len(strokes) and json.loads(body)["stale"]
+    for bad in (-1, "5", True, 1.5):
+        status, body, _ = request(url + "/api/strokes/1", {"strokes": strokes, "revision": bad})
+        assert status == 400 and "revision" in json.loads(body)["error"]
 
 
 def test_the_api_segments_a_painting_into_its_label_map(tmp_path, served) -> None:

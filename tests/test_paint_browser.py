@@ -11,8 +11,13 @@ missing browser is a failure (as in tests/test_viewer_browser.py).
 from __future__ import annotations
 
 import contextlib
+import json
 import shutil
+import tempfile
+import time
+from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from conftest import launch_chromium
@@ -80,3 +85,117 @@ def test_the_painting_mode_writes_its_label_map(browser, serve, tiny_scene, tmp_
     iou = label_iou(labels, truth, 3)
     assert all(v >= 0.7 for v in iou.values()), iou
     assert not errors, errors
+
+
+def test_fast_strokes_while_switching_views_all_reach_a_slow_server(browser, serve, tiny_scene, tmp_path,
+                                                                     monkeypatch) -> None:
+    """A user who draws 12 quick strokes on a loaded server, switching views between them without waiting for a view
+    to load: every stroke is kept, on the server and in the page's view list. The server answers stroke lists after
+    a random 0–0.25 s (in threads, so answers come back out of order)."""
+    scene = tmp_path / "scene"
+    shutil.copytree(tiny_scene / "images", scene / "images")
+    session = PaintSession.for_scene(scene)
+    rng = np.random.default_rng(0)
+    delays = iter(rng.uniform(0.0, 0.25, 1000))
+    slow_set = session.set_strokes
+
+    def set_strokes(*args, **kw):
+        time.sleep(next(delays))
+        return slow_set(*args, **kw)
+
+    monkeypatch.setattr(session, "set_strokes", set_strokes)
+    page, _, errors = open_page(browser, serve(session))
+    box = page.locator("#canvas").bounding_box()
+    for k in range(12):
+        if k % 3 == 2:  # switch view, then draw at once (the next view may not have loaded yet)
+            page.select_option("#view", index=int(k // 3) % 3)
+        y = box["y"] + box["height"] * (0.2 + 0.05 * k)
+        page.mouse.move(box["x"] + 10, y)
+        page.mouse.down()
+        page.mouse.move(box["x"] + box["width"] / 2, y, steps=3)
+        page.mouse.up()
+    page.wait_for_function("Object.values(window.abcgsPaint.state.views).every((v) => !v.sending)", timeout=30_000)
+    local = page.evaluate("Object.fromEntries(Object.entries(window.abcgsPaint.state.views)"
+                          ".map(([i, v]) => [i, v.strokes.length]))")
+    server = {str(i): len(it.strokes) for i, it in enumerate(session.items) if it.strokes}
+    listed = page.evaluate("Array.from(document.querySelectorAll('#views li .tags')).map((t) => t.textContent)")
+    shown = page.evaluate("window.abcgsPaint.state.state.items.map((it) => it.strokes)")
+    page.close()
+    assert sum(server.values()) == 12, server
+    assert {i: n for i, n in local.items() if n} == server
+    assert [int(t.split(" stroke")[0]) if "stroke" in t else 0 for t in listed] == shown
+    assert sum(shown) == 12 and not errors, errors
+
+
+def _draw_label_strokes(page, truth: np.ndarray) -> None:
+    """Two labels' strokes from ``truth`` drawn with the mouse, then Segment and Save."""
+    draw(page, simulated_strokes(truth, 2, radius=1.5), truth.shape[1])
+    press(page, "segment", "segmented")
+    press(page, "save", "saved")
+
+
+def test_a_nerfstudio_scene_is_painted_through_images_4(browser, serve, tiny_scene, tmp_path) -> None:
+    """data.scenes.ns = {path: a nerfstudio dataset, images: images_4}: the page shows the 40×30 views the pipeline
+    reads, saves a 40×30 label map to the scene's masks/, and the reconstruct stage's reader takes it as it is."""
+    from test_label_scale import nerfstudio_quarter
+
+    from abcgs.sfm.params import ReconstructParams
+    from abcgs.sources.model import write_source_model
+    from abcgs.sources.read import read_source
+
+    folder = nerfstudio_quarter(tmp_path / "ns", tiny_scene)
+    (tmp_path / "params.yaml").write_text(json.dumps({"data": {"scenes": {"ns": {"path": "ns", "images": "images_4"}}}}))
+    truth = cv2.resize(load_labels(tiny_scene / "masks" / "000.png").astype(np.uint8), (40, 30),
+                       interpolation=cv2.INTER_NEAREST).astype(np.int64)
+    page, _, errors = open_page(browser, serve(PaintSession.for_params(tmp_path / "params.yaml", "ns")))
+    assert page.evaluate("[window.abcgsPaint.state.image.naturalWidth, window.abcgsPaint.state.image.naturalHeight]") \
+        == [40, 30]
+    assert page.locator("#view option").count() == 16
+    _draw_label_strokes(page, truth)
+    page.close()
+    assert not errors, errors
+    saved = load_labels(folder / "masks" / "000.png")
+    assert saved.shape == (30, 40) and {1, 2} <= set(np.unique(saved))
+    source = read_source(folder, "nerfstudio", images="images_4")
+    write_source_model(source, tmp_path / "colmap", ReconstructParams(), masks_dir=folder / "masks")
+    assert np.array_equal(load_labels(tmp_path / "colmap" / "masks" / "000.png"), saved)
+
+
+def test_a_bare_splat_is_painted_on_its_generated_views(browser, serve, tmp_path) -> None:
+    """data.scenes.sp = {path: a folder with one splat}: the page shows the views the reconstruct stage rendered
+    (out/sp/colmap/images/), saves to the splat's masks/, and the next reconstruct carries them to the masks stage."""
+    from test_splats import make_model
+
+    from abcgs.sfm.params import ReconstructParams
+    from abcgs.sources.detect import detect_format
+    from abcgs.sources.model import write_source_model
+    from abcgs.sources.read import read_source
+    from abcgs.splats.params import SplatViewsParams
+    from abcgs.splats.splat import write_splat_file
+
+    folder = tmp_path / "sp"
+    folder.mkdir()
+    write_splat_file(folder / "scene.splat", make_model(2500, 0, seed=3))
+    views = {"count": 6, "width": 64, "height": 48}
+    (tmp_path / "params.yaml").write_text(json.dumps({"data": {"scenes": {"sp": {"path": "sp", "views": views}}}}))
+    colmap = tmp_path / "out" / "sp" / "colmap"
+
+    def reconstruct() -> None:  # as stages/reconstruct.py does for a bare splat
+        with tempfile.TemporaryDirectory() as work:
+            source = read_source(folder, detect_format(folder), views=SplatViewsParams(**views), work=work)
+            write_source_model(source, colmap, ReconstructParams(), masks_dir=folder / "masks")
+
+    reconstruct()
+    names = sorted(p.name for p in (colmap / "images").iterdir())
+    page, _, errors = open_page(browser, serve(PaintSession.for_params(tmp_path / "params.yaml", "sp")))
+    assert page.locator("#view option").all_text_contents() == names
+    image = cv2.imread(str(colmap / "images" / names[0]))
+    truth = np.where(image.max(axis=2) > 20, 1, 2)  # the splat against its background
+    _draw_label_strokes(page, truth)
+    page.close()
+    assert not errors, errors
+    saved = load_labels(folder / "masks" / f"{Path(names[0]).stem}.png")
+    assert saved.shape == (48, 64) and {1, 2} <= set(np.unique(saved))
+    assert detect_format(folder) == "splat"  # masks/ beside the splat keeps it a bare splat scene
+    reconstruct()
+    assert np.array_equal(load_labels(colmap / "masks" / f"{Path(names[0]).stem}.png"), saved)

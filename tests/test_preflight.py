@@ -94,7 +94,8 @@ def test_the_preflight_stage_stops_before_work_and_says_why(tmp_path, capsys) ->
     (tmp_path / "dvc.yaml").write_text(yaml.safe_dump(DVC))
     _scene(tmp_path)
     params, stamp = tmp_path / "params.yaml", tmp_path / "out" / "preflight.json"
-    argv = ["--params", str(params), "--out", str(stamp), "--record", str(tmp_path / "out" / "report.json")]
+    argv = ["--params", str(params), "--out", str(stamp), "--record", str(tmp_path / "out" / "report.json"),
+            "--label-use", str(tmp_path / "out" / "label_use")]
     params.write_text(yaml.safe_dump({"data": {"scenes": {"s": "scene"}, "styles": {}}}))
     assert run_stage(stage.SPEC, stage_parser(stage.SPEC, "t"), stage.main, argv) == 2 and not stamp.exists()
     err = capsys.readouterr().err

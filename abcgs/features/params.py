@@ -7,6 +7,7 @@ it configures (each stage's code dependencies stay its own: ``abcgs/dag.py``).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -25,6 +26,12 @@ times of both budgets: ``docs/measurements/settings.yaml``, ``fast_max_block_ele
 
 ALL_PIXELS = -1
 """Content label of the single-image group: every pixel."""
+
+
+def content_label_readers(colormatches: Mapping[str, TransferSpec], scene: str) -> list[str]:
+    """The names of the colour matches of ``scene`` that read its content labels (not single-image), sorted: when
+    there are none, nothing reads what the ``masks`` stage computes for that scene."""
+    return sorted(name for name, spec in colormatches.items() if spec.scene == scene and spec.reads_content_labels)
 
 
 class TransferSpec(BaseModel):
@@ -49,6 +56,12 @@ class TransferSpec(BaseModel):
         if self.transfer == "compositional" and not self.styles:
             raise ValueError("transfer 'compositional' needs 'styles' (content label → style key)")
         return self
+
+    @property
+    def reads_content_labels(self) -> bool:
+        """Whether the transfer binds paintings to content labels (compositional, semantic); single-image transfer
+        styles every pixel alike and reads none."""
+        return self.transfer != "single"
 
     def style_keys(self) -> list[str]:
         return sorted(set(self.styles.values())) if self.transfer == "compositional" else [self.style]

@@ -91,6 +91,39 @@ def load_labels(path: str | os.PathLike, *, expect_hw: tuple[int, int] | None = 
     return img.astype(np.int64)
 
 
+def same_picture_scaled(map_hw: tuple[int, int], view_hw: tuple[int, int]) -> bool:
+    """Whether a label map of ``map_hw`` ``(H, W)`` pixels is its view of ``view_hw`` at another (or the same) scale:
+    the same aspect within a pixel of rounding either way (a 1080×1920 map of a 270×480 ``images_4`` view)."""
+    (h, w), (vh, vw) = map_hw, view_hw
+    return abs(h * vw / w - vh) <= 1.0 and abs(w * vh / h - vw) <= 1.0
+
+
+def check_label_size(path: str | os.PathLike, map_hw: tuple[int, int], view_hw: tuple[int, int], view: str = "",
+                     fix: str = "") -> None:
+    """Refuse a label map whose size ``map_hw`` ``(H, W)`` is not its view's ``view_hw`` at some scale
+    (:func:`same_picture_scaled`): :class:`InputError` naming the file, both sizes and the fix (``fix``, else the
+    generic one). ``view``: the view's file, for the message."""
+    if same_picture_scaled(map_hw, view_hw):
+        return
+    (h, w), (vh, vw) = map_hw, view_hw
+    raise InputError(
+        f"label map {path} is {w}×{h} but its view{' ' + view if view else ''} is {vw}×{vh}, another aspect, so it is "
+        f"not that picture at another scale; save it at {vw}×{vh} (or any size of that aspect: it is scaled, nearest "
+        f"label){', ' + fix if fix else ''}")
+
+
+def labels_for_view(labels: np.ndarray, view_hw: tuple[int, int], path: str | os.PathLike = "",
+                    view: str = "") -> np.ndarray:
+    """A label map ``(h, w)`` at its view's size ``view_hw`` ``(H, W)``: as it is when the sizes agree, scaled with
+    nearest neighbour when it is the same picture at another scale, else refused (:func:`check_label_size`).
+    Returns ``(H, W) int64``."""
+    if tuple(labels.shape[:2]) == tuple(view_hw):
+        return labels
+    check_label_size(path, labels.shape[:2], view_hw, view)
+    src = labels.astype(np.uint16 if labels.max(initial=0) > 255 else np.uint8)
+    return cv2.resize(src, (view_hw[1], view_hw[0]), interpolation=cv2.INTER_NEAREST).astype(np.int64)
+
+
 def to_uint8(img: np.ndarray) -> np.ndarray:
     """``[0, 1]`` float image → uint8 with rounding."""
     return (np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)

@@ -3,7 +3,8 @@
 Layout of ``out/<scene>/masks/``: ``gaussian_labels.npy`` ``(N,) int64`` (the lifted label of every Gaussian, 0 =
 unassigned), ``views/<view>.png`` (the label map rendered back for every view), ``overlay.png`` (the first views,
 their lifted labels and both blended) and ``masks.json`` (source, label counts, agreement, held-out IoU, the share of unlabelled Gaussians and, per view, of
-unlabelled pixels, and a warning for each view above ``masks.warn_unlabelled``).
+unlabelled pixels, and a warning for each view above ``masks.warn_unlabelled``). For a scene whose content labels
+no colour match reads, :func:`write_unread_masks` writes the same files but the overlay, all 0.
 """
 
 from __future__ import annotations
@@ -61,6 +62,27 @@ def write_content_masks(out: Path, result: ContentMasks, cameras: list[Camera], 
             "refinement": None if result.refinement is None else {
                 "views_recut": len(result.refinement.views), "per_view": result.refinement.views,
             },
+        })
+
+
+UNREAD_SOURCE = "none: no colour match reads content labels"
+"""``masks.json``'s ``source`` when the stage wrote no labels (:func:`write_unread_masks`)."""
+
+
+def write_unread_masks(out: Path, n_gaussians: int, cameras: list[Camera]) -> None:
+    """Write ``out/`` (a folder, atomically) for a scene whose content labels nothing reads (every colour match of
+    it is single-image transfer, which styles every pixel alike): every Gaussian and every view pixel 0, and a
+    record that says so. Nothing is lifted or re-cut, and ``overlay.png`` is not drawn; the stages that load the
+    masks (:func:`load_scene_masks`) read these as they read computed ones."""
+    with atomic_path(out, is_dir=True) as tmp:
+        d = MasksDir(tmp)
+        np.save(d.gaussian_labels, np.zeros(n_gaussians, np.int64))
+        d.views.mkdir()
+        for cam in cameras:
+            save_labels(d.views / f"{Path(cam.name).stem}.png", np.zeros((cam.height, cam.width), np.int64))
+        write_json(d.record, {
+            "source": UNREAD_SOURCE, "n_labels": 0,
+            "gaussians_per_label": {"0": n_gaussians}, "warnings": [], "warned_views": [],
         })
 
 

@@ -1,6 +1,8 @@
 """Masks from strokes: GrabCut guided by a user's scribbles (Rother et al. 2004), drawn on a local web page.
 
     python -m abcgs.masks.paint data/tiny                      # views of <scene>/images/ → <scene>/masks/<stem>.png
+    python -m abcgs.masks.paint /data/garden --images images_4 # views of <scene>/images_4/ (or of a dataset)
+    python -m abcgs.masks.paint --scene tiny                   # data.scenes.tiny of params.yaml, as the pipeline reads it
     python -m abcgs.masks.paint data/tiny --painting data/tiny/styles/paint.png \\
         --labels-out data/tiny/styles/paint_labels.png         # one painting → its region label map
 
@@ -14,7 +16,9 @@ view, add strokes where it is wrong, and press **Save**: every view with strokes
 2, … the labels; 0 = no label, what the background brush or its cut decided; 255 =
 :data:`~abcgs.masks.params.UNDECIDED`, what no cut claimed; the format :func:`abcgs.masks.content.read_label_files`
 reads), written atomically. Views
-without strokes get no file: the ``masks`` stage lifts labels from any subset of views (Eq. 2).
+without strokes get no file: the ``masks`` stage lifts labels from any subset of views (Eq. 2). The views are the
+ones the pipeline reads (:func:`scene_views`: a scene's ``images:`` folder, a dataset's views, a bare splat's views
+made by the ``reconstruct`` stage), and the label maps go to ``<scene>/masks/``, where that stage reads them.
 
 The cut is :func:`abcgs.masks.grabcut.segment` (GrabCut per label from the strokes); the server only keeps strokes
 and results per view. The page cuts on colour alone: it runs before the scene is fitted. The ``masks`` stage later
@@ -42,7 +46,7 @@ import cv2
 import numpy as np
 
 from abcgs.errors import AbcgsError, InputError
-from abcgs.io.images import IMAGE_SUFFIXES, load_image, save_labels, to_uint8
+from abcgs.io.images import load_image, save_labels, to_uint8
 from abcgs.masks.grabcut import Segmentation, Stroke, segment
 from abcgs.viz import LABEL_COLOURS, colorize_labels
 
@@ -80,12 +84,14 @@ class PaintItem:
     strokes: list[Stroke] = field(default_factory=list)
     result: Segmentation | None = None
     stale: bool = False  # strokes changed since ``result``
+    revision: int = 0  # the page's count of edits to ``strokes``: a list of a lower revision is older and ignored
 
 
 class PaintSession:
     """The images of one page, their strokes and cuts; thread-safe (the server handles requests in threads).
 
-    ``mode`` is ``"scene"`` (every view of ``<scene>/images/``, masks to ``<scene>/masks/<stem>.png``) or
+    ``mode`` is ``"scene"`` (every view the pipeline reads of a scene, :func:`scene_views`; masks to
+    ``<scene>/masks/<stem>.png``) or
     ``"painting"`` (one painting, its label map to ``labels_out``).
     """
 
@@ -100,30 +106,47 @@ class PaintSession:
         self._png: dict[int, bytes] = {}
 
     @classmethod
-    def for_scene(cls, scene: str | Path, *, first: list[str] = (), **kw) -> PaintSession:
-        """Every view in ``<scene>/images/``; Save writes ``<scene>/masks/<stem>.png``. The views whose stems
-        ``first`` names come first, in that order (the page opens the first)."""
+    def for_scene(cls, scene: str | Path, *, images: str | None = None, fmt: str = "auto",
+                  background: tuple[float, float, float] | None = None, views: str | Path | None = None,
+                  name: str | None = None, first: list[str] = (), **kw) -> PaintSession:
+        """The views the pipeline reads of the scene folder ``scene`` (:func:`scene_views`; ``images``, ``fmt``,
+        ``background`` as in ``data.scenes.<name>``, ``views`` the folder of a bare splat's generated views, ``name``
+        the scene's key for messages); Save
+        writes ``<scene>/masks/<stem>.png``, where the ``reconstruct`` stage reads label maps. The views whose
+        stems ``first`` names come first, in that order (the page opens the first)."""
         scene = Path(scene)
-        if not scene.is_dir():
-            raise InputError(f"scene folder {scene} does not exist; give the folder that holds images/ "
-                             "(the path of data.scenes.<name> in params.yaml)")
-        images = scene / "images"
-        if not images.is_dir():
-            raise InputError(f"{scene} has no images/ folder; put the scene's photos in {images}/ (the layout the "
-                             f"pipeline reads) and give {scene} again, or use --painting PATH for a painting")
-        files = sorted(p for p in images.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
-        if not files:
-            raise InputError(f"{images} holds no images ({', '.join(IMAGE_SUFFIXES)})")
+        found = scene_views(scene, images=images, fmt=fmt, background=background, views=views, name=name)
         stems: dict[str, str] = {}
-        for p in files:
-            if p.stem in stems:
-                raise InputError(f"{images} has two views with the stem {p.stem!r} ({stems[p.stem]}, {p.name}): their "
-                                 f"masks would share masks/{p.stem}.png; rename one")
-            stems[p.stem] = p.name
+        for view, _ in found:
+            stem = Path(view).stem
+            if stem in stems:
+                raise InputError(f"{scene} has two views with the stem {stem!r} ({stems[stem]}, {view}): their masks "
+                                 f"would share masks/{stem}.png; rename one")
+            stems[stem] = view
         rank = {stem: i for i, stem in enumerate(first)}
-        files.sort(key=lambda p: rank.get(p.stem, len(rank)))  # stable: the rest keep their order
-        items = [PaintItem(p.name, p, scene / "masks" / f"{p.stem}.png") for p in files]
+        found.sort(key=lambda v: rank.get(Path(v[0]).stem, len(rank)))  # stable: the rest keep their order
+        items = [PaintItem(view, path, scene / "masks" / f"{Path(view).stem}.png") for view, path in found]
         return cls(items, "scene", scene.resolve().name, **kw)
+
+    @classmethod
+    def for_params(cls, params_path: str | Path, name: str, *, out: str | Path | None = None, **kw) -> PaintSession:
+        """The views of ``data.scenes.<name>`` in the params file ``params_path`` (its folder, format, ``images``
+        and background; a bare splat's views from ``<out>/<name>/colmap/images/``, ``out`` default the
+        ``out/`` beside the params file), as :meth:`for_scene`."""
+        from abcgs import layout
+        from abcgs.sections import read_params_file, validate_sections
+
+        params_path = Path(params_path)
+        params = validate_sections(read_params_file(params_path), frozenset({"data"}), str(params_path))
+        if name not in params.data.scenes:
+            raise InputError(f"data.scenes has no scene {name!r} in {params_path} (it has "
+                             f"{', '.join(params.data.scenes)})")
+        entry = params.data.scenes[name]
+        root = params_path.resolve().parent
+        folder = Path(entry.path) if Path(entry.path).is_absolute() else root / entry.path
+        colmap = layout.scene(name, Path(out) if out is not None else root / layout.OUT).colmap
+        return cls.for_scene(folder, images=entry.images, fmt=entry.format, background=entry.background,
+                             views=colmap.images, name=name, **kw)
 
     @classmethod
     def for_painting(cls, painting: str | Path, labels_out: str | Path | None = None, **kw) -> PaintSession:
@@ -168,13 +191,22 @@ class PaintSession:
         """``(H, W)`` of image ``i``."""
         return tuple(self.image(i).shape[:2])
 
-    def set_strokes(self, i: int, strokes: list[Stroke]) -> None:
+    def set_strokes(self, i: int, strokes: list[Stroke], revision: int | None = None) -> bool:
+        """Replace image ``i``'s strokes by ``strokes``, the page's list at ``revision`` (its count of edits to
+        this image's strokes). A list of a revision not above the one kept is older than it (a request that arrived
+        late) and is ignored: returns False. ``None`` replaces the strokes whatever their revision."""
         with self._lock:
             item = self._item(i)
+            if revision is not None:
+                if revision <= item.revision:
+                    log.debug("%s: strokes of revision %d ignored (have %d)", item.name, revision, item.revision)
+                    return False
+                item.revision = revision
             item.strokes = list(strokes)
             item.stale = True
             if not strokes:
                 item.result = None
+            return True
 
     def segment(self, i: int, fill: bool | None = None) -> Segmentation:
         """Cut image ``i`` from its strokes (:func:`segment`) and keep the result; ``fill`` sets the session's."""
@@ -236,9 +268,50 @@ class PaintSession:
                 "items": [{
                     "index": i, "name": it.name, "strokes": len(it.strokes), "cut": it.result is not None,
                     "stale": it.stale, "saved": it.out_path.is_file(), "out": str(it.out_path),
+                    "revision": it.revision,
                     "counts": {str(k): v for k, v in it.result.counts().items()} if it.result is not None else None,
                 } for i, it in enumerate(self.items)],
             }
+
+
+def scene_views(folder: Path, *, images: str | None = None, fmt: str = "auto",
+                background: tuple[float, float, float] | None = None, views: str | Path | None = None,
+                name: str | None = None) -> list[tuple[str, Path]]:
+    """``(view name, image file)`` of every view the pipeline reads of the scene folder ``folder``, in name order:
+
+    - photos: the images in ``<folder>/<images>/`` (default ``images/``);
+    - a dataset with cameras (COLMAP, nerfstudio, Blender, LLFF): the views its reader names, from the image folder
+      ``images`` where the format has one (:func:`abcgs.sources.read.read_source`);
+    - a bare splat: the views the ``reconstruct`` stage made around it, in ``views``
+      (``out/<name>/colmap/images/``).
+
+    ``fmt`` is ``data.scenes.<name>.format`` (``auto``: detected). The label maps of all of them go to
+    ``<folder>/masks/<stem>.png``, at the size of these images."""
+    from abcgs.sources.detect import DEFAULT_IMAGES, image_files
+    from abcgs.sources.read import read_source, resolve_format
+
+    folder = Path(folder)
+    if not folder.exists():
+        raise InputError(f"scene folder {folder} does not exist; give the folder of data.scenes.<name>.path in "
+                         "params.yaml (or --scene NAME)")
+    if folder.is_file() and fmt in ("auto", "splat"):
+        raise InputError(f"{folder} is a splat file: its label maps go to masks/ in the scene's folder, so give the "
+                         "splat a folder of its own (data.scenes.<name>.path: that folder) and paint on that")
+    resolved = resolve_format(folder, fmt, images)
+    if resolved == "photos":
+        files = image_files(folder / (images or DEFAULT_IMAGES))
+        return [(p.name, p) for p in files]
+    if resolved == "splat":
+        run = f"dvc repro reconstruct@{name}" if name else "the reconstruct stage (dvc repro reconstruct@<name>)"
+        if views is None:
+            raise InputError(f"{folder} is a bare splat: its views are the ones {run} makes around it; give --scene "
+                             "NAME (params.yaml) or --views out/<name>/colmap/images")
+        files = image_files(views)
+        if not files:
+            raise InputError(f"{views} holds no views yet: run {run} first, which renders the splat's views there")
+        return [(p.name, p) for p in files]
+    source = read_source(folder, resolved, images=images, background=background)
+    return [(v.name, v.image_path) for v in source.views]
 
 
 def worst_views(masks_json: Path) -> list[str]:
@@ -274,6 +347,14 @@ def _strokes(body: dict) -> list[Stroke]:
     if not isinstance(strokes, list):
         raise InputError(f"'strokes' must be a list of stroke objects, not {type(strokes).__name__}")
     return [Stroke.from_json(d) for d in strokes]
+
+
+def _revision(body: dict) -> int | None:
+    """``body["revision"]``: the page's count of edits to a view's strokes (a non-negative integer), or ``None``."""
+    value = body.get("revision")
+    if value is not None and (not isinstance(value, int) or isinstance(value, bool) or value < 0):
+        raise InputError(f"'revision' must be a non-negative integer, not {json.dumps(value)[:40]}")
+    return value
 
 
 def _flag(body: dict, key: str) -> bool | None:
@@ -391,15 +472,18 @@ class _Handler(BaseHTTPRequestHandler):
             if method == "GET" and what == "image":
                 return self._send(200, s.image_png(idx), "image/png")
             if method == "GET" and what == "strokes":
-                return self._json({"strokes": [st.to_json() for st in s._item(idx).strokes]})
+                with s._lock:
+                    item = s._item(idx)
+                    return self._json({"strokes": [st.to_json() for st in item.strokes], "revision": item.revision})
             if method == "POST" and what == "strokes":
-                s.set_strokes(idx, _strokes(self._body()))
-                return self._json(s.state()["items"][idx])
+                body = self._body()
+                accepted = s.set_strokes(idx, _strokes(body), _revision(body))
+                return self._json({**s.state()["items"][idx], "accepted": accepted})
             if method == "POST" and what == "segment":
                 body = self._body()
                 fill = _flag(body, "fill")
                 if "strokes" in body:
-                    s.set_strokes(idx, _strokes(body))
+                    s.set_strokes(idx, _strokes(body), _revision(body))
                 seg = s.segment(idx, fill)
                 return self._json({"counts": {str(k): v for k, v in seg.counts().items()},
                                    "seconds": round(seg.seconds, 3), "item": s.state()["items"][idx]})
@@ -458,9 +542,19 @@ def page_url(server: ThreadingHTTPServer) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m abcgs.masks.paint", description=__doc__.strip().splitlines()[0],
-                                 epilog="Views: <scene>/images/*; masks: <scene>/masks/<stem>.png (0 = unassigned, 1, 2, …). "
+                                 epilog="Views: the ones the pipeline reads (photos in <scene>/<images>/, a dataset's "
+                                        "views, a bare splat's out/<name>/colmap/images/); masks: "
+                                        "<scene>/masks/<stem>.png (0 = no label, 1, 2, …, 255 = undecided). "
                                         "Then `dvc repro` re-runs the masks stage and what follows.")
-    ap.add_argument("scene", nargs="?", type=Path, help="scene folder (holds images/); not needed with --painting")
+    ap.add_argument("scene", nargs="?", type=Path, help="scene folder (photos or a dataset); not needed with --scene "
+                                                        "or --painting")
+    ap.add_argument("--scene", dest="scene_name", metavar="NAME",
+                    help="the scene data.scenes.NAME of --params: its folder, format and images (a bare splat: the "
+                         "views the reconstruct stage made, out/NAME/colmap/images/)")
+    ap.add_argument("--params", type=Path, default=Path("params.yaml"), help="the params file of --scene")
+    ap.add_argument("--images", help="the scene's image subfolder, as data.scenes.<name>.images (e.g. images_4)")
+    ap.add_argument("--format", default="auto", help="the scene's format, as data.scenes.<name>.format")
+    ap.add_argument("--views", type=Path, help="a bare splat scene: the folder of its views (out/<name>/colmap/images)")
     ap.add_argument("--painting", type=Path, help="segment this painting into regions instead of a scene's views")
     ap.add_argument("--labels-out", type=Path, help="the painting's label PNG (default: <painting>_labels.png beside it)")
     ap.add_argument("--port", type=int, default=0, help="port on 127.0.0.1 (0: any free port)")
@@ -479,13 +573,20 @@ def main(argv: list[str] | None = None) -> int:
             if args.scene is not None:
                 print(f"--painting given: showing {args.painting}; the scene folder {args.scene} is not used")
             session = PaintSession.for_painting(args.painting, args.labels_out, **kw)
-        elif args.scene is not None:
+        elif args.scene is not None or args.scene_name is not None:
             if args.labels_out is not None:
                 raise InputError("--labels-out is for --painting; a scene's masks go to <scene>/masks/")
-            session = PaintSession.for_scene(args.scene, first=worst_views(args.worst_first) if args.worst_first else (),
-                                             **kw)
+            kw["first"] = worst_views(args.worst_first) if args.worst_first else ()
+            if args.scene_name is not None:
+                if args.scene is not None or args.images or args.views or args.format != "auto":
+                    raise InputError("--scene NAME takes the folder, format, images and views from the params file; "
+                                     "give either it or a scene folder (with --images/--format/--views)")
+                session = PaintSession.for_params(args.params, args.scene_name, **kw)
+            else:
+                session = PaintSession.for_scene(args.scene, images=args.images, fmt=args.format, views=args.views,
+                                                 **kw)
         else:
-            raise InputError("give a scene folder (with images/) or --painting PATH")
+            raise InputError("give a scene folder, --scene NAME (a scene of params.yaml) or --painting PATH")
         server = make_server(session, args.port)
     except (AbcgsError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)

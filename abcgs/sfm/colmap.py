@@ -34,7 +34,7 @@ import pycolmap
 from abcgs.cameras import Camera
 from abcgs.errors import InputError, ReconstructionError
 from abcgs.io.atomic import atomic_path, write_json
-from abcgs.io.images import list_images, load_image, load_labels, save_labels
+from abcgs.io.images import labels_for_view, list_images, load_image, load_labels, save_labels
 from abcgs.sfm.params import EXHAUSTIVE_MAX_IMAGES, ReconstructParams
 
 log = logging.getLogger(__name__)
@@ -224,7 +224,7 @@ def _undistort_masks(masks_dir: Path, rec: pycolmap.Reconstruction, und: pycolma
             log.warning("mask %s has no registered image with that stem; skipped", mask_path.name)
             continue
         cam = rec.cameras[im.camera_id]
-        labels = load_labels(mask_path, expect_hw=(cam.height, cam.width))
+        labels = labels_for_view(load_labels(mask_path), (cam.height, cam.width), mask_path, im.name)
         und_cam = und.cameras[und.find_image_with_name(im.name).camera_id]
         save_labels(out / f"{mask_path.stem}.png", undistort_labels(labels, cam, und_cam))
         count += 1

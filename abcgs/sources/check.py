@@ -1,7 +1,7 @@
 """The ``preflight`` stage's check of scenes that come with cameras: each is read by its reader (files present,
-images matching cameras, camera and image sizes a consistent scale, cameras that look at the scene) before any stage
-runs. Scenes of photos are checked by :func:`abcgs.preflight.check_input_files`; bare splat scenes by the stage that
-reads them.
+images matching cameras, camera and image sizes a consistent scale, cameras that look at the scene, label maps in
+``masks/`` at their views' size or its scale) before any stage runs. Scenes of photos are checked by
+:func:`abcgs.preflight.check_input_files`; bare splat scenes by the stage that reads them.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from abcgs.errors import InputError
-from abcgs.preflight import produced_by_stage
+from abcgs.preflight import check_label_map_sizes, produced_by_stage
 from abcgs.sources.read import read_source, resolve_format
 
 
@@ -28,6 +28,8 @@ def check_scene_sources(params, root: Path, produced: Iterable[str] = ()) -> lis
             if fmt in ("photos", "splat"):
                 continue
             source = read_source(folder, fmt, images=scene.images, background=scene.resolved_background(fmt).color)
+            check_label_map_sizes(name, folder / "masks", {Path(v.name).stem: (
+                v.name, (v.camera.height, v.camera.width)) for v in source.views}, scene.images)
         except InputError as exc:
             raise InputError(f"data.scenes.{name}: {exc}") from None
         warnings += [f"data.scenes.{name}: {note}" for note in source.notes]

@@ -8,12 +8,13 @@ the folder holds                                   format
 ``sparse/0/cameras.{bin,txt}`` or ``sparse/…``     ``colmap``
 ``poses_bounds.npy`` (and no COLMAP model)         ``llff``
 an image folder (``images/``)                      ``photos``
-only a splat file (``.ply .splat .spz .pt``)       ``splat``
+only a splat file (and ``masks/``)                 ``splat``
 =================================================  ==============
 
 An LLFF release that ships its COLMAP model beside ``poses_bounds.npy`` is read as ``colmap`` (the model carries
 the sparse points and the exact intrinsics that the poses were made from); ``format: llff`` in the scene's
-params entry reads the poses instead. A path to a splat file itself is a ``splat`` scene.
+params entry reads the poses instead. A path to a splat file itself is a ``splat`` scene. A splat file is
+``.ply .splat .spz .pt``; ``masks/`` beside it holds label maps of its generated views.
 
 This module imports nothing but the standard library and :mod:`abcgs.sources.base`: :mod:`abcgs.preflight`
 (imported by every stage) uses it.
@@ -54,6 +55,12 @@ def _splat_files(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in SPLAT_SUFFIXES)
 
 
+def _subfolders(folder: Path) -> list[Path]:
+    """The folders in ``folder`` other than ``masks/`` (a bare splat's label maps): a folder with a splat and no other
+    folder is a bare splat scene."""
+    return [p for p in folder.iterdir() if p.is_dir() and p.name != "masks"]
+
+
 def bare_splat(folder: str | os.PathLike, fmt: str = "auto") -> Path | None:
     """The splat of a scene that is only a splat (``fmt`` ``splat``, or ``auto`` and a splat file or a folder holding
     nothing but one), else ``None``; never raises for other scenes (the reconstruct stage has read them)."""
@@ -64,7 +71,7 @@ def bare_splat(folder: str | os.PathLike, fmt: str = "auto") -> Path | None:
         return None
     if folder.is_file():
         return folder if folder.suffix.lower() in SPLAT_SUFFIXES else None
-    if folder.is_dir() and _splat_files(folder) and not any(p.is_dir() for p in folder.iterdir()):
+    if folder.is_dir() and _splat_files(folder) and not _subfolders(folder):
         return splat_file(folder)
     return None
 
@@ -105,7 +112,7 @@ def detect_format(folder: str | os.PathLike, images: str | None = None) -> Scene
     sub = images or DEFAULT_IMAGES
     if image_files(folder / sub):
         return "photos"
-    if _splat_files(folder) and not any(p.is_dir() for p in folder.iterdir()):
+    if _splat_files(folder) and not _subfolders(folder):
         return "splat"
     entries = sorted(p.name + ("/" if p.is_dir() else "") for p in folder.iterdir() if not p.name.startswith("."))
     held = f"it holds {', '.join(entries[:8])}{' …' if len(entries) > 8 else ''}" if entries else "it is empty"

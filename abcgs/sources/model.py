@@ -38,7 +38,7 @@ import pycolmap
 
 from abcgs.errors import InputError
 from abcgs.io.atomic import atomic_path, write_json
-from abcgs.io.images import load_image, load_labels, save_image, save_labels
+from abcgs.io.images import labels_for_view, load_image, load_labels, save_image, save_labels
 from abcgs.sfm.colmap import (
     camera_from_colmap,
     choose_matcher,
@@ -266,9 +266,9 @@ def _masks(source: SourceScene, masks_dir: Path | None, dist: dict[str, pycolmap
         user = masks_dir / f"{stem}.png" if masks_dir is not None else None
         cam = view.camera
         if user is not None and user.is_file():
-            labels = load_labels(user, expect_hw=(cam.height, cam.width))
+            labels = labels_for_view(load_labels(user), (cam.height, cam.width), user, view.name)
         elif view.mask_path is not None:
-            keep = load_labels(view.mask_path, expect_hw=(cam.height, cam.width))
+            keep = labels_for_view(load_labels(view.mask_path), (cam.height, cam.width), view.mask_path, view.name)
             labels = np.where(keep > 0, 1, 2)
         else:
             continue
