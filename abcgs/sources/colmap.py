@@ -23,6 +23,7 @@ import pycolmap
 
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
+from abcgs.sfm.model import read_model
 from abcgs.sources.base import SourceScene, SourceView
 from abcgs.sources.detect import DEFAULT_IMAGES, colmap_model_dir, image_files
 from abcgs.sources.lens import fit_to_image, image_size, pinhole_and_lens
@@ -46,6 +47,7 @@ def read_colmap_source(folder: str | os.PathLike, images: str | None = None) -> 
     if not files:
         raise InputError(f"{images_dir} holds no images, but the COLMAP model {model_dir} needs them; put them there, or "
                          "name the image folder in the scene's entry (`images: images_4`)")
+    read_model(model_dir)  # record counts against file sizes, plausible intrinsics, finite poses: before pycolmap
     try:
         rec = pycolmap.Reconstruction(str(model_dir))
     except Exception as exc:  # pycolmap raises plain RuntimeErrors for truncated or foreign files

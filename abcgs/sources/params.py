@@ -43,6 +43,9 @@ class SceneParams(BaseModel):
         None, description="a trained 3DGS splat (file or INRIA output folder), relative to `path` (so that DVC tracks "
         "it with the scene) or absolute: the fit stage imports it instead of fitting (docs/SPLATS.md)")
     splat_format: SplatFormatParam = Field("auto", description="the splat's format; auto detects it")
+    splat_nonfinite: Literal["refuse", "drop"] = Field(
+        "refuse", description="Gaussians of the splat with a NaN or infinite value (or a zero quaternion): refuse the "
+        "file naming their count, or drop them with a warning and the count")
     views: SplatViewsParams | None = Field(
         None, description="for a scene that is only a splat (no photos, no cameras): the cameras made around it")
 

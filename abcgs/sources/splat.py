@@ -29,11 +29,11 @@ MAX_POINTS = 100_000
 
 @torch.no_grad()
 def read_splat_source(path: Path, out_images_dir: Path, params: SplatViewsParams | None = None, *,
-                      fmt: str = "auto", backend: Backend = "auto") -> SourceScene:
+                      fmt: str = "auto", backend: Backend = "auto", drop_invalid: bool = False) -> SourceScene:
     """Read the splat at ``path``, make ``params``' cameras around it, write its render from each into
     ``out_images_dir`` (PNG, named like the cameras) and return the :class:`SourceScene` (``format`` ``"splat"``)."""
     params = params or SplatViewsParams()
-    model = read_splat(path, fmt).model
+    model = read_splat(path, fmt, drop_invalid=drop_invalid).model
     cams, _ = cameras_around(model, params.kind, params.count, params.width, params.height, params.fov_deg)
     out_images_dir = Path(out_images_dir)
     out_images_dir.mkdir(parents=True, exist_ok=True)
