@@ -1,6 +1,7 @@
 """``python -m abcgs``: add a scene or a painting to ``params.yaml`` (:mod:`abcgs.add`).
 
     python -m abcgs add-scene NAME PATH [--format F] [--images SUBFOLDER] [--background R G B] [--splat FILE]
+        [--splat-format F] [--splat-nonfinite drop] [--views-kind K --views-count N --views-width W ...]
     python -m abcgs add-style NAME PAINTING [--labels REGION_MAP]
 
 Each prints what it found and the entry it wrote; a problem is one line naming the file and the fix (exit status 2).
@@ -10,11 +11,13 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import get_args
 
 import yaml
 
 from abcgs.errors import AbcgsError
 from abcgs.sources.base import FORMATS
+from abcgs.splats.params import SplatFormatParam, SplatViewsParams
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -29,6 +32,16 @@ def _parser() -> argparse.ArgumentParser:
     scene.add_argument("--background", nargs=3, type=float, metavar=("R", "G", "B"), default=None,
                        help="RGB in [0, 1] that RGBA views are composited on (NeRF-synthetic; default white)")
     scene.add_argument("--splat", default=None, help="a splat already fitted to this scene (.ply, .splat, .spz)")
+    scene.add_argument("--splat-format", default="auto", choices=get_args(SplatFormatParam),
+                       help="the splat's format (default: detected; opensplat, gsplat_ply: their trainers' worlds)")
+    scene.add_argument("--splat-nonfinite", default="refuse", choices=("refuse", "drop"),
+                       help="Gaussians with NaN or infinite values: refuse the splat (default) or drop them")
+    views = SplatViewsParams.model_fields
+    scene.add_argument("--views-kind", choices=get_args(views["kind"].annotation),
+                       help="a bare splat's cameras: " + str(views["kind"].description))
+    for key in ("count", "width", "height", "fov_deg"):
+        scene.add_argument(f"--views-{key.replace('_', '-')}", type=views[key].annotation,
+                           help=f"a bare splat's cameras: {views[key].description} (default {views[key].default})")
     style = sub.add_parser("add-style", help="check a painting and add it to data.styles")
     style.add_argument("name", help="the painting's name (letters, digits, _ . -)")
     style.add_argument("path", help="the painting's image file")
@@ -40,6 +53,12 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
+def _views(args: argparse.Namespace) -> dict | None:
+    """The ``views`` settings given as ``--views-*`` options (``None`` when none is)."""
+    given = {key: getattr(args, f"views_{key}") for key in SplatViewsParams.model_fields}
+    return {k: v for k, v in given.items() if v is not None} or None
+
+
 def main(argv: list[str] | None = None) -> int:
     from abcgs.add import add_scene, add_style
 
@@ -48,7 +67,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "add-scene":
             entry, lines = add_scene(args.params, args.name, args.path, fmt=args.format, images=args.images,
                                      background=tuple(args.background) if args.background else None, splat=args.splat,
-                                     force=args.force, dry_run=args.dry_run)
+                                     force=args.force, dry_run=args.dry_run, splat_format=args.splat_format,
+                                     splat_nonfinite=args.splat_nonfinite, views=_views(args))
             where, body = "data.scenes", {args.name: entry}
         else:
             entry, lines = add_style(args.params, args.name, args.path, labels=args.labels, force=args.force,

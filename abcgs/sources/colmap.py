@@ -27,6 +27,7 @@ from abcgs.sfm.model import read_model
 from abcgs.sources.base import SourceScene, SourceView
 from abcgs.sources.detect import DEFAULT_IMAGES, colmap_model_dir, image_files
 from abcgs.sources.lens import fit_to_image, image_size, pinhole_and_lens
+from abcgs.sources.validate import check_count, check_inside
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +56,9 @@ def read_colmap_source(folder: str | os.PathLike, images: str | None = None) -> 
     posed = sorted((im for im in rec.images.values() if im.has_pose), key=lambda im: im.name)
     if not posed:
         raise InputError(f"the COLMAP model {model_dir} has no registered images; re-run its reconstruction")
+    check_count(len(posed), str(model_dir))
+    for im in posed:
+        check_inside(folder, images_dir / im.name, f"{model_dir} image {im.name!r}")
     on_disk = {p.name for p in files}
     found = [im for im in posed if (images_dir / im.name).is_file()]
     if not found:
