@@ -173,7 +173,7 @@ def encode_spz(model: GaussianModel, *, version: int = 3, antialiased: bool = Fa
     return buf.getvalue()
 
 
-def _inflate(data: bytes, limit: int, source: str) -> bytes:
+def _inflate(data: bytes, limit: int, source: str) -> bytearray:
     """The gzip stream ``data`` inflated, at most ``limit`` bytes plus one (the caller compares the length); memory
     stays bounded by ``limit`` whatever the stream claims. Concatenated gzip members are inflated in turn."""
     out = bytearray()
@@ -194,7 +194,7 @@ def _inflate(data: bytes, limit: int, source: str) -> bytes:
                 break  # trailing bytes after the last member: gzip ignores zero padding
     except zlib.error as exc:
         raise InputError(f"{source} is not a gzip stream ({exc}); is it a .spz file?") from None
-    return bytes(out)
+    return out
 
 
 def _body_size(version: int, n: int, degree: int) -> int:
@@ -204,6 +204,9 @@ def _body_size(version: int, n: int, degree: int) -> int:
 
 MAX_GAUSSIANS = 100_000_000
 """More Gaussians than any splat in use (a few million): a header stating more is refused before inflating."""
+MAX_RATIO = 100
+"""Most bytes a ``.spz`` may inflate to per compressed byte. Trained splats compress 2–4×; a header whose count
+implies more than this is a corrupt count or a gzip bomb, refused before inflating."""
 
 
 def read_header(data: bytes, source: str = "spz data") -> tuple[int, int, int, int, int]:
@@ -238,9 +241,10 @@ def decode_spz(data: bytes, *, source: str = "spz data") -> GaussianModel:
     version, n, degree, bits, flags = read_header(data, source)
     k = _sh_dim(degree)
     need = HEADER.size + _body_size(version, n, degree)
-    if need > len(data) * 1100:  # deflate's best ratio is about 1032:1
-        raise InputError(f"{source}: its header states {n} Gaussians ({need} bytes) but {len(data)} compressed bytes "
-                         "cannot hold them (a truncated file or a corrupt count)")
+    if need > len(data) * MAX_RATIO:
+        raise InputError(f"{source}: its header states {n} Gaussians ({need} bytes inflated) but the file has "
+                         f"{len(data)} bytes, more than {MAX_RATIO}x compression (a corrupt count, a truncated file or a "
+                         "gzip bomb); re-export it")
     raw = _inflate(data, need, source)
     if len(raw) != need:
         raise InputError(f"{source}: {'more than ' if len(raw) > need else ''}{len(raw)} bytes for {n} Gaussians of "

@@ -8,7 +8,7 @@ The page (``static/paint.html``, plain JavaScript, nothing fetched from the netw
 itself only: the address printed at start carries a random token (as Jupyter's does; the page keeps it in a cookie),
 and a request without it, whose ``Host`` is not that address (DNS rebinding), with another page's ``Origin``, or a
 POST not declared ``application/json`` (what a cross-origin form or ``fetch`` could send without asking) is refused,
-as is a body without a plain ``Content-Length`` up to :data:`MAX_BODY`; each refusal is a 4xx with a one-line
+as is a body without a plain ``Content-Length`` from 1 to :data:`MAX_BODY` (:func:`read_body`); each refusal is a 4xx with a one-line
 reason. Pick a label, draw strokes over the objects of one or more views, press **Segment** to see the cut over the
 view, add strokes where it is wrong, and press **Save**: every view with strokes gets a single-channel label PNG (1,
 2, … the labels; 0 = no label, what the background brush or its cut decided; 255 =
@@ -281,8 +281,8 @@ def read_body(content_length: str | None, rfile: BinaryIO) -> dict:
         raise Refused(HTTPStatus.BAD_REQUEST, f"the body of {text if len(text) <= 20 else text[:20] + '…'} bytes is "
                                               f"larger than {MAX_BODY} bytes")
     if n == 0:
-        raise Refused(HTTPStatus.BAD_REQUEST, "the request has an empty body: the API takes a JSON object ({} for "
-                                              "none)")
+        raise Refused(HTTPStatus.BAD_REQUEST, "Content-Length 0: the request has no body; the API takes a JSON "
+                                              "object ({} for none)")
     raw = rfile.read(n)
     if len(raw) != n:
         raise Refused(HTTPStatus.BAD_REQUEST, f"the body ended after {len(raw)} of {n} bytes")

@@ -146,9 +146,12 @@ def _read_bin(model_dir: Path) -> _Model:
         cams[cam_id] = _Intrinsics(model_id, width, height, r.take("d" * NUM_PARAMS[model_id]))
     r.end()
     r = _Reader(model_dir / "images.bin")
-    images = []
+    images, image_ids = [], set()
     for _ in range(r.count("images", _IMAGE_MIN)):
-        _, qw, qx, qy, qz, tx, ty, tz, cam_id = r.take("idddddddi")
+        image_id, qw, qx, qy, qz, tx, ty, tz, cam_id = r.take("idddddddi")
+        if image_id in image_ids:
+            raise InputError(f"{r.path}: image id {image_id} appears twice; {FIX}")
+        image_ids.add(image_id)
         name = r.name()
         r.skip(r.take("Q")[0], _POINT2D, f"2-D points of image {name!r}")
         images.append((name, np.array([qw, qx, qy, qz]), np.array([tx, ty, tz]), cam_id))
@@ -213,7 +216,12 @@ def _parse_txt(model_dir: Path) -> _Model:
         f = ln.split()
         ids.append(int(f[0]))
         xyz.append([float(v) for v in f[1:4]])
-        rgb.append([float(v) for v in f[4:7]])
+        rgb.append([int(v) for v in f[4:7]])
+        float(f[7])  # the reprojection error
+        if not all(0 <= c <= 255 for c in rgb[-1]) or (len(f) - 8) % 2:
+            raise InputError(f"{pts}: point {f[0]}: colour {rgb[-1]} is not 8-bit RGB or its track is not (IMAGE_ID, "
+                             f"POINT2D_IDX) pairs; {FIX}")
+        [int(v) for v in f[8:]]
     return cams, images, np.array(xyz, np.float64).reshape(-1, 3), np.array(rgb, np.float64).reshape(-1, 3), ids
 
 
@@ -236,8 +244,8 @@ def check_model(model_dir: Path, cams: dict[int, _Intrinsics], images: list) -> 
         if name in seen:
             raise InputError(f"{where} appears twice; each image has one pose; {FIX}")
         seen.add(name)
-        if not name:
-            raise InputError(f"{model_dir}: an image has an empty name; {FIX}")
+        if not name or len(name) > 4096 or "\0" in name or any(len(part) > 255 for part in name.split("/")):
+            raise InputError(f"{model_dir}: an image name {name[:60]!r} is not a file name; {FIX}")
         if not (np.isfinite(q).all() and np.isfinite(t).all()) or np.linalg.norm(q) < 1e-6:
             raise InputError(f"{where}: its pose (quaternion {list(q)}, translation {list(t)}) is not a finite "
                              f"rotation and position; {FIX}")
@@ -261,6 +269,8 @@ def read_model(model_dir: str | os.PathLike) -> _Model:
     else:
         raise InputError(f"{model_dir} is not a COLMAP model (no cameras.bin/.txt); run the reconstruct stage first")
     check_model(model_dir, model[0], model[1])
+    if len(set(model[4])) != len(model[4]):
+        raise InputError(f"{model_dir}: a 3-D point id appears twice; {FIX}")
     if not np.isfinite(model[2]).all():
         bad = int((~np.isfinite(model[2]).all(axis=1)).sum())
         raise InputError(f"{model_dir}: {bad} 3-D points have a NaN or infinite position; {FIX}")
@@ -302,7 +312,10 @@ def _pycolmap_point_order(model_dir: Path, ids: list[int]) -> np.ndarray:
     except ImportError:
         return np.arange(len(ids))
     where = {pid: k for k, pid in enumerate(ids)}
-    rec = pycolmap.Reconstruction(str(model_dir))
+    try:
+        rec = pycolmap.Reconstruction(str(model_dir))
+    except Exception as exc:  # pycolmap raises ValueError, IndexError, … for references this reader does not follow
+        raise InputError(f"{model_dir} is not a consistent COLMAP model ({str(exc).strip()[:200]}); {FIX}") from None
     order = [where.get(pid) for pid in rec.points3D]
     if len(order) != len(ids) or None in order:
         raise InputError(f"{model_dir}: pycolmap reads other 3-D points than the file lists; the model is damaged")

@@ -32,7 +32,7 @@ def load_poses_bounds(path: str | os.PathLike) -> np.ndarray:
         raise InputError(f"{path} does not exist; expected LLFF's poses_bounds.npy")
     try:
         arr = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError) as exc:
+    except Exception as exc:  # numpy raises OSError, ValueError, EOFError, tokenize.TokenError, … for a corrupt header
         raise InputError(f"{path} is not a numpy array file ({exc}); expected LLFF's poses_bounds.npy") from None
     if not isinstance(arr, np.ndarray) or arr.dtype.kind not in "fiu":
         raise InputError(f"{path} is not an array of numbers; expected LLFF's poses_bounds.npy (N x 17 floats)")

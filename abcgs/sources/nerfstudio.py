@@ -29,7 +29,7 @@ from abcgs.errors import InputError
 from abcgs.sources.base import Distortion, SourceScene, SourceView
 from abcgs.sources.detect import DEFAULT_IMAGES
 from abcgs.sources.lens import fit_to_image, image_size, pinhole_and_lens
-from abcgs.sources.validate import check_count, check_inside, check_unique
+from abcgs.sources.validate import check_count, check_file_name, check_inside, check_unique
 
 log = logging.getLogger(__name__)
 TRANSFORMS = "transforms.json"
@@ -45,13 +45,13 @@ MAX_JSON_BYTES = 256 << 20
 def load_json(path: Path) -> dict:
     """A JSON object from ``path``; :class:`InputError` naming the file when it is not one, is larger than
     :data:`MAX_JSON_BYTES` or nested deeper than the parser's recursion limit."""
+    size = path.stat().st_size if path.is_file() else 0
+    if size > MAX_JSON_BYTES:
+        raise InputError(f"{path} is {size} bytes, more than the {MAX_JSON_BYTES >> 20} MiB a transforms file may "
+                         "be; it is not a camera file (or keep a subset of its frames)")
     try:
-        size = path.stat().st_size
-        if size > MAX_JSON_BYTES:
-            raise InputError(f"{path} is {size} bytes, more than the {MAX_JSON_BYTES >> 20} MiB a transforms file may "
-                             "be; it is not a camera file (or keep a subset of its frames)")
         data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+    except (OSError, ValueError) as exc:  # also UnicodeDecodeError, and a number of more than 4300 digits
         raise InputError(f"{path} is not readable JSON ({exc}); re-export it") from None
     except RecursionError:
         raise InputError(f"{path} is nested too deeply to be a transforms file; re-export it") from None
@@ -69,8 +69,7 @@ def frames_of(path: Path, meta: dict) -> list[dict]:
     for i, fr in enumerate(frames):
         if not isinstance(fr, dict) or "file_path" not in fr or "transform_matrix" not in fr:
             raise InputError(f"{path}: frames[{i}] lacks `file_path` or `transform_matrix`")
-        if not isinstance(fr["file_path"], str) or not fr["file_path"].strip():
-            raise InputError(f"{path}: frames[{i}].file_path is {str(fr['file_path'])[:60]!r}, not a file name")
+        check_file_name(fr["file_path"], f"{path}: frames[{i}].file_path")
     check_unique([posixpath.normpath(fr["file_path"].replace("\\", "/")) for fr in frames], str(path))
     return frames
 
@@ -80,7 +79,7 @@ def camera_to_world(path: Path, where: str, matrix) -> np.ndarray:
     rotation (orthonormal, det +1): a scaled or mirrored block means another convention."""
     try:
         m = np.asarray(matrix, np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         m = np.zeros(0)
     if m.shape not in ((3, 4), (4, 4)) or not np.all(np.isfinite(m)):
         raise InputError(f"{path}: {where}.transform_matrix is not a finite 3x4 or 4x4 matrix")
@@ -115,7 +114,7 @@ def number_array(path: Path, where: str, value) -> np.ndarray:
     ``path`` and ``where`` otherwise."""
     try:
         out = np.asarray(value, np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         out = None
     if out is None or not np.isfinite(out).all() or isinstance(value, bool):
         raise InputError(f"{path}: {where} is {str(value)[:60]!r}, not a finite number (or matrix of numbers)")
@@ -237,14 +236,16 @@ def read_nerfstudio_source(folder: str | os.PathLike, images: str | None = None)
         cam = Camera(name, cam.K, np.linalg.inv(c2w), cam.width, cam.height)
         mask = None
         if frame.get("mask_path"):
-            mask = check_inside(folder, folder / str(frame["mask_path"]), f"{path}: frames[{i}].mask_path")
+            where = f"{path}: frames[{i}].mask_path"
+            mask = check_inside(folder, folder / check_file_name(frame["mask_path"], where), where)
             if not mask.is_file():
                 raise InputError(f"{path}: frames[{i}].mask_path names {mask}, which does not exist; copy the mask "
                                  "there or remove the key")
         views.append(SourceView(name, image, cam, lens, mask))
     points = colors = None
     if meta.get("ply_file_path"):
-        ply = check_inside(folder, folder / str(meta["ply_file_path"]), f"{path}: ply_file_path")
+        ply = check_inside(folder, folder / check_file_name(meta["ply_file_path"], f"{path}: ply_file_path"),
+                           f"{path}: ply_file_path")
         if not ply.is_file():
             raise InputError(f"{path}: ply_file_path names {ply}, which does not exist; copy it there or remove the key")
         xyz, colors = read_points(ply)

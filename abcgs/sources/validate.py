@@ -116,6 +116,15 @@ def check_unique(names: list[str], what: str, item: str = "frames[{}]") -> None:
                              "own image: remove the repeated one")
 
 
+def check_file_name(value, where: str) -> str:
+    """``value`` when it can name a file (a non-empty string without NUL, each part at most 255 characters, 4096 in
+    all); else :class:`InputError` naming ``where``."""
+    if not isinstance(value, str) or not value.strip() or "\0" in value or len(value) > 4096 or any(
+            len(part) > 255 for part in value.replace("\\", "/").split("/")):
+        raise InputError(f"{where} is {str(value)[:60]!r}{'…' if len(str(value)) > 60 else ''}, not a file name")
+    return value
+
+
 def check_inside(folder: Path, path: Path, where: str) -> Path:
     """``path`` when it lies inside ``folder`` (compared as written, ``..`` resolved, symbolic links not followed:
     a linked image folder is the scene's); else :class:`InputError` naming ``where`` and why."""
