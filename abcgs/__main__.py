@@ -24,7 +24,7 @@ def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="python -m abcgs", description=__doc__.strip().splitlines()[0])
     sub = ap.add_subparsers(dest="command", required=True)
     scene = sub.add_parser("add-scene", help="check a scene folder and add it to data.scenes")
-    scene.add_argument("name", help="the scene's name (letters, digits, _ . -)")
+    scene.add_argument("name", help="the scene's name (letters, digits, _ -)")
     scene.add_argument("path", help="its folder (photos in images/, or a dataset with cameras), or a splat file")
     scene.add_argument("--format", default="auto", choices=("auto", *FORMATS), help="where the cameras come from "
                        "(default: detected from the folder's files)")

@@ -35,7 +35,7 @@ from abcgs.sfm.params import ReconstructParams
 from abcgs.sources.base import SourceScene
 from abcgs.sources.detect import DEFAULT_IMAGES, image_files
 from abcgs.sources.lens import consistent_scale, image_size
-from abcgs.sources.params import SceneParams
+from abcgs.sources.params import SceneParams, scene_name_problem
 from abcgs.sources.read import MARKER, read_source, resolve_format
 
 MIN_PHOTOS = 3
@@ -119,6 +119,8 @@ def edit_params(path: str | os.PathLike, edit: Callable[[Any], None], *, write: 
 def _check_name(name: str, section: str, existing: Any, force: bool) -> None:
     if not NAME_RE.fullmatch(name):
         raise InputError(f"{name!r}: a name must match {NAME_PATTERN} (it becomes a folder and a DVC stage name)")
+    if section == "data.scenes" and (problem := scene_name_problem(name)) is not None:
+        raise InputError(problem)
     if name in (existing or {}) and not force:
         raise InputError(f"{section}.{name} exists already in the params file; choose another name or pass --force to "
                          "replace it")

@@ -217,11 +217,12 @@ def read_nerfstudio_source(folder: str | os.PathLike, images: str | None = None)
     folder = Path(folder)
     path = folder / TRANSFORMS
     meta = load_json(path)
-    frames = sorted(frames_of(path, meta), key=lambda f: str(f["file_path"]))
+    indexed = sorted(enumerate(frames_of(path, meta)), key=lambda kv: str(kv[1]["file_path"]))
+    frames = [f for _, f in indexed]
     file_from_scene = applied_similarity(path, meta)
     names = view_names([str(f["file_path"]) for f in frames])
     views = []
-    for i, (frame, name) in enumerate(zip(frames, names)):
+    for (i, frame), name in zip(indexed, names):  # i: the frame's index in the file, for messages
         image = check_inside(folder, _image_path(folder, str(frame["file_path"]), images),
                              f"{path}: frames[{i}].file_path {frame['file_path']!r}")
         if not image.is_file() and not image.suffix:

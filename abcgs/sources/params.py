@@ -77,6 +77,13 @@ class SceneParams(BaseModel):
         return v
 
 
+def scene_name_problem(name: str) -> str | None:
+    """Why ``name`` cannot be a scene's name (``None`` when it can): letters, digits, ``-`` and ``_`` only."""
+    if not name.replace("_", "").replace("-", "").isalnum():
+        return f"scene name {name!r} must be letters, digits, '-' or '_' (it becomes a folder name)"
+    return None
+
+
 class DataParams(BaseModel):
     """Where the scenes and style images are. Paths are relative to the repository root."""
 
@@ -97,6 +104,6 @@ class DataParams(BaseModel):
         if not v:
             raise ValueError("at least one scene is needed")
         for name in v:
-            if not name.replace("_", "").replace("-", "").isalnum():
-                raise ValueError(f"scene name {name!r} must be letters, digits, '-' or '_' (it becomes a folder name)")
+            if (problem := scene_name_problem(name)) is not None:
+                raise ValueError(problem)
         return v
