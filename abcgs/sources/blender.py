@@ -21,7 +21,7 @@ from abcgs.cameras import Camera, check_intrinsics
 from abcgs.errors import InputError
 from abcgs.sources.base import SourceScene, SourceView
 from abcgs.sources.lens import image_size
-from abcgs.sources.nerfstudio import OPENGL_TO_OPENCV, camera_to_world, frames_of, load_json, number_array
+from abcgs.sources.nerfstudio import OPENGL_TO_OPENCV, camera_to_world, frames_of, load_json, number
 from abcgs.sources.validate import check_inside
 
 SPLITS = ("train", "test")
@@ -31,7 +31,7 @@ DEFAULT_BACKGROUND = (1.0, 1.0, 1.0)
 def _angle(path: Path, meta: dict, key: str) -> float | None:
     if key not in meta:
         return None
-    a = float(number_array(path, key, meta[key]))
+    a = number(path, key, meta[key])
     if not 0 < a < math.pi:
         raise InputError(f"{path}: {key} is {a}; it is a field of view in radians (0 .. pi)")
     return a

@@ -103,7 +103,7 @@ def applied_similarity(path: Path, meta: dict) -> np.ndarray:
         R = A[:3, :3]
         if not np.allclose(R.T @ R, np.eye(3), atol=1e-4) or np.linalg.det(R) < 0:
             raise InputError(f"{path}: applied_transform's rotation block is not a rotation")
-    s = float(number_array(path, "applied_scale", meta.get("applied_scale", 1.0)))
+    s = number(path, "applied_scale", meta.get("applied_scale", 1.0))
     if not 0 < s < 1e12:
         raise InputError(f"{path}: applied_scale is {s}; it must be positive")
     return np.diag([s, s, s, 1.0]) @ A
@@ -121,6 +121,14 @@ def number_array(path: Path, where: str, value) -> np.ndarray:
     return out
 
 
+def number(path: Path, where: str, value) -> float:
+    """``value`` as a finite ``float`` (a JSON number); :class:`InputError` naming ``path`` and ``where`` otherwise."""
+    out = number_array(path, where, value)
+    if out.ndim:
+        raise InputError(f"{path}: {where} is {str(value)[:60]!r}, not a number")
+    return float(out)
+
+
 def to_scene(c2w_file: np.ndarray, file_from_scene: np.ndarray) -> np.ndarray:
     """A camera-to-world pose in the file's frame → the scene's (a rigid pose: the similarity's scale goes into the
     position only)."""
@@ -133,7 +141,7 @@ def to_scene(c2w_file: np.ndarray, file_from_scene: np.ndarray) -> np.ndarray:
 
 
 def _lens(path: Path, where: str, model: str, fx: float, fy: float, cx: float, cy: float, get) -> list[float] | None:
-    k = {key: float(number_array(path, f"{where}.{key}", get(key, 0.0))) for key in _LENS_KEYS}
+    k = {key: number(path, f"{where}.{key}", get(key, 0.0)) for key in _LENS_KEYS}
     if model == "OPENCV":
         if k["k3"] or k["k4"]:
             return ["FULL_OPENCV", fx, fy, cx, cy, k["k1"], k["k2"], k["p1"], k["p2"], k["k3"], k["k4"], 0.0, 0.0]
@@ -160,9 +168,9 @@ def frame_camera(path: Path, meta: dict, frame: dict, index: int, name: str) -> 
     missing = [k for k in ("fl_x", "cx", "cy", "w", "h") if get(k) is None]
     if missing:
         raise InputError(f"{path}: {where} has no {', '.join(missing)} (neither in the frame nor at the top level)")
-    num = {k: float(number_array(path, f"{where}.{k}", get(k))) for k in ("fl_x", "cx", "cy", "w", "h")}
+    num = {k: number(path, f"{where}.{k}", get(k)) for k in ("fl_x", "cx", "cy", "w", "h")}
     fx, cx, cy, w, h = num["fl_x"], num["cx"], num["cy"], num["w"], num["h"]
-    fy = float(number_array(path, f"{where}.fl_y", get("fl_y", fx)))
+    fy = number(path, f"{where}.fl_y", get("fl_y", fx))
     check_intrinsics(fx, fy, cx, cy, w, h, f"{path}: {where}", "correct fl_x, fl_y, cx, cy, w and h (pixels of the "
                      "calibrated images), or re-export the dataset")
     w, h = int(w), int(h)
