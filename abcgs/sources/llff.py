@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from abcgs.cameras import Camera, check_intrinsics, intrinsics
+from abcgs.cameras import Camera, check_intrinsics, check_rotation, intrinsics
 from abcgs.errors import InputError
 from abcgs.sources.base import SourceScene, SourceView
 from abcgs.sources.detect import DEFAULT_IMAGES, image_files
@@ -59,10 +59,8 @@ def _calibrated_camera(name: str, row: np.ndarray, where: str = "poses_bounds.np
     h, w, f = pose[:, 4]
     c2w = np.eye(4)
     c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = pose[:, 1], pose[:, 0], -pose[:, 2], pose[:, 3]
-    R = c2w[:3, :3]
-    if not np.allclose(R.T @ R, np.eye(3), atol=1e-3) or np.linalg.det(R) < 0:
-        raise InputError(f"{where}: the pose's columns 0-2 are not LLFF's (down, right, back) camera axes (as a "
-                         f"rotation: det {np.linalg.det(R):.3f}); re-export the poses in LLFF's convention")
+    check_rotation(c2w[:3, :3], f"{where}: the pose's columns 0-2 as LLFF's (down, right, back) camera axes",
+                   "re-export the poses in LLFF's convention")
     if not (f > 0 and w >= 1 and h >= 1):
         raise InputError(f"{where}: hwf is ({h:g}, {w:g}, {f:g}); LLFF writes the capture's height, width and focal")
     check_intrinsics(f, f, round(w) / 2, round(h) / 2, round(w), round(h), where,

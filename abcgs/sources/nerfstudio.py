@@ -24,7 +24,7 @@ from pathlib import Path, PurePosixPath
 
 import numpy as np
 
-from abcgs.cameras import Camera, check_intrinsics
+from abcgs.cameras import Camera, check_intrinsics, check_rotation
 from abcgs.errors import InputError
 from abcgs.sources.base import Distortion, SourceScene, SourceView
 from abcgs.sources.detect import DEFAULT_IMAGES
@@ -85,10 +85,8 @@ def camera_to_world(path: Path, where: str, matrix) -> np.ndarray:
         raise InputError(f"{path}: {where}.transform_matrix is not a finite 3x4 or 4x4 matrix")
     out = np.eye(4)
     out[:3] = m[:3]
-    R = out[:3, :3]
-    if not np.allclose(R.T @ R, np.eye(3), atol=1e-3) or np.linalg.det(R) < 0:
-        raise InputError(f"{path}: {where}.transform_matrix's rotation is not a proper rotation (det "
-                         f"{np.linalg.det(R):.3f}); transforms hold camera-to-world poses with a rotation block")
+    check_rotation(out[:3, :3], f"{path}: {where}.transform_matrix", "transforms hold camera-to-world poses "
+                   "with a rotation block (a scaled or mirrored one is another convention); re-export them")
     return out
 
 
@@ -100,9 +98,7 @@ def applied_similarity(path: Path, meta: dict) -> np.ndarray:
         if m.shape not in ((3, 4), (4, 4)):
             raise InputError(f"{path}: applied_transform has shape {m.shape}; nerfstudio writes a 3x4 matrix")
         A[:3] = m[:3]
-        R = A[:3, :3]
-        if not np.allclose(R.T @ R, np.eye(3), atol=1e-4) or np.linalg.det(R) < 0:
-            raise InputError(f"{path}: applied_transform's rotation block is not a rotation")
+        check_rotation(A[:3, :3], f"{path}: applied_transform", "nerfstudio writes a rotation and a translation")
     s = number(path, "applied_scale", meta.get("applied_scale", 1.0))
     if not 0 < s < 1e12:
         raise InputError(f"{path}: applied_scale is {s}; it must be positive")

@@ -4,7 +4,7 @@
     python -m eval.bench.fuzz --inputs 200 --formats spz ply          # a quick look at two formats
 
 For each format a small valid input is made the way the project makes it (:func:`make_targets`): a 3DGS PLY, a
-``.splat``, a ``.spz``, a COLMAP model (binary and text) with its images, a nerfstudio ``transforms.json``, an LLFF
+SuperSplat compressed PLY, a ``.splat``, a ``.spz``, a COLMAP model (binary and text) with its images, a nerfstudio ``transforms.json``, an LLFF
 ``poses_bounds.npy``, and the masks page's request body (``Content-Length`` and JSON, plus an image index). Each
 input is one seeded mutation of it (:data:`MUTATIONS`): truncated, bytes flipped or inserted, a count or size field
 inflated, a number replaced by 0, -1, NaN, infinity or a huge value, a record repeated, the JSON nested deeply, a
@@ -45,7 +45,7 @@ import torch
 from abcgs.cameras import Camera, intrinsics, look_at
 from abcgs.errors import InputError
 
-FORMATS = ("ply", "splat", "spz", "colmap_bin", "colmap_txt", "transforms", "llff", "paint")
+FORMATS = ("ply", "supersplat", "splat", "spz", "colmap_bin", "colmap_txt", "transforms", "llff", "paint")
 SLOW_S = 5.0
 """An input whose reader takes longer than this (seconds) is a finding."""
 SPECIAL_NUMBERS = ("0", "-1", "NaN", "Infinity", "-Infinity", "1e400", "1e-300", "1e30", "99999999999999999999",
@@ -180,6 +180,13 @@ def make_targets(work: Path, formats: tuple[str, ...] = FORMATS) -> dict[str, Ta
         p.parent.mkdir(parents=True)
         write_ply(p, _model())
         out["ply"] = Target("ply", [p], lambda p=p: read_splat(p, "auto"), "bytes")
+    if "supersplat" in formats:
+        from abcgs.splats.supersplat import write_compressed_ply
+
+        p = work / "supersplat" / "scene.compressed.ply"
+        p.parent.mkdir(parents=True)
+        write_compressed_ply(p, _model(300))
+        out["supersplat"] = Target("supersplat", [p], lambda p=p: read_splat(p, "supersplat"), "bytes")
     if "splat" in formats:
         p = work / "splat" / "scene.splat"
         p.parent.mkdir(parents=True)
