@@ -77,11 +77,8 @@ def frames_of(path: Path, meta: dict) -> list[dict]:
 def camera_to_world(path: Path, where: str, matrix) -> np.ndarray:
     """A ``(4, 4)`` camera-to-world matrix from a 3 × 4 or 4 × 4 nested list, with a rotation block checked to be a
     rotation (orthonormal, det +1): a scaled or mirrored block means another convention."""
-    try:
-        m = np.asarray(matrix, np.float64)
-    except (TypeError, ValueError, OverflowError):
-        m = np.zeros(0)
-    if m.shape not in ((3, 4), (4, 4)) or not np.all(np.isfinite(m)):
+    m = number_array(path, f"{where}.transform_matrix", matrix)
+    if m.shape not in ((3, 4), (4, 4)):
         raise InputError(f"{path}: {where}.transform_matrix is not a finite 3x4 or 4x4 matrix")
     out = np.eye(4)
     out[:3] = m[:3]
@@ -101,7 +98,7 @@ def applied_similarity(path: Path, meta: dict) -> np.ndarray:
         check_rotation(A[:3, :3], f"{path}: applied_transform", "nerfstudio writes a rotation and a translation")
     s = number(path, "applied_scale", meta.get("applied_scale", 1.0))
     if not 0 < s < 1e12:
-        raise InputError(f"{path}: applied_scale is {s}; it must be positive")
+        raise InputError(f"{path}: applied_scale is {s}; it must be positive (and below 1e12)")
     return np.diag([s, s, s, 1.0]) @ A
 
 
