@@ -17,10 +17,11 @@ STAMP := $(VENV)/.installed-$(INSTALL_KEY)
 export PYTHONUNBUFFERED := 1
 export HF_HUB_OFFLINE := 1
 
-.PHONY: install run test browser viewer bench-rasterizer quality help
+.PHONY: install run repro test browser viewer bench-rasterizer quality help
 
 help:
 	@echo "make run    - run the DVC pipeline on the embedded tiny scene (installs first)"
+	@echo "make repro ARGS=... - dvc repro ARGS after the params check (what make run does, for one stage or more)"
 	@echo "make test   - run the test suite (installs first; chromium too, for the browser tests, when root)"
 	@echo "make viewer - rebuild the splat viewer bundle abcgs/view/static/abcgs-viewer.js.gz from viewer/ (needs npm)"
 	@echo "make bench-rasterizer - rasterizer backend benchmark (python -m eval.bench.rasterizer)"
@@ -44,6 +45,13 @@ $(STAMP): pyproject.toml setup.py abcgs/render/kernel_variants.py $(wildcard abc
 	@touch $@
 
 install: $(STAMP)
+
+# `dvc repro` with preflight first: DVC reads dvc.yaml (and params.yaml's keys) before any stage, so an empty params
+# file or a scene given as a plain path would stop in DVC's parser; preflight names the key and the fix.
+#   make repro ARGS="-s fit@tiny"
+repro: install
+	$(BIN)/python -m abcgs.preflight params.yaml
+	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/dvc repro $(ARGS)
 
 run: install
 	$(BIN)/python -m abcgs.preflight params.yaml

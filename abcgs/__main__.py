@@ -1,6 +1,7 @@
 """``python -m abcgs``: add a scene or a painting to ``params.yaml`` (:mod:`abcgs.add`).
 
     python -m abcgs add-scene NAME PATH [--format F] [--images SUBFOLDER] [--background R G B | transparent] [--splat FILE]
+        [--splat-format F] [--splat-nonfinite drop] [--views-kind K --views-count N --views-width W ...]
     python -m abcgs add-style NAME PAINTING [--labels REGION_MAP]
 
 Each prints what it found and the entry it wrote; a problem is one line naming the file and the fix (exit status 2).
@@ -10,11 +11,13 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import get_args
 
 import yaml
 
 from abcgs.errors import AbcgsError
 from abcgs.sources.base import FORMATS
+from abcgs.splats.params import SplatFormatParam, SplatViewsParams
 
 
 def _background_word(word: str) -> float | str:
@@ -41,7 +44,7 @@ def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="python -m abcgs", description=__doc__.strip().splitlines()[0])
     sub = ap.add_subparsers(dest="command", required=True)
     scene = sub.add_parser("add-scene", help="check a scene folder and add it to data.scenes")
-    scene.add_argument("name", help="the scene's name (letters, digits, _ . -)")
+    scene.add_argument("name", help="the scene's name (letters, digits, _ -)")
     scene.add_argument("path", help="its folder (photos in images/, or a dataset with cameras), or a splat file")
     scene.add_argument("--format", default="auto", choices=("auto", *FORMATS), help="where the cameras come from "
                        "(default: detected from the folder's files)")
@@ -50,6 +53,20 @@ def _parser() -> argparse.ArgumentParser:
                        help="an object on nothing: RGB in [0, 1] behind it (RGBA views are composited on it), or "
                        "transparent (RGBA renders); default: white for NeRF-synthetic, black for a bare splat")
     scene.add_argument("--splat", default=None, help="a splat already fitted to this scene (.ply, .splat, .spz)")
+    scene.add_argument("--splat-format", default="auto", choices=get_args(SplatFormatParam),
+                       help="the splat's format (default: detected; opensplat, gsplat_ply: their trainers' worlds)")
+    scene.add_argument("--splat-nonfinite", default="refuse", choices=("refuse", "drop"),
+                       help="Gaussians with NaN or infinite values: refuse the splat (default) or drop them")
+    views = SplatViewsParams.model_fields
+    scene.add_argument("--views-kind", choices=get_args(views["kind"].annotation),
+                       help="a bare splat's cameras: " + str(views["kind"].description))
+    scene.add_argument("--views-up", choices=get_args(views["up"].annotation),
+                       help="a bare splat's cameras: " + str(views["up"].description))
+    for key in ("count", "width", "height", "fov_deg", "parallax_deg", "min_opacity"):
+        scene.add_argument(f"--views-{key.replace('_', '-')}", type=views[key].annotation,
+                           help=f"a bare splat's cameras: {views[key].description} (default {views[key].default})")
+    scene.add_argument("--views-elevation-deg", type=float, nargs=2, metavar=("LOW", "HIGH"),
+                       help="a bare splat's cameras: " + str(views["elevation_deg"].description))
     style = sub.add_parser("add-style", help="check a painting and add it to data.styles")
     style.add_argument("name", help="the painting's name (letters, digits, _ . -)")
     style.add_argument("path", help="the painting's image file")
@@ -61,6 +78,12 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
+def _views(args: argparse.Namespace) -> dict | None:
+    """The ``views`` settings given as ``--views-*`` options (``None`` when none is)."""
+    given = {key: getattr(args, f"views_{key}") for key in SplatViewsParams.model_fields}
+    return {k: v for k, v in given.items() if v is not None} or None
+
+
 def main(argv: list[str] | None = None) -> int:
     from abcgs.add import add_scene, add_style
 
@@ -69,7 +92,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "add-scene":
             entry, lines = add_scene(args.params, args.name, args.path, fmt=args.format, images=args.images,
                                      background=_background(args.background), splat=args.splat,
-                                     force=args.force, dry_run=args.dry_run)
+                                     force=args.force, dry_run=args.dry_run, splat_format=args.splat_format,
+                                     splat_nonfinite=args.splat_nonfinite, views=_views(args))
             where, body = "data.scenes", {args.name: entry}
         else:
             entry, lines = add_style(args.params, args.name, args.path, labels=args.labels, force=args.force,

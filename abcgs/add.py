@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import io
 import os
+import re
 from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
@@ -34,7 +35,7 @@ from abcgs.sfm.params import ReconstructParams
 from abcgs.sources.base import SourceScene
 from abcgs.sources.detect import DEFAULT_IMAGES, image_files
 from abcgs.sources.lens import consistent_scale, image_size
-from abcgs.sources.params import SceneParams
+from abcgs.sources.params import SceneParams, scene_name_problem
 from abcgs.sources.read import MARKER, read_source, resolve_format
 
 MIN_PHOTOS = 3
@@ -96,9 +97,10 @@ def label_map_lines(name: str, folder: Path, views: dict[str, tuple[str, tuple[i
                                              "label)" if scaled else "")]
 
 
-def edit_params(path: str | os.PathLike, edit: Callable[[Any], None]) -> str:
-    """Apply ``edit`` to the parsed params file and write it back atomically once the result validates; returns the
-    new text. Comments survive where ruamel.yaml is installed (a DVC dependency)."""
+def edit_params(path: str | os.PathLike, edit: Callable[[Any], None], *, write: bool = True) -> str:
+    """Apply ``edit`` to the parsed params file and write it back atomically once the result validates (``write``
+    False: validate only, as ``--dry-run`` does, so that it refuses what the real run refuses); returns the new
+    text. Comments survive where ruamel.yaml is installed (a DVC dependency)."""
     path = Path(path)
     if not path.is_file():
         raise ParamsError(f"{path} not found; run from the repository root or pass --params")
@@ -122,13 +124,16 @@ def edit_params(path: str | os.PathLike, edit: Callable[[Any], None]) -> str:
         rt.dump(doc, buf)
         new = buf.getvalue()
     validate_params(yaml.safe_load(new), str(path))
-    write_text(path, new)
+    if write:
+        write_text(path, new)
     return new
 
 
 def _check_name(name: str, section: str, existing: Any, force: bool) -> None:
     if not NAME_RE.fullmatch(name):
         raise InputError(f"{name!r}: a name must match {NAME_PATTERN} (it becomes a folder and a DVC stage name)")
+    if section == "data.scenes" and (problem := scene_name_problem(name)) is not None:
+        raise InputError(problem)
     if name in (existing or {}) and not force:
         raise InputError(f"{section}.{name} exists already in the params file; choose another name or pass --force to "
                          "replace it")
@@ -137,9 +142,12 @@ def _check_name(name: str, section: str, existing: Any, force: bool) -> None:
 def scene_entry(name: str, path: str | os.PathLike, *, fmt: str = "auto", images: str | None = None,
                 background: tuple[float, float, float] | str | None = None, splat: str | os.PathLike | None = None,
                 max_view_size_ratio: float = ReconstructParams().max_view_size_ratio,
-                min_psnr: float = FitParams().import_min_psnr) -> tuple[dict, list[str]]:
+                min_psnr: float = FitParams().import_min_psnr, splat_format: str = "auto",
+                splat_nonfinite: str = "refuse", views: dict | None = None) -> tuple[dict, list[str]]:
     """The ``data.scenes.<name>`` entry for the scene at ``path`` (absolute paths, the detected format) and the lines
-    describing it. Raises :class:`InputError` for anything its reader refuses."""
+    describing it. Raises :class:`InputError` for anything its reader refuses. ``splat_format``,
+    ``splat_nonfinite`` and ``views`` (a :class:`~abcgs.splats.params.SplatViewsParams` mapping) are the entry's
+    settings of the same names, written when they are not the defaults and used by the checks here."""
     folder = Path(path).expanduser().resolve()
     resolved = resolve_format(folder, fmt, images)
     entry: dict[str, Any] = {"path": str(folder), "format": resolved}
@@ -147,35 +155,45 @@ def scene_entry(name: str, path: str | os.PathLike, *, fmt: str = "auto", images
         entry["images"] = images
     if background is not None:
         entry["background"] = background if background == "transparent" else [float(c) for c in background]
+    if splat_format != "auto":
+        entry["splat_format"] = splat_format
+    if splat_nonfinite != "refuse":
+        entry["splat_nonfinite"] = splat_nonfinite
+    if views:
+        entry["views"] = dict(views)
+    SceneParams.model_validate(entry)  # the settings, before any file is read
+    drop = splat_nonfinite == "drop"
     source = None
     if resolved == "photos":
         lines = describe_photos(name, folder, images, max_view_size_ratio)
     elif resolved == "splat":
-        lines = [f"a bare splat scene: {folder} (cameras are made around it; its renders are the photos)"]
+        from abcgs.sources.detect import splat_file
+        from abcgs.splats.formats import read_splat
+
+        model = read_splat(splat_file(folder), splat_format, drop_invalid=drop).model
+        lines = [f"a bare splat scene: {folder}, {model.num_gaussians} Gaussians of SH degree {model.sh_degree} "
+                 "(cameras are made around it; its renders are the photos)"]
     else:
         source = read_source(folder, resolved, images=images,
                              background=SceneParams.model_validate(entry).resolved_background(resolved).color)
         lines = describe_source(source, folder)
-<<<<<<< HEAD
+        lines += label_map_lines(name, folder, {Path(v.name).stem: (v.name, (v.camera.height, v.camera.width))
+                                                for v in source.views}, images)
     bg = SceneParams.model_validate(entry).resolved_background(resolved)
     if bg.object:
         lines.append("an object on nothing: colour match and stylization act on the object, empty space stays "
                      + ("transparent (RGBA renders)" if bg.transparent else f"{list(bg.color)}"))
-=======
-        lines += label_map_lines(name, folder, {Path(v.name).stem: (v.name, (v.camera.height, v.camera.width))
-                                                for v in source.views}, images)
->>>>>>> h-regions
     if splat is not None:
         splat_path = Path(splat).expanduser().resolve()
         if not splat_path.is_file():
             raise InputError(f"--splat {splat_path} does not exist; give the fitted splat file (.ply, .splat, .spz)")
         entry["splat"] = str(splat_path)
-        lines.append(_splat_check(splat_path, source, min_psnr))
+        lines.append(_splat_check(splat_path, source, min_psnr, splat_format, drop))
     SceneParams.model_validate(entry)
     return entry, lines
 
 
-def _splat_check(splat: Path, source: SourceScene | None, min_psnr: float) -> str:
+def _splat_check(splat: Path, source: SourceScene | None, min_psnr: float, fmt: str = "auto", drop: bool = False) -> str:
     """The fit stage's render-versus-photo check of a trained splat (:func:`abcgs.splats.validate.check_splat`), run
     now where the dataset has undistorted cameras; raises :class:`InputError` naming the likely cause when it fails."""
     from abcgs.sfm.model import SceneData
@@ -188,26 +206,34 @@ def _splat_check(splat: Path, source: SourceScene | None, min_psnr: float) -> st
                 "the scene's undistorted cameras")
     none = np.zeros((0, 3), np.float32)
     scene = SceneData([v.camera for v in plain], [v.image_path for v in plain], none, none)
-    check = check_splat(read_splat(splat, "auto", scene=scene).model, scene, min_psnr=min_psnr, source=str(splat))
+    try:
+        check = check_splat(read_splat(splat, fmt, scene=scene, drop_invalid=drop).model, scene, min_psnr=min_psnr,
+                            source=str(splat))
+    except InputError as exc:  # the fixes the readers name as settings, as this command's options
+        text = re.sub(r"set splat_format: (\w+)", r"set splat_format: \1 (add-scene --splat-format \1)", str(exc))
+        text = text.replace("splat_nonfinite: drop", "splat_nonfinite: drop (add-scene --splat-nonfinite drop)")
+        raise InputError(text) from None
     return f"splat {splat}: its renders match the photos at {check.psnr:.1f} dB (threshold {min_psnr:g})"
 
 
 def add_scene(params_path: str | os.PathLike, name: str, path: str | os.PathLike, *, fmt: str = "auto",
               images: str | None = None, background: tuple[float, float, float] | str | None = None,
-              splat: str | os.PathLike | None = None, force: bool = False, dry_run: bool = False
+              splat: str | os.PathLike | None = None, force: bool = False, dry_run: bool = False,
+              splat_format: str = "auto", splat_nonfinite: str = "refuse", views: dict | None = None
               ) -> tuple[dict, list[str]]:
-    """Check the scene and write ``data.scenes.<name>`` into the params file (unless ``dry_run``)."""
+    """Check the scene and write ``data.scenes.<name>`` into the params file (``dry_run``: check the edited file
+    as the real run does, write nothing). ``splat_format``, ``splat_nonfinite``, ``views``: :func:`scene_entry`."""
     params = load_params(params_path)
     _check_name(name, "data.scenes", params.data.scenes, force)
     entry, lines = scene_entry(name, path, fmt=fmt, images=images, background=background, splat=splat,
                                max_view_size_ratio=params.reconstruct.max_view_size_ratio,
-                               min_psnr=params.fit.import_min_psnr)
+                               min_psnr=params.fit.import_min_psnr, splat_format=splat_format,
+                               splat_nonfinite=splat_nonfinite, views=views)
 
     def edit(doc: Any) -> None:
         doc["data"]["scenes"][name] = entry
 
-    if not dry_run:
-        edit_params(params_path, edit)
+    edit_params(params_path, edit, write=not dry_run)
     return entry, lines
 
 
@@ -249,6 +275,5 @@ def add_style(params_path: str | os.PathLike, name: str, path: str | os.PathLike
                 doc["data"][section] = {}
             doc["data"][section][name] = value
 
-    if not dry_run:
-        edit_params(params_path, edit)
+    edit_params(params_path, edit, write=not dry_run)
     return entry, lines

@@ -12,6 +12,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from abcgs.errors import InputError
+
 if TYPE_CHECKING:  # torch is imported by the two methods that make tensors: stages without tensors skip its import
     import torch
 
@@ -83,3 +85,48 @@ def intrinsics(focal: float, width: int, height: int, cx: float | None = None, c
     return np.array(
         [[focal, 0.0, width / 2.0 if cx is None else cx], [0.0, focal, height / 2.0 if cy is None else cy], [0.0, 0.0, 1.0]]
     )
+
+
+MAX_IMAGE_SIDE = 100_000
+"""Largest image width or height (px) a camera may state; more is a corrupt file, not a photo."""
+FOCAL_RANGE = (0.02, 1000.0)
+"""Plausible focal lengths, as multiples of the image's larger side: from a 175° field of view to a 0.06° one."""
+ROTATION_TOLERANCE = 1e-3
+"""Largest ``|Rᵀ R − I|`` and ``|det R − 1|`` of a matrix taken as a rotation (poses stored as text lose digits)."""
+
+
+def check_intrinsics(fx: float, fy: float, cx: float, cy: float, width: float, height: float, where: str,
+                     fix: str = "re-export the cameras from the tool that made them") -> None:
+    """Raise :class:`~abcgs.errors.InputError` naming ``where`` and ``fix`` unless the image size (px) is a positive
+    whole size up to :data:`MAX_IMAGE_SIDE`, the focal lengths (px) are finite and within :data:`FOCAL_RANGE` of
+    it, and the principal point (px) is finite and within one image size of the image."""
+    vals = [float(v) for v in (fx, fy, cx, cy, width, height)]
+    if not all(np.isfinite(vals)):
+        raise InputError(f"{where}: the intrinsics (fx, fy, cx, cy, w, h) = {_fmt(vals)} are not all finite; {fix}")
+    w, h = vals[4], vals[5]
+    if not (1 <= w <= MAX_IMAGE_SIDE and 1 <= h <= MAX_IMAGE_SIDE and w == int(w) and h == int(h)):
+        raise InputError(f"{where}: the image size {w:g} x {h:g} is not a size in pixels (1 .. {MAX_IMAGE_SIDE}); {fix}")
+    lo, hi = FOCAL_RANGE[0] * max(w, h), FOCAL_RANGE[1] * max(w, h)
+    for name, f in (("fx", vals[0]), ("fy", vals[1])):
+        if not lo <= f <= hi:
+            raise InputError(f"{where}: focal length {name} = {f:g} px is not plausible for a {w:g} x {h:g} image "
+                             f"({lo:g} .. {hi:g} px); {fix}")
+    if not (-w <= vals[2] <= 2 * w and -h <= vals[3] <= 2 * h):
+        raise InputError(f"{where}: the principal point ({vals[2]:g}, {vals[3]:g}) px lies far outside the "
+                         f"{w:g} x {h:g} image; {fix}")
+
+
+def check_rotation(R, where: str, fix: str = "re-export the poses from the tool that made them") -> None:
+    """Raise :class:`~abcgs.errors.InputError` naming ``where`` and ``fix`` unless ``R`` is a finite ``(3, 3)``
+    rotation: orthonormal and with determinant +1 within :data:`ROTATION_TOLERANCE`."""
+    R = np.asarray(R, np.float64)
+    if R.shape != (3, 3) or not np.isfinite(R).all():
+        raise InputError(f"{where}: the rotation is not a finite 3x3 matrix; {fix}")
+    det = float(np.linalg.det(R))
+    if np.abs(R.T @ R - np.eye(3)).max() > ROTATION_TOLERANCE or abs(det - 1.0) > ROTATION_TOLERANCE:
+        raise InputError(f"{where}: the rotation is not a proper rotation (orthonormal, det +1; its det is {det:.3f}); "
+                         f"{fix}")
+
+
+def _fmt(vals: list[float]) -> str:
+    return "(" + ", ".join(f"{v:g}" for v in vals) + ")"

@@ -19,6 +19,7 @@ dataclass fields (``setattr``) when they add or remove Gaussians; nothing else h
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass, fields
@@ -32,6 +33,7 @@ from abcgs.errors import InputError
 from abcgs.render import RenderMeta, num_sh_bases, rasterize, rgb_to_sh0, sh0_to_rgb
 from abcgs.types import Backend
 
+log = logging.getLogger(__name__)
 PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh0", "shN")
 """Names of the per-Gaussian parameter tensors, in a fixed order (also the optimiser keys)."""
 
@@ -196,6 +198,33 @@ class GaussianModel:
     def index(self, mask_or_idx: Tensor) -> GaussianModel:
         """The Gaussians selected by a bool mask or index tensor (detached copies)."""
         return self.map(lambda t: t.detach()[mask_or_idx].clone())
+
+    def invalid_rows(self) -> Tensor:
+        """``(N,) bool``: the Gaussians that no renderer can draw, a NaN or infinite value in any parameter or a zero
+        quaternion (what a corrupt or hostile file holds; a fit never makes one)."""
+        with torch.no_grad():
+            bad = torch.zeros(self.num_gaussians, dtype=torch.bool, device=self.means.device)
+            for _, t in self.items():
+                bad |= ~torch.isfinite(t.detach()).reshape(self.num_gaussians, -1).all(dim=1)
+            return bad | (self.quats.detach().abs().sum(dim=1) == 0)
+
+
+def valid_gaussians(model: GaussianModel, source: str, *, drop: bool = False, setting: str = "splat_nonfinite"
+                    ) -> GaussianModel:
+    """``model`` when every Gaussian is valid (:meth:`GaussianModel.invalid_rows`); else an :class:`InputError` naming
+    ``source`` and the count, or with ``drop`` the model without them and a warning with the count. ``setting``
+    names the option that selects ``drop`` in the message."""
+    bad = model.invalid_rows()
+    k = int(bad.sum())
+    if not k:
+        return model
+    what = f"{source}: {k} of {model.num_gaussians} Gaussians have a NaN or infinite value (or a zero quaternion)"
+    if not drop:
+        raise InputError(f"{what}; the file is corrupt: re-export it from its tool, or drop them with {setting}: drop")
+    if k == model.num_gaussians:
+        raise InputError(f"{what}: none is left to drop; the file is corrupt, re-export it from its tool")
+    log.warning("%s; dropped them (%s: drop)", what, setting)
+    return model.index(~bad)
 
 
 assert tuple(f.name for f in fields(GaussianModel)) == PARAM_NAMES

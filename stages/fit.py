@@ -45,7 +45,8 @@ def main(args, params) -> None:
     device = resolve_device(params.runtime.device)
     splat = spec.splat_path(args.source) or bare_splat(args.source, spec.format)  # a bare splat: its renders are the photos
     if splat is not None:
-        record = import_and_save(scene, splat, spec.splat_format, fit, args.out, device=device)
+        record = import_and_save(scene, splat, spec.splat_format, fit, args.out, device=device,
+                                 drop_invalid=spec.splat_nonfinite == "drop")
     else:
         record = fit_and_save(scene, fit, args.out, device=device).metrics()
         write_fitted_source(args.out)

@@ -53,7 +53,7 @@ def main(args, params) -> None:
         return
     with tempfile.TemporaryDirectory() as work:  # a bare splat's renders, until the model's images/ holds them
         source = read_source(folder, fmt, images=scene.images, background=background.color if background.object else None,
-                             views=scene.views, work=work)
+                             views=scene.views, work=work, drop_invalid=scene.splat_nonfinite == "drop")
         for note in source.notes:
             log.info("%s: %s", fmt, note)
         record = write_source_model(source, args.out, options, masks_dir=folder / "masks", background=background)

@@ -446,10 +446,14 @@ def test_the_server_refuses_other_pages_hosts_and_bodies(paint_process) -> None:
     status, body = post("/api/strokes/0", strokes, **{"Content-Type": "text/plain"})
     assert status == 415 and "application/json" in body["error"]
     # malformed requests: a 400 with a one-line reason
-    for length in ("-1", "abc", str(1 << 40), None):
+    for length in ("-1", "abc", str(1 << 40), None, "5" * 5000, "\u00b2", "0"):
         status, body = post("/api/strokes/0", strokes, **{"Content-Length": length})
         assert status == 400 and "\n" not in body["error"] and ("Content-Length" in body["error"] or "larger" in
                                                                body["error"]), (length, body)
+    status, body = post("/api/strokes/0", b"", **{"Content-Length": "0"})
+    assert status == 400 and body["error"].startswith("Content-Length 0: the request has no body"), body
+    status, body = raw_request(port, "GET", "/api/image/" + "9" * 5000, {"Host": own["Host"], "Cookie": own["Cookie"]})
+    assert status == 400 and "is not an index of this page's images" in body["error"], body
     for bad in (b"{not json", b"[1, 2]", b'{"strokes": 5}', b'{"strokes": "abc"}', b'{"strokes": [[1, 2]]}',
                 b'{"strokes": [{"label": "x", "points": [[1, 2]]}]}', b'{"fill": "yes"}', b"\xff\xfe", b"[" * 100000):
         status, body = post("/api/segment/0", bad)

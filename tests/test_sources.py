@@ -398,8 +398,8 @@ def test_llff_wrong_pairing_and_convention_fail(tmp_path: Path, tiny_scene: Path
     poses = swapped[:, :15].reshape(-1, 3, 5)
     poses[:, :, [0, 1]] = poses[:, :, [1, 0]]  # (right, down, back): OpenCV's order, not LLFF's
     np.save(folder / "poses_bounds.npy", swapped)
-    with pytest.raises(InputError, match=r"poses_bounds\.npy row 0: the pose's columns 0-2 are not LLFF's \(down, "
-                                         r"right, back\)"):
+    with pytest.raises(InputError, match=r"poses_bounds\.npy row 0: the pose's columns 0-2 as LLFF's \(down, "
+                                         r"right, back\) camera axes: the rotation is not a proper rotation"):
         read_source(folder, "llff")
     np.save(folder / "poses_bounds.npy", arr[:-1])
     with pytest.raises(InputError, match=r"holds 15 poses but .*images holds 16 images"):

@@ -28,7 +28,7 @@ import torch
 from plyfile import PlyData, PlyElement, PlyListProperty, PlyParseError
 
 from abcgs.errors import InputError
-from abcgs.gaussians import GaussianModel
+from abcgs.gaussians import GaussianModel, valid_gaussians
 from abcgs.io.atomic import atomic_path
 
 _REST_COUNTS = {0: 0, 9: 1, 24: 2, 45: 3}
@@ -173,19 +173,20 @@ UNKNOWN_LAYOUT_FIX = (
 )
 
 
-def read_ply(path: str | os.PathLike, *, device: torch.device | str = "cpu") -> GaussianModel:
+def read_ply(path: str | os.PathLike, *, device: torch.device | str = "cpu", drop_invalid: bool = False) -> GaussianModel:
     """Read a 3DGS PLY written by this module, by the INRIA code or by tools that keep its layout.
 
     The SH degree is inferred from the number of ``f_rest_*`` fields. Any numeric property type is
     accepted and converted to ``float32``. A missing file, a file that is not a PLY, a truncated body, a
     missing ``vertex`` element or property, or an ``f_rest`` count that is not 0/9/24/45 raises
-    :class:`InputError` saying which.
+    :class:`InputError` saying which. So do Gaussians with a NaN or infinite value (their count), unless
+    ``drop_invalid`` drops them with a warning (:func:`abcgs.gaussians.valid_gaussians`).
     """
-    return read_ply_layout(path, device=device)[0]
+    return read_ply_layout(path, device=device, drop_invalid=drop_invalid)[0]
 
 
 def read_ply_layout(
-    path: str | os.PathLike, *, device: torch.device | str = "cpu"
+    path: str | os.PathLike, *, device: torch.device | str = "cpu", drop_invalid: bool = False
 ) -> tuple[GaussianModel, PlyLayout, dict[str, np.ndarray]]:
     """:func:`read_ply`, also returning the file's :class:`PlyLayout` and the values of its properties that are
     not Gaussian parameters (``{name: (N,) array}``), so that :func:`write_ply` can write the same layout back."""
@@ -246,4 +247,8 @@ def read_ply_layout(
         sh0=t(col("f_dc_0", "f_dc_1", "f_dc_2")[:, None, :]),
         shN=t(f_rest.transpose(0, 2, 1)),
     )
+    bad = model.invalid_rows().cpu().numpy()
+    model = valid_gaussians(model, str(path), drop=drop_invalid)
+    if bad.any():
+        extras = {name: v[~bad] for name, v in extras.items()}
     return model, layout, extras

@@ -173,15 +173,50 @@ def encode_spz(model: GaussianModel, *, version: int = 3, antialiased: bool = Fa
     return buf.getvalue()
 
 
-def decode_spz(data: bytes, *, source: str = "spz data") -> GaussianModel:
-    """``.spz`` bytes → :class:`GaussianModel` (float32, CPU). Malformed input raises :class:`InputError`."""
+def _inflate(data: bytes, limit: int, source: str) -> bytearray:
+    """The gzip stream ``data`` inflated, at most ``limit`` bytes plus one (the caller compares the length); memory
+    stays bounded by ``limit`` whatever the stream claims. Concatenated gzip members are inflated in turn."""
+    out = bytearray()
+    rest = data
     try:
-        raw = gzip.decompress(data)
-    except (OSError, EOFError, zlib.error) as exc:
-        raise InputError(f"{source} is not a gzip stream ({exc}); is it a .spz file?") from exc
-    if len(raw) < HEADER.size:
-        raise InputError(f"{source}: {len(raw)} bytes after decompression, shorter than the 16-byte spz header")
-    magic, version, n, degree, bits, flags, _ = HEADER.unpack_from(raw)
+        while rest and len(out) <= limit:
+            d = zlib.decompressobj(16 + zlib.MAX_WBITS)
+            chunk = rest
+            while chunk and len(out) <= limit:
+                out += d.decompress(chunk, limit + 1 - len(out))
+                chunk = d.unconsumed_tail
+            if not d.eof:
+                if len(out) > limit:
+                    break
+                raise InputError(f"{source}: the gzip stream ends early (truncated file)")
+            rest = d.unused_data
+            if rest and not rest.startswith(b"\x1f\x8b"):
+                break  # trailing bytes after the last member: gzip ignores zero padding
+    except zlib.error as exc:
+        raise InputError(f"{source} is not a gzip stream ({exc}); is it a .spz file?") from None
+    return out
+
+
+def _body_size(version: int, n: int, degree: int) -> int:
+    """Bytes after the header of ``n`` Gaussians of SH ``degree`` in spz ``version``."""
+    return n * (9 + 1 + 3 + 3 + (4 if version == 3 else 3) + 3 * _sh_dim(degree))
+
+
+MAX_GAUSSIANS = 100_000_000
+"""More Gaussians than any splat in use (a few million): a header stating more is refused before inflating."""
+MAX_RATIO = 100
+"""Most bytes a ``.spz`` may inflate to per compressed byte. A fitted scene's quantised values hardly compress (the tiny
+scene's fit: 1.2×); a header whose count implies more than this is a corrupt count or a gzip bomb, refused before
+inflating."""
+
+
+def read_header(data: bytes, source: str = "spz data") -> tuple[int, int, int, int, int]:
+    """``(version, n, degree, fractional_bits, flags)`` of ``.spz`` bytes, from the first 16 inflated bytes only;
+    :class:`InputError` naming ``source`` when the header is not a supported spz header."""
+    head = _inflate(data, HEADER.size, source)[: HEADER.size]
+    if len(head) < HEADER.size:
+        raise InputError(f"{source}: {len(head)} bytes after decompression, shorter than the 16-byte spz header")
+    magic, version, n, degree, bits, flags, _ = HEADER.unpack_from(head)
     if magic != MAGIC:
         raise InputError(f"{source}: magic 0x{magic:08x} is not spz's 0x{MAGIC:08x} ('NGSP')")
     if version not in (2, 3):
@@ -190,13 +225,33 @@ def decode_spz(data: bytes, *, source: str = "spz data") -> GaussianModel:
         raise InputError(f"{source}: SH degree {degree} is not supported (0–3)")
     if flags & 0x2:
         raise InputError(f"{source}: spz extensions (flag 0x2) are not supported")
+    if bits > 23:
+        raise InputError(f"{source}: {bits} fractional bits of a 24-bit fixed-point position; spz writes 12")
+    if n > MAX_GAUSSIANS:
+        raise InputError(f"{source}: its header states {n} Gaussians, more than the {MAX_GAUSSIANS} abcgs reads; the "
+                         "file is corrupt")
+    return version, n, degree, bits, flags
+
+
+def decode_spz(data: bytes, *, source: str = "spz data") -> GaussianModel:
+    """``.spz`` bytes → :class:`GaussianModel` (float32, CPU). Malformed input raises :class:`InputError`.
+
+    The header (the first 16 inflated bytes) is read first; the stream is then inflated to at most the size the
+    header's Gaussian count implies, so a stream that inflates to more (a gzip bomb) is refused with bounded
+    memory."""
+    version, n, degree, bits, flags = read_header(data, source)
     k = _sh_dim(degree)
+    need = HEADER.size + _body_size(version, n, degree)
+    if need > len(data) * MAX_RATIO:
+        raise InputError(f"{source}: its header states {n} Gaussians ({need} bytes inflated) but the file has "
+                         f"{len(data)} bytes, more than {MAX_RATIO}x compression (a corrupt count, a truncated file or a "
+                         "gzip bomb); re-export it")
+    raw = _inflate(data, need, source)
+    if len(raw) != need:
+        raise InputError(f"{source}: {'more than ' if len(raw) > need else ''}{len(raw)} bytes for {n} Gaussians of "
+                         f"SH degree {degree}; expected {need} (truncated or corrupt file)")
     rot_bytes = 4 if version == 3 else 3
     sizes = [9 * n, n, 3 * n, 3 * n, rot_bytes * n, 3 * k * n]
-    need = HEADER.size + sum(sizes)
-    if len(raw) != need:
-        raise InputError(f"{source}: {len(raw)} bytes for {n} Gaussians of SH degree {degree}; expected {need} "
-                         "(truncated or corrupt file)")
     body = np.frombuffer(raw, np.uint8, offset=HEADER.size)
     offs = np.cumsum([0] + sizes)
     pos, alpha, col, sca, rot, sh = (body[offs[i]:offs[i + 1]] for i in range(6))

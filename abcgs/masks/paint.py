@@ -10,7 +10,7 @@ The page (``static/paint.html``, plain JavaScript, nothing fetched from the netw
 itself only: the address printed at start carries a random token (as Jupyter's does; the page keeps it in a cookie),
 and a request without it, whose ``Host`` is not that address (DNS rebinding), with another page's ``Origin``, or a
 POST not declared ``application/json`` (what a cross-origin form or ``fetch`` could send without asking) is refused,
-as is a body without a plain ``Content-Length`` up to :data:`MAX_BODY`; each refusal is a 4xx with a one-line
+as is a body without a plain ``Content-Length`` from 1 to :data:`MAX_BODY` (:func:`read_body`); each refusal is a 4xx with a one-line
 reason. Pick a label, draw strokes over the objects of one or more views, press **Segment** to see the cut over the
 view, add strokes where it is wrong, and press **Save**: every view with strokes gets a single-channel label PNG (1,
 2, … the labels; 0 = no label, what the background brush or its cut decided; 255 =
@@ -40,6 +40,7 @@ from http import HTTPStatus
 from http.cookies import SimpleCookie
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
+from typing import BinaryIO
 from urllib.parse import parse_qs
 
 import cv2
@@ -341,6 +342,45 @@ class Refused(AbcgsError):
         self.status = status
 
 
+def read_body(content_length: str | None, rfile: BinaryIO) -> dict:
+    """The JSON object of a request body of ``content_length`` bytes (the header's text) read from ``rfile``;
+    :class:`Refused` (400) with a one-line reason for a length that is not a plain decimal byte count up to
+    :data:`MAX_BODY`, an empty or short body, and a body that is not a JSON object."""
+    text = (content_length or "").strip()
+    if not (text.isascii() and text.isdigit()):  # also a negative length (rfile.read: "until the end"), or "²"
+        raise Refused(HTTPStatus.BAD_REQUEST, f"Content-Length {text[:40]!r} is not a byte count")
+    n = int(text) if len(text) <= len(str(MAX_BODY)) else MAX_BODY + 1  # int() refuses 4300+ digits
+    if n > MAX_BODY:
+        raise Refused(HTTPStatus.BAD_REQUEST, f"the body of {text if len(text) <= 20 else text[:20] + '…'} bytes is "
+                                              f"larger than {MAX_BODY} bytes")
+    if n == 0:
+        raise Refused(HTTPStatus.BAD_REQUEST, "Content-Length 0: the request has no body; the API takes a JSON "
+                                              "object ({} for none)")
+    raw = rfile.read(n)
+    if len(raw) != n:
+        raise Refused(HTTPStatus.BAD_REQUEST, f"the body ended after {len(raw)} of {n} bytes")
+    try:
+        data = json.loads(raw)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise Refused(HTTPStatus.BAD_REQUEST, f"the request body is not JSON: {exc}") from None
+    except RecursionError:
+        raise Refused(HTTPStatus.BAD_REQUEST, "the request body nests too deeply") from None
+    if not isinstance(data, dict):
+        raise Refused(HTTPStatus.BAD_REQUEST, "the request body must be a JSON object")
+    return data
+
+
+def image_index(text: str | None) -> int | None:
+    """The image index of a route (``/api/image/<index>``), ``None`` when it has none; :class:`Refused` (400) when
+    it is longer than any index can be."""
+    if text is None:
+        return None
+    if len(text) > 9 or not (text.isascii() and text.isdigit()):
+        raise Refused(HTTPStatus.BAD_REQUEST, f"image index {text[:20]!r}{'…' if len(text) > 20 else ''} is not an "
+                                              "index of this page's images")
+    return int(text)
+
+
 def _strokes(body: dict) -> list[Stroke]:
     """``body["strokes"]``: a list of stroke objects (:meth:`Stroke.from_json`)."""
     strokes = body.get("strokes", [])
@@ -433,24 +473,7 @@ class _Handler(BaseHTTPRequestHandler):
                               f"Content-Type {ctype or '(none)'!r}: the API takes application/json")
 
     def _body(self) -> dict:
-        text = (self.headers.get("Content-Length") or "").strip()
-        if not text.isdigit():  # also a negative length, which rfile.read would take as "until the end"
-            raise Refused(HTTPStatus.BAD_REQUEST, f"Content-Length {text[:40]!r} is not a byte count")
-        n = int(text)
-        if n > MAX_BODY:
-            raise Refused(HTTPStatus.BAD_REQUEST, f"the body of {n} bytes is larger than {MAX_BODY} bytes")
-        raw = self.rfile.read(n) if n else b"{}"
-        if len(raw) != n:
-            raise Refused(HTTPStatus.BAD_REQUEST, f"the body ended after {len(raw)} of {n} bytes")
-        try:
-            data = json.loads(raw or b"{}")
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise Refused(HTTPStatus.BAD_REQUEST, f"the request body is not JSON: {exc}") from None
-        except RecursionError:
-            raise Refused(HTTPStatus.BAD_REQUEST, "the request body nests too deeply") from None
-        if not isinstance(data, dict):
-            raise Refused(HTTPStatus.BAD_REQUEST, "the request body must be a JSON object")
-        return data
+        return read_body(self.headers.get("Content-Length"), self.rfile)
 
     def _dispatch(self, method: str) -> None:
         path, _, query = self.path.partition("?")
@@ -463,7 +486,7 @@ class _Handler(BaseHTTPRequestHandler):
             m = _ROUTE.match(path)
             if not m:
                 return self._json({"error": f"no such page: {path}"}, HTTPStatus.NOT_FOUND)
-            what, idx = m.group(1), int(m.group(2)) if m.group(2) else None
+            what, idx = m.group(1), image_index(m.group(2))
             s = self.session
             if what in ("image", "strokes", "segment", "labels", "overlay") and idx is None:
                 raise InputError(f"/api/{what}/<index> needs an image index")

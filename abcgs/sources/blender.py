@@ -17,11 +17,12 @@ from pathlib import Path, PurePosixPath
 
 import numpy as np
 
-from abcgs.cameras import Camera
+from abcgs.cameras import Camera, check_intrinsics
 from abcgs.errors import InputError
 from abcgs.sources.base import SourceScene, SourceView
 from abcgs.sources.lens import image_size
-from abcgs.sources.nerfstudio import OPENGL_TO_OPENCV, camera_to_world, frames_of, load_json
+from abcgs.sources.nerfstudio import OPENGL_TO_OPENCV, camera_to_world, frames_of, load_json, number
+from abcgs.sources.validate import check_inside
 
 SPLITS = ("train", "test")
 DEFAULT_BACKGROUND = (1.0, 1.0, 1.0)
@@ -30,7 +31,7 @@ DEFAULT_BACKGROUND = (1.0, 1.0, 1.0)
 def _angle(path: Path, meta: dict, key: str) -> float | None:
     if key not in meta:
         return None
-    a = float(meta[key])
+    a = number(path, key, meta[key])
     if not 0 < a < math.pi:
         raise InputError(f"{path}: {key} is {a}; it is a field of view in radians (0 .. pi)")
     return a
@@ -51,7 +52,7 @@ def read_blender_source(folder: str | os.PathLike, background: tuple[float, floa
             raise InputError(f"{path} has no camera_angle_x (the horizontal field of view in radians)")
         for i, frame in enumerate(frames_of(path, meta)):
             rel = PurePosixPath(str(frame["file_path"]).replace("\\", "/"))
-            image = folder / rel
+            image = check_inside(folder, folder / rel, f"{path}: frames[{i}].file_path {frame['file_path']!r}")
             if not image.suffix:
                 image = image.with_name(image.name + ".png")
             if not image.is_file():
@@ -60,6 +61,8 @@ def read_blender_source(folder: str | os.PathLike, background: tuple[float, floa
             w, h = image_size(image)
             fx = 0.5 * w / math.tan(0.5 * ax)
             fy = 0.5 * h / math.tan(0.5 * ay) if ay is not None else fx
+            check_intrinsics(fx, fy, w / 2.0, h / 2.0, w, h, f"{path}: frames[{i}] with {image.name}",
+                             "correct camera_angle_x (radians), or the image")
             K = np.array([[fx, 0.0, w / 2.0], [0.0, fy, h / 2.0], [0.0, 0.0, 1.0]])
             c2w = camera_to_world(path, f"frames[{i}]", frame["transform_matrix"]) @ OPENGL_TO_OPENCV
             name = f"{split}_{image.stem}.png"

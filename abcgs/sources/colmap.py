@@ -23,9 +23,11 @@ import pycolmap
 
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
+from abcgs.sfm.model import read_model
 from abcgs.sources.base import SourceScene, SourceView
 from abcgs.sources.detect import DEFAULT_IMAGES, colmap_model_dir, image_files
 from abcgs.sources.lens import fit_to_image, image_size, pinhole_and_lens
+from abcgs.sources.validate import check_count, check_inside
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +48,7 @@ def read_colmap_source(folder: str | os.PathLike, images: str | None = None) -> 
     if not files:
         raise InputError(f"{images_dir} holds no images, but the COLMAP model {model_dir} needs them; put them there, or "
                          "name the image folder in the scene's entry (`images: images_4`)")
+    read_model(model_dir)  # record counts against file sizes, plausible intrinsics, finite poses: before pycolmap
     try:
         rec = pycolmap.Reconstruction(str(model_dir))
     except Exception as exc:  # pycolmap raises plain RuntimeErrors for truncated or foreign files
@@ -53,6 +56,9 @@ def read_colmap_source(folder: str | os.PathLike, images: str | None = None) -> 
     posed = sorted((im for im in rec.images.values() if im.has_pose), key=lambda im: im.name)
     if not posed:
         raise InputError(f"the COLMAP model {model_dir} has no registered images; re-run its reconstruction")
+    check_count(len(posed), str(model_dir))
+    for im in posed:
+        check_inside(folder, images_dir / im.name, f"{model_dir} image {im.name!r}")
     on_disk = {p.name for p in files}
     found = [im for im in posed if (images_dir / im.name).is_file()]
     if not found:

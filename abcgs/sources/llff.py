@@ -14,11 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
-from abcgs.cameras import Camera, intrinsics
+from abcgs.cameras import Camera, check_intrinsics, check_rotation, intrinsics
 from abcgs.errors import InputError
 from abcgs.sources.base import SourceScene, SourceView
 from abcgs.sources.detect import DEFAULT_IMAGES, image_files
 from abcgs.sources.lens import fit_to_image, image_size
+from abcgs.sources.validate import check_count
 
 POSES_FILE = "poses_bounds.npy"
 
@@ -30,12 +31,19 @@ def load_poses_bounds(path: str | os.PathLike) -> np.ndarray:
     if not path.is_file():
         raise InputError(f"{path} does not exist; expected LLFF's poses_bounds.npy")
     try:
-        arr = np.load(path)
-    except (OSError, ValueError) as exc:
+        arr = np.load(path, allow_pickle=False)
+    except Exception as exc:  # numpy raises OSError, ValueError, EOFError, tokenize.TokenError, … for a corrupt header
         raise InputError(f"{path} is not a numpy array file ({exc}); expected LLFF's poses_bounds.npy") from None
-    if arr.ndim != 2 or arr.shape[1] != 17:
-        raise InputError(f"{path} has shape {arr.shape}; LLFF poses_bounds.npy is N x 17")
-    return arr.astype(np.float64)
+    if not isinstance(arr, np.ndarray) or arr.dtype.kind not in "fiu":
+        raise InputError(f"{path} is not an array of numbers; expected LLFF's poses_bounds.npy (N x 17 floats)")
+    if arr.ndim != 2 or arr.shape[1] != 17 or not len(arr):
+        raise InputError(f"{path} has shape {arr.shape}; LLFF poses_bounds.npy is N x 17 (N > 0)")
+    check_count(len(arr), str(path))
+    arr = arr.astype(np.float64)
+    if not np.isfinite(arr).all():
+        rows = np.flatnonzero(~np.isfinite(arr).all(axis=1))
+        raise InputError(f"{path}: rows {', '.join(map(str, rows[:5]))} hold NaN or infinite values; re-export the poses")
+    return arr
 
 
 def llff_camera_centres(path: str | os.PathLike) -> np.ndarray:
@@ -51,12 +59,12 @@ def _calibrated_camera(name: str, row: np.ndarray, where: str = "poses_bounds.np
     h, w, f = pose[:, 4]
     c2w = np.eye(4)
     c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = pose[:, 1], pose[:, 0], -pose[:, 2], pose[:, 3]
-    R = c2w[:3, :3]
-    if not np.allclose(R.T @ R, np.eye(3), atol=1e-3) or np.linalg.det(R) < 0:
-        raise InputError(f"{where}: the pose's columns 0-2 are not LLFF's (down, right, back) camera axes (as a "
-                         f"rotation: det {np.linalg.det(R):.3f}); re-export the poses in LLFF's convention")
-    if not (f > 0 and w > 0 and h > 0):
+    check_rotation(c2w[:3, :3], f"{where}: the pose's columns 0-2 as LLFF's (down, right, back) camera axes",
+                   "re-export the poses in LLFF's convention")
+    if not (f > 0 and w >= 1 and h >= 1):
         raise InputError(f"{where}: hwf is ({h:g}, {w:g}, {f:g}); LLFF writes the capture's height, width and focal")
+    check_intrinsics(f, f, round(w) / 2, round(h) / 2, round(w), round(h), where,
+                     "LLFF writes the capture's height, width and focal length in pixels; re-export the poses")
     return Camera(name, intrinsics(f, round(w), round(h)), np.linalg.inv(c2w), int(round(w)), int(round(h)))
 
 

@@ -19,15 +19,17 @@ from __future__ import annotations
 import json
 import logging
 import os
+import posixpath
 from pathlib import Path, PurePosixPath
 
 import numpy as np
 
-from abcgs.cameras import Camera
+from abcgs.cameras import Camera, check_intrinsics, check_rotation
 from abcgs.errors import InputError
 from abcgs.sources.base import Distortion, SourceScene, SourceView
 from abcgs.sources.detect import DEFAULT_IMAGES
 from abcgs.sources.lens import fit_to_image, image_size, pinhole_and_lens
+from abcgs.sources.validate import check_count, check_file_name, check_inside, check_unique
 
 log = logging.getLogger(__name__)
 TRANSFORMS = "transforms.json"
@@ -36,12 +38,23 @@ OPENGL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 _LENS_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
 
 
+MAX_JSON_BYTES = 256 << 20
+"""Largest transforms file read (bytes): 20 000 frames of nerfstudio's JSON take about 30 MB."""
+
+
 def load_json(path: Path) -> dict:
-    """A JSON object from ``path``; :class:`InputError` naming the file when it is not one."""
+    """A JSON object from ``path``; :class:`InputError` naming the file when it is not one, is larger than
+    :data:`MAX_JSON_BYTES` or nested deeper than the parser's recursion limit."""
+    size = path.stat().st_size if path.is_file() else 0
+    if size > MAX_JSON_BYTES:
+        raise InputError(f"{path} is {size} bytes, more than the {MAX_JSON_BYTES >> 20} MiB a transforms file may "
+                         "be; it is not a camera file (or keep a subset of its frames)")
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+    except (OSError, ValueError) as exc:  # also UnicodeDecodeError, and a number of more than 4300 digits
         raise InputError(f"{path} is not readable JSON ({exc}); re-export it") from None
+    except RecursionError:
+        raise InputError(f"{path} is nested too deeply to be a transforms file; re-export it") from None
     if not isinstance(data, dict):
         raise InputError(f"{path}: expected a JSON object at the top level")
     return data
@@ -52,24 +65,25 @@ def frames_of(path: Path, meta: dict) -> list[dict]:
     frames = meta.get("frames")
     if not isinstance(frames, list) or not frames:
         raise InputError(f"{path}: no `frames` list (or it is empty); a transforms file lists one frame per image")
+    check_count(len(frames), str(path))
     for i, fr in enumerate(frames):
         if not isinstance(fr, dict) or "file_path" not in fr or "transform_matrix" not in fr:
             raise InputError(f"{path}: frames[{i}] lacks `file_path` or `transform_matrix`")
+        check_file_name(fr["file_path"], f"{path}: frames[{i}].file_path")
+    check_unique([posixpath.normpath(fr["file_path"].replace("\\", "/")) for fr in frames], str(path))
     return frames
 
 
 def camera_to_world(path: Path, where: str, matrix) -> np.ndarray:
     """A ``(4, 4)`` camera-to-world matrix from a 3 × 4 or 4 × 4 nested list, with a rotation block checked to be a
     rotation (orthonormal, det +1): a scaled or mirrored block means another convention."""
-    m = np.asarray(matrix, np.float64)
-    if m.shape not in ((3, 4), (4, 4)) or not np.all(np.isfinite(m)):
+    m = number_array(path, f"{where}.transform_matrix", matrix)
+    if m.shape not in ((3, 4), (4, 4)):
         raise InputError(f"{path}: {where}.transform_matrix is not a finite 3x4 or 4x4 matrix")
     out = np.eye(4)
     out[:3] = m[:3]
-    R = out[:3, :3]
-    if not np.allclose(R.T @ R, np.eye(3), atol=1e-3) or np.linalg.det(R) < 0:
-        raise InputError(f"{path}: {where}.transform_matrix's rotation is not a proper rotation (det "
-                         f"{np.linalg.det(R):.3f}); transforms hold camera-to-world poses with a rotation block")
+    check_rotation(out[:3, :3], f"{path}: {where}.transform_matrix", "transforms hold camera-to-world poses "
+                   "with a rotation block (a scaled or mirrored one is another convention); re-export them")
     return out
 
 
@@ -77,17 +91,35 @@ def applied_similarity(path: Path, meta: dict) -> np.ndarray:
     """``(4, 4)`` similarity from the original data's frame to the file's: ``applied_scale · applied_transform``."""
     A = np.eye(4)
     if "applied_transform" in meta:
-        m = np.asarray(meta["applied_transform"], np.float64)
+        m = number_array(path, "applied_transform", meta["applied_transform"])
         if m.shape not in ((3, 4), (4, 4)):
             raise InputError(f"{path}: applied_transform has shape {m.shape}; nerfstudio writes a 3x4 matrix")
         A[:3] = m[:3]
-        R = A[:3, :3]
-        if not np.allclose(R.T @ R, np.eye(3), atol=1e-4) or np.linalg.det(R) < 0:
-            raise InputError(f"{path}: applied_transform's rotation block is not a rotation")
-    s = float(meta.get("applied_scale", 1.0))
-    if not s > 0:
-        raise InputError(f"{path}: applied_scale is {s}; it must be positive")
+        check_rotation(A[:3, :3], f"{path}: applied_transform", "nerfstudio writes a rotation and a translation")
+    s = number(path, "applied_scale", meta.get("applied_scale", 1.0))
+    if not 0 < s < 1e12:
+        raise InputError(f"{path}: applied_scale is {s}; it must be positive (and below 1e12)")
     return np.diag([s, s, s, 1.0]) @ A
+
+
+def number_array(path: Path, where: str, value) -> np.ndarray:
+    """``value`` (a JSON number or nested list of numbers) as a finite ``float64`` array; :class:`InputError` naming
+    ``path`` and ``where`` otherwise."""
+    try:
+        out = np.asarray(value, np.float64)
+    except (TypeError, ValueError, OverflowError):
+        out = None
+    if out is None or not np.isfinite(out).all() or isinstance(value, bool):
+        raise InputError(f"{path}: {where} is {str(value)[:60]!r}, not a finite number (or matrix of numbers)")
+    return out
+
+
+def number(path: Path, where: str, value) -> float:
+    """``value`` as a finite ``float`` (a JSON number); :class:`InputError` naming ``path`` and ``where`` otherwise."""
+    out = number_array(path, where, value)
+    if out.ndim:
+        raise InputError(f"{path}: {where} is {str(value)[:60]!r}, not a number")
+    return float(out)
 
 
 def to_scene(c2w_file: np.ndarray, file_from_scene: np.ndarray) -> np.ndarray:
@@ -102,7 +134,7 @@ def to_scene(c2w_file: np.ndarray, file_from_scene: np.ndarray) -> np.ndarray:
 
 
 def _lens(path: Path, where: str, model: str, fx: float, fy: float, cx: float, cy: float, get) -> list[float] | None:
-    k = {key: float(get(key, 0.0)) for key in _LENS_KEYS}
+    k = {key: number(path, f"{where}.{key}", get(key, 0.0)) for key in _LENS_KEYS}
     if model == "OPENCV":
         if k["k3"] or k["k4"]:
             return ["FULL_OPENCV", fx, fy, cx, cy, k["k1"], k["k2"], k["p1"], k["p2"], k["k3"], k["k4"], 0.0, 0.0]
@@ -129,9 +161,12 @@ def frame_camera(path: Path, meta: dict, frame: dict, index: int, name: str) -> 
     missing = [k for k in ("fl_x", "cx", "cy", "w", "h") if get(k) is None]
     if missing:
         raise InputError(f"{path}: {where} has no {', '.join(missing)} (neither in the frame nor at the top level)")
-    fx = float(get("fl_x"))
-    fy = float(get("fl_y", fx))
-    cx, cy, w, h = float(get("cx")), float(get("cy")), int(get("w")), int(get("h"))
+    num = {k: number(path, f"{where}.{k}", get(k)) for k in ("fl_x", "cx", "cy", "w", "h")}
+    fx, cx, cy, w, h = num["fl_x"], num["cx"], num["cy"], num["w"], num["h"]
+    fy = number(path, f"{where}.fl_y", get("fl_y", fx))
+    check_intrinsics(fx, fy, cx, cy, w, h, f"{path}: {where}", "correct fl_x, fl_y, cx, cy, w and h (pixels of the "
+                     "calibrated images), or re-export the dataset")
+    w, h = int(w), int(h)
     lens = _lens(path, where, str(get("camera_model", "OPENCV")), fx, fy, cx, cy, get)
     c2w = camera_to_world(path, where, frame["transform_matrix"]) @ OPENGL_TO_OPENCV
     if lens is None:
@@ -143,6 +178,8 @@ def frame_camera(path: Path, meta: dict, frame: dict, index: int, name: str) -> 
 
 def _image_path(folder: Path, file_path: str, images: str | None) -> Path:
     rel = PurePosixPath(file_path.replace("\\", "/"))
+    if rel.is_absolute():
+        return Path(rel)
     if images and images != DEFAULT_IMAGES and rel.parts and rel.parts[0] == DEFAULT_IMAGES:
         rel = PurePosixPath(images, *rel.parts[1:])  # nerfstudio's downscaled copies: images_2/frame_00001.png
     return folder / rel
@@ -165,6 +202,9 @@ def read_points(path: Path) -> tuple[np.ndarray, np.ndarray]:
         xyz = np.stack([vertex[k] for k in "xyz"], axis=1).astype(np.float64)
     except Exception as exc:  # plyfile raises several types for foreign files
         raise InputError(f"{path} is not a point-cloud PLY with x, y, z ({exc})") from None
+    if not np.isfinite(xyz).all():
+        raise InputError(f"{path}: {int((~np.isfinite(xyz).all(axis=1)).sum())} points have a NaN or infinite "
+                         "position; re-export the point cloud")
     names = vertex.data.dtype.names or ()
     if all(k in names for k in ("red", "green", "blue")):
         rgb = np.stack([vertex[k] for k in ("red", "green", "blue")], axis=1).astype(np.float32) / 255.0
@@ -178,12 +218,14 @@ def read_nerfstudio_source(folder: str | os.PathLike, images: str | None = None)
     folder = Path(folder)
     path = folder / TRANSFORMS
     meta = load_json(path)
-    frames = sorted(frames_of(path, meta), key=lambda f: str(f["file_path"]))
+    indexed = sorted(enumerate(frames_of(path, meta)), key=lambda kv: str(kv[1]["file_path"]))
+    frames = [f for _, f in indexed]
     file_from_scene = applied_similarity(path, meta)
     names = view_names([str(f["file_path"]) for f in frames])
     views = []
-    for i, (frame, name) in enumerate(zip(frames, names)):
-        image = _image_path(folder, str(frame["file_path"]), images)
+    for (i, frame), name in zip(indexed, names):  # i: the frame's index in the file, for messages
+        image = check_inside(folder, _image_path(folder, str(frame["file_path"]), images),
+                             f"{path}: frames[{i}].file_path {frame['file_path']!r}")
         if not image.is_file() and not image.suffix:
             image = image.with_suffix(".png")
         if not image.is_file():
@@ -196,14 +238,16 @@ def read_nerfstudio_source(folder: str | os.PathLike, images: str | None = None)
         cam = Camera(name, cam.K, np.linalg.inv(c2w), cam.width, cam.height)
         mask = None
         if frame.get("mask_path"):
-            mask = folder / str(frame["mask_path"])
+            where = f"{path}: frames[{i}].mask_path"
+            mask = check_inside(folder, folder / check_file_name(frame["mask_path"], where), where)
             if not mask.is_file():
                 raise InputError(f"{path}: frames[{i}].mask_path names {mask}, which does not exist; copy the mask "
                                  "there or remove the key")
         views.append(SourceView(name, image, cam, lens, mask))
     points = colors = None
     if meta.get("ply_file_path"):
-        ply = folder / str(meta["ply_file_path"])
+        ply = check_inside(folder, folder / check_file_name(meta["ply_file_path"], f"{path}: ply_file_path"),
+                           f"{path}: ply_file_path")
         if not ply.is_file():
             raise InputError(f"{path}: ply_file_path names {ply}, which does not exist; copy it there or remove the key")
         xyz, colors = read_points(ply)

@@ -46,6 +46,9 @@ class SceneParams(BaseModel):
         None, description="a trained 3DGS splat (file or INRIA output folder), relative to `path` (so that DVC tracks "
         "it with the scene) or absolute: the fit stage imports it instead of fitting (docs/SPLATS.md)")
     splat_format: SplatFormatParam = Field("auto", description="the splat's format; auto detects it")
+    splat_nonfinite: Literal["refuse", "drop"] = Field(
+        "refuse", description="Gaussians of the splat with a NaN or infinite value (or a zero quaternion): refuse the "
+        "file naming their count, or drop them with a warning and the count")
     views: SplatViewsParams | None = Field(
         None, description="for a scene that is only a splat (no photos, no cameras): the cameras made around it")
 
@@ -91,6 +94,13 @@ class SceneParams(BaseModel):
         return v
 
 
+def scene_name_problem(name: str) -> str | None:
+    """Why ``name`` cannot be a scene's name (``None`` when it can): letters, digits, ``-`` and ``_`` only."""
+    if not name.replace("_", "").replace("-", "").isalnum():
+        return f"scene name {name!r} must be letters, digits, '-' or '_' (it becomes a folder name)"
+    return None
+
+
 class DataParams(BaseModel):
     """Where the scenes and style images are. Paths are relative to the repository root."""
 
@@ -111,6 +121,6 @@ class DataParams(BaseModel):
         if not v:
             raise ValueError("at least one scene is needed")
         for name in v:
-            if not name.replace("_", "").replace("-", "").isalnum():
-                raise ValueError(f"scene name {name!r} must be letters, digits, '-' or '_' (it becomes a folder name)")
+            if (problem := scene_name_problem(name)) is not None:
+                raise ValueError(problem)
         return v

@@ -31,11 +31,12 @@ def resolve_format(folder: str | os.PathLike, fmt: str = "auto", images: str | N
 
 def read_source(folder: str | os.PathLike, fmt: SceneFormat, *, images: str | None = None,
                 background: tuple[float, float, float] | None = None, views=None,
-                work: str | os.PathLike | None = None) -> SourceScene:
+                work: str | os.PathLike | None = None, drop_invalid: bool = False) -> SourceScene:
     """The scene at ``folder`` read as ``fmt`` (not ``photos``: those get their cameras from structure from motion,
     :mod:`abcgs.sources.photos`). ``images``: the image subfolder (``colmap``, ``llff``, ``nerfstudio``; default
-    ``images``); ``background``: RGB in ``[0, 1]`` behind RGBA images (``blender``) and a bare splat's renders; ``views`` (a
-    :class:`~abcgs.splats.params.SplatViewsParams`) and ``work`` (a folder for its renders) for a bare splat."""
+    ``images``); ``background``: RGB in ``[0, 1]`` behind RGBA images (``blender``) and a bare splat's renders; ``views``
+    (a :class:`~abcgs.splats.params.SplatViewsParams`), ``work`` (a folder for its renders) and ``drop_invalid`` (drop
+    its non-finite Gaussians) for a bare splat."""
     from abcgs.sources.validate import check_cameras
 
     folder = Path(folder)
@@ -64,7 +65,7 @@ def read_source(folder: str | os.PathLike, fmt: SceneFormat, *, images: str | No
 
         if work is None:
             raise ValueError("a bare splat's views are rendered into `work`; give a folder")
-        return read_splat_source(splat_file(folder), Path(work), views, background=background)
+        return read_splat_source(splat_file(folder), Path(work), views, background=background, drop_invalid=drop_invalid)
     elif fmt == "photos":
         raise ValueError("a photos scene has no cameras to read: structure from motion finds them (abcgs.sources.photos)")
     else:

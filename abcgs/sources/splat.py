@@ -30,12 +30,12 @@ MAX_POINTS = 100_000
 @torch.no_grad()
 def read_splat_source(path: Path, out_images_dir: Path, params: SplatViewsParams | None = None, *,
                       fmt: str = "auto", backend: Backend = "auto",
-                      background: tuple[float, float, float] | None = None) -> SourceScene:
-    """Read the splat at ``path``, make ``params``' cameras around it, write its render from each on ``background``
-    (RGB in ``[0, 1]``, default black) into ``out_images_dir`` (PNG, named like the cameras) and return the
-    :class:`SourceScene` (``format`` ``"splat"``)."""
+                      background: tuple[float, float, float] | None = None, drop_invalid: bool = False) -> SourceScene:
+    """Read the splat at ``path`` (``drop_invalid``: dropping its non-finite Gaussians), make ``params``' cameras around
+    it, write its render from each on ``background`` (RGB in ``[0, 1]``, default black) into ``out_images_dir`` (PNG,
+    named like the cameras) and return the :class:`SourceScene` (``format`` ``"splat"``)."""
     params = params or SplatViewsParams()
-    model = read_splat(path, fmt).model
+    model = read_splat(path, fmt, drop_invalid=drop_invalid).model
     cams, _ = cameras_around(model, params)
     out_images_dir = Path(out_images_dir)
     out_images_dir.mkdir(parents=True, exist_ok=True)

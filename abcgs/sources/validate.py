@@ -1,4 +1,9 @@
-"""Checks that a reader's cameras make sense as a capture, before any image is decoded: a wrong axis convention
+"""Checks of what a reader found, before any image is decoded.
+
+Files: a dataset lists at most :data:`MAX_VIEWS` views, each file once (:func:`check_unique`), and every file it
+names lies inside the scene's folder (:func:`check_inside`), which is what DVC tracks for the stages that read it.
+
+Cameras must make sense as a capture: a wrong axis convention
 (OpenGL poses read as OpenCV ones, or the reverse) or a wrong world frame shows here as cameras that look away from
 the scene.
 
@@ -10,12 +15,20 @@ the scene.
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import numpy as np
 
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.sources.base import SourceScene
 
+OUTSIDE_FIX = ("DVC tracks only the scene's folder, so an edit to a file elsewhere would not re-run the stages that "
+               "read it: copy the file into the scene's folder and name it relative to it")
+
+MAX_VIEWS = 20_000
+"""Most views a dataset may list (the largest public captures have a few thousand)."""
 MIN_VISIBLE = 0.02
 """A camera sees a scene when at least this fraction of its points lie in front of it and inside its image."""
 MAX_CHECKED_POINTS = 20_000
@@ -83,3 +96,40 @@ def check_cameras(scene: SourceScene, what: str) -> None:
             f"{what}: the cameras' viewing axes meet behind {behind} of the {n} cameras, so they look away from what "
             "they all see: a wrong axis convention (OpenGL vs OpenCV camera axes, z flipped); re-export the poses in "
             "the format's convention, or set the scene's `format:` to the kind the file really is")
+
+
+def check_count(n: int, what: str) -> None:
+    """Raise :class:`InputError` naming ``what`` when a dataset lists more than :data:`MAX_VIEWS` views."""
+    if n > MAX_VIEWS:
+        raise InputError(f"{what} lists {n} views, more than the {MAX_VIEWS} abcgs reads; split the capture or "
+                         "keep a subset of its frames")
+
+
+def check_unique(names: list[str], what: str, item: str = "frames[{}]") -> None:
+    """Raise :class:`InputError` naming ``what`` and the two records (``item`` formatted with their indices) when
+    two of ``names`` (the files the records name, normalised) are the same."""
+    first: dict[str, int] = {}
+    for i, name in enumerate(names):
+        j = first.setdefault(name, i)
+        if j != i:
+            raise InputError(f"{what}: {item.format(j)} and {item.format(i)} both name {name!r}; each view needs its "
+                             "own image: remove the repeated one")
+
+
+def check_file_name(value, where: str) -> str:
+    """``value`` when it can name a file (a non-empty string without NUL, each part at most 255 characters, 4096 in
+    all); else :class:`InputError` naming ``where``."""
+    if not isinstance(value, str) or not value.strip() or "\0" in value or len(value) > 4096 or any(
+            len(part) > 255 for part in value.replace("\\", "/").split("/")):
+        raise InputError(f"{where} is {str(value)[:60]!r}{'…' if len(str(value)) > 60 else ''}, not a file name")
+    return value
+
+
+def check_inside(folder: Path, path: Path, where: str) -> Path:
+    """``path`` when it lies inside ``folder`` (compared as written, ``..`` resolved, symbolic links not followed:
+    a linked image folder is the scene's); else :class:`InputError` naming ``where`` and why."""
+    base = os.path.normpath(os.path.abspath(folder))
+    target = os.path.normpath(os.path.abspath(path))
+    if os.path.commonpath([base, target]) != base:
+        raise InputError(f"{where} names {path}, outside the scene folder {folder}; {OUTSIDE_FIX}")
+    return path

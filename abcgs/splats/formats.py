@@ -37,7 +37,7 @@ from typing import get_args
 import numpy as np
 
 from abcgs.errors import InputError
-from abcgs.gaussians import GaussianModel
+from abcgs.gaussians import GaussianModel, valid_gaussians
 from abcgs.io.atomic import atomic_path, write_text
 from abcgs.io.ply import PlyLayout, read_ply_layout, write_ply
 from abcgs.io.spz import read_spz, write_spz
@@ -135,13 +135,15 @@ def _scene_frame_needed(fmt: str, scene) -> None:
                          "scene's cameras (and points); import it into a scene that has them")
 
 
-def read_splat(path: str | os.PathLike, fmt: str = "auto", *, scene=None) -> ImportedSplat:
+def read_splat(path: str | os.PathLike, fmt: str = "auto", *, scene=None, drop_invalid: bool = False) -> ImportedSplat:
     """Read a trained splat into the scene's frame.
 
     Args:
         path: the file or folder (see the module table). fmt: a :data:`SplatFormat` or ``"auto"``.
         scene: the scene (``cameras``, ``points``) when known: gsplat's frame is computed from it, and an INRIA
             folder's ``cameras.json`` is aligned to its cameras.
+        drop_invalid: drop the Gaussians with a NaN or infinite value (with a warning and their count) instead of
+            refusing the file (:func:`abcgs.gaussians.valid_gaussians`; the scene entry's ``splat_nonfinite``).
     """
     p = Path(path)
     fmt = detect_splat_format(p) if fmt == "auto" else fmt
@@ -154,7 +156,7 @@ def read_splat(path: str | os.PathLike, fmt: str = "auto", *, scene=None) -> Imp
     extra: dict = {}
     if fmt == "inria":
         folder = inria.read_inria_folder(p)
-        model, layout, _ = read_ply_layout(folder.ply)
+        model, layout, _ = read_ply_layout(folder.ply, drop_invalid=drop_invalid)
         extra = {"iteration": folder.iteration,
                  "side_files": {k: v for k, v in (("cameras.json", folder.cameras_json), ("cfg_args", folder.cfg_args)) if v}}
         if folder.cameras_json and scene is not None:
@@ -166,7 +168,7 @@ def read_splat(path: str | os.PathLike, fmt: str = "auto", *, scene=None) -> Imp
         ply = splatfacto.splatfacto_ply(p) if fmt == "splatfacto" else p
         if supersplat.is_compressed_ply(ply):
             raise InputError(f"{ply} is a SuperSplat compressed PLY; set splat_format: supersplat (or auto)")
-        model, layout, _ = read_ply_layout(ply)
+        model, layout, _ = read_ply_layout(ply, drop_invalid=drop_invalid)
         if fmt == "splatfacto":
             tf = splatfacto.find_transforms(p)
             if tf is None:
@@ -193,6 +195,7 @@ def read_splat(path: str | os.PathLike, fmt: str = "auto", *, scene=None) -> Imp
         model = read_spz(p)
         with gzip.open(p, "rb") as f:  # the header's version, to write the same one back
             extra = {"spz_version": struct.unpack("<II", f.read(8))[1]}
+    model = valid_gaussians(model, str(p), drop=drop_invalid)
     prov = SplatProvenance(fmt, os.fspath(p), model.sh_degree, model.num_gaussians,
                            frames.similarity_matrix(to_file).tolist(), layout.to_list() if layout else None, **extra)
     scene_model = frames.transform_model(model, frames.inverse(to_file))

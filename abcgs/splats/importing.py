@@ -41,15 +41,16 @@ def write_fitted_source(out_dir: str | os.PathLike) -> None:
 
 
 def import_and_save(scene: SceneLike, splat: str | os.PathLike, fmt: str, params: FitParams,
-                    out_dir: str | os.PathLike, *, device: torch.device | str = "cpu") -> dict:
+                    out_dir: str | os.PathLike, *, device: torch.device | str = "cpu", drop_invalid: bool = False) -> dict:
     """Read ``splat`` (:func:`~abcgs.splats.formats.read_splat`), check it against the photos
     (:func:`~abcgs.splats.validate.check_splat` with ``params.import_min_psnr``; raises before writing anything
     when it fails; ``params.import_max_gaussians`` decimates it first, :mod:`abcgs.splats.preview`), evaluate the held-out views and write the outputs listed in the module docstring. Returns the
-    ``metrics.json`` record. The check and the held-out renders run on ``device``."""
+    ``metrics.json`` record. The check and the held-out renders run on ``device``; ``drop_invalid``: drop non-finite
+    Gaussians instead of refusing the file (the scene entry's ``splat_nonfinite``)."""
     out = Path(out_dir)
     t0 = time.perf_counter()
     with torch_threads(params.threads), kernel_threads(params.rasterizer_threads):
-        imported = read_splat(splat, fmt, scene=scene)
+        imported = read_splat(splat, fmt, scene=scene, drop_invalid=drop_invalid)
         n_source = imported.model.num_gaussians
         if params.import_max_gaussians is not None and n_source > params.import_max_gaussians:
             imported.model = decimate(imported.model, params.import_max_gaussians)

@@ -64,7 +64,7 @@ def decode_splat(data: bytes, *, source: str = ".splat data") -> GaussianModel:
     q = (rec["rot"].astype(np.float64) - 128.0) / 128.0
     norm = np.linalg.norm(q, axis=1, keepdims=True)
     q = np.where(norm > 0, q / np.maximum(norm, 1e-12), np.array([1.0, 0, 0, 0]))
-    f32 = lambda x: torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32))  # noqa: E731
+    f32 = lambda x: torch.from_numpy(np.array(x, dtype=np.float32))  # noqa: E731  (a copy: the buffer is read-only)
     return GaussianModel(
         means=f32(rec["pos"]), quats=f32(q), log_scales=f32(np.log(scale)), opacity_logits=f32(np.log(a / (1 - a))),
         sh0=f32((rec["rgba"][:, :3].astype(np.float64) / 255.0 - 0.5) / C0).reshape(n, 1, 3),

@@ -165,6 +165,10 @@ def read_compressed_ply(path: str | os.PathLike) -> GaussianModel:
     ls = np.stack([lerp(f"min_scale_{a}", f"max_scale_{a}", _bits(ps, sh, b))
                    for a, sh, b in (("x", 21, 11), ("y", 11, 10), ("z", 0, 11))], 1)
     rgb = np.stack([_bits(pc, sh, 8) for sh in (24, 16, 8)], 1)
+    colour = [f"{m}_{c}" for m in ("min", "max") for c in "rgb"]
+    if 0 < sum(k in ch.dtype.names for k in colour) < len(colour):
+        raise InputError(f"{path}: the chunk element has some of {', '.join(colour)} but not all; a compressed PLY has "
+                         "all six or none")
     if "min_r" in ch.dtype.names:
         rgb = np.stack([lerp(f"min_{c}", f"max_{c}", rgb[:, i]) for i, c in enumerate("rgb")], 1)
     alpha = np.clip(_bits(pc, 0, 8), 1e-6, 1 - 1e-6)
@@ -181,9 +185,9 @@ def read_compressed_ply(path: str | os.PathLike) -> GaussianModel:
     if "sh" in names:
         sh = data["sh"].data
         cols = [c for c in sh.dtype.names if c.startswith("f_rest_")]
-        if len(cols) not in (9, 24, 45) or len(sh) != n:
+        if len(cols) not in (9, 24, 45) or len(sh) != n or set(cols) != {f"f_rest_{i}" for i in range(len(cols))}:
             raise InputError(f"{path}: the sh element has {len(cols)} f_rest columns for {len(sh)} rows; expected 9, 24 "
-                             f"or 45 for {n} rows")
+                             f"or 45 (f_rest_0, f_rest_1, …) for {n} rows")
         b = np.stack([sh[f"f_rest_{i}"].astype(np.float64) for i in range(len(cols))], 1)
         t = np.where(b == 0, 0.0, np.where(b == 255, 1.0, (b + 0.5) / 256.0))
         rest = (t - 0.5) * 8.0

@@ -46,7 +46,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m abcgs.view", description=__doc__.strip().splitlines()[0])
     ap.add_argument("run_dir", type=Path, help="an experiment's output folder, e.g. out/tiny_single")
     ap.add_argument("--scene", help="scene key (default: from --params, else the only fitted scene beside it)")
-    ap.add_argument("--params", type=Path, default=Path("params.yaml"))
+    ap.add_argument("--params", type=Path, default=None,
+                    help="the params file naming the experiment's scene (default: params.yaml, when there is one)")
     ap.add_argument("--max-gaussians", type=positive_int, default=150_000,
                     help="Gaussians per layer on the page, at least 1 (larger scenes keep their most visible ones)")
     ap.add_argument("--out", type=Path, help="page to write (default: reports/viewers/<experiment>.html)")
@@ -56,8 +57,12 @@ def main(argv=None) -> int:
     try:
         check_page_path(out, "--out" if args.out else "the page")
         scene = args.scene
+        if args.params is not None and not args.params.is_file():
+            raise InputError(f"--params {args.params} does not exist; give the params file the experiment ran with, "
+                             "or leave --params out (params.yaml where there is one)")
+        params = args.params or Path("params.yaml")
         if scene is None:
-            experiments = read_params_file(args.params).get("experiments") if args.params.is_file() else None
+            experiments = read_params_file(params).get("experiments") if params.is_file() else None
             scene = experiment_scene(args.run_dir, experiments)
         exp = load_experiment(args.run_dir, scene=scene, max_gaussians=args.max_gaussians)
         write_text(out, viewer_page([exp], title=f"abcgs: {exp.name}"))

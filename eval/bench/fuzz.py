@@ -1,0 +1,526 @@
+"""Fuzzing the readers of files made by other people's tools: every result is a scene or a one-line refusal.
+
+    python -m eval.bench.fuzz --inputs 10000 --json docs/measurements/fuzz.json
+    python -m eval.bench.fuzz --inputs 200 --formats spz ply          # a quick look at two formats
+
+For each format a small valid input is made the way the project makes it (:func:`make_targets`): a 3DGS PLY, a
+SuperSplat compressed PLY, a ``.splat``, a ``.spz``, a COLMAP model (binary and text) with its images, a nerfstudio ``transforms.json``, an LLFF
+``poses_bounds.npy``, and the masks page's request body (``Content-Length`` and JSON, plus an image index). Each
+input is one seeded mutation of it (:data:`MUTATIONS`): truncated, bytes flipped or inserted, a count or size field
+inflated, a number replaced by 0, -1, NaN, infinity or a huge value, a record repeated, the JSON nested deeply, a
+gzip stream padded to a bomb. Its reader must return a scene, or refuse with :class:`~abcgs.errors.InputError` (the
+masks page: :class:`~abcgs.masks.paint.Refused`, a 4xx); any other exception, or an input slower than
+:data:`SLOW_S`, is a finding. Each format runs in a child process, so a reader that crashes the interpreter (a native
+abort) is reported with the input that did it instead of ending the run.
+
+Prints a table per format (inputs, read, refused, findings, slowest input, peak memory) and, with ``--json``, writes
+the record. ``tests/test_fuzz_readers.py`` runs the same targets with a few hundred inputs each.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gzip
+import io
+import json
+import multiprocessing as mp
+import re
+import resource
+import struct
+import tempfile
+import time
+import traceback
+import zlib
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import abcgs  # noqa: F401  (before torch: abcgs sets OpenMP's wait policy, see abcgs/__init__.py)
+
+# isort: split
+import numpy as np
+import torch
+
+from abcgs.cameras import Camera, intrinsics, look_at
+from abcgs.errors import InputError
+
+FORMATS = ("ply", "supersplat", "splat", "spz", "colmap_bin", "colmap_txt", "transforms", "llff", "paint")
+SLOW_S = 5.0
+"""An input whose reader takes longer than this (seconds) is a finding."""
+SPECIAL_NUMBERS = ("0", "-1", "NaN", "Infinity", "-Infinity", "1e400", "1e-300", "1e30", "99999999999999999999",
+                   "3.5", '"x"', "[]", "{}", "null", "true", "²", "5" * 5000)
+"""What a number in a text file is replaced by (JSON spellings; COLMAP's text reader sees them as tokens)."""
+SPECIAL_BINARY = (b"\x00\x00\xc0\x7f", b"\x00\x00\x80\x7f", b"\x00\x00\x80\xff", b"\xff\xff\xff\xff", b"\x00" * 4,
+                  b"\xff\xff\xff\x7f", struct.pack("<d", float("nan")), struct.pack("<d", float("inf")),
+                  struct.pack("<Q", 1 << 40), struct.pack("<Q", (1 << 64) - 1), struct.pack("<d", 0.0))
+"""Bytes written over a binary file: float32/float64 NaN and infinities, zero, and huge counts."""
+
+
+# ------------------------------------------------------------------------------------------ valid inputs
+
+
+def _model(n: int = 64, degree: int = 1, seed: int = 0):
+    from abcgs.gaussians import GaussianModel
+
+    g = torch.Generator().manual_seed(seed)
+    k = (degree + 1) ** 2 - 1
+    return GaussianModel(
+        means=(torch.rand(n, 3, generator=g) - 0.5) * 2, quats=torch.randn(n, 4, generator=g),
+        log_scales=torch.rand(n, 3, generator=g) * 2 - 5, opacity_logits=torch.randn(n, generator=g),
+        sh0=torch.rand(n, 1, 3, generator=g) - 0.5, shN=(torch.rand(n, k, 3, generator=g) - 0.5) * 0.2)
+
+
+def _cameras(n: int = 5, w: int = 32, h: int = 24) -> list[Camera]:
+    """``n`` cameras on an arc 4 units from the origin, looking at it."""
+    cams = []
+    for i in range(n):
+        a = -0.5 + i / max(n - 1, 1)
+        eye = np.array([4 * np.sin(a), -0.3, -4 * np.cos(a)])
+        cams.append(Camera(f"view{i:02d}.png", intrinsics(30.0, w, h), look_at(eye, np.zeros(3)), w, h))
+    return cams
+
+
+def _images(folder: Path, cams: list[Camera]) -> None:
+    from abcgs.io.images import save_image
+
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(0)
+    for c in cams:
+        save_image(folder / c.name, rng.random((c.height, c.width, 3)).astype(np.float32))
+
+
+def _points(n: int = 60) -> np.ndarray:
+    return np.random.default_rng(1).uniform(-0.5, 0.5, (n, 3))
+
+
+def _colmap(folder: Path, cams: list[Camera], text: bool) -> Path:
+    import pycolmap
+
+    rec = pycolmap.Reconstruction()
+    for i, c in enumerate(cams, start=1):
+        cam = pycolmap.Camera(model="PINHOLE", width=c.width, height=c.height,
+                              params=[c.K[0, 0], c.K[1, 1], c.K[0, 2], c.K[1, 2]], camera_id=i)
+        rec.add_camera_with_trivial_rig(cam)
+        rec.add_image_with_trivial_frame(pycolmap.Image(name=c.name, camera_id=i, image_id=i),
+                                         pycolmap.Rigid3d(c.viewmat[:3, :]))
+    for p in _points():
+        rec.add_point3D(p, pycolmap.Track(), np.array([128, 128, 128], np.uint8))
+    model = folder / "sparse" / "0"
+    model.mkdir(parents=True)
+    rec.write_text(str(model)) if text else rec.write_binary(str(model))
+    return model
+
+
+def _transforms(folder: Path, cams: list[Camera]) -> Path:
+    frames = []
+    for c in cams:
+        c2w = np.linalg.inv(c.viewmat) @ np.diag([1.0, -1.0, -1.0, 1.0])  # OpenCV → nerfstudio's OpenGL axes
+        frames.append({"file_path": f"images/{c.name}", "transform_matrix": c2w.tolist()})
+    c = cams[0]
+    meta = {"camera_model": "PINHOLE", "fl_x": c.K[0, 0], "fl_y": c.K[1, 1], "cx": c.K[0, 2], "cy": c.K[1, 2],
+            "w": c.width, "h": c.height, "frames": frames}
+    path = folder / "transforms.json"
+    path.write_text(json.dumps(meta, indent=1))
+    return path
+
+
+def _poses_bounds(folder: Path, cams: list[Camera]) -> Path:
+    rows = []
+    for c in cams:
+        c2w = np.linalg.inv(c.viewmat)
+        pose = np.stack([c2w[:3, 1], c2w[:3, 0], -c2w[:3, 2], c2w[:3, 3]], axis=1)  # LLFF's (down, right, back)
+        hwf = np.array([[c.height], [c.width], [c.K[0, 0]]])
+        rows.append(np.concatenate([np.concatenate([pose, hwf], axis=1).reshape(-1), [2.0, 6.0]]))
+    path = folder / "poses_bounds.npy"
+    np.save(path, np.array(rows))
+    return path
+
+
+@dataclass
+class Target:
+    """One format's valid input and its reader.
+
+    Attributes:
+        name: the format (:data:`FORMATS`).
+        files: the files a mutation may change (the first is changed most often).
+        read: reads the input as the pipeline does; returns what it read (anything), raises on refusal.
+        kind: ``bytes`` (binary), ``text`` or ``json``: which mutations apply.
+        refusal: the exception type that is a clear refusal.
+    """
+
+    name: str
+    files: list[Path]
+    read: Callable[[], object]
+    kind: str
+    refusal: type[Exception] = InputError
+    originals: dict[Path, bytes] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.originals = {p: p.read_bytes() for p in self.files}
+
+    def restore(self) -> None:
+        for p, data in self.originals.items():
+            p.write_bytes(data)
+
+
+def make_targets(work: Path, formats: tuple[str, ...] = FORMATS) -> dict[str, Target]:
+    """A valid input of each format under ``work`` and its reader (module docstring); each reads as made."""
+    from abcgs.io.ply import write_ply
+    from abcgs.io.spz import write_spz
+    from abcgs.sfm.model import read_colmap_scene
+    from abcgs.sources.read import read_source
+    from abcgs.splats.formats import read_splat
+    from abcgs.splats.splat import write_splat_file
+
+    out: dict[str, Target] = {}
+    cams = _cameras()
+    if "ply" in formats:
+        p = work / "ply" / "point_cloud.ply"
+        p.parent.mkdir(parents=True)
+        write_ply(p, _model())
+        out["ply"] = Target("ply", [p], lambda p=p: read_splat(p, "auto"), "bytes")
+    if "supersplat" in formats:
+        from abcgs.splats.supersplat import write_compressed_ply
+
+        p = work / "supersplat" / "scene.compressed.ply"
+        p.parent.mkdir(parents=True)
+        write_compressed_ply(p, _model(300))
+        out["supersplat"] = Target("supersplat", [p], lambda p=p: read_splat(p, "supersplat"), "bytes")
+    if "splat" in formats:
+        p = work / "splat" / "scene.splat"
+        p.parent.mkdir(parents=True)
+        write_splat_file(p, _model(degree=0))
+        out["splat"] = Target("splat", [p], lambda p=p: read_splat(p, "splat"), "bytes")
+    if "spz" in formats:
+        p = work / "spz" / "scene.spz"
+        p.parent.mkdir(parents=True)
+        write_spz(p, _model())
+        out["spz"] = Target("spz", [p], lambda p=p: read_splat(p, "spz"), "gzip")
+    for name, text in (("colmap_bin", False), ("colmap_txt", True)):
+        if name in formats:
+            folder = work / name
+            _images(folder / "images", cams)
+            model = _colmap(folder, cams, text)
+            ext = ".txt" if text else ".bin"
+            files = [model / f"{stem}{ext}" for stem in ("cameras", "images", "points3D")]
+
+            def read(folder=folder, model=model):
+                read_colmap_scene(model, folder / "images")
+                return read_source(folder, "colmap")
+            out[name] = Target(name, files, read, "text" if text else "bytes")
+    if "transforms" in formats:
+        folder = work / "transforms"
+        _images(folder / "images", cams)
+        p = _transforms(folder, cams)
+        out["transforms"] = Target("transforms", [p], lambda folder=folder: read_source(folder, "nerfstudio"), "json")
+    if "llff" in formats:
+        folder = work / "llff"
+        _images(folder / "images", cams)
+        p = _poses_bounds(folder, cams)
+        out["llff"] = Target("llff", [p], lambda folder=folder: read_source(folder, "llff"), "npy")
+    if "paint" in formats:
+        from abcgs.masks.paint import Refused, image_index, read_body
+
+        p = work / "paint" / "request.txt"
+        p.parent.mkdir(parents=True)
+        body = json.dumps({"strokes": [{"label": 1, "radius": 4, "points": [[1, 2], [3, 4]]}], "fill": True})
+        p.write_bytes(f"{len(body)}\n7\n{body}".encode())
+
+        def read_request(p=p):
+            head, index, body = (p.read_bytes().split(b"\n", 2) + [b"", b""])[:3]
+            image_index(index.decode("utf-8", "replace"))
+            return read_body(head.decode("utf-8", "replace"), io.BytesIO(body))
+        out["paint"] = Target("paint", [p], read_request, "json", Refused)
+    for t in out.values():
+        t.read()  # the valid input reads
+    return out
+
+
+# ------------------------------------------------------------------------------------------ mutations
+
+
+def _truncate(data: bytes, rng: np.random.Generator) -> bytes:
+    return data[: int(rng.integers(0, max(len(data), 1)))]
+
+
+def _flip(data: bytes, rng: np.random.Generator) -> bytes:
+    b = bytearray(data)
+    for _ in range(int(rng.integers(1, 9))):
+        if b:
+            b[int(rng.integers(len(b)))] ^= 1 << int(rng.integers(8))
+    return bytes(b)
+
+
+def _insert(data: bytes, rng: np.random.Generator) -> bytes:
+    at = int(rng.integers(0, len(data) + 1))
+    return data[:at] + rng.bytes(int(rng.integers(1, 64))) + data[at:]
+
+
+def _overwrite(data: bytes, rng: np.random.Generator) -> bytes:
+    """A NaN, an infinity, a zero or a huge count written over the bytes at a random (4-aligned) place."""
+    value = SPECIAL_BINARY[int(rng.integers(len(SPECIAL_BINARY)))]
+    if len(data) < len(value):
+        return value
+    at = int(rng.integers(0, (len(data) - len(value)) // 4 + 1)) * 4
+    return data[:at] + value + data[at + len(value):]
+
+
+def _repeat(data: bytes, rng: np.random.Generator) -> bytes:
+    """A span of the input repeated (a record twice, a longer body than its count)."""
+    a = int(rng.integers(0, len(data) + 1))
+    b = min(len(data), a + int(rng.integers(1, 256)))
+    return data[:b] + data[a:b] * int(rng.integers(1, 4)) + data[b:]
+
+
+def _number(data: bytes, rng: np.random.Generator) -> bytes:
+    """One number of a text file replaced by a special value (:data:`SPECIAL_NUMBERS`)."""
+    text = data.decode("utf-8", "replace")
+    spots = [m.span() for m in re.finditer(r"-?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?", text)]
+    if not spots:
+        return _flip(data, rng)
+    a, b = spots[int(rng.integers(len(spots)))]
+    return (text[:a] + SPECIAL_NUMBERS[int(rng.integers(len(SPECIAL_NUMBERS)))] + text[b:]).encode()
+
+
+def _line(data: bytes, rng: np.random.Generator) -> bytes:
+    """A line of a text file repeated or dropped."""
+    lines = data.split(b"\n")
+    i = int(rng.integers(len(lines)))
+    if rng.random() < 0.5:
+        lines.insert(i, lines[i])
+    else:
+        del lines[i]
+    return b"\n".join(lines)
+
+
+def _json_edit(data: bytes, rng: np.random.Generator) -> bytes:
+    """A structural edit of a JSON document: a value replaced, a frame repeated, a key dropped, a value nested."""
+    try:
+        doc = json.loads(data)
+    except (ValueError, RecursionError):
+        return _flip(data, rng)
+    nodes: list[tuple[object, object]] = []  # (container, key) of every value
+
+    def walk(v, depth=0):
+        if depth > 40:
+            return
+        items = v.items() if isinstance(v, dict) else enumerate(v) if isinstance(v, list) else ()
+        for k, child in items:
+            nodes.append((v, k))
+            walk(child, depth + 1)
+    walk(doc)
+    if not nodes:
+        return data
+    container, key = nodes[int(rng.integers(len(nodes)))]
+    op = int(rng.integers(5))
+    if op == 0:
+        special = SPECIAL_NUMBERS[int(rng.integers(len(SPECIAL_NUMBERS)))]
+        container[key] = (10**4000 if len(special) > 100 else "²" if special == "²" else
+                          json.loads(special.replace("NaN", '"NaN"').replace("-Infinity", "-1e999").replace(
+                              "Infinity", "1e999")))
+    elif op == 1 and isinstance(container, list):
+        container.insert(int(key), json.loads(json.dumps(container[key])))
+    elif op == 1 and isinstance(container, dict) and isinstance(container.get("frames"), list):
+        container["frames"] = container["frames"] * int(rng.integers(2, 50))
+    elif op == 2:
+        del container[key]
+    elif op == 3:
+        container[key] = [container[key]]
+    else:
+        container[key] = "../" * int(rng.integers(1, 4)) + "elsewhere.png" if isinstance(container[key], str) else -1
+    return json.dumps(doc).encode()
+
+
+def _nest(data: bytes, rng: np.random.Generator) -> bytes:
+    """The document nested in ``depth`` lists (up to 200 000)."""
+    depth = int(rng.choice([100, 1000, 5000, 200_000]))
+    at = data.find(b"[") if rng.random() < 0.5 else -1
+    if at < 0:
+        return b"[" * depth + data + b"]" * depth
+    return data[:at] + b"[" * depth + data[at:] + b"]" * depth
+
+
+def _header_count(data: bytes, rng: np.random.Generator) -> bytes:
+    """A count in a header inflated (a PLY's ``element vertex N``, a binary model's leading count)."""
+    huge = int(rng.choice([0, 1, 1 << 31, 1 << 40, 10**18]))
+    m = re.search(rb"element vertex (\d+)", data[:2000])
+    if m:
+        return data[: m.start(1)] + str(huge).encode() + data[m.end(1):]
+    return struct.pack("<Q", huge % (1 << 64)) + data[8:]
+
+
+def _spz_count(data: bytes, rng: np.random.Generator) -> bytes:
+    """The Gaussian count of an (inflated) spz header replaced."""
+    huge = int(rng.choice([0, 1, 1 << 20, 1 << 31, (1 << 32) - 1]))
+    return data[:8] + struct.pack("<I", huge) + data[12:]
+
+
+def _inflated(mutate: Callable[[bytes, np.random.Generator], bytes]):
+    """A mutation of a gzip stream's content (the stream re-compressed), so that it reaches past the gzip checks."""
+    def go(data: bytes, rng: np.random.Generator) -> bytes:
+        return gzip.compress(mutate(gzip.decompress(data), rng), mtime=0)
+    go.__name__ = f"inflated{mutate.__name__}"
+    return go
+
+
+def _bomb(data: bytes, rng: np.random.Generator) -> bytes:
+    """The content followed by up to 4 GiB of zeros in a few MB of deflate (repeated flushed blocks)."""
+    return gzip_bomb(gzip.decompress(data), int(rng.choice([1 << 20, 1 << 28, 1 << 32])))
+
+
+def gzip_bomb(head: bytes, zeros: int) -> bytes:
+    """A gzip stream of ``head`` then ``zeros`` zero bytes, built in milliseconds: one compressed, byte-aligned
+    block of 1 MiB of zeros is repeated (the CRC is wrong, as a hostile file's may be; a reader stops long before)."""
+    comp = zlib.compressobj(9, zlib.DEFLATED, 16 + zlib.MAX_WBITS)
+    out = comp.compress(head) + comp.flush(zlib.Z_FULL_FLUSH)
+    block = zlib.compressobj(9, zlib.DEFLATED, -zlib.MAX_WBITS)
+    chunk = block.compress(b"\0" * (1 << 20)) + block.flush(zlib.Z_FULL_FLUSH)
+    return out + chunk * max(1, zeros >> 20) + b"\x03\x00" + struct.pack("<II", 0, (len(head) + zeros) & 0xFFFFFFFF)
+
+
+MUTATIONS: dict[str, tuple[Callable[[bytes, np.random.Generator], bytes], ...]] = {
+    "bytes": (_truncate, _flip, _insert, _overwrite, _repeat, _header_count),
+    "npy": (_truncate, _flip, _insert, _overwrite, _repeat),
+    "gzip": (_truncate, _flip, _insert, _inflated(_flip), _inflated(_overwrite), _inflated(_truncate),
+             _inflated(_spz_count), _inflated(_repeat), _bomb),
+    "text": (_truncate, _flip, _insert, _number, _line, _repeat),
+    "json": (_truncate, _flip, _insert, _number, _json_edit, _json_edit, _nest),
+}
+"""The mutations each kind of input gets, drawn uniformly."""
+
+
+# ------------------------------------------------------------------------------------------ the run
+
+
+@dataclass
+class Finding:
+    """An input whose reader neither read it nor refused it clearly (or took longer than :data:`SLOW_S`)."""
+
+    format: str
+    index: int
+    mutation: str
+    file: str
+    error: str
+    seconds: float
+
+
+@dataclass
+class FormatRun:
+    """One format's run: counts, slowest input (s), findings, peak memory of its process (GiB)."""
+
+    format: str
+    inputs: int = 0
+    read: int = 0
+    refused: int = 0
+    seconds: float = 0.0
+    slowest_s: float = 0.0
+    slowest_mutation: str = ""
+    peak_rss_gib: float = 0.0
+    mutations: dict[str, int] = field(default_factory=dict)
+    findings: list[Finding] = field(default_factory=list)
+
+
+def fuzz_target(t: Target, inputs: int, seed: int = 0, progress: Path | None = None) -> FormatRun:
+    """``inputs`` mutations of ``t``'s input, each read once (module docstring); ``progress`` gets the input about
+    to be read (what a crash leaves behind)."""
+    rng = np.random.default_rng([seed, FORMATS.index(t.name)])
+    run = FormatRun(t.name)
+    used: Counter[str] = Counter()
+    muts = MUTATIONS[t.kind]
+    t0 = time.perf_counter()
+    for i in range(inputs):
+        f = t.files[0] if len(t.files) == 1 or rng.random() < 0.5 else t.files[int(rng.integers(len(t.files)))]
+        mut = muts[int(rng.integers(len(muts)))]
+        used[mut.__name__] += 1
+        data = mut(t.originals[f], rng)
+        f.write_bytes(data)
+        if progress is not None:
+            progress.write_text(json.dumps({"index": i, "mutation": mut.__name__, "file": f.name}))
+        start = time.perf_counter()
+        error = None
+        try:
+            t.read()
+            run.read += 1
+        except t.refusal as exc:
+            run.refused += 1
+            if "\n" in str(exc):
+                error = f"a refusal of more than one line: {str(exc)[:300]!r}"
+        except BaseException as exc:  # noqa: BLE001 (every other exception is the finding)
+            if isinstance(exc, KeyboardInterrupt):
+                raise
+            tb = traceback.extract_tb(exc.__traceback__)[-1]
+            error = f"{type(exc).__name__}: {str(exc)[:300]} ({Path(tb.filename).name}:{tb.lineno})"
+        dt = time.perf_counter() - start
+        if dt > run.slowest_s:
+            run.slowest_s, run.slowest_mutation = dt, mut.__name__
+        if error is None and dt > SLOW_S:
+            error = f"took {dt:.1f} s"
+        if error is not None:
+            run.findings.append(Finding(t.name, i, mut.__name__, f.name, error, round(dt, 3)))
+        t.restore()
+        run.inputs += 1
+    run.seconds = time.perf_counter() - t0
+    run.mutations = dict(used)
+    run.peak_rss_gib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+    return run
+
+
+def _child(fmt: str, inputs: int, seed: int, result: Path, progress: Path) -> None:
+    import logging
+
+    logging.disable(logging.WARNING)  # the readers' notes would flood the output
+    with tempfile.TemporaryDirectory() as work:
+        t = make_targets(Path(work), (fmt,))[fmt]
+        result.write_text(json.dumps(asdict(fuzz_target(t, inputs, seed, progress))))
+
+
+def run_format(fmt: str, inputs: int, seed: int = 0) -> FormatRun:
+    """:func:`fuzz_target` of one format in a child process; a crash of the child is a finding naming the input."""
+    with tempfile.TemporaryDirectory() as tmp:
+        result, progress = Path(tmp) / "result.json", Path(tmp) / "progress.json"
+        proc = mp.get_context("spawn").Process(target=_child, args=(fmt, inputs, seed, result, progress))
+        proc.start()
+        proc.join()
+        if result.is_file():
+            data = json.loads(result.read_text())
+            data["findings"] = [Finding(**f) for f in data["findings"]]
+            return FormatRun(**data)
+        last = json.loads(progress.read_text()) if progress.is_file() else {"index": -1, "mutation": "", "file": ""}
+        return FormatRun(fmt, inputs=last["index"] + 1, findings=[Finding(
+            fmt, last["index"], last["mutation"], last["file"], f"the process died (exit code {proc.exitcode})", 0.0)])
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m eval.bench.fuzz", description=__doc__.strip().splitlines()[0])
+    ap.add_argument("--inputs", type=int, default=1000, help="mutated inputs per format")
+    ap.add_argument("--formats", nargs="+", choices=FORMATS, default=list(FORMATS))
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--jobs", type=int, default=1, help="formats run at once (each in its own process)")
+    ap.add_argument("--json", type=Path, help="write the record here (docs/measurements/fuzz.json)")
+    args = ap.parse_args(argv)
+    t_start = time.perf_counter()
+    runs = []
+    print(f"{'format':<11} {'inputs':>7} {'read':>6} {'refused':>8} {'findings':>8} {'slowest s':>10} {'peak GiB':>9} "
+          f"{'total s':>8}")
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max(1, args.jobs)) as pool:  # threads that wait on one child process each
+        for r in pool.map(lambda fmt: run_format(fmt, args.inputs, args.seed), args.formats):
+            runs.append(r)
+            print(f"{r.format:<11} {r.inputs:>7} {r.read:>6} {r.refused:>8} {len(r.findings):>8} {r.slowest_s:>10.3f} "
+                  f"{r.peak_rss_gib:>9.2f} {r.seconds:>8.1f}", flush=True)
+            for f in r.findings[:5]:
+                print(f"    #{f.index} {f.mutation} {f.file}: {f.error}")
+    if args.json:
+        from abcgs.io.atomic import write_json
+
+        write_json(args.json, {"command": "python -m eval.bench.fuzz " + " ".join(argv or []), "seed": args.seed,
+                               "inputs_per_format": args.inputs, "slow_s": SLOW_S, "jobs": args.jobs,
+                               "seconds": round(time.perf_counter() - t_start, 1),
+                               "runs": [asdict(r) for r in runs]})
+    return 1 if any(r.findings for r in runs) else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
