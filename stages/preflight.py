@@ -47,11 +47,16 @@ def main(args, _sections) -> None:
     for w in warnings:  # on the terminal of `dvc repro`, and in the record the report shows
         print(f"[preflight] warning: {w}", file=sys.stderr, flush=True)
     write_json(args.record, {"warnings": warnings})
-    with atomic_path(args.label_use, is_dir=True) as tmp:
+    write_label_use(args.label_use, params)
+    write_json(args.out, {"checks": "passed"})
+
+
+def write_label_use(folder, params) -> None:
+    """The folder ``--label-use`` (atomically): per scene, whether a colour match reads its content labels."""
+    with atomic_path(folder, is_dir=True) as tmp:
         for scene in params.data.scenes:
             write_json(tmp / layout.label_use(scene).name,
                        {"content_labels_read": bool(content_label_readers(params.colormatches, scene))})
-    write_json(args.out, {"checks": "passed"})
 
 
 if __name__ == "__main__":

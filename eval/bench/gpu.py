@@ -180,6 +180,7 @@ def run_pipeline(params: Params, root: Path, scene: str, colmap: Path, experimen
     for key in params.data.style_masks:
         style_masks.main(args(style_masks, key, style=key), params)
     _timed(times, f"{scene}: fit", device, lambda: fit.main(args(fit, scene, scene=scene), params))
+    _stage("preflight").write_label_use(Path(args(masks, scene, scene=scene).label_use).parent, params)
     _timed(times, f"{scene}: masks", device, lambda: masks.main(args(masks, scene, scene=scene), params))
     _timed(times, f"{scene}: reference", device, lambda: reference.main(args(reference, scene, scene=scene), params))
     for cm in dict.fromkeys(params.experiments[e].colormatch for e in experiments):
