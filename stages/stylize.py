@@ -63,6 +63,7 @@ def main(args, params) -> None:
     write_metrics(args.metrics, {
         "experiment": args.experiment, "method": exp.method, "colormatch": exp.colormatch, "transfer": spec.transfer,
         **res.record(), **written, "vgg_weights": info.model_dump(), "seed": sp.seed,
+        "background": background.to_json(),
     })
 
 
