@@ -59,6 +59,13 @@ def _stand_ins(repo: Path) -> list[str]:
             else:
                 path.mkdir(parents=True, exist_ok=True)
                 (path / "stand_in.txt").write_text("x")
+    for name, key in UPSTREAM.items():  # a file the stages read inside another's output folder (out/label_use/S.json)
+        body = DVC[name].get("do", DVC[name])
+        for dep in body.get("deps") or []:
+            path = repo / dep.replace("${key}", key or "").replace("${item.scene}", "tiny")
+            if dep.startswith("out/") and path.suffix and not path.exists():
+                path.parent.mkdir(parents=True, exist_ok=True)
+                path.write_text("{}")
     painting = repo / "data" / "tiny" / "styles" / "paint.png"  # styles@tiny_paint's input, inside make_tiny's output
     painting.parent.mkdir(parents=True, exist_ok=True)
     painting.write_text("x")
