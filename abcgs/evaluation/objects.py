@@ -66,14 +66,18 @@ def masked_ssim(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
     return float(smap[m].mean()) if m.any() else float("nan")
 
 
-def _pair_rmse_on_object(c: Consistency, stylized: Sequence[np.ndarray], on_object: Sequence[np.ndarray]) -> float:
+def _pair_rmse_on_object(c: Consistency | None, stylized: Sequence[np.ndarray], on_object: Sequence[np.ndarray]) -> float:
+    if c is None:
+        return float("nan")
     return nan_mean([masked_rmse(stylized[r.i], r.warped, r.mask & on_object[r.i]) for r in c.pairs])
 
 
 def object_scores(originals: Sequence[np.ndarray], stylized: Sequence[np.ndarray], ref_alphas: Sequence[np.ndarray],
-                  alphas: Sequence[np.ndarray], short: Consistency, long: Consistency) -> ObjectScores:
+                  alphas: Sequence[np.ndarray], short: Consistency | None = None,
+                  long: Consistency | None = None) -> ObjectScores:
     """The object metrics from the original and stylized renders ``(H, W, 3)`` (on the scene's background), the
-    original and stylized alphas ``(H, W)`` or ``(H, W, 1)``, and the consistency pairs already measured."""
+    original and stylized alphas ``(H, W)`` or ``(H, W, 1)``, and the consistency pairs already measured (without
+    them the object RMSEs are NaN)."""
     ref = [np.asarray(a, np.float32).reshape(np.shape(o)[:2]) for a, o in zip(ref_alphas, originals)]
     sty = [np.asarray(a, np.float32).reshape(np.shape(o)[:2]) for a, o in zip(alphas, originals)]
     on_object = [a >= OBJECT_ALPHA for a in ref]

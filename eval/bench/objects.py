@@ -43,7 +43,7 @@ import numpy as np
 import torch
 
 from abcgs.cameras import Camera
-from abcgs.evaluation.objects import CHANGE_THRESHOLD, masked_ssim
+from abcgs.evaluation.objects import object_scores
 from abcgs.evaluation.style_distance import gram_scores
 from abcgs.features.matching import build_groups
 from abcgs.features.params import IsolationParams, TransferSpec, VggWeightsParams
@@ -59,7 +59,7 @@ from abcgs.scene.params import TinySceneParams
 from abcgs.scene.synthetic import write_object_dataset
 from abcgs.sfm.model import SceneData, read_colmap_scene
 from abcgs.sfm.params import ReconstructParams
-from abcgs.silhouette import EMPTY_ALPHA, OBJECT_ALPHA, background_tensor
+from abcgs.silhouette import EMPTY_ALPHA, background_tensor
 from abcgs.sources.base import SourceScene
 from abcgs.sources.blender import read_blender_source
 from abcgs.sources.model import write_source_model
@@ -183,20 +183,13 @@ def measure(case: ObjectCase, original: tuple, result: GaussianModel, matched: G
     bg = torch.zeros(3)
     (o_imgs, o_alpha), (s_imgs, s_alpha) = original, _renders(result, case.scene.cameras, bg)
     m_imgs, _ = _renders(matched, case.scene.cameras, bg)
-    empty = [a < EMPTY_ALPHA for a in o_alpha]
-    on_obj = [a >= OBJECT_ALPHA for a in o_alpha]
-    moved = [(np.abs(s - o) > CHANGE_THRESHOLD).any(-1) for s, o in zip(s_imgs, o_imgs)]
-    n_empty = sum(int(e.sum()) for e in empty)
-    union = sum(int((m | (a >= OBJECT_ALPHA)).sum()) for m, a in zip(on_obj, s_alpha))
-    inter = sum(int((m & (a >= OBJECT_ALPHA)).sum()) for m, a in zip(on_obj, s_alpha))
-    gram = gram_scores(vgg_state, s_imgs, [painting]).mean
-    gram_matched = gram_scores(vgg_state, m_imgs, [painting]).mean
+    scores = object_scores(o_imgs, s_imgs, o_alpha, s_alpha)  # the evaluate stage's own definitions
     return {
-        "background_change": sum(int((mv & e).sum()) for mv, e in zip(moved, empty)) / max(n_empty, 1),
-        "silhouette_iou": inter / max(union, 1),
-        "ssim_object": float(np.nanmean([masked_ssim(o, s, m) for o, s, m in zip(o_imgs, s_imgs, on_obj)])),
-        "gram_distance": gram, "gram_distance_colormatch": gram_matched,
-        "empty_fraction": float(np.mean([e.mean() for e in empty])),
+        "background_change": scores.background_change, "silhouette_iou": scores.silhouette_iou,
+        "ssim_object": scores.ssim_object,
+        "gram_distance": gram_scores(vgg_state, s_imgs, [painting]).mean,
+        "gram_distance_colormatch": gram_scores(vgg_state, m_imgs, [painting]).mean,
+        "empty_fraction": float(np.mean([(a < EMPTY_ALPHA).mean() for a in o_alpha])),
     }
 
 
