@@ -159,17 +159,18 @@ class GaussianModel:
             "opacities": self.opacities, "sh": self.sh,
         }
 
-    def colors_or_sh(self, sh_degree: int | None = None) -> tuple[Tensor, int | None]:
+    def colors_or_sh(self, sh_degree: int | None = None) -> tuple[Tensor | tuple[Tensor, Tensor], int | None]:
         """What :func:`abcgs.render.rasterize` takes as ``colors`` and ``sh_degree``.
 
         For an active degree of 0 this is the plain RGB ``(N, 3)`` = ``max(C0·sh0 + 0.5, 0)`` with ``None``
-        (identical to SH evaluation, cheaper); otherwise the ``(N, K, 3)`` coefficients and the degree.
+        (identical to SH evaluation, cheaper); otherwise the coefficients as their two blocks ``(sh0, shN)``
+        (``(N, 1, 3)``, ``(N, K - 1, 3)``: no concatenated copy per render) and the degree.
         ``sh_degree`` limits the active band (3DGS raises it during training); default: all stored bands.
         """
         degree = self.sh_degree if sh_degree is None else min(int(sh_degree), self.sh_degree)
         if degree == 0:
             return sh0_to_rgb(self.sh0[:, 0, :]).clamp_min(0.0), None
-        return self.sh, degree
+        return (self.sh0, self.shN), degree
 
     # ------------------------------------------------------------------ tensor plumbing
     def items(self) -> Iterator[tuple[str, Tensor]]:

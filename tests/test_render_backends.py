@@ -76,7 +76,7 @@ def test_cpu_binning_matches_reference_sort_and_tile_boxes(dtype):
     conics = torch.tensor([1.0, 0.0, 1.0], dtype=dtype).repeat(n, 1)
     colors, opacities = torch.rand(n, 3, generator=g, dtype=dtype), torch.full((n,), 0.5, dtype=dtype)
     ext = cpu_backend.load_extension()
-    _, _, _, toff, slots, order, _, _ = ext.rasterize_forward(means2d, conics, colors, opacities, depths, extents,
+    _, _, _, toff, slots, order, *_ = ext.rasterize_forward(means2d, conics, colors, opacities, depths, extents,
                                                               width, height, tile)
     ids = order[slots.long()]  # each intersection's Gaussian
     vis = torch.nonzero(extents[:, 0] > 0).squeeze(1)

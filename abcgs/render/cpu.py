@@ -247,3 +247,35 @@ def project_cpu(
         means, quats, scales, opacities, viewmat, K, width, height, near, far, eps2d
     )
     return Projected(means2d, conics, depths, extents, radii, visible)
+
+
+class _SHColorsCPU(torch.autograd.Function):
+    """Fused SH colours (C++): gradients to the DC band, the higher bands and the means, each only when needed."""
+
+    @staticmethod
+    def forward(ctx, sh0, shN, means, campos, mask, degree):
+        ext = load_extension()
+        dtype = sh0.dtype
+        sh0, shN, means = sh0.contiguous(), shN.contiguous().to(dtype), means.contiguous().to(dtype)
+        campos, mask = campos.detach().contiguous().to(dtype), mask.contiguous()
+        colors = ext.sh_colors_forward(sh0, shN, means, campos, mask, degree)
+        ctx.save_for_backward(sh0, shN, means, campos, mask)
+        ctx.degree = degree
+        return colors
+
+    @staticmethod
+    def backward(ctx, v_colors):
+        ext = load_extension()
+        sh0, shN, means, campos, mask = ctx.saved_tensors
+        need_shN, need_means = ctx.needs_input_grad[1], ctx.needs_input_grad[2]
+        v_sh0, v_shN, v_means = ext.sh_colors_backward(
+            sh0, shN, means, campos, mask, ctx.degree, v_colors.contiguous().to(sh0.dtype), need_shN, need_means
+        )
+        return v_sh0, v_shN if need_shN else None, v_means if need_means else None, None, None, None
+
+
+def sh_colors_cpu(degree: int, sh0: Tensor, shN: Tensor, means: Tensor, campos: Tensor, mask: Tensor) -> Tensor:
+    """Compiled twin of :func:`abcgs.render.sh.sh_to_color` on the rows of ``mask`` ``(N,)`` bool (others: colour 0,
+    gradient 0), taking the DC band ``sh0`` ``(N, 1, 3)`` and the higher bands ``shN`` ``(N, K - 1, 3)`` (K ≥
+    (degree + 1)²; ``(N, 0, 3)`` for degree 0) as separate blocks; returns ``(N, 3)``."""
+    return _SHColorsCPU.apply(sh0, shN, means, campos, mask, int(degree))

@@ -18,6 +18,7 @@ import math
 import os
 import re
 import typing
+from collections.abc import Sequence
 import warnings
 
 import torch
@@ -125,7 +126,7 @@ def rasterize(
     quats: Tensor,
     scales: Tensor,
     opacities: Tensor,
-    colors: Tensor,
+    colors: Tensor | Sequence[Tensor],
     viewmat: Tensor,
     K: Tensor,
     width: int,
@@ -147,7 +148,10 @@ def rasterize(
         quats: ``(N, 4)`` rotations, wxyz, any norm (normalised inside the graph).
         scales: ``(N, 3)`` standard deviations along the local axes (world units, not log).
         opacities: ``(N,)`` in [0, 1] (not logits).
-        colors: ``(N, C)`` any number of channels, or SH coefficients ``(N, K, 3)`` with ``sh_degree`` set.
+        colors: ``(N, C)`` any number of channels, or SH coefficients ``(N, K, 3)`` with ``sh_degree`` set, which
+            may come as two blocks along K, the DC band ``(N, 1, 3)`` and the higher bands ``(N, K - 1, 3)``
+            (as :class:`abcgs.gaussians.GaussianModel` stores them: the CPU backend then builds no ``(N, K, 3)``
+            copy). The CPU backend evaluates SH only for the Gaussians the projection keeps.
         viewmat: ``(4, 4)`` world→camera (OpenCV axes). K: ``(3, 3)`` intrinsics in px.
         width, height: output size in px.
         sh_degree: evaluate ``colors`` as SH of this degree (0..3); ``None`` = plain colours.
@@ -173,8 +177,12 @@ def rasterize(
     camera_grad = viewmat.requires_grad or K.requires_grad
     project = cpu_backend.project_cpu if name == "cpu" and not camera_grad else project_gaussians
     proj = project(means, quats, scales, opacities, viewmat, K, width, height, near=near, far=far, eps2d=eps2d)
-    if sh_degree is not None:
-        colors = sh_to_color(sh_degree, colors, means, camera_position(viewmat))
+    if sh_degree is not None and name == "cpu":
+        sh0, shN = colors if isinstance(colors, (tuple, list)) else (colors[:, :1], colors[:, 1:])
+        # evaluated only for the Gaussians the projection kept
+        colors = cpu_backend.sh_colors_cpu(sh_degree, sh0, shN, means, camera_position(viewmat), proj.visible)
+    elif sh_degree is not None:
+        colors = sh_to_color(sh_degree, sh_coefficients(colors), means, camera_position(viewmat))
     n_color = colors.shape[1]
     feats = torch.cat([colors, proj.depths[:, None]], dim=1) if render_mode != "RGB" else colors
     blend = cpu_backend.rasterize_cpu if name == "cpu" else rasterize_reference
@@ -182,6 +190,11 @@ def rasterize(
     image, depth = _finish(out, alpha, n_color, render_mode, background)
     meta = RenderMeta(proj.means2d, proj.radii, proj.depths, proj.visible, depth, name, width, height)
     return image, alpha, meta
+
+
+def sh_coefficients(colors: Tensor | Sequence[Tensor]) -> Tensor:
+    """SH coefficients ``(N, K, 3)`` given as one tensor or as blocks along K (the DC band and the higher bands)."""
+    return torch.cat(list(colors), dim=1) if isinstance(colors, (tuple, list)) else colors
 
 
 def camera_position(viewmat: Tensor) -> Tensor:
@@ -226,7 +239,7 @@ def _rasterize_gsplat(
     z = means @ viewmat[2, :3] + viewmat[2, 3]
     depths = torch.where(kept, depths_c[0], z)
     if sh_degree is not None:
-        sh = gsplat.spherical_harmonics(sh_degree, means - camera_position(viewmat), colors, masks=kept)
+        sh = gsplat.spherical_harmonics(sh_degree, means - camera_position(viewmat), sh_coefficients(colors), masks=kept)
         colors = torch.clamp_min(sh + 0.5, 0.0)
     n_color = colors.shape[1]
     feats = torch.cat([colors, depths[:, None]], dim=1) if render_mode != "RGB" else colors

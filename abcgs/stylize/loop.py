@@ -42,6 +42,7 @@ from abcgs.render import rgb_to_sh0, sh0_to_rgb
 from abcgs.silhouette import Silhouette, background_tensor, object_gaussians
 from abcgs.stylize.color import apply_group_transforms, fit_color_transform, preserve_color
 from abcgs.stylize.params import StyleWeights, StylizeParams
+from abcgs.stylize.replay import ReplayedViews, can_replay
 from abcgs.types import FRAME_FILLING, Background, MatchingGroup, SceneMasks, StyleMethod
 
 log = logging.getLogger(__name__)
@@ -457,16 +458,20 @@ def color_pass(
     region (the transform is applied to the group's Gaussians too, as in the colour-match stage), and the
     DC colours and rotations are re-fitted to those images with ``0.8·L1 + 0.2·D-SSIM`` while means,
     scales and opacities stay frozen (``post_process_phase.py`` freezes ``_xyz``, ``_scaling``, ``_opacity``;
-    ``color_only`` freezes the rotations too). An object scene (``backdrop``) renders on its background, so its
-    empty pixels are fitted to it. Returns the re-fitted (detached) model and the logged steps, numbered from
+    ``color_only`` or ``optim.color_pass_rotations: false`` freeze the rotations too, and then each view's
+    blending map is recorded once and replayed: :mod:`abcgs.stylize.replay`). An object scene (``backdrop``)
+    renders on its background, so its empty pixels are fitted to it. Returns the re-fitted (detached) model and the logged steps, numbered from
     ``start_step``.
     """
     recolored, images = _recolored_targets(model, gaussian_labels, targets, groups, params, backdrop)
     m = recolored.as_parameters()
-    lr_quats = 0.0 if params.color_only else params.optim.lr_quats
-    opt = _optimizer(m, {"sh0": params.optim.lr_sh0, "quats": lr_quats, "means": 0.0, "log_scales": 0.0,
-                         "opacity_logits": 0.0, "shN": higher_sh_lr(params, m)})
+    lr_quats = params.optim.lr_quats if params.optim.color_pass_rotations and not params.color_only else 0.0
+    lrs = {"sh0": params.optim.lr_sh0, "quats": lr_quats, "means": 0.0, "log_scales": 0.0, "opacity_logits": 0.0,
+           "shN": higher_sh_lr(params, m)}
+    opt = _optimizer(m, lrs)
     _keep_bands_above_1_zero(m, params)
+    replay = ReplayedViews(m, [t.camera for t in targets], params.compute.backend) if can_replay(
+        m, params.compute.backend, lrs) else None
     freeze_gaussians(m, None if backdrop.gaussians is None else ~backdrop.gaussians)
     views = _random_views(len(targets), params.seed + 1)
     steps: list[LoggedStep] = []
@@ -474,7 +479,10 @@ def color_pass(
     t_start = time.perf_counter()
     for it in bar:
         i = next(views)
-        img, _, _ = render(m, targets[i].camera, backend=params.compute.backend, background=backdrop.color)
+        if replay is not None:
+            img = replay.render(i, backdrop.color)
+        else:
+            img, _, _ = render(m, targets[i].camera, backend=params.compute.backend, background=backdrop.color)
         terms = reconstruction_loss(img, images[i])
         _check_finite(terms.total, "colour-pass reconstruction", start_step + it)
         opt.zero_grad(set_to_none=True)

@@ -64,6 +64,9 @@ class StylizeOptim(BaseModel):
         200, ge=0, description="authors' post-process after the main pass: re-render, colour-match again, re-fit colours "
         "and rotations with L1 + D-SSIM (authors: 400; 200 measured on fern: Gram distance 0.315 → 0.267, "
         "docs/FIDELITY.md); 0 turns it off")
+    color_pass_rotations: bool = Field(
+        True, description="the colour pass re-fits rotations too (the authors' post-process); false freezes its "
+        "geometry, and the CPU colour pass then replays each view's recorded blending map (docs/SCALING.md)")
     optimize_geometry: bool = Field(True, description="also optimise xyz/scale/opacity/rotation in the main pass")
     lr_preset: Literal["authors_code", "ours"] = Field(
         "authors_code", description="learning rates: 'authors_code' (INRIA's training_setup rates with xyz frozen, as "

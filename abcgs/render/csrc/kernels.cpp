@@ -5,3 +5,5 @@
 #include "knn_cpu.cpp"
 #include "projection_cpu.cpp"
 #include "rasterize_cpu.cpp"
+#include "frozen_cpu.cpp"
+#include "sh_cpu.cpp"

@@ -36,43 +36,49 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <optional>
 #include <type_traits>
 #include <vector>
+#include <chrono>
+#include <cstdio>
+#define PROF_T(name) do { if (std::getenv("ABCGS_PROF")) { auto _n = std::chrono::steady_clock::now(); std::fprintf(stderr, "  %s %.3f\n", name, std::chrono::duration<double>(_n - _pt).count()); _pt = _n; } } while (0)
 
 namespace {
 
 constexpr double kMaxAlpha = 0.99;
 constexpr double kTransmittanceEps = 1e-4;
 
-// Tile lists and their inverse (per-Gaussian intersection lists), stored in tensors so the forward
-// pass can hand them to autograd for the backward pass without copies.
+// Tile lists and, for the backward pass, where each intersection's gradient row goes (grouped by Gaussian), stored
+// in tensors so the forward pass can hand them to autograd for the backward pass without copies.
 struct Binning {
   int64_t tiles_x = 0, tiles_y = 0;
-  at::Tensor tile_offsets_t, slots_t, order_t, gauss_offsets_t, gauss_isect_t;
-  const int64_t* tile_offsets = nullptr;   // (n_tiles + 1) start of each tile's list in `slots`
-  const int32_t* slots = nullptr;          // (M) depth rank of each intersection's Gaussian (its index in
-                                           //     `order`), increasing along a tile's list; order[slots] = ids
-  const int32_t* order = nullptr;          // (V) the Gaussians with a positive extent, front to back
-  const int64_t* gauss_offsets = nullptr;  // (N + 1) start of each Gaussian's row in `gauss_isect`
-  const int64_t* gauss_isect = nullptr;    // (M) intersection indices of each Gaussian, in tile order
+  at::Tensor tile_offsets_t, slots_t, order_t, slot_offsets_t, isect_rows_t;
+  const int64_t* tile_offsets = nullptr;  // (n_tiles + 1) start of each tile's list in `slots`
+  const int32_t* slots = nullptr;         // (M) depth rank of each intersection's Gaussian (its index in
+                                          //     `order`), increasing along a tile's list; order[slots] = ids
+  const int32_t* order = nullptr;         // (V) the Gaussians with a positive extent, front to back
+  const int64_t* slot_offsets = nullptr;  // (V + 1) start of each slot's gradient rows (slot-major, tile order)
+  const int64_t* isect_rows = nullptr;    // (M) the slot-major gradient row of each intersection (tile-major)
   int64_t num_isects() const { return slots_t.numel(); }
   int64_t num_slots() const { return order_t.numel(); }
 
-  Binning(at::Tensor tile_offsets_, at::Tensor slots_, at::Tensor order_, at::Tensor gauss_offsets_,
-          at::Tensor gauss_isect_, int64_t width, int64_t height, int64_t tile)
+  Binning(at::Tensor tile_offsets_, at::Tensor slots_, at::Tensor order_, at::Tensor slot_offsets_,
+          at::Tensor isect_rows_, int64_t width, int64_t height, int64_t tile)
       : tiles_x((width + tile - 1) / tile),
         tiles_y((height + tile - 1) / tile),
         tile_offsets_t(tile_offsets_.contiguous()),
         slots_t(slots_.contiguous()),
         order_t(order_.contiguous()),
-        gauss_offsets_t(gauss_offsets_.contiguous()),
-        gauss_isect_t(gauss_isect_.contiguous()) {
+        slot_offsets_t(slot_offsets_.contiguous()),
+        isect_rows_t(isect_rows_.contiguous()) {
     TORCH_CHECK(tile_offsets_t.numel() == tiles_x * tiles_y + 1, "binning does not match the image size");
+    TORCH_CHECK(slot_offsets_t.numel() == order_t.numel() + 1 && isect_rows_t.numel() == slots_t.numel(),
+                "binning: slot offsets or intersection rows do not match");
     tile_offsets = tile_offsets_t.data_ptr<int64_t>();
     slots = slots_t.data_ptr<int32_t>();
     order = order_t.data_ptr<int32_t>();
-    gauss_offsets = gauss_offsets_t.data_ptr<int64_t>();
-    gauss_isect = gauss_isect_t.data_ptr<int64_t>();
+    slot_offsets = slot_offsets_t.data_ptr<int64_t>();
+    isect_rows = isect_rows_t.data_ptr<int64_t>();
   }
 };
 
@@ -81,27 +87,37 @@ struct Binning {
 // i.e. the same permutation as `torch.argsort(depths[extents[:, 0] > 0], stable=True)` (one exception: -0.0
 // sorts before +0.0, which torch treats as a tie; projected Gaussians have depth > near > 0).
 template <typename scalar_t>
-std::vector<int64_t> depth_order(const scalar_t* depth, const scalar_t* ext, int64_t n) {
+at::Tensor depth_order(const scalar_t* depth, const scalar_t* ext, int64_t n) {
   using key_t = std::conditional_t<sizeof(scalar_t) == 4, uint32_t, uint64_t>;
   constexpr key_t kSign = key_t(1) << (8 * sizeof(key_t) - 1);
-  std::vector<key_t> keys, keys_tmp;
-  std::vector<int64_t> idx, idx_tmp;
-  keys.reserve(n);
-  idx.reserve(n);
-  for (int64_t g = 0; g < n; ++g) {
-    if (!(ext[2 * g] > 0)) continue;
-    const scalar_t d = depth[g];
-    key_t k = ~key_t(0);
-    if (!std::isnan(d)) {
-      std::memcpy(&k, &d, sizeof(k));
-      k = (k & kSign) ? ~k : (k | kSign);
+  TORCH_CHECK(n < (int64_t(1) << 31), "abcgs cpu rasterizer: at most 2^31 - 1 Gaussians");
+  // the kept Gaussians in index order: counted per chunk, then written at the chunk's offset (parallel, sequential)
+  const int64_t workers = std::max<int64_t>(1, std::min<int64_t>(abcgs::kernel_threads(), (n + 65535) / 65536));
+  const int64_t chunk = (n + workers - 1) / workers;
+  std::vector<int64_t> start(workers + 1, 0);
+  abcgs::run_workers(workers, [&](int64_t w) {
+    int64_t c = 0;
+    for (int64_t g = w * chunk, e = std::min(n, (w + 1) * chunk); g < e; ++g) c += ext[2 * g] > 0;
+    start[w + 1] = c;
+  });
+  for (int64_t w = 0; w < workers; ++w) start[w + 1] += start[w];
+  const int64_t m = start[workers];
+  std::vector<key_t> keys(m), keys_tmp(m);
+  std::vector<int32_t> idx(m), idx_tmp(m);
+  abcgs::run_workers(workers, [&](int64_t w) {
+    int64_t j = start[w];
+    for (int64_t g = w * chunk, e = std::min(n, (w + 1) * chunk); g < e; ++g) {
+      if (!(ext[2 * g] > 0)) continue;
+      const scalar_t d = depth[g];
+      key_t k = ~key_t(0);
+      if (!std::isnan(d)) {
+        std::memcpy(&k, &d, sizeof(k));
+        k = (k & kSign) ? ~k : (k | kSign);
+      }
+      keys[j] = k;
+      idx[j++] = static_cast<int32_t>(g);
     }
-    keys.push_back(k);
-    idx.push_back(g);
-  }
-  const int64_t m = static_cast<int64_t>(keys.size());
-  keys_tmp.resize(m);
-  idx_tmp.resize(m);
+  });
   for (int shift = 0; shift < static_cast<int>(8 * sizeof(key_t)); shift += 8) {
     int64_t count[257] = {0};
     for (int64_t i = 0; i < m; ++i) count[((keys[i] >> shift) & 0xff) + 1]++;
@@ -115,7 +131,9 @@ std::vector<int64_t> depth_order(const scalar_t* depth, const scalar_t* ext, int
     keys.swap(keys_tmp);
     idx.swap(idx_tmp);
   }
-  return idx;
+  at::Tensor order = at::empty({m}, at::kInt);
+  std::copy(idx.begin(), idx.end(), order.data_ptr<int32_t>());
+  return order;
 }
 
 // Inclusive tile box (tx0, ty0, tx1, ty1) of a Gaussian's pixel box `mean ± ext`: the tiles whose pixel
@@ -137,59 +155,6 @@ inline bool tile_box(scalar_t mx, scalar_t my, scalar_t ex, scalar_t ey, int64_t
   box[2] = static_cast<int32_t>(static_cast<int64_t>(x1) / tile);
   box[3] = static_cast<int32_t>(static_cast<int64_t>(y1) / tile);
   return true;
-}
-
-// Sort the Gaussians front to back and bin them into tiles (see `depth_order` and `tile_box`).
-template <typename scalar_t>
-Binning bin_gaussians(const scalar_t* means2d, const scalar_t* extents, const scalar_t* depths, int64_t n,
-                      int64_t width, int64_t height, int64_t tile) {
-  const int64_t tiles_x = (width + tile - 1) / tile, tiles_y = (height + tile - 1) / tile;
-  const int64_t n_tiles = tiles_x * tiles_y;
-  const std::vector<int64_t> ord = depth_order(depths, extents, n);
-  const int64_t n_vis = static_cast<int64_t>(ord.size());
-  std::vector<int32_t> boxes(4 * n_vis);
-  std::vector<uint8_t> hit(n_vis);
-  for (int64_t k = 0; k < n_vis; ++k) {
-    const int64_t g = ord[k];
-    hit[k] = tile_box(means2d[2 * g], means2d[2 * g + 1], extents[2 * g], extents[2 * g + 1], width, height, tile,
-                      &boxes[4 * k]);
-  }
-
-  at::Tensor tile_offsets = at::zeros({n_tiles + 1}, at::kLong);
-  at::Tensor gauss_offsets = at::zeros({n + 1}, at::kLong);
-  int64_t* toff = tile_offsets.data_ptr<int64_t>();
-  int64_t* goff = gauss_offsets.data_ptr<int64_t>();
-  for (int64_t k = 0; k < n_vis; ++k) {
-    if (!hit[k]) continue;
-    const int32_t* r = &boxes[4 * k];
-    for (int64_t ty = r[1]; ty <= r[3]; ++ty)
-      for (int64_t tx = r[0]; tx <= r[2]; ++tx) toff[ty * tiles_x + tx + 1]++;
-    goff[ord[k] + 1] = int64_t(r[2] - r[0] + 1) * (r[3] - r[1] + 1);
-  }
-  for (int64_t t = 0; t < n_tiles; ++t) toff[t + 1] += toff[t];
-  for (int64_t g = 0; g < n; ++g) goff[g + 1] += goff[g];
-  const int64_t m = toff[n_tiles];
-  at::Tensor slots = at::empty({m}, at::kInt);
-  at::Tensor order = at::empty({n_vis}, at::kInt);
-  at::Tensor gauss_isect = at::empty({m}, at::kLong);
-  int32_t* sl = slots.data_ptr<int32_t>();
-  int32_t* od = order.data_ptr<int32_t>();
-  for (int64_t k = 0; k < n_vis; ++k) od[k] = static_cast<int32_t>(ord[k]);
-  int64_t* gi = gauss_isect.data_ptr<int64_t>();
-  std::vector<int64_t> cursor(toff, toff + n_tiles);
-  for (int64_t k = 0; k < n_vis; ++k) {
-    if (!hit[k]) continue;
-    const int64_t g = ord[k];
-    const int32_t* r = &boxes[4 * k];
-    int64_t j = goff[g];
-    for (int64_t ty = r[1]; ty <= r[3]; ++ty)
-      for (int64_t tx = r[0]; tx <= r[2]; ++tx) {
-        const int64_t pos = cursor[ty * tiles_x + tx]++;
-        sl[pos] = static_cast<int32_t>(k);
-        gi[j++] = pos;
-      }
-  }
-  return Binning(tile_offsets, slots, order, gauss_offsets, gauss_isect, width, height, tile);
 }
 
 // Run `fn(tile)` for every tile with dynamic scheduling on the kernels' threads (parallel.h).
@@ -278,23 +243,38 @@ inline uint32_t nonzero_lanes<float>(const float* v) {
 
 // The visible Gaussians' parameters packed in depth order (slot = depth rank), so that a tile's list, a
 // subsequence of that order, reads them at increasing addresses from one array instead of gathering from
-// five tensors by Gaussian index (a cache miss per intersection on a real scene: docs/SCALING.md).
+// five tensors by Gaussian index (a cache miss per intersection on a real scene: docs/SCALING.md). The forward
+// pass packs them once and hands the two tensors to the backward pass.
 template <typename scalar_t>
 struct GaussianView {
   static constexpr int64_t kStride = 8;  // mean x, mean y, conic a, b, c, opacity, extent x, extent y
-  std::vector<scalar_t> params;          // (V, kStride)
-  std::vector<scalar_t> colors;          // (V, C)
+  at::Tensor params_t, colors_t;         // (V, kStride), (V, C)
+  const scalar_t* params = nullptr;
+  const scalar_t* colors = nullptr;
   int64_t channels = 0;
 
+  // gathered in the depth order `order` (V,) int32 (each slot's entries prefetched a few slots ahead)
   GaussianView(const scalar_t* means2d, const scalar_t* conics, const scalar_t* colors_, const scalar_t* opac,
-               const scalar_t* extents, int64_t C, const Binning& bin)
-      : params(static_cast<size_t>(bin.num_slots() * kStride)),
-        colors(static_cast<size_t>(bin.num_slots() * C)),
+               const scalar_t* extents, int64_t C, const at::Tensor& order, const at::TensorOptions& opts)
+      : params_t(at::empty({order.numel(), kStride}, opts)), colors_t(at::empty({order.numel(), C}, opts)),
         channels(C) {
-    abcgs::parallel_range(bin.num_slots(), 8192, [&](int64_t begin, int64_t end) {
+    scalar_t* pp = params_t.data_ptr<scalar_t>();
+    scalar_t* cp = colors_t.data_ptr<scalar_t>();
+    const int32_t* od = order.data_ptr<int32_t>();
+    const int64_t v = order.numel();
+    abcgs::parallel_range(v, 8192, [&](int64_t begin, int64_t end) {
+      constexpr int64_t kAhead = 16;
       for (int64_t s = begin; s < end; ++s) {
-        const int64_t g = bin.order[s];
-        scalar_t* p = params.data() + s * kStride;
+        if (s + kAhead < end) {
+          const int64_t h = od[s + kAhead];
+          __builtin_prefetch(means2d + 2 * h);
+          __builtin_prefetch(conics + 3 * h);
+          __builtin_prefetch(opac + h);
+          __builtin_prefetch(extents + 2 * h);
+          __builtin_prefetch(colors_ + h * C);
+        }
+        const int64_t g = od[s];
+        scalar_t* p = pp + s * kStride;
         p[0] = means2d[2 * g];
         p[1] = means2d[2 * g + 1];
         p[2] = conics[3 * g];
@@ -303,13 +283,85 @@ struct GaussianView {
         p[5] = opac[g];
         p[6] = extents[2 * g];
         p[7] = extents[2 * g + 1];
-        std::copy(colors_ + g * C, colors_ + (g + 1) * C, colors.data() + s * C);
+        std::copy(colors_ + g * C, colors_ + (g + 1) * C, cp + s * C);
       }
     });
+    params = pp;
+    colors = cp;
   }
-  const scalar_t* at(int64_t slot) const { return params.data() + slot * kStride; }
-  const scalar_t* color(int64_t slot) const { return colors.data() + slot * channels; }
+  // the forward pass's packing, read back
+  GaussianView(const at::Tensor& params_, const at::Tensor& colors_, const Binning& bin)
+      : params_t(params_.contiguous()), colors_t(colors_.contiguous()), channels(colors_.size(1)) {
+    TORCH_CHECK(params_t.size(0) == bin.num_slots() && params_t.size(1) == kStride &&
+                    colors_t.size(0) == bin.num_slots(), "rasterize_backward: the packed Gaussians do not match the binning");
+    params = params_t.data_ptr<scalar_t>();
+    colors = colors_t.data_ptr<scalar_t>();
+  }
+  const scalar_t* at(int64_t slot) const { return params + slot * kStride; }
+  const scalar_t* color(int64_t slot) const { return colors + slot * channels; }
+  // a tile's list jumps through the packed arrays: ask for the entry a few places ahead early
+  void prefetch(int64_t slot) const {
+    __builtin_prefetch(params + slot * kStride);
+    __builtin_prefetch(colors + slot * channels);
+  }
 };
+
+// How far ahead along a tile's list the parameters are prefetched.
+constexpr int64_t kPrefetchAhead = 8;
+
+// Bin the packed Gaussians (slot = depth rank) into tiles (see `tile_box`): each tile's list in depth order, and
+// each slot's gradient rows together (slot-major, the slot's tiles in row order) so that the backward pass sums
+// a Gaussian's rows from one place. The boxes come from the packed view, read in slot order.
+template <typename scalar_t>
+Binning bin_tiles(const GaussianView<scalar_t>& gv, const at::Tensor& order, int64_t width, int64_t height,
+                  int64_t tile) {
+  auto _pt = std::chrono::steady_clock::now();
+  const int64_t tiles_x = (width + tile - 1) / tile, tiles_y = (height + tile - 1) / tile;
+  const int64_t n_tiles = tiles_x * tiles_y, n_vis = order.numel();
+  at::Tensor slot_offsets = at::empty({n_vis + 1}, at::kLong);
+  int64_t* soff = slot_offsets.data_ptr<int64_t>();
+  std::vector<int32_t> boxes(4 * n_vis);
+  abcgs::parallel_range(n_vis, 16384, [&](int64_t begin, int64_t end) {
+    for (int64_t k = begin; k < end; ++k) {
+      const scalar_t* p = gv.at(k);
+      int32_t* r = &boxes[4 * k];
+      const bool hit = tile_box(p[0], p[1], p[6], p[7], width, height, tile, r);
+      soff[k + 1] = hit ? int64_t(r[2] - r[0] + 1) * (r[3] - r[1] + 1) : 0;
+    }
+  });
+  soff[0] = 0;
+  for (int64_t k = 0; k < n_vis; ++k) soff[k + 1] += soff[k];
+  const int64_t m = soff[n_vis];
+  at::Tensor tile_offsets = at::zeros({n_tiles + 1}, at::kLong);
+  int64_t* toff = tile_offsets.data_ptr<int64_t>();
+  for (int64_t k = 0; k < n_vis; ++k) {
+    if (soff[k + 1] == soff[k]) continue;
+    const int32_t* r = &boxes[4 * k];
+    for (int64_t ty = r[1]; ty <= r[3]; ++ty)
+      for (int64_t tx = r[0]; tx <= r[2]; ++tx) toff[ty * tiles_x + tx + 1]++;
+  }
+  for (int64_t t = 0; t < n_tiles; ++t) toff[t + 1] += toff[t];
+  PROF_T("  boxes+count");
+  if (std::getenv("ABCGS_PROF")) std::fprintf(stderr, "  visible %ld isects %ld\n", (long)n_vis, (long)m);
+  at::Tensor slots = at::empty({m}, at::kInt);
+  at::Tensor isect_rows = at::empty({m}, at::kLong);
+  int32_t* sl = slots.data_ptr<int32_t>();
+  int64_t* ir = isect_rows.data_ptr<int64_t>();
+  std::vector<int64_t> cursor(toff, toff + n_tiles);
+  for (int64_t k = 0; k < n_vis; ++k) {
+    const int32_t* r = &boxes[4 * k];
+    int64_t j = soff[k];
+    if (j == soff[k + 1]) continue;
+    for (int64_t ty = r[1]; ty <= r[3]; ++ty)
+      for (int64_t tx = r[0]; tx <= r[2]; ++tx) {
+        const int64_t pos = cursor[ty * tiles_x + tx]++;
+        sl[pos] = static_cast<int32_t>(k);
+        ir[pos] = j++;
+      }
+  }
+  PROF_T("  scatter");
+  return Binning(tile_offsets, slots, order, slot_offsets, isect_rows, width, height, tile);
+}
 
 // Visit, row by row, where Gaussian g reaches alpha >= 1/255 (and sigma >= 0) in the tile [x0, x1) x [y0, y1):
 // the rows of its box inside the tile, each in chunks of kRowChunk pixels aligned to the tile's left edge.
@@ -437,6 +489,7 @@ void forward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t 
   int64_t remaining = npix;
   const int64_t start = bin.tile_offsets[tile], end = bin.tile_offsets[tile + 1];
   for (int64_t k = start; k < end && remaining > 0; ++k) {
+    if (k + kPrefetchAhead < end) gv.prefetch(bin.slots[k + kPrefetchAhead]);
     const int64_t slot = bin.slots[k];
     const scalar_t* colp = gv.color(slot);
     // a local copy: the compiler cannot know that the blend's stores to `acc` leave the colours alone
@@ -524,13 +577,20 @@ void backward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t
   std::vector<scalar_t> gcol_heap(kChannels > 0 ? 0 : C);
   scalar_t gcol_fixed[kCols];
   scalar_t* gcol = kChannels > 0 ? gcol_fixed : gcol_heap.data();
+  // rows past the last Gaussian any pixel blended get no gradient (isect_grads is not zeroed beforehand)
+  const int64_t end = bin.tile_offsets[tile + 1];
+  for (int64_t k = start + max_last; k < end; ++k) {
+    scalar_t* out = isect_grads + bin.isect_rows[k] * row;
+    std::fill(out, out + row, scalar_t(0));
+  }
   for (int64_t kk = max_last - 1; kk >= 0; --kk) {
     const int64_t k = start + kk;
+    if (kk >= kPrefetchAhead) gv.prefetch(bin.slots[k - kPrefetchAhead]);
     const int64_t slot = bin.slots[k];
     const scalar_t* gp = gv.at(slot);
     const scalar_t mx = gp[0], ca = gp[2], cb = gp[3], cc = gp[4], o = gp[5];
     const scalar_t* col = gv.color(slot);
-    scalar_t* out = isect_grads + k * row;
+    scalar_t* out = isect_grads + bin.isect_rows[k] * row;
     if constexpr (kVector) {
       const f32v zero = {};
       const i32v zero_i = {};
@@ -580,7 +640,10 @@ void backward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t
           l_my[q] = gate ? l_my[q] - (cb * dx + cc * dy) * v_sigma : l_my[q];
         }
       });
-      if (!touched) continue;  // isect_grads starts at zero
+      if (!touched) {
+        std::fill(out, out + row, 0.0f);
+        continue;
+      }
       out[0] = sum_lanes(l_mx);
       out[1] = sum_lanes(l_my);
       out[2] = sum_lanes(l_a);
@@ -651,8 +714,9 @@ void check_inputs(const at::Tensor& means2d, const at::Tensor& conics, const at:
 }  // namespace
 
 // Sorts by `depths`, bins and blends. Returns (image (H, W, C), transmittance (H, W), last (H, W) int32,
-//          tile_offsets, slots, order, gauss_offsets, gauss_isect) — the last five are saved for backward.
-// Tile t's Gaussians, front to back, are order[slots[tile_offsets[t] : tile_offsets[t + 1]]].
+//          tile_offsets, slots, order, slot_offsets, isect_rows, packed params (V, 8), packed colours (V, C)) — the
+//          last seven are saved for backward. Tile t's Gaussians, front to back, are
+//          order[slots[tile_offsets[t] : tile_offsets[t + 1]]].
 std::vector<at::Tensor> rasterize_forward(const at::Tensor& means2d, const at::Tensor& conics, const at::Tensor& colors,
                                           const at::Tensor& opacities, const at::Tensor& depths,
                                           const at::Tensor& extents, int64_t width, int64_t height,
@@ -661,22 +725,31 @@ std::vector<at::Tensor> rasterize_forward(const at::Tensor& means2d, const at::T
   TORCH_CHECK(depths.dim() == 1 && depths.size(0) == means2d.size(0) && depths.is_contiguous() &&
                   depths.scalar_type() == colors.scalar_type(),
               "depths must be a contiguous (N,) tensor of the colours' dtype");
+  auto _pt = std::chrono::steady_clock::now();
   const int64_t n = means2d.size(0), C = colors.size(1);
-  Binning bin = AT_DISPATCH_FLOATING_TYPES(colors.scalar_type(), "abcgs_bin_gaussians", [&] {
-    return bin_gaussians<scalar_t>(means2d.data_ptr<scalar_t>(), extents.data_ptr<scalar_t>(),
-                                   depths.data_ptr<scalar_t>(), n, width, height, tile_size);
+  at::Tensor order = AT_DISPATCH_FLOATING_TYPES(colors.scalar_type(), "abcgs_depth_order", [&] {
+    return depth_order<scalar_t>(depths.data_ptr<scalar_t>(), extents.data_ptr<scalar_t>(), n);
   });
+  PROF_T("fwd sort");
   auto opts = colors.options();
-  at::Tensor image = at::zeros({height, width, C}, opts);
-  at::Tensor trans = at::ones({height, width}, opts);
-  at::Tensor last = at::zeros({height, width}, at::kInt);
+  at::Tensor image = at::empty({height, width, C}, opts);
+  at::Tensor trans = at::empty({height, width}, opts);
+  at::Tensor last = at::empty({height, width}, at::kInt);
+  at::Tensor packed_params, packed_colors;
+  std::optional<Binning> binning;
   AT_DISPATCH_FLOATING_TYPES(colors.scalar_type(), "abcgs_rasterize_forward", [&] {
     const GaussianView<scalar_t> gv(means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(),
                                     colors.data_ptr<scalar_t>(), opacities.data_ptr<scalar_t>(),
-                                    extents.data_ptr<scalar_t>(), C, bin);
+                                    extents.data_ptr<scalar_t>(), C, order, opts);
+    PROF_T("fwd pack");
+    binning.emplace(bin_tiles(gv, order, width, height, tile_size));
+    const Binning& bin = *binning;
+    packed_params = gv.params_t;
+    packed_colors = gv.colors_t;
     scalar_t* im = image.data_ptr<scalar_t>();
     scalar_t* tr = trans.data_ptr<scalar_t>();
     int32_t* ls = last.data_ptr<int32_t>();
+    PROF_T("fwd bin");
     for_each_tile(bin.tiles_x * bin.tiles_y,
                   [&](int64_t t) {
                     // RGB and RGB + depth with the channel loops unrolled at compile time
@@ -685,7 +758,10 @@ std::vector<at::Tensor> rasterize_forward(const at::Tensor& means2d, const at::T
                     else forward_tile<scalar_t, 0>(gv, bin, t, width, height, tile_size, im, tr, ls);
                   });
   });
-  return {image, trans, last, bin.tile_offsets_t, bin.slots_t, bin.order_t, bin.gauss_offsets_t, bin.gauss_isect_t};
+  PROF_T("fwd tiles");
+  const Binning& bin = *binning;
+  return {image, trans, last, bin.tile_offsets_t, bin.slots_t, bin.order_t, bin.slot_offsets_t, bin.isect_rows_t,
+          packed_params, packed_colors};
 }
 
 // Returns (v_means2d (N, 2), v_conics (N, 3), v_colors (N, C), v_opacities (N)).
@@ -694,53 +770,74 @@ std::vector<at::Tensor> rasterize_backward(const at::Tensor& means2d, const at::
                                            const at::Tensor& extents, const at::Tensor& trans,
                                            const at::Tensor& last, const at::Tensor& tile_offsets,
                                            const at::Tensor& slots, const at::Tensor& order,
-                                           const at::Tensor& gauss_offsets,
-                                           const at::Tensor& gauss_isect, const at::Tensor& v_image,
-                                           const at::Tensor& v_alpha, int64_t width, int64_t height,
-                                           int64_t tile_size) {
+                                           const at::Tensor& slot_offsets, const at::Tensor& isect_rows,
+                                           const at::Tensor& packed_params, const at::Tensor& packed_colors,
+                                           const at::Tensor& v_image, const at::Tensor& v_alpha, int64_t width,
+                                           int64_t height, int64_t tile_size) {
   check_inputs(means2d, conics, colors, opacities, extents);
+  auto _pt = std::chrono::steady_clock::now();
   const int64_t n = means2d.size(0), C = colors.size(1), row = 6 + C;
-  Binning bin(tile_offsets, slots, order, gauss_offsets, gauss_isect, width, height, tile_size);
+  Binning bin(tile_offsets, slots, order, slot_offsets, isect_rows, width, height, tile_size);
   const int64_t m = bin.num_isects();
   auto opts = colors.options();
-  at::Tensor isect_grads = at::zeros({m, row}, opts);
+  at::Tensor isect_grads = at::empty({m, row}, opts);  // every row is written by its tile
   at::Tensor v_means2d = at::zeros({n, 2}, opts), v_conics = at::zeros({n, 3}, opts);
   at::Tensor v_colors = at::zeros({n, C}, opts), v_opac = at::zeros({n}, opts);
   at::Tensor vi = v_image.contiguous().to(colors.scalar_type());
   at::Tensor va = v_alpha.contiguous().to(colors.scalar_type());
   AT_DISPATCH_FLOATING_TYPES(colors.scalar_type(), "abcgs_rasterize_backward", [&] {
-    const GaussianView<scalar_t> gv(means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(),
-                                    colors.data_ptr<scalar_t>(), opacities.data_ptr<scalar_t>(),
-                                    extents.data_ptr<scalar_t>(), C, bin);
+    const GaussianView<scalar_t> gv(packed_params, packed_colors, bin);
     const scalar_t* tr = trans.data_ptr<scalar_t>();
     const int32_t* ls = last.data_ptr<int32_t>();
     const scalar_t* vip = vi.data_ptr<scalar_t>();
     const scalar_t* vap = va.data_ptr<scalar_t>();
     scalar_t* ig = isect_grads.data_ptr<scalar_t>();
+    PROF_T("bwd alloc+view");
     for_each_tile(bin.tiles_x * bin.tiles_y, [&](int64_t t) {
       if (C == 3) backward_tile<scalar_t, 3>(gv, bin, t, width, height, tile_size, tr, ls, vip, vap, ig);
       else if (C == 4) backward_tile<scalar_t, 4>(gv, bin, t, width, height, tile_size, tr, ls, vip, vap, ig);
       else backward_tile<scalar_t, 0>(gv, bin, t, width, height, tile_size, tr, ls, vip, vap, ig);
     });
+    PROF_T("bwd tiles");
     scalar_t* vm = v_means2d.data_ptr<scalar_t>();
     scalar_t* vc = v_conics.data_ptr<scalar_t>();
     scalar_t* vcol = v_colors.data_ptr<scalar_t>();
     scalar_t* vo = v_opac.data_ptr<scalar_t>();
-    abcgs::parallel_range(n, 2048, [&](int64_t begin, int64_t end) {
-      for (int64_t g = begin; g < end; ++g) {
-        for (int64_t j = bin.gauss_offsets[g]; j < bin.gauss_offsets[g + 1]; ++j) {
-          const scalar_t* r = ig + bin.gauss_isect[j] * row;
-          vm[2 * g] += r[0];
-          vm[2 * g + 1] += r[1];
-          vc[3 * g] += r[2];
-          vc[3 * g + 1] += r[3];
-          vc[3 * g + 2] += r[4];
-          vo[g] += r[5];
-          for (int64_t c = 0; c < C; ++c) vcol[g * C + c] += r[6 + c];
+    // each slot's rows (consecutive, in tile order) summed into its Gaussian's entries (one slot per Gaussian)
+    abcgs::parallel_range(bin.num_slots(), 4096, [&](int64_t begin, int64_t end) {
+      scalar_t acc[6 + 64];
+      for (int64_t k = begin; k < end; ++k) {
+        const int64_t g = bin.order[k], j0 = bin.slot_offsets[k], j1 = bin.slot_offsets[k + 1];
+        if (j0 == j1) continue;
+        if (C > 64) {
+          for (int64_t j = j0; j < j1; ++j) {
+            const scalar_t* r = ig + j * row;
+            vm[2 * g] += r[0];
+            vm[2 * g + 1] += r[1];
+            vc[3 * g] += r[2];
+            vc[3 * g + 1] += r[3];
+            vc[3 * g + 2] += r[4];
+            vo[g] += r[5];
+            for (int64_t c = 0; c < C; ++c) vcol[g * C + c] += r[6 + c];
+          }
+          continue;
         }
+        std::fill(acc, acc + row, scalar_t(0));
+        for (int64_t j = j0; j < j1; ++j) {
+          const scalar_t* r = ig + j * row;
+          for (int64_t i = 0; i < row; ++i) acc[i] += r[i];
+        }
+        vm[2 * g] = acc[0];
+        vm[2 * g + 1] = acc[1];
+        vc[3 * g] = acc[2];
+        vc[3 * g + 1] = acc[3];
+        vc[3 * g + 2] = acc[4];
+        vo[g] = acc[5];
+        for (int64_t c = 0; c < C; ++c) vcol[g * C + c] = acc[6 + c];
       }
     });
   });
+  PROF_T("bwd reduce");
   return {v_means2d, v_conics, v_colors, v_opac};
 }
 
@@ -752,6 +849,25 @@ std::vector<at::Tensor> project_backward(const at::Tensor& means, const at::Tens
                                          const at::Tensor& viewmat, const at::Tensor& K, int64_t width, int64_t height,
                                          double near, double far, double eps2d, const at::Tensor& v_means2d,
                                          const at::Tensor& v_conics, const at::Tensor& v_depths);
+
+// frozen_cpu.cpp
+std::vector<at::Tensor> blend_weights(const at::Tensor& means2d, const at::Tensor& conics, const at::Tensor& opacities,
+                                      const at::Tensor& depths, const at::Tensor& extents, int64_t width,
+                                      int64_t height, int64_t tile_size);
+at::Tensor frozen_blend_forward(const at::Tensor& tile_runs, const at::Tensor& run_group, const at::Tensor& run_entries,
+                                const at::Tensor& entry_pix, const at::Tensor& entry_w, const at::Tensor& colors,
+                                int64_t width, int64_t height, int64_t tile_size);
+at::Tensor frozen_blend_backward(const at::Tensor& tile_runs, const at::Tensor& run_group, const at::Tensor& run_entries,
+                                 const at::Tensor& entry_pix, const at::Tensor& entry_w, const at::Tensor& group_runs,
+                                 const at::Tensor& group_offsets, const at::Tensor& v_image, int64_t width,
+                                 int64_t height, int64_t tile_size);
+
+// sh_cpu.cpp
+at::Tensor sh_colors_forward(const at::Tensor& sh0, const at::Tensor& shN, const at::Tensor& means,
+                             const at::Tensor& campos, const at::Tensor& mask, int64_t degree);
+std::vector<at::Tensor> sh_colors_backward(const at::Tensor& sh0, const at::Tensor& shN, const at::Tensor& means,
+                                           const at::Tensor& campos, const at::Tensor& mask, int64_t degree,
+                                           const at::Tensor& v_colors, bool need_shN, bool need_means);
 
 // knn_cpu.cpp
 at::Tensor pair_dots(const at::Tensor& a, const at::Tensor& b, const at::Tensor& ia, const at::Tensor& ib);
@@ -770,6 +886,11 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("project_backward", &project_backward, "abcgs fused EWA projection backward (CPU)");
   m.def("rasterize_forward", &rasterize_forward, "abcgs tile rasterizer forward (CPU)");
   m.def("rasterize_backward", &rasterize_backward, "abcgs tile rasterizer backward (CPU)");
+  m.def("blend_weights", &blend_weights, "the per-pixel blending weights of a view, for frozen geometry (CPU)");
+  m.def("frozen_blend_forward", &frozen_blend_forward, "a view's recorded blending map applied to colours (CPU)");
+  m.def("frozen_blend_backward", &frozen_blend_backward, "the transpose of a view's recorded blending map (CPU)");
+  m.def("sh_colors_forward", &sh_colors_forward, "abcgs fused SH colours of the masked Gaussians (CPU)");
+  m.def("sh_colors_backward", &sh_colors_backward, "abcgs fused SH colours backward (CPU)");
   m.def("pair_dots", &pair_dots, "dot products of selected row pairs of two float32 matrices (CPU)");
   m.def("topk_columns", &topk_columns, "top-k of every column of a row-major matrix, one pass over rows (CPU)");
   m.def("topk_dots_both", &topk_dots_both,
