@@ -189,6 +189,11 @@ class GaussianModel:
         """A copy of the values without autograd history (new storage)."""
         return self.map(lambda t: t.detach().clone())
 
+    def released(self) -> GaussianModel:
+        """The values without autograd history, sharing this model's storage: what an optimisation returns once its
+        parameters are no longer used (no copy of the scene at the end of a pass)."""
+        return self.map(lambda t: t.detach())
+
     def to(self, device: torch.device | str) -> GaussianModel:
         return self.map(lambda t: t.to(device))
 

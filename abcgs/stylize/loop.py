@@ -102,6 +102,8 @@ class StylizeResult:
     seconds: float
     color_pass_seconds: float = 0.0
     projected_search: dict | None = None
+    color_timings: dict[str, float] = field(default_factory=dict)
+    """The colour pass's split (:func:`color_pass`)."""
 
     def record(self) -> dict:
         """The run's numbers for ``stylize.json``: wall time, per-iteration timings, FAST counters, size."""
@@ -361,8 +363,7 @@ def style_pass(
 ) -> tuple[GaussianModel, PassLog]:
     """The main stylization pass over random views: the optimised (detached) model and the pass's log. An object
     scene (``backdrop``) renders on its background and adds :func:`_object_terms`."""
-    start = model.detach()
-    start_scales, start_opacities = start.scales, start.opacities
+    start_scales, start_opacities = model.scales.detach(), model.opacities.detach()  # computed: new storage
     m = model.as_parameters()
     lrs = main_pass_lrs(params) | {"shN": higher_sh_lr(params, m)}
     opt = _optimizer(m, lrs)
@@ -408,7 +409,7 @@ def style_pass(
             record.steps.append(LoggedStep(step, time.perf_counter() - t_start, "main", float(loss.detach()), values))
             bar.set_postfix({k: f"{v:.4f}" for k, v in values.items()}, refresh=False)
     bar.close()
-    return m.detach(), record
+    return m.released(), record
 
 
 def _recolored_targets(
@@ -451,7 +452,7 @@ def color_pass(
     start_step: int = 0,
     progress: bool = True,
     backdrop: Backdrop = Backdrop(None),
-) -> tuple[GaussianModel, list[LoggedStep]]:
+) -> tuple[GaussianModel, list[LoggedStep], dict[str, float]]:
     """The authors' post-process: colour-match the re-rendered views to the style again, then re-fit.
 
     Every view is rendered, each group's covered pixels (alpha > 0.5) get the mean/covariance colour transform to its style
@@ -463,6 +464,7 @@ def color_pass(
     renders on its background, so its empty pixels are fitted to it. Returns the re-fitted (detached) model and the logged steps, numbered from
     ``start_step``.
     """
+    t_prepare = time.perf_counter()
     recolored, images = _recolored_targets(model, gaussian_labels, targets, groups, params, backdrop)
     m = recolored.as_parameters()
     lr_quats = params.optim.lr_quats if params.optim.color_pass_rotations and not params.color_only else 0.0
@@ -477,8 +479,10 @@ def color_pass(
     steps: list[LoggedStep] = []
     bar = progress_bar(range(iterations), "colour pass", enabled=progress)
     t_start = time.perf_counter()
+    timings = {"prepare_s": t_start - t_prepare, "record_steps": 0, "record_s": 0.0, "steps": 0, "steps_s": 0.0}
     for it in bar:
         i = next(views)
+        t_step, records = time.perf_counter(), replay is not None and i not in replay.views
         if replay is not None:
             img = replay.render(i, backdrop.color)
         else:
@@ -490,11 +494,14 @@ def color_pass(
         opt.step()
         if lr_quats > 0:
             _renormalize_quats(m, backdrop.gaussians)
+        prefix = "record_" if records else ""
+        timings[prefix + "steps"] += 1
+        timings[prefix + "s" if records else "steps_s"] += time.perf_counter() - t_step
         if it % params.compute.log_every == 0 or it == iterations - 1:
             steps.append(LoggedStep(start_step + it, time.perf_counter() - t_start, "color", float(terms.total.detach()),
                                     {"l1": float(terms.l1.detach())}))
     bar.close()
-    return m.detach(), steps
+    return m.released(), steps, timings
 
 
 def stylize(
@@ -542,15 +549,17 @@ def stylize(
     styled, main = style_pass(model, targets, groups, vgg, params, iterations=n_main, method=method, progress=progress,
                               backdrop=backdrop)
     history = list(main.steps)
-    t_cp = time.perf_counter()
+    t_cp, color_timings = time.perf_counter(), {}
     if n_color > 0:
-        styled, color_steps = color_pass(styled, gaussian_labels, targets, groups, params, iterations=n_color,
-                                         start_step=n_main, progress=progress, backdrop=backdrop)
+        styled, color_steps, color_timings = color_pass(styled, gaussian_labels, targets, groups, params,
+                                                        iterations=n_color, start_step=n_main, progress=progress,
+                                                        backdrop=backdrop)
         history += color_steps
     t_cp = time.perf_counter() - t_cp
     if params.preserve_color:
         styled = recolor_to_content(styled, model)
-    return StylizeResult(styled, history, main.timings, main.fast.as_dict(), time.perf_counter() - t0, t_cp)
+    return StylizeResult(styled, history, main.timings, main.fast.as_dict(), time.perf_counter() - t0, t_cp,
+                         color_timings=color_timings)
 
 
 def stylize_scene(

@@ -15,6 +15,10 @@ SH degree 3 on three textured walls and a cloud in between, 0.3–3 cm across in
 - ``export``: the stylized scene written back as the input's INRIA PLY and as ``.spz``;
 - ``preview``: the same stylization steps on :func:`abcgs.splats.preview.decimate` to ``--preview`` Gaussians.
 
+Each phase records its own peak resident memory (VmHWM, reset between phases) and the 1-minute load average
+after it: run it alone, the load changes the times several-fold. The colour pass runs with its geometry frozen
+(replayed blending maps, :mod:`abcgs.stylize.replay`) unless ``--color-pass-rotations``.
+
 Prints a table and, with ``--json``, writes the raw record.
 """
 
@@ -52,7 +56,33 @@ from abcgs.types import MatchingGroup
 
 
 def peak_rss_gib() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # Linux: KiB
+    """The process's peak resident memory since the last :func:`reset_peak_rss` (Linux: VmHWM), in GiB."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 2**20  # KiB
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # Linux: KiB, since the start
+
+
+def reset_peak_rss() -> None:
+    """Start a new peak (writing 5 to /proc/self/clear_refs resets VmHWM to the current resident size)."""
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+    except OSError:
+        pass
+
+
+def cpu_model() -> str:
+    """The CPU's model name (/proc/cpuinfo), else the platform's."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
 
 
 def synthesize(n: int, seed: int = 0) -> GaussianModel:
@@ -95,9 +125,12 @@ def main(argv=None) -> dict:
     ap.add_argument("--width", type=int, default=504)
     ap.add_argument("--height", type=int, default=378)
     ap.add_argument("--steps", type=int, default=3)
-    ap.add_argument("--color-steps", type=int, default=2)
+    ap.add_argument("--color-steps", type=int, default=8, help="colour-pass steps (more than --views, so that views are replayed)")
     ap.add_argument("--preview", type=int, default=300_000)
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--color-pass-rotations", action="store_true",
+                    help="re-fit rotations in the colour pass (stylize.optim.color_pass_rotations); by default its "
+                    "geometry is frozen and each view's blending map is replayed")
     ap.add_argument("--work", type=Path, default=None, help="scratch folder (default: a temporary one)")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
@@ -105,13 +138,17 @@ def main(argv=None) -> dict:
     work = args.work or Path(tempfile.mkdtemp(prefix="large_splat_"))
     work.mkdir(parents=True, exist_ok=True)
     rec: dict = {"n_gaussians": args.n, "sh_degree": 3, "views": args.views, "width": args.width, "height": args.height,
-                 "threads": args.threads, "cpus": os.cpu_count(), "machine": platform.processor() or platform.machine(),
+                 "threads": args.threads, "cpus": os.cpu_count(), "machine": cpu_model(),
+                 "color_pass_rotations": args.color_pass_rotations, "load_average_start": os.getloadavg(),
                  "phases": {}}
 
     def phase(name: str, seconds: float, **extra) -> None:
-        rec["phases"][name] = {"seconds": seconds, "peak_rss_gib": peak_rss_gib(), **extra}
-        print(f"{name:>28}: {seconds:8.1f} s   peak RSS {peak_rss_gib():5.2f} GiB  "
+        peak = peak_rss_gib()
+        rec["phases"][name] = {"seconds": seconds, "peak_rss_gib": peak, "load_average_1min": os.getloadavg()[0],
+                               **extra}
+        print(f"{name:>28}: {seconds:8.1f} s   peak RSS {peak:5.2f} GiB  load {os.getloadavg()[0]:4.1f}  "
               + " ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in extra.items()), flush=True)
+        reset_peak_rss()
 
     t = time.perf_counter()
     model = synthesize(args.n)
@@ -142,7 +179,8 @@ def main(argv=None) -> dict:
         feats = extract_features(vgg, style[None], ["relu3_1", "relu3_2", "relu3_3"])[0]
     pixels = style.permute(1, 2, 0).reshape(-1, 3).numpy()
     groups = [MatchingGroup(ALL_PIXELS, "style", pixels, feats.reshape(feats.shape[0], -1))]
-    sp = StylizeParams(optim=StylizeOptim(iterations=args.steps, color_pass_iterations=args.color_steps),
+    sp = StylizeParams(optim=StylizeOptim(iterations=args.steps, color_pass_iterations=args.color_steps,
+                                          color_pass_rotations=args.color_pass_rotations),
                        compute=StylizeCompute(log_every=1))
 
     def stylize_phase(name: str, m: GaussianModel) -> GaussianModel:
@@ -156,8 +194,11 @@ def main(argv=None) -> dict:
         main = sum(res.timings[k] for k in split)
         prepare = total - main - res.color_pass_seconds
         step = sum(split.values())
-        phase(name, total, main_step_s=step, color_step_s=res.color_pass_seconds / max(1, args.color_steps),
-              prepare_s=prepare, **{f"step_{k}_s": v for k, v in split.items()})
+        ct = res.color_timings
+        color = {"color_prepare_s": ct.get("prepare_s", 0.0),
+                 "color_record_step_s": ct.get("record_s", 0.0) / max(1, ct.get("record_steps", 0)),
+                 "color_step_s": ct.get("steps_s", 0.0) / max(1, ct.get("steps", 0))}
+        phase(name, total, main_step_s=step, prepare_s=prepare, **color, **{f"step_{k}_s": v for k, v in split.items()})
         return res.model
 
     styled = stylize_phase("stylize (full)", imported.model)

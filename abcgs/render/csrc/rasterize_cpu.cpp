@@ -39,9 +39,6 @@
 #include <optional>
 #include <type_traits>
 #include <vector>
-#include <chrono>
-#include <cstdio>
-#define PROF_T(name) do { if (std::getenv("ABCGS_PROF")) { auto _n = std::chrono::steady_clock::now(); std::fprintf(stderr, "  %s %.3f\n", name, std::chrono::duration<double>(_n - _pt).count()); _pt = _n; } } while (0)
 
 namespace {
 
@@ -315,7 +312,6 @@ constexpr int64_t kPrefetchAhead = 8;
 template <typename scalar_t>
 Binning bin_tiles(const GaussianView<scalar_t>& gv, const at::Tensor& order, int64_t width, int64_t height,
                   int64_t tile) {
-  auto _pt = std::chrono::steady_clock::now();
   const int64_t tiles_x = (width + tile - 1) / tile, tiles_y = (height + tile - 1) / tile;
   const int64_t n_tiles = tiles_x * tiles_y, n_vis = order.numel();
   at::Tensor slot_offsets = at::empty({n_vis + 1}, at::kLong);
@@ -341,8 +337,6 @@ Binning bin_tiles(const GaussianView<scalar_t>& gv, const at::Tensor& order, int
       for (int64_t tx = r[0]; tx <= r[2]; ++tx) toff[ty * tiles_x + tx + 1]++;
   }
   for (int64_t t = 0; t < n_tiles; ++t) toff[t + 1] += toff[t];
-  PROF_T("  boxes+count");
-  if (std::getenv("ABCGS_PROF")) std::fprintf(stderr, "  visible %ld isects %ld\n", (long)n_vis, (long)m);
   at::Tensor slots = at::empty({m}, at::kInt);
   at::Tensor isect_rows = at::empty({m}, at::kLong);
   int32_t* sl = slots.data_ptr<int32_t>();
@@ -359,7 +353,6 @@ Binning bin_tiles(const GaussianView<scalar_t>& gv, const at::Tensor& order, int
         ir[pos] = j++;
       }
   }
-  PROF_T("  scatter");
   return Binning(tile_offsets, slots, order, slot_offsets, isect_rows, width, height, tile);
 }
 
@@ -725,12 +718,10 @@ std::vector<at::Tensor> rasterize_forward(const at::Tensor& means2d, const at::T
   TORCH_CHECK(depths.dim() == 1 && depths.size(0) == means2d.size(0) && depths.is_contiguous() &&
                   depths.scalar_type() == colors.scalar_type(),
               "depths must be a contiguous (N,) tensor of the colours' dtype");
-  auto _pt = std::chrono::steady_clock::now();
   const int64_t n = means2d.size(0), C = colors.size(1);
   at::Tensor order = AT_DISPATCH_FLOATING_TYPES(colors.scalar_type(), "abcgs_depth_order", [&] {
     return depth_order<scalar_t>(depths.data_ptr<scalar_t>(), extents.data_ptr<scalar_t>(), n);
   });
-  PROF_T("fwd sort");
   auto opts = colors.options();
   at::Tensor image = at::empty({height, width, C}, opts);
   at::Tensor trans = at::empty({height, width}, opts);
@@ -741,7 +732,6 @@ std::vector<at::Tensor> rasterize_forward(const at::Tensor& means2d, const at::T
     const GaussianView<scalar_t> gv(means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(),
                                     colors.data_ptr<scalar_t>(), opacities.data_ptr<scalar_t>(),
                                     extents.data_ptr<scalar_t>(), C, order, opts);
-    PROF_T("fwd pack");
     binning.emplace(bin_tiles(gv, order, width, height, tile_size));
     const Binning& bin = *binning;
     packed_params = gv.params_t;
@@ -749,7 +739,6 @@ std::vector<at::Tensor> rasterize_forward(const at::Tensor& means2d, const at::T
     scalar_t* im = image.data_ptr<scalar_t>();
     scalar_t* tr = trans.data_ptr<scalar_t>();
     int32_t* ls = last.data_ptr<int32_t>();
-    PROF_T("fwd bin");
     for_each_tile(bin.tiles_x * bin.tiles_y,
                   [&](int64_t t) {
                     // RGB and RGB + depth with the channel loops unrolled at compile time
@@ -758,7 +747,6 @@ std::vector<at::Tensor> rasterize_forward(const at::Tensor& means2d, const at::T
                     else forward_tile<scalar_t, 0>(gv, bin, t, width, height, tile_size, im, tr, ls);
                   });
   });
-  PROF_T("fwd tiles");
   const Binning& bin = *binning;
   return {image, trans, last, bin.tile_offsets_t, bin.slots_t, bin.order_t, bin.slot_offsets_t, bin.isect_rows_t,
           packed_params, packed_colors};
@@ -775,7 +763,6 @@ std::vector<at::Tensor> rasterize_backward(const at::Tensor& means2d, const at::
                                            const at::Tensor& v_image, const at::Tensor& v_alpha, int64_t width,
                                            int64_t height, int64_t tile_size) {
   check_inputs(means2d, conics, colors, opacities, extents);
-  auto _pt = std::chrono::steady_clock::now();
   const int64_t n = means2d.size(0), C = colors.size(1), row = 6 + C;
   Binning bin(tile_offsets, slots, order, slot_offsets, isect_rows, width, height, tile_size);
   const int64_t m = bin.num_isects();
@@ -792,13 +779,11 @@ std::vector<at::Tensor> rasterize_backward(const at::Tensor& means2d, const at::
     const scalar_t* vip = vi.data_ptr<scalar_t>();
     const scalar_t* vap = va.data_ptr<scalar_t>();
     scalar_t* ig = isect_grads.data_ptr<scalar_t>();
-    PROF_T("bwd alloc+view");
     for_each_tile(bin.tiles_x * bin.tiles_y, [&](int64_t t) {
       if (C == 3) backward_tile<scalar_t, 3>(gv, bin, t, width, height, tile_size, tr, ls, vip, vap, ig);
       else if (C == 4) backward_tile<scalar_t, 4>(gv, bin, t, width, height, tile_size, tr, ls, vip, vap, ig);
       else backward_tile<scalar_t, 0>(gv, bin, t, width, height, tile_size, tr, ls, vip, vap, ig);
     });
-    PROF_T("bwd tiles");
     scalar_t* vm = v_means2d.data_ptr<scalar_t>();
     scalar_t* vc = v_conics.data_ptr<scalar_t>();
     scalar_t* vcol = v_colors.data_ptr<scalar_t>();
@@ -837,7 +822,6 @@ std::vector<at::Tensor> rasterize_backward(const at::Tensor& means2d, const at::
       }
     });
   });
-  PROF_T("bwd reduce");
   return {v_means2d, v_conics, v_colors, v_opac};
 }
 
