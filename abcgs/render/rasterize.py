@@ -18,8 +18,8 @@ import math
 import os
 import re
 import typing
-from collections.abc import Sequence
 import warnings
+from collections.abc import Sequence
 
 import torch
 from torch import Tensor

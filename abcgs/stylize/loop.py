@@ -364,8 +364,8 @@ def style_pass(
     """The main stylization pass over random views: the optimised (detached) model and the pass's log. An object
     scene (``backdrop``) renders on its background and adds :func:`_object_terms`."""
     start_scales, start_opacities = model.scales.detach(), model.opacities.detach()  # computed: new storage
-    m = model.as_parameters()
-    lrs = main_pass_lrs(params) | {"shN": higher_sh_lr(params, m)}
+    lrs = main_pass_lrs(params) | {"shN": higher_sh_lr(params, model)}
+    m = model.as_parameters(trainable=[k for k, lr in lrs.items() if lr > 0])
     opt = _optimizer(m, lrs)
     _keep_bands_above_1_zero(m, params)
     views = _random_views(len(targets), params.seed)
@@ -466,10 +466,11 @@ def color_pass(
     """
     t_prepare = time.perf_counter()
     recolored, images = _recolored_targets(model, gaussian_labels, targets, groups, params, backdrop)
-    m = recolored.as_parameters()
     lr_quats = params.optim.lr_quats if params.optim.color_pass_rotations and not params.color_only else 0.0
     lrs = {"sh0": params.optim.lr_sh0, "quats": lr_quats, "means": 0.0, "log_scales": 0.0, "opacity_logits": 0.0,
-           "shN": higher_sh_lr(params, m)}
+           "shN": higher_sh_lr(params, recolored)}
+    m = recolored.as_parameters(trainable=[k for k, lr in lrs.items() if lr > 0])
+    del recolored
     opt = _optimizer(m, lrs)
     _keep_bands_above_1_zero(m, params)
     replay = ReplayedViews(m, [t.camera for t in targets], params.compute.backend) if can_replay(

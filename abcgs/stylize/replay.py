@@ -9,8 +9,8 @@ as before. A replayed render equals the rasterizer's (``tests/test_render_frozen
 
 from __future__ import annotations
 
-from torch import Tensor
 import torch
+from torch import Tensor
 
 from abcgs.cameras import Camera
 from abcgs.gaussians import GaussianModel, render

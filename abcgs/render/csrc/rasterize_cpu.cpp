@@ -425,16 +425,16 @@ inline void store_v(void* p, const V& v) {
 // the box or the tile), a done pixel, or a blend that would take T to the stop threshold keep their values;
 // the last marks its pixel done. The same operations, in the same order per pixel, as blending one pixel at a
 // time. T, done, last and the colour planes (acc + c * stride) are read and written at 16 consecutive lanes.
-// Returns how many pixels stopped.
+// Returns how many pixels stopped; sets `blended` when a lane blended.
 template <int64_t kChannels>
 inline int64_t blend_chunk_f32(const float* alpha, float* T, int32_t* done, int32_t* last, float* acc, int64_t stride,
-                               int64_t channels, const float* col, int32_t order) {
+                               int64_t channels, const float* col, int32_t order, bool& blended) {
   const int64_t C = kChannels > 0 ? kChannels : channels;
   const i32v zero_i = {};
   const f32v zero_f = {};
   const i32v one_i = zero_i + 1, order_i = zero_i + order;
   const f32v one_f = zero_f + 1.0f;
-  alignas(64) float stop_lanes[kRowChunk];
+  alignas(64) float stop_lanes[kRowChunk], blend_lanes[kRowChunk];
   for (int64_t q = 0; q < kParts; ++q) {
     const int64_t off = q * kLanes;
     const f32v a = load_v<f32v>(alpha + off);
@@ -457,15 +457,18 @@ inline int64_t blend_chunk_f32(const float* alpha, float* T, int32_t* done, int3
       store_v(acc + c * stride + off, v);
     }
     store_v(stop_lanes + off, f32v(stop ? one_f : zero_f));
+    store_v(blend_lanes + off, f32v(blend ? one_f : zero_f));
   }
+  blended |= nonzero_lanes(blend_lanes) != 0;
   return __builtin_popcount(nonzero_lanes(stop_lanes));
 }
 
-// Forward pass for one tile. Writes image (H, W, C), transmittance (H, W) and, per pixel, the number
-// of tile-list entries up to and including the last Gaussian blended (0 = none).
+// Forward pass for one tile. Writes image (H, W, C), transmittance (H, W), per pixel the number of tile-list
+// entries up to and including the last Gaussian blended (0 = none), and per intersection whether its Gaussian
+// blended any pixel of the tile (`blended`, the backward pass skips the others: their gradient is 0).
 template <typename scalar_t, int64_t kChannels>
 void forward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t tile, int64_t width, int64_t height,
-                  int64_t tile_size, scalar_t* image, scalar_t* trans, int32_t* last) {
+                  int64_t tile_size, scalar_t* image, scalar_t* trans, int32_t* last, uint8_t* blended) {
   const int64_t C = kChannels > 0 ? kChannels : gv.channels;
   const int64_t tx = tile % bin.tiles_x, ty = tile / bin.tiles_x;
   const int64_t x0 = tx * tile_size, y0 = ty * tile_size;
@@ -489,12 +492,13 @@ void forward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t 
     scalar_t col[kChannels > 0 ? kChannels : 1];
     if constexpr (kChannels > 0) std::copy(colp, colp + C, col);
     const int32_t order = static_cast<int32_t>(k - start + 1);
+    bool any = false;
     for_each_covered_row<false>(gv, slot, x0, x1, y0, y1, tw,
                                 [&](int64_t p0, int64_t, scalar_t, uint32_t, const scalar_t* __restrict alpha,
                                     const scalar_t*, const scalar_t*) {
       if constexpr (std::is_same_v<scalar_t, float>) {
         remaining -= blend_chunk_f32<kChannels>(alpha, T.data() + p0, done.data() + p0, lst.data() + p0,
-                                                acc.data() + p0, stride, C, kChannels > 0 ? col : colp, order);
+                                                acc.data() + p0, stride, C, kChannels > 0 ? col : colp, order, any);
       } else {
         for (int64_t i = 0; i < kRowChunk; ++i) {
           const int64_t p = p0 + i;
@@ -510,9 +514,11 @@ void forward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t 
           for (int64_t c = 0; c < C; ++c) acc[c * stride + p] += w * colp[c];
           T[p] = next_T;
           lst[p] = order;
+          any = true;
         }
       }
     });
+    blended[k] = any;
   }
   for (int64_t y = y0; y < y1; ++y)
     for (int64_t x = x0; x < x1; ++x) {
@@ -544,7 +550,8 @@ inline float sum_lanes(const f32v (&v)[kParts]) {
 template <typename scalar_t, int64_t kChannels>
 void backward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t tile, int64_t width,
                    int64_t height, int64_t tile_size, const scalar_t* trans, const int32_t* last,
-                   const scalar_t* v_image, const scalar_t* v_alpha, scalar_t* isect_grads) {
+                   const scalar_t* v_image, const scalar_t* v_alpha, const uint8_t* blended,
+                   scalar_t* isect_grads) {
   constexpr bool kVector = std::is_same_v<scalar_t, float> && kChannels > 0;
   const int64_t C = kChannels > 0 ? kChannels : gv.channels, row = 6 + C;
   const int64_t tx = tile % bin.tiles_x, ty = tile / bin.tiles_x;
@@ -579,6 +586,11 @@ void backward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t
   for (int64_t kk = max_last - 1; kk >= 0; --kk) {
     const int64_t k = start + kk;
     if (kk >= kPrefetchAhead) gv.prefetch(bin.slots[k - kPrefetchAhead]);
+    if (!blended[k]) {
+      scalar_t* out = isect_grads + bin.isect_rows[k] * row;
+      std::fill(out, out + row, scalar_t(0));
+      continue;
+    }
     const int64_t slot = bin.slots[k];
     const scalar_t* gp = gv.at(slot);
     const scalar_t mx = gp[0], ca = gp[2], cb = gp[3], cc = gp[4], o = gp[5];
@@ -707,8 +719,8 @@ void check_inputs(const at::Tensor& means2d, const at::Tensor& conics, const at:
 }  // namespace
 
 // Sorts by `depths`, bins and blends. Returns (image (H, W, C), transmittance (H, W), last (H, W) int32,
-//          tile_offsets, slots, order, slot_offsets, isect_rows, packed params (V, 8), packed colours (V, C)) — the
-//          last seven are saved for backward. Tile t's Gaussians, front to back, are
+//          tile_offsets, slots, order, slot_offsets, isect_rows, packed params (V, 8), packed colours (V, C),
+//          blended (M) uint8) — the last eight are saved for backward. Tile t's Gaussians, front to back, are
 //          order[slots[tile_offsets[t] : tile_offsets[t + 1]]].
 std::vector<at::Tensor> rasterize_forward(const at::Tensor& means2d, const at::Tensor& conics, const at::Tensor& colors,
                                           const at::Tensor& opacities, const at::Tensor& depths,
@@ -726,7 +738,7 @@ std::vector<at::Tensor> rasterize_forward(const at::Tensor& means2d, const at::T
   at::Tensor image = at::empty({height, width, C}, opts);
   at::Tensor trans = at::empty({height, width}, opts);
   at::Tensor last = at::empty({height, width}, at::kInt);
-  at::Tensor packed_params, packed_colors;
+  at::Tensor packed_params, packed_colors, blended;
   std::optional<Binning> binning;
   AT_DISPATCH_FLOATING_TYPES(colors.scalar_type(), "abcgs_rasterize_forward", [&] {
     const GaussianView<scalar_t> gv(means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(),
@@ -734,6 +746,8 @@ std::vector<at::Tensor> rasterize_forward(const at::Tensor& means2d, const at::T
                                     extents.data_ptr<scalar_t>(), C, order, opts);
     binning.emplace(bin_tiles(gv, order, width, height, tile_size));
     const Binning& bin = *binning;
+    blended = at::zeros({bin.num_isects()}, at::kByte);
+    uint8_t* bl = blended.data_ptr<uint8_t>();
     packed_params = gv.params_t;
     packed_colors = gv.colors_t;
     scalar_t* im = image.data_ptr<scalar_t>();
@@ -742,14 +756,14 @@ std::vector<at::Tensor> rasterize_forward(const at::Tensor& means2d, const at::T
     for_each_tile(bin.tiles_x * bin.tiles_y,
                   [&](int64_t t) {
                     // RGB and RGB + depth with the channel loops unrolled at compile time
-                    if (C == 3) forward_tile<scalar_t, 3>(gv, bin, t, width, height, tile_size, im, tr, ls);
-                    else if (C == 4) forward_tile<scalar_t, 4>(gv, bin, t, width, height, tile_size, im, tr, ls);
-                    else forward_tile<scalar_t, 0>(gv, bin, t, width, height, tile_size, im, tr, ls);
+                    if (C == 3) forward_tile<scalar_t, 3>(gv, bin, t, width, height, tile_size, im, tr, ls, bl);
+                    else if (C == 4) forward_tile<scalar_t, 4>(gv, bin, t, width, height, tile_size, im, tr, ls, bl);
+                    else forward_tile<scalar_t, 0>(gv, bin, t, width, height, tile_size, im, tr, ls, bl);
                   });
   });
   const Binning& bin = *binning;
   return {image, trans, last, bin.tile_offsets_t, bin.slots_t, bin.order_t, bin.slot_offsets_t, bin.isect_rows_t,
-          packed_params, packed_colors};
+          packed_params, packed_colors, blended};
 }
 
 // Returns (v_means2d (N, 2), v_conics (N, 3), v_colors (N, C), v_opacities (N)).
@@ -760,8 +774,9 @@ std::vector<at::Tensor> rasterize_backward(const at::Tensor& means2d, const at::
                                            const at::Tensor& slots, const at::Tensor& order,
                                            const at::Tensor& slot_offsets, const at::Tensor& isect_rows,
                                            const at::Tensor& packed_params, const at::Tensor& packed_colors,
-                                           const at::Tensor& v_image, const at::Tensor& v_alpha, int64_t width,
-                                           int64_t height, int64_t tile_size) {
+                                           const at::Tensor& blended, const at::Tensor& v_image,
+                                           const at::Tensor& v_alpha, int64_t width, int64_t height,
+                                           int64_t tile_size) {
   check_inputs(means2d, conics, colors, opacities, extents);
   const int64_t n = means2d.size(0), C = colors.size(1), row = 6 + C;
   Binning bin(tile_offsets, slots, order, slot_offsets, isect_rows, width, height, tile_size);
@@ -779,10 +794,13 @@ std::vector<at::Tensor> rasterize_backward(const at::Tensor& means2d, const at::
     const scalar_t* vip = vi.data_ptr<scalar_t>();
     const scalar_t* vap = va.data_ptr<scalar_t>();
     scalar_t* ig = isect_grads.data_ptr<scalar_t>();
+    TORCH_CHECK(blended.scalar_type() == at::kByte && blended.numel() == m && blended.is_contiguous(),
+                "rasterize_backward: the forward pass's blend flags do not match the binning");
+    const uint8_t* bl = blended.data_ptr<uint8_t>();
     for_each_tile(bin.tiles_x * bin.tiles_y, [&](int64_t t) {
-      if (C == 3) backward_tile<scalar_t, 3>(gv, bin, t, width, height, tile_size, tr, ls, vip, vap, ig);
-      else if (C == 4) backward_tile<scalar_t, 4>(gv, bin, t, width, height, tile_size, tr, ls, vip, vap, ig);
-      else backward_tile<scalar_t, 0>(gv, bin, t, width, height, tile_size, tr, ls, vip, vap, ig);
+      if (C == 3) backward_tile<scalar_t, 3>(gv, bin, t, width, height, tile_size, tr, ls, vip, vap, bl, ig);
+      else if (C == 4) backward_tile<scalar_t, 4>(gv, bin, t, width, height, tile_size, tr, ls, vip, vap, bl, ig);
+      else backward_tile<scalar_t, 0>(gv, bin, t, width, height, tile_size, tr, ls, vip, vap, bl, ig);
     });
     scalar_t* vm = v_means2d.data_ptr<scalar_t>();
     scalar_t* vc = v_conics.data_ptr<scalar_t>();
