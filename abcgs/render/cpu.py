@@ -202,11 +202,27 @@ class _RasterizeCPU(torch.autograd.Function):
             v_image = torch.zeros(height, width, colors.shape[1], dtype=colors.dtype)
         if v_alpha is None:
             v_alpha = torch.zeros(height, width, dtype=colors.dtype)
+        rows = binning[1].numel() * (6 + colors.shape[1])
         vm, vc, vcol, vo = ext.rasterize_backward(
             means2d, conics, colors, opacities, extents, trans, last, *binning,
-            v_image.contiguous(), v_alpha.contiguous(), width, height, tile_size,
+            v_image.contiguous(), v_alpha.contiguous(), width, height, tile_size, _scratch(rows, colors.dtype),
         )
         return vm, vc, vcol, vo, None, None, None, None, None
+
+
+_scratch_local = threading.local()
+
+
+def _scratch(numel: int, dtype: torch.dtype) -> Tensor:
+    """This thread's buffer for the backward pass's per-intersection gradient rows, grown to ``numel`` values and
+    kept between calls: a 3 M-Gaussian view has about 8 M intersections, and a fresh buffer of that size per step
+    costs its page faults (docs/SCALING.md, "Large splats")."""
+    buf = getattr(_scratch_local, "buffer", None)
+    if buf is None or buf.dtype != dtype or buf.numel() < numel:
+        _scratch_local.buffer = None  # the old one goes before the new one is allocated
+        buf = torch.empty(int(numel * 1.25) + 1024, dtype=dtype)
+        _scratch_local.buffer = buf
+    return buf
 
 
 class _ProjectCPU(torch.autograd.Function):

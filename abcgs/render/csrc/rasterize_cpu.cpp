@@ -776,13 +776,18 @@ std::vector<at::Tensor> rasterize_backward(const at::Tensor& means2d, const at::
                                            const at::Tensor& packed_params, const at::Tensor& packed_colors,
                                            const at::Tensor& blended, const at::Tensor& v_image,
                                            const at::Tensor& v_alpha, int64_t width, int64_t height,
-                                           int64_t tile_size) {
+                                           int64_t tile_size, const at::Tensor& scratch) {
   check_inputs(means2d, conics, colors, opacities, extents);
   const int64_t n = means2d.size(0), C = colors.size(1), row = 6 + C;
   Binning bin(tile_offsets, slots, order, slot_offsets, isect_rows, width, height, tile_size);
   const int64_t m = bin.num_isects();
   auto opts = colors.options();
-  at::Tensor isect_grads = at::empty({m, row}, opts);  // every row is written by its tile
+  // every row is written by its tile; a large enough `scratch` (float, the caller's, kept between calls) saves
+  // the allocation and the page faults of a fresh buffer of M x (6 + C) values per call
+  at::Tensor isect_grads = scratch.scalar_type() == colors.scalar_type() && scratch.is_contiguous() &&
+                                   scratch.numel() >= m * row
+                               ? scratch.view({-1}).narrow(0, 0, m * row).view({m, row})
+                               : at::empty({m, row}, opts);
   at::Tensor v_means2d = at::zeros({n, 2}, opts), v_conics = at::zeros({n, 3}, opts);
   at::Tensor v_colors = at::zeros({n, C}, opts), v_opac = at::zeros({n}, opts);
   at::Tensor vi = v_image.contiguous().to(colors.scalar_type());
