@@ -9,8 +9,11 @@
   layout every later stage reads, with points triangulated from the given poses where the dataset has none).
 
 This package's ``__init__`` imports only the light modules (the contract and detection): :mod:`abcgs.preflight`,
-which every stage imports, detects formats, and must not depend on the readers.
+which every stage imports, detects formats, and must not depend on the readers. It loads OpenCV first because
+three readers import pycolmap (the import-order hazard in :mod:`abcgs.sfm`).
 """
+
+import cv2  # noqa: F401  (must be loaded before pycolmap, see abcgs/sfm/__init__.py)
 
 from abcgs.sources.base import FORMATS, SourceScene, SourceView
 from abcgs.sources.detect import detect_format

@@ -17,6 +17,10 @@ from pathlib import Path
 
 import cv2
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
 from abcgs.io.atomic import write_text
 from abcgs.io.images import save_image
 from abcgs.io.ply import read_ply
