@@ -168,7 +168,7 @@ def scene_entry(name: str, path: str | os.PathLike, *, fmt: str = "auto", images
         lines = describe_photos(name, folder, images, max_view_size_ratio)
     elif resolved == "splat":
         from abcgs.sources.detect import splat_file
-        from abcgs.splats.formats import read_splat
+        from abcgs.splats.registry import read_splat
 
         model = read_splat(splat_file(folder), splat_format, drop_invalid=drop).model
         lines = [f"a bare splat scene: {folder}, {model.num_gaussians} Gaussians of SH degree {model.sh_degree} "
@@ -197,7 +197,7 @@ def _splat_check(splat: Path, source: SourceScene | None, min_psnr: float, fmt: 
     """The fit stage's render-versus-photo check of a trained splat (:func:`abcgs.splats.validate.check_splat`), run
     now where the dataset has undistorted cameras; raises :class:`InputError` naming the likely cause when it fails."""
     from abcgs.sfm.model import SceneData
-    from abcgs.splats.formats import read_splat
+    from abcgs.splats.registry import read_splat
     from abcgs.splats.validate import check_splat
 
     plain = [v for v in source.views if v.distortion is None] if source is not None else []

@@ -90,8 +90,14 @@ def _imported_modules(tree: ast.AST, current: str | None) -> Iterable[str]:
                 yield f"{base}.{alias.name}"
         elif (isinstance(node, ast.Call) and getattr(node.func, "attr", getattr(node.func, "id", None)) == "import_module"
               and node.args and isinstance(node.args[0], ast.JoinedStr) and current):
-            # import_module(f"abcgs.pkg.{name}"): any module of that package
-            yield f"{current.rsplit('.', 1)[0]}.*" if current.count(".") else f"{current}.*"
+            # import_module(f"abcgs.pkg.{name}"): any module of the package the f-string names (else of the
+            # importing module's own package)
+            head = node.args[0].values[0] if node.args[0].values else None
+            prefix = head.value if isinstance(head, ast.Constant) and isinstance(head.value, str) else ""
+            if prefix.startswith(f"{PACKAGE}.") and prefix.endswith(".") and prefix.count(".") >= 2:
+                yield f"{prefix[:-1]}.*"
+            else:
+                yield f"{current.rsplit('.', 1)[0]}.*" if current.count(".") else f"{current}.*"
 
 
 def import_closure(script: Path, root: Path, also: Iterable[str] = ()) -> set[Path]:

@@ -55,7 +55,8 @@ SceneFormat = Literal["photos", "colmap", "nerfstudio", "blender", "llff", "spla
 (NeRF-synthetic), ``llff`` = ``poses_bounds.npy``, ``splat`` = only a splat file (cameras generated around it)."""
 
 SplatFormat = Literal["inria", "ply", "splatfacto", "gsplat_ckpt", "gsplat_ply", "opensplat", "supersplat", "splat", "spz"]
-"""A trained splat's file format (:mod:`abcgs.splats.formats`)."""
+"""A built-in trained splat file format, one module each of :mod:`abcgs.splats.formats` (tests/test_splats.py checks
+that the two agree)."""
 
 FlowMethod = Literal["auto", "raft", "dis", "deepflow", "dualtvl1"]
 """Optical flow of the consistency metrics (:mod:`abcgs.evaluation.consistency`): torchvision's RAFT, OpenCV's

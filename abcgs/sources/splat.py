@@ -20,8 +20,8 @@ from abcgs.io.images import save_image
 from abcgs.render import sh0_to_rgb
 from abcgs.sources.base import SourceScene, SourceView
 from abcgs.splats.cameras import cameras_around
-from abcgs.splats.formats import read_splat
 from abcgs.splats.params import SplatViewsParams
+from abcgs.splats.registry import read_splat
 from abcgs.types import Backend
 
 MAX_POINTS = 100_000

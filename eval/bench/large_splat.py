@@ -43,10 +43,10 @@ from abcgs.gaussians import GaussianModel, render
 from abcgs.io.atomic import write_json
 from abcgs.io.images import save_image
 from abcgs.io.ply import write_ply
-from abcgs.io.spz import write_spz
 from abcgs.sfm.model import SceneData
-from abcgs.splats.formats import read_splat, write_splat
+from abcgs.splats.formats.spz import write_spz
 from abcgs.splats.preview import decimate
+from abcgs.splats.registry import read_splat, write_splat
 from abcgs.splats.validate import check_splat
 from abcgs.stylize.loop import stylize
 from abcgs.stylize.params import StylizeCompute, StylizeOptim, StylizeParams

@@ -40,7 +40,7 @@ FLOORS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "abcgs.runtime",
         "abcgs.io", "abcgs.io.atomic", "abcgs.io.digest", "abcgs.io.images", "abcgs.io.metrics", "abcgs.io.tables",
     )),
-    ("rendering", ("abcgs.render", "abcgs.gaussians", "abcgs.io.ply", "abcgs.io.spz", "abcgs.viz",
+    ("rendering", ("abcgs.render", "abcgs.gaussians", "abcgs.io.ply", "abcgs.viz",
                    "abcgs.camera_paths", "abcgs.silhouette")),
     ("scenes and features", ("abcgs.sfm", "abcgs.scene", "abcgs.layout", "abcgs.features")),
     ("losses", ("abcgs.losses",)),
