@@ -5,7 +5,7 @@ auto-detection), ``read`` (the file's Gaussians in the file's own frame and what
 ``frame`` (the similarity from the scene's frame to the file's) and ``write`` (Gaussians in the file's frame back to
 the file). :mod:`abcgs.splats.registry` finds the modules, picks the format of a path and moves the Gaussians between
 the file's frame and the scene's. A file of bytes is read with :func:`read_bytes` (one existence and type check) and
-written with :func:`abcgs.io.atomic.write_bytes` (atomic).
+written with :func:`abcgs.io.atomic.write_stream` or its :func:`~abcgs.io.atomic.write_bytes` (atomic).
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ import torch
 
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
-from abcgs.io.atomic import write_bytes
+from abcgs.io.atomic import write_stream
 from abcgs.sfm.align import Similarity
 from abcgs.splats import frames
 from abcgs.splats.contract import SplatFormatSpec, SplatProvenance, needs_scene, read_bytes
@@ -54,9 +54,7 @@ def write_gsplat_ckpt(path: str | os.PathLike, model: GaussianModel, step: int |
     """Write ``model`` as a gsplat checkpoint (gsplat's ``--ckpt`` loads it for rendering and evaluation)."""
     inverse = {v: k for k, v in FIELDS.items()}
     splats = {inverse[name]: t.detach().to("cpu", torch.float32).contiguous() for name, t in model.items()}
-    buf = io.BytesIO()
-    torch.save({"step": int(step or 0), "splats": splats}, buf)
-    write_bytes(path, buf.getvalue())
+    write_stream(path, lambda fh: torch.save({"step": int(step or 0), "splats": splats}, fh))
 
 
 def _read(path: Path, drop_invalid: bool) -> tuple[GaussianModel, dict]:

@@ -17,7 +17,6 @@ Gaussians are written in Morton order of their positions (what SuperSplat does),
 
 from __future__ import annotations
 
-import io
 import os
 from pathlib import Path
 
@@ -27,7 +26,7 @@ from plyfile import PlyData, PlyElement
 
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
-from abcgs.io.atomic import write_bytes
+from abcgs.io.atomic import write_stream
 from abcgs.render.sh import C0
 from abcgs.splats.contract import SplatFormatSpec, SplatProvenance
 from abcgs.splats.formats.ply import is_compressed_ply, is_ply
@@ -125,9 +124,7 @@ def encode_compressed_ply(model: GaussianModel) -> tuple[PlyData, np.ndarray]:
 def write_compressed_ply(path: str | os.PathLike, model: GaussianModel) -> int:
     """Write ``model`` as a compressed PLY, atomically; returns the file size in bytes."""
     data, _ = encode_compressed_ply(model)
-    buf = io.BytesIO()
-    data.write(buf)
-    return write_bytes(path, buf.getvalue())
+    return write_stream(path, data.write)
 
 
 def _bits(v: np.ndarray, shift: int, bits: int) -> np.ndarray:
