@@ -36,7 +36,7 @@ from abcgs.sources.base import SourceScene
 from abcgs.sources.detect import DEFAULT_IMAGES, image_files
 from abcgs.sources.lens import consistent_scale, image_size
 from abcgs.sources.params import SceneParams, scene_name_problem
-from abcgs.sources.read import MARKER, read_source, resolve_format
+from abcgs.sources.read import marker, read_source, resolve_format
 
 MIN_PHOTOS = 3
 """Structure from motion needs at least this many overlapping photos (as :mod:`abcgs.sfm.colmap`)."""
@@ -52,7 +52,7 @@ def describe_source(scene: SourceScene, folder: Path) -> list[str]:
     lens = Counter(v.distortion.model if v.distortion else "pinhole" for v in scene.views)
     folders = Counter(str(v.image_path.parent.relative_to(folder)) if v.image_path.is_relative_to(folder)
                       else str(v.image_path.parent) for v in scene.views)
-    lines = [f"{len(scene.views)} views with cameras from {MARKER[scene.format]}, "
+    lines = [f"{len(scene.views)} views with cameras from {marker(scene.format)}, "
              f"{_sizes([(v.camera.width, v.camera.height) for v in scene.views])} pixels, in "
              f"{', '.join(f + '/' for f in folders)}; lens: {', '.join(f'{m} ({n})' for m, n in lens.items())}"]
     if scene.points is not None:

@@ -16,12 +16,10 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Literal, Protocol
 
 if TYPE_CHECKING:  # annotations only: reading params.yaml (the schema modules use this one) loads no torch
-    from pathlib import Path
 
     import numpy as np
     from torch import Tensor
 
-    from abcgs.cameras import Camera
 
 # ------------------------------------------------------------------------------------------------ modes
 Backend = Literal["auto", "reference", "cpu", "gsplat"]
@@ -64,19 +62,6 @@ DIS, DeepFlow or Dual TV-L1; ``auto`` = RAFT when its weights are on disk, else 
 
 
 # ------------------------------------------------------------------------------------------------ interfaces
-class SceneLike(Protocol):
-    """A captured scene as fitting reads it (:class:`abcgs.sfm.model.SceneData` is one)."""
-
-    cameras: list[Camera]
-    """One per view, at the photos' full resolution."""
-    image_paths: list[Path]
-    """The photos, in the order of ``cameras``."""
-    points: np.ndarray
-    """``(P, 3) float``: the sparse point cloud the Gaussians start from (world units)."""
-    colors: np.ndarray
-    """``(P, 3) float``: the points' RGB in [0, 1]."""
-
-
 class FlowEstimatorLike(Protocol):
     """Dense optical flow between two renders (:func:`abcgs.evaluation.consistency.make_flow_estimator`)."""
 

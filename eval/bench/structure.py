@@ -213,13 +213,40 @@ def measure(root: Path, top: int = 10) -> dict:
     }
 
 
+ROWS = (("modules", "modules under abcgs/"), ("lines", "lines under abcgs/"),
+        ("packages", "units (sub-packages and top-level modules)"), ("import_arrows", "import arrows between units"),
+        ("upward_imports", "imports up the floors (by module)"),
+        ("upward_imports_by_package", "imports up the floors (by package)"),
+        ("mutual_pairs", "unit pairs importing each other"), ("side_effect_imports", "`import abcgs  # noqa: F401`"),
+        ("functions_over_80_lines", "functions over 80 lines"), ("dvc_yaml_lines", "dvc.yaml lines"),
+        ("core_pins_dvc_minor", "core package pins DVC's minor version"))
+
+
+def markdown(record: dict, labels: list[str]) -> str:
+    """A table of the stored numbers, one column per label, and the longest functions of each."""
+    def cell(v):
+        return str(len(v)) if isinstance(v, list) else ("yes" if v is True else "no" if v is False else str(v))
+
+    lines = ["| | " + " | ".join(labels) + " |", "| --- |" + " ---: |" * len(labels)]
+    lines += [f"| {text} | " + " | ".join(cell(record[lb].get(key)) for lb in labels) + " |" for key, text in ROWS]
+    for lb in labels:
+        longest = ", ".join(f"`{f['function'].split(':')[-1]}` {f['lines']}" for f in record[lb]["longest_functions"][:5])
+        lines.append(f"\nLongest functions ({lb}): {longest}.")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m eval.bench.structure", description=__doc__.splitlines()[0])
     ap.add_argument("--root", type=Path, default=Path("."), help="the tree to measure (default: here)")
     ap.add_argument("--json", type=Path, help="store the numbers in this file under --label")
     ap.add_argument("--label", default="now", help="the key the numbers are stored under (before, after, …)")
     ap.add_argument("--top", type=int, default=10, help="how many of the longest functions to list")
+    ap.add_argument("--markdown", nargs="+", metavar="LABEL",
+                    help="print the numbers stored in --json under these labels as a markdown table; measure nothing")
     args = ap.parse_args(argv)
+    if args.markdown:
+        print(markdown(json.loads(args.json.read_text()), args.markdown))
+        return 0
     numbers = measure(args.root, args.top)
     if args.json:
         record = json.loads(args.json.read_text()) if args.json.is_file() else {}
