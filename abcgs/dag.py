@@ -6,9 +6,13 @@ abcgs.dag`` prints each stage's code deps. A stage's code deps are the files it 
 
 :func:`import_closure` follows a stage script's imports through the project's own modules (``abcgs``; every
 ``import`` statement anywhere in a module, including the ones inside functions), adds each imported package's
-``__init__.py`` (Python runs it first), and the non-Python files the code loads at run time
+``__init__.py`` (Python runs it first), every module of a package that ``importlib.import_module(f"abcgs.pkg.{name}")``
+may load (a registry's discovery: the splat formats), and the non-Python files the code loads at run time
 (:data:`DATA_FILES`: the C++ kernels' sources, the viewer bundle). :func:`missing_deps` compares it with the deps a
-stage declares. A stage validates only the params sections it reads, importing their models by name
+stage declares, :func:`excess_deps` the other way round; :func:`minimal_deps` writes a package as one folder dep where
+the stage runs every file of it, and ``dvc.yaml`` lists a stage's deps one package a line (:func:`grouped_flow`).
+
+A stage validates only the params sections it reads, importing their models by name
 (:data:`abcgs.sections.SECTIONS`); :func:`stage_closure` adds those modules (and what they import), and nothing of
 the other sections, so editing one section's settings module re-runs only the stages that read that section.
 """
