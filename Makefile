@@ -37,7 +37,7 @@ $(STAMP): pyproject.toml setup.py abcgs/render/kernel_variants.py $(wildcard abc
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q $(TORCH_SPEC) "setuptools>=70.1" "ninja>=1.11" "uv>=0.5"
 	$(BIN)/python -c "from importlib.metadata import version; print('torch==' + version('torch'))" > $(VENV)/torch-pin.txt
-	$(UV) --constraint $(VENV)/torch-pin.txt --no-build-isolation --reinstall-package abcgs -e ".[test]"
+	$(UV) --constraint $(VENV)/torch-pin.txt --no-build-isolation --reinstall-package abcgs -e ".[test,cluster]"
 	$(UV) --no-deps $(WEIGHT_CARRIERS)
 	@$(BIN)/python -c "import sys, abcgs.render.cpu as c; sys.exit(0 if c.report() else 1)" \
 	  || echo "warning: the C++ kernels are not usable (reason above); rendering falls back to the slow reference backend"

@@ -1,37 +1,30 @@
 """abcgs — ABC-GS (alignment-based controllable style transfer for 3D Gaussian Splatting).
 
-The library is organised one module per concept:
+Importing abcgs changes nothing in the process: a program calls :func:`abcgs.runtime.setup` before it imports torch
+(OpenMP's wait policy, OpenCV before pycolmap). The package, floor by floor (lowest first):
 
-- :mod:`abcgs.types`    — the modes (``Literal``) and interfaces (``Protocol``) shared across packages.
-- :mod:`abcgs.params`   — the ``params.yaml`` schema (pydantic) and its loader.
-- :mod:`abcgs.dotted`   — dotted params keys (``stylize.fast.k``) and DVC's ``${...}`` interpolation.
-- :mod:`abcgs.io`       — atomic writes, image loading, INRIA-layout PLY.
-- :mod:`abcgs.cameras`  — pinhole cameras and COLMAP-model reading.
-- :mod:`abcgs.render`   — the differentiable Gaussian rasterizer (reference, fast CPU, gsplat backends).
-- :mod:`abcgs.sfm`      — structure from motion through pycolmap.
-- :mod:`abcgs.scene`    — the embedded synthetic default scene.
-- :mod:`abcgs.fit`      — baseline 3DGS fitting (views, losses, densification strategies, training loop, evaluation).
-- :mod:`abcgs.style`    — ABC-GS: VGG features, FAST loss, colour match, style isolation, mask lifting.
+- Foundations: :mod:`abcgs.errors`, :mod:`abcgs.types` (modes and interfaces shared across packages),
+  :mod:`abcgs.dotted` (dotted params keys), :mod:`abcgs.sections` (the params sections and their models),
+  :mod:`abcgs.progress`, :mod:`abcgs.cameras` (pinhole cameras), :mod:`abcgs.runtime` (setup, device, threads),
+  :mod:`abcgs.io` (atomic writes, images, metrics records, tables; its ``ply`` and ``spz`` modules, which read
+  into :class:`abcgs.gaussians.Gaussians`, are on the rendering floor).
+- Rendering: :mod:`abcgs.render` (the differentiable rasterizer: reference, C++ CPU kernels, gsplat),
+  :mod:`abcgs.gaussians`, :mod:`abcgs.viz`, :mod:`abcgs.camera_paths`, :mod:`abcgs.silhouette`.
+- Scenes and features: :mod:`abcgs.sfm` (structure from motion through pycolmap, COLMAP models),
+  :mod:`abcgs.scene` (the embedded synthetic scene), :mod:`abcgs.layout` (every path under ``out/``),
+  :mod:`abcgs.features` (VGG features, style isolation, matching groups, neighbour search).
+- Losses: :mod:`abcgs.losses` (FAST and the NNFM, KNNFM, Gram baselines; content and TV terms).
+- Methods: :mod:`abcgs.sources` (one reader per dataset format), :mod:`abcgs.splats` (trained splats in and out),
+  :mod:`abcgs.fit` (baseline 3DGS), :mod:`abcgs.masks` (content masks lifted onto the Gaussians),
+  :mod:`abcgs.stylize` (colour match and stylization), :mod:`abcgs.evaluation` (the metrics).
+- Presentation: :mod:`abcgs.view` (the 3-D splat viewer), :mod:`abcgs.report`.
+- Orchestration: :mod:`abcgs.params` (the ``params.yaml`` schema), :mod:`abcgs.pipeline` (stage specs),
+  :mod:`abcgs.preflight` (with :mod:`abcgs.source_check`: datasets read by their readers), :mod:`abcgs.dag`
+  (``dvc.yaml``), :mod:`abcgs.add` (``python -m abcgs add-scene``),
+  :mod:`abcgs.overlay`, :mod:`abcgs.cluster` (Slurm job arrays; the ``cluster`` extra).
 
-A module imports only from its own floor or lower ones: foundations (errors, types, io, cameras), rendering,
-scenes and features, losses, methods (fit, masks, stylize, evaluation), presentation (view, report),
-orchestration (params, pipeline, preflight, cluster); ``tests/test_layers.py`` checks it.
+A module imports only from its own floor or lower ones; ``tests/test_layers.py`` checks it against the floors of
+``eval/bench/structure.py``, and ``tests/test_docs.py`` that this map names every package and module.
 """
-
-import os
-import sys
-
-# The CPU path alternates torch's OpenMP regions (VGG, Adam, small tensor ops) with the extension's own
-# kernel threads (abcgs.render.cpu: rasterizer, SSIM, neighbour search). Under GNU OpenMP's default wait
-# policy torch's idle workers spin after each region and take cores from those kernel threads; passive
-# waiting makes the fit and the stylization faster with identical results (docs/SCALING.md "One machine: the
-# queue", "Threads and `-j`", has the measurement). libgomp reads the variable when it loads, i.e. at torch's first
-# import, so this only acts when abcgs is imported first; a value set by the user always wins.
-if "torch" not in sys.modules:
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-
-# Import OpenCV before pycolmap can be imported anywhere: pycolmap's bundled zlib otherwise captures
-# libz's internal calls and the next cv2.imencode of a PNG aborts with "double free or corruption".
-import cv2  # noqa: F401,E402
 
 __version__ = "0.1.0"

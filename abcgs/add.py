@@ -36,7 +36,7 @@ from abcgs.sources.base import SourceScene
 from abcgs.sources.detect import DEFAULT_IMAGES, image_files
 from abcgs.sources.lens import consistent_scale, image_size
 from abcgs.sources.params import SceneParams, scene_name_problem
-from abcgs.sources.read import MARKER, read_source, resolve_format
+from abcgs.sources.read import marker, read_source, resolve_format
 
 MIN_PHOTOS = 3
 """Structure from motion needs at least this many overlapping photos (as :mod:`abcgs.sfm.colmap`)."""
@@ -52,7 +52,7 @@ def describe_source(scene: SourceScene, folder: Path) -> list[str]:
     lens = Counter(v.distortion.model if v.distortion else "pinhole" for v in scene.views)
     folders = Counter(str(v.image_path.parent.relative_to(folder)) if v.image_path.is_relative_to(folder)
                       else str(v.image_path.parent) for v in scene.views)
-    lines = [f"{len(scene.views)} views with cameras from {MARKER[scene.format]}, "
+    lines = [f"{len(scene.views)} views with cameras from {marker(scene.format)}, "
              f"{_sizes([(v.camera.width, v.camera.height) for v in scene.views])} pixels, in "
              f"{', '.join(f + '/' for f in folders)}; lens: {', '.join(f'{m} ({n})' for m, n in lens.items())}"]
     if scene.points is not None:
@@ -168,7 +168,7 @@ def scene_entry(name: str, path: str | os.PathLike, *, fmt: str = "auto", images
         lines = describe_photos(name, folder, images, max_view_size_ratio)
     elif resolved == "splat":
         from abcgs.sources.detect import splat_file
-        from abcgs.splats.formats import read_splat
+        from abcgs.splats.registry import read_splat
 
         model = read_splat(splat_file(folder), splat_format, drop_invalid=drop).model
         lines = [f"a bare splat scene: {folder}, {model.num_gaussians} Gaussians of SH degree {model.sh_degree} "
@@ -197,7 +197,7 @@ def _splat_check(splat: Path, source: SourceScene | None, min_psnr: float, fmt: 
     """The fit stage's render-versus-photo check of a trained splat (:func:`abcgs.splats.validate.check_splat`), run
     now where the dataset has undistorted cameras; raises :class:`InputError` naming the likely cause when it fails."""
     from abcgs.sfm.model import SceneData
-    from abcgs.splats.formats import read_splat
+    from abcgs.splats.registry import read_splat
     from abcgs.splats.validate import check_splat
 
     plain = [v for v in source.views if v.distortion is None] if source is not None else []

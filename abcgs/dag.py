@@ -6,9 +6,13 @@ abcgs.dag`` prints each stage's code deps. A stage's code deps are the files it 
 
 :func:`import_closure` follows a stage script's imports through the project's own modules (``abcgs``; every
 ``import`` statement anywhere in a module, including the ones inside functions), adds each imported package's
-``__init__.py`` (Python runs it first), and the non-Python files the code loads at run time
+``__init__.py`` (Python runs it first), every module of a package that ``importlib.import_module(f"abcgs.pkg.{name}")``
+may load (a registry's discovery: the splat formats), and the non-Python files the code loads at run time
 (:data:`DATA_FILES`: the C++ kernels' sources, the viewer bundle). :func:`missing_deps` compares it with the deps a
-stage declares. A stage validates only the params sections it reads, importing their models by name
+stage declares, :func:`excess_deps` the other way round; :func:`minimal_deps` writes a package as one folder dep where
+the stage runs every file of it, and ``dvc.yaml`` lists a stage's deps by package (:func:`grouped_flow`).
+
+A stage validates only the params sections it reads, importing their models by name
 (:data:`abcgs.sections.SECTIONS`); :func:`stage_closure` adds those modules (and what they import), and nothing of
 the other sections, so editing one section's settings module re-runs only the stages that read that section.
 """
@@ -18,6 +22,7 @@ from __future__ import annotations
 import argparse
 import ast
 import importlib.util
+import re
 import sys
 from collections.abc import Iterable
 from pathlib import Path
@@ -89,8 +94,14 @@ def _imported_modules(tree: ast.AST, current: str | None) -> Iterable[str]:
                 yield f"{base}.{alias.name}"
         elif (isinstance(node, ast.Call) and getattr(node.func, "attr", getattr(node.func, "id", None)) == "import_module"
               and node.args and isinstance(node.args[0], ast.JoinedStr) and current):
-            # import_module(f"abcgs.pkg.{name}"): any module of that package
-            yield f"{current.rsplit('.', 1)[0]}.*" if current.count(".") else f"{current}.*"
+            # import_module(f"abcgs.pkg.{name}"): any module of the package the f-string names (else of the
+            # importing module's own package)
+            head = node.args[0].values[0] if node.args[0].values else None
+            prefix = head.value if isinstance(head, ast.Constant) and isinstance(head.value, str) else ""
+            if prefix.startswith(f"{PACKAGE}.") and prefix.endswith(".") and prefix.count(".") >= 2:
+                yield f"{prefix[:-1]}.*"
+            else:
+                yield f"{current.rsplit('.', 1)[0]}.*" if current.count(".") else f"{current}.*"
 
 
 def import_closure(script: Path, root: Path, also: Iterable[str] = ()) -> set[Path]:
@@ -148,14 +159,34 @@ def unused_code_deps(closure: Iterable[Path], deps: Iterable[str], code_roots: t
             and not any(covered(f, [d]) for f in closure)]
 
 
+def source_files(path: Path, root: Path) -> list[Path]:
+    """The files under ``path`` (a file or a folder) that are sources, relative to ``root``: not bytecode, not the
+    built kernels (``*.so``) nor their build record (``_kernels*``), which the install writes from the sources."""
+    paths = [path] if path.is_file() else sorted(path.rglob("*"))
+    return [p.relative_to(root) for p in paths if p.is_file() and "__pycache__" not in p.parts
+            and p.suffix not in (".so", ".pyc") and not p.name.startswith("_kernels")]
+
+
+def excess_deps(closure: Iterable[Path], deps: Iterable[str], root: Path,
+                code_roots: tuple[str, ...] = ("abcgs", "stages")) -> list[Path]:
+    """Files that a stage's code deps (under ``code_roots``) cover but that are not in its ``closure``: files that
+    cannot change its output, whose edits would re-run it for nothing."""
+    root = root.resolve()
+    closure = set(closure)
+    out: set[Path] = set()
+    for d in deps:
+        if Path(d).parts[:1] and Path(d).parts[0] in code_roots:
+            out |= {f for f in source_files(root / d, root) if f not in closure}
+    return sorted(out)
+
+
 def minimal_deps(closure: set[Path], root: Path) -> list[str]:
     """The closure as few ``deps`` entries as possible: a folder where every file under it is in the closure."""
     root = root.resolve()
     out: list[str] = []
 
     def whole(folder: Path) -> bool:
-        files = [p.relative_to(root) for p in (root / folder).rglob("*") if p.is_file() and "__pycache__" not in p.parts
-                 and p.suffix not in (".so", ".pyc") and not p.name.startswith("_kernels")]
+        files = source_files(root / folder, root)
         return bool(files) and all(f in closure for f in files)
 
     for f in sorted(closure):
@@ -176,19 +207,11 @@ STAGES = ("preflight", "make_tiny", "styles", "style_masks", "reconstruct", "fit
 FOREACH = {"data.scenes": "${data.scenes}", "data.styles": "${data.styles}", "data.style_masks": "${data.style_masks}",
            "colormatches": "${colormatches}", "experiments": "${experiments}"}
 HEADER = """\
-# Generated by `python -m abcgs.dag --write` from the stage specs in stages/*.py (tests/test_dag.py checks that it is
-# current): edit a stage's StageSpec, or the code, and re-generate; do not edit this file by hand.
-#
-# Each stage is a short script in stages/ that takes its inputs and outputs on its command line (paths from
-# abcgs/layout.py) and reads the params it lists here; its deps are those inputs and the code it runs (its import
-# closure, with the settings modules of the params sections it reads and no others). Scenes fan out with foreach
-# over data.scenes, paintings over data.styles (and their region maps over data.style_masks), colour matches over
-# colormatches, experiments over experiments. No command carries a params
-# value: a foreach stage takes its key from $DVC_STAGE (stylize@tiny_single), and '{key}' / '{item.scene}' in its
-# path arguments are filled in by abcgs.pipeline.run_stage, so no name reaches a shell. The preflight stage checks
-# the whole params file and the inputs before any other stage runs: every stage depends on its stamp.
-# Metrics and plots are git-tracked (cache: false); every other output is DVC-cached, which keeps each stage in
-# DVC's run cache: an interrupted run, a queued experiment or a cluster job restores finished stages.
+# Generated by `python -m abcgs.dag --write` from the stage specs in stages/*.py; tests/test_dag.py checks it is current.
+# A stage is a script in stages/: its deps are the inputs its command passes, then the code it runs (its import
+# closure, a package folder where it runs every file of it), listed by package. '{key}' in a command is filled in by
+# abcgs.pipeline.run_stage from $DVC_STAGE, so no params value reaches a shell. Every stage depends on the preflight
+# stage's stamp. Metrics and plots are git-tracked (cache: false); all else is DVC-cached.
 """
 
 
@@ -213,6 +236,57 @@ def stage_closure(script: Path, spec: Any, root: Path) -> set[Path]:
     return import_closure(script, root, also=sorted({SECTIONS[s].module for s in spec.sections}))
 
 
+class _Flow(list):
+    """A list ``dvc.yaml`` writes in flow style (``[a, b, c]``, wrapped at the line width)."""
+
+
+class _Dumper(yaml.SafeDumper):
+    """PyYAML's safe dumper that writes :class:`_Flow` lists in flow style."""
+
+
+_Dumper.add_representer(_Flow, lambda d, v: d.represent_sequence("tag:yaml.org,2002:seq", v, flow_style=True))
+
+
+def _flow_item(entry: str) -> str:
+    """One entry of a flow list: quoted where YAML's flow context needs it (``${key}``, commas, brackets)."""
+    return f"'{entry}'" if any(c in entry for c in "{}[],:#'\"") or entry[:1] in "!&*@`%|>-?" else entry
+
+
+def _package(entry: str) -> str:
+    """The group a dep is listed in: its package folder (``abcgs/io/atomic.py`` → ``abcgs/io``; a folder dep is
+    its own group), data deps first (``""``)."""
+    parts = Path(entry).parts
+    if parts[0] not in ("abcgs", "stages"):
+        return ""
+    return entry if not entry.endswith(".py") else Path(entry).parent.as_posix()
+
+
+def grouped_flow(entries: list[str], indent: int, width: int = 120) -> str:
+    """``entries`` as a YAML flow list wrapped at ``width``: the data deps first, then the code deps by package, a
+    package's files kept on one line (a line breaks between packages, inside one only where it is longer than a
+    line)."""
+    groups: dict[str, list[str]] = {}
+    for e in entries:
+        groups.setdefault(_package(e), []).append(_flow_item(e))
+    room = width - indent - 2
+    lines: list[str] = []
+    line, line_is_data = "", False
+    for key, items in groups.items():
+        text = " ".join(f"{i}," for i in items)
+        if line and (line_is_data or len(line) + 1 + len(text) > room):  # the data deps alone on the first line
+            lines.append(line)
+            line = ""
+        line_is_data = key == ""
+        for item in items:
+            if line and len(line) + len(item) + 2 > room:
+                lines.append(line)
+                line = ""
+            line = f"{line} {item}," if line else f"{item},"
+    lines.append(line)
+    pad = " " * (indent + 1)
+    return "[" + f"\n{pad}".join(lines).rstrip(",") + "]"
+
+
 def _dvc(template: Any) -> str:
     """A path or params template as ``dvc.yaml`` writes it: ``{key}`` → ``${key}``."""
     return (template if isinstance(template, str) else Path(template).as_posix()).replace("{", "${")
@@ -226,8 +300,8 @@ def stage_entry(script: Path, spec: Any, root: Path) -> dict:
     code = minimal_deps(stage_closure(script, spec, root), root)
     body["deps"] = [_dvc(d.path) for d in spec.inputs] + code
     if spec.params:
-        body["params"] = [_dvc(p) for p in spec.params]
-    outs = [_dvc(o.path) for o in spec.outs if o.kind == "out"]
+        body["params"] = _Flow([_dvc(p) for p in spec.params])
+    outs = _Flow([_dvc(o.path) for o in spec.outs if o.kind == "out"])
     metrics = [{_dvc(o.path): {"cache": False}} for o in spec.outs if o.kind == "metric"]
     plots = [{_dvc(o.path): {"cache": False, "x": o.plot_axes[0], "y": o.plot_axes[1]}}
              for o in spec.outs if o.kind == "plot"]
@@ -241,8 +315,18 @@ def pipeline_yaml(root: Path) -> str:
     """The text of ``dvc.yaml`` for the stage scripts under ``root/stages``."""
     stages = {name: stage_entry(root / "stages" / f"{name}.py", load_spec(root / "stages" / f"{name}.py"), root)
               for name in STAGES}
-    text = yaml.safe_dump({"stages": stages}, sort_keys=False, width=120, default_flow_style=False)
-    return HEADER + text
+    deps = []
+    for entry in stages.values():  # written below, one package a line: PyYAML wraps flow lists anywhere
+        body = entry.get("do", entry)
+        deps.append(body["deps"])
+        body["deps"] = f"DEPS_{len(deps) - 1}"
+    text = yaml.dump({"stages": stages}, Dumper=_Dumper, sort_keys=False, width=120, default_flow_style=False)
+
+    def fill(m: re.Match) -> str:
+        indent = len(m.group(1))
+        return f"{m.group(1)}deps: {grouped_flow(deps[int(m.group(2))], indent + len('deps: '))}"
+
+    return HEADER + re.sub(r"^( *)deps: DEPS_(\d+)$", fill, text, flags=re.M)
 
 
 def main(argv: list[str] | None = None) -> int:

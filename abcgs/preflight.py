@@ -12,7 +12,7 @@ checks the params against the two other things a run depends on:
   an alpha channel or a grey view among colour ones is a warning), its ``masks/`` name views and label something
   (:func:`check_scene_masks`; numbered labels that skip values are a warning) at their views' size or its scale
   (:func:`check_label_map_sizes`); a dataset with cameras is read and
-  checked by the ``preflight`` stage (:mod:`abcgs.sources.check`: the model is present, images match cameras, sizes
+  checked by the ``preflight`` stage (:mod:`abcgs.source_check`: the model is present, images match cameras, sizes
   are a consistent scale); paintings and label maps exist, decode, are large enough and do not live in a folder stages write (a label map of another
   size than its painting is a warning), and ``vgg.path`` exists. A scene or painting a ``dvc.yaml`` stage produces
   (the embedded tiny scene, made by ``make_tiny``) is checked by that stage instead; a path into it must name a
@@ -394,7 +394,7 @@ def check_input_files(params, root: Path, produced: Iterable[str] = (),
         except InputError as exc:
             raise InputError(f"data.scenes.{name}: {exc}") from None
         if fmt != "photos":
-            continue  # a dataset with cameras: its reader checks it in the preflight stage (abcgs/sources/check.py)
+            continue  # a dataset with cameras: its reader checks it in the preflight stage (abcgs/source_check.py)
         if not images.is_dir():
             raise InputError(f"data.scenes.{name}: {images} does not exist; a scene folder holds {sub}/ (and "
                              "optionally masks/)")
@@ -452,4 +452,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
+    from abcgs.runtime import setup
+
+    setup()  # the process settings (abcgs.runtime.setup): the wait policy only where torch is not loaded yet
     raise SystemExit(main())

@@ -280,6 +280,10 @@ def write_report(out: Path, runs: list[Run], root: Path, styles: dict[str, str],
 
 
 if __name__ == "__main__":  # python -m abcgs.report [--markdown]: print the table of the runs in out/
+    from abcgs.runtime import setup
+
+    setup()  # the process settings (abcgs.runtime.setup): the wait policy only where torch is not loaded yet
+
     import argparse
 
     from abcgs.params import load_params

@@ -1,19 +1,55 @@
-"""Process-wide runtime settings: the device every stage computes on, and torch's thread count for a block of work.
+"""Process-wide runtime settings: :func:`setup`, which every entry point calls before it imports torch; the device
+every stage computes on; torch's thread count for a block of work.
 
-The OpenMP wait policy, which must be set before torch loads, is set in :mod:`abcgs` itself (``abcgs/__init__.py``);
-the C++ kernels' own thread count is :func:`abcgs.render.cpu.kernel_threads`.
+Importing abcgs changes nothing in the process; the entry points (``stages/*.py``, ``eval/``, ``python -m abcgs…``,
+the test session) call :func:`setup` first. The C++ kernels' own thread count is
+:func:`abcgs.render.cpu.kernel_threads`. This module loads torch only inside the functions that use it, so that
+importing it to call :func:`setup` loads nothing that reads OpenMP's settings.
 """
 
 from __future__ import annotations
 
 import contextlib
+import importlib
+import os
+import sys
 from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
-import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 from abcgs.errors import InputError
 from abcgs.types import Device
+
+if TYPE_CHECKING:
+    import torch
+
+
+def setup(threads: int | None = None) -> bool:
+    """The process-wide settings of an abcgs program; call it before anything imports torch.
+
+    - OpenMP's wait policy: ``OMP_WAIT_POLICY=PASSIVE`` unless the variable is set (a value set by the user always
+      wins). The CPU path alternates torch's OpenMP regions (VGG, Adam, small tensor ops) with the C++ kernels' own
+      threads (:mod:`abcgs.render.cpu`); under GNU OpenMP's default policy torch's idle workers spin after each
+      region and take cores from those threads, and passive waiting makes the fit and the stylization faster with
+      identical results (docs/SCALING.md "One machine: the queue", "Threads and `-j`"). libgomp reads the variable
+      when it loads, at torch's first import, so once torch is loaded the environment is left alone.
+    - OpenCV is loaded before pycolmap can be: pycolmap's bundled zlib otherwise captures libz's internal calls and
+      the next ``cv2.imencode`` of a PNG aborts with "double free or corruption".
+    - ``threads`` (> 0): torch's intra-op thread count (``torch.set_num_threads``); None leaves torch's default.
+
+    Returns whether torch was still unloaded, i.e. whether the wait policy takes effect in this process.
+    """
+    before_torch = "torch" not in sys.modules
+    if before_torch:
+        os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    importlib.import_module("cv2")  # before pycolmap: see above
+
+    if threads is not None and threads > 0:
+        import torch
+
+        torch.set_num_threads(threads)
+    return before_torch
 
 
 class RuntimeParams(BaseModel):
@@ -31,6 +67,8 @@ def resolve_device(setting: Device | str = "auto") -> torch.device:
 
     Raises :class:`InputError` for ``cuda`` on a machine where torch sees no GPU (a CPU build of torch, no driver).
     """
+    import torch
+
     if setting == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if setting == "cuda" and not torch.cuda.is_available():
@@ -45,6 +83,8 @@ def synchronize(device: torch.device) -> None:
     """Wait for the device's queued work (CUDA runs asynchronously), so that a wall-clock split of a step is honest;
     a no-op on the CPU."""
     if device.type == "cuda":
+        import torch
+
         torch.cuda.synchronize(device)
 
 
@@ -54,6 +94,8 @@ def torch_threads(n: int | None) -> Iterator[None]:
     if n is None or n <= 0:
         yield
         return
+    import torch
+
     old = torch.get_num_threads()
     torch.set_num_threads(n)
     try:

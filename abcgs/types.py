@@ -16,12 +16,10 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Literal, Protocol
 
 if TYPE_CHECKING:  # annotations only: reading params.yaml (the schema modules use this one) loads no torch
-    from pathlib import Path
 
     import numpy as np
     from torch import Tensor
 
-    from abcgs.cameras import Camera
 
 # ------------------------------------------------------------------------------------------------ modes
 Backend = Literal["auto", "reference", "cpu", "gsplat"]
@@ -55,7 +53,8 @@ SceneFormat = Literal["photos", "colmap", "nerfstudio", "blender", "llff", "spla
 (NeRF-synthetic), ``llff`` = ``poses_bounds.npy``, ``splat`` = only a splat file (cameras generated around it)."""
 
 SplatFormat = Literal["inria", "ply", "splatfacto", "gsplat_ckpt", "gsplat_ply", "opensplat", "supersplat", "splat", "spz"]
-"""A trained splat's file format (:mod:`abcgs.splats.formats`)."""
+"""A built-in trained splat file format, one module each of :mod:`abcgs.splats.formats` (tests/test_splats.py checks
+that the two agree)."""
 
 FlowMethod = Literal["auto", "raft", "dis", "deepflow", "dualtvl1"]
 """Optical flow of the consistency metrics (:mod:`abcgs.evaluation.consistency`): torchvision's RAFT, OpenCV's
@@ -63,19 +62,6 @@ DIS, DeepFlow or Dual TV-L1; ``auto`` = RAFT when its weights are on disk, else 
 
 
 # ------------------------------------------------------------------------------------------------ interfaces
-class SceneLike(Protocol):
-    """A captured scene as fitting reads it (:class:`abcgs.sfm.model.SceneData` is one)."""
-
-    cameras: list[Camera]
-    """One per view, at the photos' full resolution."""
-    image_paths: list[Path]
-    """The photos, in the order of ``cameras``."""
-    points: np.ndarray
-    """``(P, 3) float``: the sparse point cloud the Gaussians start from (world units)."""
-    colors: np.ndarray
-    """``(P, 3) float``: the points' RGB in [0, 1]."""
-
-
 class FlowEstimatorLike(Protocol):
     """Dense optical flow between two renders (:func:`abcgs.evaluation.consistency.make_flow_estimator`)."""
 

@@ -13,6 +13,10 @@ from __future__ import annotations
 
 import sys
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
 from abcgs import layout
 from abcgs.io.ply import read_ply
 from abcgs.masks.outputs import load_scene_masks

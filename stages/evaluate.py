@@ -13,6 +13,10 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
 from abcgs import layout
 from abcgs.evaluation.evaluate import evaluate_scene, load_stylize_run, write_evaluation
 from abcgs.evaluation.reference import load_reference, model_digest

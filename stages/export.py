@@ -10,10 +10,14 @@ from __future__ import annotations
 
 import sys
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
 from abcgs import layout
-from abcgs.io.spz import export_spz, sidecar
 from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.splats.exporting import give_back
+from abcgs.splats.formats.spz import export_spz, sidecar
 
 _S, _E = layout.scene("{item.scene}"), layout.experiment("{key}")
 SPEC = StageSpec("export", foreach="experiments", deps=(

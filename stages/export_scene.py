@@ -9,9 +9,13 @@ from __future__ import annotations
 
 import sys
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
 from abcgs import layout
-from abcgs.io.spz import export_spz, sidecar
 from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
+from abcgs.splats.formats.spz import export_spz, sidecar
 
 _S = layout.scene("{key}")
 SPEC = StageSpec("export_scene", foreach="data.scenes", deps=(Dep("ply", _S.fit.ply, "the fitted scene (fit)"),), outs=(

@@ -13,6 +13,10 @@ from __future__ import annotations
 
 import sys
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
 from abcgs import layout
 from abcgs.fit.outputs import fit_and_save
 from abcgs.io.metrics import fit_headline, write_headline

@@ -10,6 +10,10 @@ from __future__ import annotations
 
 import sys
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
 from abcgs.pipeline import Out, StageSpec, run_stage, stage_parser
 from abcgs.scene.synthetic import make_tiny_scene
 

@@ -13,6 +13,10 @@ import json
 import logging
 import sys
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
 from abcgs import layout
 from abcgs.io.ply import read_ply
 from abcgs.masks.content import make_content_masks

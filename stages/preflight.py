@@ -5,7 +5,7 @@
 It validates the whole params file (schema, names, references between sections; every other stage validates only
 the sections it reads) and checks it against ``dvc.yaml`` (every tracked key present); then it checks the inputs
 (:func:`abcgs.preflight.check_input_files`: scene folders, views, masks, paintings, weights, and the labels
-the colour matches bind where the label maps are given files; :func:`abcgs.sources.check.check_scene_sources`:
+the colour matches bind where the label maps are given files; :func:`abcgs.source_check.check_scene_sources`:
 datasets with cameras read by their readers). Every other stage
 depends on its stamp, so ``dvc repro`` stops here, with the key named, before DVC deletes any stage's outputs. The
 stamp's content does not depend on the params, so a passing preflight re-runs nothing downstream; the warnings are
@@ -18,6 +18,10 @@ from __future__ import annotations
 
 import sys
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
 from abcgs import layout
 from abcgs.features.params import content_label_readers
 from abcgs.io.atomic import atomic_path, write_json
@@ -25,7 +29,7 @@ from abcgs.params import validate_params
 from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.preflight import check_input_files, dvc_output_files, dvc_outputs, preflight
 from abcgs.sections import read_params_file
-from abcgs.sources.check import check_scene_sources
+from abcgs.source_check import check_scene_sources
 
 SPEC = StageSpec("preflight", deps=(Dep("params", "params.yaml", "the pipeline's params file"),), outs=(
     Out(layout.PREFLIGHT_STAMP, "out", help="the stamp every other stage depends on"),

@@ -18,6 +18,10 @@ import logging
 import sys
 import tempfile
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
 from abcgs import layout
 from abcgs.io.atomic import write_json
 from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser

@@ -13,6 +13,10 @@ from __future__ import annotations
 import logging
 import sys
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
 from abcgs import layout
 from abcgs.evaluation.reference import FLOW_SETTINGS, compute_reference, model_digest, save_reference
 from abcgs.io.ply import read_ply

@@ -9,6 +9,10 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
 from abcgs import layout
 from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.report import collect_warnings, load_runs, report_siblings, write_report

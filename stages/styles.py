@@ -12,6 +12,10 @@ from __future__ import annotations
 import logging
 import sys
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
 from abcgs import layout
 from abcgs.io.images import copy_as_png
 from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser

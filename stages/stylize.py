@@ -9,6 +9,10 @@ from __future__ import annotations
 
 import sys
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
 from abcgs import layout
 from abcgs.io.metrics import info_path, write_metrics
 from abcgs.io.ply import read_ply

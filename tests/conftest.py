@@ -14,7 +14,10 @@ import contextlib
 import os
 from pathlib import Path
 
-import cv2  # noqa: F401  (load before anything imports pycolmap; see abcgs/sfm/__init__.py)
+from abcgs.runtime import setup
+
+setup()  # before any test imports torch: OpenMP's wait policy, OpenCV before pycolmap
+
 import pytest
 
 from abcgs.runtime import torch_threads

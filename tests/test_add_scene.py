@@ -20,7 +20,7 @@ from abcgs.__main__ import main
 from abcgs.params import load_params
 from abcgs.preflight import preflight
 from abcgs.scene.synthetic import cameras_from_json
-from abcgs.sources.check import check_scene_sources
+from abcgs.source_check import check_scene_sources
 
 
 @pytest.fixture

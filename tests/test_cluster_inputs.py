@@ -150,8 +150,13 @@ def test_an_untested_dvc_is_refused_by_submit_collect_and_the_jobs_dvc(monkeypat
     assert dvc_run.dvc_version_problem("3.67.0") is None and dvc_run.dvc_version_problem("3.67.5rc1") is None
 
 
-def test_pyproject_pins_dvc_to_the_tested_versions() -> None:
+def test_only_the_cluster_extra_pins_dvc_to_the_tested_versions() -> None:
+    import tomllib
+
     from abcgs.cluster.dvc_run import DVC_TESTED
 
     (a, b), (c, d) = DVC_TESTED
-    assert f'"dvc>={a}.{b},<{c}.{d}",' in (ROOT / "pyproject.toml").read_text()
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    assert f"dvc>={a}.{b},<{c}.{d}" in project["optional-dependencies"]["cluster"]
+    core = [r for r in project["dependencies"] if r.startswith("dvc")]
+    assert core and not any("<" in r for r in core), f"the core package pins DVC's private-API range: {core}"

@@ -4,6 +4,8 @@ params are the ones it reads; dvc.yaml is what ``python -m abcgs.dag --write`` m
 - Current: the committed dvc.yaml equals the generated one.
 - Data: a stage's data deps are exactly the paths its command line passes as inputs (``tests/test_pipeline_e2e.py``
   checks that it reads nothing else under ``out/``).
+- No excess: no file a stage's code deps cover lies outside its closure (a file that cannot change its output);
+  a package is one dep where the stage runs every file of it.
 - Code: :func:`abcgs.dag.import_closure` of each stage script (every project module it imports, at any depth,
   with the C++ kernel sources and the viewer bundle) must be covered by the stage's ``deps``; a code dep that covers
   nothing it runs would re-run the stage for nothing and fails too.
@@ -19,7 +21,16 @@ from pathlib import Path
 import pytest
 import yaml
 
-from abcgs.dag import import_closure, load_spec, missing_deps, pipeline_yaml, stage_closure, unused_code_deps
+from abcgs.dag import (
+    excess_deps,
+    import_closure,
+    load_spec,
+    minimal_deps,
+    missing_deps,
+    pipeline_yaml,
+    stage_closure,
+    unused_code_deps,
+)
 from abcgs.params import load_params
 from abcgs.pipeline import StageSpec, UntrackedParamsError, tracked_view
 
@@ -83,6 +94,33 @@ def test_stage_deps_cover_the_code_it_runs(name: str) -> None:
                          f"(`python -m abcgs.dag {_script(stage).relative_to(ROOT)}` prints the deps it needs)")
     unused = unused_code_deps(closure, _deps(stage))
     assert not unused, f"dvc.yaml stage {name!r} lists code deps it never runs: {unused}"
+
+
+@pytest.mark.parametrize("name", sorted(DVC))
+def test_no_stage_depends_on_a_file_that_cannot_change_its_output(name: str) -> None:
+    stage = DVC[name]
+    closure = stage_closure(_script(stage), _spec(_script(stage)), ROOT)
+    excess = excess_deps(closure, _deps(stage), ROOT)
+    assert not excess, f"dvc.yaml stage {name!r} depends on files it never runs: {[str(f) for f in excess]}"
+
+
+def test_a_package_is_one_dep_where_the_whole_package_runs(tmp_path: Path) -> None:
+    pkg = tmp_path / "abcgs"
+    (pkg / "whole").mkdir(parents=True)
+    (pkg / "part").mkdir()
+    for f in ("__init__.py", "whole/__init__.py", "whole/a.py", "part/__init__.py", "part/a.py", "part/b.py"):
+        (pkg / f).write_text("")
+    (tmp_path / "stage.py").write_text("from abcgs.whole import a\nfrom abcgs.part import a as b\n")
+    closure = import_closure(tmp_path / "stage.py", tmp_path)
+    deps = minimal_deps(closure, tmp_path)
+    assert deps == ["abcgs/__init__.py", "abcgs/part/__init__.py", "abcgs/part/a.py", "abcgs/whole", "stage.py"]
+    assert excess_deps(closure, deps, tmp_path, code_roots=("abcgs",)) == []
+    assert excess_deps(closure, ["abcgs/part"], tmp_path, code_roots=("abcgs",)) == [Path("abcgs/part/b.py")]
+
+
+def test_dvc_yaml_is_short_enough_to_read() -> None:
+    lines = (ROOT / "dvc.yaml").read_text(encoding="utf-8").count("\n")
+    assert lines <= 300, f"dvc.yaml has {lines} lines"
 
 
 @pytest.mark.parametrize("name", sorted(DVC))

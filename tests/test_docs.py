@@ -180,3 +180,22 @@ def test_no_commit_hashes(page: Path):
 )
 def test_the_hash_pattern(text: str, hashes: list[str]):
     assert [m.group(0) for m in COMMIT_HASH.finditer(URL.sub(" ", text))] == hashes
+
+
+# --- the package map in abcgs/__init__.py --------------------------------------------------------------------
+
+def test_the_package_map_names_every_package_and_top_level_module_and_nothing_else():
+    """``abcgs/__init__.py``'s docstring names each sub-package and top-level module (``:mod:`abcgs.x```), and every
+    name it gives exists."""
+    import ast
+
+    doc = ast.get_docstring(ast.parse((REPO / "abcgs" / "__init__.py").read_text(encoding="utf-8"))) or ""
+    named = set(re.findall(r":mod:`(abcgs(?:\.\w+)+)`", doc))
+    pkg = REPO / "abcgs"
+    present = {f"abcgs.{p.name}" for p in pkg.iterdir() if (p / "__init__.py").is_file()}
+    present |= {f"abcgs.{p.stem}" for p in pkg.glob("*.py") if not p.name.startswith("_")}
+    missing = sorted(present - named)
+    absent = sorted(m for m in named if not (pkg.joinpath(*m.split(".")[1:]).with_suffix(".py").is_file()
+                                             or (pkg.joinpath(*m.split(".")[1:]) / "__init__.py").is_file()))
+    assert not missing, f"abcgs/__init__.py's package map leaves out {missing}"
+    assert not absent, f"abcgs/__init__.py's package map names modules that do not exist: {absent}"

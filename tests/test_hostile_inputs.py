@@ -22,10 +22,10 @@ from conftest import REPO_ROOT
 
 from abcgs.errors import InputError
 from abcgs.io.ply import read_ply, write_ply
-from abcgs.io.spz import decode_spz, encode_spz
 from abcgs.sfm.model import read_colmap_scene
 from abcgs.sources.read import read_source
-from abcgs.splats.formats import read_splat
+from abcgs.splats.formats.spz import decode_spz, encode_spz
+from abcgs.splats.registry import read_splat
 from eval.bench.fuzz import _model, gzip_bomb, make_targets
 
 

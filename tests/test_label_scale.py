@@ -26,7 +26,7 @@ from abcgs.params import load_params
 from abcgs.preflight import check_input_files
 from abcgs.scene.synthetic import cameras_from_json
 from abcgs.sfm.params import ReconstructParams
-from abcgs.sources.check import check_scene_sources
+from abcgs.source_check import check_scene_sources
 from abcgs.sources.model import write_source_model
 from abcgs.sources.read import read_source
 

@@ -1,7 +1,8 @@
 """The floors of abcgs: a module imports only from its own floor or the floors below it.
 
 Every module under ``abcgs/`` is parsed (not imported) and each of its ``abcgs`` imports, at any depth (inside
-functions and ``TYPE_CHECKING`` blocks too), is checked against :data:`FLOORS`. A module's command-line block
+functions and ``TYPE_CHECKING`` blocks too), is checked against :data:`eval.bench.structure.FLOORS` (which
+``python -m eval.bench.structure`` counts with). A module's command-line block
 (``if __name__ == "__main__":``) is a program run on top of everything and is not checked.
 
 Also checked: a name is imported from the module that defines it (no re-exports), except from a package's face
@@ -15,90 +16,25 @@ from pathlib import Path
 
 import pytest
 
-from abcgs.dag import is_main_block
+from eval.bench.structure import floor_of, module_path
+from eval.bench.structure import module_name as _module_name
+from eval.bench.structure import upward_imports as _upward_imports
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "abcgs"
 
-FLOORS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("foundations", (
-        "abcgs", "abcgs.errors", "abcgs.types", "abcgs.dotted", "abcgs.sections", "abcgs.progress", "abcgs.cameras",
-        "abcgs.runtime",
-        "abcgs.io", "abcgs.io.atomic", "abcgs.io.digest", "abcgs.io.images", "abcgs.io.metrics", "abcgs.io.tables",
-    )),
-    ("rendering", ("abcgs.render", "abcgs.gaussians", "abcgs.io.ply", "abcgs.io.spz", "abcgs.viz",
-                   "abcgs.camera_paths", "abcgs.silhouette")),
-    ("scenes and features", ("abcgs.sfm", "abcgs.scene", "abcgs.layout", "abcgs.features")),
-    ("losses", ("abcgs.losses",)),
-    ("methods", ("abcgs.fit", "abcgs.splats", "abcgs.sources", "abcgs.masks", "abcgs.stylize", "abcgs.evaluation")),
-    ("presentation", ("abcgs.view", "abcgs.report")),
-    ("orchestration", ("abcgs.params", "abcgs.preflight", "abcgs.pipeline", "abcgs.dag", "abcgs.overlay",
-                       "abcgs.add", "abcgs.cluster", "abcgs.__main__", "abcgs.view.__main__",
-                       "abcgs.sources.check")),  # the preflight stage's reading of datasets
-)
-"""Floors, lowest first, each a name and the modules or packages on it (the longest matching prefix decides). A
-package's ``params`` module (its settings' schema) is on the package's floor; the modes it shares with lower floors
-live in :mod:`abcgs.types`."""
-
 
 def module_name(path: Path) -> str:
-    parts = path.relative_to(ROOT).with_suffix("").parts
-    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
-
-
-def floor_of(module: str) -> int | None:
-    """Index in :data:`FLOORS` of ``module`` (the longest matching entry wins), None when no entry matches."""
-    best, best_len = None, -1
-    for i, (_, entries) in enumerate(FLOORS):
-        for entry in entries:
-            if (module == entry or module.startswith(entry + ".")) and len(entry) > best_len:
-                best, best_len = i, len(entry)
-    return best
-
-
-def abcgs_imports(source: str, module: str, is_package: bool) -> list[tuple[int, str]]:
-    """``(line, imported module)`` for every ``abcgs`` import of ``source`` outside its ``__main__`` block
-    (``from P import name`` counts as P, or as P.name where that is a module)."""
-    tree = ast.parse(source)
-    skip = {id(n) for top in tree.body if is_main_block(top) for n in ast.walk(top)}
-    out = []
-    for node in ast.walk(tree):
-        if id(node) in skip:
-            continue
-        if isinstance(node, ast.Import):
-            out += [(node.lineno, a.name) for a in node.names if a.name.split(".")[0] == "abcgs"]
-        elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = module.split(".") if is_package else module.split(".")[:-1]
-                base = base[: len(base) - (node.level - 1)]
-                target = ".".join(base + ([node.module] if node.module else []))
-            else:
-                target = node.module or ""
-            if target.split(".")[0] != "abcgs":
-                continue
-            for a in node.names:
-                sub = f"{target}.{a.name}"
-                out.append((node.lineno, sub if _module_path(sub) else target))
-    return sorted(set(out))
+    return _module_name(path, ROOT)
 
 
 def _module_path(module: str) -> Path | None:
-    base = ROOT.joinpath(*module.split("."))
-    for p in (base.with_suffix(".py"), base / "__init__.py"):
-        if p.is_file():
-            return p
-    return None
+    return module_path(module, ROOT)
 
 
 def upward_imports(module: str, source: str, is_package: bool = False) -> list[str]:
-    """One line per import of ``source`` (module ``module``) that reaches a higher floor."""
-    own = floor_of(module)
-    out = []
-    for line, target in abcgs_imports(source, module, is_package):
-        theirs = floor_of(target)
-        if own is not None and theirs is not None and theirs > own:
-            out.append(f"{module}:{line} ({FLOORS[own][0]}) imports {target} ({FLOORS[theirs][0]})")
-    return out
+    """One line per import of ``source`` (module ``module``) that reaches a higher floor of the floors table."""
+    return _upward_imports(module, source, ROOT, is_package)
 
 
 MODULES = sorted(PACKAGE.rglob("*.py"))
@@ -106,7 +42,7 @@ MODULES = sorted(PACKAGE.rglob("*.py"))
 
 def test_every_module_has_a_floor() -> None:
     missing = [module_name(p) for p in MODULES if floor_of(module_name(p)) is None]
-    assert not missing, f"modules on no floor (add them to FLOORS in tests/test_layers.py): {missing}"
+    assert not missing, f"modules on no floor (add them to FLOORS in eval/bench/structure.py): {missing}"
 
 
 def test_no_module_imports_a_higher_floor() -> None:

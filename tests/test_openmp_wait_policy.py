@@ -1,4 +1,5 @@
-"""abcgs asks GNU OpenMP for passive waiting before torch loads, and every stage imports it before torch."""
+"""abcgs.runtime.setup() asks GNU OpenMP for passive waiting before torch loads; importing abcgs changes nothing;
+every stage and benchmark script calls setup() before it imports torch."""
 
 from __future__ import annotations
 
@@ -23,30 +24,46 @@ def _policy_seen_by_torch(first: str, env_value: str | None) -> str:
     return out.stdout.strip().splitlines()[-1]
 
 
-def test_importing_abcgs_first_makes_openmp_wait_passively():
-    assert _policy_seen_by_torch("import abcgs", None) == "PASSIVE"
+def test_setup_before_torch_makes_openmp_wait_passively():
+    assert _policy_seen_by_torch("from abcgs.runtime import setup; setup()", None) == "PASSIVE"
+
+
+def test_importing_abcgs_changes_nothing():
+    assert _policy_seen_by_torch("import abcgs, abcgs.runtime", None) == "<unset>"
 
 
 def test_a_policy_the_user_set_is_kept():
-    assert _policy_seen_by_torch("import abcgs", "ACTIVE") == "ACTIVE"
+    assert _policy_seen_by_torch("from abcgs.runtime import setup; setup()", "ACTIVE") == "ACTIVE"
 
 
-def test_after_torch_is_loaded_abcgs_leaves_the_environment_alone():
+def test_after_torch_is_loaded_setup_leaves_the_environment_alone():
     # libgomp has read its settings by then: setting the variable would only mislead child processes' readers
-    assert _policy_seen_by_torch("import torch; import abcgs", None) == "<unset>"
+    assert _policy_seen_by_torch("import torch; from abcgs.runtime import setup; setup()", None) == "<unset>"
 
 
-def _first_heavy_import(path: Path) -> str | None:
-    """The first top-level import of abcgs, torch or the eval package in a script (None: none of them)."""
-    for node in ast.parse(path.read_text()).body:
-        if isinstance(node, ast.Import):
-            names = [a.name.split(".")[0] for a in node.names]
-        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-            names = [node.module.split(".")[0]]
-        else:
-            continue
-        for name in names:
-            if name in ("abcgs", "torch", "eval"):
+def _heavy_names(node: ast.stmt) -> list[str]:
+    if isinstance(node, ast.Import):
+        return [a.name for a in node.names]
+    if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+        return [node.module]
+    return []
+
+
+def _setup_call(node: ast.stmt) -> bool:
+    return (isinstance(node, ast.Expr) and isinstance(node.value, ast.Call)
+            and getattr(node.value.func, "id", None) == "setup")
+
+
+def setup_comes_first(source: str) -> str | None:
+    """None when the script calls ``abcgs.runtime.setup()`` before any other import of abcgs, torch or the eval
+    package (or imports none of them); else what it imports first."""
+    for node in ast.parse(source).body:
+        if _setup_call(node):
+            return None
+        for name in _heavy_names(node):
+            if name == "abcgs.runtime":
+                continue
+            if name.split(".")[0] in ("abcgs", "torch", "eval"):
                 return name
     return None
 
@@ -55,6 +72,12 @@ SCRIPTS = sorted(ROOT.glob("stages/*.py")) + sorted(ROOT.glob("eval/bench/*.py")
 
 
 @pytest.mark.parametrize("script", SCRIPTS, ids=lambda p: f"{p.parent.name}/{p.name}")
-def test_stages_and_benchmarks_import_abcgs_before_torch(script: Path):
-    first = _first_heavy_import(script)
-    assert first in (None, "abcgs"), f"{script.relative_to(ROOT)} imports {first} before abcgs"
+def test_stages_and_benchmarks_call_setup_before_importing_torch(script: Path):
+    first = setup_comes_first(script.read_text())
+    assert first is None, f"{script.relative_to(ROOT)} imports {first} before it calls abcgs.runtime.setup()"
+
+
+def test_the_check_sees_an_import_before_setup():
+    assert setup_comes_first("import torch\nfrom abcgs.runtime import setup\nsetup()\n") == "torch"
+    assert setup_comes_first("import os\nfrom abcgs.runtime import setup\nsetup()\nimport torch\n") is None
+    assert setup_comes_first("from abcgs import layout\n") == "abcgs"

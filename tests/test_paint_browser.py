@@ -170,8 +170,8 @@ def test_a_bare_splat_is_painted_on_its_generated_views(browser, serve, tmp_path
     from abcgs.sources.detect import detect_format
     from abcgs.sources.model import write_source_model
     from abcgs.sources.read import read_source
+    from abcgs.splats.formats.splat import write_splat_file
     from abcgs.splats.params import SplatViewsParams
-    from abcgs.splats.splat import write_splat_file
 
     folder = tmp_path / "sp"
     folder.mkdir()

@@ -415,7 +415,7 @@ def test_reconstruct_stage_reads_a_dataset_scene(tmp_path: Path, tiny_scene: Pat
 
     from abcgs.params import load_params
     from abcgs.pipeline import run_stage
-    from abcgs.sources.check import check_scene_sources
+    from abcgs.source_check import check_scene_sources
 
     cams, render = truth
     write_llff(tmp_path / "scene", tiny_scene, cams)

@@ -21,10 +21,10 @@ from abcgs.sfm.model import SceneData
 from abcgs.sources.splat import read_splat_source
 from abcgs.splats.cameras import cameras_around
 from abcgs.splats.exporting import give_back
-from abcgs.splats.formats import read_splat
+from abcgs.splats.formats.splat import write_splat_file
 from abcgs.splats.importing import import_and_save
 from abcgs.splats.params import SplatViewsParams
-from abcgs.splats.splat import write_splat_file
+from abcgs.splats.registry import read_splat
 from abcgs.stylize.colormatch import color_match_and_refit
 from abcgs.stylize.loop import stylize, with_higher_sh
 from abcgs.stylize.params import ColorMatchParams, StylizeOptim, StylizeParams

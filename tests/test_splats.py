@@ -18,16 +18,16 @@ from abcgs.fit.params import FitParams
 from abcgs.gaussians import GaussianModel, render
 from abcgs.io.images import save_image
 from abcgs.io.ply import PlyLayout, read_ply, read_ply_layout, write_ply
-from abcgs.io.spz import write_spz
 from abcgs.sfm.align import Similarity
 from abcgs.sfm.model import SceneData
 from abcgs.splats import frames
 from abcgs.splats.exporting import give_back
-from abcgs.splats.formats import detect_splat_format, read_splat, write_splat
-from abcgs.splats.gsplat_ckpt import write_gsplat_ckpt
+from abcgs.splats.formats.gsplat_ckpt import write_gsplat_ckpt
+from abcgs.splats.formats.splat import write_splat_file
+from abcgs.splats.formats.spz import write_spz
+from abcgs.splats.formats.supersplat import write_compressed_ply
 from abcgs.splats.importing import import_and_save
-from abcgs.splats.splat import write_splat_file
-from abcgs.splats.supersplat import write_compressed_ply
+from abcgs.splats.registry import detect_splat_format, read_splat, write_splat
 from abcgs.splats.validate import check_splat
 
 W, H = 96, 72

@@ -11,7 +11,7 @@ import torch
 
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
-from abcgs.io.spz import ROUND_TRIP_TOLERANCE, decode_spz, encode_spz, export_record, read_spz, write_spz
+from abcgs.splats.formats.spz import ROUND_TRIP_TOLERANCE, decode_spz, encode_spz, export_record, read_spz, write_spz
 
 
 def _model(n: int = 500, sh_degree: int = 0, seed: int = 0) -> GaussianModel:

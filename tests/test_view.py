@@ -12,8 +12,8 @@ import torch
 from abcgs.cameras import Camera, intrinsics, look_at
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
-from abcgs.io.spz import decode_spz
 from abcgs.render import sh0_to_rgb
+from abcgs.splats.formats.spz import decode_spz
 from abcgs.view.page import (
     LABEL_PALETTE,
     label_colored,

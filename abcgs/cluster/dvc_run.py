@@ -21,8 +21,9 @@ package of the clone it runs in.
 
 **Tested DVC versions.** The two changes replace private DVC functions (``Stage.save``, ``Stage.dump``,
 ``StageCache.restore``, ``dvc.repo.reproduce._reproduce``, ``dvcfile.dump_stages``, which DVC has since 3.63), so
-they hold only for the DVC versions they were tested with, :data:`DVC_TESTED` (``pyproject.toml`` pins ``dvc`` to
-it). On another version this script exits with :func:`dvc_version_problem`'s message before running anything, and
+they hold only for the DVC versions they were tested with, :data:`DVC_TESTED` (the ``cluster`` extra of
+``pyproject.toml`` pins ``dvc`` to it). On another version this script exits with :func:`dvc_version_problem`'s
+message before running anything, and
 ``python -m abcgs.cluster`` refuses to start (:func:`abcgs.cluster.run.check_dvc_version`).
 """
 
@@ -32,8 +33,8 @@ import re
 import sys
 
 DVC_TESTED = ((3, 67), (3, 68))
-"""``[first, end)`` of the DVC ``major.minor`` versions this file was tested with; ``pyproject.toml`` says
-``dvc>=3.67,<3.68``."""
+"""``[first, end)`` of the DVC ``major.minor`` versions this file was tested with; ``pyproject.toml``'s ``cluster``
+extra says ``dvc>=3.67,<3.68``."""
 
 
 def installed_dvc_version() -> str:

@@ -35,8 +35,9 @@ from abcgs.progress import progress as progress_bar
 from abcgs.render import select_backend
 from abcgs.render.cpu import kernel_threads
 from abcgs.runtime import resolve_device, torch_threads
+from abcgs.sfm.model import SceneData
 from abcgs.silhouette import over, unpremultiply
-from abcgs.types import Backend, SceneLike
+from abcgs.types import Backend
 
 log = logging.getLogger(__name__)
 
@@ -152,7 +153,7 @@ def _eval_row(step: int, seconds: float, ev: Evaluation) -> dict:
 
 
 def fit(
-    scene: SceneLike,
+    scene: SceneData,
     params: FitParams | None = None,
     progress: bool = True,
     *,
@@ -187,7 +188,7 @@ def fit(
 
 
 def _fit(
-    scene: SceneLike,
+    scene: SceneData,
     params: FitParams,
     progress: bool,
     views: Views | None,

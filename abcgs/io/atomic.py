@@ -12,9 +12,9 @@ import math
 import os
 import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 
 @contextlib.contextmanager
@@ -97,8 +97,16 @@ def write_text(path: str | os.PathLike, text: str) -> None:
         tmp.write_text(text, encoding="utf-8")
 
 
-def write_bytes(path: str | os.PathLike, data: bytes) -> int:
-    """Write ``data``, atomically; returns its size in bytes."""
+def write_stream(path: str | os.PathLike, write: Callable[[BinaryIO], object]) -> int:
+    """The one atomic byte writer of abcgs's file formats: ``write`` fills a binary file handle (of a temporary
+    sibling that is then renamed onto ``path``); returns the file's size in bytes."""
     with atomic_path(path) as tmp:
-        tmp.write_bytes(data)
-    return len(data)
+        with open(tmp, "wb") as fh:
+            write(fh)
+        size = tmp.stat().st_size
+    return size
+
+
+def write_bytes(path: str | os.PathLike, data: bytes) -> int:
+    """Write ``data``, atomically (:func:`write_stream`); returns its size in bytes."""
+    return write_stream(path, lambda fh: fh.write(data))

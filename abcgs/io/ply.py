@@ -29,7 +29,7 @@ from plyfile import PlyData, PlyElement, PlyListProperty, PlyParseError
 
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel, valid_gaussians
-from abcgs.io.atomic import atomic_path
+from abcgs.io.atomic import write_stream
 
 _REST_COUNTS = {0: 0, 9: 1, 24: 2, 45: 3}
 """Number of ``f_rest_*`` fields → SH degree."""
@@ -145,9 +145,7 @@ def write_ply(path: str | os.PathLike, model: GaussianModel, layout: PlyLayout |
     """Write ``model`` as an INRIA-layout 3DGS PLY (binary little endian), atomically; with ``layout``, in that
     property order and those types (see :func:`gaussians_to_array` for ``extras``)."""
     element = PlyElement.describe(gaussians_to_array(model, layout, extras), "vertex")
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as fh:
-            PlyData([element], text=False, byte_order="<").write(fh)
+    write_stream(path, PlyData([element], text=False, byte_order="<").write)
 
 
 def _check_body_size(path: Path, raw: bytes, data: PlyData) -> None:

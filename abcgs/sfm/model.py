@@ -31,7 +31,8 @@ MODEL_NAMES = {0: "SIMPLE_PINHOLE", 1: "PINHOLE", 2: "SIMPLE_RADIAL", 3: "RADIAL
 
 @dataclass
 class SceneData:
-    """A calibrated scene as the fit stage consumes it.
+    """A calibrated scene as the later stages read it back from the ``reconstruct`` stage's COLMAP layout: the one scene
+    type of fitting, splat import and masks.
 
     Attributes:
         cameras: one PINHOLE :class:`Camera` per registered image, sorted by image name.

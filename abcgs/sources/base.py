@@ -17,9 +17,10 @@ through :mod:`abcgs.sources.detect`.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, get_args
+from typing import TYPE_CHECKING, Any, get_args
 
 import numpy as np
 
@@ -97,3 +98,45 @@ class SourceScene:
     def cameras(self) -> list[Camera]:
         """The views' cameras, same order as :attr:`views`."""
         return [v.camera for v in self.views]
+
+
+@dataclass(frozen=True)
+class ReadOptions:
+    """What a reader may be told besides the folder; each reader uses the options of its format and ignores the rest.
+
+    Attributes:
+        images: the image subfolder (``colmap``, ``llff``, ``nerfstudio``; default ``images``).
+        background: RGB in ``[0, 1]`` behind RGBA images (``blender``) and a bare splat's renders.
+        views: a :class:`~abcgs.splats.params.SplatViewsParams`: the cameras made around a bare splat.
+        work: a folder for a bare splat's renders (its views' images).
+        drop_invalid: drop a bare splat's non-finite Gaussians instead of refusing it.
+    """
+
+    images: str | None = None
+    background: tuple[float, float, float] | None = None
+    views: Any = None
+    work: Path | None = None
+    drop_invalid: bool = False
+
+
+@dataclass(frozen=True)
+class SceneReader:
+    """One scene format's reader. Each reader module of :mod:`abcgs.sources` (named like its format) defines
+    ``READER``; :func:`abcgs.sources.read.reader_of` finds it, and :func:`abcgs.sources.read.register` adds one at
+    run time.
+
+    Attributes:
+        name: the format (``params.yaml``'s ``format``; :data:`abcgs.types.SceneFormat` lists the built-in ones).
+        read: ``(folder, options) → SourceScene``.
+        marker: what a scene of the format is recognised by (for messages: ``sparse/0``, ``transforms.json``).
+        detect: whether auto-detection takes a folder for this format, for a reader added at run time; the built-in
+            formats are told apart by :func:`abcgs.sources.detect.detect_format`, which reads no reader module.
+        check: whether the cameras read are checked (:func:`abcgs.sources.validate.check_cameras`); a bare splat's
+            are made around it and not read.
+    """
+
+    name: str
+    read: Callable[[Path, ReadOptions], SourceScene]
+    marker: str
+    detect: Callable[[Path], bool] | None = None
+    check: bool = True

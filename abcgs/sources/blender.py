@@ -19,9 +19,9 @@ import numpy as np
 
 from abcgs.cameras import Camera, check_intrinsics
 from abcgs.errors import InputError
-from abcgs.sources.base import SourceScene, SourceView
+from abcgs.sources.base import ReadOptions, SceneReader, SourceScene, SourceView
 from abcgs.sources.lens import image_size
-from abcgs.sources.nerfstudio import OPENGL_TO_OPENCV, camera_to_world, frames_of, load_json, number
+from abcgs.sources.transforms_json import OPENGL_TO_OPENCV, camera_to_world, frames_of, load_json, number
 from abcgs.sources.validate import check_inside
 
 SPLITS = ("train", "test")
@@ -74,3 +74,10 @@ def read_blender_source(folder: str | os.PathLike, background: tuple[float, floa
         raise InputError(f"{folder}: two frames of one split name the same image file; each frame needs its own image")
     bg = tuple(float(c) for c in (background if background is not None else DEFAULT_BACKGROUND))
     return SourceScene("blender", tuple(sorted(views, key=lambda v: v.name)), background=bg)  # type: ignore[arg-type]
+
+
+def _read(folder: Path, options: ReadOptions) -> SourceScene:
+    return read_blender_source(folder, options.background)
+
+
+READER = SceneReader("blender", _read, "transforms_train.json")

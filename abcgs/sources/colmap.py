@@ -24,7 +24,7 @@ import pycolmap
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.sfm.model import read_model
-from abcgs.sources.base import SourceScene, SourceView
+from abcgs.sources.base import ReadOptions, SceneReader, SourceScene, SourceView
 from abcgs.sources.detect import DEFAULT_IMAGES, colmap_model_dir, image_files
 from abcgs.sources.lens import fit_to_image, image_size, pinhole_and_lens
 from abcgs.sources.validate import check_count, check_inside
@@ -92,3 +92,10 @@ def read_colmap_source(folder: str | os.PathLike, images: str | None = None) -> 
     xyz = np.array([p.xyz for p in pts], np.float32).reshape(-1, 3)
     rgb = np.array([p.color for p in pts], np.float32).reshape(-1, 3) / 255.0
     return SourceScene("colmap", tuple(views), xyz if len(xyz) else None, rgb if len(xyz) else None, notes=tuple(notes))
+
+
+def _read(folder: Path, options: ReadOptions) -> SourceScene:
+    return read_colmap_source(folder, options.images)
+
+
+READER = SceneReader("colmap", _read, "sparse/0")

@@ -16,7 +16,7 @@ import numpy as np
 
 from abcgs.cameras import Camera, check_intrinsics, check_rotation, intrinsics
 from abcgs.errors import InputError
-from abcgs.sources.base import SourceScene, SourceView
+from abcgs.sources.base import ReadOptions, SceneReader, SourceScene, SourceView
 from abcgs.sources.detect import DEFAULT_IMAGES, image_files
 from abcgs.sources.lens import fit_to_image, image_size
 from abcgs.sources.validate import check_count
@@ -99,3 +99,10 @@ def read_llff_source(folder: str | os.PathLike, images: str | None = None) -> So
     if not (0 < near < far):
         raise InputError(f"{path}: the depth bounds (columns 15, 16) are {near:g} .. {far:g}; LLFF writes 0 < near < far")
     return SourceScene("llff", tuple(views), depth_range=(near, far))
+
+
+def _read(folder: Path, options: ReadOptions) -> SourceScene:
+    return read_llff_source(folder, options.images)
+
+
+READER = SceneReader("llff", _read, "poses_bounds.npy")

@@ -16,75 +16,23 @@ it, as for COLMAP. Masks (``mask_path``: non-zero = keep) are passed to the ``ma
 
 from __future__ import annotations
 
-import json
 import logging
 import os
-import posixpath
 from pathlib import Path, PurePosixPath
 
 import numpy as np
 
 from abcgs.cameras import Camera, check_intrinsics, check_rotation
 from abcgs.errors import InputError
-from abcgs.sources.base import Distortion, SourceScene, SourceView
+from abcgs.sources.base import Distortion, ReadOptions, SceneReader, SourceScene, SourceView
 from abcgs.sources.detect import DEFAULT_IMAGES
 from abcgs.sources.lens import fit_to_image, image_size, pinhole_and_lens
-from abcgs.sources.validate import check_count, check_file_name, check_inside, check_unique
+from abcgs.sources.transforms_json import OPENGL_TO_OPENCV, camera_to_world, frames_of, load_json, number, number_array
+from abcgs.sources.validate import check_file_name, check_inside
 
 log = logging.getLogger(__name__)
 TRANSFORMS = "transforms.json"
-OPENGL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
-"""Right-multiplied onto a camera-to-world matrix: OpenGL camera axes (y up, z back) → OpenCV's (y down, z forward)."""
 _LENS_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
-
-
-MAX_JSON_BYTES = 256 << 20
-"""Largest transforms file read (bytes): 20 000 frames of nerfstudio's JSON take about 30 MB."""
-
-
-def load_json(path: Path) -> dict:
-    """A JSON object from ``path``; :class:`InputError` naming the file when it is not one, is larger than
-    :data:`MAX_JSON_BYTES` or nested deeper than the parser's recursion limit."""
-    size = path.stat().st_size if path.is_file() else 0
-    if size > MAX_JSON_BYTES:
-        raise InputError(f"{path} is {size} bytes, more than the {MAX_JSON_BYTES >> 20} MiB a transforms file may "
-                         "be; it is not a camera file (or keep a subset of its frames)")
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:  # also UnicodeDecodeError, and a number of more than 4300 digits
-        raise InputError(f"{path} is not readable JSON ({exc}); re-export it") from None
-    except RecursionError:
-        raise InputError(f"{path} is nested too deeply to be a transforms file; re-export it") from None
-    if not isinstance(data, dict):
-        raise InputError(f"{path}: expected a JSON object at the top level")
-    return data
-
-
-def frames_of(path: Path, meta: dict) -> list[dict]:
-    """``meta["frames"]``, checked to be a non-empty list of objects with ``file_path`` and ``transform_matrix``."""
-    frames = meta.get("frames")
-    if not isinstance(frames, list) or not frames:
-        raise InputError(f"{path}: no `frames` list (or it is empty); a transforms file lists one frame per image")
-    check_count(len(frames), str(path))
-    for i, fr in enumerate(frames):
-        if not isinstance(fr, dict) or "file_path" not in fr or "transform_matrix" not in fr:
-            raise InputError(f"{path}: frames[{i}] lacks `file_path` or `transform_matrix`")
-        check_file_name(fr["file_path"], f"{path}: frames[{i}].file_path")
-    check_unique([posixpath.normpath(fr["file_path"].replace("\\", "/")) for fr in frames], str(path))
-    return frames
-
-
-def camera_to_world(path: Path, where: str, matrix) -> np.ndarray:
-    """A ``(4, 4)`` camera-to-world matrix from a 3 × 4 or 4 × 4 nested list, with a rotation block checked to be a
-    rotation (orthonormal, det +1): a scaled or mirrored block means another convention."""
-    m = number_array(path, f"{where}.transform_matrix", matrix)
-    if m.shape not in ((3, 4), (4, 4)):
-        raise InputError(f"{path}: {where}.transform_matrix is not a finite 3x4 or 4x4 matrix")
-    out = np.eye(4)
-    out[:3] = m[:3]
-    check_rotation(out[:3, :3], f"{path}: {where}.transform_matrix", "transforms hold camera-to-world poses "
-                   "with a rotation block (a scaled or mirrored one is another convention); re-export them")
-    return out
 
 
 def applied_similarity(path: Path, meta: dict) -> np.ndarray:
@@ -100,26 +48,6 @@ def applied_similarity(path: Path, meta: dict) -> np.ndarray:
     if not 0 < s < 1e12:
         raise InputError(f"{path}: applied_scale is {s}; it must be positive (and below 1e12)")
     return np.diag([s, s, s, 1.0]) @ A
-
-
-def number_array(path: Path, where: str, value) -> np.ndarray:
-    """``value`` (a JSON number or nested list of numbers) as a finite ``float64`` array; :class:`InputError` naming
-    ``path`` and ``where`` otherwise."""
-    try:
-        out = np.asarray(value, np.float64)
-    except (TypeError, ValueError, OverflowError):
-        out = None
-    if out is None or not np.isfinite(out).all() or isinstance(value, bool):
-        raise InputError(f"{path}: {where} is {str(value)[:60]!r}, not a finite number (or matrix of numbers)")
-    return out
-
-
-def number(path: Path, where: str, value) -> float:
-    """``value`` as a finite ``float`` (a JSON number); :class:`InputError` naming ``path`` and ``where`` otherwise."""
-    out = number_array(path, where, value)
-    if out.ndim:
-        raise InputError(f"{path}: {where} is {str(value)[:60]!r}, not a number")
-    return float(out)
 
 
 def to_scene(c2w_file: np.ndarray, file_from_scene: np.ndarray) -> np.ndarray:
@@ -258,3 +186,10 @@ def read_nerfstudio_source(folder: str | os.PathLike, images: str | None = None)
         notes.append("applied_transform/applied_scale undone: the scene is in the original data's frame")
     return SourceScene("nerfstudio", tuple(views), points, colors, frame=np.linalg.inv(file_from_scene),
                        notes=tuple(notes))
+
+
+def _read(folder: Path, options: ReadOptions) -> SourceScene:
+    return read_nerfstudio_source(folder, options.images)
+
+
+READER = SceneReader("nerfstudio", _read, "transforms.json")

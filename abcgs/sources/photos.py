@@ -12,6 +12,7 @@ from pathlib import Path
 
 from abcgs.sfm.colmap import ReconstructionReport, reconstruct
 from abcgs.sfm.params import ReconstructParams
+from abcgs.sources.base import ReadOptions, SceneReader, SourceScene
 from abcgs.sources.detect import DEFAULT_IMAGES
 
 
@@ -21,3 +22,10 @@ def reconstruct_photos(folder: str | os.PathLike, out_dir: str | os.PathLike, pa
     stage's layout)."""
     folder = Path(folder)
     return reconstruct(folder / (images or DEFAULT_IMAGES), out_dir, params, masks_dir=folder / "masks")
+
+
+def _read(folder: Path, options: ReadOptions) -> SourceScene:
+    raise ValueError("a photos scene has no cameras to read: structure from motion finds them (abcgs.sources.photos)")
+
+
+READER = SceneReader("photos", _read, "images/")

@@ -18,10 +18,11 @@ import torch
 from abcgs.gaussians import render
 from abcgs.io.images import save_image
 from abcgs.render import sh0_to_rgb
-from abcgs.sources.base import SourceScene, SourceView
+from abcgs.sources.base import ReadOptions, SceneReader, SourceScene, SourceView
+from abcgs.sources.detect import splat_file
 from abcgs.splats.cameras import cameras_around
-from abcgs.splats.formats import read_splat
 from abcgs.splats.params import SplatViewsParams
+from abcgs.splats.registry import read_splat
 from abcgs.types import Backend
 
 MAX_POINTS = 100_000
@@ -52,3 +53,13 @@ def read_splat_source(path: Path, out_images_dir: Path, params: SplatViewsParams
     colors = sh0_to_rgb(model.sh0[keep, 0, :]).clamp(0, 1).numpy().astype(np.float32)
     return SourceScene("splat", tuple(views), points, colors, background=background)
 
+
+def _read(folder: Path, options: ReadOptions) -> SourceScene:
+    """The splat file ``folder`` (or the one in it), its views rendered into ``options.work``."""
+    if options.work is None:
+        raise ValueError("a bare splat's views are rendered into `work`; give a folder")
+    return read_splat_source(splat_file(folder), options.work, options.views, background=options.background,
+                             drop_invalid=options.drop_invalid)
+
+
+READER = SceneReader("splat", _read, "the splat file", check=False)

@@ -2,7 +2,7 @@
 
     give_back("out/garden_x/stylize/point_cloud.ply", "out/garden/gs/splat_source.json", "out/garden_x/returned")
 
-writes ``returned/<the source's file name>`` (:func:`abcgs.splats.formats.write_splat`) and ``returned/returned.json``
+writes ``returned/<the source's file name>`` (:func:`abcgs.splats.registry.write_splat`) and ``returned/returned.json``
 (the format, the file, the SH degree, whether the frame was moved). A scene fitted from its photos has no other
 format to go back to: the folder then holds ``returned.json`` alone, saying so.
 """
@@ -15,7 +15,7 @@ from pathlib import Path
 from abcgs.io.atomic import atomic_path, write_json
 from abcgs.io.ply import read_ply
 from abcgs.splats import frames
-from abcgs.splats.formats import read_provenance, returned_name, write_splat
+from abcgs.splats.registry import read_provenance, returned_name, write_splat
 
 
 def give_back(ply: str | os.PathLike, source: str | os.PathLike, out_dir: str | os.PathLike) -> dict:

@@ -5,7 +5,7 @@
 Writes the same files as :func:`abcgs.fit.outputs.fit_and_save` — ``point_cloud.ply`` (INRIA layout, the scene's
 frame, the source's SH degree), ``metrics.json`` (held-out PSNR/SSIM over the views ``fit.test_every`` holds out, as
 a fit's), ``history.csv`` (no steps: header only) and ``heldout_grid.png`` — plus ``splat_source.json``, the
-:class:`~abcgs.splats.formats.SplatProvenance` the ``export`` stage writes the stylized scene back with. A scene
+:class:`~abcgs.splats.contract.SplatProvenance` the ``export`` stage writes the stylized scene back with. A scene
 fitted from its photos gets ``splat_source.json`` too, with ``"format": null``.
 """
 
@@ -29,10 +29,10 @@ from abcgs.layout import FitDir
 from abcgs.render import select_backend
 from abcgs.render.cpu import kernel_threads
 from abcgs.runtime import torch_threads
-from abcgs.splats.formats import read_splat
+from abcgs.sfm.model import SceneData
 from abcgs.splats.preview import decimate
+from abcgs.splats.registry import read_splat
 from abcgs.splats.validate import check_splat
-from abcgs.types import SceneLike
 
 
 def write_fitted_source(out_dir: str | os.PathLike) -> None:
@@ -40,9 +40,9 @@ def write_fitted_source(out_dir: str | os.PathLike) -> None:
     write_json(FitDir(Path(out_dir)).splat_source, {"format": None, "note": "fitted from the photos by abcgs"})
 
 
-def import_and_save(scene: SceneLike, splat: str | os.PathLike, fmt: str, params: FitParams,
+def import_and_save(scene: SceneData, splat: str | os.PathLike, fmt: str, params: FitParams,
                     out_dir: str | os.PathLike, *, device: torch.device | str = "cpu", drop_invalid: bool = False) -> dict:
-    """Read ``splat`` (:func:`~abcgs.splats.formats.read_splat`), check it against the photos
+    """Read ``splat`` (:func:`~abcgs.splats.registry.read_splat`), check it against the photos
     (:func:`~abcgs.splats.validate.check_splat` with ``params.import_min_psnr``; raises before writing anything
     when it fails; ``params.import_max_gaussians`` decimates it first, :mod:`abcgs.splats.preview`), evaluate the held-out views and write the outputs listed in the module docstring. Returns the
     ``metrics.json`` record. The check and the held-out renders run on ``device``; ``drop_invalid``: drop non-finite

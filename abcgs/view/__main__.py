@@ -82,4 +82,7 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
+    from abcgs.runtime import setup
+
+    setup()  # the process settings (abcgs.runtime.setup): the wait policy only where torch is not loaded yet
     sys.exit(main())

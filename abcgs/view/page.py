@@ -26,8 +26,8 @@ from abcgs.camera_paths import camera_path, capture_layout
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
-from abcgs.io.spz import encode_spz
 from abcgs.render import rgb_to_sh0
+from abcgs.splats.formats.spz import encode_spz
 from abcgs.types import FRAME_FILLING, Background, PathKind
 
 BUNDLE = Path(__file__).resolve().parent / "static" / "abcgs-viewer.js.gz"

@@ -42,6 +42,10 @@ from pathlib import Path
 
 import yaml
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
 from abcgs.cluster.run import load_run, read_state
 from eval.bench.regression import REDUCED, reduce
 from eval.bench.repo_copy import copy_repo, run_in

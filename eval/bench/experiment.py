@@ -32,6 +32,10 @@ from typing import Any
 
 import yaml
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
 from abcgs.errors import ParamsError
 from abcgs.overlay import REPLACED, read_overlay
 

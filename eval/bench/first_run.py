@@ -22,6 +22,10 @@ import tempfile
 import time
 from pathlib import Path
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
 from abcgs.io.atomic import write_json
 
 ROOT = Path(__file__).resolve().parents[2]

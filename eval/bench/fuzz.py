@@ -36,7 +36,9 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-import abcgs  # noqa: F401  (before torch: abcgs sets OpenMP's wait policy, see abcgs/__init__.py)
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
 # isort: split
 import numpy as np
@@ -167,11 +169,11 @@ class Target:
 def make_targets(work: Path, formats: tuple[str, ...] = FORMATS) -> dict[str, Target]:
     """A valid input of each format under ``work`` and its reader (module docstring); each reads as made."""
     from abcgs.io.ply import write_ply
-    from abcgs.io.spz import write_spz
     from abcgs.sfm.model import read_colmap_scene
     from abcgs.sources.read import read_source
-    from abcgs.splats.formats import read_splat
-    from abcgs.splats.splat import write_splat_file
+    from abcgs.splats.formats.splat import write_splat_file
+    from abcgs.splats.formats.spz import write_spz
+    from abcgs.splats.registry import read_splat
 
     out: dict[str, Target] = {}
     cams = _cameras()
@@ -181,7 +183,7 @@ def make_targets(work: Path, formats: tuple[str, ...] = FORMATS) -> dict[str, Ta
         write_ply(p, _model())
         out["ply"] = Target("ply", [p], lambda p=p: read_splat(p, "auto"), "bytes")
     if "supersplat" in formats:
-        from abcgs.splats.supersplat import write_compressed_ply
+        from abcgs.splats.formats.supersplat import write_compressed_ply
 
         p = work / "supersplat" / "scene.compressed.ply"
         p.parent.mkdir(parents=True)

@@ -37,7 +37,9 @@ import time
 from pathlib import Path
 from types import ModuleType, SimpleNamespace
 
-import abcgs  # noqa: F401  (before torch: abcgs sets OpenMP's wait policy)
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
 # isort: split
 import torch

@@ -27,7 +27,9 @@ import platform
 import statistics
 from pathlib import Path
 
-import abcgs  # noqa: F401  (before torch: abcgs sets OpenMP's wait policy, see abcgs/__init__.py)
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
 # isort: split
 import torch

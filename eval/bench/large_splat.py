@@ -32,7 +32,9 @@ import tempfile
 import time
 from pathlib import Path
 
-import abcgs  # noqa: F401  (before torch: abcgs sets OpenMP's wait policy, see abcgs/__init__.py)
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
 # isort: split
 import numpy as np
@@ -45,10 +47,10 @@ from abcgs.gaussians import GaussianModel, render
 from abcgs.io.atomic import write_json
 from abcgs.io.images import save_image
 from abcgs.io.ply import write_ply
-from abcgs.io.spz import write_spz
 from abcgs.sfm.model import SceneData
-from abcgs.splats.formats import read_splat, write_splat
+from abcgs.splats.formats.spz import write_spz
 from abcgs.splats.preview import decimate
+from abcgs.splats.registry import read_splat, write_splat
 from abcgs.splats.validate import check_splat
 from abcgs.stylize.loop import stylize
 from abcgs.stylize.params import StylizeCompute, StylizeOptim, StylizeParams

@@ -35,7 +35,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import abcgs  # noqa: F401  (before torch: abcgs sets OpenMP's wait policy, see abcgs/__init__.py)
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
 # isort: split
 import cv2
@@ -64,8 +66,8 @@ from abcgs.sources.base import SourceScene
 from abcgs.sources.blender import read_blender_source
 from abcgs.sources.model import write_source_model
 from abcgs.sources.validate import axes_meeting_point
+from abcgs.splats.formats.splat import write_splat_file
 from abcgs.splats.params import SplatViewsParams
-from abcgs.splats.splat import write_splat_file
 from abcgs.stylize.colormatch import color_match_and_refit
 from abcgs.stylize.loop import stylize
 from abcgs.stylize.params import ColorMatchParams, StylizeParams
@@ -133,7 +135,7 @@ def miku_objects(work: Path, fit_ply: Path, args) -> list[ObjectCase]:
     cases = []
     if "miku_splat" in args.objects:
         from abcgs.sources.splat import read_splat_source
-        from abcgs.splats.formats import read_splat
+        from abcgs.splats.registry import read_splat
 
         views = SplatViewsParams(count=args.miku_views, width=args.splat_width, height=args.splat_width * 3 // 4, up=args.miku_up)
         source: SourceScene = read_splat_source(splat, out / "splat_views", views, background=(0.0, 0.0, 0.0))

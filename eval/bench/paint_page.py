@@ -9,6 +9,10 @@ import contextlib
 import threading
 from collections.abc import Iterator
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
 from abcgs.masks.grabcut import Stroke
 from abcgs.masks.paint import PaintSession, make_server, page_url
 

@@ -40,6 +40,10 @@ from pathlib import Path
 
 import yaml
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
 from abcgs.dotted import set_dotted
 from abcgs.io.atomic import write_json
 from eval.bench.repo_copy import copy_repo, copy_revision, run_in

@@ -23,7 +23,9 @@ import threading
 import time
 from dataclasses import dataclass
 
-import abcgs  # noqa: F401  (before torch: abcgs sets OpenMP's wait policy, see abcgs/__init__.py)
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
 # isort: split
 

@@ -5,6 +5,10 @@ gates :data:`GATED` against ``tests/baselines/tiny_seed_spread.json``, whose tol
 ``python -m eval.studies.seed_spread`` measures with the same settings.
 """
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
 from abcgs.dotted import set_dotted
 
 GATED = ("ssim", "short_rmse", "long_rmse")

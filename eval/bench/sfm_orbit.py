@@ -22,6 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
 from abcgs.camera_paths import _plane_basis, capture_layout
 from abcgs.io.atomic import write_json
 from abcgs.sfm.colmap import reconstruct, set_colmap_log_level

@@ -30,6 +30,10 @@ from pathlib import Path
 
 import numpy as np
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
 from abcgs.io.atomic import write_json, write_text
 from abcgs.io.ply import read_ply
 from abcgs.sfm.model import read_colmap_scene

@@ -19,7 +19,9 @@ import tempfile
 import time
 from pathlib import Path
 
-import abcgs  # noqa: F401  (before torch: abcgs sets OpenMP's wait policy, see abcgs/__init__.py)
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
 # isort: split
 import numpy as np
@@ -38,10 +40,10 @@ from abcgs.params import load_params
 from abcgs.sfm.model import SceneData
 from abcgs.sources.splat import read_splat_source
 from abcgs.splats.exporting import give_back
-from abcgs.splats.formats import read_splat
+from abcgs.splats.formats.splat import write_splat_file
 from abcgs.splats.importing import import_and_save
 from abcgs.splats.params import SplatViewsParams
-from abcgs.splats.splat import write_splat_file
+from abcgs.splats.registry import read_splat
 from abcgs.stylize.colormatch import color_match_and_refit
 from abcgs.stylize.loop import stylize
 from abcgs.stylize.params import ColorMatchParams

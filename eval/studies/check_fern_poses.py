@@ -19,6 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
 from abcgs.io.images import list_images
 from abcgs.sfm.align import alignment_residual
 from abcgs.sfm.colmap import reconstruct

@@ -23,6 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
 from abcgs.errors import InputError
 from abcgs.io.atomic import write_json
 from abcgs.io.images import load_image, save_image

@@ -17,6 +17,10 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
 from abcgs.io.atomic import write_json
 from eval.bench.regression import GATED, REDUCED, reduce
 from eval.bench.repo_copy import copy_repo, run_in

@@ -17,12 +17,16 @@ from pathlib import Path
 
 import cv2
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
 from abcgs.io.atomic import write_text
 from abcgs.io.images import save_image
 from abcgs.io.ply import read_ply
 from abcgs.splats.cameras import cameras_around
-from abcgs.splats.formats import read_splat
 from abcgs.splats.params import SplatViewsParams
+from abcgs.splats.registry import read_splat
 from abcgs.view.page import prepare_experiment, viewer_page
 from eval.bench.viewer import CHROMIUM_ARGS, canvas
 

@@ -2,6 +2,9 @@
 ``cameras.json`` (per view ``img_name``, ``position`` = camera centre and ``rotation`` = camera-to-world rotation, in
 the frame of the COLMAP dataset it was trained on) and ``cfg_args`` (the training options as a printed
 ``Namespace(...)``; its ``source_path`` names that dataset). The PLY is read by :mod:`abcgs.io.ply`.
+
+Frame: the dataset's; where the scene's cameras share names with ``cameras.json``, the similarity between the two
+sets of centres (identity when they agree).
 """
 
 from __future__ import annotations
@@ -15,7 +18,12 @@ import numpy as np
 
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
+from abcgs.gaussians import GaussianModel
+from abcgs.io.atomic import atomic_path, write_text
+from abcgs.io.ply import PlyLayout, read_ply_layout, write_ply
 from abcgs.sfm.align import Similarity, alignment_residual
+from abcgs.splats import frames
+from abcgs.splats.contract import SplatFormatSpec, SplatProvenance
 
 CAMERA_ALIGN_TOLERANCE = 1e-3
 """``cameras.json`` centres that match the scene's to this fraction of their spread are taken as the same frame."""
@@ -91,3 +99,36 @@ def frame_from_cameras(centres: dict[str, np.ndarray], cameras: list[Camera], *,
                          f"(RMS {rms:.3g}, {relative:.1%} of the scene's extent): the splat was trained on other poses "
                          "than this scene's; use the scene folder the splat was trained on")
     return sim
+
+
+def read(path: Path, drop_invalid: bool) -> tuple[GaussianModel, dict]:
+    """The folder's PLY of the highest iteration, its layout, the iteration and the side files."""
+    folder = read_inria_folder(path)
+    model, layout, _ = read_ply_layout(folder.ply, drop_invalid=drop_invalid)
+    side = {k: v for k, v in (("cameras.json", folder.cameras_json), ("cfg_args", folder.cfg_args)) if v}
+    return model, {"ply_layout": layout.to_list(), "iteration": folder.iteration, "side_files": side}
+
+
+def frame(path: Path, scene, fields: dict) -> Similarity:
+    """Scene → file: the inverse of the alignment of ``cameras.json`` onto the scene's cameras (identity without
+    either, or when they agree)."""
+    cameras_json = fields.get("side_files", {}).get("cameras.json")
+    if not cameras_json or scene is None:
+        return frames.IDENTITY
+    source = str(path / "cameras.json")
+    sim = frame_from_cameras(inria_camera_centres(cameras_json, source=source), scene.cameras, source=source)
+    if sim is None or frames.is_identity(sim, CAMERA_ALIGN_TOLERANCE * max(1.0, abs(sim.t).max())):
+        return frames.IDENTITY
+    return frames.inverse(sim)
+
+
+def write(model: GaussianModel, path: Path, like: SplatProvenance) -> None:
+    """A folder ``point_cloud/iteration_<N>/point_cloud.ply`` in the source's layout, with its side files."""
+    layout = PlyLayout.from_list(like.ply_layout) if like.ply_layout else None
+    with atomic_path(path, is_dir=True) as tmp:
+        write_ply(tmp / "point_cloud" / f"iteration_{like.iteration or 0}" / "point_cloud.ply", model, layout)
+        for name, text in like.side_files.items():
+            write_text(tmp / name, text)
+
+
+FORMAT = SplatFormatSpec("inria", read, write, frame, detect=is_inria_folder, rank=10)

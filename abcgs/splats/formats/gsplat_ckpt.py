@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import io
 import os
 from pathlib import Path
 
@@ -15,7 +16,10 @@ import torch
 
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
-from abcgs.io.atomic import atomic_path
+from abcgs.io.atomic import write_stream
+from abcgs.sfm.align import Similarity
+from abcgs.splats import frames
+from abcgs.splats.contract import SplatFormatSpec, SplatProvenance, needs_scene, read_bytes
 
 FIELDS = {"means": "means", "quats": "quats", "scales": "log_scales", "opacities": "opacity_logits", "sh0": "sh0",
           "shN": "shN"}
@@ -25,10 +29,9 @@ FIELDS = {"means": "means", "quats": "quats", "scales": "log_scales", "opacities
 def read_gsplat_ckpt(path: str | os.PathLike) -> tuple[GaussianModel, int | None]:
     """The Gaussians of a gsplat checkpoint and its step (``None`` when absent)."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"gsplat checkpoint {path} does not exist")
+    raw = read_bytes(path, "gsplat checkpoint")
     try:
-        data = torch.load(path, map_location="cpu", weights_only=True)
+        data = torch.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many types for a file that is not a checkpoint
         raise InputError(f"{path} is not a torch checkpoint readable without code ({type(exc).__name__}: {exc}); "
                          "pass gsplat's ckpts/ckpt_<step>_rank0.pt") from None
@@ -51,5 +54,24 @@ def write_gsplat_ckpt(path: str | os.PathLike, model: GaussianModel, step: int |
     """Write ``model`` as a gsplat checkpoint (gsplat's ``--ckpt`` loads it for rendering and evaluation)."""
     inverse = {v: k for k, v in FIELDS.items()}
     splats = {inverse[name]: t.detach().to("cpu", torch.float32).contiguous() for name, t in model.items()}
-    with atomic_path(path) as tmp:
-        torch.save({"step": int(step or 0), "splats": splats}, tmp)
+    write_stream(path, lambda fh: torch.save({"step": int(step or 0), "splats": splats}, fh))
+
+
+def _read(path: Path, drop_invalid: bool) -> tuple[GaussianModel, dict]:
+    model, step = read_gsplat_ckpt(path)
+    return model, {"step": step}
+
+
+def _frame(path: Path, scene, fields: dict) -> Similarity:
+    """Scene → file: gsplat's ``normalize_world_space`` of the scene's cameras and points."""
+    needs_scene("gsplat_ckpt", scene)
+    return frames.gsplat_similarity(scene.cameras, scene.points)
+
+
+def _write(model: GaussianModel, path: Path, like: SplatProvenance) -> None:
+    write_gsplat_ckpt(path, model, like.step)
+
+
+FORMAT = SplatFormatSpec("gsplat_ckpt", _read, _write, _frame,
+                         detect=lambda p: p.suffix.lower() in (".pt", ".pth", ".ckpt"), rank=40,
+                         suffixes=(".pt", ".pth", ".ckpt"))

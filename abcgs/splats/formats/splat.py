@@ -17,6 +17,7 @@ stream). Positions and scales are exact; colour, opacity and rotation are 8-bit.
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -25,6 +26,7 @@ from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
 from abcgs.io.atomic import write_bytes
 from abcgs.render.sh import C0
+from abcgs.splats.contract import SplatFormatSpec, SplatProvenance, read_bytes
 
 RECORD = np.dtype([("pos", "<f4", 3), ("scale", "<f4", 3), ("rgba", "u1", 4), ("rot", "u1", 4)])
 assert RECORD.itemsize == 32
@@ -73,12 +75,22 @@ def decode_splat(data: bytes, *, source: str = ".splat data") -> GaussianModel:
 
 
 def read_splat_file(path: str | os.PathLike) -> GaussianModel:
-    p = os.fspath(path)
-    if not os.path.isfile(p):
-        raise InputError(f".splat file {p} does not exist")
-    with open(p, "rb") as f:
-        return decode_splat(f.read(), source=p)
+    """Read a ``.splat`` file (missing file or malformed content: :class:`InputError`)."""
+    return decode_splat(read_bytes(path, ".splat file"), source=os.fspath(path))
 
 
 def write_splat_file(path: str | os.PathLike, model: GaussianModel, *, drop_sh: bool = False) -> int:
+    """Write ``model`` as ``.splat``, atomically; returns the file size in bytes."""
     return write_bytes(path, encode_splat(model, drop_sh=drop_sh))
+
+
+def _read(path: Path, drop_invalid: bool) -> tuple[GaussianModel, dict]:
+    return read_splat_file(path), {}
+
+
+def _write(model: GaussianModel, path: Path, like: SplatProvenance) -> None:
+    write_splat_file(path, model)
+
+
+FORMAT = SplatFormatSpec("splat", _read, _write, detect=lambda p: p.suffix.lower() == ".splat", rank=50, lossy=True,
+                         suffixes=(".splat",))

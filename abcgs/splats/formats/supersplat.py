@@ -26,21 +26,16 @@ from plyfile import PlyData, PlyElement
 
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
-from abcgs.io.atomic import atomic_path
+from abcgs.io.atomic import write_stream
 from abcgs.render.sh import C0
+from abcgs.splats.contract import SplatFormatSpec, SplatProvenance
+from abcgs.splats.formats.ply import is_compressed_ply, is_ply
 
 CHUNK = 256
 _CHUNK_FIELDS = [f"{m}_{a}" for m in ("min", "max") for a in "xyz"] + [
     f"{m}_scale_{a}" for m in ("min", "max") for a in "xyz"] + [f"{m}_{c}" for m in ("min", "max") for c in "rgb"]
 _PACKED = ("packed_position", "packed_rotation", "packed_scale", "packed_color")
 SQRT2 = float(np.sqrt(2.0))
-
-
-def is_compressed_ply(path: str | os.PathLike) -> bool:
-    """Whether ``path``'s header declares a ``chunk`` element and packed ``vertex`` properties."""
-    with open(path, "rb") as f:
-        head = f.read(4096).split(b"end_header")[0]
-    return b"element chunk" in head and b"packed_position" in head
 
 
 def _morton(means: np.ndarray) -> np.ndarray:
@@ -126,11 +121,10 @@ def encode_compressed_ply(model: GaussianModel) -> tuple[PlyData, np.ndarray]:
     return PlyData(elements, text=False, byte_order="<"), order
 
 
-def write_compressed_ply(path: str | os.PathLike, model: GaussianModel) -> None:
+def write_compressed_ply(path: str | os.PathLike, model: GaussianModel) -> int:
+    """Write ``model`` as a compressed PLY, atomically; returns the file size in bytes."""
     data, _ = encode_compressed_ply(model)
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as fh:
-            data.write(fh)
+    return write_stream(path, data.write)
 
 
 def _bits(v: np.ndarray, shift: int, bits: int) -> np.ndarray:
@@ -197,3 +191,18 @@ def read_compressed_ply(path: str | os.PathLike) -> GaussianModel:
         means=f32(means), quats=f32(q), log_scales=f32(ls), opacity_logits=f32(np.log(alpha / (1 - alpha))),
         sh0=f32((rgb - 0.5) / C0).reshape(n, 1, 3), shN=f32(rest.reshape(n, 3, k1).transpose(0, 2, 1)),
     )
+
+
+def _detect(path: Path) -> bool:
+    return is_ply(path) and is_compressed_ply(path)
+
+
+def _read(path: Path, drop_invalid: bool) -> tuple[GaussianModel, dict]:
+    return read_compressed_ply(path), {}
+
+
+def _write(model: GaussianModel, path: Path, like: SplatProvenance) -> None:
+    write_compressed_ply(path, model)
+
+
+FORMAT = SplatFormatSpec("supersplat", _read, _write, detect=_detect, rank=20, lossy=True, suffixes=(".ply",))

@@ -9,6 +9,11 @@ from __future__ import annotations
 from pathlib import Path
 
 from abcgs.errors import InputError
+from abcgs.gaussians import GaussianModel
+from abcgs.sfm.align import Similarity
+from abcgs.splats import frames
+from abcgs.splats.contract import SplatFormatSpec
+from abcgs.splats.formats import ply
 
 TRANSFORMS = "dataparser_transforms.json"
 
@@ -31,3 +36,28 @@ def splatfacto_ply(path: Path) -> Path:
         raise InputError(f"{path}: expected one exported .ply in the splatfacto folder, found {len(plys)}; name the PLY "
                          "written by ns-export gaussian-splat")
     return plys[0]
+
+
+def detect(path: Path) -> bool:
+    """A folder with a PLY and a transforms file, or a PLY with one next to it or above."""
+    if path.is_dir():
+        return find_transforms(path) is not None and any(path.glob("*.ply"))
+    return ply.is_ply(path) and find_transforms(path) is not None
+
+
+def read(path: Path, drop_invalid: bool) -> tuple[GaussianModel, dict]:
+    """The exported PLY, and the run's transforms file as a side file (without it the frame cannot be undone)."""
+    model, fields = ply.read_file(splatfacto_ply(path), drop_invalid)
+    tf = find_transforms(path)
+    if tf is None:
+        raise InputError(f"{path}: no {TRANSFORMS} next to the PLY or above it; copy the splatfacto run's "
+                         f"{TRANSFORMS} beside the exported PLY (its frame cannot be undone without it)")
+    return model, {**fields, "side_files": {TRANSFORMS: tf.read_text()}}
+
+
+def frame(path: Path, scene, fields: dict) -> Similarity:
+    """Scene → file: nerfstudio's dataparser transform."""
+    return frames.nerfstudio_similarity(find_transforms(path))
+
+
+FORMAT = SplatFormatSpec("splatfacto", read, ply.write, frame, detect=detect, rank=30, suffixes=(".ply",))

@@ -39,6 +39,7 @@ import torch
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
 from abcgs.io.atomic import write_bytes
+from abcgs.splats.contract import SplatFormatSpec, SplatProvenance, read_bytes
 
 MAGIC = 0x5053474E
 HEADER = struct.Struct("<IIIBBBB")
@@ -277,11 +278,22 @@ def write_spz(path: str | os.PathLike, model: GaussianModel, *, version: int = 3
 
 def read_spz(path: str | os.PathLike) -> GaussianModel:
     """Read a ``.spz`` file (missing file or malformed content: :class:`InputError`)."""
-    p = os.fspath(path)
-    if not os.path.isfile(p):
-        raise InputError(f"spz file {p} does not exist")
-    with open(p, "rb") as f:
-        return decode_spz(f.read(), source=p)
+    return decode_spz(read_bytes(path, "spz file"), source=os.fspath(path))
+
+
+def _read(path: Path, drop_invalid: bool) -> tuple[GaussianModel, dict]:
+    """The Gaussians and the header's version (written back the same)."""
+    data = read_bytes(path, "spz file")
+    model = decode_spz(data, source=os.fspath(path))
+    return model, {"spz_version": read_header(data, os.fspath(path))[0]}
+
+
+def _write(model: GaussianModel, path: Path, like: SplatProvenance) -> None:
+    write_spz(path, model, version=like.spz_version or 3)
+
+
+FORMAT = SplatFormatSpec("spz", _read, _write, detect=lambda p: p.suffix.lower() == ".spz", rank=60, lossy=True,
+                         suffixes=(".spz",))
 
 
 def export_record(model: GaussianModel, ply: str | os.PathLike, spz: str | os.PathLike, spz_bytes: int) -> dict:
