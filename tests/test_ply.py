@@ -42,6 +42,22 @@ def test_round_trip_bit_exact(tmp_path, degree):
     assert not list(tmp_path.glob(".*tmp*")), "temporary file left behind"
 
 
+def test_the_body_written_in_blocks_is_plyfiles_whole_array_byte_for_byte(tmp_path, monkeypatch):
+    from abcgs.io import ply
+    from abcgs.io.ply import PlyLayout
+
+    model = random_model(1000, 3, seed=5)
+    monkeypatch.setattr(ply, "PLY_CHUNK", 96)  # 11 blocks, the last one short
+    custom = PlyLayout(tuple([("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("red", "|u1")]
+                             + [(n, "<f4") for n in ply_property_names(3) if n not in ("x", "y", "z", "nx", "ny", "nz")]))
+    extras = {"red": np.arange(1000) % 256}
+    for layout in (None, custom):
+        write_ply(tmp_path / "blocks.ply", model, layout, extras)
+        element = PlyElement.describe(gaussians_to_array(model, layout, extras), "vertex")
+        PlyData([element], text=False, byte_order="<").write(str(tmp_path / "whole.ply"))
+        assert (tmp_path / "blocks.ply").read_bytes() == (tmp_path / "whole.ply").read_bytes()
+
+
 def test_layout_matches_inria(tmp_path):
     model = random_model(5, 3)
     path = tmp_path / "pc.ply"

@@ -80,6 +80,20 @@ def test_deterministic_bytes():
     assert encode_spz(m) == encode_spz(m)
 
 
+@pytest.mark.parametrize("version", [3, 2])
+def test_the_file_is_encoded_in_chunks_to_the_same_bytes(tmp_path, monkeypatch, version):
+    from abcgs.splats.formats import spz
+
+    m = _model(1000, sh_degree=3, seed=4)
+    whole = encode_spz(m, version=version)
+    monkeypatch.setattr(spz, "ENCODE_CHUNK", 64)  # 16 chunks, the last one short
+    assert encode_spz(m, version=version) == whole
+    # streamed to disk through a temporary file: its name must not reach the gzip header
+    for name in ("a.spz", "another_name.spz"):
+        write_spz(tmp_path / name, m, version=version)
+        assert (tmp_path / name).read_bytes() == whole
+
+
 def test_file_round_trip_and_record(tmp_path):
     m = _model(300)
     path = tmp_path / "scene.spz"

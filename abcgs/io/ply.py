@@ -81,12 +81,16 @@ class PlyLayout:
         return cls(tuple((str(name), str(dtype)) for name, dtype in items))
 
 
-def _model_columns(model: GaussianModel) -> dict[str, np.ndarray]:
-    """Every 3DGS property of ``model`` as a ``float32`` column, by its PLY name."""
-    n = model.num_gaussians
+PLY_CHUNK = 1 << 17
+"""Gaussians per block of rows when a PLY is written: the writer holds one block, not a copy of the scene."""
+
+
+def _model_columns(model: GaussianModel, lo: int, hi: int) -> dict[str, np.ndarray]:
+    """Every 3DGS property of Gaussians ``lo:hi`` of ``model`` as a ``float32`` column, by its PLY name."""
+    n = hi - lo
 
     def host(t: torch.Tensor) -> np.ndarray:
-        return t.detach().to("cpu", torch.float32).numpy().reshape(n, -1)
+        return t.detach()[lo:hi].to("cpu", torch.float32).numpy().reshape(n, -1)
 
     blocks = [
         ("x y z", host(model.means)), ("f_dc_0 f_dc_1 f_dc_2", host(model.sh0)),
@@ -97,65 +101,68 @@ def _model_columns(model: GaussianModel) -> dict[str, np.ndarray]:
     return {name: block[:, i] for names, block in blocks for i, name in enumerate(names.split())}
 
 
+def _ply_dtype(model: GaussianModel, layout: PlyLayout | None) -> np.dtype:
+    """The row type: the INRIA layout (``float32`` fields, normals zero), or ``layout``'s order and types."""
+    if layout is None:
+        return np.dtype([(name, "<f4") for name in ply_property_names(model.sh_degree)])
+    if layout.sh_degree != model.sh_degree:
+        raise InputError(f"the PLY layout has SH degree {layout.sh_degree} but the scene has degree {model.sh_degree}")
+    return np.dtype([(name, dtype) for name, dtype in layout.properties])
+
+
+def _rows(model: GaussianModel, dtype: np.dtype, extras: dict[str, np.ndarray] | None, lo: int, hi: int) -> np.ndarray:
+    """Rows ``lo:hi`` of the PLY body as a structured array of ``dtype``. Properties that are not Gaussian
+    parameters take their values from ``extras`` when it holds one column per Gaussian for them, else zeros."""
+    cols = _model_columns(model, lo, hi)
+    n, total = hi - lo, model.num_gaussians
+    arr = np.empty(n, dtype=dtype)
+    for name in dtype.names:
+        value = cols.get(name)
+        if value is None:
+            extra = (extras or {}).get(name)
+            value = extra[lo:hi] if extra is not None and len(extra) == total else np.zeros(n)
+        arr[name] = np.asarray(value).astype(dtype[name])
+    return arr
+
+
 def gaussians_to_array(model: GaussianModel, layout: PlyLayout | None = None,
                        extras: dict[str, np.ndarray] | None = None) -> np.ndarray:
     """The model as a ``(N,)`` numpy structured array: the INRIA layout (``float32`` fields), or ``layout``'s order
-    and types. Properties that are not Gaussian parameters take their values from ``extras`` when it holds one
-    column per Gaussian for them, else zeros."""
-    if layout is not None:
-        if layout.sh_degree != model.sh_degree:
-            raise InputError(f"the PLY layout has SH degree {layout.sh_degree} but the scene has degree {model.sh_degree}")
-        cols = _model_columns(model)
-        n = model.num_gaussians
-        arr = np.empty(n, dtype=[(name, dtype) for name, dtype in layout.properties])
-        for name, dtype in layout.properties:
-            value = cols.get(name)
-            if value is None:
-                extra = (extras or {}).get(name)
-                value = extra if extra is not None and len(extra) == n else np.zeros(n)
-            arr[name] = np.asarray(value).astype(dtype)
-        return arr
-    n = model.num_gaussians
-
-    def host(t: torch.Tensor) -> np.ndarray:
-        return t.detach().to("cpu", torch.float32).numpy().reshape(n, -1)
-
-    cols = np.concatenate(
-        [
-            host(model.means),
-            np.zeros((n, 3), np.float32),
-            host(model.sh0),  # (N, 1, 3) → (N, 3)
-            host(model.shN.transpose(1, 2)),  # (N, 3, K-1) → channel-major (N, 3(K-1))
-            host(model.opacity_logits),
-            host(model.log_scales),
-            host(model.quats),
-        ],
-        axis=1,
-    )
-    names = ply_property_names(model.sh_degree)
-    assert cols.shape[1] == len(names)
-    arr = np.empty(n, dtype=[(name, "<f4") for name in names])
-    for i, name in enumerate(names):
-        arr[name] = cols[:, i]
-    return arr
+    and types (see :func:`_rows` for ``extras``)."""
+    return _rows(model, _ply_dtype(model, layout), extras, 0, model.num_gaussians)
 
 
 def write_ply(path: str | os.PathLike, model: GaussianModel, layout: PlyLayout | None = None,
               extras: dict[str, np.ndarray] | None = None) -> None:
     """Write ``model`` as an INRIA-layout 3DGS PLY (binary little endian), atomically; with ``layout``, in that
-    property order and those types (see :func:`gaussians_to_array` for ``extras``)."""
-    element = PlyElement.describe(gaussians_to_array(model, layout, extras), "vertex")
-    write_stream(path, PlyData([element], text=False, byte_order="<").write)
+    property order and those types (see :func:`_rows` for ``extras``). The body is written :data:`PLY_CHUNK`
+    rows at a time, the same bytes as plyfile writes for the whole array."""
+    dtype = _ply_dtype(model, layout)
+    n = model.num_gaussians
+    properties = PlyElement.describe(np.empty(0, dtype=dtype), "vertex").properties
+    header = PlyData([PlyElement("vertex", properties, n)], text=False, byte_order="<").header
+
+    def write(fh) -> None:
+        fh.write(header.encode("ascii") + b"\n")
+        for lo in range(0, n, PLY_CHUNK):
+            fh.write(_rows(model, dtype, extras, lo, min(n, lo + PLY_CHUNK)).tobytes())
+
+    write_stream(path, write)
 
 
-def _check_body_size(path: Path, raw: bytes, data: PlyData) -> None:
-    """Binary files of fixed-size rows must end exactly after the counted rows (catches a wrong count)."""
+def _check_body_size(path: Path, head: bytes, size: int, data: PlyData) -> None:
+    """Binary files of fixed-size rows must end exactly after the counted rows (catches a wrong count); ``head``
+    holds at least the header, ``size`` is the file's size."""
     if data.text or any(isinstance(p, PlyListProperty) for el in data.elements for p in el.properties):
         return
-    end = raw.find(b"end_header")
-    body = raw.index(b"\n", end) + 1
+    end = head.find(b"end_header")
+    newline = head.find(b"\n", end) if end >= 0 else -1
+    if newline < 0:
+        raise InputError(f"{path}: its PLY header does not end within the first {HEADER_LIMIT} bytes; a 3DGS PLY's "
+                         "header is a few kB")
+    body = newline + 1
     expected = sum(el.count * np.dtype(el.dtype()).itemsize for el in data.elements)
-    extra = len(raw) - body - expected
+    extra = size - body - expected
     if extra:
         counts = ", ".join(f"{el.count} {el.name}" for el in data.elements)
         raise InputError(
@@ -183,6 +190,16 @@ def read_ply(path: str | os.PathLike, *, device: torch.device | str = "cpu", dro
     return read_ply_layout(path, device=device, drop_invalid=drop_invalid)[0]
 
 
+HEADER_LIMIT = 1 << 20
+"""Bytes read for a PLY header (the body is memory-mapped, never read whole)."""
+
+
+def _read_head(path: Path) -> bytes:
+    """The file's first :data:`HEADER_LIMIT` bytes (or all of a shorter file)."""
+    with open(path, "rb") as fh:
+        return fh.read(HEADER_LIMIT)
+
+
 def read_ply_layout(
     path: str | os.PathLike, *, device: torch.device | str = "cpu", drop_invalid: bool = False
 ) -> tuple[GaussianModel, PlyLayout, dict[str, np.ndarray]]:
@@ -191,8 +208,8 @@ def read_ply_layout(
     path = Path(path)
     if not path.is_file():
         raise InputError(f"PLY file {path} does not exist")
-    raw = path.read_bytes()
-    if not (raw.startswith(b"ply\n") or raw.startswith(b"ply\r\n")):
+    head = _read_head(path)
+    if not (head.startswith(b"ply\n") or head.startswith(b"ply\r\n")):
         raise InputError(f"{path} is not a PLY file (it does not start with the 'ply' magic line)")
     try:
         # Memory-mapped (copy-on-write): plyfile's only bulk path for binary rows. From a byte stream it reads
@@ -202,7 +219,7 @@ def read_ply_layout(
         data = PlyData.read(str(path), mmap="c")
     except (PlyParseError, ValueError, EOFError, IndexError, UnicodeDecodeError) as exc:
         raise InputError(f"{path} is a malformed or truncated PLY file: {exc}") from exc
-    _check_body_size(path, raw, data)
+    _check_body_size(path, head, path.stat().st_size, data)
     if "vertex" not in [el.name for el in data.elements]:
         raise InputError(f"{path} has no 'vertex' element, a PLY of an unknown layout: {UNKNOWN_LAYOUT_FIX}")
     vertex = data["vertex"]
@@ -233,7 +250,10 @@ def read_ply_layout(
         return np.stack([np.asarray(arr[p], dtype=np.float32) for p in props], axis=1)
 
     k1 = len(rest) // 3
-    f_rest = col(*[f"f_rest_{i}" for i in range(len(rest))]).reshape(n, 3, k1)
+    sh_rest = np.empty((n, k1, 3), np.float32)  # f_rest_{c·k1 + j} is band j, channel c: filled in place
+    for c in range(3):
+        for j in range(k1):
+            sh_rest[:, j, c] = arr[f"f_rest_{c * k1 + j}"]
     t = lambda a: torch.from_numpy(np.ascontiguousarray(a)).to(device)  # noqa: E731
     layout = PlyLayout(tuple((p.name, arr.dtype[p.name].str) for p in vertex.properties))
     extras = {name: np.array(arr[name]) for name in layout.extra_names()}
@@ -243,7 +263,7 @@ def read_ply_layout(
         log_scales=t(col("scale_0", "scale_1", "scale_2")),
         opacity_logits=t(col("opacity")[:, 0]),
         sh0=t(col("f_dc_0", "f_dc_1", "f_dc_2")[:, None, :]),
-        shN=t(f_rest.transpose(0, 2, 1)),
+        shN=t(sh_rest),
     )
     bad = model.invalid_rows().cpu().numpy()
     model = valid_gaussians(model, str(path), drop=drop_invalid)

@@ -28,17 +28,20 @@ from __future__ import annotations
 
 import gzip
 import io
+import itertools
 import os
 import struct
 import zlib
+from collections.abc import Iterator
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 import torch
 
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
-from abcgs.io.atomic import write_bytes
+from abcgs.io.atomic import write_stream
 from abcgs.splats.contract import SplatFormatSpec, SplatProvenance, read_bytes
 
 MAGIC = 0x5053474E
@@ -136,8 +139,14 @@ def _pack_sh(shN: np.ndarray) -> np.ndarray:
     return np.clip(q, 0, 255).astype(np.uint8).reshape(-1)
 
 
-def encode_spz(model: GaussianModel, *, version: int = 3, antialiased: bool = False) -> bytes:
-    """``model`` → ``.spz`` bytes (gzip). SH degree 0–3 (from ``model.shN``)."""
+ENCODE_CHUNK = 1 << 18
+"""Gaussians encoded at a time: the encoder's float64 temporaries stay a few tens of MB whatever the scene's size."""
+
+
+def _spz_parts(model: GaussianModel, version: int, antialiased: bool) -> Iterator[bytes]:
+    """The uncompressed ``.spz`` stream of ``model`` in pieces: the header, then each attribute of every Gaussian
+    (positions, alphas, colours, scales, rotations, higher SH), encoded :data:`ENCODE_CHUNK` Gaussians at a time
+    (elementwise, so the bytes do not depend on the chunk size)."""
     if version not in (2, 3):
         raise InputError(f"spz: version must be 2 or 3, got {version}")
     n = model.num_gaussians
@@ -146,31 +155,47 @@ def encode_spz(model: GaussianModel, *, version: int = 3, antialiased: bool = Fa
     if degree is None:
         raise InputError(f"spz: {k} higher-order SH coefficients per Gaussian is not a degree 0–3 layout")
     with torch.no_grad():
-        means = model.means.detach().cpu().numpy()
-        wxyz = model.quats.detach().cpu().double().numpy()
-        log_scales = model.log_scales.detach().cpu().numpy()
-        opacity = torch.sigmoid(model.opacity_logits.detach().cpu().double()).numpy()
-        sh0 = model.sh0.detach().cpu().numpy().reshape(n, 3)
-        shN = model.shN.detach().cpu().double().numpy()
-    for name, arr in (("means", means), ("quats", wxyz), ("log_scales", log_scales), ("sh0", sh0)):
-        if not np.isfinite(arr).all():
+        fields = {name: getattr(model, name).detach().cpu() for name in
+                  ("means", "quats", "log_scales", "opacity_logits", "sh0", "shN")}
+    for name in ("means", "quats", "log_scales", "sh0"):
+        if not bool(torch.isfinite(fields[name]).all()):
             raise InputError(f"spz: {name} contain NaN/Inf; the scene is corrupt")
-    xyzw = wxyz[:, [1, 2, 3, 0]]
-    if (np.linalg.norm(xyzw, axis=1) == 0).any():
+    if bool((fields["quats"].norm(dim=1) == 0).any()):
         raise InputError("spz: a Gaussian has a zero quaternion")
-    parts = [
-        HEADER.pack(MAGIC, version, n, degree, FRACTIONAL_BITS, 1 if antialiased else 0, 0),
-        _pack_positions(means, FRACTIONAL_BITS).tobytes(),
-        _u8(opacity * 255.0).tobytes(),
-        _u8(sh0 * (COLOR_SCALE * 255.0) + 127.5).reshape(-1).tobytes(),
-        _u8((log_scales + 10.0) * 16.0).reshape(-1).tobytes(),
-        (_pack_rotations_v3(xyzw) if version == 3 else _pack_rotations_v2(xyzw)).tobytes(),
-        _pack_sh(shN).tobytes() if degree else b"",
-    ]
+
+    def chunks(name: str, double: bool = False) -> Iterator[np.ndarray]:
+        for i in range(0, n, ENCODE_CHUNK):
+            t = fields[name][i:i + ENCODE_CHUNK]
+            yield (t.double() if double else t).numpy()
+
+    yield HEADER.pack(MAGIC, version, n, degree, FRACTIONAL_BITS, 1 if antialiased else 0, 0)
+    for means in chunks("means"):
+        yield _pack_positions(means, FRACTIONAL_BITS).tobytes()
+    for logits in chunks("opacity_logits", double=True):
+        yield _u8(torch.sigmoid(torch.from_numpy(logits)).numpy() * 255.0).tobytes()
+    for sh0 in chunks("sh0"):
+        yield _u8(sh0.reshape(-1, 3) * (COLOR_SCALE * 255.0) + 127.5).reshape(-1).tobytes()
+    for log_scales in chunks("log_scales"):
+        yield _u8((log_scales + 10.0) * 16.0).reshape(-1).tobytes()
+    for wxyz in chunks("quats", double=True):
+        xyzw = wxyz[:, [1, 2, 3, 0]]
+        yield (_pack_rotations_v3(xyzw) if version == 3 else _pack_rotations_v2(xyzw)).tobytes()
+    if degree:
+        for shN in chunks("shN", double=True):
+            yield _pack_sh(shN).tobytes()
+
+
+def _gzip_parts(parts: Iterator[bytes], fh: BinaryIO) -> None:
+    # no name and mtime 0 in the gzip header: the same bytes every run, whatever the (temporary) file is called
+    with gzip.GzipFile(filename="", fileobj=fh, mode="wb", compresslevel=9, mtime=0) as gz:
+        for part in parts:
+            gz.write(part)
+
+
+def encode_spz(model: GaussianModel, *, version: int = 3, antialiased: bool = False) -> bytes:
+    """``model`` → ``.spz`` bytes (gzip). SH degree 0–3 (from ``model.shN``)."""
     buf = io.BytesIO()
-    with gzip.GzipFile(fileobj=buf, mode="wb", compresslevel=9, mtime=0) as gz:  # mtime 0: same bytes every run
-        for p in parts:
-            gz.write(p)
+    _gzip_parts(_spz_parts(model, version, antialiased), buf)
     return buf.getvalue()
 
 
@@ -272,8 +297,11 @@ def decode_spz(data: bytes, *, source: str = "spz data") -> GaussianModel:
 
 
 def write_spz(path: str | os.PathLike, model: GaussianModel, *, version: int = 3) -> int:
-    """Write ``model`` to ``path`` atomically; returns the file size in bytes."""
-    return write_bytes(path, encode_spz(model, version=version))
+    """Write ``model`` to ``path`` atomically, compressing as it encodes (no copy of the whole stream in memory);
+    returns the file size in bytes."""
+    parts = _spz_parts(model, version, False)
+    first = next(parts)  # the header: the checks run before the file is opened
+    return write_stream(path, lambda fh: _gzip_parts(itertools.chain([first], parts), fh))
 
 
 def read_spz(path: str | os.PathLike) -> GaussianModel:
