@@ -13,6 +13,11 @@ field               shape           activation → physical quantity
 ``shN``             ``(N, K-1, 3)`` higher SH bands, ``K = (degree + 1)²`` (``K - 1 = 0`` for degree 0)
 ==================  ==============  ==================================================
 
+Besides the parameters, ``attributes`` holds any other per-Gaussian tensors, ``(N, ...)`` each and never
+optimised (content labels, a mask, a per-Gaussian style id): every operation that selects, copies, splits or
+prunes Gaussians applies to them as to the parameters (:meth:`GaussianModel.map`, :mod:`abcgs.fit.strategy.ops`),
+so a value stays with its Gaussian and a split's children inherit their parent's.
+
 The densification strategies (:mod:`abcgs.fit.strategy`) replace these tensors in place of the
 dataclass fields (``setattr``) when they add or remove Gaussians; nothing else holds on to them.
 """
@@ -22,7 +27,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 import torch
@@ -48,9 +53,14 @@ class GaussianModel:
     opacity_logits: Tensor
     sh0: Tensor
     shN: Tensor
+    attributes: dict[str, Tensor] = field(default_factory=dict)
+    """Per-Gaussian tensors that are not parameters (name → ``(N, ...)``), carried through every selection."""
 
     def __post_init__(self) -> None:
         n = self.means.shape[0]
+        for name, value in self.attributes.items():
+            if value.dim() == 0 or value.shape[0] != n:
+                raise InputError(f"GaussianModel attribute {name!r} has shape {tuple(value.shape)}, expected ({n}, ...)")
         expected = {
             "means": (n, 3), "quats": (n, 4), "log_scales": (n, 3), "opacity_logits": (n,), "sh0": (n, 1, 3),
         }
@@ -182,8 +192,9 @@ class GaussianModel:
         return dict(self.items())
 
     def map(self, fn) -> GaussianModel:
-        """A new model with ``fn(tensor)`` applied to every parameter."""
-        return GaussianModel(**{name: fn(t) for name, t in self.items()})
+        """A new model with ``fn(tensor)`` applied to every parameter and every attribute."""
+        return GaussianModel(**{name: fn(t) for name, t in self.items()},
+                             attributes={name: fn(t) for name, t in self.attributes.items()})
 
     def detach(self) -> GaussianModel:
         """A copy of the values without autograd history (new storage)."""
@@ -205,7 +216,7 @@ class GaussianModel:
         return GaussianModel(**{
             name: torch.nn.Parameter(t.detach().clone().contiguous()) if name in names else t.detach()
             for name, t in self.items()
-        })
+        }, attributes=dict(self.attributes))
 
     def index(self, mask_or_idx: Tensor) -> GaussianModel:
         """The Gaussians selected by a bool mask or index tensor (detached copies)."""
@@ -239,7 +250,7 @@ def valid_gaussians(model: GaussianModel, source: str, *, drop: bool = False, se
     return model.index(~bad)
 
 
-assert tuple(f.name for f in fields(GaussianModel)) == PARAM_NAMES
+assert tuple(f.name for f in fields(GaussianModel)) == (*PARAM_NAMES, "attributes")
 
 
 def freeze_gaussians(model: GaussianModel, frozen: Tensor | None) -> None:

@@ -255,3 +255,47 @@ def test_schedule_scaling_and_validation():
         StrategyParams(prune_opacity=0.02, reset_opacity=0.01)
     assert scene_extent(torch.tensor([[0.0, 0, 0], [2.0, 0, 0]])) == pytest.approx(1.1)
     assert scene_extent(torch.zeros(1, 3), torch.tensor([[0.0, 0, 0], [0, 4.0, 0]])) == pytest.approx(2.2)
+
+
+def test_per_gaussian_attributes_follow_their_gaussians_through_1000_densification_steps():
+    model = make_model(300, degree=1, seed=3)
+    n = model.num_gaussians
+    labels = torch.arange(n) % 11
+    with torch.no_grad():
+        model.sh0[:, 0, 0] = labels.float()  # clones and split children copy sh0 unchanged: the label's witness
+    model.attributes = {"label": labels.clone(), "mask": (labels % 2 == 0)[:, None].repeat(1, 2)}
+    opts = warm_optimizers(model)
+    g = torch.Generator().manual_seed(0)
+    counts = {"duplicate": 0, "split": 0, "remove": 0}
+    for step in range(1000):
+        n = model.num_gaussians
+        mask = torch.rand(n, generator=g) < 0.02
+        op = ("duplicate", "split", "remove")[int(torch.randint(0, 3, (), generator=g))]
+        if op == "remove" and n < 150 or op != "remove" and n > 3000:
+            op = "duplicate" if op == "remove" else "remove"
+        if op == "duplicate":
+            counts[op] += duplicate(model, opts, {}, mask)
+        elif op == "split":
+            counts[op] += split(model, opts, {}, mask, generator=g)
+        else:
+            counts[op] += remove(model, opts, {}, mask)
+        if step % 97 == 0:
+            reset_opacity(model, opts, 0.01)
+        label, pair = model.attributes["label"], model.attributes["mask"]
+        assert label.shape == (model.num_gaussians,) and pair.shape == (model.num_gaussians, 2)
+        assert torch.equal(label, model.sh0[:, 0, 0].detach().round().long()), step
+        assert torch.equal(pair, (label % 2 == 0)[:, None].repeat(1, 2)), step
+    assert all(c > 500 for c in counts.values()), counts
+    assert_consistent(model, opts)
+    # selections and copies carry them too
+    sub = model.index(model.attributes["label"] == 3)
+    assert bool((sub.attributes["label"] == 3).all()) and sub.num_gaussians == int((model.attributes["label"] == 3).sum())
+    assert torch.equal(model.detach().attributes["label"], model.attributes["label"])
+
+
+def test_an_attribute_of_another_length_is_refused():
+    from abcgs.errors import InputError
+
+    model = make_model(10).detach()
+    with pytest.raises(InputError, match="attribute 'label'"):
+        GaussianModel(**model.params(), attributes={"label": torch.zeros(9)})

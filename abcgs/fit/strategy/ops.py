@@ -1,8 +1,9 @@
 """Operations on a model and its optimisers that add, remove or reset Gaussians (gsplat's ``strategy/ops.py``).
 
 Each replaces the model's tensors (``setattr`` of new ``nn.Parameter`` s) and keeps every optimiser's
-per-parameter state (Adam's ``exp_avg``/``exp_avg_sq``) and the strategy's per-Gaussian statistics the same
-length as the parameters: :func:`duplicate` (clone), :func:`split`, :func:`remove` (prune) and
+per-parameter state (Adam's ``exp_avg``/``exp_avg_sq``), the model's per-Gaussian attributes (copied to clones and
+split children, dropped with the pruned) and the strategy's per-Gaussian statistics the same length as the
+parameters: :func:`duplicate` (clone), :func:`split`, :func:`remove` (prune) and
 :func:`reset_opacity`, all built on :func:`update_params`.
 """
 
@@ -32,11 +33,14 @@ def update_params(
     param_fn: Callable[[str, Tensor], Tensor],
     optimizer_fn: Callable[[str, Tensor], Tensor],
     names: tuple[str, ...] = PARAM_NAMES,
+    attributes: bool = True,
 ) -> None:
     """Replace ``model.<name>`` by ``Parameter(param_fn(name, old))`` and remap the optimiser state.
 
     Every per-parameter optimiser state tensor shaped like the parameter (Adam's ``exp_avg``,
-    ``exp_avg_sq``) becomes ``optimizer_fn(key, old_state)``; scalars such as Adam's ``step`` are kept.
+    ``exp_avg_sq``) becomes ``optimizer_fn(key, old_state)``; scalars such as Adam's ``step`` are kept. With
+    ``attributes``, every per-Gaussian attribute (``model.attributes``) becomes ``param_fn(name, old)`` too, so
+    that it follows its Gaussians through a clone, split or prune.
     """
     for name in names:
         old = getattr(model, name)
@@ -54,6 +58,8 @@ def update_params(
                                 for k, v in st.items()
                             }
         setattr(model, name, new)
+    if attributes:
+        model.attributes = {name: param_fn(name, value) for name, value in model.attributes.items()}
 
 
 def _extend_state(state: State, n_old: int, keep: Tensor | None, n_new: int) -> None:
@@ -142,5 +148,5 @@ def reset_opacity(model: GaussianModel, optimizers: Optimizers, value: float) ->
         model, optimizers,
         lambda _, p: p.clamp_max(cap),
         lambda _, v: torch.zeros_like(v),
-        names=("opacity_logits",),
+        names=("opacity_logits",), attributes=False,
     )
