@@ -1,6 +1,7 @@
 """Benchmark a splat of real size: import, stylize and export ``--n`` Gaussians of SH degree 3 on this machine.
 
     python -m eval.bench.large_splat --n 3000000 --json docs/measurements/large_splat_3m.json
+    python -m eval.bench.large_splat --table docs/measurements/large_splat_3m*.json   # the records side by side
 
 A scene trained for 30k iterations holds 1–6 M Gaussians. This synthesizes one (deterministic: ``--n`` Gaussians of
 SH degree 3 on three textured walls and a cloud in between, 0.3–3 cm across in a 2 m room), writes it as an INRIA PLY
@@ -25,6 +26,7 @@ Prints a table and, with ``--json``, writes the raw record.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
 import resource
@@ -120,6 +122,49 @@ def cameras(count: int, width: int, height: int) -> list[Camera]:
     return out
 
 
+TABLE_ROWS = (
+    ("import: read the PLY", "import: read PLY", "seconds"),
+    ("import: check against the photos", "import: check vs photos", "seconds"),
+    ("stylize: prepare the views", "stylize (full)", "prepare_s"),
+    ("stylize: one main-pass step", "stylize (full)", "main_step_s"),
+    ("  render (projection, SH, rasterization)", "stylize (full)", "step_render_s"),
+    ("  VGG", "stylize (full)", "step_vgg_s"),
+    ("  style loss", "stylize (full)", "step_style_loss_s"),
+    ("  backward (VGG and renderer)", "stylize (full)", "step_backward_s"),
+    ("  Adam", "stylize (full)", "step_step_s"),
+    ("stylize: colour pass, prepare (renders, colour match)", "stylize (full)", "color_prepare_s"),
+    ("stylize: one colour-pass step (records the view's map)", "stylize (full)", "color_record_step_s"),
+    ("stylize: one colour-pass step (replays the map)", "stylize (full)", "color_step_s"),
+    ("stylize: peak memory (GiB)", "stylize (full)", "peak_rss_gib"),
+    ("export: the INRIA PLY back", "export: INRIA PLY back", "seconds"),
+    ("export: `.spz`", "export: .spz", "seconds"),
+    ("import / export: largest peak memory (GiB)", None, "peak_rss_gib"),
+    ("preview (300 k): one main-pass step", "stylize (preview)", "main_step_s"),
+)
+"""The rows of :func:`markdown_table`: label, phase, key."""
+
+
+def markdown_table(records: dict[str, dict]) -> str:
+    """A markdown table of the :data:`TABLE_ROWS` of several records (column title → record), with each record's
+    machine and load average under it."""
+    def value(rec: dict, phase: str | None, key: str) -> str:
+        if phase is None:  # the largest over the import and export phases
+            vals = [v.get(key) for k, v in rec["phases"].items() if k.startswith(("import", "export"))]
+            vals = [v for v in vals if v is not None]
+            return f"{max(vals):.2f}" if vals else "–"
+        v = rec["phases"].get(phase, {}).get(key)
+        return "–" if v is None else f"{v:.3g}" if v < 10 else f"{v:.0f}"
+
+    titles = list(records)
+    lines = ["| 3 M Gaussians, SH 3, 504 × 378 | " + " | ".join(titles) + " |", "| --- |" + " --- |" * len(titles)]
+    for label, phase, key in TABLE_ROWS:
+        lines.append(f"| {label} | " + " | ".join(value(records[t], phase, key) for t in titles) + " |")
+    loads = [records[t].get("load_average") or records[t].get("load_average_start") for t in titles]
+    lines.append("| load average (1, 5, 15 min) at the end | "
+                 + " | ".join("–" if not ld else ", ".join(f"{x:.1f}" for x in ld) for ld in loads) + " |")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--n", type=int, default=3_000_000)
@@ -135,7 +180,12 @@ def main(argv=None) -> dict:
                     "geometry is frozen and each view's blending map is replayed")
     ap.add_argument("--work", type=Path, default=None, help="scratch folder (default: a temporary one)")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--table", type=Path, nargs="+", metavar="JSON",
+                    help="print the markdown table of these records (one column each) and exit")
     args = ap.parse_args(argv)
+    if args.table:
+        print(markdown_table({p.stem: json.loads(p.read_text()) for p in args.table}))
+        return {}
     torch.set_num_threads(args.threads)
     work = args.work or Path(tempfile.mkdtemp(prefix="large_splat_"))
     work.mkdir(parents=True, exist_ok=True)
