@@ -180,3 +180,28 @@ def test_lift_result_decided_marks_the_votes_that_cleared_both_thresholds() -> N
     total = res.weights.sum(1)
     assert torch.equal(res.decided, (res.weights.max(1).values >= 0.05) & (res.weights.max(1).values >= 0.5 * total))
     assert torch.all(res.labels[~res.decided] == 0)
+
+
+def test_the_recut_output_follows_the_photo_where_the_gaussians_labels_overflow() -> None:
+    """Wall Gaussians round the ball carry the ball's label (a lift that overflowed): rendered, the ball's label is
+    a disc larger than the ball; ``masks.refine.output: recut`` cuts the view again on its photo and depth from
+    those labels' eroded cores and gives the ring back to the wall."""
+    from abcgs.masks.content import recut_outputs
+
+    model, truth = wall_and_ball()
+    labels = truth.clone()
+    ring = (truth == 2) & ((model.means[:, :2] - torch.tensor([0.0, 0.0])).norm(dim=1) < 1.3)
+    labels[ring] = 1
+    lifted = LiftResult(labels, torch.zeros(0), torch.ones_like(labels, dtype=torch.bool))
+    cams = cameras(4)
+    photos = [_view(model, c)[0] for c in cams]
+    rendered = [render_label_map(model, labels, 2, c) for c in cams]
+    params = MaskParams(refine=RefineParams(output="recut"))
+    out = recut_outputs(model, cams, photos, lifted, 2, rendered, skip={0}, params=params)
+    assert out[0] is rendered[0]  # skipped: a given view keeps its rendered map
+    for c, r, o in zip(cams[1:], rendered[1:], out[1:]):
+        true = render_label_map(model, truth, 2, c)
+        before, after = label_iou(r, true, 2)[1], label_iou(o, true, 2)[1]
+        assert after > 0.9 and after > before + 0.15, (before, after)  # measured 0.76-0.78 → 0.96-0.99
+    only = recut_outputs(model, cams, photos, lifted, 2, rendered, skip=set(), params=params, only={2})
+    assert [o is r for o, r in zip(only, rendered)] == [True, True, False, True]

@@ -64,6 +64,11 @@ class RefineParams(BaseModel):
     depth_weight: float = Field(
         1.0, ge=0.0, description="weight of the rendered inverse depth against colour in the cut (0: colour only)")
     iterations: int = Field(5, ge=1, le=50, description="GrabCut iterations per label")
+    output: Literal["render", "recut"] = Field(
+        "render", description="the label map written for each view without a given mask: render: the final labels "
+        "rendered from the Gaussians; recut: that view cut once more on its photo and rendered depth, seeded by the "
+        "final labels' eroded cores, the render where the cut decides nothing (its edges follow the photo rather "
+        "than the fitted geometry; docs/MASKS.md, miku)")
 
 
 class GrabCutParams(BaseModel):

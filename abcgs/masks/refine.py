@@ -102,6 +102,44 @@ def render_seeds(
     return seeds, rendered, depth
 
 
+def cut_view(
+    model: GaussianModel,
+    lifted: LiftResult,
+    n_labels: int,
+    camera: Camera,
+    image: Path | str | np.ndarray | None,
+    params: RefineParams,
+    *,
+    backend: Backend = "auto",
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """One view cut on its photo and rendered depth, seeded by the decided labels' eroded cores (module docstring,
+    steps 1–2).
+
+    Args:
+        image: the view's photo (path or ``(H, W, 3)`` array at the camera's size); None: the scene's render.
+
+    Returns:
+        ``cut (H, W) int64`` (0..n_labels, :data:`~abcgs.masks.lifting.NO_VOTE` where no cut claimed the pixel; as
+        rendered where no label reaches the view), ``rendered (H, W) int64`` (:func:`render_seeds`) and the share of
+        the view's pixels that were seeds.
+    """
+    erode_px = int(round(params.seed_erode * min(camera.height, camera.width)))
+    seeds, rendered, depth = render_seeds(model, lifted, n_labels, camera, erode_px, backend=backend)
+    seeded = float((seeds >= 0).mean())
+    if not (seeds > 0).any():  # no label reaches this view: nothing to seed a cut with; it votes as rendered
+        return np.where(rendered >= 0, rendered, NO_VOTE), rendered, seeded
+    if image is None:
+        with torch.no_grad():
+            rgb = render(model, camera, backend=backend)[0].clamp(0, 1).numpy(force=True)
+    else:
+        rgb = load_image(image) if isinstance(image, (str, Path)) else np.asarray(image)
+    if rgb.shape[:2] != (camera.height, camera.width):
+        raise InputError(f"the photo of view {camera.name} is {rgb.shape[1]}x{rgb.shape[0]} but its camera is "
+                         f"{camera.width}x{camera.height}; give the undistorted images the cameras belong to")
+    seg = segment(rgb, seeds, iterations=params.iterations, depth=depth, depth_weight=params.depth_weight)
+    return np.where(seg.claimed, seg.labels, NO_VOTE), rendered, seeded
+
+
 def refine_labels(
     model: GaussianModel,
     cameras: list[Camera],
@@ -133,27 +171,11 @@ def refine_labels(
     recut: dict[int, np.ndarray] = {}
     for i in progress(todo, "masks: re-cut views", enabled=show_progress):
         cam = cameras[i]
-        erode_px = int(round(params.seed_erode * min(cam.height, cam.width)))
-        seeds, rendered, depth = render_seeds(model, lifted, n_labels, cam, erode_px, backend=backend)
-        if not (seeds > 0).any():  # no label reaches this view: nothing to seed a cut with; it votes as rendered
-            recut[i] = np.where(rendered >= 0, rendered, NO_VOTE)
-            views[cam.name] = {"seeded": float((seeds >= 0).mean()), "changed": 0.0,
-                               "undecided": float((rendered < 0).mean())}
-            continue
-        if images is None:
-            with torch.no_grad():
-                rgb = render(model, cam, backend=backend)[0].clamp(0, 1).numpy(force=True)
-        else:
-            src = images[i]
-            rgb = load_image(src) if isinstance(src, (str, Path)) else np.asarray(src)
-        if rgb.shape[:2] != (cam.height, cam.width):
-            raise InputError(f"the photo of view {cam.name} is {rgb.shape[1]}x{rgb.shape[0]} but its camera is "
-                             f"{cam.width}x{cam.height}; give the undistorted images the cameras belong to")
-        seg = segment(rgb, seeds, iterations=params.iterations, depth=depth, depth_weight=params.depth_weight)
-        cut = np.where(seg.claimed, seg.labels, NO_VOTE)
+        cut, rendered, seeded = cut_view(model, lifted, n_labels, cam, None if images is None else images[i], params,
+                                         backend=backend)
         recut[i] = cut
         both = (cut >= 0) & (rendered >= 0)
-        views[cam.name] = {"seeded": float((seeds >= 0).mean()),
+        views[cam.name] = {"seeded": seeded,
                            "changed": float((cut != rendered)[both].mean()) if both.any() else 0.0,
                            "undecided": float((cut < 0).mean())}
     maps = [given[i] if i in given else recut[i] for i in range(len(cameras))]
