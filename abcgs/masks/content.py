@@ -307,7 +307,8 @@ def make_content_masks(
     if params.refine.enabled and len(idx) < len(cameras):
         # every view but the lifted ones (the user's masks stay as painted; held-out views are re-cut and scored)
         refinement = refine_labels(model, cameras, images, dict(zip(idx, maps)), lifted, n_labels, params.lift,
-                                   params.refine, backend=params.backend, show_progress=show_progress)
+                                   params.refine, backend=params.backend, show_progress=show_progress,
+                                   propagate=propagate)
         lifted = refinement.lifted
         if propagate:  # what no view sees at all (and, with propagate_split, the split votes)
             lifted, propagated = propagate_unseen(model, lifted, params.lift,

@@ -64,6 +64,11 @@ class RefineParams(BaseModel):
     depth_weight: float = Field(
         1.0, ge=0.0, description="weight of the rendered inverse depth against colour in the cut (0: colour only)")
     iterations: int = Field(5, ge=1, le=50, description="GrabCut iterations per label")
+    order: Literal["together", "nearest_first"] = Field(
+        "together", description="together: every view is cut from the first lift (the given masks'); nearest_first: "
+        "the views are cut one after another, nearest in viewing direction to a given view first, each seeded by the "
+        "labels lifted from the given masks and the cuts before it (and propagated, where propagation runs), so "
+        "labels travel round an object from view to view (docs/MASKS.md, miku)")
     output: Literal["render", "recut"] = Field(
         "render", description="the label map written for each view without a given mask: render: the final labels "
         "rendered from the Gaussians; recut: that view cut once more on its photo and rendered depth, seeded by the "

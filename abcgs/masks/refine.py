@@ -35,7 +35,14 @@ from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel, render
 from abcgs.io.images import load_image
 from abcgs.masks.grabcut import segment
-from abcgs.masks.lifting import NO_VOTE, LiftResult, lift_labels
+from abcgs.masks.lifting import (
+    NO_VOTE,
+    LiftResult,
+    decide_labels,
+    lift_labels,
+    propagate_unseen,
+    view_weights,
+)
 from abcgs.masks.params import LiftParams, RefineParams
 from abcgs.progress import progress
 from abcgs.render import rasterize
@@ -140,6 +147,21 @@ def cut_view(
     return np.where(seg.claimed, seg.labels, NO_VOTE), rendered, seeded
 
 
+def nearest_first(cameras: list[Camera], given: list[int], todo: list[int]) -> list[int]:
+    """``todo`` ordered by the angle between each camera's viewing direction and the nearest of the ``given``
+    cameras', smallest first (ties by index): on a capture round an object, the views next to a labelled one come
+    first and the far side last."""
+    def forward(c: Camera) -> np.ndarray:
+        r = np.asarray(c.torch_viewmat("cpu"), np.float64)[:3, :3]
+        return r[2] / np.linalg.norm(r[2])  # the camera's +z axis in world coordinates
+
+    if not given:
+        return list(todo)
+    ref = np.stack([forward(cameras[g]) for g in given])
+    angle = {i: float(np.arccos(np.clip(ref @ forward(cameras[i]), -1.0, 1.0)).min()) for i in todo}
+    return sorted(todo, key=lambda i: (angle[i], i))
+
+
 def refine_labels(
     model: GaussianModel,
     cameras: list[Camera],
@@ -152,6 +174,7 @@ def refine_labels(
     *,
     backend: Backend = "auto",
     show_progress: bool = True,
+    propagate: bool = False,
 ) -> Refinement:
     """Re-cut every camera not in ``given`` from the lifted labels, then lift from all cameras (module docstring).
 
@@ -161,6 +184,8 @@ def refine_labels(
         given: camera index → the label map lifted as it is (the user's masks); every other camera is re-cut.
         lifted: the first lift (from ``given``, or from an automatic mask). n_labels: labels 1..n_labels.
         lift_params: thresholds of the final lift. params: ``masks.refine``.
+        propagate: with ``params.order: nearest_first``, fill the Gaussians no view so far decides from their 3-D
+            neighbours (:func:`~abcgs.masks.lifting.propagate_unseen`) before each cut.
 
     Returns:
         :class:`Refinement`.
@@ -169,17 +194,29 @@ def refine_labels(
     views: dict[str, dict[str, float]] = {}
     todo = [i for i in range(len(cameras)) if i not in given]
     recut: dict[int, np.ndarray] = {}
+    weights = None
+    if params.order == "nearest_first":
+        todo = nearest_first(cameras, sorted(given), todo)
+        weights = lifted.weights.clone()
     for i in progress(todo, "masks: re-cut views", enabled=show_progress):
         cam = cameras[i]
         cut, rendered, seeded = cut_view(model, lifted, n_labels, cam, None if images is None else images[i], params,
                                          backend=backend)
         recut[i] = cut
+        if weights is not None:  # the next view is seeded by the given masks and every cut so far
+            weights += view_weights(model, cam, cut, n_labels, backend=backend)
+            lifted = decide_labels(weights, lift_params)
+            if propagate:
+                lifted = propagate_unseen(model, lifted, lift_params)[0]
         both = (cut >= 0) & (rendered >= 0)
         views[cam.name] = {"seeded": seeded,
                            "changed": float((cut != rendered)[both].mean()) if both.any() else 0.0,
                            "undecided": float((cut < 0).mean())}
-    maps = [given[i] if i in given else recut[i] for i in range(len(cameras))]
-    relifted = lift_labels(model, cameras, maps, n_labels, lift_params, backend=backend)
+    if weights is not None:  # the given masks' votes and every cut's: the lift from all views
+        relifted = decide_labels(weights, lift_params)
+    else:
+        maps = [given[i] if i in given else recut[i] for i in range(len(cameras))]
+        relifted = lift_labels(model, cameras, maps, n_labels, lift_params, backend=backend)
     seconds = time.perf_counter() - t0
     log.info("refined: %d views re-cut on colour%s in %.1f s; labels per Gaussian %s", len(todo),
              " and depth" if params.depth_weight > 0 else "", seconds, relifted.counts())

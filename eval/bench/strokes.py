@@ -46,7 +46,7 @@ from abcgs.io.ply import read_ply
 from abcgs.masks.content import label_iou, make_content_masks, recut_outputs
 from abcgs.masks.grabcut import Stroke, segment
 from abcgs.masks.lifting import NO_VOTE, LiftResult, lift_labels, render_label_map
-from abcgs.masks.params import UNDECIDED, LiftParams, MaskParams
+from abcgs.masks.params import UNDECIDED, LiftParams, MaskParams, RefineParams
 from abcgs.sfm.model import read_colmap_scene
 
 DATA = Path(__file__).resolve().parents[1] / "data"
@@ -166,6 +166,8 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--output", choices=("render", "recut"), default="recut",
                     help="masks.refine.output: the scored views' maps rendered from the Gaussians, or cut once more on "
                          "their photos from them (both are recorded with recut)")
+    ap.add_argument("--order", choices=("together", "nearest_first"), default="together",
+                    help="masks.refine.order")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--figure", type=Path, default=None, help="the stroked view and the scored ones, overlaid")
     args = ap.parse_args(argv)
@@ -208,7 +210,8 @@ def main(argv: list[str] | None = None) -> dict:
                 save_labels(Path(d) / f"{v['view']}.png", cut.labels if zero else cut.saved_map())
             t = time.perf_counter()
             params = MaskParams(source="given", lift=LiftParams(propagate_split=args.propagate_split,
-                                                                 propagate_along=args.propagate_along))
+                                                                 propagate_along=args.propagate_along),
+                                refine=RefineParams(order=args.order))
             res = make_content_masks(model, cams, Path(d), params, scene.image_paths, show_progress=False)
             seconds = time.perf_counter() - t
         scored = [s for s in all_refs if s not in cuts]
@@ -246,6 +249,7 @@ def main(argv: list[str] | None = None) -> dict:
     out = {"scene": spec.get("title", args.scene), "views": len(cams), "n_gaussians": model.num_gaussians,
            "labels": names, "reference_views": list(all_refs), "reference_views_not_registered": missing,
            "propagate_split": args.propagate_split, "propagate_along": args.propagate_along,
+           "refine_order": args.order, "refine_output": args.output,
            "cases": results, "geometry_bound": bound, "render_psnr_db": psnr,
            "goal": {"iou": {str(k): v for k, v in GOAL_IOU.items()}, "unlabelled": GOAL_UNLABELLED},
            "machine": platform.processor() or platform.machine(), "threads": torch.get_num_threads()}
