@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -245,3 +246,22 @@ def nearest_first_order(cams) -> list[int]:
     from abcgs.masks.refine import nearest_first
 
     return nearest_first(cams, [0], list(range(1, len(cams))))
+
+
+def test_eroded_cores_keep_the_middle_of_a_region_thinner_than_the_erosion_when_asked() -> None:
+    from abcgs.masks.refine import eroded_cores
+
+    region = np.zeros((40, 60), bool)
+    region[5:35, 5:35] = True  # 30 px square: its core survives an erosion by 6 either way
+    region[10:18, 45:53] = True  # 8 px square: an erosion by 6 removes it
+    region[30, 40:58] = True  # a 1 px line: noise, gone either way
+    plain = eroded_cores(region, 6)
+    assert np.array_equal(plain, cv2.erode(region.astype(np.uint8), np.ones((13, 13), np.uint8)).astype(bool))
+    assert plain[11:29, 11:29].all() and not plain[:, 40:].any()
+    kept = eroded_cores(region, 6, keep_small=True)
+    assert np.array_equal(kept[:, :38], plain[:, :38])  # the large square: as before
+    assert kept[12:16, 47:51].all() and kept[10:18, 45:53].sum() == 16  # the small one: its middle 4 × 4
+    assert not kept[30, 40:58].any()
+    edge = np.zeros((20, 20), bool)
+    edge[:, :10] = True  # meets the view's border: its core reaches the border
+    assert eroded_cores(edge, 3)[:, :7].all() and not eroded_cores(edge, 3)[:, 7:].any()

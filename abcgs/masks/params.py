@@ -61,6 +61,10 @@ class RefineParams(BaseModel):
     seed_erode: float = Field(
         0.04, ge=0.0, le=0.25, description="each rendered label region is eroded by this share of the view's shorter "
                                            "side; its core seeds the cut, the rest is the cut's to decide")
+    small_regions: Literal["drop", "core"] = Field(
+        "drop", description="a rendered label region thinner than twice seed_erode: drop: eroded away, the cut "
+        "decides it; core: it keeps its middle as a seed (each region is eroded by at most half its thickness), so a "
+        "small part (a face, a hood's rim seen from afar) is not lost in a view (docs/MASKS.md, miku)")
     depth_weight: float = Field(
         1.0, ge=0.0, description="weight of the rendered inverse depth against colour in the cut (0: colour only)")
     iterations: int = Field(5, ge=1, le=50, description="GrabCut iterations per label")

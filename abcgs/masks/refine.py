@@ -71,10 +71,30 @@ class Refinement:
     seconds: float = 0.0
 
 
+def eroded_cores(region: np.ndarray, erode_px: int, *, keep_small: bool = False) -> np.ndarray:
+    """``region (H, W) bool`` eroded by a ``(2·erode_px + 1)²`` square; pixels outside the view count as inside, so a
+    region that meets the border keeps its core there. With ``keep_small`` each connected part is eroded by at most
+    half its thickness (its largest chessboard distance to its edge), so a part thinner than the erosion keeps its
+    middle instead of vanishing; parts 2 px thick or less still vanish."""
+    if erode_px <= 0:
+        return region.copy()
+    padded = cv2.copyMakeBorder(region.astype(np.uint8), 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=1)
+    dist = cv2.distanceTransform(padded, cv2.DIST_C, 3)[1:-1, 1:-1]  # chessboard distance to the nearest outside pixel
+    if not keep_small:
+        return dist > erode_px
+    n, comp = cv2.connectedComponents(region.astype(np.uint8), connectivity=8)
+    thickest = np.zeros(n, np.float32)
+    np.maximum.at(thickest, comp.ravel(), dist.ravel())
+    limit = np.minimum(float(erode_px), np.maximum(1.0, np.floor(thickest / 2.0)))
+    return region & (dist > limit[comp])
+
+
 def render_seeds(
-    model: GaussianModel, lifted: LiftResult, n_labels: int, camera: Camera, erode_px: int, *, backend: Backend = "auto"
+    model: GaussianModel, lifted: LiftResult, n_labels: int, camera: Camera, erode_px: int, *, backend: Backend = "auto",
+    keep_small: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The decided labels rendered into ``camera`` and their eroded cores.
+    """The decided labels rendered into ``camera`` and their eroded cores (:func:`eroded_cores`; ``keep_small``:
+    regions thinner than the erosion keep their middle).
 
     A pixel takes the label (0..n_labels) whose decided Gaussians hold at least half of its alpha; undecided
     Gaussians render as a label of their own that never seeds.
@@ -99,13 +119,8 @@ def render_seeds(
     rendered = torch.where(ok, best, torch.full_like(best, NO_SEED)).numpy(force=True).astype(np.int64)
     depth = torch.where(a > 1e-3, meta.depth[..., 0], torch.zeros_like(a)).numpy(force=True).astype(np.float32)
     seeds = np.full(rendered.shape, NO_SEED, np.int64)
-    kernel = np.ones((2 * erode_px + 1, 2 * erode_px + 1), np.uint8) if erode_px > 0 else None
     for v in range(n_labels + 1):
-        region = (rendered == v).astype(np.uint8)
-        if kernel is not None:
-            # pixels outside the view count as inside the region: a region that meets the border keeps its core there
-            region = cv2.erode(region, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=1)
-        seeds[region.astype(bool)] = v
+        seeds[eroded_cores(rendered == v, erode_px, keep_small=keep_small)] = v
     return seeds, rendered, depth
 
 
@@ -131,7 +146,8 @@ def cut_view(
         the view's pixels that were seeds.
     """
     erode_px = int(round(params.seed_erode * min(camera.height, camera.width)))
-    seeds, rendered, depth = render_seeds(model, lifted, n_labels, camera, erode_px, backend=backend)
+    seeds, rendered, depth = render_seeds(model, lifted, n_labels, camera, erode_px, backend=backend,
+                                          keep_small=params.small_regions == "core")
     seeded = float((seeds >= 0).mean())
     if not (seeds > 0).any():  # no label reaches this view: nothing to seed a cut with; it votes as rendered
         return np.where(rendered >= 0, rendered, NO_VOTE), rendered, seeded

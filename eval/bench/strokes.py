@@ -168,6 +168,7 @@ def main(argv: list[str] | None = None) -> dict:
                          "their photos from them (both are recorded with recut)")
     ap.add_argument("--order", choices=("together", "nearest_first"), default="together",
                     help="masks.refine.order")
+    ap.add_argument("--small-regions", choices=("drop", "core"), default="drop", help="masks.refine.small_regions")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--figure", type=Path, default=None, help="the stroked view and the scored ones, overlaid")
     args = ap.parse_args(argv)
@@ -211,7 +212,7 @@ def main(argv: list[str] | None = None) -> dict:
             t = time.perf_counter()
             params = MaskParams(source="given", lift=LiftParams(propagate_split=args.propagate_split,
                                                                  propagate_along=args.propagate_along),
-                                refine=RefineParams(order=args.order))
+                                refine=RefineParams(order=args.order, small_regions=args.small_regions))
             res = make_content_masks(model, cams, Path(d), params, scene.image_paths, show_progress=False)
             seconds = time.perf_counter() - t
         scored = [s for s in all_refs if s not in cuts]
@@ -249,7 +250,7 @@ def main(argv: list[str] | None = None) -> dict:
     out = {"scene": spec.get("title", args.scene), "views": len(cams), "n_gaussians": model.num_gaussians,
            "labels": names, "reference_views": list(all_refs), "reference_views_not_registered": missing,
            "propagate_split": args.propagate_split, "propagate_along": args.propagate_along,
-           "refine_order": args.order, "refine_output": args.output,
+           "refine_order": args.order, "refine_output": args.output, "refine_small_regions": args.small_regions,
            "cases": results, "geometry_bound": bound, "render_psnr_db": psnr,
            "goal": {"iou": {str(k): v for k, v in GOAL_IOU.items()}, "unlabelled": GOAL_UNLABELLED},
            "machine": platform.processor() or platform.machine(), "threads": torch.get_num_threads()}
