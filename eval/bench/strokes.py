@@ -296,8 +296,8 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 def _figure(path: Path, scene, by_stem: dict, refs: dict, extra: dict) -> None:
-    """Per case: the stroked views (photo, strokes and the page's cut), then the scored views' labels; last row the
-    references."""
+    """Per case: a row of the stroked views (strokes and the page's cut, then the stage's labels, for each), a row of
+    the reference views' labels; last row the references. The column captions name the reference views."""
     from abcgs.viz import image_grid
 
     def photo(s):
