@@ -68,6 +68,7 @@ class ContentMasks:
     unlabelled_gaussians: float = 0.0  # share of the Gaussians with label 0
     warnings: list[str] = field(default_factory=list)  # one line per view above masks.warn_unlabelled
     warned_views: list[str] = field(default_factory=list)  # those views' stems, worst first
+    gaussian_decided: torch.Tensor | None = None  # (N,) bool: the label was voted or propagated, not left by default
 
 
 def views_above(shares: dict[str, float], threshold: float) -> list[str]:
@@ -212,6 +213,24 @@ def grabcut_view(model: GaussianModel, camera: Camera, params: GrabCutParams, ba
     return out
 
 
+def recut_outputs(model: GaussianModel, cameras: list[Camera], images: list[Path] | None, lifted, n_labels: int,
+                  rendered: list[np.ndarray], *, skip: set[int], params: MaskParams, only: set[int] | None = None,
+                  show_progress: bool = False) -> list[np.ndarray]:
+    """``masks.refine.output: recut``: each view not in ``skip`` (and in ``only``, when given) cut once more on its
+    photo and rendered depth, seeded by ``lifted``'s decided labels (:func:`abcgs.masks.refine.cut_view`); where the
+    cut decides nothing the view keeps its ``rendered`` label. The others keep ``rendered``."""
+    from abcgs.masks.refine import cut_view
+    from abcgs.progress import progress
+
+    out = list(rendered)
+    todo = [i for i in range(len(cameras)) if i not in skip and (only is None or i in only)]
+    for i in progress(todo, "masks: cut the output views", enabled=show_progress):
+        cut, _, _ = cut_view(model, lifted, n_labels, cameras[i], None if images is None else images[i], params.refine,
+                             backend=params.backend)
+        out[i] = np.where(cut >= 0, cut, rendered[i]).astype(np.int64)
+    return out
+
+
 def label_iou(pred: np.ndarray, truth: np.ndarray, n_labels: int) -> dict[int, float]:
     """Per label 1..n: IoU of ``pred`` and ``truth`` over pixels where ``truth`` is assigned (> 0); labels absent
     from both are left out."""
@@ -288,7 +307,8 @@ def make_content_masks(
     if params.refine.enabled and len(idx) < len(cameras):
         # every view but the lifted ones (the user's masks stay as painted; held-out views are re-cut and scored)
         refinement = refine_labels(model, cameras, images, dict(zip(idx, maps)), lifted, n_labels, params.lift,
-                                   params.refine, backend=params.backend, show_progress=show_progress)
+                                   params.refine, backend=params.backend, show_progress=show_progress,
+                                   propagate=propagate)
         lifted = refinement.lifted
         if propagate:  # what no view sees at all (and, with propagate_split, the split votes)
             lifted, propagated = propagate_unseen(model, lifted, params.lift,
@@ -297,6 +317,9 @@ def make_content_masks(
         render_label_map(model, lifted.labels, n_labels, c, threshold=params.lift.render_threshold, backend=params.backend)
         for c in cameras
     ]
+    if params.refine.enabled and params.refine.output == "recut":
+        views = recut_outputs(model, cameras, images, lifted, n_labels, views, skip=set(idx), params=params,
+                              show_progress=show_progress)
     agree = [float((views[i] == m)[m > 0].mean()) for i, m in zip(idx, maps) if (m > 0).any()]
     ho_iou: dict[int, list[float]] = {}
     ho_agree = []
@@ -320,4 +343,4 @@ def make_content_masks(
                         {k: float(np.mean(v)) for k, v in sorted(ho_iou.items())},
                         float(np.mean(ho_agree)) if ho_agree else None, palette, propagated, refinement,
                         unlabelled, float((lifted.labels == 0).float().mean()), warnings,
-                        views_above(unlabelled, params.warn_unlabelled))
+                        views_above(unlabelled, params.warn_unlabelled), lifted.decided)

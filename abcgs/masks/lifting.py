@@ -78,19 +78,33 @@ def lift_labels(
         raise InputError(f"{len(cameras)} cameras but {len(label_maps)} label maps")
     if not cameras:
         raise InputError("no masked views to lift labels from; add label PNGs under <scene>/masks/")
-    m = model.detach()
-    act = m.activated()
-    dev = m.device
-    weights = torch.zeros(m.num_gaussians, n_labels + 1)  # on the host: one transfer per view, not per pixel
+    weights = torch.zeros(model.num_gaussians, n_labels + 1)  # on the host: one transfer per view, not per pixel
     for cam, lab in zip(cameras, label_maps):
-        if tuple(lab.shape) != (cam.height, cam.width):
-            raise InputError(
-                f"mask of view {cam.name} is {lab.shape[1]}x{lab.shape[0]}, the view is {cam.width}x{cam.height}"
-            )
-        weights += accumulate_weights(
-            act["means"], act["quats"], act["scales"], act["opacities"], cam.torch_viewmat(dev), cam.torch_K(dev),
-            one_hot_labels(lab, n_labels).to(dev), backend=backend,
-        ).cpu()
+        weights += view_weights(model, cam, lab, n_labels, backend=backend)
+    return decide_labels(weights, params)
+
+
+def view_weights(model: GaussianModel, camera: Camera, label_map: np.ndarray, n_labels: int, *,
+                 backend: Backend = "auto") -> Tensor:
+    """One view's votes ``(N, n_labels + 1)`` on the host: per Gaussian and label, its blending weight summed over
+    the view's pixels of that label (:data:`NO_VOTE` pixels add nothing)."""
+    if tuple(label_map.shape) != (camera.height, camera.width):
+        raise InputError(
+            f"mask of view {camera.name} is {label_map.shape[1]}x{label_map.shape[0]}, the view is "
+            f"{camera.width}x{camera.height}"
+        )
+    act = model.detach().activated()
+    dev = model.device
+    return accumulate_weights(
+        act["means"], act["quats"], act["scales"], act["opacities"], camera.torch_viewmat(dev), camera.torch_K(dev),
+        one_hot_labels(label_map, n_labels).to(dev), backend=backend,
+    ).cpu()
+
+
+def decide_labels(weights: Tensor, params: LiftParams | None = None) -> LiftResult:
+    """Summed votes ``(N, L + 1)`` → labels: the winner where it holds at least ``min_weight`` and a ``min_share`` of
+    the Gaussian's total, else 0 (undecided)."""
+    params = params or LiftParams()
     total = weights.sum(1)
     best_w, best = weights.max(1)
     ok = (best_w >= params.min_weight) & (best_w >= params.min_share * total.clamp_min(1e-12))

@@ -61,9 +61,23 @@ class RefineParams(BaseModel):
     seed_erode: float = Field(
         0.04, ge=0.0, le=0.25, description="each rendered label region is eroded by this share of the view's shorter "
                                            "side; its core seeds the cut, the rest is the cut's to decide")
+    small_regions: Literal["drop", "core"] = Field(
+        "drop", description="a rendered label region thinner than twice seed_erode: drop: eroded away, the cut "
+        "decides it; core: it keeps its middle as a seed (each region is eroded by at most half its thickness), so a "
+        "small part (a face, a hood's rim seen from afar) is not lost in a view (docs/MASKS.md, miku)")
     depth_weight: float = Field(
         1.0, ge=0.0, description="weight of the rendered inverse depth against colour in the cut (0: colour only)")
     iterations: int = Field(5, ge=1, le=50, description="GrabCut iterations per label")
+    order: Literal["together", "nearest_first"] = Field(
+        "together", description="together: every view is cut from the first lift (the given masks'); nearest_first: "
+        "the views are cut one after another, nearest in viewing direction to a given view first, each seeded by the "
+        "labels lifted from the given masks and the cuts before it (and propagated, where propagation runs), so "
+        "labels travel round an object from view to view (docs/MASKS.md, miku)")
+    output: Literal["render", "recut"] = Field(
+        "render", description="the label map written for each view without a given mask: render: the final labels "
+        "rendered from the Gaussians; recut: that view cut once more on its photo and rendered depth, seeded by the "
+        "final labels' eroded cores, the render where the cut decides nothing (its edges follow the photo rather "
+        "than the fitted geometry; docs/MASKS.md, miku)")
 
 
 class GrabCutParams(BaseModel):

@@ -35,7 +35,14 @@ from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel, render
 from abcgs.io.images import load_image
 from abcgs.masks.grabcut import segment
-from abcgs.masks.lifting import NO_VOTE, LiftResult, lift_labels
+from abcgs.masks.lifting import (
+    NO_VOTE,
+    LiftResult,
+    decide_labels,
+    lift_labels,
+    propagate_unseen,
+    view_weights,
+)
 from abcgs.masks.params import LiftParams, RefineParams
 from abcgs.progress import progress
 from abcgs.render import rasterize
@@ -64,10 +71,30 @@ class Refinement:
     seconds: float = 0.0
 
 
+def eroded_cores(region: np.ndarray, erode_px: int, *, keep_small: bool = False) -> np.ndarray:
+    """``region (H, W) bool`` eroded by a ``(2·erode_px + 1)²`` square; pixels outside the view count as inside, so a
+    region that meets the border keeps its core there. With ``keep_small`` each connected part is eroded by at most
+    half its thickness (its largest chessboard distance to its edge), so a part thinner than the erosion keeps its
+    middle instead of vanishing; parts 2 px thick or less still vanish."""
+    if erode_px <= 0:
+        return region.copy()
+    padded = cv2.copyMakeBorder(region.astype(np.uint8), 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=1)
+    dist = cv2.distanceTransform(padded, cv2.DIST_C, 3)[1:-1, 1:-1]  # chessboard distance to the nearest outside pixel
+    if not keep_small:
+        return dist > erode_px
+    n, comp = cv2.connectedComponents(region.astype(np.uint8), connectivity=8)
+    thickest = np.zeros(n, np.float32)
+    np.maximum.at(thickest, comp.ravel(), dist.ravel())
+    limit = np.minimum(float(erode_px), np.maximum(1.0, np.floor(thickest / 2.0)))
+    return region & (dist > limit[comp])
+
+
 def render_seeds(
-    model: GaussianModel, lifted: LiftResult, n_labels: int, camera: Camera, erode_px: int, *, backend: Backend = "auto"
+    model: GaussianModel, lifted: LiftResult, n_labels: int, camera: Camera, erode_px: int, *, backend: Backend = "auto",
+    keep_small: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The decided labels rendered into ``camera`` and their eroded cores.
+    """The decided labels rendered into ``camera`` and their eroded cores (:func:`eroded_cores`; ``keep_small``:
+    regions thinner than the erosion keep their middle).
 
     A pixel takes the label (0..n_labels) whose decided Gaussians hold at least half of its alpha; undecided
     Gaussians render as a label of their own that never seeds.
@@ -92,14 +119,63 @@ def render_seeds(
     rendered = torch.where(ok, best, torch.full_like(best, NO_SEED)).numpy(force=True).astype(np.int64)
     depth = torch.where(a > 1e-3, meta.depth[..., 0], torch.zeros_like(a)).numpy(force=True).astype(np.float32)
     seeds = np.full(rendered.shape, NO_SEED, np.int64)
-    kernel = np.ones((2 * erode_px + 1, 2 * erode_px + 1), np.uint8) if erode_px > 0 else None
     for v in range(n_labels + 1):
-        region = (rendered == v).astype(np.uint8)
-        if kernel is not None:
-            # pixels outside the view count as inside the region: a region that meets the border keeps its core there
-            region = cv2.erode(region, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=1)
-        seeds[region.astype(bool)] = v
+        seeds[eroded_cores(rendered == v, erode_px, keep_small=keep_small)] = v
     return seeds, rendered, depth
+
+
+def cut_view(
+    model: GaussianModel,
+    lifted: LiftResult,
+    n_labels: int,
+    camera: Camera,
+    image: Path | str | np.ndarray | None,
+    params: RefineParams,
+    *,
+    backend: Backend = "auto",
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """One view cut on its photo and rendered depth, seeded by the decided labels' eroded cores (module docstring,
+    steps 1–2).
+
+    Args:
+        image: the view's photo (path or ``(H, W, 3)`` array at the camera's size); None: the scene's render.
+
+    Returns:
+        ``cut (H, W) int64`` (0..n_labels, :data:`~abcgs.masks.lifting.NO_VOTE` where no cut claimed the pixel; as
+        rendered where no label reaches the view), ``rendered (H, W) int64`` (:func:`render_seeds`) and the share of
+        the view's pixels that were seeds.
+    """
+    erode_px = int(round(params.seed_erode * min(camera.height, camera.width)))
+    seeds, rendered, depth = render_seeds(model, lifted, n_labels, camera, erode_px, backend=backend,
+                                          keep_small=params.small_regions == "core")
+    seeded = float((seeds >= 0).mean())
+    if not (seeds > 0).any():  # no label reaches this view: nothing to seed a cut with; it votes as rendered
+        return np.where(rendered >= 0, rendered, NO_VOTE), rendered, seeded
+    if image is None:
+        with torch.no_grad():
+            rgb = render(model, camera, backend=backend)[0].clamp(0, 1).numpy(force=True)
+    else:
+        rgb = load_image(image) if isinstance(image, (str, Path)) else np.asarray(image)
+    if rgb.shape[:2] != (camera.height, camera.width):
+        raise InputError(f"the photo of view {camera.name} is {rgb.shape[1]}x{rgb.shape[0]} but its camera is "
+                         f"{camera.width}x{camera.height}; give the undistorted images the cameras belong to")
+    seg = segment(rgb, seeds, iterations=params.iterations, depth=depth, depth_weight=params.depth_weight)
+    return np.where(seg.claimed, seg.labels, NO_VOTE), rendered, seeded
+
+
+def nearest_first(cameras: list[Camera], given: list[int], todo: list[int]) -> list[int]:
+    """``todo`` ordered by the angle between each camera's viewing direction and the nearest of the ``given``
+    cameras', smallest first (ties by index): on a capture round an object, the views next to a labelled one come
+    first and the far side last."""
+    def forward(c: Camera) -> np.ndarray:
+        r = np.asarray(c.torch_viewmat("cpu"), np.float64)[:3, :3]
+        return r[2] / np.linalg.norm(r[2])  # the camera's +z axis in world coordinates
+
+    if not given:
+        return list(todo)
+    ref = np.stack([forward(cameras[g]) for g in given])
+    angle = {i: float(np.arccos(np.clip(ref @ forward(cameras[i]), -1.0, 1.0)).min()) for i in todo}
+    return sorted(todo, key=lambda i: (angle[i], i))
 
 
 def refine_labels(
@@ -114,6 +190,7 @@ def refine_labels(
     *,
     backend: Backend = "auto",
     show_progress: bool = True,
+    propagate: bool = False,
 ) -> Refinement:
     """Re-cut every camera not in ``given`` from the lifted labels, then lift from all cameras (module docstring).
 
@@ -123,6 +200,8 @@ def refine_labels(
         given: camera index → the label map lifted as it is (the user's masks); every other camera is re-cut.
         lifted: the first lift (from ``given``, or from an automatic mask). n_labels: labels 1..n_labels.
         lift_params: thresholds of the final lift. params: ``masks.refine``.
+        propagate: with ``params.order: nearest_first``, fill the Gaussians no view so far decides from their 3-D
+            neighbours (:func:`~abcgs.masks.lifting.propagate_unseen`) before each cut.
 
     Returns:
         :class:`Refinement`.
@@ -131,33 +210,29 @@ def refine_labels(
     views: dict[str, dict[str, float]] = {}
     todo = [i for i in range(len(cameras)) if i not in given]
     recut: dict[int, np.ndarray] = {}
+    weights = None
+    if params.order == "nearest_first":
+        todo = nearest_first(cameras, sorted(given), todo)
+        weights = lifted.weights.clone()
     for i in progress(todo, "masks: re-cut views", enabled=show_progress):
         cam = cameras[i]
-        erode_px = int(round(params.seed_erode * min(cam.height, cam.width)))
-        seeds, rendered, depth = render_seeds(model, lifted, n_labels, cam, erode_px, backend=backend)
-        if not (seeds > 0).any():  # no label reaches this view: nothing to seed a cut with; it votes as rendered
-            recut[i] = np.where(rendered >= 0, rendered, NO_VOTE)
-            views[cam.name] = {"seeded": float((seeds >= 0).mean()), "changed": 0.0,
-                               "undecided": float((rendered < 0).mean())}
-            continue
-        if images is None:
-            with torch.no_grad():
-                rgb = render(model, cam, backend=backend)[0].clamp(0, 1).numpy(force=True)
-        else:
-            src = images[i]
-            rgb = load_image(src) if isinstance(src, (str, Path)) else np.asarray(src)
-        if rgb.shape[:2] != (cam.height, cam.width):
-            raise InputError(f"the photo of view {cam.name} is {rgb.shape[1]}x{rgb.shape[0]} but its camera is "
-                             f"{cam.width}x{cam.height}; give the undistorted images the cameras belong to")
-        seg = segment(rgb, seeds, iterations=params.iterations, depth=depth, depth_weight=params.depth_weight)
-        cut = np.where(seg.claimed, seg.labels, NO_VOTE)
+        cut, rendered, seeded = cut_view(model, lifted, n_labels, cam, None if images is None else images[i], params,
+                                         backend=backend)
         recut[i] = cut
+        if weights is not None:  # the next view is seeded by the given masks and every cut so far
+            weights += view_weights(model, cam, cut, n_labels, backend=backend)
+            lifted = decide_labels(weights, lift_params)
+            if propagate:
+                lifted = propagate_unseen(model, lifted, lift_params)[0]
         both = (cut >= 0) & (rendered >= 0)
-        views[cam.name] = {"seeded": float((seeds >= 0).mean()),
+        views[cam.name] = {"seeded": seeded,
                            "changed": float((cut != rendered)[both].mean()) if both.any() else 0.0,
                            "undecided": float((cut < 0).mean())}
-    maps = [given[i] if i in given else recut[i] for i in range(len(cameras))]
-    relifted = lift_labels(model, cameras, maps, n_labels, lift_params, backend=backend)
+    if weights is not None:  # the given masks' votes and every cut's: the lift from all views
+        relifted = decide_labels(weights, lift_params)
+    else:
+        maps = [given[i] if i in given else recut[i] for i in range(len(cameras))]
+        relifted = lift_labels(model, cameras, maps, n_labels, lift_params, backend=backend)
     seconds = time.perf_counter() - t0
     log.info("refined: %d views re-cut on colour%s in %.1f s; labels per Gaussian %s", len(todo),
              " and depth" if params.depth_weight > 0 else "", seconds, relifted.counts())
