@@ -4,6 +4,11 @@ from __future__ import annotations
 
 import sys
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
+# isort: split
 from eval.bench.strokes import main
 
 if __name__ == "__main__":
