@@ -35,7 +35,7 @@ void weights_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t 
   for (int64_t k = start; k < end && remaining > 0; ++k) {
     const int64_t slot = bin.slots[k];
     const size_t before = out.entry_w.size();
-    for_each_covered_row<false>(gv, slot, x0, x1, y0, y1, tw,
+    for_each_covered_row<false>(gv, slot, x0, x1, y0, y1, tw, AllLanes{},
                                 [&](int64_t p0, int64_t, scalar_t, uint32_t mask, const scalar_t* __restrict alpha,
                                     const scalar_t*, const scalar_t*) {
       for (uint32_t m = mask; m != 0; m &= m - 1) {

@@ -115,16 +115,38 @@ at::Tensor depth_order(const scalar_t* depth, const scalar_t* ext, int64_t n) {
       idx[j++] = static_cast<int32_t>(g);
     }
   });
+  // each pass: the workers count their own contiguous ranges, then scatter them to (digit, worker) offsets, so
+  // that equal digits keep their order (stable) and the permutation does not depend on the worker count
+  const int64_t rw = std::max<int64_t>(1, std::min<int64_t>(abcgs::kernel_threads(), (m + 65535) / 65536));
+  const int64_t rchunk = (m + rw - 1) / rw;
+  std::vector<int64_t> hist(rw * 256);
   for (int shift = 0; shift < static_cast<int>(8 * sizeof(key_t)); shift += 8) {
-    int64_t count[257] = {0};
-    for (int64_t i = 0; i < m; ++i) count[((keys[i] >> shift) & 0xff) + 1]++;
-    if (std::find(count + 1, count + 257, m) != count + 257) continue;  // one bucket: order unchanged
-    for (int b = 0; b < 256; ++b) count[b + 1] += count[b];
-    for (int64_t i = 0; i < m; ++i) {
-      const int64_t pos = count[(keys[i] >> shift) & 0xff]++;
-      keys_tmp[pos] = keys[i];
-      idx_tmp[pos] = idx[i];
+    std::fill(hist.begin(), hist.end(), 0);
+    abcgs::run_workers(rw, [&](int64_t w) {
+      int64_t* h = &hist[w * 256];
+      for (int64_t i = w * rchunk, e = std::min(m, (w + 1) * rchunk); i < e; ++i) h[(keys[i] >> shift) & 0xff]++;
+    });
+    bool one_bucket = false;  // every key has the same digit: order unchanged
+    int64_t pos = 0;
+    for (int b = 0; b < 256; ++b) {
+      int64_t total = 0;
+      for (int64_t w = 0; w < rw; ++w) {
+        const int64_t c = hist[w * 256 + b];
+        hist[w * 256 + b] = pos;
+        pos += c;
+        total += c;
+      }
+      one_bucket |= total == m;
     }
+    if (one_bucket) continue;
+    abcgs::run_workers(rw, [&](int64_t w) {
+      int64_t* h = &hist[w * 256];
+      for (int64_t i = w * rchunk, e = std::min(m, (w + 1) * rchunk); i < e; ++i) {
+        const int64_t to = h[(keys[i] >> shift) & 0xff]++;
+        keys_tmp[to] = keys[i];
+        idx_tmp[to] = idx[i];
+      }
+    });
     keys.swap(keys_tmp);
     idx.swap(idx_tmp);
   }
@@ -193,24 +215,41 @@ inline double exp_neg(double s) { return std::exp(-s); }
 constexpr int64_t kRowChunk = 16;
 // Rows of one Gaussian evaluated together (the height of a 16 x 16 tile).
 constexpr int64_t kRowBatch = 16;
+// Float lanes of one native vector (vec_width.h): a row chunk is kRowChunk / kPartLanes of them ("parts"). A part
+// with no lane inside the Gaussian's box is neither evaluated nor blended: a Gaussian covers 8 pixels of a tile row
+// on average, so on AVX2 one of a row's two parts is often empty.
+constexpr int64_t kPartLanes = ABCGS_VEC_BYTES / 4 < kRowChunk ? ABCGS_VEC_BYTES / 4 : kRowChunk;
+static_assert(kRowChunk % kPartLanes == 0, "a row chunk must be whole parts");
+// The lane bits of part q (starting at lane q0 = q * kPartLanes) in a lane mask of a row chunk.
+inline uint32_t part_bits(uint32_t mask, int64_t q0) {
+  return (mask >> q0) & static_cast<uint32_t>((uint64_t(1) << kPartLanes) - 1);
+}
 
 // Alpha (0 where skipped: sigma < 0 or alpha < 1/255, and outside lanes [lo, hi)) and exp(-sigma) for the
 // kRowChunk pixels x = xc + i (i < kRowChunk) of one row at offset dy from the mean: the branch-free part of
-// blending. dx is formed as (xc + 0.5 - mx) + i.
+// blending. dx is formed as (xc + 0.5 - mx) + i. Only the parts with a lane in `eval` (a lane mask inside
+// [lo, hi)) are evaluated; the others get alpha 0 and exp 0.
 template <typename scalar_t>
-inline void row_alpha(int64_t xc, int32_t lo, int32_t hi, scalar_t mx, scalar_t dy, scalar_t ca, scalar_t cb,
-                      scalar_t cc, scalar_t o, scalar_t* __restrict alpha, scalar_t* __restrict vis) {
+inline void row_alpha(int64_t xc, int32_t lo, int32_t hi, uint32_t eval, scalar_t mx, scalar_t dy, scalar_t ca,
+                      scalar_t cb, scalar_t cc, scalar_t o, scalar_t* __restrict alpha, scalar_t* __restrict vis) {
   const scalar_t half_cdy2 = scalar_t(0.5) * cc * dy * dy, cbdy = cb * dy;
   const scalar_t x0 = scalar_t(xc) + scalar_t(0.5) - mx;
-  for (int32_t i = 0; i < int32_t(kRowChunk); ++i) {
-    const scalar_t dx = x0 + scalar_t(i);
-    const scalar_t sigma = scalar_t(0.5) * ca * dx * dx + half_cdy2 + cbdy * dx;
-    const scalar_t e = exp_neg(sigma);
-    const scalar_t a = std::min(scalar_t(kMaxAlpha), o * e);
-    const scalar_t a_kept = a >= scalar_t(kAlphaThreshold) ? a : scalar_t(0);  // selects, not a bool mask:
-    const scalar_t a_row = sigma >= scalar_t(0) ? a_kept : scalar_t(0);       // GCC vectorises these
-    alpha[i] = (i >= lo && i < hi) ? a_row : scalar_t(0);
-    vis[i] = e;
+  for (int32_t q0 = 0; q0 < int32_t(kRowChunk); q0 += int32_t(kPartLanes)) {
+    if (part_bits(eval, q0) == 0) {  // no lane to evaluate in this part: alpha 0
+      std::fill(alpha + q0, alpha + q0 + kPartLanes, scalar_t(0));
+      std::fill(vis + q0, vis + q0 + kPartLanes, scalar_t(0));
+      continue;
+    }
+    for (int32_t i = q0; i < q0 + int32_t(kPartLanes); ++i) {
+      const scalar_t dx = x0 + scalar_t(i);
+      const scalar_t sigma = scalar_t(0.5) * ca * dx * dx + half_cdy2 + cbdy * dx;
+      const scalar_t e = exp_neg(sigma);
+      const scalar_t a = std::min(scalar_t(kMaxAlpha), o * e);
+      const scalar_t a_kept = a >= scalar_t(kAlphaThreshold) ? a : scalar_t(0);  // selects, not a bool mask:
+      const scalar_t a_row = sigma >= scalar_t(0) ? a_kept : scalar_t(0);       // GCC vectorises these
+      alpha[i] = (i >= lo && i < hi) ? a_row : scalar_t(0);
+      vis[i] = e;
+    }
   }
 }
 
@@ -328,33 +367,82 @@ Binning bin_tiles(const GaussianView<scalar_t>& gv, const at::Tensor& order, int
   soff[0] = 0;
   for (int64_t k = 0; k < n_vis; ++k) soff[k + 1] += soff[k];
   const int64_t m = soff[n_vis];
-  at::Tensor tile_offsets = at::zeros({n_tiles + 1}, at::kLong);
+  // Each worker counts the tiles of its own contiguous range of slots, then writes its entries at its offset
+  // inside each tile (the workers' ranges in slot order): every tile's list is in slot order, whatever the
+  // worker count.
+  const int64_t workers = std::max<int64_t>(1, std::min<int64_t>(abcgs::kernel_threads(), (n_vis + 65535) / 65536));
+  const int64_t chunk = (n_vis + workers - 1) / workers;
+  std::vector<int64_t> cursor(workers * n_tiles, 0);
+  abcgs::run_workers(workers, [&](int64_t w) {
+    int64_t* count = &cursor[w * n_tiles];
+    for (int64_t k = w * chunk, e = std::min(n_vis, (w + 1) * chunk); k < e; ++k) {
+      if (soff[k + 1] == soff[k]) continue;
+      const int32_t* r = &boxes[4 * k];
+      for (int64_t ty = r[1]; ty <= r[3]; ++ty)
+        for (int64_t tx = r[0]; tx <= r[2]; ++tx) count[ty * tiles_x + tx]++;
+    }
+  });
+  at::Tensor tile_offsets = at::empty({n_tiles + 1}, at::kLong);
   int64_t* toff = tile_offsets.data_ptr<int64_t>();
-  for (int64_t k = 0; k < n_vis; ++k) {
-    if (soff[k + 1] == soff[k]) continue;
-    const int32_t* r = &boxes[4 * k];
-    for (int64_t ty = r[1]; ty <= r[3]; ++ty)
-      for (int64_t tx = r[0]; tx <= r[2]; ++tx) toff[ty * tiles_x + tx + 1]++;
+  toff[0] = 0;
+  for (int64_t t = 0; t < n_tiles; ++t) {
+    int64_t pos = toff[t];
+    for (int64_t w = 0; w < workers; ++w) {
+      const int64_t c = cursor[w * n_tiles + t];
+      cursor[w * n_tiles + t] = pos;
+      pos += c;
+    }
+    toff[t + 1] = pos;
   }
-  for (int64_t t = 0; t < n_tiles; ++t) toff[t + 1] += toff[t];
   at::Tensor slots = at::empty({m}, at::kInt);
   at::Tensor isect_rows = at::empty({m}, at::kLong);
   int32_t* sl = slots.data_ptr<int32_t>();
   int64_t* ir = isect_rows.data_ptr<int64_t>();
-  std::vector<int64_t> cursor(toff, toff + n_tiles);
-  for (int64_t k = 0; k < n_vis; ++k) {
-    const int32_t* r = &boxes[4 * k];
-    int64_t j = soff[k];
-    if (j == soff[k + 1]) continue;
-    for (int64_t ty = r[1]; ty <= r[3]; ++ty)
-      for (int64_t tx = r[0]; tx <= r[2]; ++tx) {
-        const int64_t pos = cursor[ty * tiles_x + tx]++;
-        sl[pos] = static_cast<int32_t>(k);
-        ir[pos] = j++;
-      }
-  }
+  abcgs::run_workers(workers, [&](int64_t w) {
+    int64_t* cur = &cursor[w * n_tiles];
+    for (int64_t k = w * chunk, e = std::min(n_vis, (w + 1) * chunk); k < e; ++k) {
+      const int32_t* r = &boxes[4 * k];
+      int64_t j = soff[k];
+      if (j == soff[k + 1]) continue;
+      for (int64_t ty = r[1]; ty <= r[3]; ++ty)
+        for (int64_t tx = r[0]; tx <= r[2]; ++tx) {
+          const int64_t pos = cur[ty * tiles_x + tx]++;
+          sl[pos] = static_cast<int32_t>(k);
+          ir[pos] = j++;
+        }
+    }
+  });
   return Binning(tile_offsets, slots, order, slot_offsets, isect_rows, width, height, tile);
 }
+
+// Bit i set when v[i] > k, for the kRowChunk consecutive values at v (any alignment).
+inline uint32_t lanes_above(const int32_t* v, int32_t k) {
+  static_assert(kRowChunk == 16, "the vector paths below test 16 int32 lanes");
+#if defined(__AVX512F__)
+  return static_cast<uint32_t>(_mm512_cmpgt_epi32_mask(_mm512_loadu_si512(v), _mm512_set1_epi32(k)));
+#elif defined(__AVX2__)
+  const __m256i kv = _mm256_set1_epi32(k);
+  const __m256i a = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(v));
+  const __m256i b = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(v + 8));
+  const uint32_t lo = static_cast<uint32_t>(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(a, kv))));
+  const uint32_t hi = static_cast<uint32_t>(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpgt_epi32(b, kv))));
+  return lo | (hi << 8);
+#else
+  uint32_t mask = 0;
+  for (int64_t i = 0; i < kRowChunk; ++i) mask |= (v[i] > k ? 1u : 0u) << i;
+  return mask;
+#endif
+}
+
+// Lanes [lo, hi) of a row chunk as a bit mask (0 <= lo <= hi <= kRowChunk).
+inline uint32_t lane_range(int32_t lo, int32_t hi) {
+  return static_cast<uint32_t>(((uint64_t(1) << hi) - 1) & ~((uint64_t(1) << lo) - 1));
+}
+
+// Every lane may still change (the `live` test of a caller that tracks no per-pixel state).
+struct AllLanes {
+  uint32_t operator()(int64_t) const { return ~0u; }
+};
 
 // Visit, row by row, where Gaussian g reaches alpha >= 1/255 (and sigma >= 0) in the tile [x0, x1) x [y0, y1):
 // the rows of its box inside the tile, each in chunks of kRowChunk pixels aligned to the tile's left edge.
@@ -365,9 +453,13 @@ Binning bin_tiles(const GaussianView<scalar_t>& gv, const at::Tensor& order, int
 // the bit mask of its lanes with a nonzero alpha (never 0), and kRowChunk-lane buffers; inv = 1 / (1 - alpha)
 // when kInverse (the backward pass: one vector divide per chunk, correctly rounded like a scalar one), else
 // unset. Lanes past the tile's right edge have alpha 0.
-template <bool kInverse, typename scalar_t, typename F>
+// live(p0) gives the lanes of the chunk at tile-local index p0 whose pixel the Gaussian can still change (the
+// forward pass: not done; the backward pass: blended after this entry). A row with no live lane in the box is
+// skipped before its alphas are computed, and a vector part with none is not evaluated: a pixel that cannot
+// change ignores its lane, so the results are those of evaluating every lane.
+template <bool kInverse, typename scalar_t, typename L, typename F>
 inline void for_each_covered_row(const GaussianView<scalar_t>& gv, int64_t slot, int64_t x0, int64_t x1, int64_t y0,
-                                 int64_t y1, int64_t tw, F&& fn) {
+                                 int64_t y1, int64_t tw, const L& live, F&& fn) {
   alignas(64) scalar_t abuf[kRowBatch][kRowChunk], ebuf[kRowBatch][kRowChunk], rbuf[kRowChunk];
   uint32_t masks[kRowBatch];
   const scalar_t* gp = gv.at(slot);
@@ -377,14 +469,21 @@ inline void for_each_covered_row(const GaussianView<scalar_t>& gv, int64_t slot,
   box_in_tile<scalar_t>(my, gp[7], y0, y1, ya, yb);
   if (xa >= xb) return;
   for (int64_t xc = x0 + (xa - x0) / kRowChunk * kRowChunk; xc < xb; xc += kRowChunk) {
-    const int32_t lo = static_cast<int32_t>(xa - xc), hi = static_cast<int32_t>(xb - xc);  // the box's lanes
+    const int32_t lo = static_cast<int32_t>(std::max<int64_t>(xa - xc, 0));  // the box's lanes
+    const int32_t hi = static_cast<int32_t>(std::min<int64_t>(xb - xc, kRowChunk));
+    const uint32_t box = lane_range(lo, hi);
     for (int64_t yr = ya; yr < yb; yr += kRowBatch) {
       const int64_t nr = std::min<int64_t>(kRowBatch, yb - yr);
       uint32_t any = 0;
       for (int64_t r = 0; r < nr; ++r) {
+        const uint32_t eval = box & live((yr + r - y0) * tw + (xc - x0));
+        if (eval == 0) {
+          masks[r] = 0;
+          continue;
+        }
         const scalar_t dy = scalar_t(yr + r) + scalar_t(0.5) - my;
         scalar_t* a = abuf[r];
-        row_alpha<scalar_t>(xc, lo, hi, mx, dy, ca, cb, cc, o, a, ebuf[r]);
+        row_alpha<scalar_t>(xc, lo, hi, eval, mx, dy, ca, cb, cc, o, a, ebuf[r]);
         masks[r] = nonzero_lanes(a);
         any |= masks[r];
       }
@@ -408,7 +507,7 @@ typedef float f32v __attribute__((vector_size(ABCGS_VEC_BYTES)));
 typedef int32_t i32v __attribute__((vector_size(ABCGS_VEC_BYTES)));
 constexpr int64_t kLanes = ABCGS_VEC_BYTES / 4;
 constexpr int64_t kParts = kRowChunk / kLanes;
-static_assert(kParts * kLanes == kRowChunk, "a row chunk must be whole vectors");
+static_assert(kParts * kLanes == kRowChunk && kLanes == kPartLanes, "a row chunk must be whole vectors");
 
 template <typename V>
 inline V load_v(const void* p) {
@@ -427,8 +526,8 @@ inline void store_v(void* p, const V& v) {
 // time. T, done, last and the colour planes (acc + c * stride) are read and written at 16 consecutive lanes.
 // Returns how many pixels stopped; sets `blended` when a lane blended.
 template <int64_t kChannels>
-inline int64_t blend_chunk_f32(const float* alpha, float* T, int32_t* done, int32_t* last, float* acc, int64_t stride,
-                               int64_t channels, const float* col, int32_t order, bool& blended) {
+inline int64_t blend_chunk_f32(const float* alpha, uint32_t mask, float* T, int32_t* done, int32_t* last, float* acc,
+                               int64_t stride, int64_t channels, const float* col, int32_t order, bool& blended) {
   const int64_t C = kChannels > 0 ? kChannels : channels;
   const i32v zero_i = {};
   const f32v zero_f = {};
@@ -437,6 +536,11 @@ inline int64_t blend_chunk_f32(const float* alpha, float* T, int32_t* done, int3
   alignas(64) float stop_lanes[kRowChunk], blend_lanes[kRowChunk];
   for (int64_t q = 0; q < kParts; ++q) {
     const int64_t off = q * kLanes;
+    if (part_bits(mask, off) == 0) {  // every alpha 0: nothing changes
+      store_v(stop_lanes + off, zero_f);
+      store_v(blend_lanes + off, zero_f);
+      continue;
+    }
     const f32v a = load_v<f32v>(alpha + off);
     f32v t = load_v<f32v>(T + off);
     i32v d = load_v<i32v>(done + off), l = load_v<i32v>(last + off);
@@ -493,11 +597,13 @@ void forward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t 
     if constexpr (kChannels > 0) std::copy(colp, colp + C, col);
     const int32_t order = static_cast<int32_t>(k - start + 1);
     bool any = false;
+    const int32_t* done_p = done.data();
     for_each_covered_row<false>(gv, slot, x0, x1, y0, y1, tw,
-                                [&](int64_t p0, int64_t, scalar_t, uint32_t, const scalar_t* __restrict alpha,
+                                [done_p](int64_t p0) { return ~lanes_above(done_p + p0, 0); },
+                                [&](int64_t p0, int64_t, scalar_t, uint32_t mask, const scalar_t* __restrict alpha,
                                     const scalar_t*, const scalar_t*) {
       if constexpr (std::is_same_v<scalar_t, float>) {
-        remaining -= blend_chunk_f32<kChannels>(alpha, T.data() + p0, done.data() + p0, lst.data() + p0,
+        remaining -= blend_chunk_f32<kChannels>(alpha, mask, T.data() + p0, done.data() + p0, lst.data() + p0,
                                                 acc.data() + p0, stride, C, kChannels > 0 ? col : colp, order, any);
       } else {
         for (int64_t i = 0; i < kRowChunk; ++i) {
@@ -529,13 +635,23 @@ void forward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t 
     }
 }
 
-// Sum of a chunk's lanes (kParts vectors), in a fixed order (pairwise halves).
-inline float sum_lanes(const f32v (&v)[kParts]) {
+// Sum of a chunk's lanes (kParts vectors), in a fixed order (pairwise halves: x[i] += x[i + h] for h = 8, 4, 2, 1).
+// The AVX2 path adds the same pairs with vector instructions, so it gives the same bits as the scalar loop.
+__attribute__((always_inline)) inline float sum_lanes(const f32v (&v)[kParts]) {
+#if defined(__AVX2__) && !defined(__AVX512F__)
+  static_assert(kParts == 2 && kLanes == 8, "AVX2: a chunk is two vectors of eight lanes");
+  __m256 x = _mm256_add_ps(reinterpret_cast<__m256>(v[0]), reinterpret_cast<__m256>(v[1]));  // h = 8
+  __m128 y = _mm_add_ps(_mm256_castps256_ps128(x), _mm256_extractf128_ps(x, 1));             // h = 4
+  y = _mm_add_ps(y, _mm_movehl_ps(y, y));                                                     // h = 2
+  y = _mm_add_ss(y, _mm_shuffle_ps(y, y, 1));                                                 // h = 1
+  return _mm_cvtss_f32(y);
+#else
   alignas(64) float x[kRowChunk];
   for (int64_t q = 0; q < kParts; ++q) store_v(x + q * kLanes, v[q]);
   for (int64_t h = kRowChunk / 2; h > 0; h /= 2)
     for (int64_t i = 0; i < h; ++i) x[i] += x[i + h];
   return x[0];
+#endif
 }
 
 // Backward pass for one tile: walks the tile's list back to front, reconstructing each pixel's
@@ -551,7 +667,7 @@ template <typename scalar_t, int64_t kChannels>
 void backward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t tile, int64_t width,
                    int64_t height, int64_t tile_size, const scalar_t* trans, const int32_t* last,
                    const scalar_t* v_image, const scalar_t* v_alpha, const uint8_t* blended,
-                   scalar_t* isect_grads) {
+                   scalar_t* isect_grads, uint8_t* row_written) {
   constexpr bool kVector = std::is_same_v<scalar_t, float> && kChannels > 0;
   const int64_t C = kChannels > 0 ? kChannels : gv.channels, row = 6 + C;
   const int64_t tx = tile % bin.tiles_x, ty = tile / bin.tiles_x;
@@ -577,20 +693,13 @@ void backward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t
   std::vector<scalar_t> gcol_heap(kChannels > 0 ? 0 : C);
   scalar_t gcol_fixed[kCols];
   scalar_t* gcol = kChannels > 0 ? gcol_fixed : gcol_heap.data();
-  // rows past the last Gaussian any pixel blended get no gradient (isect_grads is not zeroed beforehand)
-  const int64_t end = bin.tile_offsets[tile + 1];
-  for (int64_t k = start + max_last; k < end; ++k) {
-    scalar_t* out = isect_grads + bin.isect_rows[k] * row;
-    std::fill(out, out + row, scalar_t(0));
-  }
+  // Only the rows of entries that blended a pixel are written, and flagged in `row_written`: the others (past
+  // the last Gaussian any pixel blended, or blending none of the tile's pixels) have gradient 0, and the
+  // reduction skips them instead of summing zeros.
   for (int64_t kk = max_last - 1; kk >= 0; --kk) {
     const int64_t k = start + kk;
     if (kk >= kPrefetchAhead) gv.prefetch(bin.slots[k - kPrefetchAhead]);
-    if (!blended[k]) {
-      scalar_t* out = isect_grads + bin.isect_rows[k] * row;
-      std::fill(out, out + row, scalar_t(0));
-      continue;
-    }
+    if (!blended[k]) continue;
     const int64_t slot = bin.slots[k];
     const scalar_t* gp = gv.at(slot);
     const scalar_t mx = gp[0], ca = gp[2], cb = gp[3], cc = gp[4], o = gp[5];
@@ -609,13 +718,17 @@ void backward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t
         for (int64_t i = 0; i < kLanes; ++i) lane[q][i] = static_cast<float>(q * kLanes + i);
       }
       bool touched = false;
+      const int32_t* lst_p = lst.data();
+      const int32_t kk32 = static_cast<int32_t>(kk);
       for_each_covered_row<true>(gv, slot, x0, x1, y0, y1, tw,
-                                 [&](int64_t p0, int64_t xc, float dy, uint32_t, const float* abuf, const float* ebuf,
-                                     const float* rbuf) {
+                                 [lst_p, kk32](int64_t p0) { return lanes_above(lst_p + p0, kk32); },
+                                 [&](int64_t p0, int64_t xc, float dy, uint32_t mask, const float* abuf,
+                                     const float* ebuf, const float* rbuf) {
         touched = true;
         const float dx0 = static_cast<float>(xc) + 0.5f - mx;
         for (int64_t q = 0; q < kParts; ++q) {
           const int64_t off = q * kLanes, p = p0 + off;
+          if (part_bits(mask, off) == 0) continue;  // every alpha 0: no lane active
           const f32v alpha = load_v<f32v>(abuf + off), vis = load_v<f32v>(ebuf + off), ra = load_v<f32v>(rbuf + off);
           f32v t = load_v<f32v>(T.data() + p);
           const f32v tva = load_v<f32v>(TfvA.data() + p);
@@ -645,10 +758,8 @@ void backward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t
           l_my[q] = gate ? l_my[q] - (cb * dx + cc * dy) * v_sigma : l_my[q];
         }
       });
-      if (!touched) {
-        std::fill(out, out + row, 0.0f);
-        continue;
-      }
+      if (!touched) continue;
+      row_written[bin.isect_rows[k]] = 1;
       out[0] = sum_lanes(l_mx);
       out[1] = sum_lanes(l_my);
       out[2] = sum_lanes(l_a);
@@ -659,7 +770,7 @@ void backward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t
     } else {
       scalar_t g_mx = 0, g_my = 0, g_a = 0, g_b = 0, g_c = 0, g_o = 0;
       std::fill(gcol, gcol + C, scalar_t(0));
-      for_each_covered_row<true>(gv, slot, x0, x1, y0, y1, tw,
+      for_each_covered_row<true>(gv, slot, x0, x1, y0, y1, tw, AllLanes{},
                                  [&](int64_t p0, int64_t xc, scalar_t dy, uint32_t mask, const scalar_t* abuf,
                                      const scalar_t* ebuf, const scalar_t* rbuf) {
         for (uint32_t m = mask; m != 0; m &= m - 1) {
@@ -697,6 +808,7 @@ void backward_tile(const GaussianView<scalar_t>& gv, const Binning& bin, int64_t
       out[4] = g_c;
       out[5] = g_o;
       for (int64_t c = 0; c < C; ++c) out[6 + c] = gcol[c];
+      row_written[bin.isect_rows[k]] = 1;
     }
   }
 }
@@ -782,8 +894,9 @@ std::vector<at::Tensor> rasterize_backward(const at::Tensor& means2d, const at::
   Binning bin(tile_offsets, slots, order, slot_offsets, isect_rows, width, height, tile_size);
   const int64_t m = bin.num_isects();
   auto opts = colors.options();
-  // every row is written by its tile; a large enough `scratch` (float, the caller's, kept between calls) saves
-  // the allocation and the page faults of a fresh buffer of M x (6 + C) values per call
+  // the rows of the entries that blended are written by their tile (flagged in row_written); a large enough
+  // `scratch` (float, the caller's, kept between calls) saves the allocation and the page faults of a fresh
+  // buffer of M x (6 + C) values per call
   at::Tensor isect_grads = scratch.scalar_type() == colors.scalar_type() && scratch.is_contiguous() &&
                                    scratch.numel() >= m * row
                                ? scratch.view({-1}).narrow(0, 0, m * row).view({m, row})
@@ -802,10 +915,12 @@ std::vector<at::Tensor> rasterize_backward(const at::Tensor& means2d, const at::
     TORCH_CHECK(blended.scalar_type() == at::kByte && blended.numel() == m && blended.is_contiguous(),
                 "rasterize_backward: the forward pass's blend flags do not match the binning");
     const uint8_t* bl = blended.data_ptr<uint8_t>();
+    at::Tensor written = at::zeros({m}, at::kByte);
+    uint8_t* rw = written.data_ptr<uint8_t>();
     for_each_tile(bin.tiles_x * bin.tiles_y, [&](int64_t t) {
-      if (C == 3) backward_tile<scalar_t, 3>(gv, bin, t, width, height, tile_size, tr, ls, vip, vap, bl, ig);
-      else if (C == 4) backward_tile<scalar_t, 4>(gv, bin, t, width, height, tile_size, tr, ls, vip, vap, bl, ig);
-      else backward_tile<scalar_t, 0>(gv, bin, t, width, height, tile_size, tr, ls, vip, vap, bl, ig);
+      if (C == 3) backward_tile<scalar_t, 3>(gv, bin, t, width, height, tile_size, tr, ls, vip, vap, bl, ig, rw);
+      else if (C == 4) backward_tile<scalar_t, 4>(gv, bin, t, width, height, tile_size, tr, ls, vip, vap, bl, ig, rw);
+      else backward_tile<scalar_t, 0>(gv, bin, t, width, height, tile_size, tr, ls, vip, vap, bl, ig, rw);
     });
     scalar_t* vm = v_means2d.data_ptr<scalar_t>();
     scalar_t* vc = v_conics.data_ptr<scalar_t>();
@@ -819,6 +934,7 @@ std::vector<at::Tensor> rasterize_backward(const at::Tensor& means2d, const at::
         if (j0 == j1) continue;
         if (C > 64) {
           for (int64_t j = j0; j < j1; ++j) {
+            if (!rw[j]) continue;
             const scalar_t* r = ig + j * row;
             vm[2 * g] += r[0];
             vm[2 * g + 1] += r[1];
@@ -832,6 +948,7 @@ std::vector<at::Tensor> rasterize_backward(const at::Tensor& means2d, const at::
         }
         std::fill(acc, acc + row, scalar_t(0));
         for (int64_t j = j0; j < j1; ++j) {
+          if (!rw[j]) continue;
           const scalar_t* r = ig + j * row;
           for (int64_t i = 0; i < row; ++i) acc[i] += r[i];
         }
