@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, fields
 
 import numpy as np
@@ -267,23 +267,62 @@ def freeze_gaussians(model: GaussianModel, frozen: Tensor | None) -> None:
 
 def render(
     model: GaussianModel,
-    camera: Camera,
+    camera: Camera | Sequence[Camera],
     *,
     backend: Backend = "auto",
     sh_degree: int | None = None,
     background: Tensor | None = None,
     **kwargs,
 ) -> tuple[Tensor, Tensor, RenderMeta]:
-    """Render ``model`` into ``camera``: image ``(H, W, 3)``, alpha ``(H, W, 1)``, :class:`RenderMeta`.
+    """Render ``model`` into ``camera``: image ``(H, W, 3)``, alpha ``(H, W, 1)``, :class:`RenderMeta`; into a list
+    of C cameras of one size in one call: image ``(C, H, W, 3)``, alpha ``(C, H, W, 1)`` and a batched
+    :class:`RenderMeta` (:func:`abcgs.render.rasterize` with ``viewmats`` ``(C, 4, 4)``).
 
     ``sh_degree`` caps the active SH band (default: all stored bands). ``background`` ``(3,)`` in
     ``[0, 1]`` is composited behind. Other keywords go to :func:`abcgs.render.rasterize`
-    (e.g. ``render_mode="RGB+D"``). Differentiable in every model parameter.
+    (e.g. ``render_mode="RGB+D"``). Differentiable in every model parameter. :func:`render_each` renders any
+    number of cameras, of any sizes, in bounded batches.
     """
     device = model.device
     colors, degree = model.colors_or_sh(sh_degree)
+    if isinstance(camera, Camera):
+        viewmats, Ks, width, height = camera.torch_viewmat(device), camera.torch_K(device), camera.width, camera.height
+    else:
+        cameras = list(camera)
+        if not cameras:
+            raise ValueError("render: the list of cameras is empty")
+        sizes = sorted({(c.width, c.height) for c in cameras})
+        if len(sizes) > 1:
+            raise ValueError(f"render: a batch of cameras must share one size, got {sizes} (see render_each)")
+        viewmats = torch.stack([c.torch_viewmat(device) for c in cameras])
+        Ks = torch.stack([c.torch_K(device) for c in cameras])
+        width, height = sizes[0]
     return rasterize(
-        model.means, model.quats, model.scales, model.opacities, colors,
-        camera.torch_viewmat(device), camera.torch_K(device), camera.width, camera.height,
+        model.means, model.quats, model.scales, model.opacities, colors, viewmats, Ks, width, height,
         sh_degree=degree, background=background, backend=backend, **kwargs,
     )
+
+
+RENDER_BATCH_ELEMENTS = 2**24
+""":func:`render_each`'s bound on one batch: cameras × (Gaussians + pixels) (a 3 M-Gaussian scene: 5 views a call)."""
+
+
+def render_each(
+    model: GaussianModel, cameras: Sequence[Camera], *, max_elements: int = RENDER_BATCH_ELEMENTS, **kwargs,
+) -> Iterator[tuple[Tensor, Tensor, RenderMeta]]:
+    """:func:`render` of every camera, yielded view by view in order as ``(image (H, W, 3), alpha (H, W, 1),
+    meta)``, rendered in batches: consecutive cameras of one size, at most ``max_elements`` // (N + H·W) of them
+    (at least one) per call, so that memory stays bounded for many views or many Gaussians. Keywords go to
+    :func:`render`; each view equals its one-camera render exactly."""
+    cameras = list(cameras)
+    start = 0
+    while start < len(cameras):
+        size = (cameras[start].width, cameras[start].height)
+        per_call = max(1, max_elements // (model.num_gaussians + size[0] * size[1]))
+        stop = start + 1
+        while stop < len(cameras) and stop - start < per_call and (cameras[stop].width, cameras[stop].height) == size:
+            stop += 1
+        image, alpha, meta = render(model, cameras[start:stop], **kwargs)
+        for c in range(stop - start):
+            yield image[c], alpha[c], meta.view(c)
+        start = stop

@@ -104,6 +104,9 @@ class RenderMeta:
         depth: ``(H, W, 1)`` expected depth Σ T_i α_i z_i (or normalised by alpha), when requested.
         backend: the backend that produced the image.
         width, height: the image size in px.
+
+    A render of C cameras (batched ``viewmats``) gives every tensor field a leading camera axis: means2d
+    ``(C, N, 2)``, radii ``(C, N, 2)``, depths ``(C, N)``, visible ``(C, N)``, depth ``(C, H, W, 1)``.
     """
 
     means2d: Tensor
@@ -114,6 +117,11 @@ class RenderMeta:
     backend: Backend
     width: int
     height: int
+
+    def view(self, c: int) -> RenderMeta:
+        """View ``c`` of a batched render's meta (the fields of one camera, as an unbatched render returns them)."""
+        return RenderMeta(self.means2d[c], self.radii[c], self.depths[c], self.visible[c],
+                          None if self.depth is None else self.depth[c], self.backend, self.width, self.height)
 
 
 @dataclass

@@ -299,3 +299,34 @@ def test_an_attribute_of_another_length_is_refused():
     model = make_model(10).detach()
     with pytest.raises(InputError, match="attribute 'label'"):
         GaussianModel(**model.params(), attributes={"label": torch.zeros(9)})
+
+
+def test_batched_meta_counts_each_view():
+    """A step that renders C views (meta with a leading camera axis) adds each view's NDC gradient norm and counts
+    each view a Gaussian is visible in; the largest radius over the views is kept. One view batched as (1, N, 2)
+    gives the statistics of the unbatched meta."""
+    strategy = DefaultStrategy(StrategyParams())
+    model = make_model(4)
+    grad = torch.tensor([[[1.0, 0.0], [0.0, 2.0], [3.0, 4.0], [1.0, 1.0]],
+                         [[0.5, 0.0], [0.0, 0.0], [1.0, 0.0], [2.0, 2.0]]])
+    visible = torch.tensor([[True, True, False, True], [True, False, True, False]])
+    radii = torch.tensor([[[2, 1], [4, 4], [9, 9], [1, 1]], [[5, 3], [1, 1], [7, 2], [8, 8]]], dtype=torch.int32)
+    means2d = torch.zeros(2, 4, 2, requires_grad=True)
+    means2d.grad = grad.clone()
+    meta = RenderMeta(means2d, radii, torch.ones(2, 4), visible, None, "cpu", 40, 30)
+    state = strategy.initialize_state(model)
+    strategy._update_state(state, meta, 4)
+    ndc = torch.tensor([20.0, 15.0])
+    expected = torch.zeros(4)
+    for c in range(2):
+        expected += torch.where(visible[c], (grad[c] * ndc).norm(dim=-1), torch.zeros(4))
+    torch.testing.assert_close(state["grad2d"], expected)
+    assert state["count"].tolist() == [2.0, 1.0, 1.0, 1.0]
+    assert state["max_radii"].tolist() == [5.0, 4.0, 7.0, 1.0]
+
+    one, batched = strategy.initialize_state(model), strategy.initialize_state(model)
+    strategy._update_state(one, fake_meta(grad[0], visible[0], radii[0]), 4)
+    m1 = torch.zeros(1, 4, 2, requires_grad=True)
+    m1.grad = grad[:1].clone()
+    strategy._update_state(batched, RenderMeta(m1, radii[:1], torch.ones(1, 4), visible[:1], None, "cpu", 40, 30), 4)
+    assert all(torch.equal(one[k], batched[k]) for k in one)

@@ -33,7 +33,7 @@ from abcgs.errors import InputError
 from abcgs.evaluation.consistency import Consistency, FlowCache, make_flow_estimator, warp_floor
 from abcgs.evaluation.pairs import ViewPairs, consistency_pairs
 from abcgs.evaluation.params import EvalParams
-from abcgs.gaussians import GaussianModel, render
+from abcgs.gaussians import GaussianModel, render_each
 from abcgs.io.atomic import atomic_path, write_json
 from abcgs.silhouette import background_tensor
 from abcgs.types import FRAME_FILLING, Backend, Background
@@ -85,8 +85,7 @@ def render_views(model: GaussianModel, cameras: list[Camera], backend: Backend,
     backend that made them."""
     imgs, used = [], backend
     bg = background_tensor(background, model.means) if background.object else None
-    for cam in cameras:
-        img, _, meta = render(model, cam, backend=backend, background=bg)
+    for img, _, meta in render_each(model, cameras, backend=backend, background=bg):
         imgs.append(img.clamp(0, 1).cpu().numpy().astype(np.float32))
         used = meta.backend
     return imgs, used
@@ -95,7 +94,7 @@ def render_views(model: GaussianModel, cameras: list[Camera], backend: Backend,
 @torch.no_grad()
 def render_alphas(model: GaussianModel, cameras: list[Camera], backend: Backend) -> list[np.ndarray]:
     """The alpha ``(H, W)`` float32 of ``model`` in each of ``cameras``."""
-    return [render(model, cam, backend=backend)[1][..., 0].cpu().numpy().astype(np.float32) for cam in cameras]
+    return [alpha[..., 0].cpu().numpy().astype(np.float32) for _, alpha, _ in render_each(model, cameras, backend=backend)]
 
 
 def evaluated_cameras(cameras: list[Camera], params: EvalParams) -> list[Camera]:

@@ -15,7 +15,7 @@ from torch import Tensor
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.fit import metrics as M
-from abcgs.gaussians import GaussianModel, render
+from abcgs.gaussians import GaussianModel, render_each
 
 
 @dataclass
@@ -64,9 +64,9 @@ def evaluate(
     if len(cameras) != len(images):
         raise InputError(f"evaluate: {len(cameras)} cameras but {len(images)} images")
     views = []
-    for cam, gt in zip(cameras, images):
+    renders = render_each(model, cameras, backend=backend, background=background)
+    for cam, gt, (img, _, _) in zip(cameras, images, renders):
         gt_t = torch.as_tensor(gt, dtype=torch.float32, device=model.device)
-        img, _, _ = render(model, cam, backend=backend, background=background)
         img = img.clamp(0.0, 1.0)
         views.append(
             ViewEval(

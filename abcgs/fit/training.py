@@ -232,7 +232,9 @@ def _fit(
 
         if views.alphas is not None and params.random_background:  # the dataset's object on this step's colour
             gt = over(unpremultiply(gt, views.alphas[idx], fixed_bg), views.alphas[idx], bg)
-        image, alpha, meta = render(model, cam, backend=backend, sh_degree=degree, background=bg)
+        # the step's batch of views (one): image (1, H, W, 3), a batched meta for the strategy
+        images, alphas, meta = render(model, [cam], backend=backend, sh_degree=degree, background=bg)
+        image, alpha = images[0], alphas[0]
         strategy.step_pre_backward(model, optimizers, state, step, meta)
         terms = reconstruction_loss(image, gt, params.ssim_lambda)
         if views.alphas is not None and params.alpha_weight > 0:

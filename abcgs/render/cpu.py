@@ -295,3 +295,123 @@ def sh_colors_cpu(degree: int, sh0: Tensor, shN: Tensor, means: Tensor, campos: 
     gradient 0), taking the DC band ``sh0`` ``(N, 1, 3)`` and the higher bands ``shN`` ``(N, K - 1, 3)`` (K ≥
     (degree + 1)²; ``(N, 0, 3)`` for degree 0) as separate blocks; returns ``(N, 3)``."""
     return _SHColorsCPU.apply(sh0, shN, means, campos, mask, int(degree))
+
+
+# ------------------------------------------------------------------------------------------------ batched cameras
+# One forward and one backward call per batch: the loop over the C cameras runs in C++ (csrc/batch_cpu.cpp), each
+# camera through the per-view kernels above, so every view equals its per-view render bit for bit; the gradients of
+# per-Gaussian inputs are summed over the cameras in camera order.
+
+
+class _ProjectBatchCPU(torch.autograd.Function):
+    """Projection, and SH colours when ``degree >= 0``, into C cameras: outputs ``(C, N, ·)``; gradients to means,
+    quats, scales and the SH blocks, summed over the cameras (the cameras are constant)."""
+
+    @staticmethod
+    def forward(ctx, means, quats, scales, opacities, sh0, shN, viewmats, Ks, width, height, near, far, eps2d, degree):
+        ext = load_extension()
+        dtype = means.dtype
+        means, quats, scales = means.contiguous(), quats.contiguous().to(dtype), scales.contiguous().to(dtype)
+        if degree >= 0:
+            sh0, shN = sh0.contiguous().to(dtype), shN.contiguous().to(dtype)
+        else:
+            sh0 = shN = means.new_empty(0)
+        viewmats, Ks = viewmats.detach().contiguous(), Ks.detach().contiguous()
+        out = ext.project_batch_forward(
+            means, quats, scales, opacities.detach().contiguous().to(dtype), viewmats, Ks, width, height, near, far,
+            eps2d, sh0, shN, degree,
+        )
+        means2d, conics, depths, extents, radii, visible, colors, campos = out
+        ctx.save_for_backward(means, quats, scales, viewmats, Ks, sh0, shN, campos, visible)
+        ctx.args = (width, height, near, far, eps2d)
+        ctx.degree = degree
+        ctx.mark_non_differentiable(extents, radii, visible)
+        if degree < 0:
+            ctx.mark_non_differentiable(colors)
+        return means2d, conics, depths, extents, radii, visible, colors
+
+    @staticmethod
+    def backward(ctx, v_means2d, v_conics, v_depths, _ve, _vr, _vv, v_colors):
+        ext = load_extension()
+        means, quats, scales, viewmats, Ks, sh0, shN, campos, visible = ctx.saved_tensors
+        C, n = viewmats.shape[0], means.shape[0]
+        zeros = lambda *shape: means.new_zeros(C, n, *shape)  # noqa: E731
+        v_means2d = zeros(2) if v_means2d is None else v_means2d.contiguous()
+        v_conics = zeros(3) if v_conics is None else v_conics.contiguous()
+        v_depths = zeros() if v_depths is None else v_depths.contiguous()
+        sh = ctx.degree >= 0 and v_colors is not None
+        v_colors = v_colors.contiguous().to(sh0.dtype) if sh else means.new_empty(0)
+        need_shN, need_means = ctx.needs_input_grad[5], ctx.needs_input_grad[0]
+        vm, vq, vs, v_sh0, v_shN = ext.project_batch_backward(
+            means, quats, scales, viewmats, Ks, *ctx.args, v_means2d, v_conics, v_depths, sh0, shN, campos, visible,
+            ctx.degree, v_colors, need_shN, need_means,
+        )
+        v_sh0 = v_sh0 if sh else None
+        v_shN = v_shN if sh and need_shN else None
+        return vm, vq, vs, None, v_sh0, v_shN, None, None, None, None, None, None, None, None
+
+
+def project_batch_cpu(
+    means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, viewmats: Tensor, Ks: Tensor,
+    width: int, height: int, *, near: float = 0.01, far: float = 1e10, eps2d: float = 0.3,
+    sh_degree: int | None = None, sh0: Tensor | None = None, shN: Tensor | None = None,
+) -> tuple[Projected, Tensor | None]:
+    """:func:`project_cpu` (and, with ``sh_degree``, :func:`sh_colors_cpu` on each view's visible Gaussians) for C
+    cameras ``viewmats`` ``(C, 4, 4)``, ``Ks`` ``(C, 3, 3)`` in one call: a :class:`Projected` of ``(C, N, ·)``
+    fields and the colours ``(C, N, 3)`` (``None`` without ``sh_degree``)."""
+    degree = -1 if sh_degree is None else int(sh_degree)
+    means2d, conics, depths, extents, radii, visible, colors = _ProjectBatchCPU.apply(
+        means, quats, scales, opacities, sh0, shN, viewmats, Ks, width, height, near, far, eps2d, degree
+    )
+    return Projected(means2d, conics, depths, extents, radii, visible), colors if degree >= 0 else None
+
+
+class _RasterizeBatchCPU(torch.autograd.Function):
+    """:class:`_RasterizeCPU` over C views: colours per view ``(C, N, F)`` or shared ``(N, F)``; with
+    ``depth_channel`` each view's depths are blended as channel F (and get its gradient)."""
+
+    @staticmethod
+    def forward(ctx, means2d, conics, colors, opacities, depths, extents, width, height, tile_size, depth_channel):
+        ext = load_extension()
+        means2d, conics, colors = means2d.contiguous(), conics.contiguous(), colors.contiguous()
+        opacities, extents = opacities.contiguous(), extents.detach().contiguous().to(colors.dtype)
+        depths = depths.detach().contiguous().to(colors.dtype)
+        save = any(ctx.needs_input_grad[:5])
+        image, trans, last, *saved = ext.rasterize_batch_forward(
+            means2d, conics, colors, opacities, depths, extents, width, height, tile_size, depth_channel, save
+        )
+        if save:
+            ctx.save_for_backward(means2d, conics, colors, opacities, depths, extents, trans, last, *saved)
+        ctx.dims = (width, height, tile_size, depth_channel)
+        return image, 1.0 - trans
+
+    @staticmethod
+    def backward(ctx, v_image, v_alpha):
+        ext = load_extension()
+        width, height, tile_size, depth_channel = ctx.dims
+        means2d, conics, colors, opacities, depths, extents, trans, last, *saved = ctx.saved_tensors
+        C, F = means2d.shape[0], colors.shape[-1] + depth_channel
+        if v_image is None:
+            v_image = colors.new_zeros(C, height, width, F)
+        if v_alpha is None:
+            v_alpha = colors.new_zeros(C, height, width)
+        rows = max(saved[8 * c + 1].numel() for c in range(C)) * (6 + F)
+        vm, vc, vcol, vo, vd = ext.rasterize_batch_backward(
+            means2d, conics, colors, opacities, depths, extents, trans, last, saved, v_image.contiguous(),
+            v_alpha.contiguous(), width, height, tile_size, depth_channel, _scratch(rows, colors.dtype),
+        )
+        return vm, vc, vcol, vo, vd if depth_channel else None, None, None, None, None, None
+
+
+def rasterize_batch_cpu(
+    means2d: Tensor, conics: Tensor, colors: Tensor, opacities: Tensor, depths: Tensor, extents: Tensor,
+    width: int, height: int, *, tile_size: int = 16, depth_channel: bool = False,
+) -> tuple[Tensor, Tensor]:
+    """:func:`rasterize_cpu` for C views in one call: ``means2d`` ``(C, N, 2)``, ``conics`` ``(C, N, 3)``, ``colors``
+    ``(C, N, F)`` or ``(N, F)`` (shared by the views), ``opacities`` ``(N,)``, ``depths`` ``(C, N)``, ``extents``
+    ``(C, N, 2)``. With ``depth_channel`` the depths are blended as one more channel (``RGB+D``). Returns image
+    ``(C, H, W, F [+ 1])`` without background and alpha ``(C, H, W, 1)``."""
+    image, alpha = _RasterizeBatchCPU.apply(
+        means2d, conics, colors, opacities, depths, extents, width, height, tile_size, bool(depth_channel)
+    )
+    return image, alpha[..., None]

@@ -141,20 +141,21 @@ def screen_bounds(
     Args:
         means2d: ``(N, 2)`` px. cov_diag: ``(N, 2)`` diagonal of the 2-D covariance (eps2d included), px².
         opacities: ``(N,)``. kept: ``(N,)`` bool, Gaussians the projection did not cull (depth, determinant).
+        means2d, cov_diag and kept may carry a leading camera axis ``(C, N, ·)``; the outputs then do too.
     """
     # Opacity-aware extent: alpha = o·exp(-sigma) ≥ 1/255 needs sigma ≤ log(255·o); the level set
     # sigma = s of the 2-D Gaussian has half-widths sqrt(2 s a_cov) along x and sqrt(2 s c_cov) along y.
     s_max = torch.log((opacities.detach() / ALPHA_THRESHOLD).clamp_min(1.0))
     half = cov_diag.detach().clamp_min(0).sqrt()
     # padded slightly so the box is a strict superset of the alpha ≥ 1/255 region (rounding)
-    extents = torch.sqrt(2.0 * s_max)[:, None] * half * 1.001 + 1e-3
+    extents = torch.sqrt(2.0 * s_max)[..., None] * half * 1.001 + 1e-3
     radii = torch.ceil(RADIUS_SIGMAS * half)
     m = means2d.detach()
     on_screen = (
-        (m[:, 0] + extents[:, 0] > 0) & (m[:, 0] - extents[:, 0] < width)
-        & (m[:, 1] + extents[:, 1] > 0) & (m[:, 1] - extents[:, 1] < height)
+        (m[..., 0] + extents[..., 0] > 0) & (m[..., 0] - extents[..., 0] < width)
+        & (m[..., 1] + extents[..., 1] > 0) & (m[..., 1] - extents[..., 1] < height)
     )
     visible = kept & (s_max > 0) & on_screen & torch.isfinite(m).all(-1)
-    extents = torch.where(visible[:, None], extents, torch.zeros_like(extents))
-    radii = torch.where(visible[:, None], radii, torch.zeros_like(radii)).to(torch.int32)
+    extents = torch.where(visible[..., None], extents, torch.zeros_like(extents))
+    radii = torch.where(visible[..., None], radii, torch.zeros_like(radii)).to(torch.int32)
     return extents, radii, visible

@@ -20,13 +20,14 @@ import re
 import typing
 import warnings
 from collections.abc import Sequence
+from dataclasses import fields
 
 import torch
 from torch import Tensor
 
 from abcgs.render import cpu as cpu_backend
 from abcgs.render.cpu import BackendUnavailable
-from abcgs.render.projection import project_gaussians, screen_bounds
+from abcgs.render.projection import Projected, project_gaussians, screen_bounds
 from abcgs.render.reference import rasterize_reference
 from abcgs.render.sh import sh_to_color
 from abcgs.types import Backend, RenderMeta, RenderMode
@@ -127,8 +128,8 @@ def rasterize(
     scales: Tensor,
     opacities: Tensor,
     colors: Tensor | Sequence[Tensor],
-    viewmat: Tensor,
-    K: Tensor,
+    viewmats: Tensor,
+    Ks: Tensor,
     width: int,
     height: int,
     *,
@@ -141,21 +142,24 @@ def rasterize(
     tile_size: int = 16,
     backend: Backend = "auto",
 ) -> tuple[Tensor, Tensor, RenderMeta]:
-    """Render N 3-D Gaussians into one pinhole view (differentiable in every float input).
+    """Render N 3-D Gaussians into one pinhole view or a batch of C views of one size (differentiable in every
+    float input).
 
     Args:
         means: ``(N, 3)`` world positions (world units).
         quats: ``(N, 4)`` rotations, wxyz, any norm (normalised inside the graph).
         scales: ``(N, 3)`` standard deviations along the local axes (world units, not log).
         opacities: ``(N,)`` in [0, 1] (not logits).
-        colors: ``(N, C)`` any number of channels, or SH coefficients ``(N, K, 3)`` with ``sh_degree`` set, which
+        colors: ``(N, D)`` any number of channels, or SH coefficients ``(N, K, 3)`` with ``sh_degree`` set, which
             may come as two blocks along K, the DC band ``(N, 1, 3)`` and the higher bands ``(N, K - 1, 3)``
             (as :class:`abcgs.gaussians.GaussianModel` stores them: the CPU backend then builds no ``(N, K, 3)``
             copy). The CPU backend evaluates SH only for the Gaussians the projection keeps.
-        viewmat: ``(4, 4)`` world→camera (OpenCV axes). K: ``(3, 3)`` intrinsics in px.
-        width, height: output size in px.
+        viewmats: ``(4, 4)`` world→camera (OpenCV axes), or ``(C, 4, 4)`` for C cameras (gsplat's ``viewmats``).
+        Ks: ``(3, 3)`` intrinsics in px, or ``(C, 3, 3)``, batched like ``viewmats``.
+        width, height: output size in px (every camera of a batch renders at this size).
         sh_degree: evaluate ``colors`` as SH of this degree (0..3); ``None`` = plain colours.
-        background: ``(C,)`` colour composited behind: ``image + (1 - alpha) · background``.
+        background: ``(D,)`` colour composited behind: ``image + (1 - alpha) · background``; with C cameras also
+            ``(C, D)``, one per view.
         render_mode: ``RGB``; ``RGB+D`` also returns the accumulated depth Σ T_i α_i z_i in ``meta.depth``
             ``(H, W, 1)`` (world units × alpha); ``RGB+ED`` the expected depth, that divided by alpha where
             alpha > 0 (gsplat's modes of the same names).
@@ -163,22 +167,35 @@ def rasterize(
         backend: see the module docstring.
 
     Returns:
-        image ``(H, W, C)``, alpha ``(H, W, 1)``, :class:`RenderMeta`.
+        image ``(H, W, D)``, alpha ``(H, W, 1)``, :class:`RenderMeta` for one camera; for C cameras image
+        ``(C, H, W, D)``, alpha ``(C, H, W, 1)`` and a :class:`RenderMeta` whose fields have a leading camera axis.
+        Each view of a batch equals its one-camera render exactly, and the gradients of the per-Gaussian inputs are
+        the sums over the views. The CPU kernels take the whole batch in one call per pass (the loop over cameras
+        runs in C++); gsplat takes it as its batch; the reference backend renders view by view.
     """
     if width < 1 or height < 1:
         raise ValueError(f"image size must be positive, got {width}x{height}")
+    n_cameras = camera_batch(viewmats, Ks)
+    if n_cameras is not None and background is not None and background.dim() == 2 and background.shape[0] != n_cameras:
+        raise ValueError(f"background must be (D,) or ({n_cameras}, D) for {n_cameras} cameras, got {tuple(background.shape)}")
     name = select_backend(means.device, backend)
     if name == "gsplat":
         return _rasterize_gsplat(
-            means, quats, scales, opacities, colors, viewmat, K, width, height, sh_degree=sh_degree,
+            means, quats, scales, opacities, colors, viewmats, Ks, width, height, sh_degree=sh_degree,
             background=background, render_mode=render_mode, near=near, far=far, eps2d=eps2d, tile_size=tile_size,
         )
+    if n_cameras is not None:
+        return _rasterize_batch(
+            name, means, quats, scales, opacities, colors, viewmats, Ks, width, height, sh_degree=sh_degree,
+            background=background, render_mode=render_mode, near=near, far=far, eps2d=eps2d, tile_size=tile_size,
+        )
+    viewmat, K = viewmats, Ks
     # The fused C++ projection treats the camera as constant; camera optimisation takes the autograd path.
     camera_grad = viewmat.requires_grad or K.requires_grad
     project = cpu_backend.project_cpu if name == "cpu" and not camera_grad else project_gaussians
     proj = project(means, quats, scales, opacities, viewmat, K, width, height, near=near, far=far, eps2d=eps2d)
     if sh_degree is not None and name == "cpu":
-        sh0, shN = colors if isinstance(colors, (tuple, list)) else (colors[:, :1], colors[:, 1:])
+        sh0, shN = sh_blocks(colors)
         # evaluated only for the Gaussians the projection kept
         colors = cpu_backend.sh_colors_cpu(sh_degree, sh0, shN, means, camera_position(viewmat), proj.visible)
     elif sh_degree is not None:
@@ -192,13 +209,95 @@ def rasterize(
     return image, alpha, meta
 
 
+def camera_batch(viewmats: Tensor, Ks: Tensor) -> int | None:
+    """The number of cameras C of batched ``viewmats`` ``(C, 4, 4)`` and ``Ks`` ``(C, 3, 3)``; None for one camera
+    (``(4, 4)`` and ``(3, 3)``). Raises ValueError naming the argument for any other shape or a mismatch."""
+    if viewmats.dim() not in (2, 3) or tuple(viewmats.shape[-2:]) != (4, 4):
+        raise ValueError(f"viewmats must be (4, 4) or (C, 4, 4), got {tuple(viewmats.shape)}")
+    if Ks.dim() not in (2, 3) or tuple(Ks.shape[-2:]) != (3, 3):
+        raise ValueError(f"Ks must be (3, 3) or (C, 3, 3), got {tuple(Ks.shape)}")
+    if viewmats.dim() != Ks.dim():
+        raise ValueError(
+            f"viewmats {tuple(viewmats.shape)} and Ks {tuple(Ks.shape)}: give both for one camera or both batched"
+        )
+    if viewmats.dim() == 2:
+        return None
+    if viewmats.shape[0] != Ks.shape[0]:
+        raise ValueError(f"viewmats has {viewmats.shape[0]} cameras but Ks has {Ks.shape[0]}")
+    if viewmats.shape[0] == 0:
+        raise ValueError("viewmats: a batch of cameras needs at least one camera, got (0, 4, 4)")
+    return int(viewmats.shape[0])
+
+
+def _rasterize_batch(
+    name: Backend, means, quats, scales, opacities, colors, viewmats, Ks, width, height, *, sh_degree, background,
+    render_mode, near, far, eps2d, tile_size,
+) -> tuple[Tensor, Tensor, RenderMeta]:
+    """:func:`rasterize` for C cameras on the CPU kernels or the reference backend (gsplat: :func:`_rasterize_gsplat`).
+
+    The CPU kernels project (with the SH colours) and blend all views in one call each (``csrc/batch_cpu.cpp``).
+    The reference backend, and the CPU backend when a camera takes gradients, project view by view with
+    :func:`project_gaussians` and stack the views; the reference backend then blends view by view too."""
+    n_cameras = viewmats.shape[0]
+    depth_channel = render_mode != "RGB"
+    camera_grad = viewmats.requires_grad or Ks.requires_grad
+    if name == "cpu" and not camera_grad:
+        sh0, shN = sh_blocks(colors) if sh_degree is not None else (None, None)
+        proj, sh_colors = cpu_backend.project_batch_cpu(
+            means, quats, scales, opacities, viewmats, Ks, width, height, near=near, far=far, eps2d=eps2d,
+            sh_degree=sh_degree, sh0=sh0, shN=shN,
+        )
+        colors = colors if sh_colors is None else sh_colors
+    else:
+        views = [project_gaussians(means, quats, scales, opacities, viewmats[c], Ks[c], width, height, near=near,
+                                   far=far, eps2d=eps2d) for c in range(n_cameras)]
+        proj = Projected(*(torch.stack([getattr(v, f.name) for v in views]) for f in fields(Projected)))
+        if sh_degree is not None and name == "cpu":
+            sh0, shN = sh_blocks(colors)
+            colors = torch.stack([cpu_backend.sh_colors_cpu(sh_degree, sh0, shN, means, camera_position(viewmats[c]),
+                                                             proj.visible[c]) for c in range(n_cameras)])
+        elif sh_degree is not None:
+            coeffs = sh_coefficients(colors)
+            colors = torch.stack([sh_to_color(sh_degree, coeffs, means, camera_position(viewmats[c]))
+                                  for c in range(n_cameras)])
+    n_color = colors.shape[-1]
+    if name == "cpu":
+        out, alpha = cpu_backend.rasterize_batch_cpu(
+            proj.means2d, proj.conics, colors, opacities, proj.depths, proj.extents, width, height,
+            tile_size=tile_size, depth_channel=depth_channel,
+        )
+    else:
+        views = []
+        for c in range(n_cameras):
+            col = colors[c] if colors.dim() == 3 else colors
+            feats = torch.cat([col, proj.depths[c][:, None]], dim=1) if depth_channel else col
+            views.append(rasterize_reference(proj.means2d[c], proj.conics[c], feats, opacities, proj.depths[c],
+                                             proj.extents[c], width, height, tile_size=tile_size))
+        out, alpha = torch.stack([v[0] for v in views]), torch.stack([v[1] for v in views])
+    if background is not None and background.dim() == 2:
+        background = background[:, None, None, :]
+    image, depth = _finish(out, alpha, n_color, render_mode, background)
+    meta = RenderMeta(proj.means2d, proj.radii, proj.depths, proj.visible, depth, name, width, height)
+    return image, alpha, meta
+
+
+def sh_blocks(colors: Tensor | Sequence[Tensor]) -> tuple[Tensor, Tensor]:
+    """The DC band ``(N, 1, 3)`` and the higher bands ``(N, K - 1, 3)`` of SH coefficients given as one tensor or as
+    those two blocks."""
+    return tuple(colors) if isinstance(colors, (tuple, list)) else (colors[:, :1], colors[:, 1:])
+
+
 def sh_coefficients(colors: Tensor | Sequence[Tensor]) -> Tensor:
     """SH coefficients ``(N, K, 3)`` given as one tensor or as blocks along K (the DC band and the higher bands)."""
     return torch.cat(list(colors), dim=1) if isinstance(colors, (tuple, list)) else colors
 
 
 def camera_position(viewmat: Tensor) -> Tensor:
-    """World position ``(3,)`` of the camera of a rigid world→camera ``viewmat`` ``(4, 4)``."""
+    """World position ``(3,)`` of the camera of a rigid world→camera ``viewmat`` ``(4, 4)``; ``(C, 3)`` for
+    ``(C, 4, 4)``."""
+    if viewmat.dim() == 3:
+        R, t = viewmat[:, :3, :3], viewmat[:, :3, 3]
+        return (-R.mT @ t[..., None])[..., 0]
     R, t = viewmat[:3, :3], viewmat[:3, 3]
     return -R.T @ t
 
@@ -221,49 +320,68 @@ GSPLAT_CHANNEL_CHUNK = 32
 
 
 def _rasterize_gsplat(
-    means, quats, scales, opacities, colors, viewmat, K, width, height, *, sh_degree, background, render_mode, near, far,
-    eps2d, tile_size,
+    means, quats, scales, opacities, colors, viewmats, Ks, width, height, *, sh_degree, background, render_mode, near,
+    far, eps2d, tile_size,
 ):
-    """``rasterize`` on gsplat's kernels: the steps of ``gsplat.rasterization`` (one camera, unpacked), composed here
-    so that ``meta.means2d`` is the ``(N, 2)`` tensor the rasterizer reads (``retain_grad()`` on a view of gsplat's
-    ``(1, N, 2)`` output would stay without a gradient). Conventions: docs/RENDERING.md, "gsplat conventions"."""
+    """``rasterize`` on gsplat's kernels: the steps of ``gsplat.rasterization`` (unpacked), composed here so that
+    ``meta.means2d`` is the tensor the rasterizer reads (``retain_grad()`` on a view of gsplat's ``(C, N, 2)`` output
+    would stay without a gradient): ``(N, 2)`` for one camera, ``(C, N, 2)`` for a batch, which gsplat takes as its
+    own batch of cameras. Conventions: docs/RENDERING.md, "gsplat conventions"."""
     gsplat = _import_gsplat()
-    radii_c, means2d_c, depths_c, conics_c, _ = gsplat.fully_fused_projection(
-        means, None, quats, scales, viewmat[None], K[None], width, height, eps2d=eps2d, near_plane=near,
-        far_plane=far, opacities=opacities,
+    single = viewmats.dim() == 2
+    if single:
+        viewmats, Ks = viewmats[None], Ks[None]
+    n_cameras = viewmats.shape[0]
+    radii_c, means2d_c, depths_c, conics, _ = gsplat.fully_fused_projection(
+        means, None, quats, scales, viewmats, Ks, width, height, eps2d=eps2d, near_plane=near, far_plane=far,
+        opacities=opacities,
     )
-    kept = (radii_c[0] > 0).all(dim=-1)
+    kept = (radii_c > 0).all(dim=-1)  # (C, N)
     # gsplat's CUDA projection leaves the rows of the Gaussians it culls unwritten (torch.empty): never read them.
-    means2d = torch.where(kept[:, None], means2d_c[0], torch.zeros_like(means2d_c[0]))
-    conics = conics_c[0]
-    z = means @ viewmat[2, :3] + viewmat[2, 3]
-    depths = torch.where(kept, depths_c[0], z)
+    if single:
+        means2d_out = torch.where(kept[0][:, None], means2d_c[0], torch.zeros_like(means2d_c[0]))
+        means2d = means2d_out[None]
+        z = (means @ viewmats[0, 2, :3] + viewmats[0, 2, 3])[None]
+    else:
+        means2d = means2d_out = torch.where(kept[..., None], means2d_c, torch.zeros_like(means2d_c))
+        z = (means @ viewmats[:, 2, :3].T + viewmats[:, 2, 3]).T
+    depths = torch.where(kept, depths_c, z)
     if sh_degree is not None:
-        sh = gsplat.spherical_harmonics(sh_degree, means - camera_position(viewmat), sh_coefficients(colors), masks=kept)
+        coeffs = sh_coefficients(colors)
+        dirs = means - camera_position(viewmats[0]) if single else means[None] - camera_position(viewmats)[:, None]
+        if not single:
+            coeffs = coeffs.expand(n_cameras, *coeffs.shape)
+        sh = gsplat.spherical_harmonics(sh_degree, dirs, coeffs, masks=kept[0] if single else kept)
         colors = torch.clamp_min(sh + 0.5, 0.0)
-    n_color = colors.shape[1]
-    feats = torch.cat([colors, depths[:, None]], dim=1) if render_mode != "RGB" else colors
+    colors = colors.expand(n_cameras, *colors.shape) if colors.dim() == 2 else colors
+    n_color = colors.shape[-1]
+    feats = torch.cat([colors, depths[..., None]], dim=-1) if render_mode != "RGB" else colors
     tiles_x, tiles_y = math.ceil(width / tile_size), math.ceil(height / tile_size)
-    _, isect_ids, flatten_ids = gsplat.isect_tiles(means2d[None], radii_c, depths[None], tile_size, tiles_x, tiles_y)
-    isect_offsets = gsplat.isect_offset_encode(isect_ids, 1, tiles_x, tiles_y).reshape(1, tiles_y, tiles_x)
+    _, isect_ids, flatten_ids = gsplat.isect_tiles(means2d, radii_c, depths, tile_size, tiles_x, tiles_y)
+    isect_offsets = gsplat.isect_offset_encode(isect_ids, n_cameras, tiles_x, tiles_y).reshape(n_cameras, tiles_y, tiles_x)
+    opacities_c = opacities.expand(n_cameras, *opacities.shape)
     chunks, alpha = [], None
-    for chunk in feats.split(GSPLAT_CHANNEL_CHUNK, dim=1):
+    for chunk in feats.split(GSPLAT_CHANNEL_CHUNK, dim=-1):
         out_c, alpha_c = gsplat.rasterize_to_pixels(
-            means2d[None], conics[None], chunk[None], opacities[None], width, height, tile_size, isect_offsets,
-            flatten_ids,
+            means2d, conics, chunk, opacities_c, width, height, tile_size, isect_offsets, flatten_ids,
         )
-        chunks.append(out_c[0])
-        alpha = alpha_c[0] if alpha is None else alpha
-    image, depth = _finish(torch.cat(chunks, dim=-1), alpha, n_color, render_mode, background)
+        chunks.append(out_c)
+        alpha = alpha_c if alpha is None else alpha
+    out = torch.cat(chunks, dim=-1)
+    if single:
+        out, alpha, conics, depths, kept = out[0], alpha[0], conics[0], depths[0], kept[0]
+    elif background is not None and background.dim() == 2:
+        background = background[:, None, None, :]
+    image, depth = _finish(out, alpha, n_color, render_mode, background)
     # gsplat keeps a Gaussian when its integer, opacity-aware radius box overlaps the image; meta.visible and
     # meta.radii follow the other backends' rule (the float box of alpha ≥ 1/255, 3.33-sigma radii), so that the
     # densifier's statistics do not depend on the backend. The 2-D covariance is the inverse of the conic.
     with torch.no_grad():
         a, b, c = conics.detach().unbind(-1)
         det = a * c - b * b
-        cov_diag = torch.where(kept[:, None], torch.stack([c / det, a / det], dim=-1), torch.zeros_like(conics[:, :2]))
-        _, radii, visible = screen_bounds(means2d, cov_diag, opacities, kept, width, height)
-    meta = RenderMeta(means2d, radii, depths, visible, depth, "gsplat", width, height)
+        cov_diag = torch.where(kept[..., None], torch.stack([c / det, a / det], dim=-1), torch.zeros_like(conics[..., :2]))
+        _, radii, visible = screen_bounds(means2d_out, cov_diag, opacities, kept, width, height)
+    meta = RenderMeta(means2d_out, radii, depths, visible, depth, "gsplat", width, height)
     return image, alpha, meta
 
 

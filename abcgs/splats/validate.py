@@ -22,7 +22,7 @@ import torch
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.fit import metrics as M
-from abcgs.gaussians import GaussianModel, render
+from abcgs.gaussians import GaussianModel, render_each
 from abcgs.io.images import load_image
 from abcgs.sfm.align import Similarity
 from abcgs.splats import frames
@@ -98,8 +98,7 @@ def _views(scene, idx: Sequence[int]) -> tuple[list[Camera], list[torch.Tensor]]
 @torch.no_grad()
 def _score(model: GaussianModel, cams: list[Camera], imgs: list[torch.Tensor], backend: Backend) -> dict[str, float]:
     out = {}
-    for cam, gt in zip(cams, imgs):
-        img, _, _ = render(model, cam, backend=backend)
+    for cam, gt, (img, _, _) in zip(cams, imgs, render_each(model, cams, backend=backend)):
         out[cam.name] = M.psnr(img.clamp(0, 1), gt.to(img.device))
     return out
 

@@ -33,7 +33,7 @@ from abcgs.features.knn import StyleFeatures
 from abcgs.features.params import ALL_PIXELS
 from abcgs.features.vgg import VGG16Features, downsample_half, extract_features
 from abcgs.fit.losses import reconstruction_loss
-from abcgs.gaussians import GaussianModel, freeze_gaussians, render
+from abcgs.gaussians import GaussianModel, freeze_gaussians, render, render_each
 from abcgs.losses.fast import FastStats
 from abcgs.losses.params import FastParams
 from abcgs.losses.terms import background_loss, content_loss, silhouette_loss, style_loss, tv_loss
@@ -238,12 +238,14 @@ def prepare_targets(
     targets = []
     backend = params.compute.backend
     with torch.no_grad():
-        for cam, lab in zip(cameras, label_maps):
-            # one render gives both when the depth comes from the content scene itself
-            img, alpha, meta = render(model_content, cam, backend=backend, background=backdrop.color,
-                                      render_mode="RGB+D" if model_original is model_content else "RGB")
-            if model_original is not model_content:
-                _, alpha, meta = render(model_original, cam, backend=backend, render_mode="RGB+D")
+        # one render gives both when the depth comes from the content scene itself
+        same = model_original is model_content
+        contents = render_each(model_content, cameras, backend=backend, background=backdrop.color,
+                               render_mode="RGB+D" if same else "RGB")
+        originals = None if same else render_each(model_original, cameras, backend=backend, render_mode="RGB+D")
+        for cam, lab, (img, alpha, meta) in zip(cameras, label_maps, contents):
+            if originals is not None:
+                _, alpha, meta = next(originals)
             feats = _features(vgg, img.clamp(0, 1), params)
             hw = tuple(feats.shape[-2:])
             pixel_masks = group_pixel_masks(groups, lab)
@@ -380,8 +382,9 @@ def style_pass(
     for step in bar:
         tgt = targets[next(views)]
         ticks = [time.perf_counter()]
-        img, alpha, meta = render(m, tgt.camera, backend=backend, background=backdrop.color,
-                                  render_mode="RGB+D" if w.depth > 0 else "RGB")
+        imgs, alphas, meta = render(m, [tgt.camera], backend=backend, background=backdrop.color,
+                                    render_mode="RGB+D" if w.depth > 0 else "RGB")  # the step's batch: one view
+        img, alpha, meta = imgs[0], alphas[0], meta.view(0)
         ticks.append(time.perf_counter())
         feats = _features(vgg, img, params)
         ticks.append(time.perf_counter())
@@ -422,7 +425,8 @@ def _recolored_targets(
     pixels it covers that the scene covers (alpha > 0.5; an object scene: its original object pixels), the same
     transforms applied to the group's Gaussians."""
     with torch.no_grad():
-        outs = [render(model, t.camera, backend=params.compute.backend, background=backdrop.color) for t in targets]
+        outs = list(render_each(model, [t.camera for t in targets], backend=params.compute.backend,
+                                background=backdrop.color))
     renders = [o[0].clamp(0, 1) for o in outs]
     pix: dict[int, list[Tensor]] = {g.content_label: [] for g in groups}
     full_masks = []
@@ -489,7 +493,7 @@ def color_pass(
         if replay is not None:
             img = replay.render(i, backdrop.color)
         else:
-            img, _, _ = render(m, targets[i].camera, backend=params.compute.backend, background=backdrop.color)
+            img = render(m, [targets[i].camera], backend=params.compute.backend, background=backdrop.color)[0][0]
         terms = reconstruction_loss(img, images[i])
         _check_finite(terms.total, "colour-pass reconstruction", start_step + it)
         opt.zero_grad(set_to_none=True)

@@ -16,7 +16,7 @@ import torch
 from abcgs.camera_paths import camera_path
 from abcgs.cameras import Camera
 from abcgs.features.params import ALL_PIXELS
-from abcgs.gaussians import GaussianModel, render
+from abcgs.gaussians import GaussianModel, render_each
 from abcgs.io.atomic import atomic_path
 from abcgs.io.images import save_image
 from abcgs.io.ply import write_ply
@@ -36,18 +36,19 @@ GRID_ROWS = 3
 """Views shown in ``grid.png``."""
 
 
-def _image(model: GaussianModel, camera: Camera, backend: Backend, background: Background) -> np.ndarray:
-    """The render ``(H, W, 3)`` on the scene's background (an object scene's colour; black for a frame-filling one)."""
+def _images(model: GaussianModel, cameras: list[Camera], backend: Backend, background: Background) -> list[np.ndarray]:
+    """The renders ``(H, W, 3)`` on the scene's background (an object scene's colour; black for a frame-filling one)."""
     bg = background_tensor(background) if background.object else None
-    return render(model, camera, backend=backend, background=bg)[0].clamp(0, 1).numpy(force=True)
+    return [img.clamp(0, 1).numpy(force=True) for img, _, _ in render_each(model, cameras, backend=backend, background=bg)]
 
 
-def _view_file(model: GaussianModel, camera: Camera, backend: Backend, background: Background) -> np.ndarray:
-    """What ``renders/<view>.png`` holds: the render on the background, or straight-alpha RGBA when it is
+def _view_files(model: GaussianModel, cameras: list[Camera], backend: Backend, background: Background
+                ) -> list[np.ndarray]:
+    """What ``renders/<view>.png`` hold: the renders on the background, or straight-alpha RGBA when it is
     transparent (:func:`abcgs.silhouette.composite_rgba`)."""
     bg = background_tensor(background) if background.object else None
-    img, alpha, _ = render(model, camera, backend=backend, background=bg)
-    return composite_rgba(img.clamp(0, 1).numpy(force=True), alpha.numpy(force=True), background)
+    return [composite_rgba(img.clamp(0, 1).numpy(force=True), alpha.numpy(force=True), background)
+            for img, alpha, _ in render_each(model, cameras, backend=backend, background=bg)]
 
 
 def write_stylized_scene(
@@ -75,7 +76,7 @@ def write_stylized_scene(
         write_ply(d.ply, stylized)
         d.renders.mkdir()
         t0 = time.perf_counter()
-        files = [_view_file(stylized, c, backend, background) for c in cameras]
+        files = _view_files(stylized, cameras, backend, background)
         fps = len(files) / max(time.perf_counter() - t0, 1e-9)
         for cam, img in zip(cameras, files):
             save_image(d.renders / f"{Path(cam.name).stem}.png", img)
@@ -84,11 +85,11 @@ def write_stylized_scene(
             [(None if g.content_label == ALL_PIXELS else colorize_labels(np.array([g.content_label]))[0],
               g.style_image, g.style_region) for g in groups],
             height=cameras[0].height)
-        rows = [[_image(original, cameras[i], backend, background), colorize_labels(view_labels[i]), legend, renders[i]]
-                for i in range(min(GRID_ROWS, len(renders)))]
+        contents = _images(original, cameras[:GRID_ROWS], backend, background)
+        rows = [[contents[i], colorize_labels(view_labels[i]), legend, renders[i]] for i in range(min(GRID_ROWS, len(renders)))]
         save_image(d.grid, image_grid(rows, ["content", "labels", "label: painting", "stylized"]))
         path, kind = camera_path(cameras, path_kind, path_frames)
-        write_video(d.turntable, [_image(stylized, c, backend, background) for c in path], fps=24)
+        write_video(d.turntable, _images(stylized, path, backend, background), fps=24)
     return {"render_fps": fps, "camera_path": kind}
 
 

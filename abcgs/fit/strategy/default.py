@@ -19,7 +19,8 @@ class DefaultStrategy:
 
     Statistics (steps < ``refine_stop``): for Gaussians visible in the rendered view, accumulate the norm of
     the view-space positional gradient converted to NDC units (``∂L/∂x_px · W/2``, ``∂L/∂y_px · H/2``) and a
-    visibility count; track the largest screen radius (px).
+    visibility count; track the largest screen radius (px). A step that renders C views (batched ``meta``)
+    adds each view's norm and counts each view.
 
     Every ``refine_every`` steps after ``refine_start``: Gaussians whose mean gradient exceeds
     ``grow_grad2d`` are cloned when small (max scale ≤ ``grow_scale3d``·extent) and split into
@@ -84,14 +85,17 @@ class DefaultStrategy:
             )
         if state["grad2d"].shape[0] != n:
             raise RuntimeError(f"DefaultStrategy: state has {state['grad2d'].shape[0]} rows but the model {n} Gaussians")
-        sel = meta.visible
-        g = grad[sel].clone()
+        # a batched render (C cameras) counts each view it is visible in, its gradient per view (gsplat's rule)
+        batched = grad.dim() == 3
+        sel = meta.visible if batched else meta.visible[None]
+        ids = sel.nonzero()[:, 1]
+        g = (grad if batched else grad[None])[sel].clone()
         g[:, 0] *= meta.width / 2.0
         g[:, 1] *= meta.height / 2.0
-        state["grad2d"][sel] += g.norm(dim=-1)
-        state["count"][sel] += 1.0
-        radii = meta.radii[sel].max(dim=-1).values.to(state["max_radii"].dtype)
-        state["max_radii"][sel] = torch.maximum(state["max_radii"][sel], radii)
+        state["grad2d"].index_add_(0, ids, g.norm(dim=-1).to(state["grad2d"].dtype))
+        state["count"].index_add_(0, ids, torch.ones_like(ids, dtype=state["count"].dtype))
+        radii = (meta.radii if batched else meta.radii[None])[sel].max(dim=-1).values.to(state["max_radii"].dtype)
+        state["max_radii"].scatter_reduce_(0, ids, radii, "amax")
 
     @torch.no_grad()
     def _grow(self, model: GaussianModel, optimizers: Optimizers, state: State) -> tuple[int, int, bool]:

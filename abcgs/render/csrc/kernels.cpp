@@ -7,3 +7,4 @@
 #include "rasterize_cpu.cpp"
 #include "frozen_cpu.cpp"
 #include "sh_cpu.cpp"
+#include "batch_cpu.cpp"

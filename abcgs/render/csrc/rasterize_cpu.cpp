@@ -1005,6 +1005,33 @@ at::Tensor rerank_topk(const at::Tensor& own, const at::Tensor& other, const at:
 std::vector<at::Tensor> l1_ssim_forward(const at::Tensor& render, const at::Tensor& target, const at::Tensor& window,
                                         double c1, double c2);
 
+// batch_cpu.cpp
+std::vector<at::Tensor> project_batch_forward(const at::Tensor& means, const at::Tensor& quats,
+                                              const at::Tensor& scales, const at::Tensor& opacities,
+                                              const at::Tensor& viewmats, const at::Tensor& Ks, int64_t width,
+                                              int64_t height, double near, double far, double eps2d,
+                                              const at::Tensor& sh0, const at::Tensor& shN, int64_t sh_degree);
+std::vector<at::Tensor> project_batch_backward(const at::Tensor& means, const at::Tensor& quats,
+                                               const at::Tensor& scales, const at::Tensor& viewmats,
+                                               const at::Tensor& Ks, int64_t width, int64_t height, double near,
+                                               double far, double eps2d, const at::Tensor& v_means2d,
+                                               const at::Tensor& v_conics, const at::Tensor& v_depths,
+                                               const at::Tensor& sh0, const at::Tensor& shN,
+                                               const at::Tensor& campos, const at::Tensor& visible,
+                                               int64_t sh_degree, const at::Tensor& v_colors, bool need_shN,
+                                               bool need_means);
+std::vector<at::Tensor> rasterize_batch_forward(const at::Tensor& means2d, const at::Tensor& conics,
+                                                const at::Tensor& colors, const at::Tensor& opacities,
+                                                const at::Tensor& depths, const at::Tensor& extents, int64_t width,
+                                                int64_t height, int64_t tile_size, bool depth_channel, bool save);
+std::vector<at::Tensor> rasterize_batch_backward(const at::Tensor& means2d, const at::Tensor& conics,
+                                                 const at::Tensor& colors, const at::Tensor& opacities,
+                                                 const at::Tensor& depths, const at::Tensor& extents,
+                                                 const at::Tensor& trans, const at::Tensor& last,
+                                                 const std::vector<at::Tensor>& saved, const at::Tensor& v_image,
+                                                 const at::Tensor& v_alpha, int64_t width, int64_t height,
+                                                 int64_t tile_size, bool depth_channel, const at::Tensor& scratch);
+
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("project_forward", &project_forward, "abcgs fused EWA projection forward (CPU)");
   m.def("project_backward", &project_backward, "abcgs fused EWA projection backward (CPU)");
@@ -1024,6 +1051,10 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
         "whether this build has the AVX512-BF16 products of topk_dots_both (a CPU with AVX512-BF16 and AVX512-VL)");
   m.def("rerank_topk", &rerank_topk, "the k candidates with the largest exact dot products, per row (CPU)");
   m.def("l1_ssim_forward", &l1_ssim_forward, "mean L1 and SSIM of two images and their gradients (CPU)");
+  m.def("project_batch_forward", &project_batch_forward, "projection and SH colours into C cameras, one call (CPU)");
+  m.def("project_batch_backward", &project_batch_backward, "backward of project_batch_forward, summed over cameras (CPU)");
+  m.def("rasterize_batch_forward", &rasterize_batch_forward, "tile rasterizer over C cameras, one call (CPU)");
+  m.def("rasterize_batch_backward", &rasterize_batch_backward, "backward of rasterize_batch_forward (CPU)");
   m.def("set_kernel_threads", &abcgs::set_kernel_threads, "threads of the CPU kernels (0 = all hardware threads)");
   m.def("kernel_threads", &abcgs::kernel_threads, "threads the CPU kernels use now");
 }
