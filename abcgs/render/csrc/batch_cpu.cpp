@@ -35,6 +35,12 @@ void accumulate(at::Tensor& acc, const at::Tensor& v) {
   else acc.add_(v);
 }
 
+// The views' tensors along a new leading camera axis; one view is a view of its tensor (no copy: the training
+// loops render one camera per step, and a 3 M-Gaussian view's outputs are hundreds of MB).
+at::Tensor stack_views(const std::vector<at::Tensor>& views) {
+  return views.size() == 1 ? views[0].unsqueeze(0) : at::stack(views);
+}
+
 at::Tensor defined_or_empty(const at::Tensor& t, const at::TensorOptions& opts) {
   return t.defined() ? t : at::empty({0}, opts);
 }
@@ -63,7 +69,7 @@ std::vector<at::Tensor> project_batch_forward(const at::Tensor& means, const at:
     for (size_t k = 0; k < p.size(); ++k) outs[k].push_back(p[k]);
   }
   std::vector<at::Tensor> result;
-  for (auto& o : outs) result.push_back(o.empty() ? at::empty({0}, means.options()) : at::stack(o));
+  for (auto& o : outs) result.push_back(o.empty() ? at::empty({0}, means.options()) : stack_views(o));
   return result;
 }
 
@@ -123,7 +129,7 @@ std::vector<at::Tensor> rasterize_batch_forward(const at::Tensor& means2d, const
     last.push_back(r[2]);
     if (save) saved.insert(saved.end(), r.begin() + 3, r.end());
   }
-  std::vector<at::Tensor> result = {at::stack(images), at::stack(trans), at::stack(last)};
+  std::vector<at::Tensor> result = {stack_views(images), stack_views(trans), stack_views(last)};
   result.insert(result.end(), saved.begin(), saved.end());
   return result;
 }
@@ -159,7 +165,7 @@ std::vector<at::Tensor> rasterize_batch_backward(const at::Tensor& means2d, cons
     else v_colors_views.push_back(vcol);
     accumulate(v_opacities, g[3]);
   }
-  if (!shared) v_colors = at::stack(v_colors_views);
-  return {at::stack(v_means2d), at::stack(v_conics), v_colors, v_opacities,
-          depth_channel ? at::stack(v_depths) : at::empty({0}, colors.options())};
+  if (!shared) v_colors = stack_views(v_colors_views);
+  return {stack_views(v_means2d), stack_views(v_conics), v_colors, v_opacities,
+          depth_channel ? stack_views(v_depths) : at::empty({0}, colors.options())};
 }
