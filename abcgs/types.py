@@ -244,8 +244,8 @@ class Cameras:
     """A batch of ``C`` calibrated views (nerfbaselines' ``Cameras``; gsplat's batched ``viewmats``/``Ks``).
 
     Conventions of :mod:`abcgs.cameras`: OpenCV camera axes (x right, y down, z forward), pixel centres at +0.5. The
-    arrays are read-only; ``cameras[i]`` is view ``i`` as a :class:`~abcgs.cameras.Camera` (its ``viewmat`` a view into
-    :attr:`viewmats`), ``cameras[a:b]`` or ``cameras[index_array]`` a sub-batch; iterating gives the per-view cameras.
+    arrays are read-only; ``cameras[i]`` is view ``i`` as a :class:`~abcgs.cameras.Camera` (its own copy of row ``i``),
+    ``cameras[a:b]`` or ``cameras[index_array]`` a sub-batch; iterating gives the per-view cameras.
 
     Attributes:
         names: ``(C,)`` the views' names (image file names, unique).
@@ -323,7 +323,7 @@ class Cameras:
             i = range(len(self))[index]  # IndexError past the end, negative indices from the end
             fx, fy, cx, cy = self.intrinsics[i]
             K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-            return Camera(self.names[i], K, self.viewmats[i], int(self.sizes[i, 0]), int(self.sizes[i, 1]))
+            return Camera(self.names[i], K, self.viewmats[i].copy(), int(self.sizes[i, 0]), int(self.sizes[i, 1]))
         idx = np.arange(len(self))[index]
         return Cameras(tuple(self.names[i] for i in idx), self.viewmats[idx], self.intrinsics[idx], self.sizes[idx],
                        self.camera_models[idx], self.distortion_params[idx])
