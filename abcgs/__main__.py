@@ -103,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
     except AbcgsError as exc:
         print(f"[{args.command}] error: {exc}", file=sys.stderr)
         return 2
-    print(f"{args.name}: {entry.get('format', 'painting')}" if args.command == "add-scene" else f"{args.name}:")
+    print(f"{args.name}: {entry['source']['format']}" if args.command == "add-scene" else f"{args.name}:")
     for line in lines:
         print(f"  {line}")
     verb = "would write" if args.dry_run else "wrote"

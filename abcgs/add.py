@@ -18,6 +18,7 @@ import os
 import re
 from collections import Counter
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -32,11 +33,11 @@ from abcgs.params import load_params, validate_params
 from abcgs.preflight import check_image, check_label_map_sizes, check_painting, check_scene_images, view_sizes
 from abcgs.sections import NAME_PATTERN, NAME_RE
 from abcgs.sfm.params import ReconstructParams
-from abcgs.sources.base import SourceScene
 from abcgs.sources.detect import DEFAULT_IMAGES, image_files
 from abcgs.sources.lens import consistent_scale, image_size
 from abcgs.sources.params import SceneParams, scene_name_problem
 from abcgs.sources.read import marker, read_source, resolve_format
+from abcgs.types import Scene
 
 MIN_PHOTOS = 3
 """Structure from motion needs at least this many overlapping photos (as :mod:`abcgs.sfm.colmap`)."""
@@ -47,7 +48,7 @@ def _sizes(sizes: list[tuple[int, int]]) -> str:
     return ", ".join(f"{w}x{h}" + (f" ({n})" if len(counts) > 1 else "") for (w, h), n in counts.most_common(4))
 
 
-def describe_source(scene: SourceScene, folder: Path) -> list[str]:
+def describe_source(scene: Scene, folder: Path) -> list[str]:
     """Lines saying what a reader found: views, sizes, lenses, points, what it did."""
     lens = Counter(v.distortion.model if v.distortion else "pinhole" for v in scene.views)
     folders = Counter(str(v.image_path.parent.relative_to(folder)) if v.image_path.is_relative_to(folder)
@@ -150,17 +151,18 @@ def scene_entry(name: str, path: str | os.PathLike, *, fmt: str = "auto", images
     settings of the same names, written when they are not the defaults and used by the checks here."""
     folder = Path(path).expanduser().resolve()
     resolved = resolve_format(folder, fmt, images)
-    entry: dict[str, Any] = {"path": str(folder), "format": resolved}
+    options: dict[str, Any] = {"format": resolved}
     if images:
-        entry["images"] = images
+        options["images"] = images
+    if views:
+        options["views"] = dict(views)
+    entry: dict[str, Any] = {"path": str(folder), "source": options}
     if background is not None:
         entry["background"] = background if background == "transparent" else [float(c) for c in background]
     if splat_format != "auto":
         entry["splat_format"] = splat_format
     if splat_nonfinite != "refuse":
         entry["splat_nonfinite"] = splat_nonfinite
-    if views:
-        entry["views"] = dict(views)
     SceneParams.model_validate(entry)  # the settings, before any file is read
     drop = splat_nonfinite == "drop"
     source = None
@@ -193,19 +195,18 @@ def scene_entry(name: str, path: str | os.PathLike, *, fmt: str = "auto", images
     return entry, lines
 
 
-def _splat_check(splat: Path, source: SourceScene | None, min_psnr: float, fmt: str = "auto", drop: bool = False) -> str:
+def _splat_check(splat: Path, source: Scene | None, min_psnr: float, fmt: str = "auto", drop: bool = False) -> str:
     """The fit stage's render-versus-photo check of a trained splat (:func:`abcgs.splats.validate.check_splat`), run
     now where the dataset has undistorted cameras; raises :class:`InputError` naming the likely cause when it fails."""
-    from abcgs.sfm.model import SceneData
     from abcgs.splats.registry import read_splat
     from abcgs.splats.validate import check_splat
 
-    plain = [v for v in source.views if v.distortion is None] if source is not None else []
-    if not plain:
+    plain = np.flatnonzero(~source.cameras.distorted) if source is not None else []
+    if not len(plain):
         return (f"splat {splat}: checked against the photos in the fit stage, once the reconstruct stage has "
                 "the scene's undistorted cameras")
     none = np.zeros((0, 3), np.float32)
-    scene = SceneData([v.camera for v in plain], [v.image_path for v in plain], none, none)
+    scene = replace(source.subset(plain), points=none, colors=none)
     try:
         check = check_splat(read_splat(splat, fmt, scene=scene, drop_invalid=drop).model, scene, min_psnr=min_psnr,
                             source=str(splat))

@@ -293,12 +293,20 @@ def _dvc(template: Any) -> str:
 
 
 def stage_entry(script: Path, spec: Any, root: Path) -> dict:
-    """The ``dvc.yaml`` entry of one stage (the ``do:`` body of a ``foreach`` stage is inside)."""
+    """The ``dvc.yaml`` entry of one stage (the ``do:`` body of a ``foreach`` stage is inside). A stage that reads
+    the outputs of every experiment (``report``) names them through its ``reads(params)``, filled in from
+    ``root/params.yaml``."""
     cmd = " ".join([f"python {script.relative_to(root).as_posix()}"]
                    + [f"--{o.option} '{Path(o.path).as_posix()}'" for o in spec.options])
     body: dict[str, Any] = {"cmd": cmd}
     code = minimal_deps(stage_closure(script, spec, root), root)
-    body["deps"] = [_dvc(d.path) for d in spec.inputs] + code
+    reads = getattr(load_stage(script), "reads", None)
+    data = [_dvc(d.path) for d in spec.inputs]
+    if reads is not None:
+        from abcgs.params import load_params
+
+        data += [p for p in reads(load_params(root / "params.yaml")) if p not in data]
+    body["deps"] = data + code
     if spec.params:
         body["params"] = _Flow([_dvc(p) for p in spec.params])
     outs = _Flow([_dvc(o.path) for o in spec.outs if o.kind == "out"])

@@ -229,11 +229,28 @@ def _model_at(model: type[BaseModel], loc: tuple[Any, ...]) -> type[BaseModel] |
         if field is None:
             return None
         current = field.annotation
-        if typing.get_origin(current) is dict and parts:
+        if parts and (member := _tagged_member(field, parts[0])) is not None:
+            parts.pop(0)  # the tag of a tagged union (a scene's source format)
+            current = member
+        elif typing.get_origin(current) is dict and parts:
             value = typing.get_args(current)[1]
             parts.pop(0)  # the mapping's key (a scene or experiment name)
             current = value
     return current if isinstance(current, type) and issubclass(current, BaseModel) else None
+
+
+def _tagged_member(field: Any, tag: Any) -> type[BaseModel] | None:
+    """The member of a tagged-union field (``Annotated[A | B, Field(discriminator=...)]``) whose tag is ``tag``, else
+    None."""
+    discriminator = field.discriminator
+    if not isinstance(discriminator, str):
+        return None
+    for member in typing.get_args(field.annotation):
+        if isinstance(member, type) and issubclass(member, BaseModel):
+            own = member.model_fields.get(discriminator)
+            if own is not None and own.default == tag:
+                return member
+    return None
 
 
 def format_validation_error(exc: ValidationError, source: str, model: type[BaseModel]) -> str:
@@ -244,7 +261,8 @@ def format_validation_error(exc: ValidationError, source: str, model: type[BaseM
         if err["type"] == "extra_forbidden":
             owner = _model_at(model, loc)
             allowed = ", ".join(owner.model_fields) if owner else "?"
-            lines.append(f"  {path}: unknown key; allowed keys here: {allowed}")
+            hint = getattr(owner, "unknown_key_hint", lambda key: None)(loc[-1])
+            lines.append(f"  {path}: unknown key; allowed keys here: {allowed}" + (f"; {hint}" if hint else ""))
         elif err["type"] == "missing":
             lines.append(f"  {path}: required key is missing")
         else:

@@ -25,6 +25,7 @@ from abcgs.dag import (
     excess_deps,
     import_closure,
     load_spec,
+    load_stage,
     minimal_deps,
     missing_deps,
     pipeline_yaml,
@@ -73,6 +74,8 @@ def test_stage_data_deps_are_the_inputs_its_command_passes(name: str) -> None:
     passed = _command_paths(body["cmd"])
     data_deps = [d for d in _deps(DVC[name]) if not d.startswith(("abcgs/", "stages/"))]
     inputs = [passed[d.option] for d in spec.inputs]
+    if name == "report":  # the outputs it reads for each experiment, named from the params (its reads())
+        inputs += load_stage(_script(DVC[name])).reads(load_params(ROOT / "params.yaml"))
     assert sorted(data_deps) == sorted(inputs), f"{name}: deps {data_deps} but its command passes inputs {inputs}"
     outs = [next(iter(o)) if isinstance(o, dict) else o
             for k in ("outs", "metrics", "plots") for o in body.get(k, [])]
@@ -233,4 +236,23 @@ def test_a_paintings_content_is_a_dep_of_every_stage_that_reads_it() -> None:
         assert _body(DVC[name])["outs"] == [f"out/styles/${{key}}{'.png' if name == 'styles' else '.labels.png'}"]
     for name in ("colormatch", "stylize", "evaluate"):
         assert "out/styles" in _deps(DVC[name]), f"{name} reads paintings but does not depend on out/styles"
-    assert "out" in _deps(DVC["report"])
+    assert {"out/styles/tiny_paint.png", "out/styles/tiny_paint2.png"} <= set(_deps(DVC["report"]))
+
+
+def test_the_report_names_the_outputs_it_reads() -> None:
+    """The report depends on each experiment's records, renders and scene outputs by name, not on all of out/: a
+    stage's output that it does not read (a scene's export) cannot re-run it."""
+    stage = DVC["report"]
+    deps = stage["deps"]
+    assert "out" not in deps and "--root" not in stage["cmd"]
+    params = load_params(ROOT / "params.yaml")
+    assert params.experiments
+    for name, exp in params.experiments.items():
+        for path in (f"out/{name}/stylize.json", f"out/{name}/eval.json", f"out/{name}/eval_consistency.png",
+                     f"out/{name}/stylize"):
+            assert path in deps, path
+        for path in (f"out/{exp.scene}/colmap", f"out/{exp.scene}/gs/point_cloud.ply", f"out/{exp.scene}/masks",
+                     f"out/{exp.scene}/reconstruct.json"):
+            assert path in deps, path
+    assert not any(d.endswith(".spz") or d.startswith(f"out/{s}/gs/history") for d in deps for s in params.data.scenes)
+    assert {f"out/styles/{k}.png" for k in params.data.styles} <= set(deps)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -21,12 +22,12 @@ from abcgs.fit.training import fit, view_order
 from abcgs.gaussians import GaussianModel, render
 from abcgs.io.images import load_image, save_image
 from abcgs.io.ply import read_ply
-from abcgs.sfm.model import SceneData
+from abcgs.types import Cameras, Scene
 
 W, H = 48, 36
 
 
-def make_scene(folder: Path, n: int = 200, n_views: int = 6, seed: int = 0) -> tuple[SceneData, GaussianModel]:
+def make_scene(folder: Path, n: int = 200, n_views: int = 6, seed: int = 0) -> tuple[Scene, GaussianModel]:
     """``n`` random Gaussians in front of a small arc of cameras, rendered as the ground-truth images.
 
     The SfM points are the true means with 0.08 noise (scene size ≈ 2) and the colours with 0.1 noise.
@@ -55,7 +56,7 @@ def make_scene(folder: Path, n: int = 200, n_views: int = 6, seed: int = 0) -> t
     pts = (means.numpy() + rng.normal(0, 0.08, (n, 3))).astype(np.float32)
     rgb = gt.sh0[:, 0].numpy() * 0.28209479177387814 + 0.5
     cols = np.clip(rgb + rng.normal(0, 0.1, (n, 3)), 0, 1).astype(np.float32)
-    return SceneData(cams, paths, pts, cols), gt
+    return Scene(Cameras.from_list(cams), paths, pts, cols), gt
 
 
 def small_params(**kw) -> FitParams:
@@ -68,7 +69,7 @@ def small_params(**kw) -> FitParams:
 
 
 @pytest.fixture(scope="module")
-def scene(tmp_path_factory) -> SceneData:
+def scene(tmp_path_factory) -> Scene:
     return make_scene(tmp_path_factory.mktemp("scene"))[0]
 
 
@@ -155,10 +156,9 @@ def test_resolution_scale_and_input_errors(scene, tmp_path):
     views = load_views(scene, 0.5, 8)
     assert views.cameras[0].width == 24 and tuple(views.images[0].shape) == (18, 24, 3)
     assert views.test == [0]
-    bad = SceneData(scene.cameras, [scene.image_paths[0]] + list(scene.image_paths[1:]), scene.points, scene.colors)
     small = tmp_path / "small.png"
     save_image(small, np.zeros((10, 12, 3), np.float32))
-    bad.image_paths[2] = small
+    bad = replace(scene, image_paths=scene.image_paths[:2] + (small,) + scene.image_paths[3:])
     with pytest.raises(InputError, match="12x10 but its camera 002.png is 48x36"):
         load_views(bad)
     with pytest.raises(ValueError):

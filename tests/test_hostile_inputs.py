@@ -125,7 +125,8 @@ def test_add_scene_takes_every_setting_its_messages_name(tmp_path: Path, params_
                       "--splat-nonfinite", "drop", "--splat-format", "ply", "--views-count", "8")
     assert rc == 0, err
     entry = json.loads(json.dumps(__import__("yaml").safe_load(params_file.read_text())["data"]["scenes"]["s"]))
-    assert entry["splat_format"] == "ply" and entry["splat_nonfinite"] == "drop" and entry["views"] == {"count": 8}
+    assert entry["splat_format"] == "ply" and entry["splat_nonfinite"] == "drop"
+    assert entry["source"] == {"format": "splat", "views": {"count": 8}}
 
 
 def test_add_scene_dry_run_refuses_what_the_real_run_refuses(tmp_path: Path, params_file: Path, capsys) -> None:

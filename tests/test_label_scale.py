@@ -70,7 +70,7 @@ def quarter_scene(tmp_path: Path, tiny_scene: Path) -> Path:
 
 def _params(root: Path, folder: Path) -> Path:
     path = root / "params.yaml"
-    path.write_text(json.dumps({"data": {"scenes": {"ns": {"path": str(folder), "images": "images_4"}}}}))
+    path.write_text(json.dumps({"data": {"scenes": {"ns": {"path": str(folder), "source": {"images": "images_4"}}}}}))
     return path
 
 

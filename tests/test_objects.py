@@ -21,7 +21,7 @@ from abcgs.layout import ColmapDir
 from abcgs.losses.terms import background_loss, silhouette_loss
 from abcgs.scene.params import TinySceneParams
 from abcgs.scene.synthetic import write_object_dataset
-from abcgs.sfm.model import SceneData, read_colmap_scene
+from abcgs.sfm.model import read_colmap_scene
 from abcgs.sfm.params import ReconstructParams
 from abcgs.silhouette import composite_rgba, object_gaussians, silhouettes
 from abcgs.sources.blender import read_blender_source
@@ -32,7 +32,7 @@ from abcgs.splats.params import SplatViewsParams
 from abcgs.stylize.colormatch import color_match_and_refit
 from abcgs.stylize.loop import stylize
 from abcgs.stylize.params import ColorMatchParams, StylizeOptim, StylizeParams
-from abcgs.types import FRAME_FILLING, Background
+from abcgs.types import FRAME_FILLING, Background, Cameras, Scene
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_splats import make_model  # noqa: E402
@@ -149,7 +149,7 @@ def _object_scene(tmp_path, n_views=6, size=(64, 48)):
         with torch.no_grad():
             save_image(tmp_path / c.name, render(model, c)[0].clamp(0, 1).numpy())
         paths.append(tmp_path / c.name)
-    scene = SceneData(cams, paths, model.means.numpy()[:10], np.zeros((10, 3), np.float32))
+    scene = Scene(Cameras.from_list(cams), paths, model.means.numpy()[:10], np.zeros((10, 3), np.float32))
     return model, scene
 
 

@@ -239,7 +239,7 @@ def test_the_views_are_the_ones_the_pipeline_reads(tmp_path, capsys) -> None:
     assert [it.image_path for it in s.items] == sorted(small.iterdir()) and s.size(0) == (H // 2, W // 2)
     assert s.items[1].out_path == scene / "masks" / "view01.png"
     (tmp_path / "params.yaml").write_text(json.dumps({"data": {"scenes": {
-        "s": {"path": "scene", "images": "images_2"}, "sp": {"path": "splat"}}}}))
+        "s": {"path": "scene", "source": {"images": "images_2"}}, "sp": {"path": "splat"}}}}))
     assert [it.image_path for it in PaintSession.for_params(tmp_path / "params.yaml", "s").items] == sorted(small.iterdir())
     (tmp_path / "splat").mkdir()
     (tmp_path / "splat" / "model.spz").write_bytes(b"")

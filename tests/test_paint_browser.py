@@ -144,7 +144,7 @@ def test_a_nerfstudio_scene_is_painted_through_images_4(browser, serve, tiny_sce
     from abcgs.sources.read import read_source
 
     folder = nerfstudio_quarter(tmp_path / "ns", tiny_scene)
-    (tmp_path / "params.yaml").write_text(json.dumps({"data": {"scenes": {"ns": {"path": "ns", "images": "images_4"}}}}))
+    (tmp_path / "params.yaml").write_text(json.dumps({"data": {"scenes": {"ns": {"path": "ns", "source": {"format": "nerfstudio", "images": "images_4"}}}}}))
     truth = cv2.resize(load_labels(tiny_scene / "masks" / "000.png").astype(np.uint8), (40, 30),
                        interpolation=cv2.INTER_NEAREST).astype(np.int64)
     page, _, errors = open_page(browser, serve(PaintSession.for_params(tmp_path / "params.yaml", "ns")))
@@ -177,7 +177,7 @@ def test_a_bare_splat_is_painted_on_its_generated_views(browser, serve, tmp_path
     folder.mkdir()
     write_splat_file(folder / "scene.splat", make_model(2500, 0, seed=3))
     views = {"count": 6, "width": 64, "height": 48}
-    (tmp_path / "params.yaml").write_text(json.dumps({"data": {"scenes": {"sp": {"path": "sp", "views": views}}}}))
+    (tmp_path / "params.yaml").write_text(json.dumps({"data": {"scenes": {"sp": {"path": "sp", "source": {"format": "splat", "views": views}}}}}))
     colmap = tmp_path / "out" / "sp" / "colmap"
 
     def reconstruct() -> None:  # as stages/reconstruct.py does for a bare splat

@@ -75,12 +75,37 @@ def test_the_modes_of_abcgs_types_list_their_values(raw) -> None:
     bad = copy.deepcopy(raw)
     bad["stylize"].setdefault("compute", {})["backend"] = "cuda"
     bad["masks"]["backend"] = "gsplatt"
-    bad["data"]["scenes"]["tiny"] = {**bad["data"]["scenes"]["tiny"], "format": "colmapp"}
+    bad["data"]["scenes"]["tiny"] = {**bad["data"]["scenes"]["tiny"], "source": {"format": "colmapp"}}
     msg = _error(bad)
     for key, got in (("stylize.compute.backend", "cuda"), ("masks.backend", "gsplatt")):
         assert f"{key}: Input should be 'auto', 'reference', 'cpu' or 'gsplat' (got '{got}')" in msg
-    assert ("data.scenes.tiny.format: Input should be 'auto', 'photos', 'colmap', 'nerfstudio', 'blender', 'llff' or "
-            "'splat' (got 'colmapp')") in msg
+    assert ("data.scenes.tiny.source: Input tag 'colmapp' found using 'format' does not match any of the expected "
+            "tags: 'auto', 'photos', 'colmap', 'nerfstudio', 'llff', 'blender', 'splat'") in msg
+
+
+def test_a_formats_options_live_in_its_own_section(raw) -> None:
+    """A scene's reading options are a tagged union on its format: each format takes its own keys, a key of another
+    format is named with the formats that take it, and the flat keys of an entry name the section to write."""
+    from abcgs.sources.params import BlenderSource, LlffSource, SceneParams, SplatSource
+
+    entry = SceneParams.model_validate({"path": "d", "source": {"format": "llff", "images": "images_8"}})
+    assert isinstance(entry.source, LlffSource) and (entry.format, entry.images, entry.views) == ("llff", "images_8", None)
+    entry = SceneParams.model_validate({"path": "d", "source": {"format": "splat", "views": {"count": 5}}})
+    assert isinstance(entry.source, SplatSource) and entry.views.count == 5 and entry.images is None
+    assert isinstance(SceneParams.model_validate({"path": "d", "source": {"format": "blender"}}).source, BlenderSource)
+    assert SceneParams.model_validate({"path": "d"}).format == "auto"
+    bad = copy.deepcopy(raw)
+    bad["data"]["scenes"]["lego"] = {"path": "data/lego", "source": {"format": "blender", "images": "images_2"}}
+    bad["data"]["scenes"]["fern"] = {"path": "data/fern", "format": "llff", "images": "images_8"}
+    bad["data"]["scenes"]["bare"] = {"path": "data/bare", "source": {"format": "colmap", "views": {"count": 5}}}
+    msg = _error(bad)
+    assert ("data.scenes.lego.source.blender.images: unknown key; allowed keys here: format; `images` is an option of "
+            "format photos, colmap, nerfstudio, llff, not of blender: remove it, or set `source: {format: photos, "
+            "images: ...}`") in msg
+    assert ("data.scenes.fern: format, images: a format's options live in the scene's `source:` section, tagged by "
+            "the format; write `source: {format: llff, images: images_8}` instead") in msg
+    assert "data.scenes.bare.source.colmap.views: unknown key; allowed keys here: images, format; `views` is an " \
+           "option of format splat, not of colmap" in msg
 
 
 def test_out_of_range_value(raw) -> None:
@@ -197,7 +222,7 @@ def test_scene_override_errors_name_the_key_path(raw) -> None:
     p["data"]["scenes"]["big"] = {"path": "data/big", "fit": {"iterations": "many"}}
     assert "data.scenes.big.fit.iterations: Input should be a valid integer" in _error(p)
     p["data"]["scenes"]["big"] = {"path": "data/big", "stylize": {"iterations": 1}}
-    assert "data.scenes.big.stylize: unknown key; allowed keys here: path, format, images, background, reconstruct, fit, masks" in _error(p)
+    assert "data.scenes.big.stylize: unknown key; allowed keys here: path, source, background, reconstruct, fit, masks" in _error(p)
     p["data"]["scenes"]["big"] = {"fit": {}}
     assert "data.scenes.big.path: required key is missing" in _error(p)
     p["data"]["scenes"]["big"] = "data/big"  # the library's shorthand

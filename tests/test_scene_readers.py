@@ -12,8 +12,9 @@ import pytest
 
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
-from abcgs.sources.base import FORMATS, ReadOptions, SceneReader, SourceScene, SourceView
+from abcgs.sources.base import FORMATS, ReadOptions, SceneReader
 from abcgs.sources.read import formats, load, reader_of, register, resolve_format, unregister
+from abcgs.types import Scene, View
 
 
 @pytest.mark.parametrize("fmt", FORMATS)
@@ -28,15 +29,15 @@ def test_an_unknown_format_names_the_known_ones():
 
 
 # ---- a toy format: a JSON list of cameras, one module's worth of code ---------------------------------------------
-def _toy_read(folder: Path, options: ReadOptions) -> SourceScene:
+def _toy_read(folder: Path, options: ReadOptions) -> Scene:
     views = []
     for v in json.loads((folder / "toy.json").read_text()):
         K = np.array([[100.0, 0, 32], [0, 100.0, 24], [0, 0, 1]])
         viewmat = np.eye(4)
         viewmat[2, 3] = v["z"]
         cam = Camera(v["name"], K, viewmat, 64, 48)
-        views.append(SourceView(v["name"], folder / v["name"], cam))
-    return SourceScene("toy", tuple(views))  # type: ignore[arg-type]
+        views.append(View(v["name"], folder / v["name"], cam))
+    return Scene.from_views(views, format="toy")
 
 
 TOY = SceneReader("toy", _toy_read, "toy.json", detect=lambda folder: (folder / "toy.json").is_file())

@@ -111,7 +111,7 @@ def test_read_colmap_scene_contract(tiny_colmap: Path) -> None:
 
 @pytest.mark.parametrize("fmt", ["bin", "txt"])
 def test_read_colmap_scene_equals_pycolmaps_reading(tiny_colmap: Path, tmp_path: Path, fmt: str) -> None:
-    """The numpy reader of abcgs.sfm.model gives pycolmap's cameras, poses and points, from both model formats."""
+    """The numpy reader (abcgs.io.colmap) gives pycolmap's cameras, poses and points (by id), from both formats."""
     import pycolmap
 
     rec = pycolmap.Reconstruction(str(tiny_colmap / "sparse"))
@@ -128,7 +128,7 @@ def test_read_colmap_scene_equals_pycolmaps_reading(tiny_colmap: Path, tmp_path:
         np.testing.assert_allclose(cam.K, pc.calibration_matrix(), rtol=0, atol=1e-9)
         np.testing.assert_allclose(cam.viewmat[:3], im.cam_from_world().matrix(), rtol=0, atol=1e-9)
         assert (cam.width, cam.height) == (pc.width, pc.height)
-    pts = list(rec.points3D.values())  # in pycolmap's order, which every fit starts from (its initial Gaussians)
+    pts = [rec.points3D[i] for i in sorted(rec.points3D)]  # the canonical order: by point id
     np.testing.assert_array_equal(data.points, np.array([p.xyz for p in pts], np.float32))
     np.testing.assert_allclose(data.colors, np.array([p.color for p in pts], np.float32) / 255.0, atol=1e-7)
 

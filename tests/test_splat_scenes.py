@@ -17,7 +17,6 @@ from abcgs.fit.params import FitParams
 from abcgs.gaussians import GaussianModel, render
 from abcgs.io.images import save_image
 from abcgs.io.ply import read_ply
-from abcgs.sfm.model import SceneData
 from abcgs.sources.splat import read_splat_source
 from abcgs.splats.cameras import cameras_around
 from abcgs.splats.exporting import give_back
@@ -75,7 +74,7 @@ def test_a_bare_splat_runs_through_import_stylization_and_give_back(tmp_path):
     source = read_splat_source(src, tmp_path / "images", SplatViewsParams(count=8, width=64, height=48))
     assert source.format == "splat" and len(source.views) == 8 and all(v.image_path.is_file() for v in source.views)
     assert source.points.shape[1] == 3 and len(source.points) > 100
-    scene = SceneData([v.camera for v in source.views], [v.image_path for v in source.views], source.points, source.colors)
+    scene = source
     record = import_and_save(scene, src, "auto", FitParams(test_every=4), tmp_path / "gs")
     assert record["imported"]["check"]["psnr"] > 40.0  # its own renders (8-bit PNGs)
     original = read_ply(tmp_path / "gs" / "point_cloud.ply")

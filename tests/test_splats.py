@@ -19,7 +19,6 @@ from abcgs.gaussians import GaussianModel, render
 from abcgs.io.images import save_image
 from abcgs.io.ply import PlyLayout, read_ply, read_ply_layout, write_ply
 from abcgs.sfm.align import Similarity
-from abcgs.sfm.model import SceneData
 from abcgs.splats import frames
 from abcgs.splats.exporting import give_back
 from abcgs.splats.formats.gsplat_ckpt import write_gsplat_ckpt
@@ -29,6 +28,7 @@ from abcgs.splats.formats.supersplat import write_compressed_ply
 from abcgs.splats.importing import import_and_save
 from abcgs.splats.registry import detect_splat_format, read_splat, write_splat
 from abcgs.splats.validate import check_splat
+from abcgs.types import Cameras, Scene
 
 W, H = 96, 72
 
@@ -66,7 +66,7 @@ def psnr_between(a: GaussianModel, b: GaussianModel, cams: list[Camera]) -> floa
 
 
 @pytest.fixture(scope="module")
-def scene_and_model(tmp_path_factory) -> tuple[SceneData, GaussianModel]:
+def scene_and_model(tmp_path_factory) -> tuple[Scene, GaussianModel]:
     """A scene whose photos are the renders of a degree-3 model (its sparse points: every 10th mean)."""
     model = make_model()
     cams = ring_cameras()
@@ -76,7 +76,7 @@ def scene_and_model(tmp_path_factory) -> tuple[SceneData, GaussianModel]:
         save_image(folder / cam.name, img.numpy())
         paths.append(folder / cam.name)
     pts = model.means[::10].numpy().astype(np.float32)
-    return SceneData(cams, paths, pts, np.full_like(pts, 0.5)), model
+    return Scene(Cameras.from_list(cams), paths, pts, np.full_like(pts, 0.5)), model
 
 
 def moved_cameras(cams: list[Camera], sim: Similarity) -> list[Camera]:
@@ -120,7 +120,7 @@ def test_similarity_from_matrix_refuses_reflections_and_shear():
 # ----------------------------------------------------------------------------------------------- formats
 
 
-def _write(fmt: str, model: GaussianModel, scene: SceneData, root: Path) -> Path:
+def _write(fmt: str, model: GaussianModel, scene: Scene, root: Path) -> Path:
     """``model`` (scene frame) written as a ``fmt`` file the way its tool would have written it."""
     root.mkdir(parents=True, exist_ok=True)
     if fmt == "inria":
@@ -290,7 +290,7 @@ def test_coefficient_major_sh_is_diagnosed_as_sh_layout(scene_and_model, tmp_pat
     for cam, img in zip(cams, render_all(strong, cams)):
         save_image(tmp_path / cam.name, img.numpy())
         paths.append(tmp_path / cam.name)
-    strong_scene = SceneData(cams, paths, scene.points, scene.colors)
+    strong_scene = Scene(cams, paths, scene.points, scene.colors)
     n = strong.num_gaussians
     bad = GaussianModel(strong.means, strong.quats, strong.log_scales, strong.opacity_logits, strong.sh0,
                         strong.shN.reshape(n, -1).reshape(n, 3, 15).transpose(1, 2).contiguous())

@@ -20,14 +20,14 @@ from abcgs.io.tables import write_csv
 from abcgs.layout import FitDir
 from abcgs.render.cpu import kernel_threads
 from abcgs.runtime import torch_threads
-from abcgs.sfm.model import SceneData
+from abcgs.types import Scene
 
 HISTORY_COLUMNS = ("step", "seconds", "loss", "psnr", "n_gaussians")
 """Columns of ``history.csv``: one row per training step (training-view PSNR in dB, ``seconds`` of training so far)."""
 
 
 def fit_and_save(
-    scene: SceneData, params: FitParams, out_dir: str | os.PathLike, progress: bool = True, *,
+    scene: Scene, params: FitParams, out_dir: str | os.PathLike, progress: bool = True, *,
     device: torch.device | None = None,
 ) -> FitResult:
     """:func:`fit`, then write into ``out_dir`` (each file atomically):

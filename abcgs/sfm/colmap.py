@@ -31,7 +31,6 @@ import cv2  # before pycolmap: see abcgs/sfm/__init__.py
 import numpy as np
 import pycolmap
 
-from abcgs.cameras import Camera
 from abcgs.errors import InputError, ReconstructionError
 from abcgs.io.atomic import atomic_path, write_json
 from abcgs.io.images import labels_for_view, list_images, load_image, load_labels, save_labels
@@ -297,15 +296,3 @@ def reconstruct(
             write_json(tmp / "metrics.json", report.metrics(seconds=False))
     log.info("reconstruct: done in %.1f s -> %s", report.seconds, out_dir)
     return report
-
-
-def camera_from_colmap(image: pycolmap.Image, camera: pycolmap.Camera) -> Camera:
-    """A :class:`Camera` from a registered COLMAP image and its (SIMPLE_)PINHOLE camera."""
-    if camera.model_name not in ("PINHOLE", "SIMPLE_PINHOLE"):
-        raise InputError(
-            f"image {image.name} uses a {camera.model_name} camera; an undistorted (PINHOLE) model is needed here, "
-            "i.e. the sparse/ folder written by the reconstruct stage"
-        )
-    viewmat = np.eye(4)
-    viewmat[:3, :] = image.cam_from_world().matrix()
-    return Camera(image.name, np.asarray(camera.calibration_matrix(), float), viewmat, int(camera.width), int(camera.height))

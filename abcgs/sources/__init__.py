@@ -18,7 +18,7 @@ three readers import pycolmap (the import-order hazard in :mod:`abcgs.sfm`).
 
 import cv2  # noqa: F401  (must be loaded before pycolmap, see abcgs/sfm/__init__.py)
 
-from abcgs.sources.base import FORMATS, SourceScene, SourceView
+from abcgs.sources.base import FORMATS
 from abcgs.sources.detect import detect_format
 
-__all__ = ["FORMATS", "SourceScene", "SourceView", "detect_format"]
+__all__ = ["FORMATS", "detect_format"]

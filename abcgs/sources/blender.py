@@ -19,10 +19,11 @@ import numpy as np
 
 from abcgs.cameras import Camera, check_intrinsics
 from abcgs.errors import InputError
-from abcgs.sources.base import ReadOptions, SceneReader, SourceScene, SourceView
+from abcgs.sources.base import ReadOptions, SceneReader
 from abcgs.sources.lens import image_size
 from abcgs.sources.transforms_json import OPENGL_TO_OPENCV, camera_to_world, frames_of, load_json, number
 from abcgs.sources.validate import check_inside
+from abcgs.types import Scene, View
 
 SPLITS = ("train", "test")
 DEFAULT_BACKGROUND = (1.0, 1.0, 1.0)
@@ -38,7 +39,7 @@ def _angle(path: Path, meta: dict, key: str) -> float | None:
 
 
 def read_blender_source(folder: str | os.PathLike, background: tuple[float, float, float] | None = None
-                        ) -> SourceScene:
+                        ) -> Scene:
     """The views of ``folder/transforms_{train,test}.json`` (module docstring)."""
     folder = Path(folder)
     views = []
@@ -66,17 +67,17 @@ def read_blender_source(folder: str | os.PathLike, background: tuple[float, floa
             K = np.array([[fx, 0.0, w / 2.0], [0.0, fy, h / 2.0], [0.0, 0.0, 1.0]])
             c2w = camera_to_world(path, f"frames[{i}]", frame["transform_matrix"]) @ OPENGL_TO_OPENCV
             name = f"{split}_{image.stem}.png"
-            views.append(SourceView(name, image, Camera(name, K, np.linalg.inv(c2w), w, h)))
+            views.append(View(name, image, Camera(name, K, np.linalg.inv(c2w), w, h)))
     if not views:
         raise InputError(f"{folder}: no transforms_train.json or transforms_test.json")
     names = [v.name for v in views]
     if len(set(names)) != len(names):
         raise InputError(f"{folder}: two frames of one split name the same image file; each frame needs its own image")
     bg = tuple(float(c) for c in (background if background is not None else DEFAULT_BACKGROUND))
-    return SourceScene("blender", tuple(sorted(views, key=lambda v: v.name)), background=bg)  # type: ignore[arg-type]
+    return Scene.from_views(views, format="blender", background=bg)
 
 
-def _read(folder: Path, options: ReadOptions) -> SourceScene:
+def _read(folder: Path, options: ReadOptions) -> Scene:
     return read_blender_source(folder, options.background)
 
 

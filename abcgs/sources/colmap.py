@@ -5,7 +5,8 @@ Mip-NeRF 360, Tanks and Temples, INRIA's 3DGS data and LLFF releases ship this l
     <scene>/images/…            the images the model was made from (or images_2/4/8: `images:` in params)
     <scene>/sparse/0/cameras.bin, images.bin, points3D.bin   (or .txt; or directly in sparse/)
 
-Any COLMAP camera model is accepted: a distorting one is carried as the view's
+The model is read by :mod:`abcgs.io.colmap` (every file checked as untrusted input; points by id). Any COLMAP
+camera model is accepted: a distorting one is carried as the view's
 :class:`~abcgs.sources.base.Distortion` and undistorted by the ``reconstruct`` stage as it undistorts its own SfM
 model. A model calibrated at another size than the images used (full-size model, ``images_8``) is scaled to the
 images (:func:`abcgs.sources.lens.fit_to_image`), with an error when they are not the same picture at another scale.
@@ -19,15 +20,15 @@ import os
 from pathlib import Path
 
 import numpy as np
-import pycolmap
 
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
-from abcgs.sfm.model import read_model
-from abcgs.sources.base import ReadOptions, SceneReader, SourceScene, SourceView
+from abcgs.io.colmap import read_model
+from abcgs.sources.base import ReadOptions, SceneReader
 from abcgs.sources.detect import DEFAULT_IMAGES, colmap_model_dir, image_files
 from abcgs.sources.lens import fit_to_image, image_size, pinhole_and_lens
 from abcgs.sources.validate import check_count, check_inside
+from abcgs.types import Scene, View
 
 log = logging.getLogger(__name__)
 
@@ -36,7 +37,7 @@ def _examples(names: list[str], n: int = 3) -> str:
     return ", ".join(names[:n]) + (f" … (+{len(names) - n} more)" if len(names) > n else "")
 
 
-def read_colmap_source(folder: str | os.PathLike, images: str | None = None) -> SourceScene:
+def read_colmap_source(folder: str | os.PathLike, images: str | None = None) -> Scene:
     """Read ``folder``'s COLMAP model and the images in ``folder/images`` (module docstring)."""
     folder = Path(folder)
     model_dir = colmap_model_dir(folder)
@@ -48,12 +49,8 @@ def read_colmap_source(folder: str | os.PathLike, images: str | None = None) -> 
     if not files:
         raise InputError(f"{images_dir} holds no images, but the COLMAP model {model_dir} needs them; put them there, or "
                          "name the image folder in the scene's entry (`images: images_4`)")
-    read_model(model_dir)  # record counts against file sizes, plausible intrinsics, finite poses: before pycolmap
-    try:
-        rec = pycolmap.Reconstruction(str(model_dir))
-    except Exception as exc:  # pycolmap raises plain RuntimeErrors for truncated or foreign files
-        raise InputError(f"{model_dir} is not a readable COLMAP model ({exc}); re-export it from COLMAP") from None
-    posed = sorted((im for im in rec.images.values() if im.has_pose), key=lambda im: im.name)
+    model = read_model(model_dir)  # record counts against file sizes, plausible intrinsics, finite poses
+    posed = list(model.images)
     if not posed:
         raise InputError(f"the COLMAP model {model_dir} has no registered images; re-run its reconstruction")
     check_count(len(posed), str(model_dir))
@@ -76,25 +73,23 @@ def read_colmap_source(folder: str | os.PathLike, images: str | None = None) -> 
                      f"{_examples(extra)}")
     views, scaled = [], set()
     for im in found:
-        cam = rec.cameras[im.camera_id]
-        K, lens = pinhole_and_lens(cam.model.name, np.asarray(cam.params), cam.width, cam.height)
-        viewmat = np.eye(4)
-        viewmat[:3, :] = im.cam_from_world().matrix()
+        cam = model.cameras_by_id[im.camera_id]
+        K, lens = pinhole_and_lens(cam.model, np.asarray(cam.params), cam.width, cam.height)
         path = images_dir / im.name
-        camera, lens = fit_to_image(Camera(im.name, K, viewmat, int(cam.width), int(cam.height)), lens,
+        camera, lens = fit_to_image(Camera(im.name, K, im.viewmat, int(cam.width), int(cam.height)), lens,
                                     image_size(path), f"{model_dir} camera {im.camera_id} and {path}")
         if (camera.width, camera.height) != (cam.width, cam.height):
             scaled.add((cam.width, cam.height, camera.width, camera.height))
-        views.append(SourceView(im.name, path, camera, lens))
+        views.append(View(im.name, path, camera, lens))
     for wm, hm, wi, hi in sorted(scaled):
         notes.append(f"cameras calibrated at {wm}x{hm} scaled to the {wi}x{hi} images of {images_dir.name}/")
-    pts = list(rec.points3D.values())
-    xyz = np.array([p.xyz for p in pts], np.float32).reshape(-1, 3)
-    rgb = np.array([p.color for p in pts], np.float32).reshape(-1, 3) / 255.0
-    return SourceScene("colmap", tuple(views), xyz if len(xyz) else None, rgb if len(xyz) else None, notes=tuple(notes))
+    xyz = model.points.astype(np.float32)
+    rgb = model.colors.astype(np.float32) / 255.0
+    return Scene.from_views(views, points=xyz if len(xyz) else None, colors=rgb if len(xyz) else None,
+                            format="colmap", notes=tuple(notes))
 
 
-def _read(folder: Path, options: ReadOptions) -> SourceScene:
+def _read(folder: Path, options: ReadOptions) -> Scene:
     return read_colmap_source(folder, options.images)
 
 

@@ -1,5 +1,5 @@
 """What the readers share about images and lenses: image sizes, fitting a camera to the image it is used with, and
-COLMAP camera models (:class:`abcgs.sources.base.Distortion`) as pycolmap cameras.
+COLMAP camera models (:class:`abcgs.types.Distortion`) as pycolmap cameras.
 
 A dataset may calibrate its cameras at one resolution and ship images at another (LLFF's full-size model beside
 ``images_8``, Mip-NeRF 360's ``images_2/4/8``, nerfstudio's downscaled folders). :func:`fit_to_image` scales the
@@ -18,7 +18,7 @@ from PIL import Image
 
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
-from abcgs.sources.base import Distortion
+from abcgs.types import Distortion
 
 PINHOLE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE")
 

@@ -16,10 +16,11 @@ import numpy as np
 
 from abcgs.cameras import Camera, check_intrinsics, check_rotation, intrinsics
 from abcgs.errors import InputError
-from abcgs.sources.base import ReadOptions, SceneReader, SourceScene, SourceView
+from abcgs.sources.base import ReadOptions, SceneReader
 from abcgs.sources.detect import DEFAULT_IMAGES, image_files
 from abcgs.sources.lens import fit_to_image, image_size
 from abcgs.sources.validate import check_count
+from abcgs.types import Scene, View
 
 POSES_FILE = "poses_bounds.npy"
 
@@ -78,7 +79,7 @@ def llff_cameras(path: str | os.PathLike, names: list[str], size: tuple[int, int
             for i, (n, row) in enumerate(zip(names, arr))]
 
 
-def read_llff_source(folder: str | os.PathLike, images: str | None = None) -> SourceScene:
+def read_llff_source(folder: str | os.PathLike, images: str | None = None) -> Scene:
     """``folder/poses_bounds.npy`` and the images of ``folder/images`` (module docstring)."""
     folder = Path(folder)
     path = folder / POSES_FILE
@@ -94,14 +95,14 @@ def read_llff_source(folder: str | os.PathLike, images: str | None = None) -> So
     for i, (p, row) in enumerate(zip(files, arr)):
         cam, _ = fit_to_image(_calibrated_camera(p.name, row, f"{path} row {i}"), None, image_size(p),
                               f"{path} row {i} and {p}")
-        views.append(SourceView(p.name, p, cam))
+        views.append(View(p.name, p, cam))
     near, far = float(arr[:, 15].min()), float(arr[:, 16].max())
     if not (0 < near < far):
         raise InputError(f"{path}: the depth bounds (columns 15, 16) are {near:g} .. {far:g}; LLFF writes 0 < near < far")
-    return SourceScene("llff", tuple(views), depth_range=(near, far))
+    return Scene.from_views(views, format="llff", depth_range=(near, far))
 
 
-def _read(folder: Path, options: ReadOptions) -> SourceScene:
+def _read(folder: Path, options: ReadOptions) -> Scene:
     return read_llff_source(folder, options.images)
 
 

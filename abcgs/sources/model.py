@@ -38,20 +38,20 @@ import pycolmap
 
 from abcgs.errors import InputError
 from abcgs.io.atomic import atomic_path, write_json
+from abcgs.io.colmap import write_model
 from abcgs.io.images import labels_for_view, load_image, load_labels, save_image, save_labels
 from abcgs.sfm.colmap import (
-    camera_from_colmap,
     choose_matcher,
     extract_features,
     match_features,
     undistort_labels,
     undistort_model,
 )
+from abcgs.sfm.model import read_colmap_scene
 from abcgs.sfm.params import ReconstructParams
-from abcgs.sources.base import SourceScene, SourceView
 from abcgs.sources.lens import colmap_camera
 from abcgs.sources.validate import axes_meeting_point
-from abcgs.types import Background
+from abcgs.types import Background, Cameras, Distortion, Scene, View
 
 log = logging.getLogger(__name__)
 
@@ -88,7 +88,7 @@ class SourceReport:
         return data
 
 
-def _stage_image(view: SourceView, dst: Path, background: tuple[float, float, float] | None) -> np.ndarray | None:
+def _stage_image(view: View, dst: Path, background: tuple[float, float, float] | None) -> np.ndarray | None:
     """Copy the view's image to ``dst``, or composite an RGBA image on ``background`` (written as PNG); returns the
     RGBA image's alpha ``(H, W)`` float32, else None. A view with a mask (nerfstudio's ``mask_path``, non-zero = the
     object) is composited on ``background`` by that mask when a background is given."""
@@ -114,42 +114,20 @@ def _stage_image(view: SourceView, dst: Path, background: tuple[float, float, fl
     return None
 
 
-def _camera(view: SourceView, camera_id: int) -> pycolmap.Camera:
-    cam = view.camera
-    if view.distortion is not None:
-        out = colmap_camera(view.distortion, (cam.width, cam.height))
-    else:
-        out = pycolmap.Camera(model="PINHOLE", width=cam.width, height=cam.height,
-                              params=[cam.K[0, 0], cam.K[1, 1], cam.K[0, 2], cam.K[1, 2]])
-    out.camera_id = camera_id
-    return out
-
-
-def posed_model(views: list[SourceView], ids: dict[str, tuple[int, int]] | None = None) -> pycolmap.Reconstruction:
-    """A COLMAP model of the views' cameras and poses, no points; ``ids``: name → (camera_id, image_id) to use
-    (a feature database's), else 1 … N."""
-    rec = pycolmap.Reconstruction()
-    for i, view in enumerate(views, start=1):
-        camera_id, image_id = ids[view.name] if ids is not None else (i, i)
-        rec.add_camera_with_trivial_rig(_camera(view, camera_id))
-        image = pycolmap.Image(name=view.name, camera_id=camera_id, image_id=image_id)
-        rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(view.camera.viewmat[:3, :]))
-    return rec
-
-
-def views_of_model(rec: pycolmap.Reconstruction, images_dir: Path) -> list[SourceView]:
-    """The (undistorted PINHOLE) views of a model written by this module, sorted by name."""
-    out = []
-    for im in sorted(rec.images.values(), key=lambda im: im.name):
-        out.append(SourceView(im.name, images_dir / im.name, camera_from_colmap(im, rec.cameras[im.camera_id])))
-    return out
+def write_posed(views: list[View], model_dir: Path, ids: dict[str, tuple[int, int]] | None = None) -> Path:
+    """Write a COLMAP model of the views' cameras, lenses and poses, no points, into ``model_dir`` (the input of
+    COLMAP's undistorter and triangulator); ``ids``: name → (camera_id, image_id) to use (a feature database's), else
+    1 … N in the views' order."""
+    write_model(model_dir, Cameras.from_list([v.camera for v in views], [v.distortion for v in views]),
+                ids=[ids[v.name] for v in views] if ids is not None else None)
+    return model_dir
 
 
 def _skew(t: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
 
 
-def epipolar_errors(database: pycolmap.Database, views: list[SourceView]) -> np.ndarray:
+def epipolar_errors(database: pycolmap.Database, views: list[View]) -> np.ndarray:
     """Sampson distances (px) of every verified feature match to the epipolar geometry the views' cameras predict,
     ``(M,)``."""
     names = {im.image_id: im.name for im in database.read_all_images()}
@@ -172,18 +150,18 @@ def epipolar_errors(database: pycolmap.Database, views: list[SourceView]) -> np.
     return np.concatenate(out) if out else np.zeros(0)
 
 
-def epipolar_tolerance(views: list[SourceView]) -> float:
+def epipolar_tolerance(views: list[View]) -> float:
     """The median Sampson distance (px) above which the poses do not fit the images: 0.5 % of the median image
     diagonal, at least 1 px."""
     diag = float(np.median([math.hypot(v.camera.width, v.camera.height) for v in views]))
     return max(1.0, 0.005 * diag)
 
 
-def triangulate(views: list[SourceView], images_dir: Path, work: Path, params: ReconstructParams
+def triangulate(views: list[View], images_dir: Path, work: Path, params: ReconstructParams
                 ) -> tuple[pycolmap.Reconstruction, int, float | None]:
     """SIFT + matching on the (undistorted) views, the matches checked against the cameras (module docstring), then
-    their points triangulated with the cameras fixed. Returns the model, the number of verified matches and their
-    median epipolar error (px; ``None`` without matches)."""
+    their points triangulated with the cameras fixed. Returns pycolmap's model, the number of verified matches and
+    their median epipolar error (px; ``None`` without matches)."""
     db = work / "features.db"
     names = [v.name for v in views]
     extract_features(db, images_dir, names, params.model_copy(update={"camera_model": "PINHOLE"}), single=False)
@@ -202,7 +180,7 @@ def triangulate(views: list[SourceView], images_dir: Path, work: Path, params: R
             f"(median) off the epipolar lines the dataset's cameras predict (a consistent capture: well under "
             f"{tolerance:.1f} px): the poses do not fit the images (a wrong axis convention, OpenGL vs OpenCV, or images "
             "paired with the wrong poses); check the dataset's format (`format:` in its scene entry) and image order")
-    rec = posed_model(views, ids)
+    rec = pycolmap.Reconstruction(str(write_posed(views, work / "posed", ids)))
     out = work / "triangulated"
     out.mkdir()
     opts = pycolmap.IncrementalPipelineOptions(num_threads=params.num_threads, random_seed=params.seed)
@@ -211,7 +189,7 @@ def triangulate(views: list[SourceView], images_dir: Path, work: Path, params: R
     return tri, len(errors), median
 
 
-def depth_range(source_views: list[SourceView], stated: tuple[float, float] | None) -> tuple[float, float]:
+def depth_range(source_views: list[View], stated: tuple[float, float] | None) -> tuple[float, float]:
     """``(near, far)`` for random points: the dataset's bounds, else around where the optical axes meet (half to one
     and a half times the cameras' distance to it), else from the spread of the camera centres."""
     if stated is not None:
@@ -225,7 +203,7 @@ def depth_range(source_views: list[SourceView], stated: tuple[float, float] | No
     return 0.5 * spread, 10.0 * spread
 
 
-def random_points(views: list[SourceView], near_far: tuple[float, float], n: int, seed: int
+def random_points(views: list[View], near_far: tuple[float, float], n: int, seed: int
                   ) -> tuple[np.ndarray, np.ndarray]:
     """``n`` points cast through random pixels of random views at depths uniform in ``near_far`` (the views' frustums),
     coloured by those pixels: ``(n, 3) float32`` positions and colours in ``[0, 1]``."""
@@ -250,14 +228,17 @@ def random_points(views: list[SourceView], near_far: tuple[float, float], n: int
     return xyz.astype(np.float32), rgb
 
 
-def _write_points(rec: pycolmap.Reconstruction, xyz: np.ndarray, rgb: np.ndarray) -> None:
-    colors = np.clip(np.round(np.asarray(rgb) * 255.0), 0, 255).astype(np.uint8)
-    for p, c in zip(np.asarray(xyz, np.float64), colors):
-        rec.add_point3D(p, pycolmap.Track(), c)
+def points_by_id(rec: pycolmap.Reconstruction) -> tuple[np.ndarray, np.ndarray]:
+    """A pycolmap model's 3-D points in the canonical order (by point id): ``(M, 3)`` positions and ``(M, 3)`` RGB in
+    ``[0, 1]``."""
+    ids = sorted(rec.points3D)
+    xyz = np.array([rec.points3D[i].xyz for i in ids], np.float64).reshape(-1, 3)
+    rgb = np.array([rec.points3D[i].color for i in ids], np.float64).reshape(-1, 3) / 255.0
+    return xyz, rgb
 
 
-def _masks(source: SourceScene, masks_dir: Path | None, dist: dict[str, pycolmap.Camera],
-           und: pycolmap.Reconstruction, out: Path) -> int:
+def _masks(source: Scene, masks_dir: Path | None, dist: dict[str, pycolmap.Camera], und: Cameras, out: Path
+           ) -> int:
     """Label maps for the views: the scene's ``masks/<stem>.png`` (labels), else the view's ``mask_path`` (non-zero =
     kept → 1, else 2); undistorted like the views. Returns the count."""
     count = 0
@@ -273,14 +254,16 @@ def _masks(source: SourceScene, masks_dir: Path | None, dist: dict[str, pycolmap
         else:
             continue
         if view.name in dist:
-            und_cam = und.cameras[und.find_image_with_name(view.name).camera_id]
+            i = und.names.index(view.name)
+            und_cam = colmap_camera(Distortion("PINHOLE", tuple(float(v) for v in und.intrinsics[i])),
+                                    tuple(int(v) for v in und.sizes[i]))
             labels = undistort_labels(labels, dist[view.name], und_cam)
         save_labels(out / f"{stem}.png", labels)
         count += 1
     return count
 
 
-def write_source_model(source: SourceScene, out_dir: str | os.PathLike, params: ReconstructParams,
+def write_source_model(source: Scene, out_dir: str | os.PathLike, params: ReconstructParams,
                        masks_dir: str | os.PathLike | None = None, background: Background | None = None) -> SourceReport:
     """Write ``out_dir`` (module docstring) atomically for ``source``; ``masks_dir``: the scene's label PNGs;
     ``background``: the scene's, recorded as ``background.json`` (:meth:`abcgs.layout.ColmapDir.read_background`)."""
@@ -303,46 +286,37 @@ def write_source_model(source: SourceScene, out_dir: str | os.PathLike, params: 
                 a is not None for a in alphas.values()):  # an object's RGBA views: their alpha supervises the fit
             for name, a in alphas.items():
                 save_image(tmp / "alpha" / name, a)
-        rec = posed_model(views)
         if distorted:
-            model_dir = work / "model"
-            model_dir.mkdir()
-            rec.write_binary(str(model_dir))
-            undistort_model(model_dir, staged, work, tmp, params)
+            undistort_model(write_posed(views, work / "model"), staged, work, tmp, params)
         else:
-            (tmp / "sparse").mkdir()
-            rec.write_binary(str(tmp / "sparse"))
+            write_posed(views, tmp / "sparse")
             shutil.copytree(staged, tmp / "images")
-        und = pycolmap.Reconstruction(str(tmp / "sparse"))
-        und_views = views_of_model(und, tmp / "images")
+        und = read_colmap_scene(tmp / "sparse", tmp / "images").cameras
+        und_views = [View(cam.name, tmp / "images" / cam.name, cam) for cam in und]
         verified, error, epipolar = 0, None, None
         if source.points is not None and len(source.points):
             method: PointsMethod = "dataset"
-            final = und
-            _write_points(final, source.points, source.colors if source.colors is not None
-                          else np.full((len(source.points), 3), 0.5, np.float32))
+            xyz, rgb = source.points, source.colors
         else:
             tri, verified, epipolar = triangulate(und_views, tmp / "images", work, params)
             n = tri.num_points3D()
             log.info("reconstruct: %d points triangulated from %d verified matches", n, verified)
             if n >= MIN_POINTS:
-                method, final = "triangulated", tri
+                method = "triangulated"
+                xyz, rgb = points_by_id(tri)
                 error = float(tri.compute_mean_reprojection_error())
             else:
-                method, final = "random", und
+                method = "random"
                 xyz, rgb = random_points(und_views, depth_range(und_views, source.depth_range), RANDOM_POINTS,
                                          params.seed)
-                _write_points(final, xyz, rgb)
                 log.warning("reconstruct: only %d points triangulated; starting from %d random points inside the "
                             "cameras' frustums", n, RANDOM_POINTS)
-        for f in (tmp / "sparse").iterdir():
-            f.unlink()
-        final.write_binary(str(tmp / "sparse"))
+        write_model(tmp / "sparse", und, xyz, rgb)
         n_masks = _masks(source, masks_dir, distorted, und, tmp / "masks")
         if n_masks:
             log.info("reconstruct: %d label maps", n_masks)
         report = SourceReport(format=source.format, registered=len(views), total=len(views),
-                              points=final.num_points3D(), points_method=method, verified_matches=verified,
+                              points=len(xyz), points_method=method, verified_matches=verified,
                               median_epipolar_error_px=epipolar,
                               mean_reprojection_error_px=error, undistorted=bool(distorted), notes=list(source.notes))
         write_json(tmp / "metrics.json", report.metrics(seconds=False))

@@ -12,8 +12,9 @@ from pathlib import Path
 
 from abcgs.sfm.colmap import ReconstructionReport, reconstruct
 from abcgs.sfm.params import ReconstructParams
-from abcgs.sources.base import ReadOptions, SceneReader, SourceScene
+from abcgs.sources.base import ReadOptions, SceneReader
 from abcgs.sources.detect import DEFAULT_IMAGES
+from abcgs.types import Scene
 
 
 def reconstruct_photos(folder: str | os.PathLike, out_dir: str | os.PathLike, params: ReconstructParams,
@@ -24,7 +25,7 @@ def reconstruct_photos(folder: str | os.PathLike, out_dir: str | os.PathLike, pa
     return reconstruct(folder / (images or DEFAULT_IMAGES), out_dir, params, masks_dir=folder / "masks")
 
 
-def _read(folder: Path, options: ReadOptions) -> SourceScene:
+def _read(folder: Path, options: ReadOptions) -> Scene:
     raise ValueError("a photos scene has no cameras to read: structure from motion finds them (abcgs.sources.photos)")
 
 

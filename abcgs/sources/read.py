@@ -19,8 +19,9 @@ from pathlib import Path
 from typing import Any
 
 from abcgs.errors import InputError
-from abcgs.sources.base import FORMATS, ReadOptions, SceneReader, SourceScene
+from abcgs.sources.base import FORMATS, ReadOptions, SceneReader
 from abcgs.sources.detect import detect_format
+from abcgs.types import Scene
 
 _READERS: dict[str, SceneReader] = {}
 
@@ -73,7 +74,7 @@ def resolve_format(folder: str | os.PathLike, fmt: str = "auto", images: str | N
 
 def read_source(folder: str | os.PathLike, fmt: str, *, images: str | None = None,
                 background: tuple[float, float, float] | None = None, views=None,
-                work: str | os.PathLike | None = None, drop_invalid: bool = False) -> SourceScene:
+                work: str | os.PathLike | None = None, drop_invalid: bool = False) -> Scene:
     """The scene at ``folder`` read as ``fmt`` by its reader (a ``photos`` scene has no cameras to read: structure
     from motion finds them, :mod:`abcgs.sources.photos`), its cameras checked. The options are
     :class:`~abcgs.sources.base.ReadOptions`' (``work``: the folder a bare splat's views are rendered into)."""
@@ -88,7 +89,7 @@ def read_source(folder: str | os.PathLike, fmt: str, *, images: str | None = Non
     return scene
 
 
-def load(path: str | os.PathLike, format: str = "auto", **options: Any) -> SourceScene:
+def load(path: str | os.PathLike, format: str = "auto", **options: Any) -> Scene:
     """The scene at ``path``: its format (``auto``: detected) read by that format's reader, its cameras checked;
     ``options``: :class:`~abcgs.sources.base.ReadOptions`' fields."""
     return read_source(path, resolve_format(path, format, options.get("images")), **options)

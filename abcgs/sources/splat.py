@@ -18,12 +18,12 @@ import torch
 from abcgs.gaussians import render
 from abcgs.io.images import save_image
 from abcgs.render import sh0_to_rgb
-from abcgs.sources.base import ReadOptions, SceneReader, SourceScene, SourceView
+from abcgs.sources.base import ReadOptions, SceneReader
 from abcgs.sources.detect import splat_file
 from abcgs.splats.cameras import cameras_around
 from abcgs.splats.params import SplatViewsParams
 from abcgs.splats.registry import read_splat
-from abcgs.types import Backend
+from abcgs.types import Backend, Scene, View
 
 MAX_POINTS = 100_000
 
@@ -31,13 +31,13 @@ MAX_POINTS = 100_000
 @torch.no_grad()
 def read_splat_source(path: Path, out_images_dir: Path, params: SplatViewsParams | None = None, *,
                       fmt: str = "auto", backend: Backend = "auto",
-                      background: tuple[float, float, float] | None = None, drop_invalid: bool = False) -> SourceScene:
+                      background: tuple[float, float, float] | None = None, drop_invalid: bool = False) -> Scene:
     """Read the splat at ``path`` (``drop_invalid``: dropping its non-finite Gaussians), make ``params``' cameras around
     it, write its render from each on ``background`` (RGB in ``[0, 1]``, default black) into ``out_images_dir`` (PNG,
-    named like the cameras) and return the :class:`SourceScene` (``format`` ``"splat"``)."""
+    named like the cameras) and return the :class:`Scene` (``format`` ``"splat"``)."""
     params = params or SplatViewsParams()
     model = read_splat(path, fmt, drop_invalid=drop_invalid).model
-    cams, _ = cameras_around(model, params)
+    cams, kind = cameras_around(model, params)
     out_images_dir = Path(out_images_dir)
     out_images_dir.mkdir(parents=True, exist_ok=True)
     views = []
@@ -45,16 +45,17 @@ def read_splat_source(path: Path, out_images_dir: Path, params: SplatViewsParams
     for cam in cams:
         img, _, _ = render(model, cam, backend=backend, background=bg)
         save_image(out_images_dir / cam.name, img.clamp(0, 1).numpy())
-        views.append(SourceView(cam.name, out_images_dir / cam.name, cam))
+        views.append(View(cam.name, out_images_dir / cam.name, cam))
     keep = torch.nonzero(model.opacities >= 0.5)[:, 0]
     if len(keep) > MAX_POINTS:
         keep = keep[:: -(-len(keep) // MAX_POINTS)]
     points = model.means[keep].numpy().astype(np.float32)
     colors = sh0_to_rgb(model.sh0[keep, 0, :]).clamp(0, 1).numpy().astype(np.float32)
-    return SourceScene("splat", tuple(views), points, colors, background=background)
+    return Scene.from_views(views, points=points, colors=colors, format="splat", background=background,
+                            metadata={"views_kind": kind})
 
 
-def _read(folder: Path, options: ReadOptions) -> SourceScene:
+def _read(folder: Path, options: ReadOptions) -> Scene:
     """The splat file ``folder`` (or the one in it), its views rendered into ``options.work``."""
     if options.work is None:
         raise ValueError("a bare splat's views are rendered into `work`; give a folder")

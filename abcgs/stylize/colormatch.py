@@ -23,7 +23,6 @@ from abcgs.io.atomic import atomic_path, write_json
 from abcgs.io.images import save_image
 from abcgs.io.ply import write_ply
 from abcgs.layout import ColorMatchDir
-from abcgs.sfm.model import SceneData
 from abcgs.silhouette import (
     Silhouette,
     background_tensor,
@@ -36,7 +35,7 @@ from abcgs.silhouette import (
 from abcgs.stylize.color import apply_group_transforms
 from abcgs.stylize.loop import color_match_model, group_pixel_masks
 from abcgs.stylize.params import ColorMatchParams
-from abcgs.types import FRAME_FILLING, Backend, Background, MatchingGroup
+from abcgs.types import FRAME_FILLING, Backend, Background, MatchingGroup, Scene
 from abcgs.viz import image_grid
 
 
@@ -105,7 +104,7 @@ def recolor_images(images: list[Tensor], view_labels: list[np.ndarray], groups: 
 
 
 def color_match_and_refit(
-    model: GaussianModel, scene: SceneData, gaussian_labels: Tensor, view_labels: list[np.ndarray],
+    model: GaussianModel, scene: Scene, gaussian_labels: Tensor, view_labels: list[np.ndarray],
     groups: list[MatchingGroup], params: ColorMatchParams, *, progress: bool = True,
     background: Background = FRAME_FILLING, color_only: bool = False,
 ) -> ColorMatchResult:

@@ -97,20 +97,11 @@ def _points(n: int = 60) -> np.ndarray:
 
 
 def _colmap(folder: Path, cams: list[Camera], text: bool) -> Path:
-    import pycolmap
+    from abcgs.io.colmap import write_model
+    from abcgs.types import Cameras
 
-    rec = pycolmap.Reconstruction()
-    for i, c in enumerate(cams, start=1):
-        cam = pycolmap.Camera(model="PINHOLE", width=c.width, height=c.height,
-                              params=[c.K[0, 0], c.K[1, 1], c.K[0, 2], c.K[1, 2]], camera_id=i)
-        rec.add_camera_with_trivial_rig(cam)
-        rec.add_image_with_trivial_frame(pycolmap.Image(name=c.name, camera_id=i, image_id=i),
-                                         pycolmap.Rigid3d(c.viewmat[:3, :]))
-    for p in _points():
-        rec.add_point3D(p, pycolmap.Track(), np.array([128, 128, 128], np.uint8))
     model = folder / "sparse" / "0"
-    model.mkdir(parents=True)
-    rec.write_text(str(model)) if text else rec.write_binary(str(model))
+    write_model(model, Cameras.from_list(cams), _points(), np.full((len(_points()), 3), 128 / 255), text=text)
     return model
 
 

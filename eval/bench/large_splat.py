@@ -49,14 +49,13 @@ from abcgs.gaussians import GaussianModel, render
 from abcgs.io.atomic import write_json
 from abcgs.io.images import save_image
 from abcgs.io.ply import write_ply
-from abcgs.sfm.model import SceneData
 from abcgs.splats.formats.spz import write_spz
 from abcgs.splats.preview import decimate
 from abcgs.splats.registry import read_splat, write_splat
 from abcgs.splats.validate import check_splat
 from abcgs.stylize.loop import stylize
 from abcgs.stylize.params import StylizeCompute, StylizeOptim, StylizeParams
-from abcgs.types import MatchingGroup
+from abcgs.types import Cameras, MatchingGroup, Scene
 
 
 def peak_rss_gib() -> float:
@@ -216,7 +215,7 @@ def main(argv=None) -> dict:
             paths.append(work / "photos" / c.name)
     phase("render the photos", time.perf_counter() - t, per_view_s=(time.perf_counter() - t) / len(cams))
     del model
-    scene = SceneData(cams, paths, np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32))
+    scene = Scene(Cameras.from_list(cams), paths, np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32))
 
     t = time.perf_counter()
     imported = read_splat(ply, scene=scene)

@@ -59,10 +59,9 @@ from abcgs.io.images import load_image, save_image
 from abcgs.io.ply import read_ply, write_ply
 from abcgs.scene.params import TinySceneParams
 from abcgs.scene.synthetic import write_object_dataset
-from abcgs.sfm.model import SceneData, read_colmap_scene
+from abcgs.sfm.model import read_colmap_scene
 from abcgs.sfm.params import ReconstructParams
 from abcgs.silhouette import EMPTY_ALPHA, background_tensor
-from abcgs.sources.base import SourceScene
 from abcgs.sources.blender import read_blender_source
 from abcgs.sources.model import write_source_model
 from abcgs.sources.validate import axes_meeting_point
@@ -71,7 +70,7 @@ from abcgs.splats.params import SplatViewsParams
 from abcgs.stylize.colormatch import color_match_and_refit
 from abcgs.stylize.loop import stylize
 from abcgs.stylize.params import ColorMatchParams, StylizeParams
-from abcgs.types import FRAME_FILLING, Background
+from abcgs.types import FRAME_FILLING, Background, Cameras, Scene
 from abcgs.viz import image_grid
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -86,7 +85,7 @@ class ObjectCase:
     """One object: its views, the original Gaussians, and whether the views were generated around it."""
 
     name: str
-    scene: SceneData
+    scene: Scene
     original: GaussianModel
     generated_views: bool
 
@@ -138,9 +137,8 @@ def miku_objects(work: Path, fit_ply: Path, args) -> list[ObjectCase]:
         from abcgs.splats.registry import read_splat
 
         views = SplatViewsParams(count=args.miku_views, width=args.splat_width, height=args.splat_width * 3 // 4, up=args.miku_up)
-        source: SourceScene = read_splat_source(splat, out / "splat_views", views, background=(0.0, 0.0, 0.0))
-        scene = SceneData([v.camera for v in source.views], [v.image_path for v in source.views], source.points,
-                          source.colors)
+        source: Scene = read_splat_source(splat, out / "splat_views", views, background=(0.0, 0.0, 0.0))
+        scene = source
         cases.append(ObjectCase("miku_splat", scene, read_splat(splat).model, True))
     if "miku_scene" in args.objects:
         step = max(1, len(capture.cameras) // args.miku_views)
@@ -156,7 +154,7 @@ def miku_objects(work: Path, fit_ply: Path, args) -> list[ObjectCase]:
                 photo = cv2.resize(load_image(capture.image_paths[i]), (cam.width, cam.height), interpolation=cv2.INTER_AREA)
                 save_image(dst, photo * alpha)
             paths.append(dst)
-        cases.append(ObjectCase("miku_scene", SceneData(cams, paths, capture.points, capture.colors), doll, False))
+        cases.append(ObjectCase("miku_scene", Scene(Cameras.from_list(cams), paths, capture.points, capture.colors), doll, False))
     return cases
 
 

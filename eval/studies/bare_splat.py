@@ -37,7 +37,6 @@ from abcgs.io.atomic import write_json
 from abcgs.io.images import save_image
 from abcgs.io.ply import read_ply, write_ply
 from abcgs.params import load_params
-from abcgs.sfm.model import SceneData
 from abcgs.sources.splat import read_splat_source
 from abcgs.splats.exporting import give_back
 from abcgs.splats.formats.splat import write_splat_file
@@ -73,9 +72,10 @@ def main(argv=None) -> dict:
     views = SplatViewsParams(count=args.count)
     source = read_splat_source(splat, work / "images", views)
     rec["seconds"]["views"] = time.perf_counter() - t
-    cams = [v.camera for v in source.views]
-    rec["views"] = {"kind": cams[0].meta["views_kind"], "count": len(cams), "width": cams[0].width, "height": cams[0].height}
-    scene = SceneData(cams, [v.image_path for v in source.views], source.points, source.colors)
+    cams = source.cameras
+    rec["views"] = {"kind": source.metadata["views_kind"], "count": len(cams), "width": cams[0].width,
+                    "height": cams[0].height}
+    scene = source
     t = time.perf_counter()
     imported = import_and_save(scene, splat, "auto", FitParams(), work / "gs")
     rec["seconds"]["import"] = time.perf_counter() - t
