@@ -50,10 +50,12 @@ install: $(STAMP)
 # file or a scene given as a plain path would stop in DVC's parser; preflight names the key and the fix.
 #   make repro ARGS="-s fit@tiny"
 repro: install
+	$(BIN)/python -m abcgs.dag --update
 	$(BIN)/python -m abcgs.preflight params.yaml
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/dvc repro $(ARGS)
 
 run: install
+	$(BIN)/python -m abcgs.dag --update
 	$(BIN)/python -m abcgs.preflight params.yaml
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/dvc repro
 	@echo

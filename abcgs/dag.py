@@ -338,25 +338,37 @@ def pipeline_yaml(root: Path) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m abcgs.dag [--write | --check]``: print each stage's code deps, write ``dvc.yaml``, or check that
-    the committed one is current."""
+    """``python -m abcgs.dag [--write | --update | --check]``: print each stage's code deps, write ``dvc.yaml``,
+    write it only where it is not current (``make run`` does, before ``dvc repro``: the report stage's deps follow
+    ``params.yaml``'s experiments), or check that the committed one is current."""
     ap = argparse.ArgumentParser(prog="python -m abcgs.dag", description=main.__doc__)
     mode = ap.add_mutually_exclusive_group()
     mode.add_argument("--write", action="store_true", help="write dvc.yaml from the stage specs")
+    mode.add_argument("--update", action="store_true", help="write dvc.yaml when it is not what --write would write")
     mode.add_argument("--check", action="store_true", help="exit 1 when dvc.yaml is not what --write would write")
     args = ap.parse_args(argv)
     root = Path.cwd()
-    if args.write or args.check:
-        text = pipeline_yaml(root)
+    if args.write or args.update or args.check:
+        from abcgs.errors import AbcgsError
+
+        try:
+            text = pipeline_yaml(root)
+        except AbcgsError as exc:  # params.yaml that does not validate: the same message as the preflight's
+            print(f"[dag] error: {exc}", file=sys.stderr)
+            return 2
         current = (root / "dvc.yaml").read_text(encoding="utf-8") if (root / "dvc.yaml").is_file() else ""
         if args.check:
             if text != current:
                 print("dvc.yaml is not current: run `python -m abcgs.dag --write`", file=sys.stderr)
                 return 1
             return 0
+        if args.update and text == current:
+            return 0
         from abcgs.io.atomic import write_text
 
         write_text(root / "dvc.yaml", text)
+        if args.update:
+            print("[dag] dvc.yaml updated (the stages' deps for this params.yaml)")
         return 0
     for name in STAGES:
         script = root / "stages" / f"{name}.py"

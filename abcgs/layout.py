@@ -308,3 +308,22 @@ def scene(name: str, out: Path = OUT) -> SceneOut:
 def experiment(name: str, out: Path = OUT) -> ExperimentOut:
     """``out/<name>/``."""
     return ExperimentOut(out / name)
+
+
+def report_inputs(params) -> list[str]:
+    """The outputs the ``report`` stage reads for the experiments and paintings of ``params`` (validated
+    ``params.yaml``), one by one: its ``dvc.yaml`` deps besides the preflight stamp. ``dvc.yaml`` lists them
+    (:mod:`abcgs.dag` fills them in from ``params.yaml``), and the preflight refuses a ``dvc.yaml`` that lacks
+    some (:func:`abcgs.preflight.check_report_inputs`)."""
+    paths: list[Path] = [PREFLIGHT_REPORT]
+    paths += [Path(p) for p in styles().paintings(params.data.styles).values()]
+    scenes: list[str] = []
+    for name, exp in params.experiments.items():
+        d = experiment(name)
+        paths += [d.stylize_record, d.eval_record, d.eval_consistency, d.stylize.root]
+        if exp.scene not in scenes:
+            scenes.append(exp.scene)
+    for name in scenes:  # the photos and cameras, the viewer's original splat and labels, the run's warnings
+        s = scene(name)
+        paths += [s.colmap.root, s.reconstruct_record, s.fit.ply, s.masks.root]
+    return [p.as_posix() for p in paths]

@@ -6,7 +6,8 @@ checks the params against the two other things a run depends on:
 - ``dvc.yaml``: every params key a stage tracks must be present in the params file itself (a default filled in by
   the schema does not count: DVC reads the YAML, and aborts with "Parameters ... are missing" after the earlier
   stages have run). :func:`check_dvc_tracked_keys`; :func:`check_scene_entries`: scenes are mappings when
-  ``dvc.yaml`` reads ``${item.path}``.
+  ``dvc.yaml`` reads ``${item.path}``; :func:`check_report_inputs`: the report stage depends on every output it
+  reads for these experiments (``python -m abcgs.dag --update``, which ``make run`` runs first, writes them).
 - the inputs (:func:`check_input_files`): every scene folder exists and its format is known (given or detected:
   :mod:`abcgs.sources.detect`); a folder of photos holds decodable views of similar sizes (:func:`check_scene_images`;
   an alpha channel or a grey view among colour ones is a warning), its ``masks/`` name views and label something
@@ -38,6 +39,7 @@ import numpy as np
 import yaml
 from PIL import Image
 
+from abcgs import layout
 from abcgs.dotted import has_key
 from abcgs.errors import InputError, ParamsError
 from abcgs.io.images import check_label_size
@@ -411,6 +413,23 @@ def check_input_files(params, root: Path, produced: Iterable[str] = (),
     return warnings
 
 
+def check_report_inputs(params, dvc_yaml: Path) -> None:
+    """``dvc.yaml``'s ``report`` stage lists every output the report reads for ``params``
+    (:func:`abcgs.layout.report_inputs`): its deps are generated from ``params.yaml``'s experiments, so an
+    experiment added since leaves the report without a dependency on it, and DVC could build the page before that
+    experiment's stages or leave it stale after them."""
+    stage = _stages(dvc_yaml).get("report")
+    if not isinstance(stage, dict):
+        return
+    listed = {str(d) for d in stage.get("deps") or []}
+    missing = [p for p in layout.report_inputs(params) if p not in listed]
+    if missing:
+        raise ParamsError(
+            f"{dvc_yaml}: the report stage does not depend on {len(missing)} output(s) it reads for these params "
+            f"({', '.join(missing[:4])}{' …' if len(missing) > 4 else ''}); dvc.yaml is generated from params.yaml's "
+            "experiments: run `python -m abcgs.dag --write` (make run does it), then run again")
+
+
 def preflight(params, raw: dict, params_path: str | os.PathLike, *, files: bool = True) -> list[str]:
     """The checks for ``params`` validated from ``raw``, the parsed ``params_path``; ``dvc.yaml`` and the
     repository root are taken from the params file's folder. Without a ``dvc.yaml`` there (a params file used
@@ -424,6 +443,7 @@ def preflight(params, raw: dict, params_path: str | os.PathLike, *, files: bool 
     if dvc_yaml.is_file():
         check_dvc_tracked_keys(raw, dvc_yaml, str(params_path))
         check_scene_entries(raw, dvc_yaml, str(params_path))
+        check_report_inputs(params, dvc_yaml)
         produced, contents = dvc_outputs(dvc_yaml), dvc_output_files(dvc_yaml)
     warnings = check_input_files(params, root, produced, contents) if files else []
     for w in warnings:

@@ -27,20 +27,9 @@ SPEC = StageSpec("report", params=("experiments", "colormatches", "data.styles",
 
 
 def reads(params) -> list[str]:
-    """The outputs this stage reads for the experiments and paintings of ``params`` (validated ``params.yaml``),
-    named one by one: its ``dvc.yaml`` deps besides the preflight stamp (:mod:`abcgs.dag` lists them)."""
-    paths: list[Path] = [layout.PREFLIGHT_REPORT]
-    paths += [Path(p) for p in layout.styles().paintings(params.data.styles).values()]
-    scenes = []
-    for name, exp in params.experiments.items():
-        d = layout.experiment(name)
-        paths += [d.stylize_record, d.eval_record, d.eval_consistency, d.stylize.root]
-        if exp.scene not in scenes:
-            scenes.append(exp.scene)
-    for scene in scenes:  # the photos and cameras, the viewer's original splat and labels, the run's warnings
-        s = layout.scene(scene)
-        paths += [s.colmap.root, s.reconstruct_record, s.fit.ply, s.masks.root]
-    return [p.as_posix() for p in paths]
+    """The outputs this stage reads for ``params`` (:func:`abcgs.layout.report_inputs`; :mod:`abcgs.dag` lists them
+    as its ``dvc.yaml`` deps)."""
+    return layout.report_inputs(params)
 
 
 def main(args, params) -> None:

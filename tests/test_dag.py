@@ -16,6 +16,7 @@ params are the ones it reads; dvc.yaml is what ``python -m abcgs.dag --write`` m
 from __future__ import annotations
 
 import re
+import shutil
 from pathlib import Path
 
 import pytest
@@ -32,7 +33,10 @@ from abcgs.dag import (
     stage_closure,
     unused_code_deps,
 )
-from abcgs.params import load_params
+from abcgs.dag import main as dag_main
+from abcgs.errors import ParamsError
+from abcgs.layout import report_inputs
+from abcgs.params import load_params, validate_params
 from abcgs.pipeline import StageSpec, UntrackedParamsError, tracked_view
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -256,3 +260,46 @@ def test_the_report_names_the_outputs_it_reads() -> None:
             assert path in deps, path
     assert not any(d.endswith(".spz") or d.startswith(f"out/{s}/gs/history") for d in deps for s in params.data.scenes)
     assert {f"out/styles/{k}.png" for k in params.data.styles} <= set(deps)
+
+
+def test_an_experiment_added_to_the_params_is_refused_until_dvc_yaml_names_its_outputs(tmp_path: Path) -> None:
+    """The report's deps come from params.yaml's experiments: with one added and dvc.yaml not regenerated, the
+    preflight names the outputs the report would not depend on and the command that fixes it; `abcgs.dag --update`
+    (which `make run` runs first) writes them, after which the preflight passes this check."""
+    from abcgs.preflight import check_report_inputs
+
+    raw = yaml.safe_load((ROOT / "params.yaml").read_text())
+    name, exp = next(iter(raw["experiments"].items()))
+    raw["experiments"]["added_exp"] = dict(exp)
+    params = validate_params(raw)
+    (tmp_path / "dvc.yaml").write_text((ROOT / "dvc.yaml").read_text())
+    with pytest.raises(ParamsError, match=r"out/added_exp/stylize\.json.*python -m abcgs\.dag --write"):
+        check_report_inputs(params, tmp_path / "dvc.yaml")
+    stages = yaml.safe_load((tmp_path / "dvc.yaml").read_text())["stages"]
+    stages["report"]["deps"] += [p for p in report_inputs(params) if p not in stages["report"]["deps"]]
+    (tmp_path / "dvc.yaml").write_text(yaml.safe_dump({"stages": stages}))
+    check_report_inputs(params, tmp_path / "dvc.yaml")
+    assert f"out/{name}/stylize.json" in report_inputs(params)
+
+
+def test_dag_update_writes_dvc_yaml_only_where_it_is_not_current(tmp_path: Path, monkeypatch, capsys) -> None:
+    """`python -m abcgs.dag --update` in a copy of the repository: nothing to do on the committed files; with an
+    experiment added to params.yaml it rewrites dvc.yaml so that the report depends on the new experiment's outputs;
+    invalid params are reported as the preflight reports them, with no traceback and dvc.yaml untouched."""
+    for sub in ("abcgs", "stages"):
+        shutil.copytree(ROOT / sub, tmp_path / sub, ignore=shutil.ignore_patterns("__pycache__", "*.so"))
+    for f in ("params.yaml", "dvc.yaml"):
+        shutil.copy(ROOT / f, tmp_path / f)
+    monkeypatch.chdir(tmp_path)
+    before = (tmp_path / "dvc.yaml").read_text()
+    assert dag_main(["--update"]) == 0 and (tmp_path / "dvc.yaml").read_text() == before
+    raw = yaml.safe_load((tmp_path / "params.yaml").read_text())
+    raw["experiments"]["added_exp"] = dict(next(iter(raw["experiments"].values())))
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(raw, sort_keys=False))
+    assert dag_main(["--update"]) == 0 and "dvc.yaml updated" in capsys.readouterr().out
+    assert "out/added_exp/stylize.json" in yaml.safe_load((tmp_path / "dvc.yaml").read_text())["stages"]["report"]["deps"]
+    after = (tmp_path / "dvc.yaml").read_text()
+    raw["experiments"]["added_exp"]["colormatch"] = "no_such_match"
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(raw, sort_keys=False))
+    assert dag_main(["--update"]) == 2
+    assert "[dag] error:" in capsys.readouterr().err and (tmp_path / "dvc.yaml").read_text() == after
