@@ -157,3 +157,25 @@ def test_a_colour_pass_that_replays_its_views_ends_where_one_that_renders_every_
     assert torch.allclose(replayed.sh0, rendered.sh0, atol=1e-4)
     for k in ("means", "quats", "log_scales", "opacity_logits"):
         assert torch.equal(getattr(replayed, k), getattr(rendered, k)), k
+
+
+def test_a_pass_with_zero_untrained_higher_bands_renders_at_degree_0_with_the_same_image_and_gradients():
+    """``higher_sh: zero``: the passes render at degree 0 (:func:`loop.render_sh_degree`) and get the image, the
+    depth and the gradients of the degree-3 render of the zeroed bands, bit for bit; trained or nonzero bands keep
+    every stored band."""
+    model = make_model(1500, degree=3, seed=7)
+    model.shN = torch.zeros_like(model.shN)
+    cam = cameras_around(model, SplatViewsParams(kind="orbit", count=3, width=48, height=36))[0][1]
+    assert loop.render_sh_degree(model, {"sh0": 1e-3, "shN": 0.0}) == 0
+    outs = []
+    for degree in (None, 0):
+        m = model.as_parameters(trainable=["means", "sh0", "quats", "log_scales", "opacity_logits"])
+        img, alpha, meta = render(m, [cam], sh_degree=degree, render_mode="RGB+D")
+        (img.square().sum() + meta.depth.sum() + alpha.sum()).backward()
+        outs.append([img.detach(), alpha.detach(), meta.depth.detach()]
+                    + [getattr(m, k).grad for k in ("means", "sh0", "quats", "log_scales", "opacity_logits")])
+    for a, b in zip(*outs):
+        assert torch.equal(a, b)
+    assert loop.render_sh_degree(model, {"shN": 1e-4}) is None  # trained bands
+    model.shN[0, 0, 0] = 0.1
+    assert loop.render_sh_degree(model, {"shN": 0.0}) is None  # a band that is not zero
