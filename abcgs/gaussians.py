@@ -303,8 +303,9 @@ def render(
     )
 
 
-RENDER_BATCH_ELEMENTS = 2**24
-""":func:`render_each`'s bound on one batch: cameras × (Gaussians + pixels) (a 3 M-Gaussian scene: 5 views a call)."""
+RENDER_BATCH_ELEMENTS = 2**22
+""":func:`render_each`'s bound on one batch: cameras × (Gaussians + pixels) (a 3 M-Gaussian scene: one view a call, the
+memory of one view's projection and blending; the tiny scene: about 100)."""
 
 
 def render_each(

@@ -36,6 +36,7 @@ def setup(threads: int | None = None) -> bool:
       when it loads, at torch's first import, so once torch is loaded the environment is left alone.
     - OpenCV is loaded before pycolmap can be: pycolmap's bundled zlib otherwise captures libz's internal calls and
       the next ``cv2.imencode`` of a PNG aborts with "double free or corruption".
+    - glibc's allocator keeps large blocks (:func:`keep_large_allocations`).
     - ``threads`` (> 0): torch's intra-op thread count (``torch.set_num_threads``); None leaves torch's default.
 
     Returns whether torch was still unloaded, i.e. whether the wait policy takes effect in this process.
@@ -44,12 +45,40 @@ def setup(threads: int | None = None) -> bool:
     if before_torch:
         os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     importlib.import_module("cv2")  # before pycolmap: see above
+    keep_large_allocations()
 
     if threads is not None and threads > 0:
         import torch
 
         torch.set_num_threads(threads)
     return before_torch
+
+
+MMAP_THRESHOLD_BYTES = 256 * 2**20
+"""Blocks below this come from glibc's heap instead of their own ``mmap`` (glibc's default threshold is at most
+32 MiB)."""
+TRIM_THRESHOLD_BYTES = 2**30
+"""Free memory at the top of glibc's heap kept for the next allocations instead of given back (default 128 KiB)."""
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # mallopt's parameter numbers (glibc's malloc.h)
+
+
+def keep_large_allocations() -> bool:
+    """Have glibc's ``malloc`` serve blocks up to :data:`MMAP_THRESHOLD_BYTES` from its heap and keep up to
+    :data:`TRIM_THRESHOLD_BYTES` of freed heap: a step on a few million Gaussians allocates and frees tens of tensors
+    of 10–50 MB, which by default are each a fresh ``mmap`` whose every page faults in zeroed on first touch (a
+    quarter of a 3 M-Gaussian stylization step: docs/SCALING.md "Large splats"); kept, they are reused. Peak
+    memory is the working set's either way. A no-op (False) off glibc or where ``MALLOC_MMAP_THRESHOLD_`` or
+    ``MALLOC_TRIM_THRESHOLD_`` is set (the user's choice wins)."""
+    if sys.platform != "linux" or any(k in os.environ for k in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")):
+        return False
+    import ctypes
+
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):  # not glibc (musl)
+        return False
+    return bool(mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)) and bool(mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES))
 
 
 class RuntimeParams(BaseModel):

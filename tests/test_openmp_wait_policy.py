@@ -81,3 +81,37 @@ def test_the_check_sees_an_import_before_setup():
     assert setup_comes_first("import torch\nfrom abcgs.runtime import setup\nsetup()\n") == "torch"
     assert setup_comes_first("import os\nfrom abcgs.runtime import setup\nsetup()\nimport torch\n") is None
     assert setup_comes_first("from abcgs import layout\n") == "abcgs"
+
+
+MALLOC_PROBE = """
+import ctypes, sys
+{first}
+class MallInfo2(ctypes.Structure):
+    _fields_ = [(f, ctypes.c_size_t) for f in ("arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks",
+                                               "uordblks", "fordblks", "keepcost")]
+libc = ctypes.CDLL("libc.so.6")
+libc.mallinfo2.restype = MallInfo2
+libc.malloc.restype = ctypes.c_void_p
+libc.free.argtypes = [ctypes.c_void_p]
+before = libc.mallinfo2().hblkhd
+p = libc.malloc(48 << 20)  # a (3 M, 4) float32 tensor's bytes
+mapped = libc.mallinfo2().hblkhd - before
+libc.free(p)
+print(mapped, libc.mallinfo2().arena >= (48 << 20))
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc settings")
+@pytest.mark.parametrize("first, env, mapped", [
+    ("from abcgs.runtime import setup; setup()", {}, False),
+    ("import abcgs.runtime", {}, True),  # without setup: glibc's defaults
+    ("from abcgs.runtime import setup; setup()", {"MALLOC_MMAP_THRESHOLD_": "1048576"}, True),  # the user's choice
+])
+def test_setup_has_glibc_keep_large_blocks_in_its_heap(first, env, mapped):
+    """After setup() a 48 MB block comes from the heap, and stays there when freed (no fresh mmap whose pages fault
+    in on every step); without setup, or with the user's own MALLOC_* setting, glibc's defaults map it."""
+    out = subprocess.run([sys.executable, "-c", MALLOC_PROBE.format(first=first)], cwd=ROOT,
+                         env={**os.environ, **env}, capture_output=True, text=True, check=True)
+    got_mapped, kept = out.stdout.split()
+    assert (int(got_mapped) > 0) == mapped
+    assert (kept == "True") == (not mapped)

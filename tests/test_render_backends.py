@@ -77,7 +77,7 @@ def test_cpu_binning_matches_reference_sort_and_tile_boxes(dtype):
     colors, opacities = torch.rand(n, 3, generator=g, dtype=dtype), torch.full((n,), 0.5, dtype=dtype)
     ext = cpu_backend.load_extension()
     _, _, _, toff, slots, order, *_ = ext.rasterize_forward(means2d, conics, colors, opacities, depths, extents,
-                                                              width, height, tile)
+                                                              width, height, tile, False)
     ids = order[slots.long()]  # each intersection's Gaussian
     vis = torch.nonzero(extents[:, 0] > 0).squeeze(1)
     order_expected = vis[torch.argsort(depths[vis], stable=True)]

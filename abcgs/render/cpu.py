@@ -187,7 +187,7 @@ class _RasterizeCPU(torch.autograd.Function):
         depths = depths.detach().contiguous().to(colors.dtype)
         # depth sort (stable radix) and tile binning happen in C++, same order/boxes as the reference backend
         image, trans, last, *binning = ext.rasterize_forward(
-            means2d, conics, colors, opacities, depths, extents, width, height, tile_size
+            means2d, conics, colors, opacities, depths, extents, width, height, tile_size, False
         )
         ctx.save_for_backward(means2d, conics, colors, opacities, extents, trans, last, *binning)
         ctx.dims = (width, height, tile_size)

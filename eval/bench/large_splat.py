@@ -13,6 +13,8 @@ SH degree 3 on three textured walls and a cloud in between, 0.3–3 cm across in
   steps at ``--width`` × ``--height`` (fern's size by default), VGG-16 with random weights (the same arithmetic as the
   real ones); its preparation (content render, depth and VGG features of each view), and each step split into render
   (projection + rasterization), VGG, style loss, backward (through VGG and the rasterizer) and the optimiser step;
+  the higher SH bands are zeroed first, as the pipeline's colour match leaves them (``--higher-sh``, default ``zero``:
+  ``stylize.higher_sh``'s default), and the passes then render at degree 0 (the same image);
 - ``export``: the stylized scene written back as the input's INRIA PLY and as ``.spz``;
 - ``preview``: the same stylization steps on :func:`abcgs.splats.preview.decimate` to ``--preview`` Gaussians.
 
@@ -33,6 +35,7 @@ import resource
 import tempfile
 import time
 from pathlib import Path
+from typing import get_args
 
 from abcgs.runtime import setup
 
@@ -54,7 +57,7 @@ from abcgs.splats.preview import decimate
 from abcgs.splats.registry import read_splat, write_splat
 from abcgs.splats.validate import check_splat
 from abcgs.stylize.loop import stylize
-from abcgs.stylize.params import StylizeCompute, StylizeOptim, StylizeParams
+from abcgs.stylize.params import HigherSH, StylizeCompute, StylizeOptim, StylizeParams
 from abcgs.types import Cameras, MatchingGroup, Scene
 
 
@@ -177,6 +180,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--color-pass-rotations", action="store_true",
                     help="re-fit rotations in the colour pass (stylize.optim.color_pass_rotations); by default its "
                     "geometry is frozen and each view's blending map is replayed")
+    ap.add_argument("--higher-sh", default="zero", choices=get_args(HigherSH),
+                    help="stylize.higher_sh: the SH bands above DC in the stylization (default, as the pipeline's: "
+                    "zero, the colour match zeroes them)")
     ap.add_argument("--work", type=Path, default=None, help="scratch folder (default: a temporary one)")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--table", type=Path, nargs="+", metavar="JSON",
@@ -190,7 +196,7 @@ def main(argv=None) -> dict:
     work.mkdir(parents=True, exist_ok=True)
     rec: dict = {"n_gaussians": args.n, "sh_degree": 3, "views": args.views, "width": args.width, "height": args.height,
                  "threads": args.threads, "cpus": os.cpu_count(), "machine": cpu_model(),
-                 "color_pass_rotations": args.color_pass_rotations, "load_average_start": os.getloadavg(),
+                 "color_pass_rotations": args.color_pass_rotations, "higher_sh": args.higher_sh, "load_average_start": os.getloadavg(),
                  "phases": {}}
 
     def phase(name: str, seconds: float, **extra) -> None:
@@ -232,9 +238,11 @@ def main(argv=None) -> dict:
     groups = [MatchingGroup(ALL_PIXELS, "style", pixels, feats.reshape(feats.shape[0], -1))]
     sp = StylizeParams(optim=StylizeOptim(iterations=args.steps, color_pass_iterations=args.color_steps,
                                           color_pass_rotations=args.color_pass_rotations),
-                       compute=StylizeCompute(log_every=1))
+                       compute=StylizeCompute(log_every=1), higher_sh=args.higher_sh)
 
     def stylize_phase(name: str, m: GaussianModel) -> GaussianModel:
+        if sp.higher_sh == "zero":  # what the colour match leaves the stylization (stylize.higher_sh: zero)
+            m.shN.zero_()
         labels = torch.zeros(m.num_gaussians, dtype=torch.long)
         view_labels = [np.zeros((c.height, c.width), np.int64) for c in cams]
         t0 = time.perf_counter()

@@ -120,10 +120,9 @@ std::vector<at::Tensor> rasterize_batch_forward(const at::Tensor& means2d, const
   TORCH_CHECK(shared || (colors.dim() == 3 && colors.size(0) == C), "colors must be (N, F) or (C, N, F)");
   std::vector<at::Tensor> images, trans, last, saved;
   for (int64_t c = 0; c < C; ++c) {
-    at::Tensor col = shared ? colors : colors[c];
-    if (depth_channel) col = at::cat({col, depths[c].unsqueeze(1)}, 1);
+    const at::Tensor col = shared ? colors : colors[c];
     std::vector<at::Tensor> r = rasterize_forward(means2d[c], conics[c], col, opacities, depths[c], extents[c],
-                                                  width, height, tile_size);
+                                                  width, height, tile_size, depth_channel);
     images.push_back(r[0]);
     trans.push_back(r[1]);
     last.push_back(r[2]);
@@ -151,8 +150,7 @@ std::vector<at::Tensor> rasterize_batch_backward(const at::Tensor& means2d, cons
   std::vector<at::Tensor> v_means2d, v_conics, v_colors_views, v_depths;
   at::Tensor v_colors, v_opacities;
   for (int64_t c = 0; c < C; ++c) {
-    at::Tensor col = shared ? colors : colors[c];
-    if (depth_channel) col = at::cat({col, depths[c].unsqueeze(1)}, 1);
+    const at::Tensor col = shared ? colors : colors[c];  // the depth channel is in the saved packed colours
     const at::Tensor* s = saved.data() + 8 * c;
     std::vector<at::Tensor> g =
         rasterize_backward(means2d[c], conics[c], col, opacities, extents[c], trans[c], last[c], s[0], s[1], s[2],

@@ -211,6 +211,41 @@ inline void gather(const T* src, int64_t i0, int64_t n, V out[K]) {
   }
 }
 
+// As gather, for the rows rows[r0 + l] (the last chunk's spare lanes repeat the last row).
+template <typename V, int K, typename T>
+inline void gather_rows(const T* src, const int64_t* rows, int64_t r0, int64_t nr, V out[K]) {
+  for (int64_t l = 0; l < lanes_of<V>(); ++l) {
+    const int64_t i = rows[std::min(r0 + l, nr - 1)];
+    for (int k = 0; k < K; ++k) out[k][l] = src[K * i + k];
+  }
+}
+
+// The Gaussians, in index order, with a nonzero means2d (N, 2), conic (N, 3) or depth (N) gradient (NaN counts as
+// nonzero): counted per contiguous range, then listed at each range's offset (parallel, in order).
+template <typename T>
+std::vector<int64_t> rows_with_gradient(const T* gm2, const T* gco, const T* gde, int64_t n) {
+  auto has = [&](int64_t i) {
+    return !(gm2[2 * i] == T(0) && gm2[2 * i + 1] == T(0) && gco[3 * i] == T(0) && gco[3 * i + 1] == T(0) &&
+             gco[3 * i + 2] == T(0) && gde[i] == T(0));
+  };
+  const int64_t workers = std::max<int64_t>(1, std::min<int64_t>(abcgs::kernel_threads(), (n + 65535) / 65536));
+  const int64_t chunk = (n + workers - 1) / workers;
+  std::vector<int64_t> start(workers + 1, 0);
+  abcgs::run_workers(workers, [&](int64_t w) {
+    int64_t c = 0;
+    for (int64_t i = w * chunk, e = std::min(n, (w + 1) * chunk); i < e; ++i) c += has(i);
+    start[w + 1] = c;
+  });
+  for (int64_t w = 0; w < workers; ++w) start[w + 1] += start[w];
+  std::vector<int64_t> rows(start[workers]);
+  abcgs::run_workers(workers, [&](int64_t w) {
+    int64_t j = start[w];
+    for (int64_t i = w * chunk, e = std::min(n, (w + 1) * chunk); i < e; ++i)
+      if (has(i)) rows[j++] = i;
+  });
+  return rows;
+}
+
 }  // namespace
 
 // Returns (means2d (N,2), conics (N,3), depths (N), extents (N,2), radii (N,2) int32, visible (N) bool).
@@ -290,7 +325,9 @@ std::vector<at::Tensor> project_backward(const at::Tensor& means, const at::Tens
                                          const at::Tensor& v_conics, const at::Tensor& v_depths) {
   const int64_t n = means.size(0);
   auto opts = means.options();
-  at::Tensor v_means = at::empty({n, 3}, opts), v_quats = at::empty({n, 4}, opts), v_scales = at::empty({n, 3}, opts);
+  // zeros where no gradient comes in: a Gaussian whose means2d, conic and depth gradients are all 0 (out of view, or
+  // blending no pixel: most of a large scene's) has parameter gradients 0, and only the others are computed
+  at::Tensor v_means = at::zeros({n, 3}, opts), v_quats = at::zeros({n, 4}, opts), v_scales = at::zeros({n, 3}, opts);
   at::Tensor vm2 = v_means2d.contiguous(), vco = v_conics.contiguous(), vde = v_depths.contiguous();
   AT_DISPATCH_FLOATING_TYPES(means.scalar_type(), "abcgs_project_backward", [&] {
     using T = scalar_t;
@@ -308,16 +345,19 @@ std::vector<at::Tensor> project_backward(const at::Tensor& means, const at::Tens
     T* oq = v_quats.data_ptr<T>();
     T* os = v_scales.data_ptr<T>();
     const V zero = splat<V>(T(0));
-    abcgs::parallel_range((n + L - 1) / L, 256, [&](int64_t c0, int64_t c1) {
+    const std::vector<int64_t> rows = rows_with_gradient(gm2, gco, gde, n);
+    const int64_t nr = static_cast<int64_t>(rows.size());
+    const int64_t* ri = rows.data();
+    abcgs::parallel_range((nr + L - 1) / L, 256, [&](int64_t c0, int64_t c1) {
       for (int64_t chunk = c0; chunk < c1; ++chunk) {
-        const int64_t i0 = chunk * L, live = std::min(L, n - i0);
+        const int64_t i0 = chunk * L, live = std::min(L, nr - i0);
         V m[3], q[4], s[3], gconic[3], gmean[2], gdepth[1];
-        gather<V, 3>(mp, i0, n, m);
-        gather<V, 4>(qp, i0, n, q);
-        gather<V, 3>(sp, i0, n, s);
-        gather<V, 3>(gco, i0, n, gconic);
-        gather<V, 2>(gm2, i0, n, gmean);
-        gather<V, 1>(gde, i0, n, gdepth);
+        gather_rows<V, 3>(mp, ri, i0, nr, m);
+        gather_rows<V, 4>(qp, ri, i0, nr, q);
+        gather_rows<V, 3>(sp, ri, i0, nr, s);
+        gather_rows<V, 3>(gco, ri, i0, nr, gconic);
+        gather_rows<V, 2>(gm2, ri, i0, nr, gmean);
+        gather_rows<V, 1>(gde, ri, i0, nr, gdepth);
         const Ewa<T> e = ewa(cam, m, q, s, near, far, eps2d);
         const V* p = e.p;
         const V z = p[2];
@@ -395,7 +435,7 @@ std::vector<at::Tensor> project_backward(const at::Tensor& means, const at::Tens
         V v_m[3];
         for (int cc = 0; cc < 3; ++cc) v_m[cc] = cam.R.m[0][cc] * vp0 + cam.R.m[1][cc] * vp1 + cam.R.m[2][cc] * vp2;
         for (int64_t l = 0; l < live; ++l) {
-          const int64_t i = i0 + l;
+          const int64_t i = ri[i0 + l];
           const bool pr = projected[l] != 0, rot = rotated[l] != 0;
           for (int cc = 0; cc < 3; ++cc) om[3 * i + cc] = v_m[cc][l];
           for (int cc = 0; cc < 3; ++cc) os[3 * i + cc] = pr ? v_s[cc][l] : T(0);

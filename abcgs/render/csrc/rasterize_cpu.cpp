@@ -289,11 +289,15 @@ struct GaussianView {
   const scalar_t* colors = nullptr;
   int64_t channels = 0;
 
-  // gathered in the depth order `order` (V,) int32 (each slot's entries prefetched a few slots ahead)
+  // gathered in the depth order `order` (V,) int32 (each slot's entries prefetched a few slots ahead); with
+  // `extra` (N,), its value is the last of the C + 1 channels (RGB+D: the depths, with no (N, C + 1) copy)
   GaussianView(const scalar_t* means2d, const scalar_t* conics, const scalar_t* colors_, const scalar_t* opac,
-               const scalar_t* extents, int64_t C, const at::Tensor& order, const at::TensorOptions& opts)
-      : params_t(at::empty({order.numel(), kStride}, opts)), colors_t(at::empty({order.numel(), C}, opts)),
-        channels(C) {
+               const scalar_t* extents, int64_t C, const at::Tensor& order, const at::TensorOptions& opts,
+               const scalar_t* extra = nullptr)
+      : params_t(at::empty({order.numel(), kStride}, opts)),
+        colors_t(at::empty({order.numel(), C + (extra != nullptr)}, opts)),
+        channels(C + (extra != nullptr)) {
+    const int64_t CT = channels;
     scalar_t* pp = params_t.data_ptr<scalar_t>();
     scalar_t* cp = colors_t.data_ptr<scalar_t>();
     const int32_t* od = order.data_ptr<int32_t>();
@@ -319,7 +323,8 @@ struct GaussianView {
         p[5] = opac[g];
         p[6] = extents[2 * g];
         p[7] = extents[2 * g + 1];
-        std::copy(colors_ + g * C, colors_ + (g + 1) * C, cp + s * C);
+        std::copy(colors_ + g * C, colors_ + (g + 1) * C, cp + s * CT);
+        if (extra != nullptr) cp[s * CT + C] = extra[g];
       }
     });
     params = pp;
@@ -830,19 +835,20 @@ void check_inputs(const at::Tensor& means2d, const at::Tensor& conics, const at:
 
 }  // namespace
 
-// Sorts by `depths`, bins and blends. Returns (image (H, W, C), transmittance (H, W), last (H, W) int32,
+// Sorts by `depths`, bins and blends the colours (N, C) and, with depth_channel, the depths as channel C (RGB+D).
+// Returns (image (H, W, C [+ 1]), transmittance (H, W), last (H, W) int32,
 //          tile_offsets, slots, order, slot_offsets, isect_rows, packed params (V, 8), packed colours (V, C),
 //          blended (M) uint8) — the last eight are saved for backward. Tile t's Gaussians, front to back, are
 //          order[slots[tile_offsets[t] : tile_offsets[t + 1]]].
 std::vector<at::Tensor> rasterize_forward(const at::Tensor& means2d, const at::Tensor& conics, const at::Tensor& colors,
                                           const at::Tensor& opacities, const at::Tensor& depths,
                                           const at::Tensor& extents, int64_t width, int64_t height,
-                                          int64_t tile_size) {
+                                          int64_t tile_size, bool depth_channel) {
   check_inputs(means2d, conics, colors, opacities, extents);
   TORCH_CHECK(depths.dim() == 1 && depths.size(0) == means2d.size(0) && depths.is_contiguous() &&
                   depths.scalar_type() == colors.scalar_type(),
               "depths must be a contiguous (N,) tensor of the colours' dtype");
-  const int64_t n = means2d.size(0), C = colors.size(1);
+  const int64_t n = means2d.size(0), C = colors.size(1) + (depth_channel ? 1 : 0);  // + the depth channel (RGB+D)
   at::Tensor order = AT_DISPATCH_FLOATING_TYPES(colors.scalar_type(), "abcgs_depth_order", [&] {
     return depth_order<scalar_t>(depths.data_ptr<scalar_t>(), extents.data_ptr<scalar_t>(), n);
   });
@@ -855,7 +861,8 @@ std::vector<at::Tensor> rasterize_forward(const at::Tensor& means2d, const at::T
   AT_DISPATCH_FLOATING_TYPES(colors.scalar_type(), "abcgs_rasterize_forward", [&] {
     const GaussianView<scalar_t> gv(means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(),
                                     colors.data_ptr<scalar_t>(), opacities.data_ptr<scalar_t>(),
-                                    extents.data_ptr<scalar_t>(), C, order, opts);
+                                    extents.data_ptr<scalar_t>(), colors.size(1), order, opts,
+                                    depth_channel ? depths.data_ptr<scalar_t>() : nullptr);
     binning.emplace(bin_tiles(gv, order, width, height, tile_size));
     const Binning& bin = *binning;
     blended = at::zeros({bin.num_isects()}, at::kByte);
@@ -890,7 +897,8 @@ std::vector<at::Tensor> rasterize_backward(const at::Tensor& means2d, const at::
                                            const at::Tensor& v_alpha, int64_t width, int64_t height,
                                            int64_t tile_size, const at::Tensor& scratch) {
   check_inputs(means2d, conics, colors, opacities, extents);
-  const int64_t n = means2d.size(0), C = colors.size(1), row = 6 + C;
+  // the forward pass's channels: the colours' and, for RGB+D, the depth channel it appended
+  const int64_t n = means2d.size(0), C = packed_colors.size(1), row = 6 + C;
   Binning bin(tile_offsets, slots, order, slot_offsets, isect_rows, width, height, tile_size);
   const int64_t m = bin.num_isects();
   auto opts = colors.options();
