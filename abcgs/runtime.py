@@ -81,6 +81,19 @@ def keep_large_allocations() -> bool:
     return bool(mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)) and bool(mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES))
 
 
+def release_free_memory() -> bool:
+    """Give the free memory :func:`keep_large_allocations` keeps back to the system (glibc's ``malloc_trim``): called
+    where a loop of large steps ends, so that what follows starts from the memory it uses. False off glibc."""
+    if sys.platform != "linux":
+        return False
+    import ctypes
+
+    try:
+        return bool(ctypes.CDLL("libc.so.6").malloc_trim(0))
+    except (OSError, AttributeError):
+        return False
+
+
 class RuntimeParams(BaseModel):
     """``runtime:``: how every stage runs, not what it computes (:mod:`abcgs.runtime`)."""
 

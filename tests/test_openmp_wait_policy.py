@@ -115,3 +115,11 @@ def test_setup_has_glibc_keep_large_blocks_in_its_heap(first, env, mapped):
     got_mapped, kept = out.stdout.split()
     assert (int(got_mapped) > 0) == mapped
     assert (kept == "True") == (not mapped)
+
+
+def test_release_free_memory_gives_the_kept_heap_back():
+    """The blocks setup() keeps in the heap go back to the system at release_free_memory()."""
+    probe = MALLOC_PROBE.format(first="from abcgs.runtime import setup, release_free_memory; setup()") + (
+        "before = libc.mallinfo2().arena\nrelease_free_memory()\nprint(before - libc.mallinfo2().arena >= (32 << 20))\n")
+    out = subprocess.run([sys.executable, "-c", probe], cwd=ROOT, capture_output=True, text=True, check=True)
+    assert out.stdout.split()[-1] == "True"

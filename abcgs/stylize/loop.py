@@ -39,6 +39,7 @@ from abcgs.losses.params import FastParams
 from abcgs.losses.terms import background_loss, content_loss, silhouette_loss, style_loss, tv_loss
 from abcgs.progress import progress as progress_bar
 from abcgs.render import rgb_to_sh0, sh0_to_rgb
+from abcgs.runtime import release_free_memory
 from abcgs.silhouette import Silhouette, background_tensor, object_gaussians
 from abcgs.stylize.color import apply_group_transforms, fit_color_transform, preserve_color
 from abcgs.stylize.params import StyleWeights, StylizeParams
@@ -567,6 +568,7 @@ def stylize(
     n_main, n_color = params.optim.iterations, params.optim.color_pass_iterations
     styled, main = style_pass(model, targets, groups, vgg, params, iterations=n_main, method=method, progress=progress,
                               backdrop=backdrop)
+    release_free_memory()  # the pass's freed tensors, kept by the allocator between its steps (runtime.setup)
     history = list(main.steps)
     t_cp, color_timings = time.perf_counter(), {}
     if n_color > 0:
@@ -577,6 +579,7 @@ def stylize(
     t_cp = time.perf_counter() - t_cp
     if params.preserve_color:
         styled = recolor_to_content(styled, model)
+    release_free_memory()
     return StylizeResult(styled, history, main.timings, main.fast.as_dict(), time.perf_counter() - t0, t_cp,
                          color_timings=color_timings)
 
