@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from abcgs.errors import InputError
+from abcgs.io.metrics import info_path
 from abcgs.types import Background
 
 OUT = Path("out")
@@ -320,7 +321,8 @@ def report_inputs(params) -> list[str]:
     scenes: list[str] = []
     for name, exp in params.experiments.items():
         d = experiment(name)
-        paths += [d.stylize_record, d.eval_record, d.eval_consistency, d.stylize.root]
+        paths += [d.stylize_record, info_path(d.stylize_record), d.eval_record, info_path(d.eval_record),
+                  d.eval_consistency, d.stylize.root]
         if exp.scene not in scenes:
             scenes.append(exp.scene)
     for name in scenes:  # the photos and cameras, the viewer's original splat and labels, the run's warnings

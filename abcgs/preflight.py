@@ -6,8 +6,9 @@ checks the params against the two other things a run depends on:
 - ``dvc.yaml``: every params key a stage tracks must be present in the params file itself (a default filled in by
   the schema does not count: DVC reads the YAML, and aborts with "Parameters ... are missing" after the earlier
   stages have run). :func:`check_dvc_tracked_keys`; :func:`check_scene_entries`: scenes are mappings when
-  ``dvc.yaml`` reads ``${item.path}``; :func:`check_report_inputs`: the report stage depends on every output it
-  reads for these experiments (``python -m abcgs.dag --update``, which ``make run`` runs first, writes them).
+  ``dvc.yaml`` reads ``${item.path}``. :func:`check_report_inputs` (run by the ``report`` stage before it reads
+  anything): the report stage depends on every output it reads for these experiments (``python -m abcgs.dag
+  --update``, which ``make run`` runs first, writes them).
 - the inputs (:func:`check_input_files`): every scene folder exists and its format is known (given or detected:
   :mod:`abcgs.sources.detect`); a folder of photos holds decodable views of similar sizes (:func:`check_scene_images`;
   an alpha channel or a grey view among colour ones is a warning), its ``masks/`` name views and label something
@@ -418,6 +419,8 @@ def check_report_inputs(params, dvc_yaml: Path) -> None:
     (:func:`abcgs.layout.report_inputs`): its deps are generated from ``params.yaml``'s experiments, so an
     experiment added since leaves the report without a dependency on it, and DVC could build the page before that
     experiment's stages or leave it stale after them."""
+    if not dvc_yaml.is_file():  # the stage run outside a pipeline checkout
+        return
     stage = _stages(dvc_yaml).get("report")
     if not isinstance(stage, dict):
         return
@@ -443,7 +446,6 @@ def preflight(params, raw: dict, params_path: str | os.PathLike, *, files: bool 
     if dvc_yaml.is_file():
         check_dvc_tracked_keys(raw, dvc_yaml, str(params_path))
         check_scene_entries(raw, dvc_yaml, str(params_path))
-        check_report_inputs(params, dvc_yaml)
         produced, contents = dvc_outputs(dvc_yaml), dvc_output_files(dvc_yaml)
     warnings = check_input_files(params, root, produced, contents) if files else []
     for w in warnings:

@@ -15,6 +15,7 @@ setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
 from abcgs import layout
 from abcgs.pipeline import Out, StageSpec, run_stage, stage_parser
+from abcgs.preflight import check_report_inputs
 from abcgs.report import collect_warnings, load_runs, report_siblings, write_report
 from abcgs.view.outputs import load_experiment
 from abcgs.view.page import viewer_fragment
@@ -33,6 +34,8 @@ def reads(params) -> list[str]:
 
 
 def main(args, params) -> None:
+    # an experiment added to params.yaml since dvc.yaml was generated: this stage would not depend on its outputs
+    check_report_inputs(params, Path("dvc.yaml"))
     runs = load_runs(args.root, params.experiment_specs())
     viewer = None
     if params.viewer.enabled:
