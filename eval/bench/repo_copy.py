@@ -40,7 +40,7 @@ def copy_repo(dst: Path, edit_params: Callable[[dict], None] | None = None, root
             continue
         (dst / rel).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(src, dst / rel)
-    return _commit_copy(dst, edit_params)
+    return _commit_copy(dst, edit_params, regenerate_dvc_yaml=edit_params is not None)
 
 
 def copy_revision(dst: Path, rev: str, edit_params: Callable[[dict], None] | None = None, root: Path = ROOT) -> Path:
@@ -62,14 +62,20 @@ def copy_revision(dst: Path, rev: str, edit_params: Callable[[dict], None] | Non
     return _commit_copy(dst, edit_params)
 
 
-def _commit_copy(dst: Path, edit_params: Callable[[dict], None] | None) -> Path:
-    """Apply ``edit_params`` to ``dst/params.yaml`` and commit ``dst`` as a new git repository."""
+def _commit_copy(dst: Path, edit_params: Callable[[dict], None] | None, regenerate_dvc_yaml: bool = False) -> Path:
+    """Apply ``edit_params`` to ``dst/params.yaml`` and commit ``dst`` as a new git repository; with
+    ``regenerate_dvc_yaml``, ``dvc.yaml`` is written for the edited params first (the report stage's deps follow the
+    experiments: ``python -m abcgs.dag --update``)."""
     import yaml
 
     if edit_params is not None:
         params = yaml.safe_load((dst / "params.yaml").read_text())
         edit_params(params)
         (dst / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+        if regenerate_dvc_yaml:
+            from abcgs.dag import pipeline_yaml
+
+            (dst / "dvc.yaml").write_text(pipeline_yaml(dst), encoding="utf-8")
     for cmd in (["git", "init", "-q"], *IDENTITY, ["git", "add", "-A"], ["git", "commit", "-qm", "copy"]):
         subprocess.run(cmd, cwd=dst, check=True, capture_output=True)
     return dst
