@@ -292,10 +292,10 @@ def _dvc(template: Any) -> str:
     return (template if isinstance(template, str) else Path(template).as_posix()).replace("{", "${")
 
 
-def stage_entry(script: Path, spec: Any, root: Path) -> dict:
+def stage_entry(script: Path, spec: Any, root: Path, params_path: Path | None = None) -> dict:
     """The ``dvc.yaml`` entry of one stage (the ``do:`` body of a ``foreach`` stage is inside). A stage that reads
     the outputs of every experiment (``report``) names them through its ``reads(params)``, filled in from
-    ``root/params.yaml``."""
+    ``params_path`` (default ``root/params.yaml``)."""
     cmd = " ".join([f"python {script.relative_to(root).as_posix()}"]
                    + [f"--{o.option} '{Path(o.path).as_posix()}'" for o in spec.options])
     body: dict[str, Any] = {"cmd": cmd}
@@ -305,7 +305,7 @@ def stage_entry(script: Path, spec: Any, root: Path) -> dict:
     if reads is not None:
         from abcgs.params import load_params
 
-        data += [p for p in reads(load_params(root / "params.yaml")) if p not in data]
+        data += [p for p in reads(load_params(params_path or root / "params.yaml")) if p not in data]
     body["deps"] = data + code
     if spec.params:
         body["params"] = _Flow([_dvc(p) for p in spec.params])
@@ -319,9 +319,12 @@ def stage_entry(script: Path, spec: Any, root: Path) -> dict:
     return {"foreach": FOREACH[spec.foreach], "do": body} if spec.foreach else body
 
 
-def pipeline_yaml(root: Path) -> str:
-    """The text of ``dvc.yaml`` for the stage scripts under ``root/stages``."""
-    stages = {name: stage_entry(root / "stages" / f"{name}.py", load_spec(root / "stages" / f"{name}.py"), root)
+def pipeline_yaml(root: Path, params_path: Path | None = None) -> str:
+    """The text of ``dvc.yaml`` for the stage scripts under ``root/stages`` and the params file ``params_path``
+    (default ``root/params.yaml``; another one: the ``dvc.yaml`` a run of those params needs, e.g. a benchmark
+    overlay's)."""
+    stages = {name: stage_entry(root / "stages" / f"{name}.py", load_spec(root / "stages" / f"{name}.py"), root,
+                                params_path)
               for name in STAGES}
     deps = []
     for entry in stages.values():  # written below, one package a line: PyYAML wraps flow lists anywhere

@@ -21,12 +21,14 @@ stay as they are.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import re
 import shutil
 import subprocess
 import sys
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -37,7 +39,7 @@ from abcgs.runtime import setup
 setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
 from abcgs.errors import ParamsError
-from abcgs.overlay import REPLACED, read_overlay
+from abcgs.overlay import REPLACED, apply_overlay, read_overlay
 
 ROOT = Path(__file__).resolve().parents[2]
 BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
@@ -106,7 +108,32 @@ def cmd_run(a: argparse.Namespace) -> int:
     if a.dry_run:
         print("\n".join(args))
         return 0
-    return subprocess.run(cmd, cwd=ROOT).returncode
+    with pipeline_for(apply_overlay(base, overlay)):
+        return subprocess.run(cmd, cwd=ROOT).returncode
+
+
+@contextlib.contextmanager
+def pipeline_for(params: dict) -> Iterator[None]:
+    """The workspace's ``dvc.yaml`` as the overlaid ``params`` need it while the experiment starts (the report
+    stage's deps follow the experiments: :func:`abcgs.dag.pipeline_yaml`), so that ``dvc exp run`` takes it into
+    the experiment; the workspace's own is put back afterwards."""
+    from abcgs.dag import pipeline_yaml
+    from abcgs.io.atomic import write_text
+
+    dvc_yaml = ROOT / "dvc.yaml"
+    with tempfile.TemporaryDirectory(prefix="abcgs-exp-params-") as tmp:
+        params_path = Path(tmp) / "params.yaml"
+        params_path.write_text(yaml.safe_dump(params, sort_keys=False), encoding="utf-8")
+        text = pipeline_yaml(ROOT, params_path)
+    own = dvc_yaml.read_text(encoding="utf-8")
+    if text == own:
+        yield
+        return
+    write_text(dvc_yaml, text)
+    try:
+        yield
+    finally:
+        write_text(dvc_yaml, own)
 
 
 def _git(args: list[str], cwd: Path, check: bool = True) -> subprocess.CompletedProcess:
