@@ -22,7 +22,7 @@ from abcgs.runtime import resolve_device, torch_threads
 from abcgs.sfm.model import read_colmap_scene
 from abcgs.stylize.experiment import load_groups, load_vgg, read_colormatch
 from abcgs.stylize.loop import stylize_scene
-from abcgs.stylize.outputs import write_history, write_stylized_scene
+from abcgs.stylize.outputs import grid_indices, write_history, write_stylized_scene
 
 _S, _E = layout.scene("{item.scene}"), layout.experiment("{key}")
 SPEC = StageSpec("stylize", foreach="experiments", params=(
@@ -57,12 +57,14 @@ def main(args, params) -> None:
     styles = layout.StylesDir(args.styles)
     groups = load_groups(spec, vgg, masks.gaussian_labels, styles.paintings(params.data.styles),
                          styles.label_maps(params.data.style_masks), params.isolation, sp)
+    grid_indices(scene.cameras, sp.grid_views)  # a grid_views list that names none of the views fails before work
     with torch_threads(sp.compute.threads):
         res = stylize_scene(matched, original, scene.cameras, masks, groups, vgg, sp, method=exp.method,
                             background=background)
         written = write_stylized_scene(
             args.out, res.model, original, scene.cameras, masks.view_labels, groups, backend=sp.compute.backend,
-            path_kind=params.viewer.camera_path, path_frames=params.viewer.path_frames, background=background)
+            path_kind=params.viewer.camera_path, path_frames=params.viewer.path_frames, background=background,
+            grid_views=sp.grid_views)
     write_history(args.history, res.history)
     write_metrics(args.metrics, {
         "experiment": args.experiment, "method": exp.method, "colormatch": exp.colormatch, "transfer": spec.transfer,

@@ -74,7 +74,8 @@ def _stand_ins(repo: Path) -> list[str]:
 
 @pytest.fixture(scope="module")
 def repo(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    repo = copy_repo(tmp_path_factory.mktemp("hostile") / "repo", _hostile)
+    # the workspace's dvc.yaml: the generator validates params, and these are made for the stages to refuse
+    repo = copy_repo(tmp_path_factory.mktemp("hostile") / "repo", _hostile, regenerate_dvc_yaml=False)
     # the upstream stages count as done (in dvc.lock, committed), so that DVC runs the hostile stages' commands
     # under every selection, `dvc exp run` included (which checks the baseline commit's outputs out first)
     for args in (["dvc", "commit", "-f", *_stand_ins(repo)], ["git", "add", "-A"],

@@ -15,6 +15,7 @@ import torch
 
 from abcgs.camera_paths import camera_path
 from abcgs.cameras import Camera
+from abcgs.errors import InputError
 from abcgs.features.params import ALL_PIXELS
 from abcgs.gaussians import GaussianModel, render_each
 from abcgs.io.atomic import atomic_path
@@ -33,7 +34,25 @@ HISTORY_COLUMNS = ("step", "seconds", "loss", "style", "content", "tv", "depth",
 (:class:`abcgs.stylize.loop.LoggedStep`); a term that is off is empty."""
 
 GRID_ROWS = 3
-"""Views shown in ``grid.png``."""
+"""Views shown in ``grid.png`` when ``stylize.grid_views`` names none."""
+
+
+def grid_indices(cameras: list[Camera], names: list[str] | None) -> list[int]:
+    """The cameras ``grid.png`` shows: those ``names`` names (a view's file name or its stem), in the order of
+    ``names``, each once; the first :data:`GRID_ROWS` when ``names`` is ``None``. Names the scene lacks are skipped
+    (one list may name the views of several scenes); :class:`InputError` when it has none of them."""
+    if names is None:
+        return list(range(min(GRID_ROWS, len(cameras))))
+    index: dict[str, int] = {}
+    for i, cam in enumerate(cameras):
+        index.setdefault(cam.name, i)
+        index.setdefault(Path(cam.name).stem, i)
+    picked = list(dict.fromkeys(index[n] for n in names if n in index))
+    if not picked:
+        shown = ", ".join(c.name for c in cameras[:8]) + (", …" if len(cameras) > 8 else "")
+        raise InputError(f"stylize.grid_views names none of this scene's {len(cameras)} views ({', '.join(names)}); "
+                         f"its views are {shown}")
+    return picked
 
 
 def _images(model: GaussianModel, cameras: list[Camera], backend: Backend, background: Background) -> list[np.ndarray]:
@@ -63,9 +82,11 @@ def write_stylized_scene(
     path_kind: PathKind,
     path_frames: int,
     background: Background = FRAME_FILLING,
+    grid_views: list[str] | None = None,
 ) -> dict:
     """Write ``out/`` (a folder, atomically): the stylized PLY, a render of every camera, ``grid.png`` (content,
-    labels, each label beside its painting or painting region, stylized; :data:`GRID_ROWS` views) and
+    labels, each label beside its painting or painting region, stylized; one row per view of
+    :func:`grid_indices` of ``grid_views``) and
     ``turntable.mp4`` along :func:`abcgs.camera_paths.camera_path`, all on the scene's ``background`` (the renders
     as RGBA when it is transparent; the grid and video then on black).
 
@@ -85,8 +106,9 @@ def write_stylized_scene(
             [(None if g.content_label == ALL_PIXELS else colorize_labels(np.array([g.content_label]))[0],
               g.style_image, g.style_region) for g in groups],
             height=cameras[0].height)
-        contents = _images(original, cameras[:GRID_ROWS], backend, background)
-        rows = [[contents[i], colorize_labels(view_labels[i]), legend, renders[i]] for i in range(min(GRID_ROWS, len(renders)))]
+        shown = grid_indices(cameras, grid_views)
+        contents = _images(original, [cameras[i] for i in shown], backend, background)
+        rows = [[content, colorize_labels(view_labels[i]), legend, renders[i]] for content, i in zip(contents, shown)]
         save_image(d.grid, image_grid(rows, ["content", "labels", "label: painting", "stylized"]))
         path, kind = camera_path(cameras, path_kind, path_frames)
         write_video(d.turntable, _images(stylized, path, backend, background), fps=24)

@@ -132,6 +132,10 @@ class StylizeParams(BaseModel):
         "opacities stay bit-identical to the fitted scene through the colour match's re-fit, the main pass and the "
         "colour pass, as in the optimisation-free stylizers; for shapes that must be kept exactly")
     seed: int = 0
+    grid_views: list[str] | None = Field(
+        None, min_length=1, description="the views grid.png shows, by file name or stem, in this order: those of them "
+        "the scene has (names of other scenes' views may be listed too); a scene with none of them fails naming its "
+        "views. null: the first 3 views in name order")
     weights: StyleWeights = Field(default_factory=StyleWeights)
     fast: FastParams = Field(default_factory=FastParams)
     optim: StylizeOptim = Field(default_factory=StylizeOptim)

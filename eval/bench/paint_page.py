@@ -8,6 +8,7 @@ from __future__ import annotations
 import contextlib
 import threading
 from collections.abc import Iterator
+from pathlib import Path
 
 from abcgs.runtime import setup
 
@@ -81,3 +82,23 @@ def press(page, button: str, done: str, timeout_ms: int = 120_000) -> None:
     status = page.locator("#status")
     if status.get_attribute("class") != "ok":
         raise AssertionError(f"the page says: {status.text_content()}")
+
+
+def draw_and_save(browser, session: PaintSession, strokes: list[Stroke], width: int, screenshot: Path,
+                  view: str | None = None) -> None:
+    """As a user: open ``session``'s page (on the view named ``view``, else the first), draw ``strokes`` (pixels of an
+    image ``width`` px wide), Segment, take a screenshot to ``screenshot``, Save. Raises when the page raised a
+    JavaScript error or asked for anything outside its local server."""
+    with serve(session) as url:
+        page, requests, errors = open_page(browser, url, viewport=(1280, 820))
+        if view is not None:
+            show_view(page, view)
+        draw(page, strokes, width)
+        press(page, "segment", "segmented")
+        page.screenshot(path=str(screenshot))
+        press(page, "save", "saved")
+        page.close()
+    if errors:
+        raise RuntimeError(f"the page raised: {errors}")
+    if not all(u.startswith((url.split("?", 1)[0], "data:", "blob:")) for u in requests):  # the address, no token
+        raise RuntimeError("the page asked for something outside the local server")

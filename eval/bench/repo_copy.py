@@ -29,9 +29,12 @@ def run_in(args: list[str], cwd: Path, timeout: int | None = 900, env: dict | No
     return subprocess.run(args, cwd=cwd, env=full, capture_output=True, text=True, timeout=timeout)
 
 
-def copy_repo(dst: Path, edit_params: Callable[[dict], None] | None = None, root: Path = ROOT) -> Path:
+def copy_repo(dst: Path, edit_params: Callable[[dict], None] | None = None, root: Path = ROOT,
+              regenerate_dvc_yaml: bool = True) -> Path:
     """Copy ``root``'s working tree to ``dst`` and commit it in a new git repository; ``edit_params`` may change
-    the parsed ``params.yaml`` first (it is written back with ``yaml.safe_dump``)."""
+    the parsed ``params.yaml`` first (it is written back with ``yaml.safe_dump``), and then ``dvc.yaml`` is
+    regenerated for the edited params unless ``regenerate_dvc_yaml`` is false (a copy whose params are meant to be
+    refused by the stages keeps the workspace's ``dvc.yaml``: the generator validates the params)."""
     files = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard", "-z"], cwd=root,
                            capture_output=True, check=True).stdout.decode().split("\0")
     for rel in filter(None, files):
@@ -40,7 +43,7 @@ def copy_repo(dst: Path, edit_params: Callable[[dict], None] | None = None, root
             continue
         (dst / rel).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(src, dst / rel)
-    return _commit_copy(dst, edit_params, regenerate_dvc_yaml=edit_params is not None)
+    return _commit_copy(dst, edit_params, regenerate_dvc_yaml=regenerate_dvc_yaml and edit_params is not None)
 
 
 def copy_revision(dst: Path, rev: str, edit_params: Callable[[dict], None] | None = None, root: Path = ROOT) -> Path:

@@ -82,24 +82,6 @@ def strokes(table: dict[int, list[list[tuple[float, float]]]]) -> list[Stroke]:
     return [Stroke(label, np.asarray(line, float), BRUSH_PX) for label, lines in table.items() for line in lines]
 
 
-def _draw_and_save(browser, session: PaintSession, table: dict, width: int, screenshot: Path, view: str | None) -> None:
-    from eval.bench.paint_page import draw, open_page, press, serve, show_view
-
-    with serve(session) as url:
-        page, requests, errors = open_page(browser, url, viewport=(1280, 820))
-        if view is not None:
-            show_view(page, view)
-        draw(page, strokes(table), width)
-        press(page, "segment", "segmented")
-        page.screenshot(path=str(screenshot))
-        press(page, "save", "saved")
-        page.close()
-    if errors:
-        raise RuntimeError(f"the page raised: {errors}")
-    if not all(u.startswith((url.split("?", 1)[0], "data:", "blob:")) for u in requests):  # the address, no token
-        raise RuntimeError("the page asked for something outside the local server")
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     ap.add_argument("--shared", type=Path, default=Path("../shared/data"), help="holds scenes/fern and styles/")
@@ -122,15 +104,15 @@ def main(argv: list[str] | None = None) -> int:
     labels_out = a.work / f"{painting.stem}_labels.png"
 
     from eval.bench.browser import launch_chromium
-    from eval.bench.paint_page import CHROMIUM_ARGS
+    from eval.bench.paint_page import CHROMIUM_ARGS, draw_and_save
 
     scene_session = PaintSession.for_scene(scene)
     width = scene_session.size(next(i for i, it in enumerate(scene_session.items) if it.name == VIEW))[1]
     painting_session = PaintSession.for_painting(painting, labels_out)
     with launch_chromium(CHROMIUM_ARGS) as browser:
-        _draw_and_save(browser, scene_session, SCENE_STROKES, width, a.work / "page_scene.png", VIEW)
-        _draw_and_save(browser, painting_session, PAINTING_STROKES, painting_session.size(0)[1],
-                       a.work / "page_painting.png", None)
+        draw_and_save(browser, scene_session, strokes(SCENE_STROKES), width, a.work / "page_scene.png", VIEW)
+        draw_and_save(browser, painting_session, strokes(PAINTING_STROKES), painting_session.size(0)[1],
+                      a.work / "page_painting.png")
 
     mask = load_labels(scene / "masks" / f"{Path(VIEW).stem}.png")
     regions = load_labels(labels_out)
