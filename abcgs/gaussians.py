@@ -36,6 +36,7 @@ from torch import Tensor
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.render import RenderMeta, num_sh_bases, rasterize, rgb_to_sh0, sh0_to_rgb
+from abcgs.render.rasterize import select_backend
 from abcgs.types import Backend
 
 log = logging.getLogger(__name__)
@@ -169,16 +170,19 @@ class GaussianModel:
             "opacities": self.opacities, "sh": self.sh,
         }
 
-    def colors_or_sh(self, sh_degree: int | None = None) -> tuple[Tensor | tuple[Tensor, Tensor], int | None]:
+    def colors_or_sh(self, sh_degree: int | None = None, *, rgb_at_degree_0: bool = True,
+                     ) -> tuple[Tensor | tuple[Tensor, Tensor], int | None]:
         """What :func:`abcgs.render.rasterize` takes as ``colors`` and ``sh_degree``.
 
-        For an active degree of 0 this is the plain RGB ``(N, 3)`` = ``max(C0·sh0 + 0.5, 0)`` with ``None``
-        (identical to SH evaluation, cheaper); otherwise the coefficients as their two blocks ``(sh0, shN)``
-        (``(N, 1, 3)``, ``(N, K - 1, 3)``: no concatenated copy per render) and the degree.
+        For an active degree of 0 and ``rgb_at_degree_0`` this is the plain RGB ``(N, 3)`` = ``max(C0·sh0 + 0.5, 0)``
+        with ``None`` (identical to SH evaluation, and cheaper where SH is evaluated for every Gaussian); otherwise the
+        coefficients as their two blocks ``(sh0, shN)`` (``(N, 1, 3)``, ``(N, K - 1, 3)``: no concatenated copy per
+        render) and the degree. The CPU kernels evaluate SH inside the projection for the Gaussians in view only, so
+        there the blocks cost less than the RGB's three passes over every Gaussian and their backward (:func:`render`).
         ``sh_degree`` limits the active band (3DGS raises it during training); default: all stored bands.
         """
         degree = self.sh_degree if sh_degree is None else min(int(sh_degree), self.sh_degree)
-        if degree == 0:
+        if degree == 0 and rgb_at_degree_0:
             return sh0_to_rgb(self.sh0[:, 0, :]).clamp_min(0.0), None
         return (self.sh0, self.shN), degree
 
@@ -284,7 +288,10 @@ def render(
     number of cameras, of any sizes, in bounded batches.
     """
     device = model.device
-    colors, degree = model.colors_or_sh(sh_degree)
+    # the CPU kernels' SH path at degree 0, unless the higher bands train: there it would give them zero gradients,
+    # where the RGB gives none (Adam counts a zero gradient as a step)
+    colors, degree = model.colors_or_sh(
+        sh_degree, rgb_at_degree_0=model.shN.requires_grad or select_backend(device, backend) != "cpu")
     if isinstance(camera, Camera):
         viewmats, Ks, width, height = camera.torch_viewmat(device), camera.torch_K(device), camera.width, camera.height
     else:

@@ -34,6 +34,7 @@ from abcgs.features.params import ALL_PIXELS
 from abcgs.features.vgg import VGG16Features, downsample_half, extract_features
 from abcgs.fit.losses import reconstruction_loss
 from abcgs.gaussians import GaussianModel, freeze_gaussians, render, render_each
+from abcgs.losses.drift import opacity_drift, scale_drift
 from abcgs.losses.fast import FastStats
 from abcgs.losses.params import FastParams
 from abcgs.losses.terms import background_loss, content_loss, silhouette_loss, style_loss, tv_loss
@@ -313,8 +314,8 @@ def _renormalize_quats(model: GaussianModel, rows: Tensor | None = None) -> None
     """Project the rotations back onto unit quaternions after an optimiser step (in place); only ``rows`` ``(N,)``
     bool when given (the Gaussians that may change: an object scene's object)."""
     q = model.quats.data
-    unit = q / q.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    model.quats.data = unit if rows is None else torch.where(rows[:, None], unit, q)
+    norm = torch.linalg.vector_norm(q, dim=-1, keepdim=True).clamp_min_(1e-12)
+    q.div_(norm if rows is None else torch.where(rows[:, None], norm, 1.0))  # in place: no (N, 4) temporaries
 
 
 def _random_views(n: int, seed: int):
@@ -352,14 +353,15 @@ def _view_terms(img: Tensor, depth: Tensor | None, feats: Tensor, target: ViewTa
     return terms
 
 
-def _drift_terms(m: GaussianModel, start_scales: Tensor, start_opacities: Tensor, w: StyleWeights,
+def _drift_terms(m: GaussianModel, start: GaussianModel, w: StyleWeights,
                  lrs: dict[str, float]) -> dict[str, Tensor]:
-    """Eq. 8's geometry terms: mean ‖Δ scale‖ and mean |Δ opacity| from the start, weighted, for the optimised fields."""
+    """Eq. 8's geometry terms: mean ‖Δ scale‖ and mean |Δ opacity| from the ``start`` model, weighted, for the optimised
+    fields (:mod:`abcgs.losses.drift`)."""
     terms = {}
     if w.scale > 0 and lrs["log_scales"] > 0:
-        terms["scale"] = w.scale * (m.scales - start_scales).norm(dim=-1).mean()
+        terms["scale"] = w.scale * scale_drift(m.log_scales, start.log_scales)
     if w.opacity > 0 and lrs["opacity_logits"] > 0:
-        terms["opacity"] = w.opacity * (m.opacities - start_opacities).abs().mean()
+        terms["opacity"] = w.opacity * opacity_drift(m.opacity_logits, start.opacity_logits)
     return terms
 
 
@@ -377,7 +379,6 @@ def style_pass(
 ) -> tuple[GaussianModel, PassLog]:
     """The main stylization pass over random views: the optimised (detached) model and the pass's log. An object
     scene (``backdrop``) renders on its background and adds :func:`_object_terms`."""
-    start_scales, start_opacities = model.scales.detach(), model.opacities.detach()  # computed: new storage
     lrs = main_pass_lrs(params) | {"shN": higher_sh_lr(params, model)}
     m = model.as_parameters(trainable=[k for k, lr in lrs.items() if lr > 0])
     opt = _optimizer(m, lrs)
@@ -406,7 +407,7 @@ def style_pass(
                                                   max_block_elems=fast.max_block_elems)
         ticks.append(time.perf_counter())
         terms |= _view_terms(img, meta.depth, feats, tgt, w)
-        terms |= _drift_terms(m, start_scales, start_opacities, w, lrs)
+        terms |= _drift_terms(m, model, w, lrs)  # model: the start (the pass trains copies)
         terms |= _object_terms(img, alpha, tgt, w, backdrop, lrs)
         loss = torch.stack(list(terms.values())).sum()
         if not torch.isfinite(loss):  # one device-to-host read per step; then name the culprit

@@ -102,7 +102,7 @@ std::vector<at::Tensor> blend_weights(const at::Tensor& means2d, const at::Tenso
   AT_DISPATCH_FLOATING_TYPES(means2d.scalar_type(), "abcgs_blend_weights", [&] {
     const GaussianView<scalar_t> gv(means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(),
                                     no_colors.data_ptr<scalar_t>(), opacities.data_ptr<scalar_t>(),
-                                    extents.data_ptr<scalar_t>(), 0, order, opts);
+                                    extents.data_ptr<scalar_t>(), 0, n, order, opts);
     const Binning bin = bin_tiles(gv, order, width, height, tile_size);
     scalar_t* tr = trans.data_ptr<scalar_t>();
     for_each_tile(n_tiles, [&](int64_t t) { weights_tile<scalar_t>(gv, bin, t, width, height, tile_size, tr, per_tile[t]); });

@@ -8,3 +8,4 @@
 #include "frozen_cpu.cpp"
 #include "sh_cpu.cpp"
 #include "batch_cpu.cpp"
+#include "drift_cpu.cpp"

@@ -135,7 +135,7 @@ at::Tensor sh_colors_forward(const at::Tensor& sh0, const at::Tensor& shN, const
           T v = b[0] * s0[3 * g + c];
           for (int64_t k = 1; k < nb; ++k) v += b[k] * sn[(g * kn + (k - 1)) * 3 + c];
           v += T(0.5);
-          out[3 * g + c] = v > T(0) ? v : T(0);
+          out[3 * g + c] = v < T(0) ? T(0) : v;  // NaN stays NaN, as torch's clamp_min
         }
       }
     });
