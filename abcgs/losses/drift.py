@@ -12,7 +12,7 @@ where torch's backward gives 0).
 Both are dense over every Gaussian, every step. On CPU tensors they run as one fused C++ pass each
 (``abcgs/render/csrc/drift_cpu.cpp``: value and gradient together, the gradient applied in backward), where the torch
 formulas (:func:`scale_drift_reference`, :func:`opacity_drift_reference`, their reference in
-``tests/test_drift.py``) make about twenty passes over the Gaussians: 0.13 s of a 3 M-Gaussian step on two cores.
+``tests/test_drift.py``) make about twenty passes over the Gaussians.
 """
 
 from __future__ import annotations

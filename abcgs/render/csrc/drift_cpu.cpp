@@ -1,7 +1,7 @@
 // Eq. 8's geometry terms of the stylization (abcgs/losses/drift.py): how far every Gaussian's scale and opacity
 // have moved from the start, averaged, with the gradient, in one pass over the Gaussians. Written with torch ops,
-// the two terms and their backward are about twenty passes over (N, 3) and (N,) tensors (0.13 s a step at
-// 3 M Gaussians on two cores); here one pass each, on the kernels' threads.
+// the two terms and their backward are about twenty passes over (N, 3) and (N,) tensors; here one pass each, on the
+// kernels' threads.
 //
 //   scale:   L = mean_i ||exp(l_i) - exp(l0_i)||,   dL/dl_i = exp(l_i) d_i / (N ||d_i||), d_i = exp(l_i) - exp(l0_i)
 //            (0 where the norm is 0, as torch's norm backward);
