@@ -102,3 +102,20 @@ def draw_and_save(browser, session: PaintSession, strokes: list[Stroke], width: 
         raise RuntimeError(f"the page raised: {errors}")
     if not all(u.startswith((url.split("?", 1)[0], "data:", "blob:")) for u in requests):  # the address, no token
         raise RuntimeError("the page asked for something outside the local server")
+
+
+def report_saved(label_maps: dict[str, Path], work: Path, screenshots: Path | None, prefix: str) -> None:
+    """Print each saved label map's share of every label (``label_maps``: what it is → its PNG), and copy the page
+    screenshots that :func:`draw_and_save` left in ``work`` (``page_scene.png``, ``page_painting.png``) to
+    ``screenshots/<prefix>_<name>.jpg`` when ``screenshots`` is given."""
+    import numpy as np
+
+    from abcgs.io.images import load_image, load_labels, save_image
+
+    for what, path in label_maps.items():
+        lab = load_labels(path)
+        counts = {int(k): round(float((lab == k).mean()), 3) for k in np.unique(lab)}
+        print(f"{what}: label shares {counts}")
+    if screenshots is not None:
+        for name in ("page_scene", "page_painting"):
+            save_image(screenshots / f"{prefix}_{name}.jpg", load_image(work / f"{name}.png"))

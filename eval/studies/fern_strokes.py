@@ -38,7 +38,6 @@ setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 import numpy as np
 
 from abcgs.errors import InputError
-from abcgs.io.images import load_labels, save_image
 from abcgs.masks.grabcut import Stroke
 from abcgs.masks.paint import PaintSession
 
@@ -104,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
     labels_out = a.work / f"{painting.stem}_labels.png"
 
     from eval.bench.browser import launch_chromium
-    from eval.bench.paint_page import CHROMIUM_ARGS, draw_and_save
+    from eval.bench.paint_page import CHROMIUM_ARGS, draw_and_save, report_saved
 
     scene_session = PaintSession.for_scene(scene)
     width = scene_session.size(next(i for i, it in enumerate(scene_session.items) if it.name == VIEW))[1]
@@ -114,16 +113,8 @@ def main(argv: list[str] | None = None) -> int:
         draw_and_save(browser, painting_session, strokes(PAINTING_STROKES), painting_session.size(0)[1],
                       a.work / "page_painting.png")
 
-    mask = load_labels(scene / "masks" / f"{Path(VIEW).stem}.png")
-    regions = load_labels(labels_out)
-    for what, lab in (("view " + VIEW, mask), ("painting", regions)):
-        counts = {int(k): round(float((lab == k).mean()), 3) for k in np.unique(lab)}
-        print(f"{what}: label shares {counts}")
-    if a.screenshots:
-        from abcgs.io.images import load_image
-
-        for name in ("page_scene", "page_painting"):
-            save_image(a.screenshots / f"fern_strokes_{name}.jpg", load_image(a.work / f"{name}.png"))
+    report_saved({"view " + VIEW: scene / "masks" / f"{Path(VIEW).stem}.png", "painting": labels_out}, a.work,
+                 a.screenshots, "fern_strokes")
     print(f"wrote {scene}/masks/ and {labels_out}; next: python -m eval.bench.experiment run "
           f"eval/params/fern_strokes.yaml --name fern-strokes --shared {a.work}")
     return 0

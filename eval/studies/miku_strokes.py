@@ -48,7 +48,6 @@ setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 import numpy as np
 
 from abcgs.errors import InputError
-from abcgs.io.images import load_labels, save_image
 from abcgs.masks.grabcut import Stroke
 from abcgs.masks.paint import PaintSession
 from abcgs.sources.detect import image_files
@@ -163,7 +162,7 @@ def main(argv: list[str] | None = None) -> int:
     labels_out = a.work / f"{painting.stem}_labels.png"
 
     from eval.bench.browser import launch_chromium
-    from eval.bench.paint_page import CHROMIUM_ARGS, draw_and_save
+    from eval.bench.paint_page import CHROMIUM_ARGS, draw_and_save, report_saved
 
     scene_session = PaintSession.for_scene(scene, fmt="colmap", first=[front])
     view = next(it.name for it in scene_session.items if Path(it.name).stem == front)
@@ -175,16 +174,8 @@ def main(argv: list[str] | None = None) -> int:
         draw_and_save(browser, painting_session, painting_strokes(), painting_session.size(0)[1],
                       a.work / "page_painting.png")
 
-    mask = load_labels(scene / "masks" / f"{view_name}.png")
-    regions = load_labels(labels_out)
-    for what, lab in (("view " + view, mask), ("painting", regions)):
-        counts = {int(k): round(float((lab == k).mean()), 3) for k in np.unique(lab)}
-        print(f"{what}: label shares {counts}")
-    if a.screenshots:
-        from abcgs.io.images import load_image
-
-        for name in ("page_scene", "page_painting"):
-            save_image(a.screenshots / f"miku_strokes_{name}.jpg", load_image(a.work / f"{name}.png"))
+    report_saved({"view " + view: scene / "masks" / f"{view_name}.png", "painting": labels_out}, a.work,
+                 a.screenshots, "miku_strokes")
     print(f"wrote {scene} ({len(keep)} of {len(photos)} photos), its masks/ and {labels_out}; next: python -m "
           f"eval.bench.experiment run eval/params/miku_strokes.yaml --name miku-strokes --shared {a.work}")
     return 0
