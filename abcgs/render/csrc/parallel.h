@@ -74,6 +74,29 @@ void parallel_range(int64_t n, int64_t grain, const F& fn) {
   });
 }
 
+// Stream compaction of [0, n): keep(i) is tested over contiguous ranges (one per worker) and counted, size(m) is
+// called once with the number kept, then emit(i, j) for every kept i with j its rank among them (index order; the
+// ranks do not depend on the worker count). keep is called twice per element. Returns m.
+template <typename Keep, typename Size, typename Emit>
+int64_t parallel_compact(int64_t n, const Keep& keep, const Size& size, const Emit& emit) {
+  const int64_t workers = std::max<int64_t>(1, std::min<int64_t>(kernel_threads(), (n + 65535) / 65536));
+  const int64_t chunk = (std::max<int64_t>(n, 0) + workers - 1) / workers;
+  std::vector<int64_t> start(workers + 1, 0);
+  run_workers(workers, [&](int64_t w) {
+    int64_t c = 0;
+    for (int64_t i = w * chunk, e = std::min(n, (w + 1) * chunk); i < e; ++i) c += keep(i) ? 1 : 0;
+    start[w + 1] = c;
+  });
+  for (int64_t w = 0; w < workers; ++w) start[w + 1] += start[w];
+  size(start[workers]);
+  run_workers(workers, [&](int64_t w) {
+    int64_t j = start[w];
+    for (int64_t i = w * chunk, e = std::min(n, (w + 1) * chunk); i < e; ++i)
+      if (keep(i)) emit(i, j++);
+  });
+  return start[workers];
+}
+
 // fn(item) for every item in [0, n), handed out one at a time (dynamic scheduling: tiles differ in cost).
 template <typename F>
 void parallel_items(int64_t n, const F& fn) {

@@ -221,28 +221,15 @@ inline void gather_rows(const T* src, const int64_t* rows, int64_t r0, int64_t n
 }
 
 // The Gaussians, in index order, with a nonzero means2d (N, 2), conic (N, 3) or depth (N) gradient (NaN counts as
-// nonzero): counted per contiguous range, then listed at each range's offset (parallel, in order).
+// nonzero).
 template <typename T>
 std::vector<int64_t> rows_with_gradient(const T* gm2, const T* gco, const T* gde, int64_t n) {
   auto has = [&](int64_t i) {
     return !(gm2[2 * i] == T(0) && gm2[2 * i + 1] == T(0) && gco[3 * i] == T(0) && gco[3 * i + 1] == T(0) &&
              gco[3 * i + 2] == T(0) && gde[i] == T(0));
   };
-  const int64_t workers = std::max<int64_t>(1, std::min<int64_t>(abcgs::kernel_threads(), (n + 65535) / 65536));
-  const int64_t chunk = (n + workers - 1) / workers;
-  std::vector<int64_t> start(workers + 1, 0);
-  abcgs::run_workers(workers, [&](int64_t w) {
-    int64_t c = 0;
-    for (int64_t i = w * chunk, e = std::min(n, (w + 1) * chunk); i < e; ++i) c += has(i);
-    start[w + 1] = c;
-  });
-  for (int64_t w = 0; w < workers; ++w) start[w + 1] += start[w];
-  std::vector<int64_t> rows(start[workers]);
-  abcgs::run_workers(workers, [&](int64_t w) {
-    int64_t j = start[w];
-    for (int64_t i = w * chunk, e = std::min(n, (w + 1) * chunk); i < e; ++i)
-      if (has(i)) rows[j++] = i;
-  });
+  std::vector<int64_t> rows;
+  abcgs::parallel_compact(n, has, [&](int64_t m) { rows.resize(m); }, [&](int64_t i, int64_t j) { rows[j] = i; });
   return rows;
 }
 

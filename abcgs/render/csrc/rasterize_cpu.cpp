@@ -89,33 +89,24 @@ at::Tensor depth_order(const scalar_t* depth, const scalar_t* ext, int64_t n) {
   using key_t = std::conditional_t<sizeof(scalar_t) == 4, uint32_t, uint64_t>;
   constexpr key_t kSign = key_t(1) << (8 * sizeof(key_t) - 1);
   TORCH_CHECK(n < (int64_t(1) << 31), "abcgs cpu rasterizer: at most 2^31 - 1 Gaussians");
-  // the kept Gaussians in index order: counted per chunk, then written at the chunk's offset (parallel, sequential)
-  const int64_t workers = std::max<int64_t>(1, std::min<int64_t>(abcgs::kernel_threads(), (n + 65535) / 65536));
-  const int64_t chunk = (n + workers - 1) / workers;
-  std::vector<int64_t> start(workers + 1, 0);
-  abcgs::run_workers(workers, [&](int64_t w) {
-    int64_t c = 0;
-    for (int64_t g = w * chunk, e = std::min(n, (w + 1) * chunk); g < e; ++g) c += ext[2 * g] > 0;
-    start[w + 1] = c;
-  });
-  for (int64_t w = 0; w < workers; ++w) start[w + 1] += start[w];
-  const int64_t m = start[workers];
-  std::vector<key_t> keys(m), keys_tmp(m);
-  std::vector<int32_t> idx(m), idx_tmp(m);
-  abcgs::run_workers(workers, [&](int64_t w) {
-    int64_t j = start[w];
-    for (int64_t g = w * chunk, e = std::min(n, (w + 1) * chunk); g < e; ++g) {
-      if (!(ext[2 * g] > 0)) continue;
-      const scalar_t d = depth[g];
-      key_t k = ~key_t(0);
-      if (!std::isnan(d)) {
-        std::memcpy(&k, &d, sizeof(k));
-        k = (k & kSign) ? ~k : (k | kSign);
-      }
-      keys[j] = k;
-      idx[j++] = static_cast<int32_t>(g);
-    }
-  });
+  // the kept Gaussians in index order, with their keys
+  std::vector<key_t> keys, keys_tmp;
+  std::vector<int32_t> idx, idx_tmp;
+  const int64_t m = abcgs::parallel_compact(
+      n, [&](int64_t g) { return ext[2 * g] > 0; },
+      [&](int64_t count) {
+        keys.resize(count), keys_tmp.resize(count), idx.resize(count), idx_tmp.resize(count);
+      },
+      [&](int64_t g, int64_t j) {
+        const scalar_t d = depth[g];
+        key_t k = ~key_t(0);
+        if (!std::isnan(d)) {
+          std::memcpy(&k, &d, sizeof(k));
+          k = (k & kSign) ? ~k : (k | kSign);
+        }
+        keys[j] = k;
+        idx[j] = static_cast<int32_t>(g);
+      });
   // each pass: the workers count their own contiguous ranges, then scatter them to (digit, worker) offsets, so
   // that equal digits keep their order (stable) and the permutation does not depend on the worker count
   const int64_t rw = std::max<int64_t>(1, std::min<int64_t>(abcgs::kernel_threads(), (m + 65535) / 65536));
