@@ -314,8 +314,8 @@ def experiment(name: str, out: Path = OUT) -> ExperimentOut:
 def report_inputs(params) -> list[str]:
     """The outputs the ``report`` stage reads for the experiments and paintings of ``params`` (validated
     ``params.yaml``), one by one: its ``dvc.yaml`` deps besides the preflight stamp. ``dvc.yaml`` lists them
-    (:mod:`abcgs.dag` fills them in from ``params.yaml``), and the preflight refuses a ``dvc.yaml`` that lacks
-    some (:func:`abcgs.preflight.check_report_inputs`)."""
+    (:mod:`abcgs.dag` fills them in from ``params.yaml``), and the ``report`` stage refuses to run from a ``dvc.yaml``
+    that lacks some (:func:`abcgs.preflight.check_report_inputs`)."""
     paths: list[Path] = [PREFLIGHT_REPORT]
     paths += [Path(p) for p in styles().paintings(params.data.styles).values()]
     scenes: list[str] = []

@@ -80,3 +80,14 @@ def test_fused_drift_is_the_same_for_any_thread_count() -> None:
             results.append((value.detach(), x.grad))
     for value, grad in results[1:]:
         assert torch.equal(value, results[0][0]) and torch.equal(grad, results[0][1])
+
+
+@pytest.mark.parametrize("fused", [True, False])
+def test_no_gaussians_drift_zero_on_both_paths(fused: bool) -> None:
+    """A model with no Gaussians has drifted by 0, not NaN (torch's mean over nothing), with an empty gradient."""
+    log_scales = torch.zeros(0, 3, requires_grad=True)
+    logits = torch.zeros(0, requires_grad=True)
+    total = scale_drift(log_scales, torch.zeros(0, 3), fused=fused) + opacity_drift(logits, torch.zeros(0), fused=fused)
+    assert total.item() == 0.0
+    total.backward()
+    assert log_scales.grad.shape == (0, 3) and logits.grad.shape == (0,)

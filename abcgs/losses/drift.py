@@ -58,15 +58,21 @@ def _fused(x: Tensor) -> bool:
     return extension_or_none() is not None
 
 
+def _drift(kernel: str, reference, x: Tensor, start: Tensor, fused: bool | None) -> Tensor:
+    """One drift term: the C++ ``kernel`` where it runs (``fused=None``) or is asked for, else ``reference``. No
+    Gaussians drift 0 on both paths (torch's mean over nothing would be NaN)."""
+    if x.shape[0] == 0:
+        return x.sum()
+    if fused if fused is not None else _fused(x):
+        return _FusedDrift.apply(kernel, x, start)
+    return reference(x, start)
+
+
 def scale_drift(log_scales: Tensor, start_log_scales: Tensor, *, fused: bool | None = None) -> Tensor:
     """Mean scale drift (0-d, differentiable in ``log_scales``); ``fused=None``: the C++ pass where it runs."""
-    if fused if fused is not None else _fused(log_scales):
-        return _FusedDrift.apply("scale_drift", log_scales, start_log_scales)
-    return scale_drift_reference(log_scales, start_log_scales)
+    return _drift("scale_drift", scale_drift_reference, log_scales, start_log_scales, fused)
 
 
 def opacity_drift(logits: Tensor, start_logits: Tensor, *, fused: bool | None = None) -> Tensor:
     """Mean opacity drift (0-d, differentiable in ``logits``); ``fused=None``: the C++ pass where it runs."""
-    if fused if fused is not None else _fused(logits):
-        return _FusedDrift.apply("opacity_drift", logits, start_logits)
-    return opacity_drift_reference(logits, start_logits)
+    return _drift("opacity_drift", opacity_drift_reference, logits, start_logits, fused)
