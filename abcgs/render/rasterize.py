@@ -189,7 +189,16 @@ def rasterize(
             name, means, quats, scales, opacities, colors, viewmats, Ks, width, height, sh_degree=sh_degree,
             background=background, render_mode=render_mode, near=near, far=far, eps2d=eps2d, tile_size=tile_size,
         )
-    viewmat, K = viewmats, Ks
+    return _rasterize_view(
+        name, means, quats, scales, opacities, colors, viewmats, Ks, width, height, sh_degree=sh_degree,
+        background=background, render_mode=render_mode, near=near, far=far, eps2d=eps2d, tile_size=tile_size,
+    )
+def _rasterize_view(
+    name: Backend, means, quats, scales, opacities, colors, viewmat, K, width, height, *, sh_degree, background,
+    render_mode, near, far, eps2d, tile_size,
+) -> tuple[Tensor, Tensor, RenderMeta]:
+    """:func:`rasterize` for one camera on the CPU kernels or the reference backend: project, colour (SH evaluated
+    for the kept Gaussians only on the CPU kernels), blend."""
     # The fused C++ projection treats the camera as constant; camera optimisation takes the autograd path.
     camera_grad = viewmat.requires_grad or K.requires_grad
     project = cpu_backend.project_cpu if name == "cpu" and not camera_grad else project_gaussians
