@@ -193,6 +193,8 @@ def rasterize(
         name, means, quats, scales, opacities, colors, viewmats, Ks, width, height, sh_degree=sh_degree,
         background=background, render_mode=render_mode, near=near, far=far, eps2d=eps2d, tile_size=tile_size,
     )
+
+
 def _rasterize_view(
     name: Backend, means, quats, scales, opacities, colors, viewmat, K, width, height, *, sh_degree, background,
     render_mode, near, far, eps2d, tile_size,
