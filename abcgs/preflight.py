@@ -38,12 +38,11 @@ from typing import Any
 import cv2
 import numpy as np
 import yaml
-from PIL import Image
 
 from abcgs import layout
 from abcgs.dotted import has_key
 from abcgs.errors import InputError, ParamsError
-from abcgs.io.images import check_label_size
+from abcgs.io.images import check_label_size, check_label_values, decode_image, image_header
 from abcgs.masks.params import UNDECIDED
 from abcgs.scene.params import TINY_STYLE_FILES
 from abcgs.sources.detect import DEFAULT_IMAGES, IMAGE_SUFFIXES, detect_format
@@ -153,12 +152,15 @@ def produced_by_stage(path: Path, outputs: Iterable[str], root: Path) -> bool:
 
 
 def check_image(path: Path, what: str) -> None:
-    if not path.is_file():
+    """The image ``path`` exists, is a regular file, its header is within :data:`abcgs.io.images.MAX_IMAGE_PIXELS`
+    and it decodes (:func:`abcgs.io.images.decode_image`); :class:`InputError` prefixed with ``what``."""
+    if not path.exists() and not path.is_symlink():
         raise InputError(f"{what}: {path} does not exist; fix the path in params.yaml (paths are relative to the "
                          "repository root)")
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None or img.size == 0:
-        raise InputError(f"{what}: {path} is not a readable image (corrupt or not an image); replace the file")
+    try:
+        decode_image(path)
+    except InputError as exc:
+        raise InputError(f"{what}: {exc}") from None
 
 
 MIN_PAINTING_SIDE = 32
@@ -169,8 +171,7 @@ STAGE_OUTPUT_ROOTS = ("out", "reports")
 
 def check_painting(path: Path, what: str) -> None:
     check_image(path, what)
-    with Image.open(path) as im:
-        w, h = im.size
+    w, h = _size(path)
     if min(w, h) < MIN_PAINTING_SIDE:
         raise InputError(f"{what}: {path} is {w}×{h} pixels; a painting needs at least {MIN_PAINTING_SIDE} pixels on "
                          "each side for its strokes to reach the style features; use a larger image")
@@ -190,8 +191,8 @@ def check_scene_images(name: str, images: Path, max_ratio: float) -> list[str]:
     warnings for an alpha channel (ignored) and grey views among colour ones (used as grey RGB). Returns warnings."""
     sizes, modes = {}, {}
     for p in sorted(q for q in images.iterdir() if q.suffix.lower() in IMAGE_SUFFIXES):
-        with Image.open(p) as im:
-            sizes[p.name], modes[p.name] = im.size, im.mode
+        w, h, modes[p.name] = image_header(p, f"data.scenes.{name}: view")
+        sizes[p.name] = (w, h)
     pixels = {n: w * h for n, (w, h) in sizes.items()}
     median = float(np.median(list(pixels.values())))
     big = {n: px / median for n, px in pixels.items() if max_ratio and px > max_ratio * median}
@@ -218,15 +219,15 @@ def check_scene_images(name: str, images: Path, max_ratio: float) -> list[str]:
 
 def mask_labels(path: Path) -> np.ndarray | None:
     """A numbered label PNG (single-channel or grey) as ``(H, W)`` integers; ``None`` when it holds colours (those
-    are numbered together across the files by :func:`abcgs.masks.content.read_label_files`)."""
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        return None
+    are numbered together across the files by :func:`abcgs.masks.content.read_label_files`). A value above 255 or
+    a file that does not decode raises :class:`InputError` naming it."""
+    img = decode_image(path, "label map")
     if img.ndim == 3:
         img = img[..., :3]
         if not (np.all(img[..., 0] == img[..., 1]) and np.all(img[..., 1] == img[..., 2])):
             return None
         img = img[..., 0]
+    check_label_values(path, img)
     return img
 
 
@@ -238,8 +239,9 @@ def paint_command(folder: Path, images: str | None = None) -> str:
 def check_label_map_sizes(name: str, masks: Path, views: Mapping[str, tuple[str, tuple[int, int]]],
                           images: str | None = None) -> int:
     """Every label PNG in ``masks`` is its view at some scale (:func:`abcgs.io.images.check_label_size`, from the
-    files' headers: nothing is decoded). ``views``: view stem → ``(file name, (H, W))``; maps of no view are left to
-    the caller. Raises :class:`InputError` naming the file, both sizes and the fix; returns how many maps are of
+    files' headers). ``views``: view stem → ``(file name, (H, W))``; maps of no view are left to
+    the caller. Raises :class:`InputError` naming the file, both sizes and the fix (or a label above 255:
+    :func:`mask_labels`); returns how many maps are of
     another size (the ``reconstruct`` stage scales them to their views, nearest label)."""
     scaled = 0
     for p in sorted(masks.glob("*.png")) if masks.is_dir() else []:
@@ -247,6 +249,7 @@ def check_label_map_sizes(name: str, masks: Path, views: Mapping[str, tuple[str,
             continue
         view, hw = views[p.stem]
         w, h = _size(p)
+        mask_labels(p)  # its values: a label above 255 is refused before any work
         if (h, w) != tuple(hw):
             check_label_size(p, (h, w), hw, view, f"or paint it on the views: {paint_command(masks.parent, images)}")
             scaled += 1
@@ -295,9 +298,7 @@ def check_scene_masks(name: str, folder: Path, images: str = DEFAULT_IMAGES) -> 
 def _labels_nothing(path: Path) -> bool:
     """A mask PNG with no label: a numbered one (single channel) holding only 0 (no label) and
     :data:`~abcgs.masks.params.UNDECIDED`, or a colour one that is all black."""
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        return False
+    img = decode_image(path, "label map")
     if img.ndim == 2:
         return not np.any((img > 0) & (img != UNDECIDED))
     return not np.any(img[..., :3])
@@ -325,8 +326,8 @@ def _check_produced_file(rel: str, out: str, contents: Mapping[str, Collection[s
 
 
 def _size(path: Path) -> tuple[int, int]:
-    with Image.open(path) as im:
-        return im.size
+    """``(width, height)`` from the image's header (:func:`abcgs.io.images.image_header`)."""
+    return image_header(path)[:2]
 
 
 def check_bindings(params, root: Path, produced: Iterable[str]) -> None:
@@ -404,14 +405,27 @@ def check_input_files(params, root: Path, produced: Iterable[str] = (),
         files = sorted(p for p in images.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
         if not files:
             raise InputError(f"data.scenes.{name}: {images} holds no images ({', '.join(IMAGE_SUFFIXES)})")
-        bad = [p.name for p in files if cv2.imread(str(p), cv2.IMREAD_REDUCED_GRAYSCALE_8) is None]
+        bad = _undecodable(files)
         if bad:
-            raise InputError(f"data.scenes.{name}: {len(bad)} image(s) in {images} do not decode: {', '.join(bad[:5])}"
-                             f"{' …' if len(bad) > 5 else ''}; remove or replace them")
+            raise InputError(f"data.scenes.{name}: {len(bad)} image(s) in {images} do not decode: "
+                             f"{', '.join(list(bad)[:5])}{' …' if len(bad) > 5 else ''}; remove or replace them (the "
+                             f"first: {next(iter(bad.values()))})")
         warnings += check_scene_images(name, images, params.scene_section(name, "reconstruct").max_view_size_ratio)
         warnings += check_scene_masks(name, folder, sub)
     check_bindings(params, root, produced)
     return warnings
+
+
+def _undecodable(files: list[Path]) -> dict[str, str]:
+    """File name → why it does not decode (:func:`abcgs.io.images.decode_image`, at an eighth of its size), for the
+    files of ``files`` that do not."""
+    bad = {}
+    for p in files:
+        try:
+            decode_image(p, flags=cv2.IMREAD_REDUCED_GRAYSCALE_8)
+        except InputError as exc:
+            bad[p.name] = str(exc)
+    return bad
 
 
 def check_report_inputs(params, dvc_yaml: Path) -> None:

@@ -24,10 +24,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model, model_validator
 
-from abcgs.errors import ParamsError
+from abcgs.errors import InputError, ParamsError
+from abcgs.io.guarded import load_yaml
 
 SCENE_SECTIONS = ("reconstruct", "fit", "masks")
 """Sections a scene may override in ``data.scenes.<name>``: the stages that run once per scene."""
@@ -267,22 +267,28 @@ def format_validation_error(exc: ValidationError, source: str, model: type[BaseM
             lines.append(f"  {path}: required key is missing")
         else:
             got = err.get("input")
-            shown = repr(got)
             # a whole section (e.g. the top-level mapping behind a cross-check) is noise, not the culprit
-            tail = "" if isinstance(got, (dict, list)) or len(shown) > 120 else f" (got {shown})"
+            shown = "" if isinstance(got, (dict, list)) else repr(got)
+            tail = "" if not shown or len(shown) > 120 else f" (got {shown})"
             msg = err["msg"].removeprefix("Value error, ")
             lines.append(f"  {msg}" if not loc else f"  {path}: {msg}{tail}")
     return "\n".join(lines)
 
 
+MAX_PARAMS_BYTES = 4 << 20
+"""Largest params file read (bytes; the repository's is about 20 KB)."""
+
+
 def read_params_file(path: str | os.PathLike = "params.yaml") -> Any:
-    """The parsed YAML of a params file (not validated), with a clear error when it is missing or not YAML."""
+    """The parsed YAML of a params file (not validated), read through :func:`abcgs.io.guarded.load_yaml` (a regular
+    file of at most :data:`MAX_PARAMS_BYTES`; depth, alias expansion and number lengths bounded); every problem is
+    one :class:`ParamsError` line: missing, not YAML, or past a bound."""
     path = Path(path)
-    if not path.is_file():
+    if not path.exists() and not path.is_symlink():
         raise ParamsError(f"{path} not found; run from the repository root or pass --params")
     try:
-        return yaml.safe_load(path.read_text(encoding="utf-8"))
-    except yaml.YAMLError as exc:
-        raise ParamsError(f"{path} is not valid YAML: {exc}") from None
+        return load_yaml(path, "params file", MAX_PARAMS_BYTES)
+    except InputError as exc:
+        raise ParamsError(str(exc)) from None
 
 

@@ -7,16 +7,66 @@ small integers with 0 = background/unassigned.
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 
 import cv2
 import numpy as np
+from PIL import Image
 
 from abcgs.errors import InputError
 from abcgs.io.atomic import write_bytes
+from abcgs.io.guarded import read_bounded, regular_file
 from abcgs.types import Background
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
+MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS or 89_478_485
+"""Largest image read (pixels, width × height): PIL's own limit (89 478 485, a 0.25 GiB RGBA image; a 100 MP photo
+resized by half fits). Checked from the file's header before anything decodes it."""
+MAX_IMAGE_SLACK = 64 << 20
+"""Bytes an image file may hold beyond 8 bytes a pixel (16-bit RGBA, uncompressed): metadata, thumbnails."""
+MAX_LABEL = 254
+"""Largest label value of a numbered label map (1 … 254; 0 is no label, 255 a pixel left undecided): the masks
+stage's memory grows with the largest label, so a 16-bit map of label 60 000 is refused before any work."""
+
+
+def image_header(path: str | os.PathLike, what: str = "image") -> tuple[int, int, str]:
+    """``(width, height, PIL mode)`` of an image file from its header, nothing decoded. :class:`InputError` naming
+    ``what`` and the file when it is not a regular file (:func:`abcgs.io.guarded.regular_file`), not an image PIL
+    can identify, or larger than :data:`MAX_IMAGE_PIXELS` (an image bomb: a 60 000 × 60 000 one-bit PNG is 436 KB)."""
+    regular_file(path, what)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # the size is checked below
+            with Image.open(path) as im:
+                (w, h), mode = im.size, im.mode
+    except Image.DecompressionBombError as exc:
+        raise InputError(f"{what} {path} is larger than the {MAX_IMAGE_PIXELS} pixels abcgs reads ({exc}); resize "
+                         "it") from None
+    except Exception as exc:  # noqa: BLE001 (PIL raises OSError, SyntaxError, struct.error … for a broken header)
+        raise InputError(f"{what} {path} is not a readable image: it could not be decoded ({type(exc).__name__}: "
+                         f"{str(exc)[:120]}); replace or remove it") from None
+    if w < 1 or h < 1 or w * h > MAX_IMAGE_PIXELS:
+        amount = "no pixels" if w * h < 1 else f"more than the {MAX_IMAGE_PIXELS} pixels abcgs reads"
+        raise InputError(f"{what} {path} is {w}×{h} pixels by its header, {amount}; resize it (or replace it)")
+    return int(w), int(h), str(mode)
+
+
+def decode_image(path: str | os.PathLike, what: str = "image", flags: int = cv2.IMREAD_UNCHANGED) -> np.ndarray:
+    """The image file decoded by OpenCV (``flags``), after :func:`image_header` has checked its header and the file's
+    bytes are bounded by its pixels; :class:`InputError` naming ``what`` and the file when it does not decode."""
+    w, h, _ = image_header(path, what)
+    data = np.frombuffer(read_bounded(path, what, 8 * w * h + MAX_IMAGE_SLACK), np.uint8)
+    if data.size == 0:
+        raise InputError(f"{what} {path} is empty (0 bytes); replace or remove it")
+    try:
+        img = cv2.imdecode(data, flags)
+    except cv2.error as exc:
+        raise InputError(f"{what} {path} could not be decoded ({str(exc).strip().splitlines()[-1][:120]}); replace "
+                         "or remove it") from None
+    if img is None or img.size == 0:
+        raise InputError(f"{what} {path} could not be decoded (corrupt or not an image); replace or remove it")
+    return img
 
 
 def list_images(folder: str | os.PathLike) -> list[Path]:
@@ -36,15 +86,7 @@ def load_image(path: str | os.PathLike) -> np.ndarray:
     Grey images are expanded to three channels and an alpha channel is dropped. A missing, empty or
     undecodable file raises :class:`InputError` naming the file.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"image {path} does not exist")
-    if path.stat().st_size == 0:
-        raise InputError(f"image {path} is empty (0 bytes); replace or remove it")
-    data = np.fromfile(str(path), dtype=np.uint8)
-    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise InputError(f"image {path} could not be decoded (corrupt or not an image); replace or remove it")
+    img = decode_image(path)
     if img.ndim == 2:
         img = np.repeat(img[:, :, None], 3, axis=2)
     elif img.shape[2] == 4:
@@ -59,8 +101,8 @@ def load_render(path: str | os.PathLike, background: Background) -> np.ndarray:
     file of a transparent ``background`` is composited on black (the colour renders are made on)."""
     if not background.transparent:
         return load_image(path)
-    raw = cv2.imdecode(np.fromfile(str(path), dtype=np.uint8), cv2.IMREAD_UNCHANGED)
-    if raw is None or raw.ndim != 3 or raw.shape[2] != 4:
+    raw = decode_image(path, "render")
+    if raw.ndim != 3 or raw.shape[2] != 4:
         raise InputError(f"render {path} is not an RGBA image, but the scene's background is transparent; re-run "
                          "the stylize stage")
     rgba = cv2.cvtColor(raw, cv2.COLOR_BGRA2RGBA).astype(np.float32) / (65535.0 if raw.dtype == np.uint16 else 255.0)
@@ -70,15 +112,11 @@ def load_render(path: str | os.PathLike, background: Background) -> np.ndarray:
 def load_labels(path: str | os.PathLike, *, expect_hw: tuple[int, int] | None = None) -> np.ndarray:
     """Read a label PNG as ``(H, W) int64``.
 
-    Single-channel 8/16-bit PNGs hold labels directly. ``expect_hw`` checks the size against the view
-    it belongs to and raises :class:`InputError` with both sizes when they differ.
+    Single-channel 8/16-bit PNGs hold labels directly; a value above 255 (:data:`MAX_LABEL`, and 255 for a pixel
+    left undecided) is refused. ``expect_hw`` checks the size against the view it belongs to and raises
+    :class:`InputError` with both sizes when they differ.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"label map {path} does not exist")
-    img = cv2.imdecode(np.fromfile(str(path), dtype=np.uint8), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise InputError(f"label map {path} could not be decoded; it must be a single-channel PNG of small integers")
+    img = decode_image(path, "label map")
     if img.ndim == 3:
         if not (np.all(img[..., 0] == img[..., 1]) and np.all(img[..., 1] == img[..., 2])):
             raise InputError(f"label map {path} has colour channels that differ; save labels as a single-channel PNG")
@@ -88,7 +126,17 @@ def load_labels(path: str | os.PathLike, *, expect_hw: tuple[int, int] | None = 
             f"label map {path} is {img.shape[1]}x{img.shape[0]} but its image is {expect_hw[1]}x{expect_hw[0]}; "
             "masks must have the same size as the view they label"
         )
+    check_label_values(path, img)
     return img.astype(np.int64)
+
+
+def check_label_values(path: str | os.PathLike, labels: np.ndarray) -> None:
+    """Refuse a numbered label map ``(H, W)`` holding a value above 255 (labels 1 … :data:`MAX_LABEL`, 255 a pixel
+    left undecided): :class:`InputError` naming the file, the value and the bound."""
+    top = int(labels.max(initial=0))
+    if top > MAX_LABEL + 1:
+        raise InputError(f"label map {path} holds the label {top}, more than the {MAX_LABEL} labels abcgs lifts (1 … "
+                         f"{MAX_LABEL}; 0 is no label, 255 a pixel left undecided); number its regions 1, 2, 3 …")
 
 
 def same_picture_scaled(map_hw: tuple[int, int], view_hw: tuple[int, int]) -> bool:
@@ -145,11 +193,8 @@ def copy_as_png(src: str | os.PathLike, dst: str | os.PathLike) -> tuple[int, in
     """Rewrite the image ``src`` (any format OpenCV decodes) as the PNG ``dst`` with the same decoded pixels (bit
     depth and channels kept, so :func:`load_image` and :func:`load_labels` read the same array from either),
     atomically; returns its ``(width, height)``. An undecodable file raises :class:`InputError` naming it."""
-    src = Path(src)
-    if not src.is_file():
-        raise InputError(f"image {src} does not exist")
-    img = cv2.imdecode(np.fromfile(str(src), dtype=np.uint8), cv2.IMREAD_UNCHANGED)
-    if img is None or img.dtype not in (np.uint8, np.uint16):
+    img = decode_image(src)
+    if img.dtype not in (np.uint8, np.uint16):
         raise InputError(f"image {src} could not be decoded as an 8- or 16-bit image; save it as PNG or JPEG")
     ok, buf = cv2.imencode(".png", img)
     if not ok:

@@ -35,7 +35,7 @@ from abcgs.camera_paths import capture_layout
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel, render
-from abcgs.io.images import load_labels
+from abcgs.io.images import MAX_LABEL, decode_image, load_labels
 from abcgs.masks.lifting import NO_VOTE, lift_labels, propagate_unseen, render_label_map
 from abcgs.masks.params import UNDECIDED, AutoMaskParams, GrabCutParams, MaskParams
 from abcgs.masks.refine import Refinement, refine_labels
@@ -93,9 +93,7 @@ def read_label_files(paths: list[Path], sizes: list[tuple[int, int]]) -> tuple[l
     """
     raws = []
     for p, hw in zip(paths, sizes):
-        img = cv2.imdecode(np.fromfile(str(p), dtype=np.uint8), cv2.IMREAD_UNCHANGED) if p.is_file() else None
-        if img is None:
-            raise InputError(f"label map {p} does not exist or could not be decoded (a PNG of label numbers or colours)")
+        img = decode_image(p, "label map")
         if tuple(img.shape[:2]) != tuple(hw):
             raise InputError(f"label map {p} is {img.shape[1]}x{img.shape[0]} but its view is {hw[1]}x{hw[0]}; "
                              "masks must have the same size as the view they label")
@@ -110,8 +108,9 @@ def read_label_files(paths: list[Path], sizes: list[tuple[int, int]]) -> tuple[l
         rgb = (r if r.ndim == 3 else np.repeat(r[..., None], 3, -1))[..., ::-1].reshape(-1, 3)  # BGR → RGB
         cols, counts = np.unique(rgb, axis=0, return_counts=True)
         keep |= {tuple(int(v) for v in c) for c, n in zip(cols, counts) if n >= MIN_COLOUR_SHARE * len(rgb) and c.any()}
-    if len(keep) > 255:
-        raise InputError(f"the colour label PNGs hold {len(keep)} colours; paint each label in one flat colour")
+    if len(keep) > MAX_LABEL:
+        raise InputError(f"the colour label PNGs hold {len(keep)} colours, more than the {MAX_LABEL} labels abcgs "
+                         "lifts; paint each label in one flat colour")
     palette = {i + 1: c for i, c in enumerate(sorted(keep))}
     lut = {c: i for i, c in palette.items()}
     maps = []

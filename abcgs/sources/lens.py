@@ -10,14 +10,13 @@ the two are the same picture at another scale, and refuses otherwise.
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 import numpy as np
 import pycolmap
-from PIL import Image
 
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
+from abcgs.io.images import image_header
 from abcgs.types import Distortion
 
 PINHOLE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE")
@@ -25,15 +24,8 @@ PINHOLE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE")
 
 def image_size(path: str | os.PathLike) -> tuple[int, int]:
     """``(width, height)`` of an image file from its header (nothing decoded); :class:`InputError` naming the file
-    when it is missing or not an image."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"image {path} does not exist")
-    try:
-        with Image.open(path) as im:
-            return int(im.size[0]), int(im.size[1])
-    except (OSError, ValueError) as exc:
-        raise InputError(f"image {path} is not a readable image ({exc}); replace or remove it") from None
+    when it is missing, not a regular file, not an image or an image bomb (:func:`abcgs.io.images.image_header`)."""
+    return image_header(path)[:2]
 
 
 def consistent_scale(model_size: tuple[int, int], image_size: tuple[int, int]) -> bool:

@@ -39,7 +39,7 @@ import pycolmap
 from abcgs.errors import InputError
 from abcgs.io.atomic import atomic_path, write_json
 from abcgs.io.colmap import write_model
-from abcgs.io.images import labels_for_view, load_image, load_labels, save_image, save_labels
+from abcgs.io.images import decode_image, labels_for_view, load_image, load_labels, save_image, save_labels
 from abcgs.sfm.colmap import (
     choose_matcher,
     extract_features,
@@ -101,9 +101,7 @@ def _stage_image(view: View, dst: Path, background: tuple[float, float, float] |
         keep = (load_labels(view.mask_path, expect_hw=img.shape[:2]) > 0).astype(np.float32)
         save_image(dst, img * keep[..., None] + np.asarray(background, np.float32) * (1.0 - keep[..., None]))
         return keep
-    raw = cv2.imdecode(np.fromfile(str(view.image_path), np.uint8), cv2.IMREAD_UNCHANGED)
-    if raw is None:
-        raise InputError(f"image {view.image_path} could not be decoded; replace it")
+    raw = decode_image(view.image_path)
     if raw.ndim == 3 and raw.shape[2] == 4:
         scale = 65535.0 if raw.dtype == np.uint16 else 255.0
         rgba = cv2.cvtColor(raw, cv2.COLOR_BGRA2RGBA).astype(np.float32) / scale

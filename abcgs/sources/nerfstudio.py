@@ -46,8 +46,9 @@ def applied_similarity(path: Path, meta: dict) -> np.ndarray:
         A[:3] = m[:3]
         check_rotation(A[:3, :3], f"{path}: applied_transform", "nerfstudio writes a rotation and a translation")
     s = number(path, "applied_scale", meta.get("applied_scale", 1.0))
-    if not 0 < s < 1e12:
-        raise InputError(f"{path}: applied_scale is {s}; it must be positive (and below 1e12)")
+    if not 1e-12 < s < 1e12:  # its cube (the similarity's determinant) stays a normal float64
+        raise InputError(f"{path}: applied_scale is {s:g}; a scale between 1e-12 and 1e12 is one nerfstudio writes "
+                         "(it is 1 / the scene's extent); re-export the dataset")
     return np.diag([s, s, s, 1.0]) @ A
 
 

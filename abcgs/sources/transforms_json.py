@@ -5,7 +5,6 @@ file, its ``frames`` list, camera-to-world matrices in OpenGL camera axes, and c
 
 from __future__ import annotations
 
-import json
 import posixpath
 from pathlib import Path
 
@@ -13,6 +12,7 @@ import numpy as np
 
 from abcgs.cameras import check_rotation
 from abcgs.errors import InputError
+from abcgs.io import guarded
 from abcgs.sources.validate import check_count, check_file_name, check_unique
 
 OPENGL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -23,18 +23,10 @@ MAX_JSON_BYTES = 256 << 20
 
 
 def load_json(path: Path) -> dict:
-    """A JSON object from ``path``; :class:`InputError` naming the file when it is not one, is larger than
-    :data:`MAX_JSON_BYTES` or nested deeper than the parser's recursion limit."""
-    size = path.stat().st_size if path.is_file() else 0
-    if size > MAX_JSON_BYTES:
-        raise InputError(f"{path} is {size} bytes, more than the {MAX_JSON_BYTES >> 20} MiB a transforms file may "
-                         "be; it is not a camera file (or keep a subset of its frames)")
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:  # also UnicodeDecodeError, and a number of more than 4300 digits
-        raise InputError(f"{path} is not readable JSON ({exc}); re-export it") from None
-    except RecursionError:
-        raise InputError(f"{path} is nested too deeply to be a transforms file; re-export it") from None
+    """A JSON object from ``path`` (:func:`abcgs.io.guarded.load_json`); :class:`InputError` naming the file when it
+    is not a regular file, not one, is larger than :data:`MAX_JSON_BYTES` or nested deeper than
+    :data:`abcgs.io.guarded.MAX_JSON_DEPTH`."""
+    data = guarded.load_json(path, "transforms file", MAX_JSON_BYTES)
     if not isinstance(data, dict):
         raise InputError(f"{path}: expected a JSON object at the top level")
     return data
