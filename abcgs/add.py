@@ -187,8 +187,9 @@ def scene_entry(name: str, path: str | os.PathLike, *, fmt: str = "auto", images
                      + ("transparent (RGBA renders)" if bg.transparent else f"{list(bg.color)}"))
     if splat is not None:
         splat_path = Path(splat).expanduser().resolve()
-        if not splat_path.is_file():
-            raise InputError(f"--splat {splat_path} does not exist; give the fitted splat file (.ply, .splat, .spz)")
+        if not splat_path.exists():
+            raise InputError(f"--splat {splat_path} does not exist; give the fitted splat: its file (.ply, .splat, "
+                             ".spz, gsplat's .pt) or its trainer's output folder (INRIA's, splatfacto's exports)")
         entry["splat"] = str(splat_path)
         lines.append(_splat_check(splat_path, source, min_psnr, splat_format, drop))
     SceneParams.model_validate(entry)
@@ -197,24 +198,29 @@ def scene_entry(name: str, path: str | os.PathLike, *, fmt: str = "auto", images
 
 def _splat_check(splat: Path, source: Scene | None, min_psnr: float, fmt: str = "auto", drop: bool = False) -> str:
     """The fit stage's render-versus-photo check of a trained splat (:func:`abcgs.splats.validate.check_splat`), run
-    now where the dataset has undistorted cameras; raises :class:`InputError` naming the likely cause when it fails."""
-    from abcgs.splats.registry import read_splat
+    now on the dataset's undistorted views; the file's frame comes from every camera and the dataset's points, as in
+    the fit stage (gsplat's and OpenSplat's worlds are computed from them). Without such views the format is only
+    detected (a folder that holds no splat is refused now). Raises :class:`InputError` naming the likely cause."""
+    from abcgs.splats.registry import detect_splat_format, read_splat
     from abcgs.splats.validate import check_splat
 
-    plain = np.flatnonzero(~source.cameras.distorted) if source is not None else []
-    if not len(plain):
-        return (f"splat {splat}: checked against the photos in the fit stage, once the reconstruct stage has "
-                "the scene's undistorted cameras")
-    none = np.zeros((0, 3), np.float32)
-    scene = replace(source.subset(plain), points=none, colors=none)
     try:
-        check = check_splat(read_splat(splat, fmt, scene=scene, drop_invalid=drop).model, scene, min_psnr=min_psnr,
-                            source=str(splat))
+        found = detect_splat_format(splat) if fmt == "auto" else fmt
+        plain = np.flatnonzero(~source.cameras.distorted) if source is not None else []
+        if source is None or not len(plain):
+            return (f"splat {splat} ({found}): checked against the photos in the fit stage, once the reconstruct "
+                    "stage has the scene's undistorted cameras")
+        if source.points is None:  # a dataset without points: gsplat's frame then says it needs them
+            none = np.zeros((0, 3), np.float32)
+            source = replace(source, points=none, colors=none)
+        model = read_splat(splat, found, scene=source, drop_invalid=drop).model
+        check = check_splat(model, source.subset(plain), min_psnr=min_psnr, source=str(splat))
     except InputError as exc:  # the fixes the readers name as settings, as this command's options
         text = re.sub(r"set splat_format: (\w+)", r"set splat_format: \1 (add-scene --splat-format \1)", str(exc))
         text = text.replace("splat_nonfinite: drop", "splat_nonfinite: drop (add-scene --splat-nonfinite drop)")
         raise InputError(text) from None
-    return f"splat {splat}: its renders match the photos at {check.psnr:.1f} dB (threshold {min_psnr:g})"
+    return (f"splat {splat} ({found}): its renders match the photos at {check.psnr:.1f} dB over "
+            f"{len(check.per_view)} views (threshold {min_psnr:g})")
 
 
 def add_scene(params_path: str | os.PathLike, name: str, path: str | os.PathLike, *, fmt: str = "auto",
