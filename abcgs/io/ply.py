@@ -30,6 +30,7 @@ from plyfile import PlyData, PlyElement, PlyListProperty, PlyParseError
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel, valid_gaussians
 from abcgs.io.atomic import write_stream
+from abcgs.io.guarded import regular_file
 
 _REST_COUNTS = {0: 0, 9: 1, 24: 2, 45: 3}
 """Number of ``f_rest_*`` fields → SH degree."""
@@ -206,8 +207,7 @@ def read_ply_layout(
     """:func:`read_ply`, also returning the file's :class:`PlyLayout` and the values of its properties that are
     not Gaussian parameters (``{name: (N,) array}``), so that :func:`write_ply` can write the same layout back."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"PLY file {path} does not exist")
+    regular_file(path, "PLY file")
     head = _read_head(path)
     if not (head.startswith(b"ply\n") or head.startswith(b"ply\r\n")):
         raise InputError(f"{path} is not a PLY file (it does not start with the 'ply' magic line)")

@@ -20,6 +20,7 @@ import numpy as np
 
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
+from abcgs.io.guarded import read_bounded
 from abcgs.sfm.align import Similarity
 from abcgs.splats import frames
 
@@ -108,11 +109,11 @@ class SplatFormatSpec:
     suffixes: tuple[str, ...] = ()
 
 
+MAX_SPLAT_BYTES = 8 << 30
+"""Largest splat file read whole (bytes): 30 M Gaussians of SH degree 3 in a PLY (248 bytes each) take 7 GiB."""
+
+
 def read_bytes(path: str | os.PathLike, what: str) -> bytes:
-    """The bytes of the file ``path``; :class:`InputError` naming ``what`` (``.spz file``) when it is missing or not
-    a file."""
-    p = os.fspath(path)
-    if not os.path.isfile(p):
-        raise InputError(f"{what} {p} does not exist")
-    with open(p, "rb") as f:
-        return f.read()
+    """The bytes of the file ``path`` (:func:`abcgs.io.guarded.read_bounded`, at most :data:`MAX_SPLAT_BYTES`);
+    :class:`InputError` naming ``what`` (``.spz file``) when it is missing, not a regular file or larger."""
+    return read_bounded(path, what, MAX_SPLAT_BYTES)

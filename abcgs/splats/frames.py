@@ -20,7 +20,6 @@ view directions). The maps known here:
 
 from __future__ import annotations
 
-import json
 import math
 from functools import lru_cache
 from pathlib import Path
@@ -31,6 +30,7 @@ import torch
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
+from abcgs.io.guarded import load_json
 from abcgs.render.sh import eval_sh
 from abcgs.sfm.align import Similarity
 
@@ -163,19 +163,24 @@ def transform_model(model: GaussianModel, sim: Similarity) -> GaussianModel:
 # ----------------------------------------------------------------------------------------------- known frames
 
 
+MAX_TRANSFORMS_BYTES = 1 << 20
+"""Largest ``dataparser_transforms.json`` read (bytes; nerfstudio's is about 300)."""
+
+
 def nerfstudio_similarity(path: str | Path) -> Similarity:
     """Dataset frame → nerfstudio world, from a ``dataparser_transforms.json`` (``{"transform": 3x4, "scale": s}``):
     ``x_ns = scale · (R x + t)``."""
     path = Path(path)
+    data = load_json(path, "splatfacto dataparser transforms", MAX_TRANSFORMS_BYTES)
     try:
-        data = json.loads(path.read_text())
         t = np.asarray(data["transform"], float)
         scale = float(data["scale"])
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+    except (ValueError, KeyError, TypeError, OverflowError) as exc:
         raise InputError(f"{path}: not a nerfstudio dataparser_transforms.json with 'transform' (3x4) and 'scale' "
-                         f"({exc}); pass the file written next to the splatfacto run's config.yml") from None
-    if t.shape != (3, 4) or not scale > 0:
-        raise InputError(f"{path}: 'transform' must be 3x4 and 'scale' positive, got {t.shape} and {scale}")
+                         f"({str(exc)[:80]}); pass the file written next to the splatfacto run's config.yml") from None
+    if t.shape != (3, 4) or not 1e-12 < scale < 1e12:
+        raise InputError(f"{path}: 'transform' must be 3x4 and 'scale' between 1e-12 and 1e12, got {t.shape} and "
+                         f"{scale:g}")
     m = np.eye(4)
     m[:3, :] = t
     m[:3, :] *= scale

@@ -136,6 +136,8 @@ def read_splat(path: str | os.PathLike, fmt: str = "auto", *, scene=None, drop_i
     if not p.exists():
         raise InputError(f"splat {p} does not exist")
     model, fields = spec.read(p, drop_invalid)
+    if model.num_gaussians == 0:
+        raise InputError(f"splat {p} holds 0 Gaussians; export the trained scene again (a splat needs at least one)")
     to_file = spec.frame(p, scene, fields)
     model = valid_gaussians(model, str(p), drop=drop_invalid)
     prov = SplatProvenance(fmt, os.fspath(p), model.sh_degree, model.num_gaussians,

@@ -45,9 +45,39 @@ def read_gsplat_ckpt(path: str | os.PathLike) -> tuple[GaussianModel, int | None
     missing = [k for k in FIELDS if k not in splats]
     if missing:
         raise InputError(f"{path}: the splats dictionary lacks {', '.join(missing)} (has {', '.join(splats)})")
-    fields = {FIELDS[k]: splats[k].detach().to("cpu", torch.float32).contiguous() for k in FIELDS}
-    step = data.get("step")
-    return GaussianModel(**fields), int(step) if step is not None else None
+    fields = {FIELDS[k]: _real_tensor(path, k, splats[k]) for k in FIELDS}
+    try:
+        model = GaussianModel(**fields)
+    except InputError as exc:  # a shape of another layout
+        raise InputError(f"{path}: {exc}; a gsplat checkpoint holds means (N, 3), quats (N, 4), scales (N, 3), "
+                         "opacities (N,), sh0 (N, 1, 3), shN (N, K-1, 3)") from None
+    return model, _step(path, data.get("step"))
+
+
+def _real_tensor(path: Path, key: str, value: object) -> torch.Tensor:
+    """``splats[key]`` as a contiguous CPU ``float32`` tensor; :class:`InputError` naming ``path`` and ``key`` when it
+    is not a tensor of at least one dimension and a real floating-point (or integer) dtype (a complex tensor would
+    lose its imaginary part)."""
+    if not isinstance(value, torch.Tensor):
+        raise InputError(f"{path}: splats['{key}'] is a {type(value).__name__}, not a tensor; the file is not a gsplat "
+                         "checkpoint")
+    if value.dim() == 0 or value.is_complex() or value.dtype == torch.bool:
+        raise InputError(f"{path}: splats['{key}'] is a {value.dim()}-d {value.dtype} tensor; gsplat saves real "
+                         "floating-point tensors with one row per Gaussian")
+    return value.detach().to("cpu", torch.float32).contiguous()
+
+
+def _step(path: Path, step: object) -> int | None:
+    """The checkpoint's ``step`` (``None`` when absent): a whole number from 0 to 10¹²; :class:`InputError` naming
+    ``path`` otherwise (a string, an infinite float)."""
+    if step is None:
+        return None
+    if isinstance(step, torch.Tensor) and step.numel() == 1 and not step.is_complex():
+        step = step.item()
+    if isinstance(step, bool) or not isinstance(step, (int, float)) or not (0 <= step <= 1e12 and step == int(step)):
+        raise InputError(f"{path}: step is {str(step)[:40]!r}, not an iteration count (a whole number from 0 to "
+                         "1e12); the file is not a gsplat checkpoint")
+    return int(step)
 
 
 def write_gsplat_ckpt(path: str | os.PathLike, model: GaussianModel, step: int | None = None) -> None:

@@ -9,7 +9,6 @@ sets of centres (identity when they agree).
 
 from __future__ import annotations
 
-import json
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,11 +19,16 @@ from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
 from abcgs.io.atomic import atomic_path, write_text
+from abcgs.io.guarded import parse_json, read_bounded, read_text
 from abcgs.io.ply import PlyLayout, read_ply_layout, write_ply
 from abcgs.sfm.align import Similarity, alignment_residual
 from abcgs.splats import frames
 from abcgs.splats.contract import SplatFormatSpec, SplatProvenance
 
+MAX_SIDE_FILE_BYTES = 64 << 20
+"""Largest ``cameras.json`` or ``cfg_args`` read (bytes; 10 000 views of INRIA's JSON take about 5 MB)."""
+MAX_COORDINATE = 1e9
+"""Largest camera coordinate read from ``cameras.json`` (a 1e308 one overflows the alignment's squares)."""
 CAMERA_ALIGN_TOLERANCE = 1e-3
 """``cameras.json`` centres that match the scene's to this fraction of their spread are taken as the same frame."""
 
@@ -63,21 +67,42 @@ def read_inria_folder(folder: str | Path) -> InriaFolder:
     iteration, ply = max(runs)
     cams = folder / "cameras.json"
     cfg = folder / "cfg_args"
-    cfg_text = cfg.read_text(errors="replace") if cfg.is_file() else None
+    cfg_text = read_bounded(cfg, "INRIA cfg_args", MAX_SIDE_FILE_BYTES).decode("utf-8", "replace") if _given(cfg) else None
     source = None
     if cfg_text:
         m = re.search(r"source_path=(['\"])(.*?)\1", cfg_text)  # read as text: cfg_args is never evaluated
         source = m.group(2) if m else None
-    return InriaFolder(ply, iteration, cams.read_text() if cams.is_file() else None, cfg_text, source)
+    cams_text = read_text(cams, "INRIA cameras.json", MAX_SIDE_FILE_BYTES) if _given(cams) else None
+    return InriaFolder(ply, iteration, cams_text, cfg_text, source)
+
+
+def _given(path: Path) -> bool:
+    """Whether ``path`` is there at all (a symlink loop, a FIFO or a device is, and is refused when read)."""
+    return path.exists() or path.is_symlink()
 
 
 def inria_camera_centres(cameras_json: str, *, source: str = "cameras.json") -> dict[str, np.ndarray]:
-    """``img_name`` (without extension) → camera centre ``(3,)`` from the text of an INRIA ``cameras.json``."""
-    try:
-        views = json.loads(cameras_json)
-        return {Path(str(v["img_name"])).stem: np.asarray(v["position"], float) for v in views}
-    except (ValueError, KeyError, TypeError) as exc:
-        raise InputError(f"{source}: not an INRIA cameras.json (a list of views with img_name and position): {exc}") from None
+    """``img_name`` (without extension) → camera centre ``(3,)`` from the text of an INRIA ``cameras.json``: a list
+    of views, each with a string ``img_name`` and a ``position`` of three finite numbers within
+    :data:`MAX_COORDINATE`; :class:`InputError` naming ``source`` and the view otherwise (its depth bounded:
+    :func:`abcgs.io.guarded.parse_json`)."""
+    views = parse_json(cameras_json, source)
+    if not isinstance(views, list):
+        raise InputError(f"{source}: not an INRIA cameras.json (a list of views with img_name and position)")
+    out = {}
+    for i, v in enumerate(views):
+        if not isinstance(v, dict) or not isinstance(v.get("img_name"), str) or "position" not in v:
+            raise InputError(f"{source}: view {i} is not an object with a string img_name and a position; re-export "
+                             "the model's cameras.json")
+        try:
+            centre = np.asarray(v["position"], np.float64)
+        except (TypeError, ValueError, OverflowError):
+            centre = np.full(1, np.nan)
+        if centre.shape != (3,) or not (np.abs(centre) <= MAX_COORDINATE).all():
+            raise InputError(f"{source}: view {i} ({v['img_name'][:60]}) has the position {str(v['position'])[:60]}; "
+                             f"a camera centre is three finite numbers within ±{MAX_COORDINATE:g}")
+        out[Path(v["img_name"]).stem] = centre
+    return out
 
 
 def frame_from_cameras(centres: dict[str, np.ndarray], cameras: list[Camera], *,
@@ -93,7 +118,11 @@ def frame_from_cameras(centres: dict[str, np.ndarray], cameras: list[Camera], *,
     dst = np.stack([scene[n] for n in names])
     if np.ptp(dst, axis=0).max() < 1e-9:
         return None
-    rms, relative, sim = alignment_residual(src, dst)
+    try:
+        rms, relative, sim = alignment_residual(src, dst)
+    except InputError as exc:  # umeyama's: all centres alike
+        raise InputError(f"{source}: its camera centres do not fix a similarity to the scene's ({exc}); use the "
+                         "scene folder the splat was trained on") from None
     if relative > 0.05:
         raise InputError(f"{source}: the {len(names)} training cameras it shares with the scene do not fit one similarity "
                          f"(RMS {rms:.3g}, {relative:.1%} of the scene's extent): the splat was trained on other poses "

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
+from abcgs.io.guarded import read_text
 from abcgs.sfm.align import Similarity
 from abcgs.splats import frames
 from abcgs.splats.contract import SplatFormatSpec
@@ -52,7 +53,8 @@ def read(path: Path, drop_invalid: bool) -> tuple[GaussianModel, dict]:
     if tf is None:
         raise InputError(f"{path}: no {TRANSFORMS} next to the PLY or above it; copy the splatfacto run's "
                          f"{TRANSFORMS} beside the exported PLY (its frame cannot be undone without it)")
-    return model, {**fields, "side_files": {TRANSFORMS: tf.read_text()}}
+    frames.nerfstudio_similarity(tf)  # checked now: a side file is written back beside the returned splat
+    return model, {**fields, "side_files": {TRANSFORMS: read_text(tf, TRANSFORMS, frames.MAX_TRANSFORMS_BYTES)}}
 
 
 def frame(path: Path, scene, fields: dict) -> Similarity:
