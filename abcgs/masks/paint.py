@@ -10,8 +10,9 @@ The page (``static/paint.html``, plain JavaScript, nothing fetched from the netw
 itself only: the address printed at start carries a random token (as Jupyter's does; the page keeps it in a cookie),
 and a request without it, whose ``Host`` is not that address (DNS rebinding), with another page's ``Origin``, or a
 POST not declared ``application/json`` (what a cross-origin form or ``fetch`` could send without asking) is refused,
-as is a body without a plain ``Content-Length`` from 1 to :data:`MAX_BODY` (:func:`read_body`); each refusal is a 4xx with a one-line
-reason. Pick a label, draw strokes over the objects of one or more views, press **Segment** to see the cut over the
+as is a body without one plain ``Content-Length`` from 1 to :data:`MAX_BODY` (:func:`content_length`,
+:func:`read_body`) or one that does not arrive within :data:`REQUEST_TIMEOUT_S`; each refusal is a 4xx with a
+one-line reason. Pick a label, draw strokes over the objects of one or more views, press **Segment** to see the cut over the
 view, add strokes where it is wrong, and press **Save**: every view with strokes gets a single-channel label PNG (1,
 2, … the labels; 0 = no label, what the background brush or its cut decided; 255 =
 :data:`~abcgs.masks.params.UNDECIDED`, what no cut claimed; the format :func:`abcgs.masks.content.read_label_files`
@@ -40,7 +41,6 @@ from http import HTTPStatus
 from http.cookies import SimpleCookie
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
-from typing import BinaryIO
 from urllib.parse import parse_qs
 
 import cv2
@@ -49,6 +49,17 @@ import numpy as np
 from abcgs.errors import AbcgsError, InputError
 from abcgs.io.images import load_image, save_labels, to_uint8
 from abcgs.masks.grabcut import Segmentation, Stroke, segment
+from abcgs.masks.requests import (  # noqa: F401 (MAX_BODY, REQUEST_TIMEOUT_S, read_body: this page's API)
+    MAX_BODY,
+    REQUEST_TIMEOUT_S,
+    Refused,
+    body_flag,
+    body_revision,
+    body_strokes,
+    content_length,
+    image_index,
+    read_body,
+)
 from abcgs.viz import LABEL_COLOURS, colorize_labels
 
 log = logging.getLogger(__name__)
@@ -330,80 +341,6 @@ def worst_views(masks_json: Path) -> list[str]:
 # ----------------------------------------------------------------------------------------------
 
 _ROUTE = re.compile(r"^/api/(state|image|strokes|segment|labels|overlay|save)(?:/(\d+))?(?:\.png)?$")
-MAX_BODY = 16 << 20
-"""Largest request body read (bytes): strokes of a long session are a few MB of JSON."""
-
-
-class Refused(AbcgsError):
-    """A request the server does not serve: ``status`` (400, 403, 415) and a one-line reason."""
-
-    def __init__(self, status: int, reason: str) -> None:
-        super().__init__(reason)
-        self.status = status
-
-
-def read_body(content_length: str | None, rfile: BinaryIO) -> dict:
-    """The JSON object of a request body of ``content_length`` bytes (the header's text) read from ``rfile``;
-    :class:`Refused` (400) with a one-line reason for a length that is not a plain decimal byte count up to
-    :data:`MAX_BODY`, an empty or short body, and a body that is not a JSON object."""
-    text = (content_length or "").strip()
-    if not (text.isascii() and text.isdigit()):  # also a negative length (rfile.read: "until the end"), or "²"
-        raise Refused(HTTPStatus.BAD_REQUEST, f"Content-Length {text[:40]!r} is not a byte count")
-    n = int(text) if len(text) <= len(str(MAX_BODY)) else MAX_BODY + 1  # int() refuses 4300+ digits
-    if n > MAX_BODY:
-        raise Refused(HTTPStatus.BAD_REQUEST, f"the body of {text if len(text) <= 20 else text[:20] + '…'} bytes is "
-                                              f"larger than {MAX_BODY} bytes")
-    if n == 0:
-        raise Refused(HTTPStatus.BAD_REQUEST, "Content-Length 0: the request has no body; the API takes a JSON "
-                                              "object ({} for none)")
-    raw = rfile.read(n)
-    if len(raw) != n:
-        raise Refused(HTTPStatus.BAD_REQUEST, f"the body ended after {len(raw)} of {n} bytes")
-    try:
-        data = json.loads(raw)
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise Refused(HTTPStatus.BAD_REQUEST, f"the request body is not JSON: {exc}") from None
-    except RecursionError:
-        raise Refused(HTTPStatus.BAD_REQUEST, "the request body nests too deeply") from None
-    if not isinstance(data, dict):
-        raise Refused(HTTPStatus.BAD_REQUEST, "the request body must be a JSON object")
-    return data
-
-
-def image_index(text: str | None) -> int | None:
-    """The image index of a route (``/api/image/<index>``), ``None`` when it has none; :class:`Refused` (400) when
-    it is longer than any index can be."""
-    if text is None:
-        return None
-    if len(text) > 9 or not (text.isascii() and text.isdigit()):
-        raise Refused(HTTPStatus.BAD_REQUEST, f"image index {text[:20]!r}{'…' if len(text) > 20 else ''} is not an "
-                                              "index of this page's images")
-    return int(text)
-
-
-def _strokes(body: dict) -> list[Stroke]:
-    """``body["strokes"]``: a list of stroke objects (:meth:`Stroke.from_json`)."""
-    strokes = body.get("strokes", [])
-    if not isinstance(strokes, list):
-        raise InputError(f"'strokes' must be a list of stroke objects, not {type(strokes).__name__}")
-    return [Stroke.from_json(d) for d in strokes]
-
-
-def _revision(body: dict) -> int | None:
-    """``body["revision"]``: the page's count of edits to a view's strokes (a non-negative integer), or ``None``."""
-    value = body.get("revision")
-    if value is not None and (not isinstance(value, int) or isinstance(value, bool) or value < 0):
-        raise InputError(f"'revision' must be a non-negative integer, not {json.dumps(value)[:40]}")
-    return value
-
-
-def _flag(body: dict, key: str) -> bool | None:
-    value = body.get(key)
-    if value is not None and not isinstance(value, bool):
-        raise InputError(f"{key!r} must be true or false, not {json.dumps(value)[:40]}")
-    return value
-
-
 def _png(arr: np.ndarray) -> bytes:
     if arr.ndim == 3 and arr.shape[2] == 4:
         arr = cv2.cvtColor(arr, cv2.COLOR_RGBA2BGRA)
@@ -473,7 +410,7 @@ class _Handler(BaseHTTPRequestHandler):
                               f"Content-Type {ctype or '(none)'!r}: the API takes application/json")
 
     def _body(self) -> dict:
-        return read_body(self.headers.get("Content-Length"), self.rfile)
+        return read_body(content_length(self.headers.get_all("Content-Length")), self.rfile)
 
     def _dispatch(self, method: str) -> None:
         path, _, query = self.path.partition("?")
@@ -500,13 +437,13 @@ class _Handler(BaseHTTPRequestHandler):
                     return self._json({"strokes": [st.to_json() for st in item.strokes], "revision": item.revision})
             if method == "POST" and what == "strokes":
                 body = self._body()
-                accepted = s.set_strokes(idx, _strokes(body), _revision(body))
+                accepted = s.set_strokes(idx, body_strokes(body), body_revision(body))
                 return self._json({**s.state()["items"][idx], "accepted": accepted})
             if method == "POST" and what == "segment":
                 body = self._body()
-                fill = _flag(body, "fill")
+                fill = body_flag(body, "fill")
                 if "strokes" in body:
-                    s.set_strokes(idx, _strokes(body), _revision(body))
+                    s.set_strokes(idx, body_strokes(body), body_revision(body))
                 seg = s.segment(idx, fill)
                 return self._json({"counts": {str(k): v for k, v in seg.counts().items()},
                                    "seconds": round(seg.seconds, 3), "item": s.state()["items"][idx]})
@@ -518,7 +455,7 @@ class _Handler(BaseHTTPRequestHandler):
                 arr = labels.astype(np.uint8) if what == "labels" else overlay_rgba(labels)
                 return self._send(200, _png(arr), "image/png")
             if method == "POST" and what == "save":
-                fill = _flag(self._body(), "fill")
+                fill = body_flag(self._body(), "fill")
                 if fill is not None:
                     s.fill = fill
                 written = s.save()
@@ -541,8 +478,9 @@ class _Handler(BaseHTTPRequestHandler):
 
 
 def make_server(session: PaintSession, port: int = 0, host: str = "127.0.0.1",
-                token: str | None = None) -> ThreadingHTTPServer:
-    """An HTTP server for ``session`` on ``host:port`` (0 = any free port); call ``serve_forever()`` on it.
+                token: str | None = None, timeout: float = REQUEST_TIMEOUT_S) -> ThreadingHTTPServer:
+    """An HTTP server for ``session`` on ``host:port`` (0 = any free port); call ``serve_forever()`` on it. A
+    connection that sends nothing for ``timeout`` seconds is answered 408 (mid-body) or closed.
 
     ``server.server_port`` is the port it got. Only loopback addresses are allowed: the page can write files. Every
     request must carry ``token`` (a fresh random one by default; ``server.token``), which :func:`page_url` puts in
@@ -551,7 +489,7 @@ def make_server(session: PaintSession, port: int = 0, host: str = "127.0.0.1",
     if host not in ("127.0.0.1", "localhost", "::1"):
         raise InputError(f"the paint server listens on the loopback address only, not {host}")
     token = token or secrets.token_urlsafe(24)
-    handler = type("PaintHandler", (_Handler,), {"session": session, "token": token})
+    handler = type("PaintHandler", (_Handler,), {"session": session, "token": token, "timeout": timeout})
     server = ThreadingHTTPServer((host, port), handler)
     server.daemon_threads = True
     server.token = token  # type: ignore[attr-defined]
