@@ -246,9 +246,9 @@ def test_no_densification_and_refine_stop():
     assert model.num_gaussians == 4
 
 
-def test_schedule_scaling_and_validation():
-    p = StrategyParams().scaled(300 / 30000)
-    assert (p.refine_start, p.refine_stop, p.refine_every, p.reset_every) == (5, 150, 1, 30)
+def test_schedule_resolution_and_validation():
+    p = StrategyParams().resolved(300)
+    assert (p.refine_start, p.refine_stop, p.refine_every, p.reset_every) == (5, 150, 10, 30)
     with pytest.raises(ValueError):
         StrategyParams(unknown=1)
     with pytest.raises(ValueError):

@@ -12,6 +12,7 @@ import torch
 
 from abcgs.fit.evaluation import comparison_grid, evaluate
 from abcgs.fit.params import FitParams
+from abcgs.fit.plausibility import check_fit
 from abcgs.fit.training import FitResult, fit
 from abcgs.io.atomic import write_json
 from abcgs.io.images import save_image
@@ -33,16 +34,23 @@ def fit_and_save(
     """:func:`fit`, then write into ``out_dir`` (each file atomically):
 
     - ``point_cloud.ply``: INRIA-layout 3DGS PLY (:func:`abcgs.io.ply.write_ply`);
-    - ``metrics.json``: held-out ``psnr``/``ssim`` means and ``per_view``, ``n_gaussians``, ``seconds``, ``backend``, …;
+    - ``metrics.json``: held-out ``psnr``/``ssim`` means and ``per_view``, ``n_gaussians``, ``seconds``, ``backend``, …,
+      and ``check``: the plausibility check's numbers (:class:`~abcgs.fit.plausibility.FitCheck`);
     - ``history.csv``: ``step, seconds, loss, psnr, n_gaussians`` per step;
     - ``heldout_grid.png``: one row per held-out view, ground truth | render (training views 0–2 when
       nothing is held out).
+
+    Raises:
+        FitError: the fit is implausible (:func:`~abcgs.fit.plausibility.check_fit`); nothing is written.
     """
     out = FitDir(Path(out_dir))
     out.root.mkdir(parents=True, exist_ok=True)
     result = fit(scene, params, progress, device=device)
+    with torch_threads(params.threads), kernel_threads(params.rasterizer_threads):
+        check = check_fit(result)
+    check.raise_if_implausible()
     write_ply(out.ply, result.model)
-    write_json(out.record, result.metrics())
+    write_json(out.record, {**result.metrics(), "check": check.to_dict()})
     write_csv(out.history, result.history, HISTORY_COLUMNS)
     if result.heldout is not None:
         pairs = [(v.target, v.render) for v in result.heldout.views]

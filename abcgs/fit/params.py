@@ -13,15 +13,25 @@ from pydantic import BaseModel, Field, field_validator, model_validator
 
 
 class StrategyParams(BaseModel, extra="forbid"):
-    """Knobs of :class:`DefaultStrategy`. Steps count from 1; defaults are the 3DGS values for 30k iterations.
+    """Knobs of :class:`DefaultStrategy`. Steps count from 1.
 
-    For short runs scale the schedule with :meth:`scaled` (or set the step fields directly).
+    The four step fields default to ``null``: the schedule then follows the run's length (:meth:`resolved`) in the
+    proportions of the 3DGS reference schedule (30 000 steps: densify from step 500 every 100 steps until step
+    15 000, opacities reset every 3 000 steps while densifying), so that a run of any length ends on many steps
+    without a reset. A step field that is set is kept as it is; :meth:`recovery_problem` says when the last reset
+    leaves too few steps to recover.
     """
 
-    refine_start: int = Field(500, ge=0, description="no densification at or before this step")
-    refine_stop: int = Field(15000, ge=0, description="statistics, densification and resets stop at this step")
-    refine_every: int = Field(100, ge=1, description="densify every this many steps")
-    reset_every: int = Field(3000, ge=1, description="clamp opacities to reset_opacity every this many steps")
+    refine_start: int | None = Field(
+        None, ge=0, description="no densification at or before this step (null: a sixtieth of the run, at most 500)")
+    refine_stop: int | None = Field(
+        None, ge=0, description="statistics, densification and resets stop at this step (null: half the run)")
+    refine_every: int | None = Field(
+        None, ge=1, description="densify every this many steps (null: 100, or a thirtieth of runs under 3000 steps, "
+        "at least 10)")
+    reset_every: int | None = Field(
+        None, ge=1, description="clamp opacities to reset_opacity every this many steps while densifying (null: a "
+        "tenth of the run)")
     grow_grad2d: float = Field(0.0002, gt=0.0, description="mean view-space gradient (NDC units) to densify")
     grow_scale3d: float = Field(
         0.01, gt=0.0, description="percent_dense: clone if max scale <= this × scene extent, else split"
@@ -41,21 +51,44 @@ class StrategyParams(BaseModel, extra="forbid"):
             )
         return self
 
-    def scaled(self, factor: float) -> StrategyParams:
-        """The same schedule with every step count multiplied by ``factor`` (e.g. ``iterations / 30000``)."""
-        step = lambda s: max(1, int(round(s * factor)))  # noqa: E731
-        return self.model_copy(
-            update={
-                "refine_start": int(round(self.refine_start * factor)),
-                "refine_stop": step(self.refine_stop),
-                "refine_every": step(self.refine_every),
-                "reset_every": step(self.reset_every),
-            }
-        )
+    def resolved(self, iterations: int) -> StrategyParams:
+        """The schedule of a run of ``iterations`` steps: every unset step field from the run's length (at 30 000
+        steps exactly the 3DGS values), every set one kept."""
+        defaults = {
+            "refine_start": min(500, iterations // 60),
+            "refine_stop": iterations // 2,
+            "refine_every": max(10, min(100, iterations // 30)),
+            "reset_every": max(1, iterations // 10),
+        }
+        return self.model_copy(update={k: v for k, v in defaults.items() if getattr(self, k) is None})
 
+    def last_reset(self, iterations: int) -> int | None:
+        """The step of the run's last opacity reset (None: the run has none). Resets fall on the multiples of
+        ``reset_every`` before ``refine_stop`` (:class:`DefaultStrategy`)."""
+        p = self.resolved(iterations)
+        last = min(p.refine_stop - 1, iterations) // p.reset_every * p.reset_every
+        return last if last > 0 else None
+
+    def recovery_problem(self, iterations: int) -> str | None:
+        """Why this schedule ends a run of ``iterations`` steps with its opacities still near ``reset_opacity``,
+        or None. A reset clamps every opacity to ``reset_opacity``; the Gaussians need the last
+        :data:`MIN_RECOVERY` of the run without one to learn their opacities back."""
+        last = self.last_reset(iterations)
+        if last is None or iterations - last >= MIN_RECOVERY * iterations:
+            return None
+        p = self.resolved(iterations)
+        latest = int((1.0 - MIN_RECOVERY) * iterations)
+        return (f"the last opacity reset falls on step {last} of {iterations} (strategy.reset_every {p.reset_every}, "
+                f"strategy.refine_stop {p.refine_stop}), leaving {iterations - last} steps to learn the opacities "
+                f"back, under {MIN_RECOVERY:.0%} of the run; set strategy.refine_stop to at most {latest}, or remove "
+                "strategy.reset_every and strategy.refine_stop to follow fit.iterations")
+
+
+MIN_RECOVERY = 0.2
+"""Share of a fit's steps that must follow its last opacity reset (3DGS's reference schedule leaves 60 %)."""
 
 REFERENCE_ITERATIONS = 30000
-"""The iteration count the 3DGS densification schedule was designed for (see ``FitParams.scale_schedule``)."""
+"""The iteration count the 3DGS densification schedule was designed for (:meth:`StrategyParams.resolved`)."""
 
 
 class FitParams(BaseModel, extra="forbid"):
@@ -88,9 +121,6 @@ class FitParams(BaseModel, extra="forbid"):
                              "opacities stay bit-identical, and nothing densifies (the colour match's re-fit under "
                              "stylize.color_only)")
     strategy: StrategyParams = Field(default_factory=StrategyParams)
-    scale_schedule: bool = Field(
-        False, description=f"multiply the strategy's step counts by iterations / {REFERENCE_ITERATIONS}"
-    )
     max_gaussians: int | None = Field(None, ge=1, description="stop growing beyond this many Gaussians")
     eval_every: int = Field(0, ge=0, description="also evaluate held-out views every this many steps (0 = end only)")
     threads: int = Field(
@@ -98,6 +128,13 @@ class FitParams(BaseModel, extra="forbid"):
         description="torch CPU threads during the fit (0 = torch's default, all cores). 1 is the default: with "
         "other processes on the cores, intra-op threads spin and a step runs up to ~15x slower",
     )
+    min_psnr: float = Field(
+        15.0, ge=0.0, description="the fit stage fails when its held-out views (its training views, when nothing is "
+        "held out) score under this mean PSNR (dB), naming the likely causes, so that nothing is painted on a broken "
+        "fit (abcgs/fit/plausibility.py); 0 turns the floor off")
+    max_psnr_gap: float = Field(
+        12.0, gt=0.0, description="the fit stage fails when its held-out views score more than this many dB under its "
+        "training views: it learnt the photos, not the scene")
     import_min_psnr: float = Field(
         16.0, ge=0.0, description="a scene that names a trained splat imports it instead of fitting; below this mean "
         "PSNR (dB) of its renders against the photos the import fails, naming the likely cause (frame, axes, scale, SH "
@@ -118,8 +155,12 @@ class FitParams(BaseModel, extra="forbid"):
             raise ValueError("test_every = 1 would hold out every view; use 0 (no hold-out) or >= 2")
         return v
 
+    @model_validator(mode="after")
+    def _check_schedule(self) -> FitParams:
+        if self.densify and not self.color_only and (problem := self.strategy.recovery_problem(self.iterations)):
+            raise ValueError(f"fit.strategy: {problem}")
+        return self
+
     def strategy_params(self) -> StrategyParams:
-        """The strategy parameters actually used (scaled to ``iterations`` when ``scale_schedule``)."""
-        if self.scale_schedule:
-            return self.strategy.scaled(self.iterations / REFERENCE_ITERATIONS)
-        return self.strategy
+        """The strategy parameters this run uses: :meth:`StrategyParams.resolved` for ``iterations``."""
+        return self.strategy.resolved(self.iterations)

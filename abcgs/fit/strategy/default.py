@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import torch
 
-from abcgs.fit.params import StrategyParams
+from abcgs.fit.params import REFERENCE_ITERATIONS, StrategyParams
 from abcgs.fit.strategy.base import RefineReport
 from abcgs.fit.strategy.ops import Optimizers, State, duplicate, remove, reset_opacity, split
 from abcgs.gaussians import GaussianModel
@@ -32,7 +32,8 @@ class DefaultStrategy:
     grow (pruning is unaffected).
 
     Args:
-        params: :class:`StrategyParams`. scene_extent: scene radius in world units (3DGS: 1.1 × the largest
+        params: :class:`StrategyParams`, its schedule resolved for the run (:meth:`StrategyParams.resolved`; step
+        fields left unset take the 3DGS reference schedule's values). scene_extent: scene radius in world units (3DGS: 1.1 × the largest
         camera distance from the cameras' centroid). max_gaussians: growth cap (None = unlimited).
         generator: RNG for split samples (default: torch's global RNG).
     """
@@ -41,6 +42,9 @@ class DefaultStrategy:
     scene_extent: float = 1.0
     max_gaussians: int | None = None
     generator: torch.Generator | None = None
+
+    def __post_init__(self) -> None:
+        self.params = self.params.resolved(REFERENCE_ITERATIONS)
 
     def initialize_state(self, model: GaussianModel) -> State:
         n, dev = model.num_gaussians, model.device
