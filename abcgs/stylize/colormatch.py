@@ -35,6 +35,7 @@ from abcgs.silhouette import (
 from abcgs.stylize.color import apply_group_transforms
 from abcgs.stylize.loop import color_match_model, group_pixel_masks
 from abcgs.stylize.params import ColorMatchParams
+from abcgs.stylize.schedule import choose_schedule
 from abcgs.types import FRAME_FILLING, Backend, Background, MatchingGroup, Scene
 from abcgs.viz import image_grid
 
@@ -45,6 +46,7 @@ class ColorMatchResult:
     transforms: dict[int, tuple[Tensor, Tensor]]
     images: list[Tensor]  # recoloured training images (H, W, 3)
     history: list[dict]
+    schedule: dict | None = None  # the re-fit's step count and why (abcgs.stylize.schedule.Schedule.to_dict)
 
 
 @dataclass(frozen=True)
@@ -132,16 +134,17 @@ def color_match_and_refit(
                                               gaussians=None if objects is None else objects.gaussians)
     images = recolor_images(views.images, view_labels, groups, transforms, objects)
     history: list[dict] = []
-    if params.refit_iterations > 0:
+    schedule = choose_schedule(views.cameras, refit=params.refit_iterations)
+    if schedule.steps["refit"] > 0:
         # No densification: the Gaussians keep their lifted labels (the authors densify every 50 steps and
         # keep per-view 2-D masks instead; with 3-D labels the set of Gaussians must stay fixed).
-        fp = FitParams(iterations=params.refit_iterations, test_every=0, densify=False, seed=params.seed,
+        fp = FitParams(iterations=schedule.steps["refit"], test_every=0, densify=False, seed=params.seed,
                        backend=params.backend, resolution_scale=params.resolution_scale, lr_means=1.6e-6,
                        lr_means_final=1.6e-6, background=background.color, color_only=color_only)
         res = fit(scene, fp, progress, views=Views(views.cameras, images, views.train, [], views.alphas), initial=recolored,
                   frozen=None if objects is None else ~objects.gaussians)
         recolored, history = res.model, res.history
-    return ColorMatchResult(recolored, transforms, images, history)
+    return ColorMatchResult(recolored, transforms, images, history, schedule.to_dict())
 
 
 def write_colormatch(out: Path, name: str, spec: TransferSpec, result: ColorMatchResult, groups: list[MatchingGroup],
@@ -155,7 +158,7 @@ def write_colormatch(out: Path, name: str, spec: TransferSpec, result: ColorMatc
         write_json(d.record, {
             "colormatch": name, **spec.model_dump(mode="json"), "groups": [g.style_name for g in groups],
             "transforms": {str(k): {"A": A.tolist(), "b": b.tolist()} for k, (A, b) in result.transforms.items()},
-            "refit_steps": len(result.history),
+            "refit_steps": len(result.history), "schedule": result.schedule,
             "refit_final_loss": result.history[-1]["loss"] if result.history else None,
             "vgg_weights": vgg_weights,
         })

@@ -45,6 +45,7 @@ from abcgs.silhouette import Silhouette, background_tensor, object_gaussians
 from abcgs.stylize.color import apply_group_transforms, fit_color_transform, preserve_color
 from abcgs.stylize.params import StyleWeights, StylizeParams
 from abcgs.stylize.replay import ReplayedViews, can_replay
+from abcgs.stylize.schedule import choose_schedule
 from abcgs.types import FRAME_FILLING, Background, MatchingGroup, SceneMasks, StyleMethod
 
 log = logging.getLogger(__name__)
@@ -106,6 +107,8 @@ class StylizeResult:
     projected_search: dict | None = None
     color_timings: dict[str, float] = field(default_factory=dict)
     """The colour pass's split (:func:`color_pass`)."""
+    schedule: dict | None = None
+    """The step counts run and why (:meth:`abcgs.stylize.schedule.Schedule.to_dict`)."""
 
     def record(self) -> dict:
         """The run's numbers for ``stylize.json``: wall time, per-iteration timings, FAST counters, size."""
@@ -114,7 +117,7 @@ class StylizeResult:
             "stylize_seconds": self.seconds, "iterations": int(self.timings.get("iterations", 0)),
             "seconds_per_iteration": {k: v / n_it for k, v in self.timings.items() if k != "iterations"},
             "fast": self.fast_stats, "n_gaussians": self.model.num_gaussians,
-            "projected_search": self.projected_search,
+            "projected_search": self.projected_search, "schedule": self.schedule,
         }
 
 
@@ -566,7 +569,8 @@ def stylize(
     for g, z in enumerate(groups):
         if not any(bool(t.group_masks[g].any()) for t in targets):
             raise InputError(f"matching group for content label {z.content_label} covers no pixel in any view")
-    n_main, n_color = params.optim.iterations, params.optim.color_pass_iterations
+    schedule = choose_schedule(cameras, main=params.optim.iterations, color_pass=params.optim.color_pass_iterations)
+    n_main, n_color = schedule.steps["main"], schedule.steps["color_pass"]
     styled, main = style_pass(model, targets, groups, vgg, params, iterations=n_main, method=method, progress=progress,
                               backdrop=backdrop)
     release_free_memory()  # the pass's freed tensors, kept by the allocator between its steps (runtime.setup)
@@ -582,7 +586,7 @@ def stylize(
         styled = recolor_to_content(styled, model)
     release_free_memory()
     return StylizeResult(styled, history, main.timings, main.fast.as_dict(), time.perf_counter() - t0, t_cp,
-                         color_timings=color_timings)
+                         color_timings=color_timings, schedule=schedule.to_dict())
 
 
 def stylize_scene(

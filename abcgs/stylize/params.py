@@ -58,12 +58,13 @@ class StylizeOptim(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    iterations: int = Field(300, ge=0, description="main pass (authors: 600 on LLFF; 300 is the schedule every "
-                            "measurement in docs/FIDELITY.md used)")
-    color_pass_iterations: int = Field(
-        200, ge=0, description="authors' post-process after the main pass: re-render, colour-match again, re-fit colours "
-        "and rotations with L1 + D-SSIM (authors: 400; 200 measured on fern: Gram distance 0.315 → 0.267, "
-        "docs/FIDELITY.md); 0 turns it off")
+    iterations: int | None = Field(
+        None, ge=0, description="main pass steps (authors: 600 on LLFF); null: by the views' size, 150 for small "
+        "views, 300 for photos (the schedule every measurement in docs/FIDELITY.md used; abcgs/stylize/schedule.py)")
+    color_pass_iterations: int | None = Field(
+        None, ge=0, description="authors' post-process after the main pass: re-render, colour-match again, re-fit "
+        "colours and rotations with L1 + D-SSIM (authors: 400; 200 measured on fern: Gram distance 0.315 → 0.267, "
+        "docs/FIDELITY.md); 0 turns it off; null: by the views' size, 50 for small views, 200 for photos")
     color_pass_rotations: bool = Field(
         True, description="the colour pass re-fits rotations too (the authors' post-process); false freezes its "
         "geometry, and the CPU colour pass then replays each view's recorded blending map (docs/SCALING.md)")
@@ -142,7 +143,7 @@ class StylizeParams(BaseModel):
     compute: StylizeCompute = Field(default_factory=StylizeCompute)
 
     def with_schedule(self, iterations: int | None = None, color_pass_iterations: int | None = None) -> StylizeParams:
-        """A copy with ``optim.iterations`` / ``optim.color_pass_iterations`` replaced where given (≥ 0)."""
+        """A copy with ``optim.iterations`` / ``optim.color_pass_iterations`` set where given (≥ 0)."""
         update = {k: v for k, v in (("iterations", iterations), ("color_pass_iterations", color_pass_iterations))
                   if v is not None}
         return self.model_copy(update={"optim": StylizeOptim.model_validate({**self.optim.model_dump(), **update})})
@@ -164,7 +165,9 @@ class ColorMatchParams(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     enabled: bool = Field(True, description="False = stylize the scene's own colours")
-    refit_iterations: int = Field(400, ge=0, description="re-fit steps on the recoloured images (authors: 400)")
+    refit_iterations: int | None = Field(
+        None, ge=0, description="re-fit steps on the recoloured images (authors: 400); null: by the views' size, 100 "
+        "for small views, 400 for photos (abcgs/stylize/schedule.py)")
     resolution_scale: float = Field(1.0, gt=0, le=1.0)
     seed: int = 0
     backend: Backend = "auto"
