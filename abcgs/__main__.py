@@ -3,6 +3,8 @@
     python -m abcgs add-scene NAME PATH [--format F] [--images SUBFOLDER] [--background R G B | transparent] [--splat FILE]
         [--splat-format F] [--splat-nonfinite drop] [--views-kind K --views-count N --views-width W ...]
     python -m abcgs add-style NAME PAINTING [--labels REGION_MAP]
+    python -m abcgs add-experiment NAME --scene SCENE (--style P [P ...] [--binding auto | L=R ...] | --styles L=P ...)
+        [--method fast [nnfm ...]]
 
 Each prints what it found and the entry it wrote; a problem is one line naming the file and the fix (exit status 2).
 """
@@ -18,6 +20,7 @@ import yaml
 from abcgs.errors import AbcgsError
 from abcgs.sources.base import FORMATS
 from abcgs.splats.params import SplatFormatParam, SplatViewsParams
+from abcgs.types import StyleMethod
 
 
 def _background_word(word: str) -> float | str:
@@ -71,7 +74,22 @@ def _parser() -> argparse.ArgumentParser:
     style.add_argument("name", help="the painting's name (letters, digits, _ . -)")
     style.add_argument("path", help="the painting's image file")
     style.add_argument("--labels", default=None, help="its region map (label PNG, for semantic transfer)")
-    for p in (scene, style):
+    exp = sub.add_parser("add-experiment", help="add a colour match and its experiments (single, compositional or "
+                         "semantic transfer) to colormatches and experiments")
+    exp.add_argument("name", help="the experiment's name (letters, digits, _ . -); also its colour match's")
+    exp.add_argument("--scene", required=True, help="a scene of data.scenes (python -m abcgs add-scene)")
+    exp.add_argument("--style", nargs="+", default=None, metavar="PAINTING",
+                     help="single transfer: one experiment per painting of data.styles; semantic: one painting, "
+                     "with --binding")
+    exp.add_argument("--styles", nargs="+", default=None, metavar="LABEL=PAINTING",
+                     help="compositional transfer: a painting per content label, e.g. 1=starry 2=kandinsky")
+    exp.add_argument("--binding", nargs="+", default=None, metavar="LABEL=REGION",
+                     help="semantic transfer: content label → region of the painting's label map, e.g. 1=3 2=2, or "
+                     "auto (the same number)")
+    exp.add_argument("--method", nargs="+", default=["fast"], choices=(*get_args(StyleMethod), "none"),
+                     help="style losses: one experiment each, sharing the colour match (default: fast; none: the colour "
+                     "match alone)")
+    for p in (scene, style, exp):
         p.add_argument("--params", default="params.yaml", help="the params file to edit (default: params.yaml)")
         p.add_argument("--force", action="store_true", help="replace an entry of that name")
         p.add_argument("--dry-run", action="store_true", help="check and print the entry, write nothing")
@@ -84,11 +102,41 @@ def _views(args: argparse.Namespace) -> dict | None:
     return {k: v for k, v in given.items() if v is not None} or None
 
 
+def _binding(words: list[str] | None) -> dict[int, int] | str | None:
+    """``--binding``: ``auto``, or LABEL=REGION pairs of numbers."""
+    from abcgs.add_experiment import parse_pairs
+
+    if words is None or words == ["auto"]:
+        return None if words is None else "auto"
+    pairs = parse_pairs(words, "--binding")
+    if not all(v.isdigit() and int(v) >= 1 for v in pairs.values()):
+        raise AbcgsError(f"--binding {' '.join(words)}: each region is a number >= 1 of the painting's label map")
+    return {k: int(v) for k, v in pairs.items()}
+
+
+def _add_experiment(args: argparse.Namespace) -> int:
+    from abcgs.add_experiment import add_experiment, parse_pairs, plan_experiments
+
+    styles = parse_pairs(args.styles, "--styles") if args.styles else None
+    plan = plan_experiments(args.name, args.scene, style=args.style, styles=styles, binding=_binding(args.binding),
+                            methods=args.method)
+    lines = add_experiment(args.params, plan, force=args.force, dry_run=args.dry_run)
+    for line in lines:
+        print(f"  {line}")
+    print(f"{'would write' if args.dry_run else 'wrote'} colormatches and experiments in {args.params}:")
+    body = {"colormatches": plan.colormatches, "experiments": plan.experiments}
+    print("  " + yaml.safe_dump(body, sort_keys=False, default_flow_style=None).rstrip().replace("\n", "\n  "))
+    print(f"run just {'it' if len(plan.experiments) == 1 else 'them'} with:\n  {plan.command()}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     from abcgs.add import add_scene, add_style
 
     args = _parser().parse_args(argv)
     try:
+        if args.command == "add-experiment":
+            return _add_experiment(args)
         if args.command == "add-scene":
             entry, lines = add_scene(args.params, args.name, args.path, fmt=args.format, images=args.images,
                                      background=_background(args.background), splat=args.splat,
