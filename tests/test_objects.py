@@ -89,6 +89,56 @@ def test_forward_views_spread_over_the_parallax_asked_for():
     assert widest >= 30.0
 
 
+def _flat_object(n: int = 4000, seed: int = 3) -> GaussianModel:
+    """A flat oval object (2 × 1.2 across in x, y; 0.2 deep in z), off the origin, trained from its -z side: its
+    Gaussians grow away from that side (σ × e^1.2 across its depth), so ``auto`` faces it from -z."""
+    g = torch.Generator().manual_seed(seed)
+    r, t = torch.sqrt(torch.rand(n, generator=g)), torch.rand(n, generator=g) * 2 * np.pi
+    z = (torch.rand(n, generator=g) - 0.5) * 0.2
+    means = torch.stack([r * torch.cos(t), 0.6 * r * torch.sin(t), z], 1) + torch.tensor([0.3, -0.2, 1.0])
+    return GaussianModel(means, torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1), (float(np.log(0.02)) + 6.0 * z)[:, None].repeat(1, 3),
+                         torch.full((n,), 3.0), torch.randn(n, 1, 3, generator=g) * 0.5, torch.zeros(n, 0, 3))
+
+
+def _border_and_cover(model: GaussianModel, cams) -> tuple[float, float]:
+    """The largest alpha of the original on any view's border pixels, and the least share of a view it covers."""
+    border, cover = 0.0, 1.0
+    for c in cams:
+        with torch.no_grad():
+            alpha = render(model, c)[1][..., 0].numpy()
+        border = max(border, alpha[0].max(), alpha[-1].max(), alpha[:, 0].max(), alpha[:, -1].max())
+        cover = min(cover, float((alpha >= 0.5).mean()))
+    return float(border), cover
+
+
+def test_forward_views_of_an_object_hold_all_of_it_and_orbit_framing_is_the_same(tmp_path):
+    """A flat object seen from one side gets forward views (auto) that frame all of it when its scene is an object
+    (a background: read_splat_source as the stages call it); the same views as a frame-filling scene frame its
+    quantiles, which crop it (74-79 % of each view's border on the object). Orbit views frame every Gaussian either
+    way, so the object flag does not move them."""
+    from abcgs.io.ply import write_ply
+    from abcgs.sources.splat import read_splat_source
+
+    model = _flat_object()
+    params = SplatViewsParams(count=12, width=64, height=48)
+    write_ply(tmp_path / "brooch.ply", model)
+    source = read_splat_source(tmp_path / "brooch.ply", tmp_path / "views", params, background=(0.0, 0.0, 0.0))
+    assert source.metadata["views_kind"] == "forward" and len(source.cameras) == 12
+    assert all(c.viewmat[2, 2] > 0.9 and c.center[2] < 0.0 for c in source.cameras)  # facing it from -z, face on
+    border, cover = _border_and_cover(model, list(source.cameras))
+    assert border < 0.5 and cover > 0.3, (border, cover)  # whole, and not a speck
+    scene_cams, kind = cameras_around(model, params)  # a frame-filling scene: the quantile framing crops it
+    assert kind == "forward" and _border_and_cover(model, scene_cams)[0] >= 0.5
+    same = read_splat_source(tmp_path / "brooch.ply", tmp_path / "views_scene", params)
+    assert all(np.array_equal(a.viewmat, b.viewmat) for a, b in zip(same.cameras, scene_cams))
+    forward = SplatViewsParams(kind="forward", count=8, width=96, height=72, parallax_deg=60.0)
+    assert _border_and_cover(model, cameras_around(model, forward, object_scene=True)[0])[0] < 0.5
+    orbit = SplatViewsParams(kind="orbit", count=12, width=64, height=48)
+    for m in (model, make_model(3000, 0, seed=5)):
+        as_object, as_scene = cameras_around(m, orbit, object_scene=True)[0], cameras_around(m, orbit)[0]
+        assert all(np.array_equal(a.viewmat, b.viewmat) for a, b in zip(as_object, as_scene))
+
+
 # ------------------------------------------------------------------------------------------------ the background
 def test_a_scenes_background_is_resolved_from_its_entry_and_format():
     assert SceneParams(path="x").resolved_background("photos") == FRAME_FILLING

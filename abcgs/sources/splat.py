@@ -34,10 +34,12 @@ def read_splat_source(path: Path, out_images_dir: Path, params: SplatViewsParams
                       background: tuple[float, float, float] | None = None, drop_invalid: bool = False) -> Scene:
     """Read the splat at ``path`` (``drop_invalid``: dropping its non-finite Gaussians), make ``params``' cameras around
     it, write its render from each on ``background`` (RGB in ``[0, 1]``, default black) into ``out_images_dir`` (PNG,
-    named like the cameras) and return the :class:`Scene` (``format`` ``"splat"``)."""
+    named like the cameras) and return the :class:`Scene` (``format`` ``"splat"``). A ``background`` makes the splat an
+    object on nothing (the stages give a bare splat one): every view, orbit or forward, frames all of it
+    (:func:`~abcgs.splats.cameras.cameras_around`'s ``object_scene``); without one, forward views frame its quantiles."""
     params = params or SplatViewsParams()
     model = read_splat(path, fmt, drop_invalid=drop_invalid).model
-    cams, kind = cameras_around(model, params)
+    cams, kind = cameras_around(model, params, object_scene=background is not None)
     out_images_dir = Path(out_images_dir)
     out_images_dir.mkdir(parents=True, exist_ok=True)
     views = []

@@ -14,6 +14,10 @@ trainers save in) points up in the image.
   ``params.parallax_deg`` between the outermost columns (a quarter of it between the outermost rows), facing the
   splat along its size gradient (below) from the side of the small Gaussians, at the distance where the 10–90 %
   quantiles across fill the field of view (floaters and a far background would otherwise push the cameras back).
+  An object on nothing (``object_scene``: its scene has a background, as every bare splat in the stages) is framed
+  as by orbit views instead: looking at the centre of the box around the Gaussians that matter, from the least
+  distance at which all of them lie inside every view, × :data:`FRAME_MARGIN`; a flat object seen from one side is
+  whole in every view.
 - ``auto``: ``forward`` when the Gaussians grow across the splat: a splat trained from one side has Gaussians whose
   size grows with their distance from the cameras (each covers a few pixels there), so ``log σ_max`` regressed on
   position (opacity-weighted, inside the robust bounds of :func:`splat_frame`) has a gradient pointing away from them;
@@ -160,14 +164,61 @@ def orbit_directions(count: int, elevation_deg: tuple[float, float], up: np.ndar
     return np.asarray(out)
 
 
-def cameras_around(model: GaussianModel, params: SplatViewsParams | None = None) -> tuple[list[Camera], str]:
+def visible_balls(model: GaussianModel, min_opacity: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The Gaussians that matter (opacity ≥ ``min_opacity``; the 4 most opaque when fewer do) as balls: centres
+    ``(N, 3)``, radii :data:`SIGMA_EXTENT` × σ_max ``(N,)`` (world units), and the centre ``(3,)`` of their box."""
+    with torch.no_grad():
+        x = model.means.double().cpu().numpy()
+        opacity = model.opacities.double().cpu().numpy()
+        sigma = model.scales.double().max(dim=1).values.cpu().numpy()
+    keep = opacity >= min_opacity
+    if keep.sum() < 4:
+        keep = opacity >= np.sort(opacity)[-4]
+    pts, radii = x[keep], SIGMA_EXTENT * sigma[keep]
+    return pts, radii, 0.5 * ((pts - radii[:, None]).min(axis=0) + (pts + radii[:, None]).max(axis=0))
+
+
+def forward_directions(count: int, parallax_deg: float, right: np.ndarray, down: np.ndarray,
+                       along: np.ndarray) -> np.ndarray:
+    """``(count, 3)`` unit directions from the target to the cameras of a 4 × ⌈count/4⌉ grid facing ``along`` (the
+    central view's image ``right`` and ``down``): ``parallax_deg`` between the outermost columns, a quarter of it
+    between the outermost rows."""
+    cols = 4 if count >= 4 else count
+    rows = -(-count // cols)
+    half_az, half_el = np.radians(parallax_deg) / 2, np.radians(parallax_deg) / 8
+    out = []
+    for i in range(count):
+        r, c = divmod(i, cols)
+        az = (c / max(cols - 1, 1) - 0.5) * 2 * half_az if cols > 1 else 0.0
+        el = (r / max(rows - 1, 1) - 0.5) * 2 * half_el if rows > 1 else 0.0
+        out.append(-along * np.cos(az) * np.cos(el) + right * np.sin(az) * np.cos(el) - down * np.sin(el))
+    return np.asarray(out)
+
+
+def _quantile_framing(model: GaussianModel, fr: SplatFrame, axes: np.ndarray, fov_deg: float,
+                      aspect: float) -> tuple[np.ndarray, float]:
+    """A forward-facing scene's target ``(3,)`` and distance: the 10–90 % quantiles along ``axes`` (rows: image right,
+    image down, viewing direction) fill the field of view (``fov_deg`` across, ``aspect`` = width / height)."""
+    with torch.no_grad():
+        x = model.means.double().cpu().numpy()
+        w = model.opacities.double().cpu().numpy() + 1e-6
+    q = np.stack([_wquantile((x - fr.centre) @ a, w, (FORWARD_QUANTILE, 1 - FORWARD_QUANTILE)) for a in axes])
+    h0, h1, h2 = np.maximum((q[:, 1] - q[:, 0]) / 2, 1e-6)
+    return fr.centre + axes.T @ q.mean(axis=1), max(h0, h1 * aspect) / np.tan(np.radians(fov_deg) / 2) + h2
+
+
+def cameras_around(model: GaussianModel, params: SplatViewsParams | None = None, *,
+                   object_scene: bool = False) -> tuple[list[Camera], str]:
     """The pinhole cameras of ``params`` (count, size, horizontal field of view, kind, up; module docstring) around
     ``model``; returns them and the kind used (``orbit`` or ``forward``, also in each camera's
-    ``meta["views_kind"]``)."""
+    ``meta["views_kind"]``). ``object_scene``: the splat is an object on nothing (its scene has a background), so
+    forward views too frame every Gaussian that matters, as orbit views always do; else they frame its quantiles."""
     params = params or SplatViewsParams()
     count, width, height, fov_deg = params.count, params.width, params.height, params.fov_deg
     if count < 1:
         raise InputError(f"views.count must be at least 1, got {count}")
+    if params.kind not in ("auto", "orbit", "forward"):
+        raise InputError(f"views.kind must be auto, orbit or forward, got {params.kind!r}")
     fr = splat_frame(model)
     used = params.kind
     if used == "auto":
@@ -175,41 +226,17 @@ def cameras_around(model: GaussianModel, params: SplatViewsParams | None = None)
     focal = width / 2 / np.tan(np.radians(fov_deg) / 2)
     K = intrinsics(focal, width, height)
     up = world_up(params.up)
-    with torch.no_grad():
-        x = model.means.double().cpu().numpy()
-        opacity = model.opacities.double().cpu().numpy()
-        sigma = model.scales.double().max(dim=1).values.cpu().numpy()
     if used == "orbit":
-        keep = opacity >= params.min_opacity
-        if keep.sum() < 4:
-            keep = opacity >= np.sort(opacity)[-4]
-        pts, radii = x[keep], SIGMA_EXTENT * sigma[keep]
-        centre = 0.5 * ((pts - radii[:, None]).min(axis=0) + (pts + radii[:, None]).max(axis=0))
         dirs = orbit_directions(count, params.elevation_deg, up)
-        dist = FRAME_MARGIN * framing_distance(pts, radii, centre, dirs, up, width / 2 / focal, height / 2 / focal)
-        eyes = [centre + dist * v for v in dirs]
-        target = centre
-    elif used == "forward":
+    else:
         g = fr.size_gradient
         a2 = g / np.linalg.norm(g) if np.linalg.norm(g) > 0 else fr.axes[2]  # viewing direction: towards larger
         a0, a1 = view_basis(-a2, up)  # image right and down of the central view
-        w = opacity + 1e-6
-        q = np.stack([_wquantile((x - fr.centre) @ a, w, (FORWARD_QUANTILE, 1 - FORWARD_QUANTILE))
-                      for a in (a0, a1, a2)])
-        h0, h1, h2 = np.maximum((q[:, 1] - q[:, 0]) / 2, 1e-6)
-        target = fr.centre + np.stack([a0, a1, a2]).T @ q.mean(axis=1)
-        dist = max(h0, h1 * width / height) / np.tan(np.radians(fov_deg) / 2) + h2
-        cols = 4 if count >= 4 else count
-        rows = -(-count // cols)
-        half_az, half_el = np.radians(params.parallax_deg) / 2, np.radians(params.parallax_deg) / 8
-        eyes = []
-        for i in range(count):
-            r, c = divmod(i, cols)
-            az = (c / max(cols - 1, 1) - 0.5) * 2 * half_az if cols > 1 else 0.0
-            el = (r / max(rows - 1, 1) - 0.5) * 2 * half_el if rows > 1 else 0.0
-            v = -a2 * np.cos(az) * np.cos(el) + a0 * np.sin(az) * np.cos(el) - a1 * np.sin(el)
-            eyes.append(target + dist * v)
+        dirs = forward_directions(count, params.parallax_deg, a0, a1, a2)
+    if used == "orbit" or object_scene:
+        pts, radii, target = visible_balls(model, params.min_opacity)
+        dist = FRAME_MARGIN * framing_distance(pts, radii, target, dirs, up, width / 2 / focal, height / 2 / focal)
     else:
-        raise InputError(f"views.kind must be auto, orbit or forward, got {params.kind!r}")
-    return [Camera(f"view_{i:03d}.png", K.copy(), look_at(eye, target, up=-up), width, height, {"views_kind": used})
-            for i, eye in enumerate(eyes)], used
+        target, dist = _quantile_framing(model, fr, np.stack([a0, a1, a2]), fov_deg, width / height)
+    return [Camera(f"view_{i:03d}.png", K.copy(), look_at(target + dist * v, target, up=-up), width, height,
+                   {"views_kind": used}) for i, v in enumerate(dirs)], used
