@@ -5,11 +5,15 @@
 
 For each format a small valid input is made the way the project makes it (:func:`make_targets`): a 3DGS PLY, a
 SuperSplat compressed PLY, a ``.splat``, a ``.spz``, a COLMAP model (binary and text) with its images, a nerfstudio ``transforms.json``, an LLFF
-``poses_bounds.npy``, and the masks page's request body (``Content-Length`` and JSON, plus an image index). Each
+``poses_bounds.npy``, the masks page's request body (``Content-Length`` and JSON, plus an image index), and
+(:mod:`eval.bench.fuzz_inputs`) a photo read by its header, a gsplat checkpoint, an INRIA ``cameras.json``, a
+splatfacto ``dataparser_transforms.json``, a ``params.yaml`` and a scene whose files become special files. Each
 input is one seeded mutation of it (:data:`MUTATIONS`): truncated, bytes flipped or inserted, a count or size field
 inflated, a number replaced by 0, -1, NaN, infinity or a huge value, a record repeated, the JSON nested deeply, a
-gzip stream padded to a bomb. Its reader must return a scene, or refuse with :class:`~abcgs.errors.InputError` (the
-masks page: :class:`~abcgs.masks.paint.Refused`, a 4xx); any other exception, or an input slower than
+gzip stream padded to a bomb, a PNG header claiming 10⁹ × 10⁹ pixels, a checkpoint field made 0-d, complex or
+empty, a YAML alias bomb, a FIFO or ``/dev/zero`` in a file's place. Its reader must return a scene, or refuse with
+:class:`~abcgs.errors.InputError` (the masks page: :class:`~abcgs.masks.paint.Refused`, a 4xx; ``params.yaml``:
+:class:`~abcgs.errors.ParamsError`); any other exception, or an input slower than
 :data:`SLOW_S`, is a finding. Each format runs in a child process, so a reader that crashes the interpreter (a native
 abort) is reported with the input that did it instead of ending the run.
 
@@ -46,8 +50,10 @@ import torch
 
 from abcgs.cameras import Camera, intrinsics, look_at
 from abcgs.errors import InputError
+from eval.bench import fuzz_inputs
 
-FORMATS = ("ply", "supersplat", "splat", "spz", "colmap_bin", "colmap_txt", "transforms", "llff", "paint")
+FORMATS = ("ply", "supersplat", "splat", "spz", "colmap_bin", "colmap_txt", "transforms", "llff", "paint", "image",
+           "gsplat_ckpt", "inria_cameras", "splatfacto", "params", "special")
 SLOW_S = 5.0
 """An input whose reader takes longer than this (seconds) is a finding."""
 SPECIAL_NUMBERS = ("0", "-1", "NaN", "Infinity", "-Infinity", "1e400", "1e-300", "1e30", "99999999999999999999",
@@ -154,6 +160,7 @@ class Target:
 
     def restore(self) -> None:
         for p, data in self.originals.items():
+            fuzz_inputs.clear(p)  # a special file a mutation left (writing to a FIFO would wait for a reader)
             p.write_bytes(data)
 
 
@@ -225,9 +232,24 @@ def make_targets(work: Path, formats: tuple[str, ...] = FORMATS) -> dict[str, Ta
             image_index(index.decode("utf-8", "replace"))
             return read_body(head.decode("utf-8", "replace"), io.BytesIO(body))
         out["paint"] = Target("paint", [p], read_request, "json", Refused)
+    _more_targets(work, formats, cams, out)
     for t in out.values():
         t.read()  # the valid input reads
     return out
+
+
+def _more_targets(work: Path, formats: tuple[str, ...], cams: list[Camera], out: dict[str, Target]) -> None:
+    """The targets of :mod:`eval.bench.fuzz_inputs` among ``formats``, added to ``out``."""
+    makers = {"image": ("png", lambda w: fuzz_inputs.make_image(w)),
+              "gsplat_ckpt": ("ckpt", lambda w: fuzz_inputs.make_gsplat_ckpt(w, _model(), cams, _points())),
+              "inria_cameras": ("json", lambda w: fuzz_inputs.make_inria_cameras(w, cams)),
+              "splatfacto": ("json", fuzz_inputs.make_splatfacto_transforms),
+              "params": ("yaml", fuzz_inputs.make_params),
+              "special": ("special", lambda w: fuzz_inputs.make_special(w, cams, _transforms, _images))}
+    for name, (kind, make) in makers.items():
+        if name in formats:
+            files, read = make(work / name)
+            out[name] = Target(name, files, read, kind, fuzz_inputs.REFUSALS.get(name, InputError))
 
 
 # ------------------------------------------------------------------------------------------ mutations
@@ -379,6 +401,10 @@ MUTATIONS: dict[str, tuple[Callable[[bytes, np.random.Generator], bytes], ...]] 
              _inflated(_spz_count), _inflated(_repeat), _bomb),
     "text": (_truncate, _flip, _insert, _number, _line, _repeat),
     "json": (_truncate, _flip, _insert, _number, _json_edit, _json_edit, _nest),
+    "png": (_truncate, _flip, _insert, _overwrite, *fuzz_inputs.OWN_MUTATIONS["png"] * 3),
+    "ckpt": (_truncate, _flip, _insert, *fuzz_inputs.OWN_MUTATIONS["ckpt"] * 4),
+    "yaml": (_truncate, _flip, _insert, _number, _line, _nest, *fuzz_inputs.OWN_MUTATIONS["yaml"] * 2),
+    "special": (),
 }
 """The mutations each kind of input gets, drawn uniformly."""
 
@@ -424,12 +450,15 @@ def fuzz_target(t: Target, inputs: int, seed: int = 0, progress: Path | None = N
     t0 = time.perf_counter()
     for i in range(inputs):
         f = t.files[0] if len(t.files) == 1 or rng.random() < 0.5 else t.files[int(rng.integers(len(t.files)))]
-        mut = muts[int(rng.integers(len(muts)))]
-        used[mut.__name__] += 1
-        data = mut(t.originals[f], rng)
-        f.write_bytes(data)
+        if t.kind == "special":  # the file replaced by a FIFO, a link to /dev/zero, a symlink loop …
+            name = f"special_{fuzz_inputs.special(f, rng)}"
+        else:
+            mut = muts[int(rng.integers(len(muts)))]
+            name = mut.__name__
+            f.write_bytes(mut(t.originals[f], rng))
+        used[name] += 1
         if progress is not None:
-            progress.write_text(json.dumps({"index": i, "mutation": mut.__name__, "file": f.name}))
+            progress.write_text(json.dumps({"index": i, "mutation": name, "file": f.name}))
         start = time.perf_counter()
         error = None
         try:
@@ -446,11 +475,11 @@ def fuzz_target(t: Target, inputs: int, seed: int = 0, progress: Path | None = N
             error = f"{type(exc).__name__}: {str(exc)[:300]} ({Path(tb.filename).name}:{tb.lineno})"
         dt = time.perf_counter() - start
         if dt > run.slowest_s:
-            run.slowest_s, run.slowest_mutation = dt, mut.__name__
+            run.slowest_s, run.slowest_mutation = dt, name
         if error is None and dt > SLOW_S:
             error = f"took {dt:.1f} s"
         if error is not None:
-            run.findings.append(Finding(t.name, i, mut.__name__, f.name, error, round(dt, 3)))
+            run.findings.append(Finding(t.name, i, name, f.name, error, round(dt, 3)))
         t.restore()
         run.inputs += 1
     run.seconds = time.perf_counter() - t0

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import io
 import os
+import warnings
 from pathlib import Path
 
 import torch
@@ -31,9 +32,12 @@ def read_gsplat_ckpt(path: str | os.PathLike) -> tuple[GaussianModel, int | None
     path = Path(path)
     raw = read_bytes(path, "gsplat checkpoint")
     try:
-        data = torch.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():  # a file's pickle protocol is no warning for the user, its refusal is below
+            warnings.simplefilter("ignore")
+            data = torch.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many types for a file that is not a checkpoint
-        raise InputError(f"{path} is not a torch checkpoint readable without code ({type(exc).__name__}: {exc}); "
+        reason = " ".join(str(exc).split())[:200]  # torch's own messages run over several lines
+        raise InputError(f"{path} is not a torch checkpoint readable without code ({type(exc).__name__}: {reason}); "
                          "pass gsplat's ckpts/ckpt_<step>_rank0.pt") from None
     splats = data.get("splats") if isinstance(data, dict) else None
     if not isinstance(splats, dict):
