@@ -190,10 +190,22 @@ def scene_entry(name: str, path: str | os.PathLike, *, fmt: str = "auto", images
         if not splat_path.exists():
             raise InputError(f"--splat {splat_path} does not exist; give the fitted splat: its file (.ply, .splat, "
                              ".spz, gsplat's .pt) or its trainer's output folder (INRIA's, splatfacto's exports)")
+        splat_path = _splat_file(splat_path, splat_format)
         entry["splat"] = str(splat_path)
         lines.append(_splat_check(splat_path, source, min_psnr, splat_format, drop))
     SceneParams.model_validate(entry)
     return entry, lines
+
+
+def _splat_file(path: Path, fmt: str) -> Path:
+    """What the entry names for ``--splat path``: the PLY in splatfacto's exports folder (so that the export stage
+    gives the stylized scene back as a PLY of that name, beside the run's transforms), else ``path`` itself."""
+    from abcgs.splats.formats.splatfacto import splatfacto_ply
+    from abcgs.splats.registry import detect_splat_format
+
+    if path.is_dir() and (fmt == "splatfacto" or fmt == "auto" and detect_splat_format(path) == "splatfacto"):
+        return splatfacto_ply(path)
+    return path
 
 
 def _splat_check(splat: Path, source: Scene | None, min_psnr: float, fmt: str = "auto", drop: bool = False) -> str:

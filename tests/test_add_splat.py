@@ -1,6 +1,6 @@
 """``python -m abcgs add-scene NAME FOLDER --splat PATH``: every kind of trained splat the README names goes through
-the command itself, which renders it against the scene's photos, writes the entry, and the fit stage's import of that
-entry renders them as the command said.
+the command itself, which renders it against the scene's photos and writes the entry; the fit stage's import of that
+entry renders them as the command said, and the export stage gives the scene back under the source's name and format.
 
 The scene is a COLMAP folder whose photos are the renders of a generated degree-3 model (tests/test_splats.py's), its
 sparse points every 10th mean; each splat is that model as its tool writes it (test_splats' ``_write``).
@@ -24,7 +24,10 @@ from abcgs.io.images import save_image
 from abcgs.io.ply import write_ply
 from abcgs.params import load_params
 from abcgs.sources.read import read_source
+from abcgs.splats.exporting import give_back
 from abcgs.splats.importing import import_and_save
+from abcgs.splats.registry import detect_splat_format, read_splat
+from abcgs.splats.validate import check_splat
 from abcgs.types import Cameras, Distortion, Scene
 
 REPORTED = re.compile(r"its renders match the photos at ([\d.]+) dB over (\d+) views")
@@ -77,17 +80,24 @@ def test_add_scene_takes_each_splat_route_and_the_import_renders_the_photos(rout
     splat = _splat(route, scene, model, tmp_path / "trained")
     rc, out, err = _run(capsys, "add-scene", "garden2", str(folder), "--splat", str(splat), "--params", str(params_file))
     assert rc == 0, err
-    assert f"splat {splat} ({fmt}): its renders match the photos" in out, out
+    named = splat / "splat.ply" if route == "splatfacto_folder" else splat  # the entry names the exported PLY
+    assert f"splat {named} ({fmt}): its renders match the photos" in out, out
     reported = REPORTED.search(out)
     assert reported and int(reported.group(2)) == 8
     assert least_db <= float(reported.group(1)) < 70.0, out  # 8-bit photos: no route renders them exactly
     spec = load_params(params_file).data.scenes["garden2"]
-    assert (spec.path, spec.format, spec.splat_path()) == (str(folder), "colmap", splat)
+    assert (spec.path, spec.format, spec.splat_path()) == (str(folder), "colmap", named)
     # the fit stage's import of the written entry: the same frame, the same check, the same number
     source = read_source(spec.path, spec.format)
     record = import_and_save(source, spec.splat_path(), spec.splat_format, FitParams(), tmp_path / "gs")
     assert record["imported"]["format"] == fmt
     assert record["imported"]["check"]["psnr"] == pytest.approx(float(reported.group(1)), abs=0.05)
+    # the export stage gives it back under the source's name, in its format, rendering the photos again
+    back = give_back(tmp_path / "gs" / "point_cloud.ply", tmp_path / "gs" / "splat_source.json", tmp_path / "back")
+    returned = tmp_path / "back" / named.name
+    assert back["file"] == named.name and detect_splat_format(returned) == fmt
+    again = check_splat(read_splat(returned, scene=source).model, source, min_psnr=16.0)
+    assert again.psnr == pytest.approx(float(reported.group(1)), abs=0.5)  # a lossy codec re-encodes its own values
 
 
 def test_a_trainers_frame_comes_from_every_camera_while_the_check_skips_distorted_views(colmap_scene, params_file,
