@@ -4,8 +4,9 @@ around a bare splat: what a user who brought only a ``.splat`` sees at the end o
     python -m eval.studies.viewer_shot --splat fern.splat --stylized stylized.ply --count 12 \\
         --out docs/img/splats/bare_splat_fern_viewer.jpg
 
-The cameras are :func:`abcgs.splats.cameras.cameras_around` of ``--splat`` (as the reconstruct stage makes them), so
-the viewer opens at the first generated view; the page holds the stylized and the original layer.
+The cameras are :func:`abcgs.splats.cameras.cameras_around` of ``--splat`` as :mod:`eval.studies.bare_splat` makes them
+(a frame-filling scene: forward views frame its quantiles), so the viewer opens at the first generated view; the page
+holds the stylized and the original layer.
 """
 
 from __future__ import annotations
