@@ -232,7 +232,8 @@ class GaussianModel:
         with torch.no_grad():
             bad = torch.zeros(self.num_gaussians, dtype=torch.bool, device=self.means.device)
             for _, t in self.items():
-                bad |= ~torch.isfinite(t.detach()).reshape(self.num_gaussians, -1).all(dim=1)
+                finite = torch.isfinite(t.detach())
+                bad |= ~(finite.flatten(1).all(dim=1) if finite.dim() > 1 else finite)  # 0 rows: nothing to flag
             return bad | (self.quats.detach().abs().sum(dim=1) == 0)
 
 

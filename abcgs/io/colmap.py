@@ -27,6 +27,7 @@ import numpy as np
 
 from abcgs.cameras import Camera, check_intrinsics
 from abcgs.errors import InputError
+from abcgs.io.guarded import read_bounded, read_text
 from abcgs.types import CAMERA_MODELS, PINHOLE_MODEL, SINGLE_FOCAL_MODELS, Cameras, Distortion
 
 FIX = "re-export the model from COLMAP (or run the reconstruct stage again)"
@@ -146,11 +147,15 @@ def rotation_to_quaternion(R) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------------------ reading
+MAX_MODEL_BYTES = 8 << 30
+"""Largest COLMAP model file read (bytes; a 10 M-point model with its tracks takes about 2 GB)."""
+
+
 class _Bytes:
     """A binary model file read with every count and length bounded by the bytes it has."""
 
     def __init__(self, path: Path) -> None:
-        self.path, self.data, self.pos = path, path.read_bytes(), 0
+        self.path, self.data, self.pos = path, read_bounded(path, "COLMAP model file", MAX_MODEL_BYTES), 0
 
     def take(self, fmt: str):
         size = struct.calcsize("<" + fmt)
@@ -232,7 +237,12 @@ def _read_bin(model_dir: Path) -> _Raw:
 
 
 def _lines(path: Path) -> list[str]:
-    return [ln for ln in path.read_text(encoding="utf-8").splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    return [ln for ln in _text(path).splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+
+
+def _text(path: Path) -> str:
+    """A text model file (:func:`abcgs.io.guarded.read_text`: a regular file of at most :data:`MAX_MODEL_BYTES`)."""
+    return read_text(path, "COLMAP model file", MAX_MODEL_BYTES)
 
 
 def _read_txt(model_dir: Path) -> _Raw:
@@ -261,7 +271,7 @@ def _parse_txt(model_dir: Path) -> _Raw:
     images = []
     path = model_dir / "images.txt"
     # two lines per image, the pose and its 2-D points; the points line may be empty, so blank lines count here
-    rows = [ln for ln in path.read_text(encoding="utf-8").splitlines() if not ln.startswith("#")]
+    rows = [ln for ln in _text(path).splitlines() if not ln.startswith("#")]
     k = 0
     while k < len(rows):
         f = rows[k].split()

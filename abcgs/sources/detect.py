@@ -38,9 +38,16 @@ def colmap_model_dir(folder: str | os.PathLike) -> Path | None:
     has ``cameras.bin`` or ``cameras.txt``)."""
     folder = Path(folder)
     for cand in (folder / "sparse" / "0", folder / "sparse"):
-        if (cand / "cameras.bin").is_file() or (cand / "cameras.txt").is_file():
+        if _present(cand / "cameras.bin") or _present(cand / "cameras.txt"):
             return cand
     return None
+
+
+def _present(path: Path) -> bool:
+    """Whether a scene's marker file is there at all, even as something its reader refuses (a FIFO, a link to
+    ``/dev/zero``, a symlink loop): the reader then says what is wrong with it, instead of the scene being taken for
+    another format."""
+    return os.path.lexists(path)
 
 
 def image_files(folder: str | os.PathLike) -> list[Path]:
@@ -101,13 +108,13 @@ def detect_format(folder: str | os.PathLike, images: str | None = None) -> Scene
     if not folder.is_dir():
         raise InputError(f"{folder} does not exist; give the scene's folder (absolute paths: DVC experiments run in a "
                          "copy of the repository)")
-    if (folder / "transforms_train.json").is_file():
+    if _present(folder / "transforms_train.json"):
         return "blender"
-    if (folder / "transforms.json").is_file():
+    if _present(folder / "transforms.json"):
         return "nerfstudio"
     if colmap_model_dir(folder) is not None:
         return "colmap"
-    if (folder / "poses_bounds.npy").is_file():
+    if _present(folder / "poses_bounds.npy"):
         return "llff"
     sub = images or DEFAULT_IMAGES
     if image_files(folder / sub):
