@@ -196,8 +196,9 @@ def _yaml_reason(exc: BaseException) -> str:
 def parse_yaml(text: str, source: str) -> Any:
     """The YAML document ``text`` (one), composed and constructed within the bounds of this module;
     :class:`InputError` naming ``source`` in one line for any error of the reader or any bound exceeded."""
-    loader = _BoundedLoader(text)
+    loader = None
     try:
+        loader = _BoundedLoader(text)  # its reader refuses control characters here
         node = loader.get_single_node()
         if node is None:
             return None
@@ -208,7 +209,8 @@ def parse_yaml(text: str, source: str) -> Any:
     except (yaml.YAMLError, ValueError, TypeError, OverflowError, RecursionError) as exc:
         raise InputError(f"{source} is not valid YAML: {_yaml_reason(exc)}") from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
 
 
 def load_yaml(path: str | os.PathLike, what: str, max_bytes: int) -> Any:

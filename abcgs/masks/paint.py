@@ -10,9 +10,9 @@ The page (``static/paint.html``, plain JavaScript, nothing fetched from the netw
 itself only: the address printed at start carries a random token (as Jupyter's does; the page keeps it in a cookie),
 and a request without it, whose ``Host`` is not that address (DNS rebinding), with another page's ``Origin``, or a
 POST not declared ``application/json`` (what a cross-origin form or ``fetch`` could send without asking) is refused,
-as is a body without one plain ``Content-Length`` from 1 to :data:`MAX_BODY` (:func:`content_length`,
-:func:`read_body`) or one that does not arrive within :data:`REQUEST_TIMEOUT_S`; each refusal is a 4xx with a
-one-line reason. Pick a label, draw strokes over the objects of one or more views, press **Segment** to see the cut over the
+as is a body without one plain ``Content-Length`` from 1 to :data:`~abcgs.masks.requests.MAX_BODY`
+(:mod:`abcgs.masks.requests`) or one that does not arrive within :data:`~abcgs.masks.requests.REQUEST_TIMEOUT_S`;
+each refusal is a 4xx with a one-line reason. Pick a label, draw strokes over the objects of one or more views, press **Segment** to see the cut over the
 view, add strokes where it is wrong, and press **Save**: every view with strokes gets a single-channel label PNG (1,
 2, … the labels; 0 = no label, what the background brush or its cut decided; 255 =
 :data:`~abcgs.masks.params.UNDECIDED`, what no cut claimed; the format :func:`abcgs.masks.content.read_label_files`
@@ -49,8 +49,7 @@ import numpy as np
 from abcgs.errors import AbcgsError, InputError
 from abcgs.io.images import load_image, save_labels, to_uint8
 from abcgs.masks.grabcut import Segmentation, Stroke, segment
-from abcgs.masks.requests import (  # noqa: F401 (MAX_BODY, REQUEST_TIMEOUT_S, read_body: this page's API)
-    MAX_BODY,
+from abcgs.masks.requests import (
     REQUEST_TIMEOUT_S,
     Refused,
     body_flag,
