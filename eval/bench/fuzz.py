@@ -31,6 +31,7 @@ import multiprocessing as mp
 import re
 import resource
 import struct
+import sys
 import tempfile
 import time
 import traceback
@@ -537,7 +538,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         from abcgs.io.atomic import write_json
 
-        write_json(args.json, {"command": "python -m eval.bench.fuzz " + " ".join(argv or []), "seed": args.seed,
+        given = argv if argv is not None else sys.argv[1:]
+        write_json(args.json, {"command": " ".join(["python -m eval.bench.fuzz", *given]), "seed": args.seed,
                                "inputs_per_format": args.inputs, "slow_s": SLOW_S, "jobs": args.jobs,
                                "seconds": round(time.perf_counter() - t_start, 1),
                                "runs": [asdict(r) for r in runs]})
