@@ -9,15 +9,21 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 from test_fit_trainer import make_scene
 
+from abcgs.cameras import Camera
 from abcgs.fit.outputs import fit_and_save
-from abcgs.fit.params import MIN_RECOVERY, FitParams, StrategyParams
+from abcgs.fit.params import MIN_RECOVERY, MIN_RESET_EVERY, FitParams, StrategyParams
 from abcgs.fit.plausibility import FitCheck, FitError, problems, train_sample
 from abcgs.fit.strategy import DefaultStrategy
 from abcgs.fit.training import fit, make_strategy
+from abcgs.scene.params import TinySceneParams
+from abcgs.scene.synthetic import ring_cameras
+from abcgs.sfm.model import read_colmap_scene
+from abcgs.types import Cameras
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -30,13 +36,15 @@ def test_the_default_schedule_is_3dgs_at_30000_steps_and_follows_any_length():
         assert s.refine_stop == n // 2  # densify until half the run
         last = s.last_reset(n)
         assert last is not None and last < s.refine_stop  # resets only while densifying
-        assert n - last >= MIN_RECOVERY * n
-        assert 0 < s.refine_start < s.refine_stop and s.refine_every <= 100
+        assert n - last >= MIN_RECOVERY * n and s.reset_every >= MIN_RESET_EVERY
+        assert 50 <= s.refine_start < s.refine_stop and 10 <= s.refine_every <= 100
+    for n in (30, 60, 200):  # too short for a reset to be learnt back: none
+        assert FitParams(iterations=n).strategy_params().last_reset(n) is None
 
 
 def test_set_step_fields_are_kept_and_unset_ones_follow_the_length():
     s = FitParams(iterations=3000, strategy={"refine_every": 40}).strategy_params()
-    assert s.refine_every == 40 and s.refine_stop == 1500 and s.reset_every == 300
+    assert s.refine_every == 40 and s.refine_stop == 1500 and s.reset_every == 300 and s.refine_start == 50
     s = StrategyParams(refine_stop=2000, reset_every=1000).resolved(3000)
     assert (s.refine_stop, s.reset_every, s.last_reset(3000)) == (2000, 1000, 1000)
     # the strategy used directly, without a run length, is 3DGS's reference schedule
@@ -121,16 +129,20 @@ def test_a_fit_whose_opacities_were_reset_after_the_last_step_fails_before_writi
     assert not (tmp_path / "gs" / "point_cloud.ply").exists() and not (tmp_path / "gs" / "metrics.json").exists()
 
 
-def test_a_fit_on_the_cameras_of_another_scene_fails(small_scene, tmp_path):
-    # the same photos, each with another view's camera (a capture read with the wrong poses)
-    n = len(small_scene.image_paths)
-    wrong = replace(small_scene, image_paths=tuple(small_scene.image_paths[(i + n // 3) % n] for i in range(n)))
-    with pytest.raises(FitError, match="cameras that do not"):
+def test_a_fit_on_the_cameras_of_another_scene_fails(tiny_colmap, tmp_path):
+    # the tiny scene's photos and points, each view with the pose of the orbit scene's view of that name (its
+    # cameras go round the objects, in that scene's frame): a dataset read with another scene's poses
+    scene = read_colmap_scene(tiny_colmap / "sparse", tiny_colmap / "images")
+    orbit = ring_cameras(TinySceneParams(layout="orbit"), np.random.default_rng(0))
+    cams = [Camera(c.name, c.K, o.viewmat, c.width, c.height) for c, o in zip(scene.cameras, orbit)]
+    wrong = replace(scene, cameras=Cameras.from_list(cams))
+    with pytest.raises(FitError, match="under the floor fit.min_psnr.*cameras that do not belong"):
         fit_and_save(wrong, _params(), tmp_path / "gs", progress=False)
+    assert not (tmp_path / "gs" / "point_cloud.ply").exists()
 
 
 def test_a_strategy_resolved_for_the_run_never_resets_in_its_last_part(small_scene):
     p = FitParams(iterations=400, test_every=0, threads=1)
     resets = [r.step for r in fit(small_scene, p, progress=False, strategy=make_strategy(p, 1.0)).refinements
               if r.opacity_reset]
-    assert resets == [40, 80, 120, 160]  # every 400 / 10 steps while densifying (until step 200)
+    assert resets == [100]  # every max(100, 400 / 10) steps while densifying (until step 200)
