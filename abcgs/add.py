@@ -28,6 +28,7 @@ import yaml
 from abcgs.errors import InputError, ParamsError
 from abcgs.fit.params import FitParams
 from abcgs.io.atomic import write_text
+from abcgs.io.guarded import checked_path
 from abcgs.io.images import load_labels
 from abcgs.params import load_params, validate_params
 from abcgs.preflight import check_image, check_label_map_sizes, check_painting, check_scene_images, view_sizes
@@ -149,7 +150,7 @@ def scene_entry(name: str, path: str | os.PathLike, *, fmt: str = "auto", images
     describing it. Raises :class:`InputError` for anything its reader refuses. ``splat_format``,
     ``splat_nonfinite`` and ``views`` (a :class:`~abcgs.splats.params.SplatViewsParams` mapping) are the entry's
     settings of the same names, written when they are not the defaults and used by the checks here."""
-    folder = Path(path).expanduser().resolve()
+    folder = checked_path(path, "scene folder")
     resolved = resolve_format(folder, fmt, images)
     options: dict[str, Any] = {"format": resolved}
     if images:
@@ -186,7 +187,7 @@ def scene_entry(name: str, path: str | os.PathLike, *, fmt: str = "auto", images
         lines.append("an object on nothing: colour match and stylization act on the object, empty space stays "
                      + ("transparent (RGBA renders)" if bg.transparent else f"{list(bg.color)}"))
     if splat is not None:
-        splat_path = Path(splat).expanduser().resolve()
+        splat_path = checked_path(splat, "--splat")
         if not splat_path.exists():
             raise InputError(f"--splat {splat_path} does not exist; give the fitted splat: its file (.ply, .splat, "
                              ".spz, gsplat's .pt) or its trainer's output folder (INRIA's, splatfacto's exports)")
@@ -278,13 +279,13 @@ def add_style(params_path: str | os.PathLike, name: str, path: str | os.PathLike
               ) -> tuple[dict, list[str]]:
     """Check the painting (and its region map) and write ``data.styles.<name>`` (and ``data.style_masks.<name>``)."""
     _check_name(name, "data.styles", load_params(params_path).data.styles, force)
-    painting = Path(path).expanduser().resolve()
+    painting = checked_path(path, "painting")
     check_painting(painting, "painting")
     w, h = image_size(painting)
     entry = {"styles": str(painting)}
     lines = [f"painting {w}x{h}"]
     if labels is not None:
-        labels_path = Path(labels).expanduser().resolve()
+        labels_path = checked_path(labels, "--labels")
         lines += describe_labels(labels_path, painting)
         entry["style_masks"] = str(labels_path)
 

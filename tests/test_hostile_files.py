@@ -228,6 +228,18 @@ def test_transforms_json_linked_to_dev_zero_is_refused_by_add_scene(tmp_path: Pa
     assert "transforms.json is a character device, not a regular file" in err, err
 
 
+
+@pytest.mark.parametrize("role", ["scene", "splat", "painting"])
+def test_a_symlink_loop_given_as_a_path_is_one_line(tmp_path: Path, role: str) -> None:
+    (tmp_path / "a").symlink_to(tmp_path / "b")
+    (tmp_path / "b").symlink_to(tmp_path / "a")
+    params = str(_params(tmp_path, text=yaml.safe_dump(PARAMS)))
+    argv = {"scene": ("add-scene", "loop", str(tmp_path / "a")),
+            "splat": ("add-scene", "loop", str(_photos(tmp_path / "photos")), "--splat", str(tmp_path / "a")),
+            "painting": ("add-style", "looped", str(tmp_path / "a"))}[role]
+    err = refused_by_command("-m", "abcgs", *argv, "--params", params, "--dry-run")
+    assert "cannot be resolved" in err and "symlink loop" in err, err
+
 # ------------------------------------------------------------------------------------------ splats
 
 
