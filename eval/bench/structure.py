@@ -47,7 +47,8 @@ FLOORS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("methods", ("abcgs.fit", "abcgs.splats", "abcgs.sources", "abcgs.masks", "abcgs.stylize", "abcgs.evaluation")),
     ("presentation", ("abcgs.view", "abcgs.report")),
     ("orchestration", ("abcgs.params", "abcgs.preflight", "abcgs.pipeline", "abcgs.dag", "abcgs.overlay",
-                       "abcgs.add", "abcgs.cluster", "abcgs.source_check", "abcgs.__main__", "abcgs.view.__main__")),
+                       "abcgs.add", "abcgs.add_experiment", "abcgs.cluster", "abcgs.source_check", "abcgs.__main__",
+                       "abcgs.view.__main__")),
 )
 """Floors, lowest first, each a name and the modules or packages on it (the longest matching prefix decides). A
 package's ``params`` module (its settings' schema) is on the package's floor; the modes it shares with lower floors
