@@ -15,7 +15,6 @@ from collections.abc import Callable
 from pathlib import Path
 
 import cv2
-import numpy as np
 import pytest
 import yaml
 from conftest import REPO_ROOT
@@ -306,17 +305,3 @@ def test_yaml_fit_override_fits_the_tiny_scene(tiny_scene: Path, tiny_colmap: Pa
     metrics = fit_and_save(scene, fit, tmp_path / "gs", progress=False).metrics()
     assert metrics["psnr"] >= MIN_HELDOUT_DB, metrics["psnr"]
     assert (tmp_path / "gs" / "point_cloud.ply").is_file()
-
-
-@pytest.mark.slow
-def test_fit_schedule_benchmark_prints_its_table(tiny_colmap: Path, tmp_path: Path, capsys) -> None:
-    """``python -m eval.bench.fit_schedule`` on the tiny scene at a short length (its COLMAP layout given)."""
-    from eval.bench.fit_schedule import main
-
-    shutil.copytree(tiny_colmap, tmp_path / "tiny_colmap")
-    rows = main(["--scenes", "tiny", "--iterations", "200", "--work", str(tmp_path)])
-    out = capsys.readouterr().out
-    assert out.splitlines()[0].split()[:3] == ["scene", "steps", "held-out"]
-    (row,) = rows
-    assert row["iterations"] == 200 and row["schedule"]["refine_stop"] == 100 and np.isfinite(row["heldout_psnr"])
-    assert f"{row['heldout_psnr']:.2f}" in out.splitlines()[1]
