@@ -31,20 +31,21 @@ REPO = Path(__file__).resolve().parents[1]
 def test_the_default_schedule_is_3dgs_at_30000_steps_and_follows_any_length():
     p = FitParams(iterations=30000).strategy_params()
     assert (p.refine_start, p.refine_every, p.refine_stop, p.reset_every) == (500, 100, 15000, 3000)
-    for n in (300, 1000, 1500, 3000, 6000, 7000, 12345):
+    for n in (2200, 3000, 6000, 7000, 12345):
         s = FitParams(iterations=n).strategy_params()
         assert s.refine_stop == n // 2  # densify until half the run
         last = s.last_reset(n)
         assert last is not None and last < s.refine_stop  # resets only while densifying
         assert n - last >= MIN_RECOVERY * n and s.reset_every >= MIN_RESET_EVERY
-        assert 50 <= s.refine_start < s.refine_stop and 10 <= s.refine_every <= 100
-    for n in (30, 60, 200):  # too short for a reset to be learnt back: none
-        assert FitParams(iterations=n).strategy_params().last_reset(n) is None
+        assert 0 < s.refine_start < s.refine_stop and 10 <= s.refine_every <= 100
+    for n in (30, 60, 200, 300, 1000, 1500, 2000):  # too short for two resets' worth of regrowth: none
+        s = FitParams(iterations=n).strategy_params()
+        assert s.last_reset(n) is None and s.refine_start == n // 10 and s.refine_stop == n // 2
 
 
 def test_set_step_fields_are_kept_and_unset_ones_follow_the_length():
     s = FitParams(iterations=3000, strategy={"refine_every": 40}).strategy_params()
-    assert s.refine_every == 40 and s.refine_stop == 1500 and s.reset_every == 300 and s.refine_start == 50
+    assert s.refine_every == 40 and s.refine_stop == 1500 and s.reset_every == 1000 and s.refine_start == 300
     s = StrategyParams(refine_stop=2000, reset_every=1000).resolved(3000)
     assert (s.refine_stop, s.reset_every, s.last_reset(3000)) == (2000, 1000, 1000)
     # the strategy used directly, without a run length, is 3DGS's reference schedule
@@ -81,7 +82,7 @@ def test_preflight_refuses_a_late_reset_in_one_line_naming_the_fields_and_the_fi
     # the same run with the schedule left to follow it passes the check
     params["data"]["scenes"]["tiny"]["fit"] = {"iterations": 3000}
     path.write_text(yaml.safe_dump(params))
-    assert FitParams.model_validate({**params["fit"], "iterations": 3000}).strategy_params().last_reset(3000) == 1200
+    assert FitParams.model_validate({**params["fit"], "iterations": 3000}).strategy_params().last_reset(3000) == 1000
 
 
 def _check(**kw) -> FitCheck:
@@ -142,7 +143,7 @@ def test_a_fit_on_the_cameras_of_another_scene_fails(tiny_colmap, tmp_path):
 
 
 def test_a_strategy_resolved_for_the_run_never_resets_in_its_last_part(small_scene):
-    p = FitParams(iterations=400, test_every=0, threads=1)
+    p = FitParams(iterations=2200, test_every=0, threads=1)
     resets = [r.step for r in fit(small_scene, p, progress=False, strategy=make_strategy(p, 1.0)).refinements
               if r.opacity_reset]
-    assert resets == [100]  # every max(100, 400 / 10) steps while densifying (until step 200)
+    assert resets == [1000]  # every max(1000, 2200 / 10) steps while densifying (until step 1100)

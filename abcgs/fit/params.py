@@ -11,9 +11,11 @@ from typing import Literal
 
 from pydantic import BaseModel, Field, field_validator, model_validator
 
-MIN_RESET_EVERY = 100
-"""The fewest steps between two opacity resets of a schedule left to follow the run's length: the opacities need
-about that many steps to be learnt back."""
+MIN_RESET_EVERY = 1000
+"""The fewest steps between two opacity resets of a schedule left to follow the run's length. Resets every tenth of
+a short run (every 150 steps of 1500) leave the tiny scene's fit between 25 and 33 dB held out depending on where the
+first densification falls; one reset per 1000 steps or none holds it at 34.5-34.7 dB at 1500 and 3000 steps
+(``python -m eval.bench.fit_schedule``, docs/SCALING.md "The fit's schedule")."""
 
 
 class StrategyParams(BaseModel, extra="forbid"):
@@ -22,23 +24,22 @@ class StrategyParams(BaseModel, extra="forbid"):
     The four step fields default to ``null``: the schedule then follows the run's length (:meth:`resolved`) in the
     proportions of the 3DGS reference schedule (30 000 steps: densify from step 500 every 100 steps until step
     15 000, opacities reset every 3 000 steps while densifying), so that a run of any length ends on many steps
-    without a reset. Short runs keep absolute floors: densification starts after 50 steps and gathers at least 10
-    steps of statistics, and opacities are reset at most every :data:`MIN_RESET_EVERY` steps (a reset every 30 steps
-    of a 300-step run, the bare proportion, holds the tiny scene out at 18 dB instead of 24 dB:
-    ``python -m eval.bench.fit_schedule``). A step field that is set is kept as it is; :meth:`recovery_problem` says when the last reset
+    without a reset. Shorter runs keep it in step counts where a proportion would leave too few steps: densification
+    starts after a tenth of the run (at most step 500) and gathers at least 10 steps of statistics, and opacities are
+    reset at most every :data:`MIN_RESET_EVERY` steps, the time the densification needs to regrow what a reset
+    prunes. A step field that is set is kept as it is; :meth:`recovery_problem` says when the last reset
     leaves too few steps to recover.
     """
 
     refine_start: int | None = Field(
-        None, ge=0, description="no densification at or before this step (null: a sixtieth of the run, from 50 to "
-        "500)")
+        None, ge=0, description="no densification at or before this step (null: a tenth of the run, at most 500)")
     refine_stop: int | None = Field(
         None, ge=0, description="statistics, densification and resets stop at this step (null: half the run)")
     refine_every: int | None = Field(
         None, ge=1, description="densify every this many steps (null: a thirtieth of the run, from 10 to 100)")
     reset_every: int | None = Field(
         None, ge=1, description="clamp opacities to reset_opacity every this many steps while densifying (null: a "
-        f"tenth of the run, at least {MIN_RESET_EVERY})")
+        f"tenth of the run, at least {MIN_RESET_EVERY}: runs of up to {2 * MIN_RESET_EVERY} steps reset none)")
     grow_grad2d: float = Field(0.0002, gt=0.0, description="mean view-space gradient (NDC units) to densify")
     grow_scale3d: float = Field(
         0.01, gt=0.0, description="percent_dense: clone if max scale <= this × scene extent, else split"
@@ -62,7 +63,7 @@ class StrategyParams(BaseModel, extra="forbid"):
         """The schedule of a run of ``iterations`` steps: every unset step field from the run's length (at 30 000
         steps exactly the 3DGS values), every set one kept."""
         defaults = {
-            "refine_start": min(500, max(50, iterations // 60)),
+            "refine_start": min(500, iterations // 10),
             "refine_stop": iterations // 2,
             "refine_every": max(10, min(100, iterations // 30)),
             "reset_every": max(MIN_RESET_EVERY, iterations // 10),
