@@ -64,7 +64,7 @@ def describe_source(scene: Scene, folder: Path) -> list[str]:
     if scene.depth_range is not None:
         lines.append(f"depth range {scene.depth_range[0]:.3g} .. {scene.depth_range[1]:.3g}")
     if scene.background is not None:
-        lines.append(f"RGBA views are composited on background {list(scene.background)}")
+        lines.append(f"RGBA views are composited on background {list(scene.background.color)}")
     if masks := sum(v.mask_path is not None for v in scene.views):
         lines.append(f"{masks} view(s) with a mask (passed to the masks stage as labels 1 = kept, 2 = masked out)")
     return lines + list(scene.notes)

@@ -4,7 +4,7 @@ Per scene ``S``, colour match ``M`` (``colormatches.M``) and experiment ``E``::
 
     out/preflight.json, out/preflight_report.json, out/label_use/S.json      preflight
     out/styles/P.png, out/styles/P.labels.png                                styles, style_masks (painting P)
-    out/S/colmap/{sparse,images,masks}, out/S/reconstruct.json               reconstruct
+    out/S/colmap/{sparse,images,masks,scene.json}, out/S/reconstruct.json    reconstruct
     out/S/gs/{point_cloud.ply, metrics.json, history.csv, …}, fit_metrics.json  fit
     out/S/masks/{gaussian_labels.npy, views/*.png, overlay.png, masks.json}  masks
     out/S/reference/                                                         reference
@@ -22,14 +22,11 @@ name each path in this one place.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
-from abcgs.errors import InputError
 from abcgs.io.metrics import info_path
-from abcgs.types import Background
 
 OUT = Path("out")
 """The pipeline's output root (relative to the repository root)."""
@@ -81,7 +78,7 @@ def styles(out: str | Path = OUT) -> StylesDir:
 @dataclass(frozen=True)
 class ColmapDir:
     """A COLMAP layout (the reconstruct stage's output): ``sparse/`` (cameras, images, points3D), ``images/``
-    (undistorted) and, when the scene has label maps, ``masks/``."""
+    (undistorted), ``scene.json`` (the rest of the scene) and, when the scene has them, ``alpha/`` and ``masks/``."""
 
     root: Path
 
@@ -98,18 +95,10 @@ class ColmapDir:
         return self.root / "masks"
 
     @property
-    def background(self) -> Path:
-        """The scene's :class:`~abcgs.types.Background` as JSON (absent: a frame-filling scene on black)."""
-        return self.root / "background.json"
-
-    def read_background(self) -> Background:
-        """The scene's :class:`~abcgs.types.Background` (:attr:`background`; the default when the file is absent)."""
-        if not self.background.is_file():
-            return Background()
-        try:
-            return Background.from_json(json.loads(self.background.read_text()))
-        except (ValueError, TypeError, AttributeError) as exc:
-            raise InputError(f"{self.background} is not a background record ({exc}); re-run the reconstruct stage") from None
+    def scene(self) -> Path:
+        """The rest of the scene beside its model: format, frame, background, splat, per-view files (JSON,
+        :func:`abcgs.sfm.model.write_scene`; read with :func:`abcgs.sfm.model.read_scene`)."""
+        return self.root / "scene.json"
 
 
 @dataclass(frozen=True)

@@ -172,7 +172,7 @@ class Background:
 
     The ``reconstruct`` stage resolves it from the scene's entry (``data.scenes.<name>.background``) and its format
     (:meth:`abcgs.sources.params.SceneParams.resolved_background`) and records it beside the scene's model; every
-    stage that renders reads it from there (:func:`abcgs.layout.read_background`).
+    stage that renders reads it from there (:attr:`Scene.background` of :func:`abcgs.sfm.model.read_scene`).
 
     Attributes:
         color: RGB in ``[0, 1]`` composited behind the Gaussians in every render and loss
@@ -387,8 +387,9 @@ class Scene:
     """A scene: batched cameras, their images, optional sparse points and masks (nerfbaselines' ``Dataset``).
 
     Every scene reader returns one (:mod:`abcgs.sources`: in the dataset's frame, possibly distorted), the
-    ``reconstruct`` stage writes one as an undistorted COLMAP model (:mod:`abcgs.io.colmap`) and every later stage
-    reads it back as one (:func:`abcgs.sfm.model.read_colmap_scene`: PINHOLE cameras, points always present).
+    ``reconstruct`` stage writes one as an undistorted COLMAP model with a ``scene.json`` beside it
+    (:func:`abcgs.sfm.model.write_scene`) and every later stage reads it back as one
+    (:func:`abcgs.sfm.model.read_scene`: PINHOLE cameras, points always present).
 
     Attributes:
         cameras: the ``C`` views' :class:`Cameras`, sorted by name.
@@ -397,17 +398,24 @@ class Scene:
             model's: by point id), or ``None`` when the dataset has none (the ``reconstruct`` stage then
             triangulates them).
         colors: ``(M, 3) float32`` their RGB colours in ``[0, 1]``, or ``None`` with ``points``.
-        mask_paths: ``(C,)`` each view's mask file (non-zero = keep, nerfstudio's ``mask_path``) or ``None``.
+        mask_paths: ``(C,)`` each view's mask file or ``None``: a reader's is a keep mask (non-zero = keep,
+            nerfstudio's ``mask_path``); a scene read back by :func:`~abcgs.sfm.model.read_scene` names the label map
+            the ``reconstruct`` stage wrote for the view (``masks/``, read by the ``masks`` stage).
         alpha_paths: ``(C,)`` each view's alpha map (single-channel PNG, 0 = empty) of an object scene whose images
             came with alpha, else ``None`` (written by the ``reconstruct`` stage beside ``images/``).
         format: the format it was read as (:data:`SceneFormat`, or a format registered at run time).
         frame: ``(4, 4) float64`` similarity from the dataset files' world frame to the scene frame (identity when
             the reader keeps the files' frame).
-        background: ``(3,)`` RGB in ``[0, 1]`` that transparent pixels are composited on (Blender), or ``None``.
+        background: what the views show where nothing covers a pixel (:class:`Background`), or ``None``: a
+            reader's colour is what its transparent pixels are composited on (Blender; given as an RGB triple in
+            ``[0, 1]``, it is taken as ``Background(color)``); a scene read back by
+            :func:`~abcgs.sfm.model.read_scene` holds the background the ``reconstruct`` stage resolved for it.
         depth_range: ``(near, far)`` in world units when the dataset states it (LLFF's bounds), else ``None``.
         notes: what the reader did that the user should know (scaled a model, composited alpha, …), for logs.
         metadata: what a reader records about how it made the scene for code to read (a bare splat's
-            ``views_kind``: the kind of cameras made around it).
+            ``views_kind``: the kind of cameras made around it); JSON values.
+        splat: the trained splat file the scene names (the entry's ``splat:``, or the file of a bare splat), which
+            the ``fit`` stage imports instead of fitting, or ``None``.
     """
 
     cameras: Cameras
@@ -418,13 +426,21 @@ class Scene:
     alpha_paths: tuple[Path, ...] | None = None
     format: str = "colmap"
     frame: np.ndarray = field(default_factory=lambda: np.eye(4))
-    background: tuple[float, float, float] | None = None
+    background: Background | None = None
     depth_range: tuple[float, float] | None = None
     notes: tuple[str, ...] = ()
     metadata: dict = field(default_factory=dict)
+    splat: Path | None = None
 
     def __post_init__(self) -> None:
         c = len(self.cameras)
+        if self.background is not None and not isinstance(self.background, Background):
+            color = tuple(float(v) for v in self.background)
+            if len(color) != 3:
+                raise ValueError(f"Scene.background is a Background or an RGB triple, got {self.background!r}")
+            object.__setattr__(self, "background", Background(color))  # type: ignore[arg-type]
+        if self.splat is not None:
+            object.__setattr__(self, "splat", Path(self.splat))
         object.__setattr__(self, "image_paths", tuple(Path(p) for p in self.image_paths))
         for name in ("image_paths", "mask_paths", "alpha_paths"):
             value = getattr(self, name)

@@ -22,7 +22,7 @@ from abcgs.io.ply import read_ply
 from abcgs.masks.outputs import load_scene_masks
 from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.runtime import resolve_device, torch_threads
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 from abcgs.stylize.colormatch import color_match_and_refit, write_colormatch
 from abcgs.stylize.experiment import check_bindings, load_groups, load_vgg
 
@@ -43,8 +43,7 @@ SPEC = StageSpec("colormatch", foreach="colormatches", params=(
 def main(args, params) -> None:
     spec = params.colormatches[args.colormatch]
     device = resolve_device(params.runtime.device)
-    colmap = layout.ColmapDir(args.colmap)
-    scene, model = read_colmap_scene(colmap.sparse, colmap.images), read_ply(args.model)
+    scene, model = read_scene(args.colmap), read_ply(args.model)
     masks = load_scene_masks(args.masks, scene, model.num_gaussians)
     styles = layout.StylesDir(args.styles)
     region_maps = styles.label_maps(params.data.style_masks)
@@ -55,7 +54,7 @@ def main(args, params) -> None:
                          params.isolation, params.stylize)
     with torch_threads(params.colormatch.threads):
         res = color_match_and_refit(model.to(device), scene, masks.gaussian_labels.to(device), masks.view_labels,
-                                    groups, params.colormatch, background=colmap.read_background(),
+                                    groups, params.colormatch, background=scene.background,
                                     color_only=params.stylize.color_only)
     write_colormatch(args.out, args.colormatch, spec, res, groups, info.model_dump())
 

@@ -25,7 +25,7 @@ from abcgs.io.metrics import info_path
 from abcgs.io.ply import read_ply
 from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.runtime import resolve_device
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 
 _S, _E = layout.scene("{item.scene}"), layout.experiment("{key}")
 SPEC = StageSpec("evaluate", foreach="experiments", params=(
@@ -50,8 +50,7 @@ def main(args, params) -> None:
     ep = params.evaluate
     exp = params.experiments[args.experiment]
     spec = params.colormatches[exp.colormatch]
-    colmap = layout.ColmapDir(args.colmap)
-    scene, original = read_colmap_scene(colmap.sparse, colmap.images), read_ply(args.model)
+    scene, original = read_scene(args.colmap), read_ply(args.model)
     stems = [Path(c.name).stem for c in scene.cameras]
     ply, info, pngs = load_stylize_run(layout.StylizeDir(args.stylized), args.stylize_record, args.experiment, stems)
     n = min(len(scene.cameras), ep.max_views or len(scene.cameras))
@@ -59,7 +58,7 @@ def main(args, params) -> None:
     reference = load_reference(args.reference, scene.cameras, ep, scene=exp.scene, model_digest=model_digest(args.model))
     device = resolve_device(params.runtime.device)
     paintings = layout.StylesDir(args.styles).paintings(styles)
-    background = colmap.read_background()
+    background = scene.background
     res = evaluate_scene(scene.cameras, original.to(device), read_ply(ply, device=device),
                          [load_image(paintings[k]) for k in styles], ep,
                          stylize_info=info, saved_renders=[load_render(p, background) for p in pngs[:n]],

@@ -1,5 +1,6 @@
 """Stage ``fit``: baseline 3DGS (Kerbl et al. 2023) from a COLMAP reconstruction, or the import of the trained splat
-the scene names (``data.scenes.<scene>.splat``: checked against the photos, docs/SPLATS.md).
+the scene names (``data.scenes.<scene>.splat``, or a bare splat: checked against the photos, docs/SPLATS.md), as
+the ``reconstruct`` stage recorded it in the scene (:func:`abcgs.sfm.model.read_scene`).
 
     dvc repro fit@tiny     # its command, with every input and output path: dvc.yaml or --help
 
@@ -22,8 +23,7 @@ from abcgs.fit.outputs import fit_and_save
 from abcgs.io.metrics import fit_headline, write_headline
 from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.runtime import resolve_device
-from abcgs.sfm.model import read_colmap_scene
-from abcgs.sources.detect import bare_splat
+from abcgs.sfm.model import read_scene
 from abcgs.splats.importing import import_and_save, write_fitted_source
 
 _S = layout.scene("{key}")
@@ -39,17 +39,15 @@ SPEC = StageSpec("fit", foreach="data.scenes", params=("fit", "data.scenes.{key}
 
 
 def main(args, params) -> None:
-    colmap = layout.ColmapDir(args.colmap)
-    scene = read_colmap_scene(colmap.sparse, colmap.images)
+    scene = read_scene(args.colmap)
     fit = params.scene_section(args.scene, "fit")
-    background = colmap.read_background()
+    background = scene.background
     if background.object:  # an object on nothing: fitted, checked and evaluated on its own background
         fit = fit.model_copy(update={"background": background.color})
     spec = params.data.scenes[args.scene]
     device = resolve_device(params.runtime.device)
-    splat = spec.splat_path(args.source) or bare_splat(args.source, spec.format)  # a bare splat: its renders are the photos
-    if splat is not None:
-        record = import_and_save(scene, splat, spec.splat_format, fit, args.out, device=device,
+    if scene.splat is not None:  # the splat the scene names (a bare splat: its renders are the photos)
+        record = import_and_save(scene, scene.splat, spec.splat_format, fit, args.out, device=device,
                                  drop_invalid=spec.splat_nonfinite == "drop")
     else:
         record = fit_and_save(scene, fit, args.out, device=device).metrics()

@@ -23,7 +23,7 @@ from abcgs.masks.content import make_content_masks
 from abcgs.masks.outputs import write_content_masks, write_unread_masks
 from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.runtime import resolve_device
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 
 _S = layout.scene("{key}")
 SPEC = StageSpec("masks", foreach="data.scenes", params=("masks", "data.scenes.{key}", "runtime"), deps=(
@@ -38,7 +38,7 @@ log = logging.getLogger("masks")
 
 def main(args, params) -> None:
     colmap = layout.ColmapDir(args.colmap)
-    scene = read_colmap_scene(colmap.sparse, colmap.images)
+    scene = read_scene(colmap.root)
     if not json.loads(args.label_use.read_text())["content_labels_read"]:
         model = read_ply(args.model)
         log.info("no colour match of %s reads content labels (all are single-image): labels left at 0, nothing "

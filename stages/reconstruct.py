@@ -8,8 +8,9 @@ incremental mapping, undistortion to PINHOLE (:mod:`abcgs.sfm.colmap`; options: 
 scene's override merged in). A dataset with cameras (COLMAP model, ``transforms.json``, NeRF-synthetic,
 ``poses_bounds.npy``) keeps its cameras and frame: undistorted, scaled to its images, with its points or points
 triangulated from its poses (:mod:`abcgs.sources.model`). Either way the output is the undistorted model
-(``sparse/``), images (``images/``) and label maps (``masks/``, when there are any); the record goes to
-``--metrics``.
+(``sparse/``), images (``images/``), label maps (``masks/``, when there are any) and ``scene.json``: the format,
+frame and background resolved here and the splat the scene names, which every later stage reads back with the rest
+(:func:`abcgs.sfm.model.read_scene`); the record goes to ``--metrics``.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from __future__ import annotations
 import logging
 import sys
 import tempfile
+from dataclasses import replace
 
 from abcgs.runtime import setup
 
@@ -48,9 +50,8 @@ def main(args, params) -> None:
     fmt = resolve_format(folder, scene.format, scene.images)
     background = scene.resolved_background(fmt)
     if fmt == "photos":
-        report = reconstruct_photos(folder, args.out, options, scene.images)
-        if background.object:  # photos have no alpha: the fit's own says where the object is
-            write_json(layout.ColmapDir(args.out).background, background.to_json())
+        report = reconstruct_photos(folder, args.out, options, scene.images, background=background,
+                                    splat=scene.splat_path(folder))
         write_json(args.metrics, report.metrics())
         log.info("%d/%d registered, %d points, reprojection error %.3f px, %.1f s", report.registered, report.total,
                  report.points, report.mean_reprojection_error_px, report.seconds)
@@ -60,6 +61,7 @@ def main(args, params) -> None:
                              views=scene.views, work=work, drop_invalid=scene.splat_nonfinite == "drop")
         for note in source.notes:
             log.info("%s: %s", fmt, note)
+        source = replace(source, splat=scene.splat_path(folder) or source.splat)
         record = write_source_model(source, args.out, options, masks_dir=folder / "masks", background=background)
     write_json(args.metrics, record.metrics())
     log.info("%s: %d views with the dataset's cameras, %d points (%s), %.1f s", fmt, record.total, record.points,

@@ -23,7 +23,7 @@ from abcgs.io.ply import read_ply
 from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.progress import progress
 from abcgs.runtime import resolve_device
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 
 log = logging.getLogger("reference")
 _S = layout.scene("{key}")
@@ -34,11 +34,10 @@ SPEC = StageSpec("reference", foreach="data.scenes", params=(*(f"evaluate.{k}" f
 
 
 def main(args, params) -> None:
-    colmap = layout.ColmapDir(args.colmap)
-    scene, model = read_colmap_scene(colmap.sparse, colmap.images), read_ply(args.model)
+    scene, model = read_scene(args.colmap), read_ply(args.model)
     digest = model_digest(args.model)
     ref = compute_reference(scene.cameras, model.to(resolve_device(params.runtime.device)), params.evaluate, model_digest=digest,
-                            progress=lambda keys: progress(keys, "flows"), background=colmap.read_background())
+                            progress=lambda keys: progress(keys, "flows"), background=scene.background)
     save_reference(args.out, ref)
     log.info("%d views, %d flows; %s", len(ref.view_names), len(ref.flows),
              ", ".join(f"{k} {v:.1f} s" for k, v in ref.timings_s.items()))

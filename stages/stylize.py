@@ -19,7 +19,7 @@ from abcgs.io.ply import read_ply
 from abcgs.masks.outputs import load_scene_masks
 from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.runtime import resolve_device, torch_threads
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 from abcgs.stylize.experiment import load_groups, load_vgg, read_colormatch
 from abcgs.stylize.loop import stylize_scene
 from abcgs.stylize.outputs import grid_indices, write_history, write_stylized_scene
@@ -47,9 +47,8 @@ def main(args, params) -> None:
     spec = params.colormatches[exp.colormatch]
     sp = params.stylize
     device = resolve_device(params.runtime.device)
-    colmap = layout.ColmapDir(args.colmap)
-    scene, original = read_colmap_scene(colmap.sparse, colmap.images), read_ply(args.model)
-    background = colmap.read_background()
+    scene, original = read_scene(args.colmap), read_ply(args.model)
+    background = scene.background
     matched = read_colormatch(args.colormatch, exp.colormatch)
     masks = load_scene_masks(args.masks, scene, original.num_gaussians, device=device)
     original, matched = original.to(device), matched.to(device)

@@ -69,11 +69,11 @@ def tiny_scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="session")
 def tiny_colmap(tiny_scene: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """``reconstruct`` output for :func:`tiny_scene` with default parameters."""
-    from abcgs.sfm.colmap import reconstruct
+    """``reconstruct`` output for :func:`tiny_scene` with default parameters (its scene included)."""
     from abcgs.sfm.params import ReconstructParams
+    from abcgs.sources.photos import reconstruct_photos
 
     out = tmp_path_factory.mktemp("tiny_colmap") / "colmap"
-    reconstruct(tiny_scene / "images", out, ReconstructParams(), masks_dir=tiny_scene / "masks")
+    reconstruct_photos(tiny_scene, out, ReconstructParams())
     return out
 

@@ -21,7 +21,7 @@ from abcgs.layout import ColmapDir
 from abcgs.losses.terms import background_loss, silhouette_loss
 from abcgs.scene.params import TinySceneParams
 from abcgs.scene.synthetic import write_object_dataset
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_colmap_scene, read_scene
 from abcgs.sfm.params import ReconstructParams
 from abcgs.silhouette import composite_rgba, object_gaussians, silhouettes
 from abcgs.sources.blender import read_blender_source
@@ -155,11 +155,13 @@ def test_an_rgba_dataset_records_its_background_and_alpha_for_the_stages(tmp_pat
     source = read_blender_source(folder, background=(0.0, 0.0, 0.0))
     write_source_model(source, tmp_path / "colmap", ReconstructParams(), background=OBJECT)
     colmap = ColmapDir(tmp_path / "colmap")
-    assert colmap.read_background() == OBJECT
-    assert json.loads(colmap.background.read_text())["object"] is True
-    scene = read_colmap_scene(colmap.sparse, colmap.images)
+    scene = read_scene(colmap.root)
+    assert scene.background == OBJECT and scene.format == "blender"
+    assert json.loads(colmap.scene.read_text())["background"]["object"] is True
     assert scene.alpha_paths is not None and len(scene.alpha_paths) == 9
-    assert ColmapDir(tmp_path / "none").read_background() == FRAME_FILLING
+    assert all(p.parent == colmap.root / "alpha" and p.is_file() for p in scene.alpha_paths)
+    write_source_model(source, tmp_path / "frame", ReconstructParams())  # no background given: a frame-filling scene
+    assert read_scene(tmp_path / "frame").background == FRAME_FILLING
 
 
 def test_transparent_renders_are_written_straight_alpha_and_read_back_on_black(tmp_path):

@@ -1,4 +1,6 @@
-"""Structure from motion through pycolmap (:mod:`abcgs.sfm.colmap`) and reading the result (:mod:`abcgs.sfm.model`).
+"""Structure from motion through pycolmap (:mod:`abcgs.sfm.colmap`) and the scene on disk that the ``reconstruct``
+stage writes and every later stage reads (:mod:`abcgs.sfm.model`: :func:`~abcgs.sfm.model.write_scene`,
+:func:`~abcgs.sfm.model.read_scene`).
 
 Import-order hazard: pycolmap 4.x's ``_core`` module carries its own (exported) zlib. If ``pycolmap``
 is imported before ``cv2``, the system ``libz`` that both load binds its internal calls to

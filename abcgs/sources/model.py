@@ -4,6 +4,8 @@ motion (:mod:`abcgs.sfm.colmap`), so every later stage reads it alike::
     out_dir/sparse/{cameras,images,points3D}.bin   undistorted PINHOLE model, the dataset's poses, in its frame
     out_dir/images/                                the views (undistorted; RGBA composited on the background)
     out_dir/masks/                                 label maps (the scene's masks/, or nerfstudio's mask_path)
+    out_dir/alpha/                                 an object's alpha maps (its views came with alpha)
+    out_dir/scene.json                             format, frame, background, splat, notes (:func:`write_scene`)
     out_dir/metrics.json                           the record (:class:`SourceReport`, no wall time)
 
 Initial points, in order of preference:
@@ -47,7 +49,7 @@ from abcgs.sfm.colmap import (
     undistort_labels,
     undistort_model,
 )
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import layout_scene, read_colmap_scene, write_scene
 from abcgs.sfm.params import ReconstructParams
 from abcgs.sources.lens import colmap_camera
 from abcgs.sources.validate import axes_meeting_point
@@ -264,7 +266,9 @@ def _masks(source: Scene, masks_dir: Path | None, dist: dict[str, pycolmap.Camer
 def write_source_model(source: Scene, out_dir: str | os.PathLike, params: ReconstructParams,
                        masks_dir: str | os.PathLike | None = None, background: Background | None = None) -> SourceReport:
     """Write ``out_dir`` (module docstring) atomically for ``source``; ``masks_dir``: the scene's label PNGs;
-    ``background``: the scene's, recorded as ``background.json`` (:meth:`abcgs.layout.ColmapDir.read_background`)."""
+    ``background``: the scene's (default: a frame-filling scene on black), recorded with the source's format,
+    frame, depth range, notes, metadata and splat in ``scene.json`` (:func:`abcgs.sfm.model.write_scene`; the
+    stages read it all back with :func:`abcgs.sfm.model.read_scene`)."""
     t0 = time.perf_counter()
     views = list(source.views)
     masks_dir = Path(masks_dir) if masks_dir is not None and Path(masks_dir).is_dir() else None
@@ -273,10 +277,8 @@ def write_source_model(source: Scene, out_dir: str | os.PathLike, params: Recons
     pycolmap.set_random_seed(params.seed)
     with tempfile.TemporaryDirectory(prefix="abcgs-source-") as scratch, atomic_path(out_dir, is_dir=True) as tmp:
         work = Path(scratch)
-        if background is not None:
-            write_json(tmp / "background.json", background.to_json())
         staged = work / "images"
-        behind = source.background
+        behind = source.background.color if source.background is not None else None
         if behind is None and background is not None and background.object:  # e.g. nerfstudio masks: cut out by them
             behind = background.color
         alphas = {v.name: _stage_image(v, staged / v.name, behind) for v in views}
@@ -313,6 +315,9 @@ def write_source_model(source: Scene, out_dir: str | os.PathLike, params: Recons
         n_masks = _masks(source, masks_dir, distorted, und, tmp / "masks")
         if n_masks:
             log.info("reconstruct: %d label maps", n_masks)
+        write_scene(layout_scene(tmp, format=source.format, frame=source.frame, background=background,
+                                 depth_range=source.depth_range, notes=source.notes, metadata=source.metadata,
+                                 splat=source.splat), tmp)
         report = SourceReport(format=source.format, registered=len(views), total=len(views),
                               points=len(xyz), points_method=method, verified_matches=verified,
                               median_epipolar_error_px=epipolar,

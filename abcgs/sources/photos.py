@@ -11,18 +11,24 @@ import os
 from pathlib import Path
 
 from abcgs.sfm.colmap import ReconstructionReport, reconstruct
+from abcgs.sfm.model import layout_scene, write_scene
 from abcgs.sfm.params import ReconstructParams
 from abcgs.sources.base import ReadOptions, SceneReader
 from abcgs.sources.detect import DEFAULT_IMAGES
-from abcgs.types import Scene
+from abcgs.types import Background, Scene
 
 
 def reconstruct_photos(folder: str | os.PathLike, out_dir: str | os.PathLike, params: ReconstructParams,
-                       images: str | None = None) -> ReconstructionReport:
+                       images: str | None = None, *, background: Background | None = None,
+                       splat: Path | None = None) -> ReconstructionReport:
     """Structure from motion on ``folder/images`` (and its ``masks/``) into ``out_dir`` (the ``reconstruct``
-    stage's layout)."""
+    stage's layout), and the scene written there (:func:`abcgs.sfm.model.write_scene`: the model kept as structure
+    from motion wrote it) with its ``background`` (photos have no alpha: an object's own fit says where it is) and
+    the ``splat`` it names."""
     folder = Path(folder)
-    return reconstruct(folder / (images or DEFAULT_IMAGES), out_dir, params, masks_dir=folder / "masks")
+    report = reconstruct(folder / (images or DEFAULT_IMAGES), out_dir, params, masks_dir=folder / "masks")
+    write_scene(layout_scene(out_dir, format="photos", background=background, splat=splat), out_dir)
+    return report
 
 
 def _read(folder: Path, options: ReadOptions) -> Scene:

@@ -34,9 +34,10 @@ def read_splat_source(path: Path, out_images_dir: Path, params: SplatViewsParams
                       background: tuple[float, float, float] | None = None, drop_invalid: bool = False) -> Scene:
     """Read the splat at ``path`` (``drop_invalid``: dropping its non-finite Gaussians), make ``params``' cameras around
     it, write its render from each on ``background`` (RGB in ``[0, 1]``, default black) into ``out_images_dir`` (PNG,
-    named like the cameras) and return the :class:`Scene` (``format`` ``"splat"``). A ``background`` makes the splat an
-    object on nothing (the stages give a bare splat one): every view, orbit or forward, frames all of it
-    (:func:`~abcgs.splats.cameras.cameras_around`'s ``object_scene``); without one, forward views frame its quantiles."""
+    named like the cameras) and return the :class:`Scene` (``format`` ``"splat"``, naming ``path`` as its splat). A
+    ``background`` makes the splat an object on nothing (the stages give a bare splat one): every view, orbit or
+    forward, frames all of it (:func:`~abcgs.splats.cameras.cameras_around`'s ``object_scene``); without one, forward
+    views frame its quantiles."""
     params = params or SplatViewsParams()
     model = read_splat(path, fmt, drop_invalid=drop_invalid).model
     cams, kind = cameras_around(model, params, object_scene=background is not None)
@@ -54,7 +55,7 @@ def read_splat_source(path: Path, out_images_dir: Path, params: SplatViewsParams
     points = model.means[keep].numpy().astype(np.float32)
     colors = sh0_to_rgb(model.sh0[keep, 0, :]).clamp(0, 1).numpy().astype(np.float32)
     return Scene.from_views(views, points=points, colors=colors, format="splat", background=background,
-                            metadata={"views_kind": kind})
+                            metadata={"views_kind": kind}, splat=path)
 
 
 def _read(folder: Path, options: ReadOptions) -> Scene:

@@ -11,7 +11,7 @@ import numpy as np
 from abcgs import layout
 from abcgs.errors import InputError
 from abcgs.io.ply import read_ply
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 from abcgs.types import PathKind
 from abcgs.view.page import ViewerExperiment, prepare_experiment
 
@@ -42,9 +42,9 @@ def load_experiment(run_dir: Path, *, scene: str | None = None, root: Path | Non
     if not ply.is_file():
         raise InputError(f"{ply} does not exist; run the stylize stage for {run_dir.name} first")
     s = layout.scene(scene, root)
-    cams = read_colmap_scene(s.colmap.sparse, s.colmap.images).cameras
+    views = read_scene(s.colmap.root)
     original = read_ply(s.fit.ply) if s.fit.ply.is_file() else None
     labels = np.load(s.masks.gaussian_labels) if s.masks.gaussian_labels.is_file() else None
-    return prepare_experiment(run_dir.name, read_ply(ply), cams, original=original, labels=labels,
+    return prepare_experiment(run_dir.name, read_ply(ply), views.cameras, original=original, labels=labels,
                               max_gaussians=max_gaussians, full_artifact=str(ply), path_kind=path_kind,
-                              path_frames=path_frames, background=s.colmap.read_background())
+                              path_frames=path_frames, background=views.background)

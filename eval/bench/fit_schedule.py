@@ -36,35 +36,36 @@ from abcgs.layout import ColmapDir
 from abcgs.params import load_params
 from abcgs.scene.synthetic import make_tiny_scene, write_object_dataset
 from abcgs.sfm.colmap import set_colmap_log_level
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 from abcgs.sources.model import write_source_model
 from abcgs.sources.params import SceneParams
 from abcgs.sources.photos import reconstruct_photos
 from abcgs.sources.read import read_source, resolve_format
+from abcgs.types import Scene
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENES = {"tiny": make_tiny_scene, "object": write_object_dataset}
 
 
-def prepare(name: str, work: Path) -> tuple[Path, object]:
-    """Generate scene ``name`` in ``work`` and write its COLMAP layout as the reconstruct stage does."""
+def prepare(name: str, work: Path) -> Scene:
+    """Generate scene ``name`` in ``work``, write its COLMAP layout as the reconstruct stage does and read it back."""
     folder, colmap = work / name, ColmapDir(work / f"{name}_colmap")
-    if not colmap.sparse.is_dir():
+    if not colmap.scene.is_file():
         SCENES[name](folder)
         set_colmap_log_level("warning")
         fmt, options = resolve_format(folder), load_params(ROOT / "params.yaml").reconstruct
         background = SceneParams(path=str(folder)).resolved_background(fmt)
         if fmt == "photos":  # the tiny scene: structure from motion, as its pipeline runs it
-            reconstruct_photos(folder, colmap.root, options)
+            reconstruct_photos(folder, colmap.root, options, background=background)
         else:
             source = read_source(folder, fmt, background=background.color if background.object else None)
             write_source_model(source, colmap.root, options, background=background)
-    return colmap, colmap.read_background()
+    return read_scene(colmap.root)
 
 
 def run(name: str, iterations: int, work: Path, strategy: dict | None = None) -> dict:
-    colmap, background = prepare(name, work)
-    scene = read_colmap_scene(colmap.sparse, colmap.images)
+    scene = prepare(name, work)
+    background = scene.background
     base = load_params(ROOT / "params.yaml").fit
     update = {"iterations": iterations, **({"strategy": strategy} if strategy else {})}
     if background.object:

@@ -1,0 +1,195 @@
+"""One scene on disk: :func:`abcgs.sfm.model.write_scene` and :func:`abcgs.sfm.model.read_scene` give back everything
+a scene is (cameras, images, alpha and label maps, background, frame, format, splat, metadata), and ``scene.json``
+is refused in one line when it is missing, of another version, or holds a value of the wrong type or not finite."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from abcgs.cameras import Camera
+from abcgs.errors import InputError
+from abcgs.io.images import save_image, save_labels
+from abcgs.layout import ColmapDir
+from abcgs.sfm.model import SCENE_VERSION, read_colmap_scene, read_scene, write_scene
+from abcgs.sfm.params import ReconstructParams
+from abcgs.sources.model import write_source_model
+from abcgs.sources.splat import read_splat_source
+from abcgs.splats.formats.splat import write_splat_file
+from abcgs.splats.params import SplatViewsParams
+from abcgs.types import Background, Cameras, Distortion, Scene
+
+sys.path.insert(0, str(Path(__file__).parent))
+from test_splats import make_model  # noqa: E402
+
+
+def _rotation(rng: np.random.Generator) -> np.ndarray:
+    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
+    q *= np.sign(np.diag(r))
+    return q * np.linalg.det(q)
+
+
+def make_scene(root: Path, seed: int = 0) -> Scene:
+    """Four 12 × 8 views with images, alpha maps and two label maps in ``root``, every other field set."""
+    rng = np.random.default_rng(seed)
+    cams = []
+    for i in range(4):
+        viewmat = np.eye(4)
+        viewmat[:3, :3], viewmat[:3, 3] = _rotation(rng), rng.normal(size=3)
+        K = np.array([[10.0 + rng.random(), 0.0, 6.0 + rng.random()], [0.0, 11.0 + rng.random(), 4.0], [0, 0, 1]])
+        cams.append(Camera(f"v{i}.png", K, viewmat, 12, 8))
+    for cam in cams:
+        save_image(root / "images" / cam.name, rng.random((8, 12, 3)).astype(np.float32))
+        save_image(root / "alpha" / cam.name, rng.random((8, 12)).astype(np.float32))
+    for cam in cams[:2]:
+        save_labels(root / "masks" / cam.name, rng.integers(0, 3, (8, 12)))
+    frame = np.eye(4)
+    frame[:3, :3], frame[:3, 3] = 0.3 * _rotation(rng), rng.normal(size=3)  # bits a decimal rounding would lose
+    return Scene(Cameras.from_list(cams), tuple(root / "images" / c.name for c in cams),
+                 rng.normal(size=(50, 3)).astype(np.float32), (rng.integers(0, 256, (50, 3)) / 255.0).astype(np.float32),
+                 mask_paths=(root / "masks/v0.png", root / "masks/v1.png", None, None),
+                 alpha_paths=tuple(root / "alpha" / c.name for c in cams), format="nerfstudio", frame=frame,
+                 background=Background((0.1, 0.25, 1 / 3), transparent=True, object=True), depth_range=(0.5, 7.25),
+                 notes=("scaled by 0.3",), metadata={"views_kind": "orbit", "n": 3, "nested": {"a": [1.5, None]}},
+                 splat=Path("data/scene/trained.ply"))
+
+
+def test_a_scene_round_trips_exactly(tmp_path: Path) -> None:
+    scene = make_scene(tmp_path)
+    assert write_scene(scene, tmp_path) == ColmapDir(tmp_path).scene
+    back = read_scene(tmp_path)
+    assert back.frame.dtype == np.float64 and np.array_equal(back.frame, scene.frame)
+    assert back.format == "nerfstudio" and back.background == scene.background and back.metadata == scene.metadata
+    assert back.splat == scene.splat and back.depth_range == scene.depth_range and back.notes == scene.notes
+    assert back.image_paths == scene.image_paths and back.alpha_paths == scene.alpha_paths
+    assert back.mask_paths == scene.mask_paths
+    assert back.cameras.names == scene.cameras.names
+    for key in ("intrinsics", "sizes", "camera_models", "distortion_params"):
+        assert np.array_equal(getattr(back.cameras, key), getattr(scene.cameras, key)), key
+    # COLMAP stores a pose as a quaternion: the first trip rounds in the last bits, and from there the model holds
+    assert np.abs(back.cameras.viewmats - scene.cameras.viewmats).max() < 1e-12
+    assert np.array_equal(back.points, scene.points) and np.array_equal(back.colors, scene.colors)
+    model = {p.name: p.read_bytes() for p in (tmp_path / "sparse").iterdir()}
+    write_scene(back, tmp_path)
+    assert {p.name: p.read_bytes() for p in (tmp_path / "sparse").iterdir()} == model  # kept, not rewritten
+    again = read_scene(tmp_path)
+    assert np.array_equal(again.cameras.viewmats, back.cameras.viewmats)
+    # the cameras a stage reads are the model's own, as read_colmap_scene reads them
+    assert np.array_equal(again.cameras.viewmats, read_colmap_scene(tmp_path / "sparse", tmp_path / "images").cameras.viewmats)
+
+
+def test_a_scene_without_alpha_masks_or_background_reads_back_frame_filling(tmp_path: Path) -> None:
+    scene = make_scene(tmp_path)
+    plain = Scene(scene.cameras, scene.image_paths, scene.points, scene.colors)
+    write_scene(plain, tmp_path)
+    back = read_scene(tmp_path)
+    assert back.background == Background() and back.alpha_paths is None and back.mask_paths is None
+    assert back.format == "colmap" and np.array_equal(back.frame, np.eye(4)) and back.splat is None
+
+
+def test_write_scene_refuses_files_outside_its_folder_and_distorted_cameras(tmp_path: Path) -> None:
+    scene = make_scene(tmp_path / "a")
+    with pytest.raises(ValueError, match="not inside"):
+        write_scene(scene, tmp_path / "b")
+    lens = [Distortion("SIMPLE_RADIAL", (10.0, 6.0, 4.0, 0.01))] + [None] * 3
+    distorted = Scene(Cameras.from_list(list(scene.cameras), lens), scene.image_paths)
+    with pytest.raises(ValueError, match="undistorted"):
+        write_scene(distorted, tmp_path / "a")
+
+
+def test_a_missing_or_other_version_scene_json_is_refused_naming_the_file_and_the_fix(tmp_path: Path) -> None:
+    write_scene(make_scene(tmp_path), tmp_path)
+    record = ColmapDir(tmp_path).scene
+    doc = json.loads(record.read_text())
+    for version in (SCENE_VERSION + 1, 0, "1", True, None):
+        record.write_text(json.dumps({**doc, "version": version}))
+        with pytest.raises(InputError, match="re-run the reconstruct stage") as exc:
+            read_scene(tmp_path)
+        assert str(record) in str(exc.value) and "\n" not in str(exc.value)
+    record.unlink()
+    with pytest.raises(InputError, match="scene.json does not exist.*re-run the reconstruct stage"):
+        read_scene(tmp_path)
+
+
+def _set(doc: dict, path: str, value) -> dict:
+    *keys, last = path.split(".")
+    node = doc
+    for k in keys:
+        node = node[int(k)] if isinstance(node, list) else node[k]
+    if isinstance(node, list):
+        node[int(last)] = value
+    else:
+        node[last] = value
+    return doc
+
+
+@pytest.mark.parametrize(("path", "value", "reason"), [
+    ("frame", [[float("nan")] * 4] * 4, "not a finite number"),
+    ("frame", [[1.0, 0.0, 0.0]] * 4, "frame must be 4 x 4 numbers"),
+    ("frame", [[True, 0, 0, 0]] * 4, "frame must be 4 x 4 numbers"),
+    ("metadata", {"scale": float("inf")}, "scene.metadata.scale holds inf"),
+    ("metadata", [1, 2], "metadata is list"),
+    ("format", 3, "format is int"),
+    ("splat", ["a.ply"], "splat is list"),
+    ("depth_range", [1.0, float("-inf")], "not a finite number"),
+    ("notes", ["ok", 1], "notes must be strings"),
+    ("background.transparent", "yes", "background.transparent is str"),
+    ("background.color", [0.0, 2.0, 0.0], "outside"),
+    ("background.color", [0.0, 0.0], "background.color must be 3 numbers"),
+    ("views.0.name", "other.png", "not the model's view"),
+    ("views.1.image", "../../etc/passwd", "not a path inside"),
+    ("views.1.alpha", "/abs/v1.png", "not a path inside"),
+    ("views.2.mask", "masks/absent.png", "missing"),
+    ("views.3", "v3.png", "not the model's view"),
+    ("views", [], "lists 0 views"),
+])
+def test_a_scene_json_with_a_bad_value_is_refused_in_one_line(tmp_path: Path, path: str, value, reason: str) -> None:
+    write_scene(make_scene(tmp_path), tmp_path)
+    record = ColmapDir(tmp_path).scene
+    record.write_text(json.dumps(_set(json.loads(record.read_text()), path, value)))  # NaN and inf as JSON's extension
+    with pytest.raises(InputError, match=reason) as exc:
+        read_scene(tmp_path)
+    assert str(record) in str(exc.value) and "re-run the reconstruct stage" in str(exc.value)
+    assert "\n" not in str(exc.value)
+
+
+def test_a_hostile_scene_json_is_bounded_before_it_is_parsed(tmp_path: Path) -> None:
+    write_scene(make_scene(tmp_path), tmp_path)
+    record = ColmapDir(tmp_path).scene
+    doc = json.loads(record.read_text())
+    record.write_text(json.dumps(doc)[:-1] + ', "metadata_deep": ' + "[" * 500 + "]" * 500 + "}")
+    with pytest.raises(InputError, match="nested too deeply"):
+        read_scene(tmp_path)
+    record.write_text("{not json")
+    with pytest.raises(InputError, match="not readable JSON"):
+        read_scene(tmp_path)
+
+
+def test_the_reconstruct_writer_records_a_bare_splats_file_format_and_views_for_the_fit(tmp_path: Path) -> None:
+    """What the fit stage reads instead of detecting the format again: the splat file, the format, the views' kind."""
+    src = tmp_path / "scene.splat"
+    write_splat_file(src, make_model(800, 0, seed=3))
+    source = read_splat_source(src, tmp_path / "views", SplatViewsParams(count=4, width=32, height=24),
+                               background=(0.0, 0.0, 0.0))
+    object_on_black = Background(object=True)
+    write_source_model(source, tmp_path / "colmap", ReconstructParams(), background=object_on_black)
+    scene = read_scene(tmp_path / "colmap")
+    assert scene.splat == src and scene.format == "splat" and scene.background == object_on_black
+    assert scene.metadata == source.metadata and scene.metadata["views_kind"] in ("orbit", "forward")
+    assert all(p.parent == tmp_path / "colmap" / "images" and p.is_file() for p in scene.image_paths)
+
+
+def test_the_stages_read_the_reconstructed_model_as_it_is(tiny_colmap: Path) -> None:
+    """Structure from motion's model is kept byte for byte: a stage reads the cameras, images and points that
+    :func:`read_colmap_scene` reads, with the scene's format, background and label maps beside them."""
+    scene, model = read_scene(tiny_colmap), read_colmap_scene(tiny_colmap / "sparse", tiny_colmap / "images")
+    assert scene.cameras.names == model.cameras.names and scene.image_paths == model.image_paths
+    for key in ("viewmats", "intrinsics", "sizes", "camera_models", "distortion_params"):
+        assert np.array_equal(getattr(scene.cameras, key), getattr(model.cameras, key)), key
+    assert np.array_equal(scene.points, model.points) and np.array_equal(scene.colors, model.colors)
+    assert scene.format == "photos" and scene.background == Background() and scene.alpha_paths is None
+    assert scene.mask_paths is not None and scene.mask_paths[0] == tiny_colmap / "masks" / "000.png"
