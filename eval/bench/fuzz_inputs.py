@@ -15,6 +15,11 @@ from collections.abc import Callable
 from pathlib import Path
 from types import SimpleNamespace
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
+# isort: split
 import numpy as np
 import torch
 import yaml
