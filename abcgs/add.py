@@ -131,7 +131,9 @@ def edit_params(path: str | os.PathLike, edit: Callable[[Any], None], *, write: 
     return new
 
 
-def _check_name(name: str, section: str, existing: Any, force: bool) -> None:
+def check_new_name(name: str, section: str, existing: Any, force: bool) -> None:
+    """Raise :class:`InputError` when ``name`` is not an identifier, is not a valid scene name (``data.scenes``), or
+    is a key of ``existing`` (``section``'s entries) and ``force`` is off."""
     if not NAME_RE.fullmatch(name):
         raise InputError(f"{name!r}: a name must match {NAME_PATTERN} (it becomes a folder and a DVC stage name)")
     if section == "data.scenes" and (problem := scene_name_problem(name)) is not None:
@@ -244,7 +246,7 @@ def add_scene(params_path: str | os.PathLike, name: str, path: str | os.PathLike
     """Check the scene and write ``data.scenes.<name>`` into the params file (``dry_run``: check the edited file
     as the real run does, write nothing). ``splat_format``, ``splat_nonfinite``, ``views``: :func:`scene_entry`."""
     params = load_params(params_path)
-    _check_name(name, "data.scenes", params.data.scenes, force)
+    check_new_name(name, "data.scenes", params.data.scenes, force)
     entry, lines = scene_entry(name, path, fmt=fmt, images=images, background=background, splat=splat,
                                max_view_size_ratio=params.reconstruct.max_view_size_ratio,
                                min_psnr=params.fit.import_min_psnr, splat_format=splat_format,
@@ -278,7 +280,7 @@ def add_style(params_path: str | os.PathLike, name: str, path: str | os.PathLike
               labels: str | os.PathLike | None = None, force: bool = False, dry_run: bool = False
               ) -> tuple[dict, list[str]]:
     """Check the painting (and its region map) and write ``data.styles.<name>`` (and ``data.style_masks.<name>``)."""
-    _check_name(name, "data.styles", load_params(params_path).data.styles, force)
+    check_new_name(name, "data.styles", load_params(params_path).data.styles, force)
     painting = checked_path(path, "painting")
     check_painting(painting, "painting")
     w, h = image_size(painting)

@@ -22,7 +22,7 @@ from typing import Any, get_args
 
 import yaml
 
-from abcgs.add import _check_name, edit_params
+from abcgs.add import check_new_name, edit_params
 from abcgs.errors import InputError
 from abcgs.params import load_params, validate_params
 from abcgs.preflight import preflight
@@ -100,9 +100,9 @@ def add_experiment(params_path: str | os.PathLike, plan: ExperimentPlan, *, forc
         raise InputError(f"scene {scene!r} is not in data.scenes ({', '.join(params.data.scenes)}); add it first "
                          "with python -m abcgs add-scene")
     for n in plan.colormatches:
-        _check_name(n, "colormatches", params.colormatches, force)
+        check_new_name(n, "colormatches", params.colormatches, force)
     for n in plan.experiments:
-        _check_name(n, "experiments", params.experiments, force)
+        check_new_name(n, "experiments", params.experiments, force)
 
     def edit(doc: Any) -> None:
         for section, entries in (("colormatches", plan.colormatches), ("experiments", plan.experiments)):
