@@ -24,6 +24,7 @@ import yaml
 
 from abcgs.add import check_new_name, edit_params
 from abcgs.errors import InputError
+from abcgs.io.atomic import write_text
 from abcgs.params import load_params, validate_params
 from abcgs.preflight import preflight
 from abcgs.types import StyleMethod
@@ -115,6 +116,6 @@ def add_experiment(params_path: str | os.PathLike, plan: ExperimentPlan, *, forc
     raw = yaml.safe_load(text)
     preflight(validate_params(raw, str(params_path)), raw, Path(params_path))  # the files each transfer reads
     if not dry_run:
-        edit_params(params_path, edit)
+        write_text(params_path, text)  # the text just checked, written atomically
     return [f"colour match {n}: {spec['transfer']} on {spec['scene']}" for n, spec in plan.colormatches.items()] + [
         f"experiment {n}: {spec['method']} from {spec['colormatch']}" for n, spec in plan.experiments.items()]
