@@ -143,10 +143,10 @@ class ParamsBase(BaseModel):
                     self.scene_section(name, section)
                 except ValidationError as exc:
                     prefix = f"data.scenes.{name}.{section}"
-                    body = format_validation_error(exc, prefix, type(getattr(self, section)))
+                    body = format_validation_error(exc, prefix, type(getattr(self, section)), at=prefix)
                     lines = body.splitlines()[1:]
                     raise ValueError(f"{prefix}: the override does not fit `{section}`:\n" + "\n".join(
-                        f"    {prefix}.{line.strip()}" for line in lines)) from None
+                        f"    {line.strip()}" for line in lines)) from None
 
     def _check_names(self) -> None:
         named = [("colormatches", getattr(self, "colormatches", {})), ("experiments", getattr(self, "experiments", {}))]
@@ -253,11 +253,13 @@ def _tagged_member(field: Any, tag: Any) -> type[BaseModel] | None:
     return None
 
 
-def format_validation_error(exc: ValidationError, source: str, model: type[BaseModel]) -> str:
+def format_validation_error(exc: ValidationError, source: str, model: type[BaseModel], at: str = "") -> str:
+    """``exc`` as one headline and one line per problem, each led by the dotted path of its key (``at``: the path
+    of the validated mapping itself, e.g. a scene's override ``data.scenes.tiny.fit``)."""
     lines = [f"{source} does not match the schema ({exc.error_count()} problem(s)):"]
     for err in exc.errors():
         loc = tuple(err["loc"])
-        path = ".".join(str(p) for p in loc) or "<top level>"
+        path = ".".join(str(p) for p in ((at,) if at else ()) + loc) or "<top level>"
         if err["type"] == "extra_forbidden":
             owner = _model_at(model, loc)
             allowed = ", ".join(owner.model_fields) if owner else "?"
@@ -271,7 +273,7 @@ def format_validation_error(exc: ValidationError, source: str, model: type[BaseM
             shown = "" if isinstance(got, (dict, list)) else repr(got)
             tail = "" if not shown or len(shown) > 120 else f" (got {shown})"
             msg = err["msg"].removeprefix("Value error, ")
-            lines.append(f"  {msg}" if not loc else f"  {path}: {msg}{tail}")
+            lines.append(f"  {path}: {msg}{tail}" if loc else f"  {at}: {msg}" if at else f"  {msg}")
     return "\n".join(lines)
 
 

@@ -31,21 +31,21 @@ REPO = Path(__file__).resolve().parents[1]
 def test_the_default_schedule_is_3dgs_at_30000_steps_and_follows_any_length():
     p = FitParams(iterations=30000).strategy_params()
     assert (p.refine_start, p.refine_every, p.refine_stop, p.reset_every) == (500, 100, 15000, 3000)
-    for n in (2200, 3000, 6000, 7000, 12345):
+    for n in (6200, 7000, 9000, 12345, 20000):
         s = FitParams(iterations=n).strategy_params()
         assert s.refine_stop == n // 2  # densify until half the run
         last = s.last_reset(n)
         assert last is not None and last < s.refine_stop  # resets only while densifying
         assert n - last >= MIN_RECOVERY * n and s.reset_every >= MIN_RESET_EVERY
         assert 0 < s.refine_start < s.refine_stop and 10 <= s.refine_every <= 100
-    for n in (30, 60, 200, 300, 1000, 1500, 2000):  # too short for two resets' worth of regrowth: none
+    for n in (30, 60, 200, 300, 1000, 1500, 2000, 3000, 6000):  # densifying for under 3DGS's reset interval: none
         s = FitParams(iterations=n).strategy_params()
-        assert s.last_reset(n) is None and s.refine_start == n // 10 and s.refine_stop == n // 2
+        assert s.last_reset(n) is None and s.refine_start == min(500, n // 10) and s.refine_stop == n // 2
 
 
 def test_set_step_fields_are_kept_and_unset_ones_follow_the_length():
     s = FitParams(iterations=3000, strategy={"refine_every": 40}).strategy_params()
-    assert s.refine_every == 40 and s.refine_stop == 1500 and s.reset_every == 1000 and s.refine_start == 300
+    assert s.refine_every == 40 and s.refine_stop == 1500 and s.reset_every == 3000 and s.refine_start == 300
     s = StrategyParams(refine_stop=2000, reset_every=1000).resolved(3000)
     assert (s.refine_stop, s.reset_every, s.last_reset(3000)) == (2000, 1000, 1000)
     # the strategy used directly, without a run length, is 3DGS's reference schedule
@@ -77,12 +77,16 @@ def test_preflight_refuses_a_late_reset_in_one_line_naming_the_fields_and_the_fi
     assert time.perf_counter() - t0 < 10
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     err = proc.stderr.strip()
-    assert "data.scenes.tiny.fit" in err and "step 2900 of 3000" in err
+    assert "data.scenes.tiny.fit: the last opacity reset" in err and "step 2900 of 3000" in err
     assert "strategy.reset_every 2900" in err and "set strategy.refine_stop to at most 2400" in err
     # the same run with the schedule left to follow it passes the check
     params["data"]["scenes"]["tiny"]["fit"] = {"iterations": 3000}
     path.write_text(yaml.safe_dump(params))
-    assert FitParams.model_validate({**params["fit"], "iterations": 3000}).strategy_params().last_reset(3000) == 1000
+    assert FitParams.model_validate({**params["fit"], "iterations": 3000}).strategy_params().last_reset(3000) is None
+    # and so does a schedule that keeps its resets and takes the fix the message names
+    fixed = FitParams.model_validate({**params["fit"], "iterations": 3000,
+                                      "strategy": {"reset_every": 1000, "refine_stop": 2400}})
+    assert fixed.strategy_params().last_reset(3000) == 2000
 
 
 def _check(**kw) -> FitCheck:
@@ -143,7 +147,7 @@ def test_a_fit_on_the_cameras_of_another_scene_fails(tiny_colmap, tmp_path):
 
 
 def test_a_strategy_resolved_for_the_run_never_resets_in_its_last_part(small_scene):
-    p = FitParams(iterations=2200, test_every=0, threads=1)
+    p = FitParams(iterations=2200, test_every=0, threads=1, strategy={"reset_every": 400})
     resets = [r.step for r in fit(small_scene, p, progress=False, strategy=make_strategy(p, 1.0)).refinements
               if r.opacity_reset]
-    assert resets == [1000]  # every max(1000, 2200 / 10) steps while densifying (until step 1100)
+    assert resets == [400, 800]  # every 400 steps while densifying (until step 1100, half the run)
