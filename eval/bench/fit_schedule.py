@@ -3,15 +3,18 @@ section at several ``fit.iterations``, nothing else changed.
 
     python -m eval.bench.fit_schedule --json docs/measurements/fit_schedule.json
     python -m eval.bench.fit_schedule --iterations 1000 1500 --scenes tiny      # a quick look
+    python -m eval.bench.fit_schedule --iterations 1000 --scenes tiny \
+        --variant '{"strategy": {"refine_every": 50}}' --variant '{"seed": 1}'     # other fit settings, one run each
 
 Scenes, both generated here (no data needed): ``tiny``, the embedded default (a wall and objects seen from a
 forward-facing grid), and ``object``, its objects on nothing seen from three rings (a NeRF-synthetic dataset, white
-background). Each goes through the reconstruct stage's code (structure from motion for the tiny scene's photos, the dataset's cameras with points triangulated
-from them for the object)
-and is fitted with ``params.yaml``'s ``fit`` section at each length, as the fit stage does, and judged by the fit
-stage's plausibility check (:mod:`abcgs.fit.plausibility`). The table shows, per scene and length: the held-out and
-training PSNR (dB), the schedule the length resolves to, the share of Gaussians whose opacity is still at the reset
-value, and the training minutes.
+background). Each goes through the reconstruct stage's code (structure from motion for the tiny scene's photos; for
+the object, the dataset's cameras with points triangulated from them, and where too few triangulate, as on this
+object's small smooth renders, random points in the cameras' frustums, as that stage does) and is fitted with
+``params.yaml``'s ``fit`` section at each length, as the fit stage does, and judged by the fit stage's plausibility
+check (:mod:`abcgs.fit.plausibility`). The table shows, per scene and length: the held-out and training PSNR (dB),
+the schedule the length resolves to, the share of Gaussians whose opacity is still at the reset value, and the
+training minutes.
 """
 
 from __future__ import annotations
@@ -63,18 +66,20 @@ def prepare(name: str, work: Path) -> Scene:
     return read_scene(colmap.root)
 
 
-def run(name: str, iterations: int, work: Path, strategy: dict | None = None) -> dict:
+def run(name: str, iterations: int, work: Path, variant: dict | None = None) -> dict:
+    """Fit scene ``name`` for ``iterations`` steps with params.yaml's ``fit`` section, its keys replaced by
+    ``variant``'s (e.g. ``{"strategy": {...}}``, ``{"seed": 1}``), and judge it as the fit stage does."""
     scene = prepare(name, work)
     background = scene.background
     base = load_params(ROOT / "params.yaml").fit
-    update = {"iterations": iterations, **({"strategy": strategy} if strategy else {})}
+    update = {"iterations": iterations, **(variant or {})}
     if background.object:
         update["background"] = background.color
     params = FitParams.model_validate({**base.model_dump(), **update})
     result = fit(scene, params, progress=False)
     check = check_fit(result)
     s = params.strategy_params()
-    return {"scene": name, "iterations": iterations, "heldout_psnr": check.heldout_psnr,
+    return {"scene": name, "iterations": iterations, "variant": variant, "heldout_psnr": check.heldout_psnr,
             "train_psnr": check.train_psnr, "reset_share": check.reset_share, "plausible": not check.problems,
             "n_gaussians": result.model.num_gaussians, "minutes": result.seconds / 60,
             "schedule": {k: getattr(s, k) for k in ("refine_start", "refine_every", "refine_stop", "reset_every")},
@@ -86,9 +91,10 @@ def main(argv=None) -> list[dict]:
     ap.add_argument("--scenes", nargs="+", choices=tuple(SCENES), default=list(SCENES))
     ap.add_argument("--iterations", nargs="+", type=int, default=[1000, 1500, 3000, 6000])
     ap.add_argument("--work", type=Path, default=None, help="where the scenes are generated (default: a temporary folder)")
-    ap.add_argument("--strategy", type=json.loads, default=None,
-                    help="fit.strategy as JSON for a comparison, e.g. the fixed 3DGS steps: "
-                         "'{\"refine_start\": 500, \"refine_every\": 100, \"refine_stop\": 15000, \"reset_every\": 3000}'")
+    ap.add_argument("--variant", type=json.loads, action="append", default=None,
+                    help="fit keys as JSON replacing params.yaml's, one run each (repeatable), e.g. the fixed 3DGS "
+                         "steps: '{\"strategy\": {\"refine_start\": 500, \"refine_every\": 100, "
+                         "\"refine_stop\": 15000, \"reset_every\": 3000}}'")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     rows = []
@@ -98,15 +104,16 @@ def main(argv=None) -> list[dict]:
               f"{'last reset':>10} {'at reset':>8} {'Gaussians':>9} {'min':>5}", flush=True)
         for name in args.scenes:
             for n in args.iterations:
-                r = run(name, n, work, args.strategy)
-                s = r["schedule"]
-                sched = f"{s['refine_start']}/{s['refine_every']}/{s['refine_stop']}/{s['reset_every']}"
-                print(f"{name:>7} {n:>6} {r['heldout_psnr']:>11.2f} {r['train_psnr']:>8.2f} {sched:>22} "
-                      f"{r['last_reset'] or '-':>10} {r['reset_share']:>8.1%} {r['n_gaussians']:>9} "
-                      f"{r['minutes']:>5.1f}", flush=True)
-                rows.append(r)
+                for variant in args.variant or [None]:
+                    r = run(name, n, work, variant)
+                    s = r["schedule"]
+                    sched = f"{s['refine_start']}/{s['refine_every']}/{s['refine_stop']}/{s['reset_every']}"
+                    print(f"{name:>7} {n:>6} {r['heldout_psnr']:>11.2f} {r['train_psnr']:>8.2f} {sched:>22} "
+                          f"{r['last_reset'] or '-':>10} {r['reset_share']:>8.1%} {r['n_gaussians']:>9} "
+                          f"{r['minutes']:>5.1f}" + (f"  {json.dumps(variant)}" if variant else ""), flush=True)
+                    rows.append(r)
     if args.json:
-        write_json(args.json, {"command": "python -m eval.bench.fit_schedule", "strategy": args.strategy, "rows": rows,
+        write_json(args.json, {"command": "python -m eval.bench.fit_schedule", "variants": args.variant, "rows": rows,
                                "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs"})
     return rows
 
