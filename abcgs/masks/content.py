@@ -36,7 +36,7 @@ from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel, render
 from abcgs.io.images import MAX_LABEL, decode_image, load_labels
-from abcgs.masks.lifting import NO_VOTE, lift_labels, propagate_unseen, render_label_map
+from abcgs.masks.lifting import NO_VOTE, LiftResult, lift_labels, propagate_unseen, render_label_map
 from abcgs.masks.params import UNDECIDED, AutoMaskParams, GrabCutParams, MaskParams
 from abcgs.masks.refine import Refinement, refine_labels
 from abcgs.types import Backend
@@ -243,55 +243,70 @@ def label_iou(pred: np.ndarray, truth: np.ndarray, n_labels: int) -> dict[int, f
     return out
 
 
-def make_content_masks(
-    model: GaussianModel,
-    cameras: list[Camera],
-    masks_dir: Path | None,
-    params: MaskParams,
-    images: list[Path] | None = None,
-    *,
-    show_progress: bool = True,
-) -> ContentMasks:
-    """Given or automatic masks → per-Gaussian labels (Eq. 2; cross-view refinement with ``masks.refine``) →
-    re-rendered masks for every view.
+def _given_views(given: dict[int, np.ndarray], cameras: list[Camera], lift_views: list[str], holdout_every: int,
+                 masks_dir: Path | None) -> tuple[list[int], list[int]]:
+    """Which views with a given mask are lifted and which are held out and scored: the views ``lift_views`` names
+    (file stems) when set, else all but every ``holdout_every``-th (< 2: none held out).
 
-    ``images``: the views' photos, which the refinement cuts (None: the scene's renders stand in for them).
+    Returns:
+        the lifted and the held-out view indices, ascending.
+
+    Raises:
+        InputError: ``lift_views`` names a view without a given mask.
     """
-    given, palette = find_given_masks_with_palette(masks_dir, cameras) if masks_dir is not None else ({}, {})
-    if params.source == "given" and not given:
-        raise InputError(f"masks.source is 'given' but no label PNG in {masks_dir} matches a view")
+    idx = sorted(given)
     heldout: list[int] = []
+    if lift_views:
+        stems = {Path(cameras[i].name).stem: i for i in idx}
+        missing = [v for v in lift_views if v not in stems]
+        if missing:
+            raise InputError(f"masks.lift_views names view(s) {missing} without a mask in {masks_dir} "
+                             f"(masks found for: {', '.join(sorted(stems)) or 'none'})")
+        chosen = sorted(stems[v] for v in lift_views)
+        heldout = [i for i in idx if i not in chosen]
+        idx = chosen
+    elif holdout_every >= 2 and len(idx) >= 2:
+        heldout = idx[holdout_every - 1 :: holdout_every]
+        idx = [i for i in idx if i not in heldout]
+    return idx, heldout
+
+
+def _reference_masks(model: GaussianModel, cameras: list[Camera], given: dict[int, np.ndarray],
+                     masks_dir: Path | None, params: MaskParams) -> tuple[str, list[int], list[np.ndarray], list[int]]:
+    """The label maps to lift, by ``params.source``: the given masks (when any, for ``auto`` and ``given``), else one
+    reference view cut by GrabCut or by colour clustering.
+
+    Returns:
+        the source's name (``given``, ``grabcut``, ``clustering``), the lifted views' indices, their label maps
+        ``(H, W) int64`` and the held-out views' indices.
+
+    Raises:
+        InputError: a reference view out of range, or ``lift_views`` naming a view without a mask.
+    """
     if given and params.source in ("auto", "given"):
-        source = "given"
-        idx = sorted(given)
-        if params.lift_views:
-            stems = {Path(cameras[i].name).stem: i for i in idx}
-            missing = [v for v in params.lift_views if v not in stems]
-            if missing:
-                raise InputError(f"masks.lift_views names view(s) {missing} without a mask in {masks_dir} "
-                                 f"(masks found for: {', '.join(sorted(stems)) or 'none'})")
-            chosen = sorted(stems[v] for v in params.lift_views)
-            heldout = [i for i in idx if i not in chosen]
-            idx = chosen
-        elif params.holdout_every >= 2 and len(idx) >= 2:
-            heldout = idx[params.holdout_every - 1 :: params.holdout_every]
-            idx = [i for i in idx if i not in heldout]
-        maps = [given[i] for i in idx]
-    elif params.source == "grabcut":
-        source = "grabcut"
+        idx, heldout = _given_views(given, cameras, params.lift_views, params.holdout_every, masks_dir)
+        return "given", idx, [given[i] for i in idx], heldout
+    if params.source == "grabcut":
         i = params.grabcut.reference_view
         if i >= len(cameras):
             raise InputError(f"masks.grabcut.reference_view {i} is out of range (scene has {len(cameras)} views)")
-        idx, maps = [i], [grabcut_view(model, cameras[i], params.grabcut, params.backend)]
-    else:
-        source = "clustering"
-        i = params.clustering.reference_view
-        if i >= len(cameras):
-            raise InputError(f"masks.clustering.reference_view {i} is out of range (scene has {len(cameras)} views)")
-        idx, maps = [i], [cluster_view(model, cameras[i], params.clustering, params.backend)]
-    n_labels = int(max([m.max() for m in maps] + [given[i].max() for i in heldout]))
-    if n_labels == 0:
-        raise InputError("the content masks contain no label > 0 (0 means unassigned); nothing to lift")
+        return "grabcut", [i], [grabcut_view(model, cameras[i], params.grabcut, params.backend)], []
+    i = params.clustering.reference_view
+    if i >= len(cameras):
+        raise InputError(f"masks.clustering.reference_view {i} is out of range (scene has {len(cameras)} views)")
+    return "clustering", [i], [cluster_view(model, cameras[i], params.clustering, params.backend)], []
+
+
+def _lift_and_refine(model: GaussianModel, cameras: list[Camera], images: list[Path] | None, idx: list[int],
+                     maps: list[np.ndarray], n_labels: int, params: MaskParams,
+                     show_progress: bool) -> tuple[LiftResult, int, Refinement | None]:
+    """Per-Gaussian labels from the label maps ``maps`` (``(H, W) int64`` each) of the views ``idx``: lifted (Eq. 2),
+    spread to the Gaussians no masked view sees where the capture calls for it (``LiftParams.propagate``), and, with
+    ``masks.refine``, re-cut in every other view and lifted again.
+
+    Returns:
+        the lifted labels, how many Gaussians took a neighbour's label, and the refinement (None when off).
+    """
     lifted = lift_labels(model, [cameras[i] for i in idx], maps, n_labels, params.lift, backend=params.backend)
     # Gaussians no masked view sees take their 3-D neighbours' label (object-centred captures, LiftParams.propagate)
     propagate = params.lift.propagate == "always" or (
@@ -312,6 +327,54 @@ def make_content_masks(
         if propagate:  # what no view sees at all (and, with propagate_split, the split votes)
             lifted, propagated = propagate_unseen(model, lifted, params.lift,
                                                   undecided=params.lift.propagate_split)
+    return lifted, propagated, refinement
+
+
+def heldout_scores(views: list[np.ndarray] | dict[int, np.ndarray], truths: dict[int, np.ndarray],
+                   n_labels: int) -> tuple[dict[int, list[float]], list[float]]:
+    """Scores of lifted label maps against held-out masks.
+
+    Args:
+        views: the label maps rendered from the lifted labels, ``(H, W) int64`` each, by view index.
+        truths: view index → the held-out given mask ``(H, W) int64`` (0 = unassigned).
+        n_labels: labels 1..n_labels are scored.
+
+    Returns:
+        per label, its IoU in each held-out view (:func:`label_iou`; a label absent from both maps is left out), and
+        per held-out view with a label, the share of its labelled pixels the view's map agrees with.
+    """
+    ho_iou: dict[int, list[float]] = {}
+    ho_agree = []
+    for i, truth in truths.items():
+        for k, v in label_iou(views[i], truth, n_labels).items():
+            ho_iou.setdefault(k, []).append(v)
+        if (truth > 0).any():
+            ho_agree.append(float((views[i] == truth)[truth > 0].mean()))
+    return ho_iou, ho_agree
+
+
+def make_content_masks(
+    model: GaussianModel,
+    cameras: list[Camera],
+    masks_dir: Path | None,
+    params: MaskParams,
+    images: list[Path] | None = None,
+    *,
+    show_progress: bool = True,
+) -> ContentMasks:
+    """Given or automatic masks → per-Gaussian labels (Eq. 2; cross-view refinement with ``masks.refine``) →
+    re-rendered masks for every view.
+
+    ``images``: the views' photos, which the refinement cuts (None: the scene's renders stand in for them).
+    """
+    given, palette = find_given_masks_with_palette(masks_dir, cameras) if masks_dir is not None else ({}, {})
+    if params.source == "given" and not given:
+        raise InputError(f"masks.source is 'given' but no label PNG in {masks_dir} matches a view")
+    source, idx, maps, heldout = _reference_masks(model, cameras, given, masks_dir, params)
+    n_labels = int(max([m.max() for m in maps] + [given[i].max() for i in heldout]))
+    if n_labels == 0:
+        raise InputError("the content masks contain no label > 0 (0 means unassigned); nothing to lift")
+    lifted, propagated, refinement = _lift_and_refine(model, cameras, images, idx, maps, n_labels, params, show_progress)
     views = [
         render_label_map(model, lifted.labels, n_labels, c, threshold=params.lift.render_threshold, backend=params.backend)
         for c in cameras
@@ -320,14 +383,7 @@ def make_content_masks(
         views = recut_outputs(model, cameras, images, lifted, n_labels, views, skip=set(idx), params=params,
                               show_progress=show_progress)
     agree = [float((views[i] == m)[m > 0].mean()) for i, m in zip(idx, maps) if (m > 0).any()]
-    ho_iou: dict[int, list[float]] = {}
-    ho_agree = []
-    for i in heldout:
-        truth = given[i]
-        for k, v in label_iou(views[i], truth, n_labels).items():
-            ho_iou.setdefault(k, []).append(v)
-        if (truth > 0).any():
-            ho_agree.append(float((views[i] == truth)[truth > 0].mean()))
+    ho_iou, ho_agree = heldout_scores(views, {i: given[i] for i in heldout}, n_labels)
     counts = lifted.counts()
     log.info("lifted %s masks of %d view(s) onto %d Gaussians: %s", source, len(idx), len(lifted.labels), counts)
     unlabelled = {Path(c.name).stem: float((v == 0).mean()) for c, v in zip(cameras, views)}

@@ -291,6 +291,81 @@ def fill_features(rgb: np.ndarray, depth: np.ndarray | None, depth_weight: float
     return np.concatenate([lab, (disp * 100.0 * depth_weight)[..., None]], -1).astype(np.float32)
 
 
+def _working_inputs(
+    rgb: np.ndarray, strokes: list[Stroke] | np.ndarray, depth: np.ndarray | None, max_side: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The view, its seed map and its depth at the size the cuts run at (longest side at most ``max_side``).
+
+    Args:
+        rgb: ``(H, W, 3) uint8``. strokes: as :func:`segment` takes them. depth: ``(H, W)`` world units, or None.
+        max_side: the longest side of the working size, pixels.
+
+    Returns:
+        ``(h, w, 3) uint8`` view (INTER_AREA), ``(h, w) int64`` seed map (-1 = none, 0 = background, k = label k;
+        nearest) and ``(h, w) float32`` depth (nearest) or None.
+
+    Raises:
+        InputError: a depth map or seed map of another size than the view.
+    """
+    h, w = rgb.shape[:2]
+    scale = min(1.0, max_side / max(h, w))
+    sh, sw = max(1, int(round(h * scale))), max(1, int(round(w * scale)))
+    small = rgb if (sh, sw) == (h, w) else cv2.resize(rgb, (sw, sh), interpolation=cv2.INTER_AREA)
+    if depth is not None:
+        depth = np.asarray(depth, np.float32)
+        if depth.shape != (h, w):
+            raise InputError(f"the depth map is {depth.shape[1]}x{depth.shape[0]} but the image is {w}x{h}")
+        if (sh, sw) != (h, w):
+            depth = cv2.resize(depth, (sw, sh), interpolation=cv2.INTER_NEAREST)
+    if isinstance(strokes, np.ndarray):
+        if strokes.shape != (h, w):
+            raise InputError(f"the seed map is {strokes.shape[1]}x{strokes.shape[0]} but the image is {w}x{h}")
+        seeds = strokes.astype(np.int64)
+        if (sh, sw) != (h, w):
+            seeds = cv2.resize(seeds.astype(np.int16), (sw, sh), interpolation=cv2.INTER_NEAREST).astype(np.int64)
+    else:
+        seeds = rasterize_strokes(strokes, (sh, sw), scale=sw / w)
+    return small, seeds, depth
+
+
+def _cut_every_kind(
+    feats: np.ndarray, seeds: np.ndarray, kinds: list[int], iterations: int, keep_touching: bool
+) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray]]:
+    """One GrabCut per seed value in ``kinds`` (labels and the background brush), merged: where cuts overlap, the one
+    with the higher foreground probability wins; stroked pixels keep their stroke's value.
+
+    Args:
+        feats: ``(h, w, 3) uint8`` (:func:`grabcut_features`). seeds: ``(h, w) int64`` seed map. kinds: the seed
+            values present (>= 0), ascending. iterations: GrabCut iterations per value. keep_touching: drop the parts
+            of a cut that none of its value's strokes touch.
+
+    Returns:
+        labels ``(h, w) int64`` (0 where nothing or the background won), claimed ``(h, w) bool`` and, per label
+        k > 0, its foreground probability ``(h, w) float32``.
+    """
+    sh, sw = seeds.shape
+    pixels = feats.reshape(-1, 3).astype(np.float64)
+    out = np.zeros((sh, sw), np.int64)
+    best = np.full((sh, sw), -1.0, np.float32)
+    prob: dict[int, np.ndarray] = {}
+    for k in kinds:
+        cut, fgd, bgd = _grabcut_one(feats, seeds, k, iterations)
+        if keep_touching:
+            _, comp = cv2.connectedComponents(cut.astype(np.uint8), connectivity=8)
+            touched = np.unique(comp[(seeds == k) & cut])
+            cut = np.isin(comp, touched[touched > 0])
+        lf, lb = gmm_log_density(fgd, pixels), gmm_log_density(bgd, pixels)
+        p = (1.0 / (1.0 + np.exp(np.clip(lb - lf, -60, 60)))).reshape(sh, sw).astype(np.float32)
+        take = cut & (p > best)
+        out[take], best[take] = k, p[take]
+        if k > 0:
+            prob[k] = p
+    claimed = best >= 0
+    for k in kinds:  # strokes are certain
+        out[seeds == k], claimed[seeds == k] = k, True
+    return out, claimed, prob
+
+
 def segment(
     image: np.ndarray,
     strokes: list[Stroke] | np.ndarray,
@@ -336,46 +411,13 @@ def segment(
     if rgb.ndim != 3 or rgb.shape[2] != 3:
         raise InputError(f"segment needs an (H, W, 3) RGB image, got shape {rgb.shape}")
     h, w = rgb.shape[:2]
-    scale = min(1.0, max_side / max(h, w))
-    sh, sw = max(1, int(round(h * scale))), max(1, int(round(w * scale)))
-    small = rgb if (sh, sw) == (h, w) else cv2.resize(rgb, (sw, sh), interpolation=cv2.INTER_AREA)
-    if depth is not None:
-        depth = np.asarray(depth, np.float32)
-        if depth.shape != (h, w):
-            raise InputError(f"the depth map is {depth.shape[1]}x{depth.shape[0]} but the image is {w}x{h}")
-        if (sh, sw) != (h, w):
-            depth = cv2.resize(depth, (sw, sh), interpolation=cv2.INTER_NEAREST)
-    if isinstance(strokes, np.ndarray):
-        if strokes.shape != (h, w):
-            raise InputError(f"the seed map is {strokes.shape[1]}x{strokes.shape[0]} but the image is {w}x{h}")
-        seeds = strokes.astype(np.int64)
-        if (sh, sw) != (h, w):
-            seeds = cv2.resize(seeds.astype(np.int16), (sw, sh), interpolation=cv2.INTER_NEAREST).astype(np.int64)
-    else:
-        seeds = rasterize_strokes(strokes, (sh, sw), scale=sw / w)
+    small, seeds, depth = _working_inputs(rgb, strokes, depth, max_side)
+    sh, sw = seeds.shape
     kinds = sorted(int(v) for v in np.unique(seeds) if v >= 0)
     if not any(k > 0 for k in kinds):
         raise InputError("no label strokes: draw over at least one region with a label (1, 2, …) before segmenting")
     feats = grabcut_features(small, depth, depth_weight)
-    pixels = feats.reshape(-1, 3).astype(np.float64)
-    out = np.zeros((sh, sw), np.int64)
-    best = np.full((sh, sw), -1.0, np.float32)
-    prob: dict[int, np.ndarray] = {}
-    for k in kinds:
-        cut, fgd, bgd = _grabcut_one(feats, seeds, k, iterations)
-        if keep_touching:
-            _, comp = cv2.connectedComponents(cut.astype(np.uint8), connectivity=8)
-            touched = np.unique(comp[(seeds == k) & cut])
-            cut = np.isin(comp, touched[touched > 0])
-        lf, lb = gmm_log_density(fgd, pixels), gmm_log_density(bgd, pixels)
-        p = (1.0 / (1.0 + np.exp(np.clip(lb - lf, -60, 60)))).reshape(sh, sw).astype(np.float32)
-        take = cut & (p > best)
-        out[take], best[take] = k, p[take]
-        if k > 0:
-            prob[k] = p
-    claimed = best >= 0
-    for k in kinds:  # strokes are certain
-        out[seeds == k], claimed[seeds == k] = k, True
+    out, claimed, prob = _cut_every_kind(feats, seeds, kinds, iterations, keep_touching)
     if fill and len(kinds) >= 2:
         out, claimed = fill_gaps(out, claimed, fill_features(small, depth, depth_weight), seeds)
     if (sh, sw) != (h, w):
