@@ -25,11 +25,13 @@ The goal printed is IoU ≥ 0.9 per label on every other view (the worst view co
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import platform
 import shutil
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 from abcgs.runtime import setup
@@ -40,11 +42,14 @@ setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 import cv2
 import numpy as np
 
+from abcgs.gaussians import GaussianModel
 from abcgs.io.atomic import write_json
 from abcgs.io.images import load_image, load_labels, save_labels
-from abcgs.masks.content import label_iou, make_content_masks
+from abcgs.masks.content import ContentMasks, label_iou, make_content_masks
 from abcgs.masks.grabcut import Stroke, segment
 from abcgs.masks.params import LiftParams, MaskParams, RefineParams
+from abcgs.types import Scene
+from eval.studies.mask_lifting import iou_summary
 
 GOAL = 0.9
 """Per-label IoU the lifted stroke masks should reach on every other view (the worst one counts)."""
@@ -158,12 +163,11 @@ def _score(views: list[np.ndarray], truth: dict[int, np.ndarray], skip: int, n_l
         for k, v in label_iou(views[i], t, n_labels).items():
             per.setdefault(k, []).append(v)
         agree.append(float((views[i] == t)[t > 0].mean()))
-    return {"iou_per_label": {str(k): {"mean": float(np.mean(v)), "min": float(np.min(v)), "n_views": len(v)}
-                              for k, v in sorted(per.items())},
-            "pixel_agreement": float(np.mean(agree))}
+    return {"iou_per_label": iou_summary(per), "pixel_agreement": float(np.mean(agree))}
 
 
-def main(argv: list[str] | None = None) -> dict:
+def _parser() -> argparse.ArgumentParser:
+    """The command line of :func:`main`."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--view", default="000", help="the view the user draws on (image stem)")
     ap.add_argument("--strokes", type=int, default=3, help="strokes per label, at most, in all rounds")
@@ -179,27 +183,101 @@ def main(argv: list[str] | None = None) -> dict:
                     help="masks.lift.propagate_along of every lift")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--figure", type=Path, default=None, help="strokes, cut, and the lifted labels in three other views")
-    args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.WARNING)
+    return ap
 
+
+@contextlib.contextmanager
+def _work_folder(work: Path | None) -> Iterator[Path]:
+    """``work`` (created if missing, kept), or a temporary folder removed on leaving."""
+    if work is None:
+        with tempfile.TemporaryDirectory(prefix="abcgs-paint-iou-") as tmp:
+            yield Path(tmp)
+    else:
+        work.mkdir(parents=True, exist_ok=True)
+        yield work
+
+
+def _reconstruct_and_fit(tiny: Path, user: Path, work: Path, iterations: int) -> tuple[Scene, GaussianModel]:
+    """The user's folder ``user`` reconstructed into ``work/colmap`` and fitted for ``iterations`` steps (densifying
+    every 25); the tiny scene ``tiny`` with its true label maps reconstructed into ``work/colmap_truth`` by the same
+    seeded SfM, so that its undistorted true maps match the user's views (checked: the same cameras)."""
     from abcgs.fit.params import FitParams, StrategyParams
     from abcgs.fit.training import fit
-    from abcgs.scene.params import TinySceneParams
-    from abcgs.scene.synthetic import make_tiny_scene
-    from abcgs.sfm.colmap import reconstruct, set_colmap_log_level
+    from abcgs.sfm.colmap import reconstruct
     from abcgs.sfm.model import read_colmap_scene
     from abcgs.sfm.params import ReconstructParams
 
+    rp = ReconstructParams()
+    reconstruct(user / "images", work / "colmap", rp, masks_dir=user / "masks")
+    reconstruct(tiny / "images", work / "colmap_truth", rp, masks_dir=tiny / "masks")  # the same model, seeded
+    scene = read_colmap_scene(work / "colmap" / "sparse", work / "colmap" / "images")
+    truth_scene = read_colmap_scene(work / "colmap_truth" / "sparse", work / "colmap_truth" / "images")
+    for a, b in zip(scene.cameras, truth_scene.cameras):
+        assert a.name == b.name and np.allclose(a.viewmat, b.viewmat) and np.allclose(a.K, b.K), "SfM not repeatable"
+    it = iterations
+    fp = FitParams(iterations=it, test_every=0, max_gaussians=30_000,
+                   strategy=StrategyParams(refine_start=min(50, it // 6), refine_every=25,
+                                           refine_stop=int(0.8 * it), reset_every=10 * it))
+    return scene, fit(scene, fp, progress=False).model
+
+
+def _lift_three_ways(model: GaussianModel, scene: Scene, work: Path, view: str,
+                     propagate_along: str) -> tuple[ContentMasks, ContentMasks, ContentMasks, float]:
+    """The ``masks`` stage on the fitted scene three ways: the strokes' mask of ``view`` (``work/colmap/masks``) with
+    refinement, the same without, and ``view``'s true mask alone (copied to ``work/truth_mask_of_view``) with it.
+
+    Returns:
+        the three results and the seconds of the first (lift, refine and render).
+    """
+    only_truth = work / "truth_mask_of_view"
+    shutil.rmtree(only_truth, ignore_errors=True)
+    only_truth.mkdir()
+    shutil.copy(work / "colmap_truth" / "masks" / f"{view}.png", only_truth)
+    cams, photos = scene.cameras, scene.image_paths
+    t_lift = time.perf_counter()
+    lift = LiftParams(propagate_along=propagate_along)
+    lifted = make_content_masks(model, cams, work / "colmap" / "masks", MaskParams(source="given", lift=lift), photos,
+                                show_progress=False)
+    seconds_lift = time.perf_counter() - t_lift
+    lift_only = make_content_masks(model, cams, work / "colmap" / "masks",
+                                   MaskParams(source="given", lift=lift, refine=RefineParams(enabled=False)))
+    ceiling = make_content_masks(model, cams, only_truth, MaskParams(source="given", lift=lift), photos,
+                                 show_progress=False)
+    return lifted, lift_only, ceiling, seconds_lift
+
+
+def _print_result(result: dict, n_views: int) -> None:
+    """The table of a :func:`main` record: per label the page's cut, lift only, lifted + refined and true mask IoUs
+    over the ``n_views`` views scored."""
+    n_labels = len(result["strokes_per_label"])
+    strokes_score, ceiling_score = result["lifted_from_strokes"], result["lifted_from_true_mask"]
+    lift_only_score = result["lifted_from_strokes_without_refinement"]
+    print(f"tiny scene, view {result['view']}: {len(result['strokes'])} strokes ({result['strokes_per_label']} per "
+          f"label, {len(result['rounds'])} round(s)); fit {result['fit']['iterations']} steps, "
+          f"{result['fit']['n_gaussians']:,} Gaussians")
+    print(f"{'label':>5} {'cut (2-D)':>10} {'lift only':>10} {'lifted + refined: mean':>23} {'worst':>6} "
+          f"{'true mask: mean':>16} {'worst':>6}")
+    for k in range(1, n_labels + 1):
+        s, c = strokes_score["iou_per_label"][str(k)], ceiling_score["iou_per_label"][str(k)]
+        o = lift_only_score["iou_per_label"][str(k)]
+        print(f"{k:>5} {result['cut_iou'][str(k)]:10.3f} {o['mean']:10.3f} {s['mean']:23.3f} {s['min']:6.3f} "
+              f"{c['mean']:16.3f} {c['min']:6.3f}")
+    print(f"IoU on the {n_views} other views; goal ≥ {GOAL} per label on every view: "
+          f"{'met' if result['goal_met'] else 'not met'}. Pixel agreement {strokes_score['pixel_agreement']:.3f} "
+          f"(true mask {ceiling_score['pixel_agreement']:.3f}); {result['seconds']['total']:.0f} s")
+
+
+def main(argv: list[str] | None = None) -> dict:
+    args = _parser().parse_args(argv)
+    logging.basicConfig(level=logging.WARNING)
+
+    from abcgs.scene.params import TinySceneParams
+    from abcgs.scene.synthetic import make_tiny_scene
+    from abcgs.sfm.colmap import set_colmap_log_level
+
     set_colmap_log_level("error")
     t0 = time.perf_counter()
-    tmp = None
-    if args.work is None:
-        tmp = tempfile.TemporaryDirectory(prefix="abcgs-paint-iou-")
-        work = Path(tmp.name)
-    else:
-        work = args.work
-        work.mkdir(parents=True, exist_ok=True)
-    try:
+    with _work_folder(args.work) as work:
         tiny = make_tiny_scene(work / "tiny_source", TinySceneParams(layout=args.layout, n_views=args.views))
         stems = sorted(p.stem for p in (tiny / "images").glob("*.png"))
         if args.view not in stems:
@@ -219,41 +297,14 @@ def main(argv: list[str] | None = None) -> dict:
         shutil.copytree(tiny / "images", user / "images")
         save_labels(user / "masks" / f"{args.view}.png", cut.saved_map())  # as the page saves it
         t_fit = time.perf_counter()
-        rp = ReconstructParams()
-        reconstruct(user / "images", work / "colmap", rp, masks_dir=user / "masks")
-        reconstruct(tiny / "images", work / "colmap_truth", rp, masks_dir=tiny / "masks")  # the same model, seeded
-        scene = read_colmap_scene(work / "colmap" / "sparse", work / "colmap" / "images")
-        truth_scene = read_colmap_scene(work / "colmap_truth" / "sparse", work / "colmap_truth" / "images")
-        for a, b in zip(scene.cameras, truth_scene.cameras):
-            assert a.name == b.name and np.allclose(a.viewmat, b.viewmat) and np.allclose(a.K, b.K), "SfM not repeatable"
-        it = args.iterations
-        fp = FitParams(iterations=it, test_every=0, max_gaussians=30_000,
-                       strategy=StrategyParams(refine_start=min(50, it // 6), refine_every=25,
-                                               refine_stop=int(0.8 * it), reset_every=10 * it))
-        model = fit(scene, fp, progress=False).model
+        scene, model = _reconstruct_and_fit(tiny, user, work, args.iterations)
         seconds_fit = time.perf_counter() - t_fit
 
         cams = scene.cameras
-        by_stem = {Path(c.name).stem: i for i, c in enumerate(cams)}
-        src = by_stem[args.view]
+        src = {Path(c.name).stem: i for i, c in enumerate(cams)}[args.view]
         truth = {i: load_labels(work / "colmap_truth" / "masks" / f"{Path(c.name).stem}.png") for i, c in enumerate(cams)}
-        only_truth = work / "truth_mask_of_view"
-        shutil.rmtree(only_truth, ignore_errors=True)
-        only_truth.mkdir()
-        shutil.copy(work / "colmap_truth" / "masks" / f"{args.view}.png", only_truth)
-        photos = scene.image_paths
-        t_lift = time.perf_counter()
-        lift = LiftParams(propagate_along=args.propagate_along)
-        lifted = make_content_masks(model, cams, work / "colmap" / "masks", MaskParams(source="given", lift=lift), photos,
-                                    show_progress=False)
-        seconds_lift = time.perf_counter() - t_lift
-        lift_only = make_content_masks(model, cams, work / "colmap" / "masks",
-                                       MaskParams(source="given", lift=lift, refine=RefineParams(enabled=False)))
-        ceiling = make_content_masks(model, cams, only_truth, MaskParams(source="given", lift=lift), photos,
-                                     show_progress=False)
+        lifted, lift_only, ceiling, seconds_lift = _lift_three_ways(model, scene, work, args.view, args.propagate_along)
         strokes_score = _score(lifted.view_labels, truth, src, n_labels)
-        lift_only_score = _score(lift_only.view_labels, truth, src, n_labels)
-        ceiling_score = _score(ceiling.view_labels, truth, src, n_labels)
 
         result = {
             "scene": f"tiny (layout {args.layout}, {args.views} views)", "view": args.view, "radius": args.radius,
@@ -265,37 +316,22 @@ def main(argv: list[str] | None = None) -> dict:
             "rounds": rounds,
             "cut_iou": {str(k): v for k, v in label_iou(cut.labels, truth_raw, n_labels).items()},
             "lifted_from_strokes": strokes_score,
-            "lifted_from_strokes_without_refinement": lift_only_score,
-            "lifted_from_true_mask": ceiling_score,
+            "lifted_from_strokes_without_refinement": _score(lift_only.view_labels, truth, src, n_labels),
+            "lifted_from_true_mask": _score(ceiling.view_labels, truth, src, n_labels),
             "goal": GOAL,
             "goal_met": all(v["min"] >= GOAL for v in strokes_score["iou_per_label"].values()),
-            "fit": {"iterations": it, "n_gaussians": model.num_gaussians},
+            "fit": {"iterations": args.iterations, "n_gaussians": model.num_gaussians},
             "seconds": {"segment": seconds_segment, "reconstruct_and_fit": seconds_fit,
                         "lift_refine_and_render": seconds_lift,
                         "total": time.perf_counter() - t0},
             "machine": f"{platform.processor() or platform.machine()}",
         }
-        print(f"tiny scene, view {args.view}: {len(strokes)} strokes ({result['strokes_per_label']} per label, "
-              f"{args.rounds} round(s)); fit {it} steps, {model.num_gaussians:,} Gaussians")
-        print(f"{'label':>5} {'cut (2-D)':>10} {'lift only':>10} {'lifted + refined: mean':>23} {'worst':>6} "
-              f"{'true mask: mean':>16} {'worst':>6}")
-        for k in range(1, n_labels + 1):
-            s, c = strokes_score["iou_per_label"][str(k)], ceiling_score["iou_per_label"][str(k)]
-            o = lift_only_score["iou_per_label"][str(k)]
-            print(f"{k:>5} {result['cut_iou'][str(k)]:10.3f} {o['mean']:10.3f} {s['mean']:23.3f} {s['min']:6.3f} "
-                  f"{c['mean']:16.3f} {c['min']:6.3f}")
-        print(f"IoU on the {len(cams) - 1} other views; goal ≥ {GOAL} per label on every view: "
-              f"{'met' if result['goal_met'] else 'not met'}. Pixel agreement {strokes_score['pixel_agreement']:.3f} "
-              f"(true mask {ceiling_score['pixel_agreement']:.3f}); {result['seconds']['total']:.0f} s")
+        _print_result(result, len(cams) - 1)
         if args.figure:
             _figure(args.figure, work / "colmap", scene, strokes, cut.labels, image, lifted.view_labels, src)
         if args.json:
             write_json(args.json, result)
         return result
-    finally:
-        if tmp is not None:
-            tmp.cleanup()
-
 
 def _figure(path: Path, colmap: Path, scene, strokes: list[Stroke], cut: np.ndarray, image: np.ndarray,
             views: list[np.ndarray], src: int) -> None:

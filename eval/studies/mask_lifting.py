@@ -31,7 +31,7 @@ from abcgs.errors import InputError
 from abcgs.io.atomic import write_json
 from abcgs.io.images import load_image, save_image
 from abcgs.io.ply import read_ply
-from abcgs.masks.content import find_given_masks_with_palette, grabcut_view, label_iou
+from abcgs.masks.content import find_given_masks_with_palette, grabcut_view, heldout_scores
 from abcgs.masks.lifting import lift_labels, propagate_unseen, render_label_map
 from abcgs.masks.params import GrabCutParams, LiftParams
 from abcgs.sfm.model import read_colmap_scene
@@ -45,6 +45,43 @@ def overlay(img: np.ndarray, labels: np.ndarray) -> np.ndarray:
     on = labels > 0
     out[on] = 0.45 * out[on] + 0.55 * col[on]
     return out
+
+
+def iou_summary(per_label: dict[int, list[float]]) -> dict[str, dict]:
+    """Per label (by its number as text), the mean and the worst of its IoUs over the scored views and their count."""
+    return {str(k): {"mean": float(np.mean(v)), "min": float(np.min(v)), "n_views": len(v)}
+            for k, v in sorted(per_label.items())}
+
+
+def write_grabcut_masks(model, cams: list, stems: list[str], box: tuple[float, float, float, float], out: Path) -> None:
+    """A GrabCut mask of every view (:func:`abcgs.masks.content.grabcut_view`, seeded by ``box``: x0, y0, x1, y1 as
+    fractions of the view) written to ``out/<stem>.png`` in label colours, as a paint program would save it."""
+    out.mkdir(parents=True, exist_ok=True)
+    for c, stem in zip(cams, stems):
+        seg = grabcut_view(model, c, GrabCutParams(box=box))
+        save_image(out / f"{stem}.png", colorize_labels(seg))
+
+
+def _figure(path: Path, scene, given: dict[int, np.ndarray], views: dict[int, np.ndarray], lift_idx: list[int],
+            show: list[int] | None) -> None:
+    """The first lifted-from view (its photo, its mask, the lifted labels), then a row each for the views ``show``
+    (default: three spread over the views not lifted from), with their given mask where there is one."""
+    cams = scene.cameras
+    if show is None:
+        rest = [i for i in range(len(cams)) if i not in lift_idx]
+        show = [rest[round(t * (len(rest) - 1))] for t in (0.25, 0.6, 1.0)] if len(rest) >= 3 else rest
+    rows = []
+    src = lift_idx[0]
+    img = load_image(scene.image_paths[src])
+    rows.append([img, overlay(img, given[src]), overlay(img, views[src])])
+    for i in show:
+        img = load_image(scene.image_paths[i])
+        ref = overlay(img, given[i]) if i in given else np.ones_like(img)
+        rows.append([img, ref, overlay(img, views[i])])
+    source = f"{cams[src].name}'s mask alone" if len(lift_idx) == 1 else "the masks of " + ", ".join(
+        cams[i].name for i in lift_idx)
+    save_image(path, image_grid(rows, ["view", "given mask (held out below row 1)", f"lifted from {source}"],
+                                height=180))
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -66,11 +103,7 @@ def main(argv: list[str] | None = None) -> dict:
     cams, model = scene.cameras, read_ply(args.ply)
     stems = [Path(c.name).stem for c in cams]
     if args.grabcut_box:
-        box = tuple(float(v) for v in args.grabcut_box.split(","))
-        args.masks.mkdir(parents=True, exist_ok=True)
-        for c, stem in zip(cams, stems):
-            seg = grabcut_view(model, c, GrabCutParams(box=box))
-            save_image(args.masks / f"{stem}.png", colorize_labels(seg))  # as a paint program would save it
+        write_grabcut_masks(model, cams, stems, tuple(float(v) for v in args.grabcut_box.split(",")), args.masks)
     given, palette = find_given_masks_with_palette(args.masks, cams)
     if not given:
         raise InputError(f"no label PNG in {args.masks} is named like a view ({stems[0]}.png, …)")
@@ -86,18 +119,11 @@ def main(argv: list[str] | None = None) -> dict:
     if not args.no_propagate:  # Gaussians no lifted view sees take their 3-D neighbours' label (LiftParams.propagate)
         lifted, _ = propagate_unseen(model, lifted, lp)
     views = {i: render_label_map(model, lifted.labels, n_labels, cams[i]) for i in range(len(cams))}
-    per_label: dict[int, list[float]] = {}
-    agree = []
-    for i in held:
-        for k, v in label_iou(views[i], given[i], n_labels).items():
-            per_label.setdefault(k, []).append(v)
-        if (given[i] > 0).any():
-            agree.append(float((views[i] == given[i])[given[i] > 0].mean()))
+    per_label, agree = heldout_scores(views, {i: given[i] for i in held}, n_labels)
     result = {
         "lifted_from": [cams[i].name for i in lift_idx], "heldout_views": [cams[i].name for i in held],
         "n_labels": n_labels, "palette": {str(k): list(v) for k, v in palette.items()},
-        "iou_per_label": {str(k): {"mean": float(np.mean(v)), "min": float(np.min(v)), "n_views": len(v)}
-                          for k, v in sorted(per_label.items())},
+        "iou_per_label": iou_summary(per_label),
         "pixel_agreement": float(np.mean(agree)) if agree else None,
         "gaussians_per_label": {str(k): int(v) for k, v in lifted.counts().items()},
         "masks": str(args.masks), "grabcut_box": args.grabcut_box, "propagated": not args.no_propagate,
@@ -108,29 +134,12 @@ def main(argv: list[str] | None = None) -> dict:
         print(f"  label {k}: IoU mean {v['mean']:.3f}, worst {v['min']:.3f} over {v['n_views']} views")
     if agree:
         print(f"  pixel agreement {result['pixel_agreement']:.3f}; {result['seconds']:.1f} s")
-
     if args.figure:
-        if args.show:
-            show = [stems.index(s) for s in args.show.split(",")]
-        else:
-            rest = [i for i in range(len(cams)) if i not in lift_idx]
-            show = [rest[round(t * (len(rest) - 1))] for t in (0.25, 0.6, 1.0)] if len(rest) >= 3 else rest
-        rows = []
-        src = lift_idx[0]
-        img = load_image(scene.image_paths[src])
-        rows.append([img, overlay(img, given[src]), overlay(img, views[src])])
-        for i in show:
-            img = load_image(scene.image_paths[i])
-            ref = overlay(img, given[i]) if i in given else np.ones_like(img)
-            rows.append([img, ref, overlay(img, views[i])])
-        source = f"{cams[src].name}'s mask alone" if len(lift_idx) == 1 else "the masks of " + ", ".join(
-            cams[i].name for i in lift_idx)
-        save_image(args.figure, image_grid(rows, ["view", "given mask (held out below row 1)", f"lifted from {source}"],
-                                           height=180))
+        _figure(args.figure, scene, given, views, lift_idx,
+                [stems.index(s) for s in args.show.split(",")] if args.show else None)
     if args.json:
         write_json(args.json, result)
     return result
-
 
 if __name__ == "__main__":
     main()
