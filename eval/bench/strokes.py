@@ -32,6 +32,7 @@ import logging
 import platform
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from abcgs.runtime import setup
@@ -42,14 +43,16 @@ setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 import numpy as np
 import torch
 
+from abcgs.gaussians import GaussianModel
 from abcgs.io.atomic import write_json
 from abcgs.io.images import load_image, load_labels, save_image, save_labels, to_uint8
 from abcgs.io.ply import read_ply
-from abcgs.masks.content import label_iou, make_content_masks, recut_outputs
+from abcgs.masks.content import ContentMasks, label_iou, make_content_masks, recut_outputs
 from abcgs.masks.grabcut import Stroke, segment
 from abcgs.masks.lifting import NO_VOTE, LiftResult, lift_labels, render_label_map
 from abcgs.masks.params import UNDECIDED, LiftParams, MaskParams, RefineParams
 from abcgs.sfm.model import read_colmap_scene
+from abcgs.types import Scene
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 GOAL_IOU = {1: 0.85, 2: 0.9}
@@ -150,7 +153,8 @@ def score(view_labels: dict[str, np.ndarray], refs: dict[str, np.ndarray], n_lab
             "goal_met": all(not v < goal_iou for v in worst.values()) and worst_unl <= GOAL_UNLABELLED}
 
 
-def main(argv: list[str] | None = None) -> dict:
+def _parser() -> argparse.ArgumentParser:
+    """The command line of :func:`main`."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", default="bonsai", help="eval/data/<scene>/ (bonsai, miku)")
     ap.add_argument("--work", type=Path, default=Path("out/bench"),
@@ -173,17 +177,131 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--small-regions", choices=("drop", "core"), default="drop", help="masks.refine.small_regions")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--figure", type=Path, default=None, help="the stroked view and the scored ones, overlaid")
-    args = ap.parse_args(argv)
+    return ap
+
+
+@dataclass
+class Bench:
+    """A fitted scene with its annotation (``strokes.json``) and reference label maps.
+
+    Attributes:
+        scene: the reconstruction (cameras, photos). model: the fitted Gaussians. spec: ``strokes.json``.
+        by_stem: view stem → camera index. refs: the reference maps ``(H, W) int64`` (NO_VOTE where undecided) of the
+            reference views this reconstruction has, by stem. n_labels: the annotation's labels.
+    """
+
+    scene: Scene
+    model: GaussianModel
+    spec: dict
+    by_stem: dict[str, int]
+    refs: dict[str, np.ndarray]
+    n_labels: int
+
+
+def run_case(bench: Bench, views: list[dict], params: MaskParams, output: str, prefix: str,
+             zero: bool = False) -> tuple[dict, ContentMasks, dict]:
+    """One case as a user runs it: the strokes of ``views`` (``strokes.json`` entries) cut on the page and saved
+    (undecided gaps as 0 with ``zero``), the ``masks`` stage with ``params``, the views not stroked scored; with
+    ``output`` ``recut``, the scored views cut once more from the final labels and scored again.
+
+    Returns:
+        the case's record, the stage's result, and per stroked view its strokes and the page's cut.
+    """
+    cams, n_labels, by_stem = bench.scene.cameras, bench.n_labels, bench.by_stem
+    cuts = {}
+    with tempfile.TemporaryDirectory(prefix=prefix) as d:
+        for v in views:
+            i = by_stem[v["view"]]
+            strokes = _strokes(v["strokes"], bench.spec, cams[i])
+            cut = segment(to_uint8(load_image(bench.scene.image_paths[i])), strokes, fill=True)  # the page: colour only
+            cuts[v["view"]] = (strokes, cut)
+            save_labels(Path(d) / f"{v['view']}.png", cut.labels if zero else cut.saved_map())
+        t = time.perf_counter()
+        res = make_content_masks(bench.model, cams, Path(d), params, bench.scene.image_paths, show_progress=False)
+        seconds = time.perf_counter() - t
+    scored = [s for s in bench.refs if s not in cuts]
+    r = score({s: res.view_labels[by_stem[s]] for s in scored}, bench.refs, n_labels, GOAL_IOU[len(views)])
+    if output == "recut":
+        # masks.refine.output: recut, on the scored views only: each view's cut depends on the final labels and
+        # its own photo alone, so these are the maps the stage writes for them with that option
+        t = time.perf_counter()
+        lifted = LiftResult(res.gaussian_labels, torch.zeros(0), res.gaussian_decided)
+        res.view_labels = recut_outputs(bench.model, cams, bench.scene.image_paths, lifted, n_labels, res.view_labels,
+                                        skip={by_stem[v] for v in cuts}, params=params,
+                                        only={by_stem[s] for s in scored})
+        r = {"render": r} | score({s: res.view_labels[by_stem[s]] for s in scored}, bench.refs, n_labels,
+                                  GOAL_IOU[len(views)])
+        r["recut_seconds_per_view"] = (time.perf_counter() - t) / max(len(scored), 1)
+    r.update({"stroked_views": list(cuts), "goal_iou": GOAL_IOU[len(views)],
+              "strokes_per_label": {v: {str(k): sum(s.label == k for s in st) for k in range(1, n_labels + 1)}
+                                    for v, (st, _) in cuts.items()},
+              "page_cut_undecided": {v: float((~c.claimed).mean()) for v, (_, c) in cuts.items()},
+              "unlabelled_pixels_all_views": {"mean": float(np.mean(list(res.unlabelled_pixels.values()))),
+                                              "max": float(max(res.unlabelled_pixels.values()))},
+              "unlabelled_gaussians": res.unlabelled_gaussians, "propagated": res.propagated,
+              "warnings": res.warnings, "seconds": seconds})
+    return r, res, cuts
+
+
+def _print_iou_table(head: str, r: dict, n_labels: int) -> None:
+    """Per scored view of a :func:`score` record its IoU per label and unlabelled share, then the worst of each."""
+    print(head + f" {'unlabelled':>10}")
+    for s, v in r["per_view"].items():
+        print(f"{s:>16} " + " ".join(f"{v['iou'].get(str(k), float('nan')):10.3f}" for k in range(1, n_labels + 1))
+              + f" {v['unlabelled']:10.1%}")
+    print(f"{'worst':>16} " + " ".join(f"{r['worst_iou'][str(k)]:10.3f}" for k in range(1, n_labels + 1))
+          + f" {r['worst_unlabelled']:10.1%}")
+
+
+def _print_report(out: dict) -> None:
+    """The tables of a :func:`main` record: each case's scores, then the geometry's bound and the render PSNRs."""
+    names, n_views = out["labels"], out["views"]
+    n_labels = len(names)
+    missing = out["reference_views_not_registered"]
+    print(f"{out['scene']}, {n_views} views, {out['n_gaussians']:,} Gaussians"
+          + (f"; reference views not registered: {', '.join(missing)}" if missing else ""))
+    head = f"{'view':>16} " + " ".join(f"{names[str(k)][:10]:>10}" for k in range(1, n_labels + 1))
+    for title, r in out["cases"].items():
+        print(f"\n{title}: strokes on {', '.join(r['stroked_views'])} ({r['strokes_per_label']} per label); the page's "
+              f"cut left {r['page_cut_undecided']} undecided; masks stage {r['seconds']:.0f} s, "
+              f"{r['propagated']} Gaussians propagated")
+        if "render" in r:
+            print("the final labels rendered (masks.refine.output: render):")
+            _print_iou_table(head, r["render"], n_labels)
+            print(f"each scored view cut once more from them (masks.refine.output: recut; "
+                  f"{r['recut_seconds_per_view']:.1f} s a view):")
+        _print_iou_table(head, r, n_labels)
+        print(f"all {n_views} views: unlabelled pixels mean {r['unlabelled_pixels_all_views']['mean']:.1%}, max "
+              f"{r['unlabelled_pixels_all_views']['max']:.1%} (rendered); unlabelled Gaussians "
+              f"{r['unlabelled_gaussians']:.1%}; goal (IoU ≥ {r['goal_iou']}, ≤ {GOAL_UNLABELLED:.0%} unlabelled on "
+              f"each scored view): {'met' if r['goal_met'] else 'not met'}")
+    bound, psnr = out["geometry_bound"], out["render_psnr_db"]
+    print(f"\nthe geometry's bound: all {len(out['reference_views'])} reference maps lifted and rendered back; render "
+          "PSNR vs photo")
+    print(head + f" {'PSNR dB':>10}")
+    for s, v in bound["per_view"].items():
+        print(f"{s:>16} " + " ".join(f"{v.get(str(k), float('nan')):10.3f}" for k in range(1, n_labels + 1))
+              + f" {psnr[s]:10.2f}")
+    print(f"{'worst':>16} " + " ".join(f"{bound['worst_iou'][str(k)]:10.3f}" for k in range(1, n_labels + 1)))
+    print(f"total {out['seconds']:.0f} s")
+
+
+def _load_fitted(spec: dict, scene_name: str, work: Path) -> tuple[Scene, GaussianModel]:
+    """The reconstruction and the fitted Gaussians ``strokes.json`` (``spec``) names under ``work``."""
+    colmap, ply = work / spec["work_colmap"], work / spec["work_ply"]
+    if not (colmap / "sparse").is_dir() or not ply.is_file():
+        raise SystemExit(f"no fitted {scene_name} under {work} ({colmap}, {ply}): run python -m eval.bench.fit "
+                         f"--scene <data>/scenes/{scene_name} --work {work} first")
+    return read_colmap_scene(colmap / "sparse", colmap / "images"), read_ply(ply)
+
+
+def main(argv: list[str] | None = None) -> dict:
+    args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(message)s")
 
     data = args.data or DATA / args.scene
     spec = json.loads((data / "strokes.json").read_text())
-    colmap, ply = args.work / spec["work_colmap"], args.work / spec["work_ply"]
-    if not (colmap / "sparse").is_dir() or not ply.is_file():
-        raise SystemExit(f"no fitted {args.scene} under {args.work} ({colmap}, {ply}): run python -m eval.bench.fit "
-                         f"--scene <data>/scenes/{args.scene} --work {args.work} first")
-    scene = read_colmap_scene(colmap / "sparse", colmap / "images")
-    model = read_ply(ply)
+    scene, model = _load_fitted(spec, args.scene, args.work)
     if args.make_reference:
         make_reference(scene, spec, data / "reference", args.figure, args.only)
         return {}
@@ -191,107 +309,37 @@ def main(argv: list[str] | None = None) -> dict:
     t0 = time.perf_counter()
     cams = scene.cameras
     by_stem = {Path(c.name).stem: i for i, c in enumerate(cams)}
-    n_labels = len(spec["labels"])
-    names = spec["labels"]
     missing = [s for s in spec["reference"] if s not in by_stem]
-    all_refs = {s: reference_map(data / "reference" / f"{s}.png", cams[by_stem[s]])
-                for s in spec["reference"] if s in by_stem}
+    refs = {s: reference_map(data / "reference" / f"{s}.png", cams[by_stem[s]]) for s in spec["reference"] if s in by_stem}
+    bench = Bench(scene, model, spec, by_stem, refs, len(spec["labels"]))
     cases = args.cases or (["one", "two"] if "side" in spec else ["one"])
     stroked_views = {"one": [spec["test"]], "two": [spec["test"], spec.get("side")]}
-
-    def run(case: str, zero: bool = False) -> tuple[dict, object, dict]:
-        views = stroked_views[case]
-        if any(v is None for v in views):
-            raise SystemExit(f"{data / 'strokes.json'} has no side view for the two-view case")
-        cuts = {}
-        with tempfile.TemporaryDirectory(prefix=f"abcgs-{args.scene}-") as d:
-            for v in views:
-                i = by_stem[v["view"]]
-                strokes = _strokes(v["strokes"], spec, cams[i])
-                cut = segment(to_uint8(load_image(scene.image_paths[i])), strokes, fill=True)  # the page: colour only
-                cuts[v["view"]] = (strokes, cut)
-                save_labels(Path(d) / f"{v['view']}.png", cut.labels if zero else cut.saved_map())
-            t = time.perf_counter()
-            params = MaskParams(source="given", lift=LiftParams(propagate_split=args.propagate_split,
-                                                                 propagate_along=args.propagate_along),
-                                refine=RefineParams(order=args.order, small_regions=args.small_regions))
-            res = make_content_masks(model, cams, Path(d), params, scene.image_paths, show_progress=False)
-            seconds = time.perf_counter() - t
-        scored = [s for s in all_refs if s not in cuts]
-        r = score({s: res.view_labels[by_stem[s]] for s in scored}, all_refs, n_labels, GOAL_IOU[len(views)])
-        if args.output == "recut":
-            # masks.refine.output: recut, on the scored views only: each view's cut depends on the final labels and
-            # its own photo alone, so these are the maps the stage writes for them with that option
-            t = time.perf_counter()
-            lifted = LiftResult(res.gaussian_labels, torch.zeros(0), res.gaussian_decided)
-            res.view_labels = recut_outputs(model, cams, scene.image_paths, lifted, n_labels, res.view_labels,
-                                            skip={by_stem[v] for v in cuts}, params=params,
-                                            only={by_stem[s] for s in scored})
-            r = {"render": r} | score({s: res.view_labels[by_stem[s]] for s in scored}, all_refs, n_labels,
-                                      GOAL_IOU[len(views)])
-            r["recut_seconds_per_view"] = (time.perf_counter() - t) / max(len(scored), 1)
-        r.update({"stroked_views": list(cuts), "goal_iou": GOAL_IOU[len(views)],
-                  "strokes_per_label": {v: {str(k): sum(s.label == k for s in st) for k in range(1, n_labels + 1)}
-                                        for v, (st, _) in cuts.items()},
-                  "page_cut_undecided": {v: float((~c.claimed).mean()) for v, (_, c) in cuts.items()},
-                  "unlabelled_pixels_all_views": {"mean": float(np.mean(list(res.unlabelled_pixels.values()))),
-                                                  "max": float(max(res.unlabelled_pixels.values()))},
-                  "unlabelled_gaussians": res.unlabelled_gaussians, "propagated": res.propagated,
-                  "warnings": res.warnings, "seconds": seconds})
-        return r, res, cuts
-
+    params = MaskParams(source="given", lift=LiftParams(propagate_split=args.propagate_split,
+                                                        propagate_along=args.propagate_along),
+                        refine=RefineParams(order=args.order, small_regions=args.small_regions))
     results, extra = {}, {}
     for case in cases:
-        results[case], res, cuts = run(case)
+        if any(v is None for v in stroked_views[case]):
+            raise SystemExit(f"{data / 'strokes.json'} has no side view for the two-view case")
+        results[case], res, cuts = run_case(bench, stroked_views[case], params, args.output, f"abcgs-{args.scene}-")
         extra[case] = (res, cuts)
         if args.compare_zero:
-            results[case + "_undecided_saved_as_0"] = run(case, zero=True)[0]
-    scored_one = [s for s in all_refs if s != spec["test"]["view"]]
-    bound = geometry_bound(model, cams, by_stem, all_refs, scored_one, n_labels)
-    psnr = {s: render_psnr(model, cams[by_stem[s]], load_image(scene.image_paths[by_stem[s]])) for s in all_refs}
+            results[case + "_undecided_saved_as_0"] = run_case(bench, stroked_views[case], params, args.output,
+                                                               f"abcgs-{args.scene}-", zero=True)[0]
+    scored_one = [s for s in refs if s != spec["test"]["view"]]
+    bound = geometry_bound(model, cams, by_stem, refs, scored_one, bench.n_labels)
+    psnr = {s: render_psnr(model, cams[by_stem[s]], load_image(scene.image_paths[by_stem[s]])) for s in refs}
     out = {"scene": spec.get("title", args.scene), "views": len(cams), "n_gaussians": model.num_gaussians,
-           "labels": names, "reference_views": list(all_refs), "reference_views_not_registered": missing,
+           "labels": spec["labels"], "reference_views": list(refs), "reference_views_not_registered": missing,
            "propagate_split": args.propagate_split, "propagate_along": args.propagate_along,
            "refine_order": args.order, "refine_output": args.output, "refine_small_regions": args.small_regions,
            "cases": results, "geometry_bound": bound, "render_psnr_db": psnr,
            "goal": {"iou": {str(k): v for k, v in GOAL_IOU.items()}, "unlabelled": GOAL_UNLABELLED},
            "machine": platform.processor() or platform.machine(), "threads": torch.get_num_threads()}
     out["seconds"] = time.perf_counter() - t0
-
-    print(f"{out['scene']}, {len(cams)} views, {model.num_gaussians:,} Gaussians"
-          + (f"; reference views not registered: {', '.join(missing)}" if missing else ""))
-    head = f"{'view':>16} " + " ".join(f"{names[str(k)][:10]:>10}" for k in range(1, n_labels + 1))
-    def table(r: dict) -> None:
-        print(head + f" {'unlabelled':>10}")
-        for s, v in r["per_view"].items():
-            print(f"{s:>16} " + " ".join(f"{v['iou'].get(str(k), float('nan')):10.3f}" for k in range(1, n_labels + 1))
-                  + f" {v['unlabelled']:10.1%}")
-        print(f"{'worst':>16} " + " ".join(f"{r['worst_iou'][str(k)]:10.3f}" for k in range(1, n_labels + 1))
-              + f" {r['worst_unlabelled']:10.1%}")
-
-    for title, r in results.items():
-        print(f"\n{title}: strokes on {', '.join(r['stroked_views'])} ({r['strokes_per_label']} per label); the page's "
-              f"cut left {r['page_cut_undecided']} undecided; masks stage {r['seconds']:.0f} s, "
-              f"{r['propagated']} Gaussians propagated")
-        if "render" in r:
-            print("the final labels rendered (masks.refine.output: render):")
-            table(r["render"])
-            print(f"each scored view cut once more from them (masks.refine.output: recut; "
-                  f"{r['recut_seconds_per_view']:.1f} s a view):")
-        table(r)
-        print(f"all {len(cams)} views: unlabelled pixels mean {r['unlabelled_pixels_all_views']['mean']:.1%}, max "
-              f"{r['unlabelled_pixels_all_views']['max']:.1%} (rendered); unlabelled Gaussians "
-              f"{r['unlabelled_gaussians']:.1%}; goal (IoU ≥ {r['goal_iou']}, ≤ {GOAL_UNLABELLED:.0%} unlabelled on "
-              f"each scored view): {'met' if r['goal_met'] else 'not met'}")
-    print(f"\nthe geometry's bound: all {len(all_refs)} reference maps lifted and rendered back; render PSNR vs photo")
-    print(head + f" {'PSNR dB':>10}")
-    for s, v in bound["per_view"].items():
-        print(f"{s:>16} " + " ".join(f"{v.get(str(k), float('nan')):10.3f}" for k in range(1, n_labels + 1))
-              + f" {psnr[s]:10.2f}")
-    print(f"{'worst':>16} " + " ".join(f"{bound['worst_iou'][str(k)]:10.3f}" for k in range(1, n_labels + 1)))
-    print(f"total {out['seconds']:.0f} s")
+    _print_report(out)
     if args.figure:
-        _figure(args.figure, scene, by_stem, all_refs, extra)
+        _figure(args.figure, scene, by_stem, refs, extra)
     if args.json:
         write_json(args.json, out)
     return out
