@@ -47,7 +47,8 @@ def _found(approx: torch.Tensor, exact: torch.Tensor) -> float:
     return float((exact[:, :, None] == approx[:, None, :]).any(-1).float().mean())
 
 
-def main(argv=None) -> dict:
+def _parser() -> argparse.ArgumentParser:
+    """The command line of :func:`main`."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     add_feature_arguments(ap)
     ap.add_argument("--ranks", default="64,96,128")
@@ -61,7 +62,53 @@ def main(argv=None) -> dict:
     ap.add_argument("--knn-search", default="auto", choices=["auto", "exact", "bf16"])
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--json", type=Path, default=None)
-    args = ap.parse_args(argv)
+    return ap
+
+
+def _exact_search(features: list[torch.Tensor], style: knn.StyleFeatures, k: int, search: str) -> list[tuple]:
+    """Per rendered feature set ``(C, N_r)``, what the exact search (``search``) gives against ``style`` ``(C, N_s)``:
+    the k nearest style features of each rendered one ``(N_r, k)``, the k nearest rendered features of each style
+    one ``(N_s, k)``, the nearest style feature ``(N_r, 1)``, FAST's mutual pairs as a set of ``r * N_s + s``, FAST's
+    aligned features ``(C, N_r)`` and FAST's loss."""
+    exact_params = FastParams(k=k, knn_search=search, projection_rank=0)
+    n_s = style.shape[1]
+    exact = []
+    for f in features:
+        nn_rs, nn_sr = knn.cosine_topk(f, style, k, k, search=search)
+        nn1, _ = knn.cosine_topk(f, style, 1, 0, search=search)
+        rows, cols = knn.mutual_knn_pairs(f, style, k, search=search)
+        target = fast.fast_target(f, style, exact_params)
+        exact.append((nn_rs, nn_sr.t(), nn1, set((rows * n_s + cols).tolist()), target,
+                      float(fast.cosine_distance_loss(f, target))))
+    return exact
+
+
+def _agreement(features: list[torch.Tensor], exact: list[tuple], style: knn.StyleFeatures, k: int,
+               proj: knn.Projection, fp: FastParams) -> dict:
+    """How close the projected search ``proj`` (FAST with ``fp``) comes to :func:`_exact_search`'s ``exact``: the
+    recalls (mean and worst view), the pairs' Jaccard index, and the largest target and loss differences."""
+    n_s = style.shape[1]
+    rec_rs, rec_sr, rec_nn, jac, tdiff, ldiff = [], [], [], [], [], []
+    for f, (ex_rs, ex_sr, ex_nn, ex_pairs, ex_target, ex_loss) in zip(features, exact):
+        nn_rs, nn_sr = knn.cosine_topk(f, style, k, k, projection=proj)
+        nn1, _ = knn.cosine_topk(f, style, 1, 0, projection=proj)
+        rows, cols = knn.mutual_knn_pairs(f, style, k, projection=proj)
+        pairs = set((rows * n_s + cols).tolist())
+        target = fast.fast_target(f, style, fp)
+        rec_rs.append(_found(nn_rs, ex_rs))
+        rec_sr.append(_found(nn_sr.t(), ex_sr))
+        rec_nn.append(_found(nn1, ex_nn))
+        jac.append(len(pairs & ex_pairs) / len(pairs | ex_pairs))
+        tdiff.append(float((target - ex_target).norm() / ex_target.norm()))
+        ldiff.append(abs(float(fast.cosine_distance_loss(f, target)) - ex_loss))
+    return {"recall_rs": statistics.mean(rec_rs), "recall_sr": statistics.mean(rec_sr),
+            "recall_nn": statistics.mean(rec_nn), "recall_rs_worst_view": min(rec_rs),
+            "recall_sr_worst_view": min(rec_sr), "pairs_jaccard": statistics.mean(jac),
+            "target_rel_diff_max": max(tdiff), "loss_abs_diff_max": max(ldiff)}
+
+
+def main(argv=None) -> dict:
+    args = _parser().parse_args(argv)
     torch.set_num_threads(args.threads)
 
     loaded = load_bench_features(args)
@@ -70,15 +117,7 @@ def main(argv=None) -> dict:
     print(f"{len(features)} feature sets ({len(args.ply)} scenes x {len(cameras)} views), N_r={n_r} N_s={n_s} "
           f"C={style.shape[0]}, k={args.k}; {platform.machine()}, {os.cpu_count()} CPUs, torch threads {args.threads}")
 
-    exact_params = FastParams(k=args.k, knn_search=args.knn_search, projection_rank=0)
-    exact = []
-    for _, f in features:
-        nn_rs, nn_sr = knn.cosine_topk(f, style, args.k, args.k, search=args.knn_search)
-        nn1, _ = knn.cosine_topk(f, style, 1, 0, search=args.knn_search)
-        rows, cols = knn.mutual_knn_pairs(f, style, args.k, search=args.knn_search)
-        target = fast.fast_target(f, style, exact_params)
-        exact.append((nn_rs, nn_sr.t(), nn1, set((rows * n_s + cols).tolist()), target,
-                      float(fast.cosine_distance_loss(f, target))))
+    exact = _exact_search([f for _, f in features], style, args.k, args.knn_search)
     timed = features[: args.time_views]
     ms_exact = statistics.median(
         median_ms(lambda f=f: knn.mutual_knn_pairs(f, style, args.k, search=args.knn_search), args.repeats)
@@ -94,30 +133,14 @@ def main(argv=None) -> dict:
     for rank, cand, products in settings:
         proj = knn.Projection(rank, cand, products=products)
         fp = FastParams(k=args.k, projection_rank=rank, projection_candidates=cand, projection_min_similarities=0,
-                             projection_products=products)
-        rec_rs, rec_sr, rec_nn, jac, tdiff, ldiff = [], [], [], [], [], []
-        for (_, f), (ex_rs, ex_sr, ex_nn, ex_pairs, ex_target, ex_loss) in zip(features, exact):
-            nn_rs, nn_sr = knn.cosine_topk(f, style, args.k, args.k, projection=proj)
-            nn1, _ = knn.cosine_topk(f, style, 1, 0, projection=proj)
-            rows, cols = knn.mutual_knn_pairs(f, style, args.k, projection=proj)
-            pairs = set((rows * n_s + cols).tolist())
-            target = fast.fast_target(f, style, fp)
-            rec_rs.append(_found(nn_rs, ex_rs))
-            rec_sr.append(_found(nn_sr.t(), ex_sr))
-            rec_nn.append(_found(nn1, ex_nn))
-            jac.append(len(pairs & ex_pairs) / len(pairs | ex_pairs))
-            tdiff.append(float((target - ex_target).norm() / ex_target.norm()))
-            ldiff.append(abs(float(fast.cosine_distance_loss(f, target)) - ex_loss))
+                        projection_products=products)
+        agreement = _agreement([f for _, f in features], exact, style, args.k, proj, fp)
         ms = statistics.median(
             median_ms(lambda f=f, p=proj: knn.mutual_knn_pairs(f, style, args.k, projection=p), args.repeats)
             for _, f in timed
         )
-        row = {"rank": rank, "candidates": cand, "products": products,
-               "bf16_products": proj.bf16_products(), "recall_rs": statistics.mean(rec_rs),
-               "recall_sr": statistics.mean(rec_sr), "recall_nn": statistics.mean(rec_nn),
-               "recall_rs_worst_view": min(rec_rs), "recall_sr_worst_view": min(rec_sr),
-               "pairs_jaccard": statistics.mean(jac), "target_rel_diff_max": max(tdiff),
-               "loss_abs_diff_max": max(ldiff), "ms": ms}
+        row = {"rank": rank, "candidates": cand, "products": products, "bf16_products": proj.bf16_products(),
+               **agreement, "ms": ms}
         rows_out.append(row)
         print(f"{rank:>5} {cand:>5} {products:>9} {row['recall_rs']:>10.5f} {row['recall_sr']:>10.5f} {row['recall_nn']:>10.5f} "
               f"{row['pairs_jaccard']:>8.5f} {row['target_rel_diff_max']:>9.2e} {row['loss_abs_diff_max']:>9.2e} "
@@ -129,7 +152,6 @@ def main(argv=None) -> dict:
     if args.json:
         write_json(args.json, out)
     return out
-
 
 if __name__ == "__main__":
     main()

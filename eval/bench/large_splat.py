@@ -167,7 +167,8 @@ def markdown_table(records: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
-def main(argv=None) -> dict:
+def _parser() -> argparse.ArgumentParser:
+    """The command line of :func:`main`."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--n", type=int, default=3_000_000)
     ap.add_argument("--views", type=int, default=4)
@@ -187,7 +188,69 @@ def main(argv=None) -> dict:
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--table", type=Path, nargs="+", metavar="JSON",
                     help="print the markdown table of these records (one column each) and exit")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def record_phase(phases: dict, name: str, seconds: float, **extra: float | int) -> None:
+    """Store a phase under ``phases[name]``: its wall ``seconds``, the peak resident memory since the last phase (GiB;
+    then reset), the 1-minute load average and ``extra`` figures; and print them on one line."""
+    peak = peak_rss_gib()
+    phases[name] = {"seconds": seconds, "peak_rss_gib": peak, "load_average_1min": os.getloadavg()[0], **extra}
+    print(f"{name:>28}: {seconds:8.1f} s   peak RSS {peak:5.2f} GiB  load {os.getloadavg()[0]:4.1f}  "
+          + " ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in extra.items()), flush=True)
+    reset_peak_rss()
+
+
+def render_photos(model: GaussianModel, cams: list[Camera], folder: Path) -> list[Path]:
+    """The splat's own renders of ``cams``, written as ``folder/<camera name>`` (the import check's photos)."""
+    paths = []
+    with torch.no_grad():
+        for c in cams:
+            save_image(folder / c.name, render(model, c)[0].clamp(0, 1).numpy())
+            paths.append(folder / c.name)
+    return paths
+
+
+def random_style() -> tuple[VGG16Features, list[MatchingGroup]]:
+    """VGG-16 with random weights (seed 0; the real ones' arithmetic) and one matching group for all pixels: a random
+    ``3 × 256 × 256`` painting (seed 1) with its relu3_1..3 features."""
+    layers = ["relu3_1", "relu3_2", "relu3_3"]
+    vgg = VGG16Features(random_state_dict(0), layers)
+    style = torch.rand(3, 256, 256, generator=torch.Generator().manual_seed(1))
+    with torch.no_grad():
+        feats = extract_features(vgg, style[None], layers)[0]
+    pixels = style.permute(1, 2, 0).reshape(-1, 3).numpy()
+    return vgg, [MatchingGroup(ALL_PIXELS, "style", pixels, feats.reshape(feats.shape[0], -1))]
+
+
+def stylize_phase(phases: dict, name: str, m: GaussianModel, cams: list[Camera], vgg: VGG16Features,
+                  groups: list[MatchingGroup], sp: StylizeParams) -> GaussianModel:
+    """Stylize ``m`` (single-image transfer with ``groups``) and record the phase ``name``: its total, the preparation,
+    one main-pass step and its split, and the colour pass's preparation and steps (seconds). Returns the stylized
+    model."""
+    if sp.higher_sh == "zero":  # what the colour match leaves the stylization (stylize.higher_sh: zero)
+        m.shN.zero_()
+    labels = torch.zeros(m.num_gaussians, dtype=torch.long)
+    view_labels = [np.zeros((c.height, c.width), np.int64) for c in cams]
+    t0 = time.perf_counter()
+    res = stylize(m, cams, view_labels, labels, groups, vgg, sp, depth_model=m, progress=False)
+    total = time.perf_counter() - t0
+    n_it = max(1, int(res.timings.get("iterations", 1)))
+    split = {k: v / n_it for k, v in res.timings.items() if k != "iterations"}
+    main_s = sum(res.timings[k] for k in split)
+    prepare = total - main_s - res.color_pass_seconds
+    step = sum(split.values())
+    ct = res.color_timings
+    color = {"color_prepare_s": ct.get("prepare_s", 0.0),
+             "color_record_step_s": ct.get("record_s", 0.0) / max(1, ct.get("record_steps", 0)),
+             "color_step_s": ct.get("steps_s", 0.0) / max(1, ct.get("steps", 0))}
+    record_phase(phases, name, total, main_step_s=step, prepare_s=prepare, **color,
+                 **{f"step_{k}_s": v for k, v in split.items()})
+    return res.model
+
+
+def main(argv=None) -> dict:
+    args = _parser().parse_args(argv)
     if args.table:
         print(markdown_table({p.stem: json.loads(p.read_text()) for p in args.table}))
         return {}
@@ -198,85 +261,47 @@ def main(argv=None) -> dict:
                  "threads": args.threads, "cpus": os.cpu_count(), "machine": cpu_model(),
                  "color_pass_rotations": args.color_pass_rotations, "higher_sh": args.higher_sh, "load_average_start": os.getloadavg(),
                  "phases": {}}
-
-    def phase(name: str, seconds: float, **extra) -> None:
-        peak = peak_rss_gib()
-        rec["phases"][name] = {"seconds": seconds, "peak_rss_gib": peak, "load_average_1min": os.getloadavg()[0],
-                               **extra}
-        print(f"{name:>28}: {seconds:8.1f} s   peak RSS {peak:5.2f} GiB  load {os.getloadavg()[0]:4.1f}  "
-              + " ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in extra.items()), flush=True)
-        reset_peak_rss()
+    phases = rec["phases"]
 
     t = time.perf_counter()
     model = synthesize(args.n)
     ply = work / "input" / "point_cloud.ply"
     write_ply(ply, model)
-    phase("synthesize + write input PLY", time.perf_counter() - t, ply_gib=ply.stat().st_size / 2**30)
+    record_phase(phases, "synthesize + write input PLY", time.perf_counter() - t, ply_gib=ply.stat().st_size / 2**30)
     cams = cameras(args.views, args.width, args.height)
     t = time.perf_counter()
-    paths = []
-    with torch.no_grad():
-        for c in cams:
-            save_image(work / "photos" / c.name, render(model, c)[0].clamp(0, 1).numpy())
-            paths.append(work / "photos" / c.name)
-    phase("render the photos", time.perf_counter() - t, per_view_s=(time.perf_counter() - t) / len(cams))
+    paths = render_photos(model, cams, work / "photos")
+    record_phase(phases, "render the photos", time.perf_counter() - t, per_view_s=(time.perf_counter() - t) / len(cams))
     del model
     scene = Scene(Cameras.from_list(cams), paths, np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32))
 
     t = time.perf_counter()
     imported = read_splat(ply, scene=scene)
-    phase("import: read PLY", time.perf_counter() - t)
+    record_phase(phases, "import: read PLY", time.perf_counter() - t)
     t = time.perf_counter()
     check = check_splat(imported.model, scene, min_psnr=18.0)
-    phase("import: check vs photos", time.perf_counter() - t, psnr_db=check.psnr, check_width=check.width)
+    record_phase(phases, "import: check vs photos", time.perf_counter() - t, psnr_db=check.psnr, check_width=check.width)
 
-    vgg = VGG16Features(random_state_dict(0), ["relu3_1", "relu3_2", "relu3_3"])
-    style = torch.rand(3, 256, 256, generator=torch.Generator().manual_seed(1))
-    with torch.no_grad():
-        feats = extract_features(vgg, style[None], ["relu3_1", "relu3_2", "relu3_3"])[0]
-    pixels = style.permute(1, 2, 0).reshape(-1, 3).numpy()
-    groups = [MatchingGroup(ALL_PIXELS, "style", pixels, feats.reshape(feats.shape[0], -1))]
+    vgg, groups = random_style()
     sp = StylizeParams(optim=StylizeOptim(iterations=args.steps, color_pass_iterations=args.color_steps,
                                           color_pass_rotations=args.color_pass_rotations),
                        compute=StylizeCompute(log_every=1), higher_sh=args.higher_sh)
-
-    def stylize_phase(name: str, m: GaussianModel) -> GaussianModel:
-        if sp.higher_sh == "zero":  # what the colour match leaves the stylization (stylize.higher_sh: zero)
-            m.shN.zero_()
-        labels = torch.zeros(m.num_gaussians, dtype=torch.long)
-        view_labels = [np.zeros((c.height, c.width), np.int64) for c in cams]
-        t0 = time.perf_counter()
-        res = stylize(m, cams, view_labels, labels, groups, vgg, sp, depth_model=m, progress=False)
-        total = time.perf_counter() - t0
-        n_it = max(1, int(res.timings.get("iterations", 1)))
-        split = {k: v / n_it for k, v in res.timings.items() if k != "iterations"}
-        main = sum(res.timings[k] for k in split)
-        prepare = total - main - res.color_pass_seconds
-        step = sum(split.values())
-        ct = res.color_timings
-        color = {"color_prepare_s": ct.get("prepare_s", 0.0),
-                 "color_record_step_s": ct.get("record_s", 0.0) / max(1, ct.get("record_steps", 0)),
-                 "color_step_s": ct.get("steps_s", 0.0) / max(1, ct.get("steps", 0))}
-        phase(name, total, main_step_s=step, prepare_s=prepare, **color, **{f"step_{k}_s": v for k, v in split.items()})
-        return res.model
-
-    styled = stylize_phase("stylize (full)", imported.model)
+    styled = stylize_phase(phases, "stylize (full)", imported.model, cams, vgg, groups, sp)
     t = time.perf_counter()
     out = write_splat(styled, work / "returned" / "point_cloud.ply", imported.provenance)
-    phase("export: INRIA PLY back", time.perf_counter() - t, ply_gib=out.stat().st_size / 2**30)
+    record_phase(phases, "export: INRIA PLY back", time.perf_counter() - t, ply_gib=out.stat().st_size / 2**30)
     t = time.perf_counter()
     size = write_spz(work / "returned" / "point_cloud.spz", styled)
-    phase("export: .spz", time.perf_counter() - t, spz_gib=size / 2**30)
+    record_phase(phases, "export: .spz", time.perf_counter() - t, spz_gib=size / 2**30)
     del styled
     t = time.perf_counter()
     small = decimate(imported.model, args.preview)
-    phase(f"preview: decimate to {args.preview}", time.perf_counter() - t)
-    stylize_phase("stylize (preview)", small)
+    record_phase(phases, f"preview: decimate to {args.preview}", time.perf_counter() - t)
+    stylize_phase(phases, "stylize (preview)", small, cams, vgg, groups, sp)
     rec["load_average"] = os.getloadavg()
     if args.json:
         write_json(args.json, rec)
     return rec
-
 
 if __name__ == "__main__":
     main()

@@ -44,7 +44,7 @@ from abcgs.params import load_params
 from abcgs.sfm.model import read_colmap_scene
 from abcgs.stylize.colormatch import color_match_and_refit
 from abcgs.stylize.loop import stylize
-from abcgs.stylize.params import ColorMatchParams
+from abcgs.stylize.params import ColorMatchParams, StylizeParams
 from abcgs.types import CandidateProducts, KnnSearch
 from abcgs.viz import image_grid
 
@@ -61,7 +61,8 @@ def gram_distance(model, cameras, vgg, style_img: np.ndarray, layers) -> float:
     return float(np.mean(d))
 
 
-def main(argv=None) -> dict:
+def _parser() -> argparse.ArgumentParser:
+    """The command line of :func:`main`."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", type=Path, required=True)
     ap.add_argument("--style", type=Path, required=True)
@@ -81,17 +82,41 @@ def main(argv=None) -> dict:
     ap.add_argument("--projection-products", choices=get_args(CandidateProducts), default=None,
                     help="override stylize.fast.projection_products (the candidates' products: float32 or bfloat16)")
     ap.add_argument("--json", type=Path, default=None)
-    args = ap.parse_args(argv)
+    return ap
+
+
+def with_fast_overrides(sp: StylizeParams, **overrides) -> StylizeParams:
+    """``sp`` with the ``stylize.fast`` settings of ``overrides`` that are not None (knn_search, projection_rank, …)."""
+    fast_update = {key: value for key, value in overrides.items() if value is not None}
+    if fast_update:
+        sp = sp.model_copy(update={"fast": sp.fast.model_copy(update=fast_update)})
+    return sp
+
+
+@torch.no_grad()
+def _content_ssim(original, stylized, color_matched, cameras, style_img: np.ndarray) -> tuple[list[float], list[list]]:
+    """SSIM of the stylized scene's render against the original's, per view; and for every 7th view a figure row
+    (original, style, colour-matched, stylized; ``(H, W, 3)`` float in [0, 1])."""
+    ssims, rows = [], []
+    for i, cam in enumerate(cameras):
+        a = render(original, cam)[0].clamp(0, 1)
+        b = render(stylized, cam)[0].clamp(0, 1)
+        ssims.append(ssim_metric(b, a))
+        if i % 7 == 0:
+            rows.append([a.numpy(), style_img, render(color_matched, cam)[0].clamp(0, 1).numpy(), b.numpy()])
+    return ssims, rows
+
+
+def main(argv=None) -> dict:
+    args = _parser().parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
 
     params = load_params(args.params)
-    sp = params.stylize.with_schedule(args.iterations, args.color_pass_iterations)
-    fast_update = {key: value for key, value in (("knn_search", args.knn_search), ("projection_rank", args.projection_rank),
-                                                 ("projection_candidates", args.projection_candidates),
-                                                 ("projection_products", args.projection_products)) if value is not None}
-    if fast_update:
-        sp = sp.model_copy(update={"fast": sp.fast.model_copy(update=fast_update)})
+    sp = with_fast_overrides(params.stylize.with_schedule(args.iterations, args.color_pass_iterations),
+                             knn_search=args.knn_search, projection_rank=args.projection_rank,
+                             projection_candidates=args.projection_candidates,
+                             projection_products=args.projection_products)
     base = args.work / args.scene.name
     scene = read_colmap_scene(base / "colmap" / "sparse", base / "colmap" / "images")
     original = read_ply(base / "gs" / "point_cloud.ply")
@@ -113,14 +138,7 @@ def main(argv=None) -> dict:
     g_start = gram_distance(cm.model, scene.cameras, vgg, style_img, sp.layers)
     g_end = gram_distance(res.model, scene.cameras, vgg, style_img, sp.layers)
     g_orig = gram_distance(original, scene.cameras, vgg, style_img, sp.layers)
-    ssims, rows = [], []
-    with torch.no_grad():
-        for i, cam in enumerate(scene.cameras):
-            a = render(original, cam)[0].clamp(0, 1)
-            b = render(res.model, cam)[0].clamp(0, 1)
-            ssims.append(ssim_metric(b, a))
-            if i % 7 == 0:
-                rows.append([a.numpy(), style_img, render(cm.model, cam)[0].clamp(0, 1).numpy(), b.numpy()])
+    ssims, rows = _content_ssim(original, res.model, cm.model, scene.cameras, style_img)
     n_it = max(1, res.timings.get("iterations", 1))
     split = {k: v / n_it for k, v in res.timings.items() if k != "iterations"}
     out = {
@@ -149,7 +167,6 @@ def main(argv=None) -> dict:
         write_ply(args.json.with_suffix(".ply"), res.model)
         write_ply(args.json.with_suffix(".colormatch.ply"), cm.model)  # the start (e.g. for eval/bench/knn_recall.py)
     return out
-
 
 if __name__ == "__main__":
     main()
