@@ -36,6 +36,7 @@ import re
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import yaml
@@ -271,7 +272,8 @@ def params_editor(params_file: Path | None, sets: list[str]):
     return edit
 
 
-def main(argv: list[str] | None = None) -> dict:
+def _parser() -> argparse.ArgumentParser:
+    """The command line of :func:`main`."""
     ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     ap.add_argument("--params", type=Path, default=None, help="params file to run (default: this repository's)")
@@ -292,20 +294,102 @@ def main(argv: list[str] | None = None) -> dict:
                     "per-painting stages scaled)")
     ap.add_argument("--measured-paintings", type=int, default=1, metavar="M",
                     help="with --paintings: how many paintings the compared runs had (default 1)")
-    args = ap.parse_args(argv)
+    return ap
+
+
+HOW = ("each stage alone (dvc repro --single-item) in a fresh wrapper process; CPU and peak RSS from "
+       "getrusage(RUSAGE_CHILDREN); a clean copy of the working tree with an empty DVC cache")
+"""How the figures are measured, stored with them."""
+
+
+@dataclass
+class PipelineCopy:
+    """A clean copy of a pipeline to time: its folder, its stages in run order, the params file it was given (None:
+    the repository's ``params.yaml``) and the ``--set`` changes made to it."""
+
+    repo: Path
+    stages: list[str]
+    params: Path | None
+    sets: list[str]
+
+
+def compare_files(paths: list[Path], paintings: int | None, measured: int) -> dict:
+    """``--compare``: two runs' JSON files (or one ``--baseline`` run's) side by side, and with ``paintings`` both
+    totals projected to that many paintings from ``measured``."""
+    if len(paths) > 2:
+        raise SystemExit("--compare takes BEFORE AFTER, or one --baseline run's JSON")
+    before, after = _read_runs(paths)
+    result = compare(before, after)
+    if paintings is not None:
+        result["projection"] = project_paintings(before, after, paintings, measured)
+    return result
+
+
+def time_against_baseline(base: PipelineCopy, revision: str, current: PipelineCopy, machine: dict,
+                          json_path: Path | None) -> dict:
+    """Both copies' stages interleaved (:func:`bench_interleaved`); the record is saved to ``json_path`` after each
+    stage (``complete: false``) and at the end with the comparison of the two."""
+    machine["loadavg_before"] = os.getloadavg()
+    print(f"[bench_pipeline] baseline {revision} ({len(base.stages)} stages, {base.repo}) and the working "
+          f"tree ({len(current.stages)} stages, {current.repo}) interleaved; {os.cpu_count()} CPUs, load average "
+          f"{machine['loadavg_before'][0]:.2f}", flush=True)
+
+    def ab_result(rows_b: list[dict], rows_c: list[dict], complete: bool) -> dict:
+        return {
+            "baseline": {**_summary(rows_b), "revision": revision, "params": str(base.params or "params.yaml"),
+                         "stage_count": len(base.stages)},
+            "current": {**_summary(rows_c), "params": str(current.params or "params.yaml"), "set": current.sets,
+                        "stage_count": len(current.stages)},
+            "machine": machine, "complete": complete,
+            "how": HOW + "; the two pipelines' stages alternate (baseline first on even steps, current first "
+                         "on odd ones) and each total is the sum of its stages' walls",
+        }
+
+    def save_partial(rows_b: list[dict], rows_c: list[dict]) -> None:
+        if json_path:
+            write_json(json_path, ab_result(rows_b, rows_c, complete=False))
+
+    rows_b, rows_c = bench_interleaved(base.repo, base.stages, current.repo, current.stages, on_stage=save_partial)
+    result = ab_result(rows_b, rows_c, complete=True)
+    result["comparison"] = compare(result["baseline"], result["current"])
+    if json_path:
+        write_json(json_path, result)
+    return result
+
+
+def time_alone(current: PipelineCopy, machine: dict, json_path: Path | None) -> dict:
+    """The copy's stages in turn (:func:`bench`); the record is saved to ``json_path`` after each stage
+    (``complete: false``) and at the end, with the total wall time."""
+    machine["loadavg_before"] = os.getloadavg()
+    print(f"[bench_pipeline] {len(current.stages)} stages in {current.repo}; {os.cpu_count()} CPUs, load average "
+          f"{machine['loadavg_before'][0]:.2f}", flush=True)
+    t0 = time.perf_counter()
+
+    def record(rows: list[dict], complete: bool, wall: float | None = None) -> dict:
+        return {**_summary(rows, wall), "params": str(current.params or "params.yaml"), "set": current.sets,
+                "machine": machine, "how": HOW, "complete": complete, "stage_count": len(current.stages)}
+
+    def save_partial(rows: list[dict]) -> None:
+        if json_path:
+            write_json(json_path, record(rows, complete=False))
+
+    rows = bench(current.repo, current.stages, on_stage=save_partial)
+    total_wall = time.perf_counter() - t0
+    result = record(rows, complete=True, wall=total_wall)
+    print(f"[bench_pipeline] total {total_wall / 60:.1f} min wall, cpu/wall {result['core_use']:.2f}, "
+          f"peak RSS {result['peak_rss_mib']:.0f} MiB")
+    if json_path:
+        write_json(json_path, result)
+    return result
+
+
+def main(argv: list[str] | None = None) -> dict:
+    args = _parser().parse_args(argv)
     if args.compare is not None:
-        if len(args.compare) > 2:
-            raise SystemExit("--compare takes BEFORE AFTER, or one --baseline run's JSON")
-        before, after = _read_runs(args.compare)
-        result = compare(before, after)
-        if args.paintings is not None:
-            result["projection"] = project_paintings(before, after, args.paintings, args.measured_paintings)
-        return result
+        return compare_files(args.compare, args.paintings, args.measured_paintings)
     if args.paintings is not None:
         raise SystemExit("--paintings projects earlier runs: use it with --compare")
 
-    how = ("each stage alone (dvc repro --single-item) in a fresh wrapper process; CPU and peak RSS from "
-           "getrusage(RUSAGE_CHILDREN); a clean copy of the working tree with an empty DVC cache")
     machine = {"cpus": os.cpu_count(), "cpu": cpu_description(), "platform": platform.platform(),
                "python": platform.python_version()}
     print(f"[bench_pipeline] CPU {machine['cpu'].get('model')} ({', '.join(machine['cpu'].get('simd', []))})",
@@ -313,60 +397,16 @@ def main(argv: list[str] | None = None) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         work = args.work or Path(tmp)
         repo = copy_repo(work / "repo", params_editor(args.params, args.set))
-        stages = stage_order(repo, args.targets)
+        current = PipelineCopy(repo, stage_order(repo, args.targets), args.params, args.set)
         warm_up(repo)
-        if args.baseline is not None:
-            base_params = args.baseline_params or args.params
-            # the same --set changes to both runs
-            base = copy_revision(work / "baseline", args.baseline, params_editor(base_params, args.set))
-            base_stages = stage_order(base, args.targets)
-            warm_up(base)
-            machine["loadavg_before"] = os.getloadavg()
-            print(f"[bench_pipeline] baseline {args.baseline} ({len(base_stages)} stages, {base}) and the working "
-                  f"tree ({len(stages)} stages, {repo}) interleaved; {os.cpu_count()} CPUs, load average "
-                  f"{machine['loadavg_before'][0]:.2f}", flush=True)
-            def ab_result(rows_b: list[dict], rows_c: list[dict], complete: bool) -> dict:
-                return {
-                    "baseline": {**_summary(rows_b), "revision": args.baseline,
-                                 "params": str(base_params or "params.yaml"), "stage_count": len(base_stages)},
-                    "current": {**_summary(rows_c), "params": str(args.params or "params.yaml"), "set": args.set,
-                                "stage_count": len(stages)},
-                    "machine": machine, "complete": complete,
-                    "how": how + "; the two pipelines' stages alternate (baseline first on even steps, current first "
-                           "on odd ones) and each total is the sum of its stages' walls",
-                }
-
-            def save_partial(rows_b: list[dict], rows_c: list[dict]) -> None:
-                if args.json:
-                    write_json(args.json, ab_result(rows_b, rows_c, complete=False))
-
-            rows_b, rows_c = bench_interleaved(base, base_stages, repo, stages, on_stage=save_partial)
-            result = ab_result(rows_b, rows_c, complete=True)
-            result["comparison"] = compare(result["baseline"], result["current"])
-            if args.json:
-                write_json(args.json, result)
-            return result
-        machine["loadavg_before"] = os.getloadavg()
-        print(f"[bench_pipeline] {len(stages)} stages in {repo}; {os.cpu_count()} CPUs, load average "
-              f"{machine['loadavg_before'][0]:.2f}", flush=True)
-        t0 = time.perf_counter()
-
-        def save_partial(rows: list[dict]) -> None:
-            if args.json:
-                write_json(args.json, {**_summary(rows), "params": str(args.params or "params.yaml"), "set": args.set,
-                                       "machine": machine, "how": how, "complete": False,
-                                       "stage_count": len(stages)})
-
-        rows = bench(repo, stages, on_stage=save_partial)
-        total_wall = time.perf_counter() - t0
-    result = {**_summary(rows, total_wall), "params": str(args.params or "params.yaml"), "set": args.set,
-              "machine": machine, "how": how, "complete": True, "stage_count": len(stages)}
-    print(f"[bench_pipeline] total {total_wall / 60:.1f} min wall, cpu/wall {result['core_use']:.2f}, "
-          f"peak RSS {result['peak_rss_mib']:.0f} MiB")
-    if args.json:
-        write_json(args.json, result)
-    return result
-
+        if args.baseline is None:
+            return time_alone(current, machine, args.json)
+        base_params = args.baseline_params or args.params
+        # the same --set changes to both runs
+        base_repo = copy_revision(work / "baseline", args.baseline, params_editor(base_params, args.set))
+        base = PipelineCopy(base_repo, stage_order(base_repo, args.targets), base_params, args.set)
+        warm_up(base_repo)
+        return time_against_baseline(base, args.baseline, current, machine, args.json)
 
 if __name__ == "__main__":
     main()
