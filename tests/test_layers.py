@@ -6,7 +6,8 @@ functions and ``TYPE_CHECKING`` blocks too), is checked against :data:`eval.benc
 (``if __name__ == "__main__":``) is a program run on top of everything and is not checked.
 
 Also checked: a name is imported from the module that defines it (no re-exports), except from a package's face
-(its ``__init__.py``); settings classes thus come from their ``params`` module.
+(its ``__init__.py``); settings classes thus come from their ``params`` module. And no function or method under
+``abcgs/``, ``stages/`` or ``eval/`` spans more than :data:`eval.bench.structure.MAX_FUNCTION_LINES` (80) lines.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from eval.bench.structure import floor_of, module_path
+from eval.bench.structure import MAX_FUNCTION_LINES, floor_of, long_functions, module_path
 from eval.bench.structure import module_name as _module_name
 from eval.bench.structure import upward_imports as _upward_imports
 
@@ -104,3 +105,26 @@ def test_only_package_faces_silence_unused_imports() -> None:
     found = [f"{p.relative_to(ROOT)}:{i}" for p in MODULES if p.name != "__init__.py"
              for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1) if "noqa: F401" in line]
     assert not found, f"an unused import outside a package's __init__.py (a re-export?): {found}"
+
+
+# ------------------------------------------------------------------------------------------------ function size
+def test_no_function_is_longer_than_the_limit() -> None:
+    found = long_functions(ROOT)
+    assert not found, (f"functions over {MAX_FUNCTION_LINES} lines (split each into functions of one concept):\n"
+                       + "\n".join(f"{name}: {n} lines" for name, n in found))
+
+
+def test_the_size_check_counts_def_to_last_line_in_every_code_folder(tmp_path: Path) -> None:
+    def body(n: int) -> str:  # a function spanning n lines, its def line included
+        return "".join(f"    x{i} = {i}\n" for i in range(n - 1))
+
+    (tmp_path / "abcgs").mkdir()
+    (tmp_path / "abcgs" / "a.py").write_text(f"import functools\n\n\n@functools.cache\ndef limit():\n{body(80)}")
+    (tmp_path / "stages").mkdir()
+    (tmp_path / "stages" / "s.py").write_text(f"def long():\n{body(81)}")
+    (tmp_path / "eval" / "bench").mkdir(parents=True)
+    method = "".join("    " + line + "\n" for line in f"def run(self):\n{body(85)}".splitlines())
+    (tmp_path / "eval" / "bench" / "b.py").write_text(f"class Bench:\n{method}")
+    (tmp_path / "tests").mkdir()
+    (tmp_path / "tests" / "t.py").write_text(f"def test_long():\n{body(200)}")  # tests are not measured
+    assert long_functions(tmp_path) == [("eval/bench/b.py:Bench.run", 85), ("stages/s.py:long", 81)]

@@ -20,6 +20,9 @@ Measured:
   core ``dependencies`` cap DVC below its next minor version (the cluster code's private-API range).
 - ``longest_functions``: the longest functions and methods of ``abcgs/`` in lines (``def`` to last line).
 
+:func:`long_functions` lists the functions over :data:`MAX_FUNCTION_LINES` under ``abcgs/``, ``stages/`` and
+``eval/`` (``tests/test_layers.py`` fails on any).
+
 With ``--json FILE --label NAME`` the numbers are stored under ``NAME`` in ``FILE`` (other labels are kept), with the
 tree's git commit.
 """
@@ -141,6 +144,28 @@ def _functions(tree: ast.AST, prefix: str) -> list[tuple[str, int]]:
         elif not isinstance(node, ast.Lambda):
             out += _functions(node, prefix)
     return out
+
+
+MAX_FUNCTION_LINES = 80
+"""The most lines a function or method under :data:`CODE_FOLDERS` may span (``def`` to its last line; decorators not
+counted, a nested function's lines counted in the function around it too)."""
+
+CODE_FOLDERS = ("abcgs", "stages", "eval")
+"""The folders of the project's code that :func:`long_functions` reads."""
+
+
+def long_functions(root: Path, limit: int = MAX_FUNCTION_LINES,
+                   folders: tuple[str, ...] = CODE_FOLDERS) -> list[tuple[str, int]]:
+    """``("path:qualified name", lines)`` of every function and method longer than ``limit`` lines in the ``.py``
+    files under ``folders`` of ``root``, longest first."""
+    found = []
+    for folder in folders:
+        for path in sorted((root / folder).rglob("*.py")):
+            if "__pycache__" in path.parts:
+                continue
+            found += [(f"{path.relative_to(root).as_posix()}:{name[1:]}", n)
+                      for name, n in _functions(ast.parse(path.read_text(encoding="utf-8")), "") if n > limit]
+    return sorted(found, key=lambda f: (-f[1], f[0]))
 
 
 def _core_pins_dvc_minor(pyproject: Path) -> bool | None:
