@@ -18,7 +18,7 @@ from typing import get_args
 import yaml
 
 from abcgs.errors import AbcgsError
-from abcgs.sources.base import FORMATS
+from abcgs.sources.registry import formats
 from abcgs.splats.params import SplatFormatParam, SplatViewsParams
 from abcgs.types import StyleMethod
 
@@ -49,8 +49,9 @@ def _parser() -> argparse.ArgumentParser:
     scene = sub.add_parser("add-scene", help="check a scene folder and add it to data.scenes")
     scene.add_argument("name", help="the scene's name (letters, digits, _ -)")
     scene.add_argument("path", help="its folder (photos in images/, or a dataset with cameras), or a splat file")
-    scene.add_argument("--format", default="auto", choices=("auto", *FORMATS), help="where the cameras come from "
-                       "(default: detected from the folder's files)")
+    scene.add_argument("--format", default="auto", choices=("auto", *formats()), help="where the cameras come from: "
+                       "a registered reader's format (abcgs/sources/formats/, ABCGS_READERS; default: detected from "
+                       "the folder's files)")
     scene.add_argument("--images", default=None, help="image subfolder, e.g. images_8 (default: images)")
     scene.add_argument("--background", nargs="+", metavar="R G B | transparent", default=None, type=_background_word,
                        help="an object on nothing: RGB in [0, 1] behind it (RGBA views are composited on it), or "

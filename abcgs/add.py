@@ -38,6 +38,7 @@ from abcgs.sources.detect import DEFAULT_IMAGES, image_files
 from abcgs.sources.lens import consistent_scale, image_size
 from abcgs.sources.params import SceneParams, scene_name_problem
 from abcgs.sources.read import marker, read_source, resolve_format
+from abcgs.sources.registry import reader_of
 from abcgs.types import Scene
 
 MIN_PHOTOS = 3
@@ -169,9 +170,10 @@ def scene_entry(name: str, path: str | os.PathLike, *, fmt: str = "auto", images
     SceneParams.model_validate(entry)  # the settings, before any file is read
     drop = splat_nonfinite == "drop"
     source = None
-    if resolved == "photos":
+    cameras = reader_of(resolved).cameras
+    if cameras == "sfm":  # photos: structure from motion finds their cameras in the reconstruct stage
         lines = describe_photos(name, folder, images, max_view_size_ratio)
-    elif resolved == "splat":
+    elif cameras == "made":  # a bare splat: its cameras are made around it in the reconstruct stage
         from abcgs.sources.detect import splat_file
         from abcgs.splats.registry import read_splat
 
@@ -179,8 +181,9 @@ def scene_entry(name: str, path: str | os.PathLike, *, fmt: str = "auto", images
         lines = [f"a bare splat scene: {folder}, {model.num_gaussians} Gaussians of SH degree {model.sh_degree} "
                  "(cameras are made around it; its renders are the photos)"]
     else:
-        source = read_source(folder, resolved, images=images,
-                             background=SceneParams.model_validate(entry).resolved_background(resolved).color)
+        spec = SceneParams.model_validate(entry)
+        source = read_source(folder, resolved, images=images, background=spec.resolved_background(resolved).color,
+                             source=spec.source)
         lines = describe_source(source, folder)
         lines += label_map_lines(name, folder, {Path(v.name).stem: (v.name, (v.camera.height, v.camera.width))
                                                 for v in source.views}, images)

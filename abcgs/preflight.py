@@ -46,6 +46,7 @@ from abcgs.io.images import check_label_size, check_label_values, decode_image, 
 from abcgs.masks.params import UNDECIDED
 from abcgs.scene.params import TINY_STYLE_FILES
 from abcgs.sources.detect import DEFAULT_IMAGES, IMAGE_SUFFIXES, detect_format
+from abcgs.sources.registry import reader_of
 
 log = logging.getLogger(__name__)
 
@@ -397,7 +398,7 @@ def check_input_files(params, root: Path, produced: Iterable[str] = (),
             fmt = detect_format(folder, scene.images) if scene.format == "auto" else scene.format
         except InputError as exc:
             raise InputError(f"data.scenes.{name}: {exc}") from None
-        if fmt != "photos":
+        if reader_of(fmt).cameras != "sfm":
             continue  # a dataset with cameras: its reader checks it in the preflight stage (abcgs/source_check.py)
         if not images.is_dir():
             raise InputError(f"data.scenes.{name}: {images} does not exist; a scene folder holds {sub}/ (and "

@@ -240,8 +240,12 @@ def _model_at(model: type[BaseModel], loc: tuple[Any, ...]) -> type[BaseModel] |
 
 
 def _tagged_member(field: Any, tag: Any) -> type[BaseModel] | None:
-    """The member of a tagged-union field (``Annotated[A | B, Field(discriminator=...)]``) whose tag is ``tag``, else
-    None."""
+    """The member of a tagged-union field (``Annotated[A | B, Field(discriminator=...)]``, or a field whose type names
+    its members itself: a ``tagged_member(tag)`` classmethod, as a scene's ``source`` does for the registered
+    formats) whose tag is ``tag``, else None."""
+    member_of = getattr(field.annotation, "tagged_member", None)
+    if callable(member_of):
+        return member_of(tag)
     discriminator = field.discriminator
     if not isinstance(discriminator, str):
         return None

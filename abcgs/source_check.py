@@ -1,7 +1,8 @@
 """The ``preflight`` stage's check of scenes that come with cameras: each is read by its reader (files present,
 images matching cameras, camera and image sizes a consistent scale, cameras that look at the scene, label maps in
-``masks/`` at their views' size or its scale) before any stage runs. Scenes of photos are checked by
-:func:`abcgs.preflight.check_input_files`; bare splat scenes by the stage that reads them.
+``masks/`` at their views' size or its scale) before any stage runs. Scenes whose cameras structure from motion finds
+(photos) are checked by :func:`abcgs.preflight.check_input_files`; those whose cameras a reader makes (bare splats) by
+the stage that reads them.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from pathlib import Path
 from abcgs.errors import InputError
 from abcgs.preflight import check_label_map_sizes, produced_by_stage
 from abcgs.sources.read import read_source, resolve_format
+from abcgs.sources.registry import reader_of
 
 
 def check_scene_sources(params, root: Path, produced: Iterable[str] = ()) -> list[str]:
@@ -25,9 +27,10 @@ def check_scene_sources(params, root: Path, produced: Iterable[str] = ()) -> lis
         folder = root / scene.path
         try:
             fmt = resolve_format(folder, scene.format, scene.images)
-            if fmt in ("photos", "splat"):
+            if not reader_of(fmt).check:  # cameras found from photos or made around a splat: nothing to read yet
                 continue
-            source = read_source(folder, fmt, images=scene.images, background=scene.resolved_background(fmt).color)
+            source = read_source(folder, fmt, images=scene.images, background=scene.resolved_background(fmt).color,
+                                 source=scene.source)
             check_label_map_sizes(name, folder / "masks", {Path(v.name).stem: (
                 v.name, (v.camera.height, v.camera.width)) for v in source.views}, scene.images)
         except InputError as exc:

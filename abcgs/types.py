@@ -54,10 +54,11 @@ PathKind = Literal["auto", "spiral", "orbit"]
 """Camera path of the videos and the viewer (:mod:`abcgs.camera_paths`): ``spiral`` for forward-facing captures,
 ``orbit`` around an object, ``auto`` chosen from the capture's layout."""
 
-SceneFormat = Literal["photos", "colmap", "nerfstudio", "blender", "llff", "splat"]
-"""Where a scene's cameras come from (:mod:`abcgs.sources`): ``photos`` = none (structure from motion finds them),
-``colmap`` = a COLMAP model, ``nerfstudio`` = ``transforms.json``, ``blender`` = ``transforms_{train,test}.json``
-(NeRF-synthetic), ``llff`` = ``poses_bounds.npy``, ``splat`` = only a splat file (cameras generated around it)."""
+SceneFormat = str
+"""Where a scene's cameras come from: the name of a registered scene reader (:mod:`abcgs.sources.registry`; the
+built-in ones: ``photos`` = none, structure from motion finds them, ``colmap`` = a COLMAP model, ``nerfstudio`` =
+``transforms.json``, ``blender`` = ``transforms_{train,test}.json`` (NeRF-synthetic), ``llff`` = ``poses_bounds.npy``,
+``splat`` = only a splat file, cameras generated around it)."""
 
 SplatFormat = Literal["inria", "ply", "splatfacto", "gsplat_ckpt", "gsplat_ply", "opensplat", "supersplat", "splat", "spz"]
 """A built-in trained splat file format, one module each of :mod:`abcgs.splats.formats` (tests/test_splats.py checks
@@ -403,7 +404,7 @@ class Scene:
             the ``reconstruct`` stage wrote for the view (``masks/``, read by the ``masks`` stage).
         alpha_paths: ``(C,)`` each view's alpha map (single-channel PNG, 0 = empty) of an object scene whose images
             came with alpha, else ``None`` (written by the ``reconstruct`` stage beside ``images/``).
-        format: the format it was read as (:data:`SceneFormat`, or a format registered at run time).
+        format: the format it was read as (:data:`SceneFormat`).
         frame: ``(4, 4) float64`` similarity from the dataset files' world frame to the scene frame (identity when
             the reader keeps the files' frame).
         background: what the views show where nothing covers a pixel (:class:`Background`), or ``None``: a

@@ -3,7 +3,8 @@
     dvc repro reconstruct@tiny     # its command, with every input and output path: dvc.yaml or --help
 
 Reads the scene folder ``data.scenes.<scene>.path`` in its format (``format:``, default detected:
-:mod:`abcgs.sources`). Photos (``images/``, optional ``masks/``) go through COLMAP via pycolmap: SIFT, matching,
+:mod:`abcgs.sources`), by the format's reader (:mod:`abcgs.sources.registry`). A reader whose cameras are found, not
+read (``photos``: ``images/``, optional ``masks/``) makes the layout itself: COLMAP via pycolmap, SIFT, matching,
 incremental mapping, undistortion to PINHOLE (:mod:`abcgs.sfm.colmap`; options: the ``reconstruct`` section with the
 scene's override merged in). A dataset with cameras (COLMAP model, ``transforms.json``, NeRF-synthetic,
 ``poses_bounds.npy``) keeps its cameras and frame: undistorted, scaled to its images, with its points or points
@@ -29,8 +30,8 @@ from abcgs.io.atomic import write_json
 from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.sfm.colmap import set_colmap_log_level
 from abcgs.sources.model import write_source_model
-from abcgs.sources.photos import reconstruct_photos
-from abcgs.sources.read import read_source, resolve_format
+from abcgs.sources.read import loaded, read_source, resolve_format
+from abcgs.sources.registry import reader_of
 
 _S = layout.scene("{key}")
 SPEC = StageSpec("reconstruct", foreach="data.scenes", params=("reconstruct", "data.scenes.{key}"), deps=(
@@ -48,17 +49,17 @@ def main(args, params) -> None:
     folder = args.source
     options = params.scene_section(args.scene, "reconstruct")
     fmt = resolve_format(folder, scene.format, scene.images)
-    background = scene.resolved_background(fmt)
-    if fmt == "photos":
-        report = reconstruct_photos(folder, args.out, options, scene.images, background=background,
-                                    splat=scene.splat_path(folder))
+    reader, background = reader_of(fmt), scene.resolved_background(fmt)
+    if reader.reconstruct is not None:  # cameras found from the photos (structure from motion), not read
+        report = loaded(reader.reconstruct)(folder, args.out, options, images=scene.images, background=background,
+                                            splat=scene.splat_path(folder))
         write_json(args.metrics, report.metrics())
-        log.info("%d/%d registered, %d points, reprojection error %.3f px, %.1f s", report.registered, report.total,
-                 report.points, report.mean_reprojection_error_px, report.seconds)
+        log.info("%s: %s", fmt, report.summary())
         return
     with tempfile.TemporaryDirectory() as work:  # a bare splat's renders, until the model's images/ holds them
         source = read_source(folder, fmt, images=scene.images, background=background.color if background.object else None,
-                             views=scene.views, work=work, drop_invalid=scene.splat_nonfinite == "drop")
+                             views=scene.views, work=work, drop_invalid=scene.splat_nonfinite == "drop",
+                             source=scene.source)
         for note in source.notes:
             log.info("%s: %s", fmt, note)
         source = replace(source, splat=scene.splat_path(folder) or source.splat)

@@ -86,7 +86,10 @@ def test_the_modes_of_abcgs_types_list_their_values(raw) -> None:
 def test_a_formats_options_live_in_its_own_section(raw) -> None:
     """A scene's reading options are a tagged union on its format: each format takes its own keys, a key of another
     format is named with the formats that take it, and the flat keys of an entry name the section to write."""
-    from abcgs.sources.params import BlenderSource, LlffSource, SceneParams, SplatSource
+    from abcgs.sources.formats.blender import BlenderSource
+    from abcgs.sources.formats.llff import LlffSource
+    from abcgs.sources.formats.splat import SplatSource
+    from abcgs.sources.params import SceneParams
 
     entry = SceneParams.model_validate({"path": "d", "source": {"format": "llff", "images": "images_8"}})
     assert isinstance(entry.source, LlffSource) and (entry.format, entry.images, entry.views) == ("llff", "images_8", None)

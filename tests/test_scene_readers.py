@@ -12,12 +12,13 @@ import pytest
 
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
-from abcgs.sources.base import FORMATS, ReadOptions, SceneReader
-from abcgs.sources.read import formats, load, reader_of, register, resolve_format, unregister
+from abcgs.sources.base import ReadOptions, SceneReader
+from abcgs.sources.read import load, resolve_format
+from abcgs.sources.registry import formats, reader_of, register, unregister
 from abcgs.types import Scene, View
 
 
-@pytest.mark.parametrize("fmt", FORMATS)
+@pytest.mark.parametrize("fmt", formats())
 def test_every_built_in_format_has_a_reader_named_like_it(fmt: str):
     reader = reader_of(fmt)
     assert isinstance(reader, SceneReader) and reader.name == fmt and reader.marker

@@ -300,19 +300,21 @@ def scene_views(folder: Path, *, images: str | None = None, fmt: str = "auto",
     ``<folder>/masks/<stem>.png``, at the size of these images."""
     from abcgs.sources.detect import DEFAULT_IMAGES, image_files
     from abcgs.sources.read import read_source, resolve_format
+    from abcgs.sources.registry import reader_of
 
     folder = Path(folder)
     if not folder.exists():
         raise InputError(f"scene folder {folder} does not exist; give the folder of data.scenes.<name>.path in "
                          "params.yaml (or --scene NAME)")
-    if folder.is_file() and fmt in ("auto", "splat"):
+    if folder.is_file() and (fmt == "auto" or reader_of(fmt).cameras == "made"):
         raise InputError(f"{folder} is a splat file: its label maps go to masks/ in the scene's folder, so give the "
                          "splat a folder of its own (data.scenes.<name>.path: that folder) and paint on that")
     resolved = resolve_format(folder, fmt, images)
-    if resolved == "photos":
+    cameras = reader_of(resolved).cameras
+    if cameras == "sfm":
         files = image_files(folder / (images or DEFAULT_IMAGES))
         return [(p.name, p) for p in files]
-    if resolved == "splat":
+    if cameras == "made":
         run = f"dvc repro reconstruct@{name}" if name else "the reconstruct stage (dvc repro reconstruct@<name>)"
         if views is None:
             raise InputError(f"{folder} is a bare splat: its views are the ones {run} makes around it; give --scene "

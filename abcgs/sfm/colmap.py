@@ -62,6 +62,11 @@ class ReconstructionReport:
             data.pop("seconds")
         return data
 
+    def summary(self) -> str:
+        """One log line: registered views, points, mean reprojection error (px), wall time (s)."""
+        return (f"{self.registered}/{self.total} registered, {self.points} points, reprojection error "
+                f"{self.mean_reprojection_error_px:.3f} px, {self.seconds:.1f} s")
+
 
 def set_colmap_log_level(level: Literal["info", "warning", "error"]) -> None:
     """How much COLMAP itself prints to stderr (its glog output; abcgs's own messages use :mod:`logging`)."""

@@ -19,7 +19,7 @@ import numpy as np
 
 from abcgs.cameras import Camera, check_intrinsics
 from abcgs.errors import InputError
-from abcgs.sources.base import ReadOptions, SceneReader
+from abcgs.sources.base import ReadOptions
 from abcgs.sources.lens import image_size
 from abcgs.sources.transforms_json import OPENGL_TO_OPENCV, camera_to_world, frames_of, load_json, number
 from abcgs.sources.validate import check_inside
@@ -77,8 +77,6 @@ def read_blender_source(folder: str | os.PathLike, background: tuple[float, floa
     return Scene.from_views(views, format="blender", background=bg)
 
 
-def _read(folder: Path, options: ReadOptions) -> Scene:
+def read(folder: Path, options: ReadOptions) -> Scene:
+    """The ``blender`` format's reading (its ``READER``: :mod:`abcgs.sources.formats.blender`)."""
     return read_blender_source(folder, options.background)
-
-
-READER = SceneReader("blender", _read, "transforms_train.json")

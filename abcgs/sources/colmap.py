@@ -24,7 +24,7 @@ import numpy as np
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.io.colmap import read_model
-from abcgs.sources.base import ReadOptions, SceneReader
+from abcgs.sources.base import ReadOptions
 from abcgs.sources.detect import DEFAULT_IMAGES, colmap_model_dir, image_files
 from abcgs.sources.lens import fit_to_image, image_size, pinhole_and_lens
 from abcgs.sources.validate import check_count, check_inside
@@ -89,8 +89,6 @@ def read_colmap_source(folder: str | os.PathLike, images: str | None = None) -> 
                             format="colmap", notes=tuple(notes))
 
 
-def _read(folder: Path, options: ReadOptions) -> Scene:
+def read(folder: Path, options: ReadOptions) -> Scene:
+    """The ``colmap`` format's reading (its ``READER``: :mod:`abcgs.sources.formats.colmap`)."""
     return read_colmap_source(folder, options.images)
-
-
-READER = SceneReader("colmap", _read, "sparse/0")

@@ -1,4 +1,6 @@
-"""Which reader a scene folder needs, from the files it holds (no file is decoded).
+"""Which reader a scene folder needs, from the files it holds (no file is decoded): the first reader of
+:mod:`abcgs.sources.registry`, in priority order, whose ``detect`` takes the folder. The built-in formats
+(:mod:`abcgs.sources.formats`):
 
 =================================================  ==============
 the folder holds                                   format
@@ -16,8 +18,7 @@ the sparse points and the exact intrinsics that the poses were made from); ``for
 params entry reads the poses instead. A path to a splat file itself is a ``splat`` scene. A splat file is
 ``.ply .splat .spz .pt``; ``masks/`` beside it holds label maps of its generated views.
 
-This module imports nothing but the standard library and :mod:`abcgs.sources.base`: :mod:`abcgs.preflight`
-(imported by every stage) uses it.
+This module and the registry import only light modules: :mod:`abcgs.preflight` (imported by every stage) uses it.
 """
 
 from __future__ import annotations
@@ -26,7 +27,6 @@ import os
 from pathlib import Path
 
 from abcgs.errors import InputError
-from abcgs.types import SceneFormat
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 SPLAT_SUFFIXES = (".ply", ".splat", ".spz", ".pt")
@@ -38,12 +38,12 @@ def colmap_model_dir(folder: str | os.PathLike) -> Path | None:
     has ``cameras.bin`` or ``cameras.txt``)."""
     folder = Path(folder)
     for cand in (folder / "sparse" / "0", folder / "sparse"):
-        if _present(cand / "cameras.bin") or _present(cand / "cameras.txt"):
+        if present(cand / "cameras.bin") or present(cand / "cameras.txt"):
             return cand
     return None
 
 
-def _present(path: Path) -> bool:
+def present(path: Path) -> bool:
     """Whether a scene's marker file is there at all, even as something its reader refuses (a FIFO, a link to
     ``/dev/zero``, a symlink loop): the reader then says what is wrong with it, instead of the scene being taken for
     another format."""
@@ -68,19 +68,11 @@ def _subfolders(folder: Path) -> list[Path]:
     return [p for p in folder.iterdir() if p.is_dir() and p.name != "masks"]
 
 
-def bare_splat(folder: str | os.PathLike, fmt: str = "auto") -> Path | None:
-    """The splat of a scene that is only a splat (``fmt`` ``splat``, or ``auto`` and a splat file or a folder holding
-    nothing but one), else ``None``; never raises for other scenes (the reconstruct stage has read them)."""
-    folder = Path(folder)
-    if fmt == "splat":
-        return splat_file(folder)
-    if fmt != "auto":
-        return None
+def is_bare_splat(folder: Path) -> bool:
+    """Whether ``folder`` is a bare splat scene: a splat file, or a folder holding one and no folder but ``masks/``."""
     if folder.is_file():
-        return folder if folder.suffix.lower() in SPLAT_SUFFIXES else None
-    if folder.is_dir() and _splat_files(folder) and not _subfolders(folder):
-        return splat_file(folder)
-    return None
+        return folder.suffix.lower() in SPLAT_SUFFIXES
+    return folder.is_dir() and bool(_splat_files(folder)) and not _subfolders(folder)
 
 
 def splat_file(folder: str | os.PathLike) -> Path:
@@ -95,32 +87,23 @@ def splat_file(folder: str | os.PathLike) -> Path:
     return files[0]
 
 
-def detect_format(folder: str | os.PathLike, images: str | None = None) -> SceneFormat:
+def detect_format(folder: str | os.PathLike, images: str | None = None) -> str:
     """The format of the scene at ``folder`` (module docstring); ``images`` is the image subfolder the scene's
     params name (default ``images/``). Raises :class:`InputError` naming the folder and what it looked for when no
     format fits (a missing or empty folder, a model without images, …)."""
+    from abcgs.sources.registry import registered
+
     folder = Path(folder)
-    if folder.is_file():
-        if folder.suffix.lower() in SPLAT_SUFFIXES:
-            return "splat"
-        raise InputError(f"{folder} is a file, not a scene folder; give the folder that holds images/ (or a "
-                         f"splat file: {', '.join(SPLAT_SUFFIXES)})")
-    if not folder.is_dir():
+    if not folder.is_file() and not folder.is_dir():
         raise InputError(f"{folder} does not exist; give the scene's folder (absolute paths: DVC experiments run in a "
                          "copy of the repository)")
-    if _present(folder / "transforms_train.json"):
-        return "blender"
-    if _present(folder / "transforms.json"):
-        return "nerfstudio"
-    if colmap_model_dir(folder) is not None:
-        return "colmap"
-    if _present(folder / "poses_bounds.npy"):
-        return "llff"
+    for name, reader in registered().items():
+        if reader.detects(folder, images):
+            return name
+    if folder.is_file():
+        raise InputError(f"{folder} is a file, not a scene folder; give the folder that holds images/ (or a "
+                         f"splat file: {', '.join(SPLAT_SUFFIXES)})")
     sub = images or DEFAULT_IMAGES
-    if image_files(folder / sub):
-        return "photos"
-    if _splat_files(folder) and not _subfolders(folder):
-        return "splat"
     entries = sorted(p.name + ("/" if p.is_dir() else "") for p in folder.iterdir() if not p.name.startswith("."))
     held = f"it holds {', '.join(entries[:8])}{' …' if len(entries) > 8 else ''}" if entries else "it is empty"
     if (folder / "sparse").is_dir():

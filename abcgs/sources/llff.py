@@ -16,7 +16,7 @@ import numpy as np
 
 from abcgs.cameras import Camera, check_intrinsics, check_rotation, intrinsics
 from abcgs.errors import InputError
-from abcgs.sources.base import ReadOptions, SceneReader
+from abcgs.sources.base import ReadOptions
 from abcgs.sources.detect import DEFAULT_IMAGES, image_files
 from abcgs.sources.lens import fit_to_image, image_size
 from abcgs.sources.validate import check_count
@@ -102,8 +102,6 @@ def read_llff_source(folder: str | os.PathLike, images: str | None = None) -> Sc
     return Scene.from_views(views, format="llff", depth_range=(near, far))
 
 
-def _read(folder: Path, options: ReadOptions) -> Scene:
+def read(folder: Path, options: ReadOptions) -> Scene:
+    """The ``llff`` format's reading (its ``READER``: :mod:`abcgs.sources.formats.llff`)."""
     return read_llff_source(folder, options.images)
-
-
-READER = SceneReader("llff", _read, "poses_bounds.npy")

@@ -24,7 +24,7 @@ import numpy as np
 
 from abcgs.cameras import Camera, check_intrinsics, check_rotation
 from abcgs.errors import InputError
-from abcgs.sources.base import ReadOptions, SceneReader
+from abcgs.sources.base import ReadOptions
 from abcgs.sources.detect import DEFAULT_IMAGES
 from abcgs.sources.lens import fit_to_image, image_size, pinhole_and_lens
 from abcgs.sources.transforms_json import OPENGL_TO_OPENCV, camera_to_world, frames_of, load_json, number, number_array
@@ -190,8 +190,6 @@ def read_nerfstudio_source(folder: str | os.PathLike, images: str | None = None)
                             frame=np.linalg.inv(file_from_scene), notes=tuple(notes))
 
 
-def _read(folder: Path, options: ReadOptions) -> Scene:
+def read(folder: Path, options: ReadOptions) -> Scene:
+    """The ``nerfstudio`` format's reading (its ``READER``: :mod:`abcgs.sources.formats.nerfstudio`)."""
     return read_nerfstudio_source(folder, options.images)
-
-
-READER = SceneReader("nerfstudio", _read, "transforms.json")

@@ -3,102 +3,42 @@ paintings."""
 
 from __future__ import annotations
 
+import functools
 import os
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, Union
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    SerializeAsAny,
+    TypeAdapter,
+    WrapValidator,
+    field_validator,
+    model_validator,
+)
 
-from abcgs.sections import NAME_RE
+from abcgs.sources.base import AutoSource, Source
+from abcgs.sources.registry import option_models, reader_of
 from abcgs.splats.params import SplatFormatParam, SplatViewsParams
-from abcgs.types import Background, SceneFormat
+from abcgs.types import Background
 
 
-def _image_subfolder(v: str | None) -> str | None:
-    if v is not None and (not NAME_RE.fullmatch(v) or v in (".", "..")):
-        raise ValueError(f"images: {v!r} must be the name of a subfolder of the scene's folder (e.g. images_8)")
-    return v
+def _tagged(value: Any, handler: Any) -> Source:
+    """``value`` validated as the options of the format its ``format`` tags: a tagged union of every registered
+    reader's options model (:func:`abcgs.sources.registry.option_models`), built when the registry changes."""
+    return _source_adapter(tuple(option_models().values())).validate_python(value)
 
 
-class _Source(BaseModel):
-    """A format's reading options (``data.scenes.<name>.source``), tagged by ``format``."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    @classmethod
-    def unknown_key_hint(cls, key: str) -> str | None:
-        """For a key this format does not take: the formats that take it and how to write it
-        (:func:`abcgs.sections.format_validation_error`)."""
-        takers = [fmt for fmt, kind in SOURCE_KINDS.items() if key in kind.model_fields]
-        if not takers:
-            return None
-        fmt, named = cls.model_fields["format"].default, [t for t in takers if t != "auto"] or takers
-        return (f"`{key}` is an option of format {', '.join(named)}, not of {fmt}: remove it, or set "
-                f"`source: {{format: {named[0]}, {key}: ...}}` if the scene is of that format")
+@functools.lru_cache(maxsize=8)
+def _source_adapter(kinds: tuple[type[Source], ...]) -> TypeAdapter:
+    return TypeAdapter(Annotated[Union[kinds], Field(discriminator="format")])  # noqa: UP007  (a runtime tuple)
 
 
-class _ImagesSource(_Source):
-    images: str | None = Field(
-        None, description="image subfolder (default images/), e.g. images_8 beside a full-size COLMAP model or LLFF poses")
-
-    @field_validator("images")
-    @classmethod
-    def _subfolder(cls, v: str | None) -> str | None:
-        return _image_subfolder(v)
-
-
-class AutoSource(_ImagesSource):
-    """``source: {format: auto}`` (the default): the format detected from the folder's files
-    (:mod:`abcgs.sources.detect`); ``images`` as the detected format's."""
-
-    format: Literal["auto"] = "auto"
-
-
-class PhotosSource(_ImagesSource):
-    """``source: {format: photos}``: photos without cameras (structure from motion finds them)."""
-
-    format: Literal["photos"] = "photos"
-
-
-class ColmapSource(_ImagesSource):
-    """``source: {format: colmap}``: a COLMAP model (``sparse/0``) and its images."""
-
-    format: Literal["colmap"] = "colmap"
-
-
-class NerfstudioSource(_ImagesSource):
-    """``source: {format: nerfstudio}``: ``transforms.json`` and the images it names (``images``: where they are
-    when not where the file says)."""
-
-    format: Literal["nerfstudio"] = "nerfstudio"
-
-
-class LlffSource(_ImagesSource):
-    """``source: {format: llff}``: ``poses_bounds.npy`` and the sorted images of ``images``."""
-
-    format: Literal["llff"] = "llff"
-
-
-class BlenderSource(_Source):
-    """``source: {format: blender}``: NeRF-synthetic's ``transforms_{train,test}.json`` (no options)."""
-
-    format: Literal["blender"] = "blender"
-
-
-class SplatSource(_Source):
-    """``source: {format: splat}``: only a trained splat; ``views``: the cameras made around it."""
-
-    format: Literal["splat"] = "splat"
-    views: SplatViewsParams | None = Field(
-        None, description="the cameras made around the splat (count, size, field of view, kind)")
-
-
-SOURCE_KINDS: dict[str, type[_Source]] = {kind.model_fields["format"].default: kind for kind in (
-    AutoSource, PhotosSource, ColmapSource, NerfstudioSource, LlffSource, BlenderSource, SplatSource)}
-"""Each format's options, by the format's name (``auto`` too)."""
-SourceParams = Annotated[AutoSource | PhotosSource | ColmapSource | NerfstudioSource | LlffSource | BlenderSource
-                         | SplatSource, Field(discriminator="format")]
-"""A scene's reading options: a tagged union on ``format``, one typed section per format."""
+SourceParams = Annotated[SerializeAsAny[Source], WrapValidator(_tagged)]
+"""A scene's reading options: a tagged union on ``format``, one options model per registered format (``auto``, the
+formats of :mod:`abcgs.sources.formats` and plugin readers); each model is the ``options`` of its reader."""
 
 _MOVED = ("format", "images", "views")
 """Keys of a scene entry that are its format's options (under ``source:``)."""
@@ -122,9 +62,10 @@ class SceneParams(BaseModel):
                       "poses_bounds.npy; abcgs/sources)")
     source: SourceParams = Field(
         default_factory=AutoSource, description="where the cameras come from and the format's options: "
-        "{format: auto | photos | colmap | nerfstudio | llff | blender | splat, ...its options} (images: the image "
-        "subfolder of auto, photos, colmap, nerfstudio, llff; views: the cameras made around a bare splat); auto "
-        "detects the format from the folder's files (abcgs/sources/detect.py)")
+        "{format: auto | photos | colmap | nerfstudio | llff | blender | splat | a plugin's format, ...its options} "
+        "(images: the image subfolder of auto, photos, colmap, nerfstudio, llff; views: the cameras made around a bare "
+        "splat); auto detects the format from the folder's files (abcgs/sources/detect.py); every format is a reader "
+        "module of abcgs/sources/formats/ or of a folder in ABCGS_READERS (abcgs/sources/registry.py)")
     background: tuple[float, float, float] | Literal["transparent"] | None = Field(
         None, description="an object on nothing: RGB in [0, 1] behind it in every render and loss (RGBA views are "
         "composited on it), or transparent (RGBA renders); colour match and stylization then act on the object only "
@@ -157,8 +98,8 @@ class SceneParams(BaseModel):
         return data
 
     @property
-    def format(self) -> Literal["auto"] | SceneFormat:
-        """The scene's format (``source.format``; ``auto``: detected)."""
+    def format(self) -> str:
+        """The scene's format (``source.format``: a registered reader's name; ``auto``: detected)."""
         return self.source.format
 
     @property
@@ -181,17 +122,14 @@ class SceneParams(BaseModel):
 
     def resolved_background(self, fmt: str) -> Background:
         """The scene's :class:`~abcgs.types.Background` when read as ``fmt``: the entry's ``background`` when given
-        (an object scene), else white for ``blender`` (NeRF-synthetic's convention) and black for a bare ``splat``
-        (objects both), else a frame-filling scene on black."""
+        (an object scene), else the format's default (:meth:`~abcgs.sources.base.SceneReader.default_background`:
+        white for ``blender``, NeRF-synthetic's convention, and black for a bare ``splat``, objects both; a
+        frame-filling scene on black for the others)."""
         if self.background == "transparent":
             return Background(transparent=True, object=True)
         if self.background is not None:
             return Background(tuple(float(c) for c in self.background), object=True)  # type: ignore[arg-type]
-        if fmt == "blender":
-            return Background((1.0, 1.0, 1.0), object=True)
-        if fmt == "splat":
-            return Background(object=True)
-        return Background()
+        return reader_of(fmt).default_background()
 
     @field_validator("background")
     @classmethod

@@ -1,4 +1,4 @@
-"""Reader ``photos``: a folder of photos without cameras; structure from motion finds them
+"""Format ``photos``: a folder of photos without cameras; structure from motion finds them
 (:func:`abcgs.sfm.colmap.reconstruct`: SIFT, matching, incremental mapping, undistortion).
 
     <scene>/images/…   the photos (another subfolder: the scene entry's `images:`)
@@ -11,9 +11,9 @@ import os
 from pathlib import Path
 
 from abcgs.sfm.colmap import ReconstructionReport, reconstruct
-from abcgs.sfm.model import layout_scene, write_scene
+from abcgs.sfm.model import layout_scene, read_scene, write_scene
 from abcgs.sfm.params import ReconstructParams
-from abcgs.sources.base import ReadOptions, SceneReader
+from abcgs.sources.base import ReadOptions
 from abcgs.sources.detect import DEFAULT_IMAGES
 from abcgs.types import Background, Scene
 
@@ -31,8 +31,12 @@ def reconstruct_photos(folder: str | os.PathLike, out_dir: str | os.PathLike, pa
     return report
 
 
-def _read(folder: Path, options: ReadOptions) -> Scene:
-    raise ValueError("a photos scene has no cameras to read: structure from motion finds them (abcgs.sources.photos)")
-
-
-READER = SceneReader("photos", _read, "images/")
+def read(folder: Path, options: ReadOptions) -> Scene:
+    """The ``photos`` format's reading (:mod:`abcgs.sources.formats.photos`): structure from motion with the default
+    :class:`~abcgs.sfm.params.ReconstructParams` into ``options.work``, and the scene written there read back
+    (:func:`abcgs.sfm.model.read_scene`); ``options.background``: an object on that colour."""
+    if options.work is None:
+        raise ValueError("a photos scene's cameras are found by structure from motion into `work`; give a folder")
+    background = Background(options.background, object=True) if options.background is not None else Background()
+    reconstruct_photos(folder, options.work, ReconstructParams(), options.images, background=background)
+    return read_scene(options.work)

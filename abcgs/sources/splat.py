@@ -18,7 +18,7 @@ import torch
 from abcgs.gaussians import render
 from abcgs.io.images import save_image
 from abcgs.render import sh0_to_rgb
-from abcgs.sources.base import ReadOptions, SceneReader
+from abcgs.sources.base import ReadOptions
 from abcgs.sources.detect import splat_file
 from abcgs.splats.cameras import cameras_around
 from abcgs.splats.params import SplatViewsParams
@@ -58,12 +58,10 @@ def read_splat_source(path: Path, out_images_dir: Path, params: SplatViewsParams
                             metadata={"views_kind": kind}, splat=path)
 
 
-def _read(folder: Path, options: ReadOptions) -> Scene:
-    """The splat file ``folder`` (or the one in it), its views rendered into ``options.work``."""
+def read(folder: Path, options: ReadOptions) -> Scene:
+    """The ``splat`` format's reading (:mod:`abcgs.sources.formats.splat`): the splat file ``folder`` (or the one in
+    it), its views rendered into ``options.work``."""
     if options.work is None:
         raise ValueError("a bare splat's views are rendered into `work`; give a folder")
     return read_splat_source(splat_file(folder), options.work, options.views, background=options.background,
                              drop_invalid=options.drop_invalid)
-
-
-READER = SceneReader("splat", _read, "the splat file", check=False)

@@ -32,14 +32,14 @@ from abcgs.io.ply import write_ply
 from abcgs.runtime import resolve_device
 from abcgs.sfm.model import read_colmap_scene
 from abcgs.sfm.params import ReconstructParams
-from abcgs.sources.base import FORMATS
 from abcgs.sources.read import resolve_format
+from abcgs.sources.registry import formats, reader_of
 
 
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", type=Path, required=True, help="folder with images/ (or a dataset with cameras)")
-    ap.add_argument("--format", default="photos", choices=("auto", *FORMATS),
+    ap.add_argument("--format", default="photos", choices=("auto", *formats()),
                     help="where the cameras come from (photos: structure from motion)")
     ap.add_argument("--work", type=Path, default=Path("out/bench"), help="where the reconstruction is cached")
     ap.add_argument("--iterations", type=int, default=3000)
@@ -60,10 +60,11 @@ def main(argv=None) -> dict:
     reconstruct_params = ReconstructParams.model_validate_json(args.reconstruct)
 
     fmt = resolve_format(args.scene, args.format)
-    run = args.scene.name if fmt == "photos" else f"{args.scene.name}-{fmt}"
+    sfm = reader_of(fmt).cameras == "sfm"  # photos: cameras found by structure from motion
+    run = args.scene.name if sfm else f"{args.scene.name}-{fmt}"
     colmap = args.work / run / "colmap"
     if not (colmap / "sparse").is_dir():
-        if fmt == "photos":
+        if sfm:
             from abcgs.sfm.colmap import reconstruct  # pycolmap: only where the cameras are still to be found
 
             reconstruct(args.scene / "images", colmap, reconstruct_params)
