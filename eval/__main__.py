@@ -1,0 +1,5 @@
+"""``python -m eval``: the benchmark suite's runner (:mod:`eval.suite`)."""
+
+from eval.suite import main
+
+raise SystemExit(main())
