@@ -42,8 +42,8 @@ from abcgs.sfm.colmap import set_colmap_log_level
 from abcgs.sfm.model import read_scene
 from abcgs.sources.model import write_source_model
 from abcgs.sources.params import SceneParams
-from abcgs.sources.photos import reconstruct_photos
-from abcgs.sources.read import read_source, resolve_format
+from abcgs.sources.read import loaded, read_source, resolve_format
+from abcgs.sources.registry import reader_of
 from abcgs.types import Scene
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -58,8 +58,9 @@ def prepare(name: str, work: Path) -> Scene:
         set_colmap_log_level("warning")
         fmt, options = resolve_format(folder), load_params(ROOT / "params.yaml").reconstruct
         background = SceneParams(path=str(folder)).resolved_background(fmt)
-        if fmt == "photos":  # the tiny scene: structure from motion, as its pipeline runs it
-            reconstruct_photos(folder, colmap.root, options, background=background)
+        reader = reader_of(fmt)
+        if reader.reconstruct is not None:  # the tiny scene's photos: structure from motion, as its pipeline runs it
+            loaded(reader.reconstruct)(folder, colmap.root, options, background=background)
         else:
             source = read_source(folder, fmt, background=background.color if background.object else None)
             write_source_model(source, colmap.root, options, background=background)
