@@ -1,7 +1,7 @@
 """Structure numbers of the ``abcgs`` package, read from the source (parsed, never imported).
 
     python -m eval.bench.structure                         # this tree, printed
-    python -m eval.bench.structure --root ../main --json docs/measurements/structure.json --label before
+    python -m eval.bench.structure --json docs/measurements/structure.json --label now   # stored, with the commit
 
 Measured:
 
