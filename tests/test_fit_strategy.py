@@ -248,7 +248,7 @@ def test_no_densification_and_refine_stop():
 
 def test_schedule_resolution_and_validation():
     p = StrategyParams().resolved(300)
-    assert (p.refine_start, p.refine_stop, p.refine_every, p.reset_every) == (30, 150, 10, 1000)
+    assert (p.refine_start, p.refine_stop, p.refine_every, p.reset_every) == (30, 150, 10, 3000)
     with pytest.raises(ValueError):
         StrategyParams(unknown=1)
     with pytest.raises(ValueError):
