@@ -149,8 +149,11 @@ REGISTRY: list[Entry] = [
           "tests/test_viewer_browser.py"),
     Entry(r"python -m eval\.bench\.first_run", None, "times a fresh install and make run on a new machine (minutes, "
           "the network); its steps are make run's"),
-    Entry(r"python -m eval\.bench\.<name>", None, "a placeholder for the benchmarks' names; the named ones are "
-          "entries of their own"),
+    Entry(r"python -m eval list", "tests/test_eval_suite.py::test_list_prints_one_line_per_benchmark",
+          "run as written; one line per benchmark of the suite"),
+    Entry(r"python -m eval run <name>",
+          "tests/test_eval_suite.py::test_run_passes_the_arguments_after_the_name_to_the_benchmark",
+          "run with a benchmark's name and its own --help"),
 ]
 
 
