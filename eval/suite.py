@@ -19,6 +19,8 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+from eval.bench.structure import is_main_block
+
 ROOT = Path(__file__).resolve().parent
 ROOMS = ("bench", "studies")
 """The suite's folders under ``eval/``: measurements of the product, and one-off studies behind a doc's figure."""
@@ -40,18 +42,13 @@ class Benchmark:
         return f"eval.{self.room}.{self.name}"
 
 
-def _runs_as_script(tree: ast.Module) -> bool:
-    return any(isinstance(node, ast.If) and isinstance(node.test, ast.Compare)
-               and isinstance(node.test.left, ast.Name) and node.test.left.id == "__name__" for node in tree.body)
-
-
 def discover() -> list[Benchmark]:
     """Every benchmark of the suite, by room and name, read from source without importing it."""
     found = []
     for room in ROOMS:
         for path in sorted((ROOT / room).glob("*.py")):
             tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
-            if path.stem.startswith("_") or not _runs_as_script(tree):
+            if path.stem.startswith("_") or not any(is_main_block(node) for node in tree.body):
                 continue
             doc = (ast.get_docstring(tree) or "").strip()
             found.append(Benchmark(room, path.stem, doc.splitlines()[0] if doc else ""))

@@ -83,7 +83,8 @@ def floor_of(module: str, floors: tuple[tuple[str, tuple[str, ...]], ...] = FLOO
     return best
 
 
-def _is_main_block(node: ast.AST) -> bool:
+def is_main_block(node: ast.AST) -> bool:
+    """Whether ``node`` is a module's ``if __name__ == "__main__":`` block."""
     return (isinstance(node, ast.If) and isinstance(node.test, ast.Compare) and isinstance(node.test.left, ast.Name)
             and node.test.left.id == "__name__" and len(node.test.comparators) == 1
             and isinstance(node.test.comparators[0], ast.Constant) and node.test.comparators[0].value == "__main__")
@@ -93,7 +94,7 @@ def abcgs_imports(source: str, module: str, is_package: bool, root: Path) -> lis
     """``(line, imported module)`` for every ``abcgs`` import of ``source`` (module ``module``) outside its
     ``__main__`` block; ``from P import name`` counts as ``P.name`` where that is a module, else as ``P``."""
     tree = ast.parse(source)
-    skip = {id(n) for top in tree.body if _is_main_block(top) for n in ast.walk(top)}
+    skip = {id(n) for top in tree.body if is_main_block(top) for n in ast.walk(top)}
     out = []
     for node in ast.walk(tree):
         if id(node) in skip:
