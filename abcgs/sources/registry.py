@@ -124,9 +124,10 @@ def option_models() -> dict[str, type[Source]]:
     """Format → its options model (``auto`` first, then the formats in listing order; a reader without options gets
     a model of ``format`` alone): the members of ``data.scenes.<name>.source``'s tagged union
     (:data:`abcgs.sources.params.SourceParams`)."""
+    names = formats()  # first: loading the readers registers them, which empties _OPTIONS
     if not _OPTIONS:
         _OPTIONS["auto"] = AutoSource
-        for name in formats():
+        for name in names:
             reader = _READERS[name]
             _OPTIONS[name] = reader.options or create_model(  # type: ignore[call-overload]
                 f"{name.title()}Source", __base__=Source, __doc__=f"``source: {{format: {name}}}`` (no options).",
