@@ -57,7 +57,7 @@ def test_grabcut_finds_the_object_that_colour_clustering_cannot() -> None:
     assert label_iou(seg, gt, 2)[1] > 0.8, label_iou(seg, gt, 2)  # measured 0.85
     colour_only = grabcut_view(model, cams[0], GrabCutParams(box=(0.15, 0.1, 0.85, 0.9), depth_seed=False))
     assert label_iou(colour_only, gt, 2)[1] < 0.7  # measured 0.58: the red stripes join the red ball
-    masks = make_content_masks(model, cams, None, MaskParams(source="grabcut",
+    masks = make_content_masks(model, cams, None, MaskParams(source="grabcut", refine=RefineParams(enabled=True),
                                                              grabcut=GrabCutParams(box=(0.15, 0.1, 0.85, 0.9))))
     assert masks.source == "grabcut" and masks.n_labels == 2 and masks.input_views == ["000.png"]
     for c, lab in zip(cams[1:], masks.view_labels[1:]):  # lifted from view 0, the object stays the object
@@ -158,41 +158,34 @@ def test_lift_views_lifts_from_one_mask_and_scores_the_rest(tmp_path) -> None:
         make_content_masks(model, cams, tmp_path, MaskParams(source="given", lift_views=["009"]))
 
 
-def test_propagation_labels_the_unseen_side_and_keeps_unpainted_pixels_unpainted() -> None:
+def test_the_3d_step_labels_the_unseen_side_and_keeps_unpainted_pixels_unpainted() -> None:
+    from abcgs.masks.lifting import lift_labels
     from abcgs.masks.params import LiftParams
 
     model, truth = wall_and_ball(3)
     cams = cameras(3)
     ball_only = [np.where(render_label_map(model, truth, 2, c) == 1, 1, 0) for c in cams]  # the user paints the ball
-    never = make_content_masks_from(model, cams, ball_only[:1], "never")
-    auto = make_content_masks_from(model, cams, ball_only[:1], "always")
-    assert make_content_masks_from(model, cams, ball_only[:1], "auto").propagated == 0  # forward-facing: off
+    res = make_content_masks_from(model, cams, ball_only[:1])
     ball, wall = truth == 1, truth == 2
-    # the ball's far half is unseen from view 0: propagation gives it the ball's label
-    assert (auto.gaussian_labels[ball] == 1).float().mean() > (never.gaussian_labels[ball] == 1).float().mean() + 0.2
-    assert (auto.gaussian_labels[ball] == 1).float().mean() > 0.9 and auto.propagated > 0
-    # wall Gaussians seen in pixels the user left at 0 stay unassigned: only never-seen Gaussians are filled
-    from abcgs.masks.lifting import lift_labels
-
     seen = lift_labels(model, cams[:1], ball_only[:1], 1).weights.sum(1) >= LiftParams().min_weight
-    assert int((wall & seen).sum()) > 100 and int((never.gaussian_labels[wall & seen] == 0).sum()) > 100
-    assert torch.equal(auto.gaussian_labels[seen], never.gaussian_labels[seen])
-    assert LiftParams().propagate == "auto"  # on for orbit captures: test_orbit_capture_propagates_by_default
+    # the ball's far half is unseen from view 0: the 3-D step gives it the ball's label
+    assert int((ball & ~seen).sum()) > 50 and res.propagated > 0
+    assert (res.gaussian_labels[ball & ~seen] == 1).float().mean() > 0.9
+    # wall Gaussians seen in pixels the user left at 0 stay unassigned (the wall hidden behind the ball touches the
+    # ball's far side and is split between the two: measured 58 % unassigned)
+    assert int((wall & seen).sum()) > 100 and (res.gaussian_labels[wall & seen] == 0).float().mean() > 0.95
 
 
-def make_content_masks_from(model, cams, maps, propagate: str):
-    """make_content_masks with the given maps as the first views' user masks (written to a temp folder); the lifting
-    and propagation alone (no cross-view refinement, which tests/test_mask_refine.py covers)."""
+def make_content_masks_from(model, cams, maps):
+    """make_content_masks with the given maps as the first views' user masks (written to a temp folder), with the
+    stage's defaults (masks.field, no cross-view refinement: tests/test_mask_refine.py covers it)."""
     import tempfile
     from pathlib import Path
-
-    from abcgs.masks.params import LiftParams
 
     with tempfile.TemporaryDirectory() as tmp:
         for c, m in zip(cams, maps):
             save_labels(Path(tmp) / f"{c.name[:-4]}.png", m)
-        return make_content_masks(model, cams, Path(tmp), MaskParams(source="given", lift=LiftParams(propagate=propagate),
-                                                                     refine=RefineParams(enabled=False)))
+        return make_content_masks(model, cams, Path(tmp), MaskParams(source="given"))
 
 
 def test_orbit_capture_propagates_by_default(tmp_path) -> None:
@@ -211,8 +204,8 @@ def test_orbit_capture_propagates_by_default(tmp_path) -> None:
     save_labels(tmp_path / "000.png", render_label_map(ball_model, ones, 1, ring[0]))
     res = make_content_masks(ball_model, ring, tmp_path, MaskParams(source="given", refine=RefineParams(enabled=False)))
     assert res.propagated > 0.2 * ball_model.num_gaussians
-    # with the cross-view refinement (default) the re-cut views see the far side themselves; either way it is labelled
-    refined = make_content_masks(ball_model, ring, tmp_path, MaskParams(source="given"))
+    # with the cross-view refinement the re-cut views see the far side themselves; either way it is labelled
+    refined = make_content_masks(ball_model, ring, tmp_path, MaskParams(source="given", refine=RefineParams(enabled=True)))
     assert refined.refinement is not None and len(refined.refinement.views) == 7
     for r in (res, refined):
         assert (r.gaussian_labels == 1).float().mean() > 0.95

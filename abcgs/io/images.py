@@ -210,3 +210,25 @@ def save_labels(path: str | os.PathLike, labels: np.ndarray) -> None:
     if not ok:
         raise InputError(f"could not encode label map for {path}")
     write_bytes(path, buf.tobytes())
+
+
+STROKES_DIR = "strokes"
+"""Sub-folder of a scene's ``masks/`` where the masks page saves each painted view's strokes
+(:func:`save_stroke_map`), beside the view's cut ``masks/<stem>.png``; the ``reconstruct`` stage carries it into the
+scene's layout as it does the cuts (undistorted alike)."""
+
+
+def stroke_map_path(masks_dir: str | os.PathLike, stem: str) -> Path:
+    """Where the strokes of view ``stem`` are saved: ``<masks_dir>/strokes/<stem>.png``."""
+    return Path(masks_dir) / STROKES_DIR / f"{stem}.png"
+
+
+def save_stroke_map(path: str | os.PathLike, seeds: np.ndarray) -> None:
+    """Save a stroke seed map ``(H, W) int`` (-1 no stroke, 0 the background brush, k label k) as a label PNG of
+    value ``seed + 1`` (0: no stroke, so that pixels an undistortion leaves empty are no stroke), atomically."""
+    save_labels(path, np.asarray(seeds, np.int64) + 1)
+
+
+def load_stroke_map(path: str | os.PathLike, hw: tuple[int, int]) -> np.ndarray:
+    """The seed map ``(H, W) int64`` (-1 no stroke, 0..L) :func:`save_stroke_map` saved; its size must be ``hw``."""
+    return load_labels(path, expect_hw=hw) - 1

@@ -330,6 +330,33 @@ def _lift_and_refine(model: GaussianModel, cameras: list[Camera], images: list[P
     return lifted, propagated, refinement
 
 
+def _field_labels(model: GaussianModel, cameras: list[Camera], masks_dir: Path | None, idx: list[int],
+                  maps: list[np.ndarray], params: MaskParams, show_progress: bool
+                  ) -> tuple[LiftResult, int, list[np.ndarray]]:
+    """Per-Gaussian labels from the label maps ``maps`` of the views ``idx`` and their saved strokes
+    (``<masks_dir>/strokes/<stem>.png``, when there are any) by :class:`abcgs.masks.field.LabelField`, as the masks
+    page computes them, and every view's labels (a painted view keeps its map where it decided).
+
+    Returns:
+        the labels (``weights`` empty), how many Gaussians the 3-D step decided, and the label map of every view.
+    """
+    from abcgs.io.images import load_stroke_map, stroke_map_path
+    from abcgs.masks.field import LabelField, render_field
+    from abcgs.progress import progress
+
+    field_ = LabelField(model, cameras, params.field, params.lift, params.backend)
+    for i, m in zip(idx, maps):
+        cam = cameras[i]
+        path = stroke_map_path(masks_dir, Path(cam.name).stem) if masks_dir is not None else None
+        strokes = load_stroke_map(path, (cam.height, cam.width)) if path is not None and path.is_file() else None
+        field_.set_view(i, m, strokes)
+    result = field_.solve()
+    views = [render_field(field_, result, i)
+             for i in progress(range(len(cameras)), "masks: render every view's labels", enabled=show_progress)]
+    lifted = LiftResult(torch.as_tensor(result.labels), torch.empty(0), torch.as_tensor(result.decided))
+    return lifted, result.counts()["graph"], views
+
+
 def heldout_scores(views: list[np.ndarray] | dict[int, np.ndarray], truths: dict[int, np.ndarray],
                    n_labels: int) -> tuple[dict[int, list[float]], list[float]]:
     """Scores of lifted label maps against held-out masks.
@@ -374,11 +401,15 @@ def make_content_masks(
     n_labels = int(max([m.max() for m in maps] + [given[i].max() for i in heldout]))
     if n_labels == 0:
         raise InputError("the content masks contain no label > 0 (0 means unassigned); nothing to lift")
-    lifted, propagated, refinement = _lift_and_refine(model, cameras, images, idx, maps, n_labels, params, show_progress)
-    views = [
-        render_label_map(model, lifted.labels, n_labels, c, threshold=params.lift.render_threshold, backend=params.backend)
-        for c in cameras
-    ]
+    if params.refine.enabled:
+        lifted, propagated, refinement = _lift_and_refine(model, cameras, images, idx, maps, n_labels, params,
+                                                          show_progress)
+        views = [render_label_map(model, lifted.labels, n_labels, c, threshold=params.lift.render_threshold,
+                                  backend=params.backend) for c in cameras]
+    else:
+        lifted, propagated, views = _field_labels(model, cameras, masks_dir if source == "given" else None, idx, maps,
+                                                  params, show_progress)
+        refinement = None
     if params.refine.enabled and params.refine.output == "recut":
         views = recut_outputs(model, cameras, images, lifted, n_labels, views, skip=set(idx), params=params,
                               show_progress=show_progress)

@@ -48,6 +48,31 @@ class LiftParams(BaseModel):
         "labelled from one view they are the seams left unlabelled between regions (docs/MASKS.md, bonsai)")
 
 
+class FieldParams(BaseModel):
+    """``masks.field``: the labels of the Gaussians from the painted views, as the page shows them and the stage
+    writes them (:mod:`abcgs.masks.field`): strokes as hard constraints, the lifted cuts, and the 3-D step over the
+    Gaussians' nearest neighbours (:mod:`abcgs.masks.graph`)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    k: int = Field(10, ge=1, le=64, description="neighbours per Gaussian in the graph")
+    colour_sigma: float = Field(
+        0.15, gt=0.0, description="σ of the colour affinity of an edge, base colours in RGB 0..1: the smaller, the "
+        "harder a label crosses a change of colour")
+    normal_weight: float = Field(
+        1.0, ge=0.0, description="weight of the normal affinity exp(-w (1 - |n_i·n_j|)) of an edge (0: normals "
+        "ignored)")
+    leak: float = Field(
+        1e-5, gt=0.0, le=1.0, description="share of a random walk lost at each step: a part no painted label "
+        "reaches ends undecided, not split")
+    min_reach: float = Field(
+        0.05, ge=0.0, le=1.0, description="least probability of the winning label for the 3-D step to decide a "
+        "Gaussian; below it stays undecided")
+    stroke_weight: float = Field(
+        0.1, gt=0.0, description="least blending weight (summed over a view's stroke pixels) for a Gaussian to take "
+        "the stroke's label as a hard constraint")
+
+
 class RefineParams(BaseModel):
     """``masks.refine``: cross-view refinement (:mod:`abcgs.masks.refine`): each view without a given mask is cut
     again by GrabCut on its colours and rendered depth, seeded by the lifted labels, and the labels lifted from all."""
@@ -55,9 +80,10 @@ class RefineParams(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     enabled: bool = Field(
-        True, description="re-cut the views that have no mask and lift from all of them (the IoU with and without: "
-        "docs/MASKS.md, 'How well it works', python -m eval.bench.paint_iou); false: lift the given or automatic "
-        "masks alone")
+        False, description="re-cut the views that have no mask and lift from all of them (97 views of miku: half an "
+        "hour on 2 cores; it measures better on the tiny scene, which turns it on: docs/MASKS.md, python -m "
+        "eval.bench.paint_iou); false: the labels of the masks page (masks.field: the given or automatic masks and "
+        "their strokes lifted, the rest decided in 3-D), in seconds")
     seed_erode: float = Field(
         0.04, ge=0.0, le=0.25, description="each rendered label region is eroded by this share of the view's shorter "
                                            "side; its core seeds the cut, the rest is the cut's to decide")
@@ -120,6 +146,7 @@ class MaskParams(BaseModel):
                             "grabcut: object vs rest by GrabCut; auto: given if present, else clustering"
     )
     lift: LiftParams = Field(default_factory=LiftParams)
+    field: FieldParams = Field(default_factory=FieldParams)
     refine: RefineParams = Field(default_factory=RefineParams)
     clustering: AutoMaskParams = Field(default_factory=AutoMaskParams)
     grabcut: GrabCutParams = Field(default_factory=GrabCutParams)

@@ -18,11 +18,13 @@ differ at the 1e-3 level). Tested with pycolmap 4.2 (CPU).
 
 from __future__ import annotations
 
+import functools
 import logging
 import os
 import shutil
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -33,7 +35,7 @@ import pycolmap
 
 from abcgs.errors import InputError, ReconstructionError
 from abcgs.io.atomic import atomic_path, write_json
-from abcgs.io.images import labels_for_view, list_images, load_image, load_labels, save_labels
+from abcgs.io.images import labels_for_view, list_images, load_image, load_labels, save_labels, stroke_map_path
 from abcgs.sfm.params import EXHAUSTIVE_MAX_IMAGES, ReconstructParams
 
 log = logging.getLogger(__name__)
@@ -231,8 +233,24 @@ def _undistort_masks(masks_dir: Path, rec: pycolmap.Reconstruction, und: pycolma
         labels = labels_for_view(load_labels(mask_path), (cam.height, cam.width), mask_path, im.name)
         und_cam = und.cameras[und.find_image_with_name(im.name).camera_id]
         save_labels(out / f"{mask_path.stem}.png", undistort_labels(labels, cam, und_cam))
+        carry_strokes(masks_dir, mask_path.stem, (cam.height, cam.width), out,
+                      functools.partial(undistort_labels, distorted=cam, undistorted=und_cam))
         count += 1
     return count
+
+
+def carry_strokes(masks_dir: Path, stem: str, view_hw: tuple[int, int], out: Path,
+                  warp: Callable[[np.ndarray], np.ndarray] | None = None) -> bool:
+    """Copy the strokes the masks page saved for view ``stem`` (:func:`abcgs.io.images.stroke_map_path` under
+    ``masks_dir``), if any, into ``out/strokes/`` through ``warp`` (``(H, W) int64 → (H', W') int64``, the view's
+    undistortion, None: as it is; its empty pixels, 0, are no stroke). A stroke map must have the view's size ``view_hw``. Returns
+    whether there was one."""
+    src = stroke_map_path(masks_dir, stem)
+    if not src.is_file():
+        return False
+    raw = load_labels(src, expect_hw=view_hw)
+    save_labels(stroke_map_path(out, stem), raw if warp is None else warp(raw))
+    return True
 
 
 def undistort_model(model_dir: Path, images_dir: Path, work: Path, out: Path, params: ReconstructParams) -> None:

@@ -24,6 +24,7 @@ Initial points, in order of preference:
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import os
@@ -43,6 +44,7 @@ from abcgs.io.atomic import atomic_path, write_json
 from abcgs.io.colmap import write_model
 from abcgs.io.images import decode_image, labels_for_view, load_image, load_labels, save_image, save_labels
 from abcgs.sfm.colmap import (
+    carry_strokes,
     choose_matcher,
     extract_features,
     match_features,
@@ -253,12 +255,15 @@ def _masks(source: Scene, masks_dir: Path | None, dist: dict[str, pycolmap.Camer
             labels = np.where(keep > 0, 1, 2)
         else:
             continue
+        warp = None
         if view.name in dist:
             i = und.names.index(view.name)
             und_cam = colmap_camera(Distortion("PINHOLE", tuple(float(v) for v in und.intrinsics[i])),
                                     tuple(int(v) for v in und.sizes[i]))
-            labels = undistort_labels(labels, dist[view.name], und_cam)
-        save_labels(out / f"{stem}.png", labels)
+            warp = functools.partial(undistort_labels, distorted=dist[view.name], undistorted=und_cam)
+        save_labels(out / f"{stem}.png", labels if warp is None else warp(labels))
+        if user is not None and user.is_file():
+            carry_strokes(masks_dir, stem, (cam.height, cam.width), out, warp)
         count += 1
     return count
 

@@ -1,0 +1,228 @@
+"""A scene's labels from the views a user painted: what the masks page shows after each Segment and what the ``masks``
+stage writes, by the same code.
+
+For each painted view the page keeps its cut (the label map the page saved: 0..L, :data:`~abcgs.masks.lifting.NO_VOTE`
+where the cut left a pixel undecided) and its strokes (a seed map: -1 none, 0 the background brush, k label k).
+:meth:`LabelField.solve` turns them into one label per Gaussian:
+
+1. **Lift** (Eq. 2): every painted view's cut votes, each Gaussian for the labels of the pixels it blends into
+   (:func:`abcgs.masks.lifting.view_weights`); a Gaussian whose vote is clear (:func:`~abcgs.masks.lifting.decide_labels`,
+   ``masks.lift``) is a seed of its label.
+2. **Strokes are hard constraints**: a Gaussian that blends at least ``stroke_weight`` into a view's stroke pixels
+   takes the stroke's label, whatever the cuts voted (the largest such weight wins between strokes).
+3. **The 3-D step** (:mod:`abcgs.masks.graph`): the other Gaussians, seen by no painted view or split between labels,
+   take their labels from the seeds by a random walk over the Gaussians' nearest neighbours; what no seed reaches
+   clearly stays undecided.
+
+Each view's votes are computed once, when its cut or strokes change, so a Segment on one view re-lifts one view and
+re-solves the graph. Rendering the labels into every view is the caller's (the stage renders full-size maps, the page
+a strip of small ones, :mod:`abcgs.masks.strip`).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+import torch
+
+from abcgs.cameras import Camera
+from abcgs.gaussians import GaussianModel
+from abcgs.masks.graph import GaussianGraph, decide_diffused, diffuse_labels, gaussian_graph
+from abcgs.masks.lifting import NO_VOTE, decide_labels, view_weights
+from abcgs.masks.params import FieldParams, LiftParams
+from abcgs.types import Backend
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class FieldResult:
+    """Per-Gaussian labels and how they were decided.
+
+    ``labels`` ``(N,) int64`` 0..L (0 also where undecided); ``decided`` ``(N,) bool``; ``probs`` ``(N, L + 1)``
+    float64 the random walk's label probabilities (1 at seeds); ``source`` ``(N,) uint8``: 0 undecided, 1 a stroke,
+    2 the lifted cuts, 3 the 3-D step. ``seconds``: lifting the changed views and solving."""
+
+    labels: np.ndarray
+    decided: np.ndarray
+    probs: np.ndarray
+    source: np.ndarray
+    n_labels: int
+    seconds: float
+
+    def counts(self) -> dict[str, int]:
+        """How many Gaussians each step decided (``stroke``, ``lifted``, ``graph``) and how many it left
+        ``undecided``."""
+        names = ("undecided", "stroke", "lifted", "graph")
+        return {n: int((self.source == i).sum()) for i, n in enumerate(names)}
+
+
+@dataclass
+class _View:
+    cut: np.ndarray | None  # (H, W) int64, NO_VOTE undecided
+    strokes: np.ndarray | None  # (H, W) int64 seed map, -1 none
+    votes: torch.Tensor | None = None  # (N, L_v + 1) the cut's Eq. 2 votes
+    stroke_votes: torch.Tensor | None = None  # (N, L_v + 1) blending weight in each label's stroke pixels
+
+
+@dataclass
+class LabelField:
+    """The labels of ``model`` from painted views of ``cameras`` (module docstring).
+
+    ``graph`` is built on first use (:func:`~abcgs.masks.graph.gaussian_graph`, ``params``' graph settings) and kept:
+    the Gaussians do not move while the user paints."""
+
+    model: GaussianModel
+    cameras: list[Camera]
+    params: FieldParams = field(default_factory=FieldParams)
+    lift: LiftParams = field(default_factory=LiftParams)
+    backend: Backend = "auto"
+    _views: dict[int, _View] = field(default_factory=dict)
+    _graph: GaussianGraph | None = None
+    _last: FieldResult | None = None
+
+    @property
+    def graph(self) -> GaussianGraph:
+        if self._graph is None:
+            t0 = time.perf_counter()
+            p = self.params
+            self._graph = gaussian_graph(self.model, p.k, p.colour_sigma, p.normal_weight)
+            log.info("label graph: %d Gaussians, %d edges, %.2f s", self._graph.num_nodes,
+                     self._graph.weights.nnz // 2, time.perf_counter() - t0)
+        return self._graph
+
+    @property
+    def painted(self) -> list[int]:
+        """The camera indices with a cut or strokes, ascending."""
+        return sorted(self._views)
+
+    def set_view(self, index: int, cut: np.ndarray | None, strokes: np.ndarray | None = None) -> None:
+        """Set (or, with both None, remove) view ``index``'s cut ``(H, W) int`` (0..L, NO_VOTE) and stroke seed map
+        ``(H, W) int`` (-1 none, 0..L); its votes are computed at the next :meth:`solve`."""
+        if cut is None and strokes is None:
+            self._views.pop(index, None)
+            return
+        cam = self.cameras[index]
+        for what, arr in (("cut", cut), ("strokes", strokes)):
+            if arr is not None and tuple(arr.shape) != (cam.height, cam.width):
+                raise ValueError(f"the {what} of view {cam.name} is {arr.shape[1]}x{arr.shape[0]}, the view "
+                                 f"{cam.width}x{cam.height}")
+        self._views[index] = _View(None if cut is None else np.asarray(cut, np.int64),
+                                   None if strokes is None else np.asarray(strokes, np.int64))
+
+    def _votes(self, n_labels: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """Summed cut votes and stroke weights ``(N, n_labels + 1)`` of every painted view (each view's own computed
+        once)."""
+        n = self.model.num_gaussians
+        votes, strokes = torch.zeros(n, n_labels + 1), torch.zeros(n, n_labels + 1)
+        for i, v in self._views.items():
+            cam = self.cameras[i]
+            if v.cut is not None and v.votes is None:
+                v.votes = view_weights(self.model, cam, v.cut, int(v.cut.max(initial=0)), backend=self.backend)
+            if v.strokes is not None and v.stroke_votes is None:
+                seeds = np.where(v.strokes >= 0, v.strokes, NO_VOTE)
+                v.stroke_votes = view_weights(self.model, cam, seeds, int(seeds.max(initial=0)), backend=self.backend)
+            for acc, part in ((votes, v.votes), (strokes, v.stroke_votes)):
+                if part is not None:
+                    acc[:, : part.shape[1]] += part
+        return votes, strokes
+
+    def n_labels(self) -> int:
+        """The largest label any painted view's cut or strokes holds."""
+        return max([0] + [int(a.max(initial=0)) for v in self._views.values() for a in (v.cut, v.strokes)
+                          if a is not None])
+
+    def solve(self) -> FieldResult:
+        """Lift, apply the strokes and run the 3-D step (module docstring)."""
+        t0 = time.perf_counter()
+        n_labels = self.n_labels()
+        votes, stroke_w = self._votes(n_labels)
+        n = self.model.num_gaussians
+        seeds = np.full(n, -1, np.int64)
+        source = np.zeros(n, np.uint8)
+        if self._views:
+            lifted = decide_labels(votes, self.lift)
+            cut_seed = lifted.decided.numpy()
+            seeds[cut_seed] = lifted.labels.numpy()[cut_seed]
+            source[cut_seed] = 2
+            best_w, best = stroke_w.max(1)
+            stroked = (best_w >= self.params.stroke_weight).numpy()
+            seeds[stroked] = best.numpy()[stroked]
+            source[stroked] = 1
+        x0 = self._last.probs if self._last is not None and self._last.probs.shape == (n, n_labels + 1) else None
+        probs = diffuse_labels(self.graph, seeds, n_labels, leak=self.params.leak, x0=x0)
+        labels, decided = decide_diffused(probs, min_reach=self.params.min_reach, min_share=self.lift.min_share)
+        labels[seeds >= 0], decided[seeds >= 0] = seeds[seeds >= 0], True
+        source[(seeds < 0) & decided] = 3
+        self._last = FieldResult(labels, decided, probs, source, n_labels, time.perf_counter() - t0)
+        log.info("labels of %d Gaussians from %d painted view(s) in %.2f s: %s", n, len(self._views),
+                 self._last.seconds, self._last.counts())
+        return self._last
+
+
+def correction_seeds(rendered: np.ndarray, strokes: np.ndarray, erode_px: int, reach_px: int) -> np.ndarray:
+    """The seed map ``(H, W) int64`` (-1 none, 0..L) of a painted view's cut once labels exist in 3-D: the eroded
+    cores of the labels rendered into the view (``rendered``, -1 where undecided; regions thinner than the erosion
+    keep their middle), except, round each stroke, the rendered region of another label it touches within
+    ``reach_px`` of it (the stroke corrects that region; the cut decides it), and the strokes (``strokes``, -1 none)
+    on top."""
+    from abcgs.masks.refine import eroded_cores
+
+    claimed = rendered.copy()
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach_px + 1, 2 * reach_px + 1))
+    for k in np.unique(strokes[strokes >= 0]):
+        near = cv2.dilate((strokes == k).astype(np.uint8), disc).astype(bool)
+        for other in np.unique(rendered[(strokes == k) & (rendered >= 0) & (rendered != k)]):
+            _, comp = cv2.connectedComponents((rendered == other).astype(np.uint8), connectivity=8)
+            hit = np.unique(comp[(strokes == k) & (rendered == other)])
+            claimed[np.isin(comp, hit[hit > 0]) & near] = -1
+    seeds = np.full(rendered.shape, -1, np.int64)
+    for v in np.unique(claimed[claimed >= 0]):
+        seeds[eroded_cores(claimed == v, erode_px, keep_small=True)] = v
+    return np.where(strokes >= 0, strokes, seeds)
+
+
+def cut_painted_view(field: LabelField, result: FieldResult | None, index: int, photo: np.ndarray, strokes: np.ndarray,
+                     *, erode: float = 0.04, reach: float = 0.1, iterations: int = 5) -> np.ndarray:
+    """The page's cut of view ``index`` (``(H, W) int64``, 0..L, :data:`NO_VOTE` undecided) on its ``photo``
+    ``(H, W, 3)``: from its ``strokes`` seed map alone while no label exists in 3-D (``result`` None), else from
+    :func:`correction_seeds` of the labels ``result`` renders into it (erosion: ``erode``, a stroke's reach:
+    ``reach``, both × the view's shorter side), on colour and rendered depth."""
+    from abcgs.masks.grabcut import segment
+    from abcgs.masks.lifting import LiftResult
+    from abcgs.masks.refine import render_seeds
+
+    cam = field.cameras[index]
+    depth = None
+    seeds = strokes
+    if result is not None and result.decided.any():
+        lifted = LiftResult(torch.as_tensor(result.labels), torch.empty(0), torch.as_tensor(result.decided))
+        _, rendered, depth = render_seeds(field.model, lifted, result.n_labels, cam, 0, backend=field.backend)
+        short = min(cam.height, cam.width)
+        seeds = correction_seeds(rendered, strokes, int(round(erode * short)), int(round(reach * short)))
+    seg = segment(photo, seeds, iterations=iterations, depth=depth)
+    return np.where(seg.claimed, seg.labels, NO_VOTE).astype(np.int64)
+
+
+def render_field(field: LabelField, result: FieldResult, index: int, *, threshold: float = 0.0,
+                 cut_where_painted: bool = True) -> np.ndarray:
+    """The labels of view ``index`` ``(H, W) int64``: rendered from ``result`` (a pixel takes the label of largest
+    blending weight, if it holds at least ``threshold`` of its alpha; 0 where none does, where nothing is rendered,
+    and where undecided Gaussians win)
+    and, on a painted view with ``cut_where_painted``, its cut wherever the cut decided: a painted view keeps what
+    the user saw and accepted on the page."""
+    from abcgs.masks.lifting import render_label_map
+
+    undecided = result.n_labels + 1
+    cls = torch.as_tensor(np.where(result.decided, result.labels, undecided))
+    out = render_label_map(field.model, cls, undecided, field.cameras[index], threshold=threshold,
+                           backend=field.backend)
+    out = np.where(out == undecided, 0, out)
+    view = field._views.get(index)
+    if cut_where_painted and view is not None and view.cut is not None:
+        out = np.where(view.cut >= 0, view.cut, out)
+    return out

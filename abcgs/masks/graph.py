@@ -1,0 +1,209 @@
+"""The 3-D step of the labels: a graph over the Gaussians' nearest neighbours and a label diffusion on it.
+
+Lifting (Eq. 2) labels only the Gaussians that painted views see. The rest of an object, seen from no painted view,
+takes its labels from a graph over the Gaussians:
+
+- **Graph** (:func:`gaussian_graph`). Each Gaussian is joined to its ``k`` nearest neighbours (centres over the scene's
+  extent, :func:`abcgs.masks.spread.surface_features`' scale), symmetrised. An edge weighs
+  ``exp(-d²/(s_i s_j)) · exp(-(Δc/σ_c)²) · exp(-λ_n (1 - |n_i·n_j|))``: near in space for the density there (``s_i``:
+  Gaussian i's distance to its k-th neighbour, the local scale of Zelnik-Manor and Perona's self-tuning affinity), alike in base colour (SH DC as RGB, Δc its Euclidean difference) and facing alike (``n``: the
+  axis of the Gaussian's smallest scale, the normal of a flat splat), the last two floored at :data:`MIN_ALIKE`. A
+  label so follows the surface it was painted on and slows where the colour or the surface turns; parts the k-NN
+  graph leaves apart are joined by the shortest edges between them (:func:`bridges`).
+- **Diffusion** (:func:`diffuse_labels`): Grady's random walker (2006) with the seeds as hard constraints. For each
+  label ``l`` the probability ``x_l`` that a walk from a Gaussian first reaches a seed of label ``l`` solves the
+  Dirichlet problem ``(L_UU + ε D_UU) x_l = W_US y_l`` (``L = D - W`` the graph Laplacian, ``U`` the unseeded and
+  ``S`` the seeded Gaussians, ``y_l`` the seeds' one-hot labels). The small leak ``ε`` lets a walk die, so a part no
+  seed reaches ends with no probability at all, not an even split. The systems are solved by SciPy's conjugate
+  gradients (``scipy.sparse.linalg.cg``, Jacobi-preconditioned; the matrix is symmetric positive definite).
+- **Decision** (:func:`decide_diffused`): a Gaussian takes the label of largest probability when that probability is
+  at least ``min_reach`` (a seed reached it) and at least ``min_share`` of what reached it; otherwise it stays
+  undecided, and the page shows it as such.
+
+Label 0 is a label like the others here: a seed of 0 is the user's "no label" (the background brush), which spreads.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from abcgs.gaussians import GaussianModel
+
+
+@dataclass(frozen=True)
+class GaussianGraph:
+    """A symmetric weighted k-NN graph over ``N`` Gaussians.
+
+    ``weights``: ``(N, N)`` ``scipy.sparse.csr_matrix`` float64, zero diagonal, ``w_ij = w_ji ≥ 0`` (module
+    docstring). ``degree``: ``(N,)`` float64, its row sums."""
+
+    weights: object
+    degree: np.ndarray
+
+    @property
+    def num_nodes(self) -> int:
+        return int(self.degree.shape[0])
+
+
+def gaussian_normals(model: GaussianModel) -> Tensor:
+    """``(N, 3) float64`` unit normals: each Gaussian's axis of smallest scale (world frame)."""
+    from abcgs.render.projection import quat_to_rotmat
+
+    rot = quat_to_rotmat(model.quats.detach().cpu().double())  # (N, 3, 3): columns are the local axes, world frame
+    axis = model.log_scales.detach().cpu().argmin(1)
+    return rot[torch.arange(len(axis)), :, axis]
+
+
+MIN_ALIKE = 1e-3
+"""Least colour-and-normal factor of an edge: a change of colour slows a label a thousandfold but does not wall a part
+off, or a region whose every edge to the rest crosses a colour change (a hood's rim) would be reached by no label."""
+
+BRIDGE_WEIGHT = 1e-3
+"""Least weight of an edge :func:`bridges` adds between two parts of the k-NN graph: weak against a neighbour's (up to
+1), strong against the walk's leak, so a label crosses a gap only where nothing nearer claims the other side."""
+
+
+def bridges(pts: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Edges that join the parts of the k-NN graph ``(rows, cols)`` over points ``pts (N, D)`` into one, as Borůvka's
+    minimum spanning tree does: in rounds, every part but the largest is joined to the point nearest to it outside
+    it, until one part is left. A clump of Gaussians apart from the rest (a floater, a patch of wall seen from few
+    views) so still reaches a label. Returns the added edges' ends and lengths ``(E,)`` each."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    n = len(pts)
+    tree = cKDTree(pts)
+    out_r, out_c, out_d = [], [], []
+    while True:
+        links = coo_matrix((np.ones(len(rows) + sum(map(len, out_r))),
+                            (np.concatenate([rows, *out_r]), np.concatenate([cols, *out_c]))), shape=(n, n))
+        n_parts, part = connected_components(links, directed=False)
+        if n_parts <= 1:
+            break
+        largest = np.bincount(part).argmax()
+        for p in np.unique(part[part != largest]):
+            members = np.flatnonzero(part == p)
+            if len(members) > 64:  # a large part: a tree of the points outside it
+                others = np.flatnonzero(part != p)
+                d, j = cKDTree(pts[others]).query(pts[members], k=1)
+                j = others[j]
+            else:
+                d, j = _nearest_outside(tree, pts, members, part, p)
+            best = int(np.argmin(d))
+            out_r.append(members[best : best + 1])
+            out_c.append(np.asarray(j[best : best + 1], np.int64))
+            out_d.append(np.asarray(d[best : best + 1], np.float64))
+    if not out_r:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+    return np.concatenate(out_r), np.concatenate(out_c), np.concatenate(out_d)
+
+
+def _nearest_outside(tree, pts: np.ndarray, members: np.ndarray, part: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
+    """For each of a small part's points, its distance to the nearest point outside the part and that point's index
+    (the whole tree queried with a growing number of neighbours)."""
+    k = 16
+    while True:
+        kk = min(k, len(pts))
+        d, j = tree.query(pts[members], k=kk)
+        outside = part[j] != p
+        if outside.any() or kk == len(pts):
+            d = np.where(outside, d, np.inf)
+            first = d.argmin(1)
+            rows = np.arange(len(members))
+            return d[rows, first], j[rows, first]
+        k *= 4
+
+
+def gaussian_graph(model: GaussianModel, k: int = 10, colour_sigma: float = 0.15, normal_weight: float = 1.0) -> GaussianGraph:
+    """The k-NN graph of ``model``'s Gaussians with distance, colour and normal affinities (module docstring).
+
+    Args:
+        model: the fitted scene. k: neighbours per Gaussian (before symmetrising).
+        colour_sigma: σ_c of the colour affinity, in RGB 0..1 (``inf``: colour is ignored).
+        normal_weight: λ_n of the normal affinity (0: normals are ignored).
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.spatial import cKDTree
+
+    from abcgs.masks.spread import surface_features
+    from abcgs.render import sh0_to_rgb
+
+    n = model.num_gaussians
+    pts = surface_features(model, 0.0)[:, :3].numpy()
+    kk = min(k + 1, n)
+    dist, nn = cKDTree(pts).query(pts, k=kk, workers=-1)
+    dist, nn = np.asarray(dist).reshape(n, kk)[:, 1:], np.asarray(nn).reshape(n, kk)[:, 1:]
+    rows = np.repeat(np.arange(n), nn.shape[1])
+    cols, d = nn.ravel(), dist.ravel()
+    local = np.maximum(dist[:, -1], 1e-12) if dist.size else np.ones(n)  # each Gaussian's own scale: its k-th neighbour
+    alike = np.ones(len(rows))
+    if np.isfinite(colour_sigma):
+        rgb = sh0_to_rgb(model.sh0.detach().cpu().double()[:, 0, :]).clamp(0.0, 1.0).numpy()
+        alike *= np.exp(-(np.linalg.norm(rgb[rows] - rgb[cols], axis=1) / colour_sigma) ** 2)
+    if normal_weight > 0:
+        normals = gaussian_normals(model).numpy()
+        alike *= np.exp(-normal_weight * (1.0 - np.abs((normals[rows] * normals[cols]).sum(1))))
+    w = np.exp(-(d**2) / (local[rows] * local[cols])) * np.maximum(alike, MIN_ALIKE)
+    w = np.maximum(w, 1e-12)
+    b_rows, b_cols, b_d = bridges(pts, rows, cols)
+    rows, cols = np.concatenate([rows, b_rows]), np.concatenate([cols, b_cols])
+    w = np.concatenate([w, np.maximum(np.exp(-(b_d**2) / (local[b_rows] * local[b_cols])), BRIDGE_WEIGHT)])
+    mat = coo_matrix((w, (rows, cols)), shape=(n, n)).tocsr()
+    mat = mat.maximum(mat.T).tocsr()  # symmetric: i near j or j near i
+    mat.setdiag(0.0)
+    mat.eliminate_zeros()
+    return GaussianGraph(mat, np.asarray(mat.sum(1)).ravel())
+
+
+def diffuse_labels(graph: GaussianGraph, seeds: np.ndarray, n_labels: int, *, leak: float = 1e-5,
+                   rtol: float = 1e-6, x0: np.ndarray | None = None) -> np.ndarray:
+    """Random-walker probabilities ``(N, n_labels + 1) float64`` of labels 0..n_labels (module docstring).
+
+    Args:
+        graph: :func:`gaussian_graph`. seeds: ``(N,) int``: the label (0..n_labels) of each seeded Gaussian, -1 for
+            the others. leak: ε, the share of a walk's degree lost at each step. rtol: the solver's relative
+            tolerance. x0: a previous result ``(N, n_labels + 1)`` to start from (the page re-solves after each
+            Segment with a few seeds changed).
+
+    Seeds keep their label with probability 1. A Gaussian no seed reaches has probability 0 for every label.
+    """
+    from scipy.sparse import diags
+    from scipy.sparse.linalg import cg
+
+    seeds = np.asarray(seeds, np.int64)
+    if seeds.shape != (graph.num_nodes,):
+        raise ValueError(f"seeds has shape {seeds.shape}, the graph {graph.num_nodes} nodes")
+    probs = np.zeros((graph.num_nodes, n_labels + 1))
+    seeded = seeds >= 0
+    probs[np.flatnonzero(seeded), seeds[seeded]] = 1.0
+    free = np.flatnonzero(~seeded)
+    if not free.size or not seeded.any():
+        return probs
+    w = graph.weights
+    w_uu = w[free][:, free]
+    a = (diags((1.0 + leak) * graph.degree[free]) - w_uu).tocsr()
+    w_us = w[free][:, np.flatnonzero(seeded)]
+    jacobi = diags(1.0 / np.maximum(a.diagonal(), 1e-300))
+    for label in np.unique(seeds[seeded]):
+        b = w_us @ (seeds[seeded] == label).astype(np.float64)
+        start = None if x0 is None else x0[free, label]
+        x, info = cg(a, b, x0=start, rtol=rtol, atol=0.0, maxiter=10 * free.size, M=jacobi)
+        if info > 0:
+            raise RuntimeError(f"the label diffusion did not converge for label {label} ({info} iterations)")
+        probs[free, label] = np.clip(x, 0.0, 1.0)
+    return probs
+
+
+def decide_diffused(probs: np.ndarray, *, min_reach: float = 0.05, min_share: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """Labels ``(N,) int64`` and ``decided (N,) bool`` from :func:`diffuse_labels`' probabilities: the label of
+    largest probability where it is at least ``min_reach`` and ``min_share`` of the Gaussian's total; else 0 and
+    undecided."""
+    best = probs.argmax(1)
+    top = probs[np.arange(len(best)), best]
+    decided = (top >= min_reach) & (top >= min_share * probs.sum(1))
+    return np.where(decided, best, 0).astype(np.int64), decided

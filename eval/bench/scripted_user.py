@@ -1,0 +1,199 @@
+"""The scripted user of the interactive-segmentation benchmarks (NoC@IoU, as GaussianCut, SAGA and SA3D count it) on a
+capture round an object, with the labels the masks page shows (:mod:`abcgs.masks.field`).
+
+    python -m eval.bench.scripted_user --scene miku --work /work/bench/miku \\
+        --json docs/measurements/miku_scripted_user.json --figure docs/img/masks/miku_scripted_user.jpg
+
+``--scene S`` reads ``eval/data/S/strokes.json`` and ``reference/`` as :mod:`eval.bench.strokes` does (the fitted
+scene under ``--work``). The user starts from the test strokes on one view (``test``) and the page's cut of them
+(:func:`abcgs.masks.field.cut_painted_view`). After each Segment every view's labels are rendered from the Gaussians
+(:meth:`abcgs.masks.field.LabelField.solve`). Each next stroke goes on the reference view that is worst now (lowest
+mean IoU over its labels): a dot of the reference label at the interior-most pixel (largest distance to the region's
+edge) of the largest connected region whose label is wrong; that view is then cut again as the page cuts it (its
+strokes, and the labels rendered into it as seeds) and the field solved. Every reference view is scored, the stroked
+front view included: IoU per label against the reference (its undecided pixels not scored) and the share of pixels
+left unlabelled. Printed per stroke: the worst and mean IoU over all (view, label) pairs, the worst view's share of
+unlabelled pixels, and the seconds from Segment to every view's labels (cut, solve, and the strip of all views the page
+shows, :class:`abcgs.masks.strip.Strip`). Beside it, the bound the fitted geometry sets
+(:func:`eval.bench.strokes.geometry_bound`: all reference maps lifted together and rendered back).
+
+The goal (``GOAL``): mean IoU ≥ 0.85, every pair ≥ min(0.80, bound − 0.05) and ≤ 2 % unlabelled pixels on every
+reference view, within 10 strokes after the test strokes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import platform
+import sys
+import time
+from pathlib import Path
+
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
+# isort: split
+import cv2
+import numpy as np
+import torch
+
+from abcgs.io.atomic import write_json
+from abcgs.io.images import load_image, save_image, to_uint8
+from abcgs.io.ply import read_ply
+from abcgs.masks.content import label_iou
+from abcgs.masks.field import LabelField, cut_painted_view, render_field
+from abcgs.masks.grabcut import Stroke, rasterize_strokes
+from abcgs.masks.params import FieldParams
+from abcgs.masks.strip import Strip
+from abcgs.sfm.model import read_colmap_scene
+from eval.bench.strokes import DATA, _overlay, _strokes, geometry_bound, reference_map
+
+GOAL = {"strokes": 10, "mean_iou": 0.85, "pair_iou": 0.80, "below_bound": 0.05, "unlabelled": 0.02}
+
+
+def next_stroke(pred: np.ndarray, truth: np.ndarray, radius: float) -> Stroke | None:
+    """A dot of the reference label at the interior-most pixel of the largest connected region of ``pred`` whose label
+    differs from ``truth`` (pixels where ``truth`` is a label > 0); None when none is wrong. Its radius is ``radius``
+    or less, to stay inside the region."""
+    best = None
+    for k in np.unique(truth[truth > 0]):
+        wrong = ((truth == k) & (pred != k)).astype(np.uint8)
+        n, comp, stats, _ = cv2.connectedComponentsWithStats(wrong, connectivity=8)
+        for c in range(1, n):
+            area = stats[c, cv2.CC_STAT_AREA]
+            if best is None or area > best[0]:
+                best = (area, int(k), comp == c)
+    if best is None:
+        return None
+    _, k, region = best
+    dist = cv2.distanceTransform(np.pad(region, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1]
+    y, x = np.unravel_index(int(np.argmax(dist)), dist.shape)
+    return Stroke(k, np.array([[x + 0.5, y + 0.5]]), float(max(1.0, min(radius, dist[y, x] - 1.0))))
+
+
+def score(maps: dict[str, np.ndarray], refs: dict[str, np.ndarray], n_labels: int) -> dict:
+    """Per reference view: IoU per label and the unlabelled share; and the worst and mean IoU over all pairs."""
+    per_view = {s: {str(k): v for k, v in label_iou(maps[s], refs[s], n_labels).items()} for s in refs}
+    pairs = [v for d in per_view.values() for v in d.values()]
+    return {"iou": per_view, "unlabelled": {s: float((maps[s] == 0).mean()) for s in refs},
+            "worst_iou": float(min(pairs)), "mean_iou": float(np.mean(pairs))}
+
+
+class ScriptedUser:
+    """The page's state for one run: the field, each painted view's strokes, and the last result."""
+
+    def __init__(self, model, scene, refs: dict[str, np.ndarray], by_stem: dict[str, int], params: FieldParams):
+        self.scene, self.refs, self.by_stem = scene, refs, by_stem
+        self.field = LabelField(model, scene.cameras, params)
+        self.strokes: dict[int, list[Stroke]] = {}
+        self.result = None
+        photos = [to_uint8(load_image(p)) for p in scene.image_paths]
+        self.strip = Strip.record(model, scene.cameras, photos)
+        print(f"strip of {len(self.strip.views)} views recorded in {self.strip.seconds:.1f} s", flush=True)
+
+    def segment(self, index: int) -> dict:
+        """What the page does on Segment for view ``index``: cut it, lift, solve, render the strip; the seconds."""
+        cam = self.scene.cameras[index]
+        t0 = time.perf_counter()
+        seeds = rasterize_strokes(self.strokes[index], (cam.height, cam.width))
+        photo = to_uint8(load_image(self.scene.image_paths[index]))
+        cut = cut_painted_view(self.field, self.result, index, photo, seeds)
+        t1 = time.perf_counter()
+        self.field.set_view(index, cut, seeds)
+        self.result = self.field.solve()
+        t2 = time.perf_counter()
+        self.strip.doubt(self.strip.labels(self.result.labels, self.result.decided, self.result.n_labels))
+        t3 = time.perf_counter()
+        return {"cut": t1 - t0, "solve": t2 - t1, "strip": t3 - t2, "total": t3 - t0}
+
+    def maps(self, rendered: bool = False) -> dict[str, np.ndarray]:
+        """Each reference view's labels as the stage writes them (a painted view's cut where it decided), or, with
+        ``rendered``, as rendered from the Gaussians alone."""
+        return {s: render_field(self.field, self.result, self.by_stem[s], cut_where_painted=not rendered)
+                for s in self.refs}
+
+
+def run(user: ScriptedUser, front: int, first: list[Stroke], n_labels: int, max_strokes: int, radius: float) -> list[dict]:
+    """The test strokes, then up to ``max_strokes`` scripted ones; a record per Segment."""
+    user.strokes[front] = list(first)
+    steps = []
+    seconds = user.segment(front)
+    while True:
+        maps = user.maps()
+        s = score(maps, user.refs, n_labels)
+        steps.append({"strokes": sum(len(v) for v in user.strokes.values()), "seconds": seconds, **s,
+                      "rendered": score(user.maps(rendered=True), user.refs, n_labels), "counts": user.result.counts()})
+        print(f"{steps[-1]['strokes']:3d} strokes: worst IoU {s['worst_iou']:.3f}, mean {s['mean_iou']:.3f}, "
+              f"unlabelled ≤ {max(s['unlabelled'].values()):.1%}, Segment → every view {seconds['total']:.2f} s "
+              f"(cut {seconds['cut']:.2f}, solve {seconds['solve']:.2f}, strip {seconds['strip']:.2f})", flush=True)
+        if len(steps) > max_strokes:
+            return steps
+        view_means = {v: np.mean(list(d.values())) for v, d in s["iou"].items()}
+        worst = min(view_means, key=view_means.get)
+        stroke = next_stroke(maps[worst], user.refs[worst], radius)
+        if stroke is None:
+            return steps
+        idx = user.by_stem[worst]
+        user.strokes.setdefault(idx, []).append(stroke)
+        steps[-1]["next"] = {"view": worst, "label": stroke.label, "at": stroke.points[0].tolist()}
+        seconds = user.segment(idx)
+
+
+def figure(user: ScriptedUser, path: Path) -> None:
+    """Each reference view: its photo with the final labels (strokes black) and the reference."""
+    from abcgs.viz import image_grid
+
+    maps = user.maps()
+    rows = []
+    for s, ref in user.refs.items():
+        i = user.by_stem[s]
+        img = load_image(user.scene.image_paths[i])
+        rows.append([_overlay(img, maps[s], user.strokes.get(i)), _overlay(img, np.where(ref < 0, 0, ref))])
+    save_image(path, image_grid(rows, ["labels after the scripted strokes (strokes black)", "reference"],
+                                height=user.scene.cameras[0].height))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
+    ap.add_argument("--scene", default="miku", help="eval/data/<scene>/ (strokes.json, reference/)")
+    ap.add_argument("--work", type=Path, required=True, help="where eval.bench.fit left the fitted scene")
+    ap.add_argument("--max-strokes", type=int, default=GOAL["strokes"], help="scripted strokes after the test ones")
+    ap.add_argument("--radius", type=float, default=4.0, help="the scripted dots' largest radius (pixels)")
+    ap.add_argument("--field", default="{}", help="masks.field settings as JSON (default: the masks section's)")
+    ap.add_argument("--json", type=Path, help="write the record here")
+    ap.add_argument("--figure", type=Path, help="write the final labels beside the references here")
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(message)s")
+    spec = json.loads((DATA / args.scene / "strokes.json").read_text())
+    colmap = args.work / spec["work_colmap"]
+    scene = read_colmap_scene(colmap / "sparse", colmap / "images")
+    model = read_ply(args.work / spec["work_ply"])
+    by_stem = {Path(c.name).stem: i for i, c in enumerate(scene.cameras)}
+    refs = {s: reference_map(DATA / args.scene / "reference" / f"{s}.png", scene.cameras[by_stem[s]])
+            for s in spec["reference"] if s in by_stem}
+    n_labels = len(spec["labels"])
+    front_stem, items = spec["test"]["view"], spec["test"]["strokes"]
+    front = by_stem[front_stem]
+    params = FieldParams(**json.loads(args.field))
+    bound = geometry_bound(model, scene.cameras, by_stem, refs, list(refs), n_labels)
+    user = ScriptedUser(model, scene, refs, by_stem, params)
+    t0 = time.perf_counter()
+    steps = run(user, front, _strokes(items, spec, scene.cameras[front]), n_labels, args.max_strokes, args.radius)
+    print(json.dumps({"bound_worst": bound["worst_iou"]}))
+    record = {"scene": spec["title"], "n_gaussians": model.num_gaussians, "views": len(scene.cameras),
+              "labels": spec["labels"], "reference_views": list(refs), "field": params.model_dump(), "goal": GOAL,
+              "geometry_bound": bound, "steps": steps, "seconds": time.perf_counter() - t0,
+              "machine": platform.machine(), "threads": torch.get_num_threads(),
+              "command": "python -m eval.bench.scripted_user " + " ".join(sys.argv[1:] if argv is None else argv)}
+    if args.json:
+        write_json(args.json, record)
+    if args.figure:
+        figure(user, args.figure)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

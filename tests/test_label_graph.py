@@ -1,0 +1,108 @@
+"""The 3-D step of the labels (abcgs/masks/graph.py): the k-NN graph's affinities and the random walker, checked against
+a dense solve of the same Dirichlet problem."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from abcgs.gaussians import GaussianModel
+from abcgs.masks.graph import decide_diffused, diffuse_labels, gaussian_graph, gaussian_normals
+from abcgs.render.sh import rgb_to_sh0
+
+
+def _model(points: np.ndarray, rgb: np.ndarray, quats: np.ndarray | None = None,
+           scales: np.ndarray | None = None) -> GaussianModel:
+    n = len(points)
+    model = GaussianModel.from_points(torch.as_tensor(points, dtype=torch.float32),
+                                      torch.as_tensor(rgb, dtype=torch.float32), 0, 0.5)
+    with torch.no_grad():
+        model.sh0.copy_(rgb_to_sh0(torch.as_tensor(rgb, dtype=torch.float32))[:, None, :])
+        if quats is not None:
+            model.quats.copy_(torch.as_tensor(quats, dtype=torch.float32))
+        if scales is not None:
+            model.log_scales.copy_(torch.log(torch.as_tensor(scales, dtype=torch.float32)))
+    assert model.num_gaussians == n
+    return model
+
+
+def _two_blobs(seed: int = 0, n: int = 200) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    a = rng.normal(0, 0.15, (n, 3))
+    b = rng.normal(0, 0.15, (n, 3)) + [1.0, 0, 0]
+    rgb = np.concatenate([np.tile([0.9, 0.1, 0.1], (n, 1)), np.tile([0.1, 0.1, 0.9], (n, 1))])
+    return np.concatenate([a, b]), rgb
+
+
+def test_graph_is_symmetric_and_weighs_colour():
+    pts, rgb = _two_blobs()
+    g = gaussian_graph(_model(pts, rgb), k=8, colour_sigma=0.15, normal_weight=0.0)
+    w = g.weights
+    assert abs(w - w.T).max() < 1e-12
+    assert w.diagonal().max() == 0.0
+    np.testing.assert_allclose(g.degree, np.asarray(w.sum(1)).ravel())
+    coo = w.tocoo()
+    same = (coo.row < 200) == (coo.col < 200)
+    assert coo.data[same].min() > 10 * coo.data[~same].max()  # red-blue edges are far weaker than red-red ones
+
+
+def test_normals_are_the_axis_of_smallest_scale():
+    pts = np.zeros((2, 3))
+    # identity rotation, flat in z → normal z; 90° about x turns the local z axis to -y
+    quats = np.array([[1, 0, 0, 0], [np.cos(np.pi / 4), np.sin(np.pi / 4), 0, 0]])
+    scales = np.array([[1.0, 1.0, 0.01], [1.0, 1.0, 0.01]])
+    n = gaussian_normals(_model(pts + [[0, 0, 0], [1, 0, 0]], np.full((2, 3), 0.5), quats, scales)).numpy()
+    np.testing.assert_allclose(np.abs(n), [[0, 0, 1], [0, 1, 0]], atol=1e-6)
+
+
+def test_diffusion_matches_a_dense_solve_of_the_dirichlet_problem():
+    pts, rgb = _two_blobs(1, 60)
+    g = gaussian_graph(_model(pts, rgb), k=6, colour_sigma=0.3, normal_weight=0.0)
+    seeds = np.full(g.num_nodes, -1)
+    seeds[[0, 5]] = 1
+    seeds[[70, 80]] = 2
+    seeds[[3]] = 0
+    leak = 1e-2
+    probs = diffuse_labels(g, seeds, 2, leak=leak, rtol=1e-12)
+    w = g.weights.toarray()
+    free, fixed = np.flatnonzero(seeds < 0), np.flatnonzero(seeds >= 0)
+    a = np.diag((1 + leak) * w.sum(1))[np.ix_(free, free)] - w[np.ix_(free, free)]
+    for label in (0, 1, 2):
+        want = np.linalg.solve(a, w[np.ix_(free, fixed)] @ (seeds[fixed] == label))
+        np.testing.assert_allclose(probs[free, label], want, atol=1e-8)
+    np.testing.assert_array_equal(probs[fixed].argmax(1), seeds[fixed])
+    assert np.all(probs.sum(1) <= 1 + 1e-9)  # the leak only loses probability
+
+
+def test_each_blob_takes_its_seeds_label_and_a_clump_apart_is_bridged_to_the_nearest():
+    from scipy.sparse.csgraph import connected_components
+
+    pts, rgb = _two_blobs(2)
+    far = np.random.default_rng(3).normal(0, 0.05, (30, 3)) + [6.0, 0, 0]  # beyond blob 2: no k-NN edge reaches it
+    model = _model(np.concatenate([pts, far]), np.concatenate([rgb, np.full((30, 3), 0.5)]))
+    g = gaussian_graph(model, k=8)
+    assert connected_components(g.weights, directed=False)[0] == 1
+    seeds = np.full(g.num_nodes, -1)
+    seeds[0], seeds[200] = 1, 2
+    labels, decided = decide_diffused(diffuse_labels(g, seeds, 2, leak=1e-5))
+    assert (labels[:200] == 1).mean() > 0.99 and (labels[200:400] == 2).mean() > 0.99
+    assert decided[400:].all() and (labels[400:] == 2).all()  # across the bridge from blob 2, the nearer
+    # with a walk that dies fast, the bridge carries too little: the clump stays undecided
+    labels, decided = decide_diffused(diffuse_labels(g, seeds, 2, leak=1e-1))
+    assert not decided[400:].any() and (labels[400:] == 0).all()
+
+
+def test_decision_needs_reach_and_a_majority():
+    probs = np.array([[0.0, 0.9, 0.1], [0.0, 0.02, 0.01], [0.3, 0.35, 0.35], [0.0, 0.3, 0.2]])
+    labels, decided = decide_diffused(probs, min_reach=0.05, min_share=0.5)
+    np.testing.assert_array_equal(decided, [True, False, False, True])
+    np.testing.assert_array_equal(labels, [1, 0, 0, 1])
+
+
+@pytest.mark.parametrize("bad", [np.zeros(3, np.int64), np.full((5, 2), -1)])
+def test_seeds_of_the_wrong_shape_are_refused(bad):
+    pts, rgb = _two_blobs(4, 10)
+    g = gaussian_graph(_model(pts, rgb), k=4)
+    with pytest.raises(ValueError, match="seeds has shape"):
+        diffuse_labels(g, bad, 1)
