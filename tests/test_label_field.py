@@ -108,3 +108,26 @@ def test_set_view_refuses_a_map_of_another_size() -> None:
     field = LabelField(model, cams)
     with pytest.raises(ValueError, match="is 5x4, the view 96x72"):
         field.set_view(1, np.zeros((4, 5), np.int64))
+
+
+def test_reconstruct_carries_the_strokes_beside_the_cuts(tiny_scene, tmp_path) -> None:
+    """The page's strokes of a view reach the layout the masks stage reads, undistorted like its cut."""
+    import shutil
+
+    from abcgs.io.images import load_labels
+    from abcgs.sfm.params import ReconstructParams
+    from abcgs.sources.photos import reconstruct_photos
+
+    scene = tmp_path / "scene"
+    shutil.copytree(tiny_scene / "images", scene / "images")
+    (scene / "masks").mkdir()
+    shutil.copy(tiny_scene / "masks" / "000.png", scene / "masks" / "000.png")
+    h, w = load_labels(scene / "masks" / "000.png").shape
+    seeds = rasterize_strokes([Stroke(2, np.array([[w / 2, h / 2]]), 6.0), Stroke(0, np.array([[10.0, 10.0]]), 3.0)],
+                              (h, w))
+    save_stroke_map(stroke_map_path(scene / "masks", "000"), seeds)
+    reconstruct_photos(scene, tmp_path / "colmap", ReconstructParams())
+    carried = load_stroke_map(stroke_map_path(tmp_path / "colmap" / "masks", "000"),
+                              load_labels(tmp_path / "colmap" / "masks" / "000.png").shape)
+    assert set(np.unique(carried)) == {-1, 0, 2}
+    assert abs(int((carried == 2).sum()) - int((seeds == 2).sum())) < 0.3 * (seeds == 2).sum()
