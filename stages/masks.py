@@ -1,5 +1,6 @@
-"""Stage ``masks``: content label maps (given or automatic) lifted onto the fitted Gaussians (Eq. 2), the views
-without a mask re-cut from them (cross-view refinement), re-rendered as view-consistent masks for every view.
+"""Stage ``masks``: content label maps (given or automatic) and their strokes lifted onto the fitted Gaussians (Eq. 2),
+the Gaussians no painted view decides labelled in 3-D as the masks page does (``masks.field``; or, with
+``masks.refine.enabled``, every other view re-cut and lifted), rendered as view-consistent masks for every view.
 
     dvc repro masks@tiny     # its command, with every input and output path: dvc.yaml or --help
 
