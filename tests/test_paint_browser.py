@@ -60,7 +60,8 @@ def test_strokes_on_a_view_segment_and_save_a_mask(browser, serve, tiny_scene, t
     page.close()
 
     path = scene / "masks" / "000.png"
-    assert path.is_file() and sorted(p.name for p in (scene / "masks").iterdir()) == ["000.png"]
+    assert path.is_file() and sorted(p.name for p in (scene / "masks").iterdir()) == ["000.png", "strokes"]
+    assert sorted(p.name for p in (scene / "masks" / "strokes").iterdir()) == ["000.png"]  # the strokes, for the stage
     labels = read_label_files([path], [truth.shape])[0][0]
     assert set(np.unique(labels)) <= {NO_VOTE, 0, 1, 2, 3} and {1, 2, 3} <= set(np.unique(labels))  # NO_VOTE: undecided
     iou = label_iou(labels, truth, 3)
@@ -199,3 +200,48 @@ def test_a_bare_splat_is_painted_on_its_generated_views(browser, serve, tmp_path
     assert detect_format(folder) == "splat"  # masks/ beside the splat keeps it a bare splat scene
     reconstruct()
     assert np.array_equal(load_labels(colmap / "masks" / f"{Path(names[0]).stem}.png"), saved)
+
+
+def test_two_painted_views_show_their_labels_in_the_strip_of_every_view(browser, serve, tiny_colmap, tmp_path) -> None:
+    """With the scene's fit, each Segment carries the labels to every view: the strip shows both painted views'
+    labels, and the views no one painted."""
+    import math
+
+    from abcgs.gaussians import GaussianModel
+    from abcgs.io.ply import write_ply
+    from abcgs.sfm.model import read_colmap_scene
+    from abcgs.viz import LABEL_COLOURS
+
+    scene = read_colmap_scene(tiny_colmap / "sparse", tiny_colmap / "images")
+    model = GaussianModel.from_points(scene.points, scene.colors, init_opacity=0.95)
+    model.log_scales = model.log_scales + math.log(3.0)
+    write_ply(tmp_path / "fit.ply", model)
+    folder = tmp_path / "scene"
+    shutil.copytree(tiny_colmap / "images", folder / "images")  # the fit's own (undistorted) views
+    session = PaintSession.for_scene(folder)
+    assert session.attach_fit(tmp_path / "fit.ply", tiny_colmap), session.field_note
+    url = serve(session)
+    page, _, errors = open_page(browser, url, viewport=(1280, 1000))
+    assert page.locator("#strip figure").count() == 16
+    for view in (0, 5):
+        truth = load_labels(tiny_colmap / "masks" / f"{view:03d}.png")
+        if view:
+            page.locator(f"#strip figure[data-item='{view}']").click()
+            page.wait_for_function(f"window.abcgsPaint.state.index === {view}")
+            page.evaluate("window.scrollTo(0, 0)")  # the strip is below the view: back to the canvas
+        draw(page, simulated_strokes(truth, 2, radius=3.0), truth.shape[1])
+        press(page, "segment", "segmented")
+    page.wait_for_function("document.querySelectorAll('#strip figure.painted').length === 2")
+    listing = json.loads(page.evaluate("fetch('/api/strip').then(r => r.text())"))
+    assert sorted(v["item"] for v in listing["views"] if v["painted"]) == [0, 5]
+    palette = np.array(LABEL_COLOURS[1:4], np.float32)
+    for camera in (0, 5, 10):  # both painted views and one no one painted
+        png = page.evaluate(f"fetch('/api/thumb/{camera}').then(r => r.arrayBuffer()).then(b => Array.from(new Uint8Array(b)))")
+        thumb = cv2.cvtColor(cv2.imdecode(np.array(png, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+        photo = session.field.strip.photos[camera].astype(np.float32)
+        colour = (thumb.astype(np.float32) - 0.4 * photo) / 0.6  # a labelled pixel is 0.4 photo + 0.6 its colour
+        nearest = np.linalg.norm(colour[..., None, :] - palette, axis=-1)
+        shown = [int(((nearest.argmin(-1) == k) & (nearest.min(-1) < 8)).sum()) for k in range(3)]
+        assert sum(n > 0.05 * thumb.shape[0] * thumb.shape[1] for n in shown) >= 2, (camera, shown)
+    page.screenshot(path=str(tmp_path / "paint_strip.png"))
+    assert not errors, errors

@@ -22,8 +22,14 @@ ones the pipeline reads (:func:`scene_views`: a scene's ``images:`` folder, a da
 made by the ``reconstruct`` stage), and the label maps go to ``<scene>/masks/``, where that stage reads them.
 
 The cut is :func:`abcgs.masks.grabcut.segment` (GrabCut per label from the strokes); the server only keeps strokes
-and results per view. The page cuts on colour alone: it runs before the scene is fitted. The ``masks`` stage later
-re-cuts every view that has no label PNG on colour and the fitted scene's depth (:mod:`abcgs.masks.refine`).
+and results per view. Save also writes each view's strokes to ``<scene>/masks/strokes/<stem>.png``: the ``masks``
+stage binds the Gaussians under them, as the page does.
+
+**With the scene's fit** (``--scene NAME`` once ``dvc repro fit@NAME`` has run, or ``--fit PLY --colmap DIR``), each
+Segment carries the labels to every view (:mod:`abcgs.masks.paint_field`): the view is cut from its strokes and the
+labels already in 3-D, every painted view is lifted onto the Gaussians, the rest is decided in 3-D, and a strip under
+the view shows every view's labels, most doubtful first; a click opens a view. Without a fit the page says which
+command makes it and cuts one view at a time, on colour alone (``--one-view`` asks for that).
 """
 
 from __future__ import annotations
@@ -35,6 +41,7 @@ import re
 import secrets
 import sys
 import threading
+import time
 import webbrowser
 from dataclasses import dataclass, field
 from http import HTTPStatus
@@ -47,8 +54,10 @@ import cv2
 import numpy as np
 
 from abcgs.errors import AbcgsError, InputError
-from abcgs.io.images import load_image, save_labels, to_uint8
-from abcgs.masks.grabcut import Segmentation, Stroke, segment
+from abcgs.io.images import load_image, save_labels, save_stroke_map, stroke_map_path, to_uint8
+from abcgs.masks.grabcut import Segmentation, Stroke, rasterize_strokes, segment
+from abcgs.masks.paint_field import FieldSession
+from abcgs.masks.params import FieldParams, LiftParams
 from abcgs.masks.requests import (
     REQUEST_TIMEOUT_S,
     Refused,
@@ -111,6 +120,8 @@ class PaintSession:
         if not items:
             raise InputError("nothing to paint on: no images")
         self.items, self.mode, self.title = items, mode, title
+        self.field: FieldSession | None = None  # the 3-D labels (attach_fit), when the scene's fit exists
+        self.field_note = "one view at a time: no fit given"
         self.iterations, self.max_side, self.fill = iterations, max_side, fill
         self._lock = threading.RLock()
         self._images: dict[int, np.ndarray] = {}
@@ -140,24 +151,30 @@ class PaintSession:
         return cls(items, "scene", scene.resolve().name, **kw)
 
     @classmethod
-    def for_params(cls, params_path: str | Path, name: str, *, out: str | Path | None = None, **kw) -> PaintSession:
+    def for_params(cls, params_path: str | Path, name: str, *, out: str | Path | None = None, fit: bool = True,
+                   **kw) -> PaintSession:
         """The views of ``data.scenes.<name>`` in the params file ``params_path`` (its folder, format, ``images``
         and background; a bare splat's views from ``<out>/<name>/colmap/images/``, ``out`` default the
-        ``out/`` beside the params file), as :meth:`for_scene`."""
+        ``out/`` beside the params file), as :meth:`for_scene`; with ``fit``, the scene's 3-D labels from its fit
+        (``<out>/<name>/gs/point_cloud.ply``, :meth:`attach_fit`, with ``masks.field`` and ``masks.lift``)."""
         from abcgs import layout
         from abcgs.sections import read_params_file, validate_sections
 
         params_path = Path(params_path)
-        params = validate_sections(read_params_file(params_path), frozenset({"data"}), str(params_path))
+        params = validate_sections(read_params_file(params_path), frozenset({"data", "masks"}), str(params_path))
         if name not in params.data.scenes:
             raise InputError(f"data.scenes has no scene {name!r} in {params_path} (it has "
                              f"{', '.join(params.data.scenes)})")
         entry = params.data.scenes[name]
         root = params_path.resolve().parent
         folder = Path(entry.path) if Path(entry.path).is_absolute() else root / entry.path
-        colmap = layout.scene(name, Path(out) if out is not None else root / layout.OUT).colmap
-        return cls.for_scene(folder, images=entry.images, fmt=entry.format, background=entry.background,
-                             views=colmap.images, name=name, **kw)
+        dirs = layout.scene(name, Path(out) if out is not None else root / layout.OUT)
+        session = cls.for_scene(folder, images=entry.images, fmt=entry.format, background=entry.background,
+                                views=dirs.colmap.images, name=name, **kw)
+        if fit:
+            masks = params.scene_section(name, "masks")
+            session.attach_fit(dirs.fit.ply, dirs.colmap.root, masks.field, masks.lift, make=f"`dvc repro fit@{name}`")
+        return session
 
     @classmethod
     def for_painting(cls, painting: str | Path, labels_out: str | Path | None = None, **kw) -> PaintSession:
@@ -171,6 +188,21 @@ class PaintSession:
         if out.resolve() == painting.resolve():
             raise InputError("--labels-out must not be the painting itself")
         return cls([PaintItem(painting.name, painting, out)], "painting", painting.name, **kw)
+
+    def attach_fit(self, ply: Path, colmap_root: Path, params: FieldParams | None = None,
+                   lift: LiftParams | None = None, *, make: str = "the fit stage") -> bool:
+        """Show every view's labels after each Segment (:mod:`abcgs.masks.paint_field`) from the fit ``ply`` and its
+        layout ``colmap_root``; without them (or when the views do not match) the page cuts one view at a time and
+        :attr:`field_note` says why (``make``: the command that makes the fit). Returns whether it is on."""
+        try:
+            self.field = FieldSession.open([it.image_path for it in self.items], ply, colmap_root, params, lift)
+        except InputError as exc:
+            self.field = None
+            self.field_note = f"one view at a time: {exc}" + (f"; {make} makes it" if "no fit" in str(exc) else "")
+            log.info("paint: %s", self.field_note)
+            return False
+        self.field_note = f"3-D labels from {ply}"
+        return True
 
     def _item(self, i: int) -> PaintItem:
         if not 0 <= i < len(self.items):
@@ -227,8 +259,13 @@ class PaintSession:
                 self.fill = bool(fill)
             if not any(s.label > 0 for s in item.strokes):
                 raise InputError(f"{item.name} has no label strokes yet: pick a label and draw over a region")
-            item.result = segment(self.image(i), item.strokes, iterations=self.iterations, max_side=self.max_side,
-                                  fill=self.fill)
+            if self.field is not None and i in self.field.camera_of:
+                t0 = time.perf_counter()
+                cut = self.field.segment(i, self.image(i), rasterize_strokes(item.strokes, self.size(i)))
+                item.result = Segmentation(np.maximum(cut, 0), cut >= 0, {}, time.perf_counter() - t0)
+            else:
+                item.result = segment(self.image(i), item.strokes, iterations=self.iterations,
+                                      max_side=self.max_side, fill=self.fill)
             item.stale = False
             log.info("%s: cut in %.2f s: %s", item.name, item.result.seconds, item.result.counts())
             return item.result
@@ -264,6 +301,9 @@ class PaintSession:
                 # background brush says that; a painting's label map has no such value (its regions are all it has)
                 save_labels(item.out_path, item.result.saved_map() if self.mode == "scene" else item.result.labels)
                 written.append(item.out_path)
+                if self.mode == "scene":  # the masks stage binds the Gaussians under them, as the page does
+                    save_stroke_map(stroke_map_path(item.out_path.parent, item.out_path.stem),
+                                    rasterize_strokes(item.strokes, self.size(i)))
             log.info("saved %d label map(s): %s", len(written), ", ".join(str(p) for p in written))
             return written
 
@@ -276,6 +316,7 @@ class PaintSession:
                 "mode": self.mode, "title": self.title,
                 "palette": [[int(c) for c in rgb] for rgb in LABEL_COLOURS],
                 "n_labels": max([2, *used]), "fill": self.fill,
+                "field": {"on": self.field is not None, "note": self.field_note},
                 "items": [{
                     "index": i, "name": it.name, "strokes": len(it.strokes), "cut": it.result is not None,
                     "stale": it.stale, "saved": it.out_path.is_file(), "out": str(it.out_path),
@@ -341,7 +382,7 @@ def worst_views(masks_json: Path) -> list[str]:
 # HTTP server: the page and a small JSON API, on 127.0.0.1 only
 # ----------------------------------------------------------------------------------------------
 
-_ROUTE = re.compile(r"^/api/(state|image|strokes|segment|labels|overlay|save)(?:/(\d+))?(?:\.png)?$")
+_ROUTE = re.compile(r"^/api/(state|image|strokes|segment|labels|overlay|save|strip|thumb)(?:/(\d+))?(?:\.png)?$")
 def _png(arr: np.ndarray) -> bytes:
     if arr.ndim == 3 and arr.shape[2] == 4:
         arr = cv2.cvtColor(arr, cv2.COLOR_RGBA2BGRA)
@@ -426,10 +467,16 @@ class _Handler(BaseHTTPRequestHandler):
                 return self._json({"error": f"no such page: {path}"}, HTTPStatus.NOT_FOUND)
             what, idx = m.group(1), image_index(m.group(2))
             s = self.session
-            if what in ("image", "strokes", "segment", "labels", "overlay") and idx is None:
+            if what in ("image", "strokes", "segment", "labels", "overlay", "thumb") and idx is None:
                 raise InputError(f"/api/{what}/<index> needs an image index")
             if method == "GET" and what == "state":
                 return self._json(s.state())
+            if method == "GET" and what in ("strip", "thumb"):
+                if s.field is None:
+                    return self._json({"error": s.field_note}, HTTPStatus.NOT_FOUND)
+                if what == "strip":
+                    return self._json(s.field.listing([it.name for it in s.items]))
+                return self._send(200, _png(cv2.cvtColor(s.field.thumbnail(idx), cv2.COLOR_RGB2BGR)), "image/png")
             if method == "GET" and what == "image":
                 return self._send(200, s.image_png(idx), "image/png")
             if method == "GET" and what == "strokes":
@@ -524,6 +571,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--iterations", type=int, default=5, help="GrabCut iterations per label")
     ap.add_argument("--max-side", type=int, default=1024, help="cut larger images at this size (longest side)")
     ap.add_argument("--no-fill", action="store_true", help="leave gaps between the cuts unassigned (the page can switch)")
+    ap.add_argument("--fit", type=Path, help="a scene folder: the fit (point_cloud.ply) whose labels every view "
+                                             "shows after each Segment (with --colmap); --scene NAME finds its own")
+    ap.add_argument("--colmap", type=Path, help="the fit's layout (out/<name>/colmap): its cameras")
+    ap.add_argument("--one-view", action="store_true", help="cut one view at a time even where a fit exists")
     ap.add_argument("--worst-first", type=Path, metavar="MASKS_JSON",
                     help="the masks stage's masks.json (out/<scene>/masks/masks.json): open the views it warns about "
                          "first, most unlabelled first")
@@ -543,10 +594,14 @@ def main(argv: list[str] | None = None) -> int:
                 if args.scene is not None or args.images or args.views or args.format != "auto":
                     raise InputError("--scene NAME takes the folder, format, images and views from the params file; "
                                      "give either it or a scene folder (with --images/--format/--views)")
-                session = PaintSession.for_params(args.params, args.scene_name, **kw)
+                session = PaintSession.for_params(args.params, args.scene_name, fit=not args.one_view, **kw)
             else:
                 session = PaintSession.for_scene(args.scene, images=args.images, fmt=args.format, views=args.views,
                                                  **kw)
+                if (args.fit is None) != (args.colmap is None):
+                    raise InputError("--fit and --colmap go together: the fit's PLY and its layout's folder")
+                if args.fit is not None and not args.one_view:
+                    session.attach_fit(args.fit, args.colmap)
         else:
             raise InputError("give a scene folder, --scene NAME (a scene of params.yaml) or --painting PATH")
         server = make_server(session, args.port)
@@ -556,7 +611,7 @@ def main(argv: list[str] | None = None) -> int:
     url = page_url(server)
     what = (f"{len(session.items)} views; masks go to {session.items[0].out_path.parent}" if session.mode == "scene"
             else f"the painting; its labels go to {session.items[0].out_path}")
-    print(f"paint: {url}  ({what}); Ctrl+C to stop")
+    print(f"paint: {url}  ({what}; {session.field_note}); Ctrl+C to stop")
     if not args.no_open:
         webbrowser.open(url)
     try:

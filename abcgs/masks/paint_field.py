@@ -1,0 +1,124 @@
+"""The masks page's 3-D labels: with the scene's fit, every Segment lifts the painted views' cuts and strokes onto the
+Gaussians, decides the rest in 3-D (:class:`abcgs.masks.field.LabelField`) and shows every view's labels in a strip
+(:class:`abcgs.masks.strip.Strip`), most doubtful first.
+
+The page's views are matched to the fit's cameras by image stem, and each must have its camera's size (the views the
+fit was made from: a scene whose photos were undistorted to another size is painted one view at a time).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from abcgs.errors import InputError
+from abcgs.io.images import load_image, to_uint8
+from abcgs.masks.field import FieldResult, LabelField, cut_painted_view
+from abcgs.masks.params import UNDECIDED, FieldParams, LiftParams
+from abcgs.masks.strip import Strip
+from abcgs.viz import colorize_labels
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class StripState:
+    """The strip after the last Segment: each view's small label map, its doubt, and the seconds that update took."""
+
+    maps: list[np.ndarray]
+    doubt: list[float]
+    seconds: float
+
+
+class FieldSession:
+    """The fit behind the page: its Gaussians and cameras, the page item of each camera, the field and the strip.
+
+    ``camera_of``: page item index → camera index (items without a camera are cut one view at a time)."""
+
+    def __init__(self, field: LabelField, strip: Strip, camera_of: dict[int, int]) -> None:
+        self.field, self.strip, self.camera_of = field, strip, camera_of
+        self.result: FieldResult | None = None
+        self.state: StripState | None = None
+        self._lock = threading.RLock()
+
+    @classmethod
+    def open(cls, item_paths: list[Path], ply: Path, colmap_root: Path, params: FieldParams | None = None,
+             lift: LiftParams | None = None) -> FieldSession:
+        """The fit ``ply`` with the cameras of the layout ``colmap_root`` (``abcgs.sfm.model.read_scene``), matched to
+        the page's images ``item_paths`` by stem; the strip is recorded here (about 3 s for 97 views).
+
+        Raises:
+            InputError: no fit, no camera matches a page image, or a matched image is not its camera's size.
+        """
+        from abcgs.io.ply import read_ply
+        from abcgs.sfm.model import read_scene
+
+        if not Path(ply).is_file():
+            raise InputError(f"no fit at {ply}")
+        scene = read_scene(colmap_root)
+        by_stem = {Path(c.name).stem: i for i, c in enumerate(scene.cameras)}
+        camera_of = {i: by_stem[Path(p).stem] for i, p in enumerate(item_paths) if Path(p).stem in by_stem}
+        if not camera_of:
+            raise InputError(f"no view of the page is a camera of {colmap_root}")
+        for i, c in camera_of.items():
+            h, w = load_image(item_paths[i]).shape[:2]
+            cam = scene.cameras[c]
+            if (h, w) != (cam.height, cam.width):
+                raise InputError(f"{Path(item_paths[i]).name} is {w}x{h} but the fit's view of it is {cam.width}x"
+                                 f"{cam.height} (undistorted): paint the views one at a time")
+        model = read_ply(ply)
+        photos = [to_uint8(load_image(p)) for p in scene.image_paths]
+        field = LabelField(model, scene.cameras, params or FieldParams(), lift or LiftParams())
+        strip = Strip.record(model, scene.cameras, photos)
+        log.info("3-D labels: %d Gaussians, %d views (strip recorded in %.1f s)", model.num_gaussians,
+                 len(scene.cameras), strip.seconds)
+        return cls(field, strip, camera_of)
+
+    def segment(self, item: int, photo: np.ndarray, strokes: np.ndarray) -> np.ndarray:
+        """Cut page item ``item`` (``photo`` ``(H, W, 3) uint8``, its stroke seed map) seeded by the labels in 3-D,
+        lift every painted view, solve and update the strip; returns the cut ``(H, W) int64`` (-1 undecided)."""
+        with self._lock:
+            t0 = time.perf_counter()
+            cam = self.camera_of[item]
+            cut = cut_painted_view(self.field, self.result, cam, photo, strokes)
+            self.field.set_view(cam, cut, strokes)
+            self.result = self.field.solve()
+            maps = self.strip.labels(self.result.labels, self.result.decided, self.result.n_labels)
+            self.state = StripState(maps, self.strip.doubt(maps), time.perf_counter() - t0)
+            return cut
+
+    def listing(self, names: list[str]) -> dict:
+        """The strip for the page: its views, most doubtful first, each with its item index (None: a view of the fit
+        the page does not show), name, doubt and whether it is painted; the seconds of the last update and how many
+        Gaussians each step decided."""
+        with self._lock:
+            item_of = {c: i for i, c in self.camera_of.items()}
+            cams = self.field.cameras
+            doubt = self.state.doubt if self.state else [0.0] * len(cams)
+            views = [{"camera": c, "item": item_of.get(c), "name": names[item_of[c]] if c in item_of else cams[c].name,
+                      "doubt": round(float(doubt[c]), 4), "painted": c in self.field.painted}
+                     for c in range(len(cams))]
+            views.sort(key=lambda v: -v["doubt"])
+            return {"views": views, "labelled": self.state is not None,
+                    "seconds": None if self.state is None else round(self.state.seconds, 3),
+                    "counts": None if self.result is None else self.result.counts()}
+
+    def thumbnail(self, camera: int) -> np.ndarray:
+        """Camera ``camera``'s strip picture ``(h, w, 3) uint8``: its photo with the label colours over it, white where
+        undecided (the photo alone before the first Segment)."""
+        with self._lock:
+            if not 0 <= camera < len(self.strip.views):
+                raise InputError(f"no view {camera} in the strip; it has {len(self.strip.views)}")
+            photo = self.strip.photos[camera].astype(np.float32)
+            if self.state is None:
+                return photo.astype(np.uint8)
+            lab = self.state.maps[camera]
+            colour = colorize_labels(np.where(lab == UNDECIDED, 0, lab)).astype(np.float32)
+            colour[lab == UNDECIDED] = 255.0
+            out = np.where((lab > 0)[..., None], 0.4 * photo + 0.6 * colour, photo)
+            return out.astype(np.uint8)
