@@ -48,6 +48,7 @@ from http import HTTPStatus
 from http.cookies import SimpleCookie
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
+from typing import TYPE_CHECKING
 from urllib.parse import parse_qs
 
 import cv2
@@ -56,7 +57,6 @@ import numpy as np
 from abcgs.errors import AbcgsError, InputError
 from abcgs.io.images import load_image, save_labels, save_stroke_map, stroke_map_path, to_uint8
 from abcgs.masks.grabcut import Segmentation, Stroke, rasterize_strokes, segment
-from abcgs.masks.paint_field import FieldSession
 from abcgs.masks.params import FieldParams, LiftParams
 from abcgs.masks.requests import (
     REQUEST_TIMEOUT_S,
@@ -69,6 +69,9 @@ from abcgs.masks.requests import (
     read_body,
 )
 from abcgs.viz import LABEL_COLOURS, colorize_labels
+
+if TYPE_CHECKING:  # torch and the renderer load only with a fit (attach_fit)
+    from abcgs.masks.paint_field import FieldSession
 
 log = logging.getLogger(__name__)
 
@@ -194,6 +197,8 @@ class PaintSession:
         """Show every view's labels after each Segment (:mod:`abcgs.masks.paint_field`) from the fit ``ply`` and its
         layout ``colmap_root``; without them (or when the views do not match) the page cuts one view at a time and
         :attr:`field_note` says why (``make``: the command that makes the fit). Returns whether it is on."""
+        from abcgs.masks.paint_field import FieldSession  # torch and the renderer: only with a fit
+
         try:
             self.field = FieldSession.open([it.image_path for it in self.items], ply, colmap_root, params, lift)
         except InputError as exc:
