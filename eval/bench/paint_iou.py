@@ -14,10 +14,11 @@ Steps, all in a temporary folder:
    printed as ``2-D``.
 4. ``reconstruct`` and a short ``fit`` (``--iterations``, densifying every 25 steps) of the scene.
 5. :func:`abcgs.masks.content.make_content_masks` with the strokes' mask as the only given mask, as the ``masks``
-   stage runs it (``masks`` defaults: Eq. 2 lifting, then the cross-view refinement that re-cuts the other views on
-   colour and rendered depth); the lifted labels rendered into every other view are scored against the true labels
-   (undistorted like the views). Also scored: the same mask lifted without refinement (``lift only``), and view
-   000's true mask lifted with refinement (``true mask``): what a perfect cut on the page would give.
+   stage runs it for the tiny scene (``masks.refine.enabled``: Eq. 2 lifting, then the cross-view refinement that
+   re-cuts the other views on colour and rendered depth); the lifted labels rendered into every other view are scored
+   against the true labels (undistorted like the views). Also scored: the same mask without refinement (``lift
+   only``: the stage's default, ``masks.field``), and view 000's true mask lifted with refinement (``true mask``):
+   what a perfect cut on the page would give.
 
 The goal printed is IoU ≥ 0.9 per label on every other view (the worst view counts).
 """
@@ -236,12 +237,14 @@ def _lift_three_ways(model: GaussianModel, scene: Scene, work: Path, view: str,
     cams, photos = scene.cameras, scene.image_paths
     t_lift = time.perf_counter()
     lift = LiftParams(propagate_along=propagate_along)
-    lifted = make_content_masks(model, cams, work / "colmap" / "masks", MaskParams(source="given", lift=lift), photos,
+    refine = RefineParams(enabled=True)  # the re-cut is an option of the stage (off by default): these columns run it
+    lifted = make_content_masks(model, cams, work / "colmap" / "masks", MaskParams(source="given", lift=lift,
+                                                                                   refine=refine), photos,
                                 show_progress=False)
     seconds_lift = time.perf_counter() - t_lift
     lift_only = make_content_masks(model, cams, work / "colmap" / "masks",
                                    MaskParams(source="given", lift=lift, refine=RefineParams(enabled=False)))
-    ceiling = make_content_masks(model, cams, only_truth, MaskParams(source="given", lift=lift), photos,
+    ceiling = make_content_masks(model, cams, only_truth, MaskParams(source="given", lift=lift, refine=refine), photos,
                                  show_progress=False)
     return lifted, lift_only, ceiling, seconds_lift
 
