@@ -322,7 +322,8 @@ def test_a_tiny_applied_scale_is_refused(tmp_path: Path) -> None:
 
 @pytest.fixture
 def page(tmp_path: Path):
-    from abcgs.masks.paint import PaintSession, make_server
+    from abcgs.masks.paint import PaintSession
+    from abcgs.masks.paint_server import make_server
 
     scene = _photos(tmp_path / "scene", 1)
     server = make_server(PaintSession.for_scene(scene), timeout=1.0)

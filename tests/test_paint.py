@@ -31,7 +31,8 @@ from abcgs.masks.grabcut import (
     rasterize_strokes,
     segment,
 )
-from abcgs.masks.paint import PaintSession, main, make_server, page_url
+from abcgs.masks.paint import PaintSession, main
+from abcgs.masks.paint_server import make_server, page_url
 from abcgs.viz import LABEL_COLOURS, colorize_labels
 
 H, W = 120, 160
@@ -147,7 +148,7 @@ def test_rasterize_strokes_paints_labels_in_order() -> None:
 
 
 def test_label_colours_cycle_past_the_end_and_the_page_overlay_uses_them() -> None:
-    from abcgs.masks.paint import overlay_rgba
+    from abcgs.masks.paint_server import overlay_rgba
 
     n = len(LABEL_COLOURS)
     lab = np.array([[0, 1, n - 1, n]])

@@ -209,6 +209,7 @@ def test_two_painted_views_show_their_labels_in_the_strip_of_every_view(browser,
 
     from abcgs.gaussians import GaussianModel
     from abcgs.io.ply import write_ply
+    from abcgs.masks.paint_field import THUMB_PHOTO
     from abcgs.sfm.model import read_colmap_scene
     from abcgs.viz import LABEL_COLOURS
 
@@ -233,13 +234,14 @@ def test_two_painted_views_show_their_labels_in_the_strip_of_every_view(browser,
         press(page, "segment", "segmented")
     page.wait_for_function("document.querySelectorAll('#strip figure.painted').length === 2")
     listing = json.loads(page.evaluate("fetch('/api/strip').then(r => r.text())"))
-    assert sorted(v["item"] for v in listing["views"] if v["painted"]) == [0, 5]
+    assert sorted(v["index"] for v in listing["views"] if v["painted"]) == [0, 5]
     palette = np.array(LABEL_COLOURS[1:4], np.float32)
     for camera in (0, 5, 10):  # both painted views and one no one painted
-        png = page.evaluate(f"fetch('/api/thumb/{camera}').then(r => r.arrayBuffer()).then(b => Array.from(new Uint8Array(b)))")
+        png = page.evaluate(f"fetch('/api/strip/{camera}.png').then(r => r.arrayBuffer())"
+                            ".then(b => Array.from(new Uint8Array(b)))")
         thumb = cv2.cvtColor(cv2.imdecode(np.array(png, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
         photo = session.field.strip.photos[camera].astype(np.float32)
-        colour = (thumb.astype(np.float32) - 0.4 * photo) / 0.6  # a labelled pixel is 0.4 photo + 0.6 its colour
+        colour = (thumb.astype(np.float32) - THUMB_PHOTO * photo) / (1 - THUMB_PHOTO)  # a labelled pixel's colour
         nearest = np.linalg.norm(colour[..., None, :] - palette, axis=-1)
         shown = [int(((nearest.argmin(-1) == k) & (nearest.min(-1) < 8)).sum()) for k in range(3)]
         assert sum(n > 0.05 * thumb.shape[0] * thumb.shape[1] for n in shown) >= 2, (camera, shown)

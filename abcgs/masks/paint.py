@@ -2,34 +2,32 @@
 
     python -m abcgs.masks.paint data/tiny                      # views of <scene>/images/ → <scene>/masks/<stem>.png
     python -m abcgs.masks.paint /data/garden --images images_4 # views of <scene>/images_4/ (or of a dataset)
-    python -m abcgs.masks.paint --scene tiny                   # data.scenes.tiny of params.yaml, as the pipeline reads it
+    python -m abcgs.masks.paint --scene tiny                   # data.scenes.tiny of params.yaml, with its fit if any
+    python -m abcgs.masks.paint /data/s --fit out/s/gs/point_cloud.ply --colmap out/s/colmap  # a folder and its fit
     python -m abcgs.masks.paint data/tiny --painting data/tiny/styles/paint.png \\
         --labels-out data/tiny/styles/paint_labels.png         # one painting → its region label map
 
-The page (``static/paint.html``, plain JavaScript, nothing fetched from the network) is served on 127.0.0.1, to
-itself only: the address printed at start carries a random token (as Jupyter's does; the page keeps it in a cookie),
-and a request without it, whose ``Host`` is not that address (DNS rebinding), with another page's ``Origin``, or a
-POST not declared ``application/json`` (what a cross-origin form or ``fetch`` could send without asking) is refused,
-as is a body without one plain ``Content-Length`` from 1 to :data:`~abcgs.masks.requests.MAX_BODY`
-(:mod:`abcgs.masks.requests`) or one that does not arrive within :data:`~abcgs.masks.requests.REQUEST_TIMEOUT_S`;
-each refusal is a 4xx with a one-line reason. Pick a label, draw strokes over the objects of one or more views, press **Segment** to see the cut over the
-view, add strokes where it is wrong, and press **Save**: every view with strokes gets a single-channel label PNG (1,
-2, … the labels; 0 = no label, what the background brush or its cut decided; 255 =
-:data:`~abcgs.masks.params.UNDECIDED`, what no cut claimed; the format :func:`abcgs.masks.content.read_label_files`
-reads), written atomically. Views
-without strokes get no file: the ``masks`` stage lifts labels from any subset of views (Eq. 2). The views are the
-ones the pipeline reads (:func:`scene_views`: a scene's ``images:`` folder, a dataset's views, a bare splat's views
-made by the ``reconstruct`` stage), and the label maps go to ``<scene>/masks/``, where that stage reads them.
+The page (``static/paint.html``, plain JavaScript, nothing fetched from the network) is served on 127.0.0.1 to
+itself only, by :mod:`abcgs.masks.paint_server`: the address printed at start carries a random token (as Jupyter's
+does), and a request from anything but that page is refused with a one-line reason. Pick a label, draw strokes over
+the objects of one or more views, press **Segment** to see the cut over the view, add strokes where it is wrong, and
+press **Save**: every view with strokes gets a single-channel label PNG (1, 2, … the labels; 0 = no label, what the
+background brush or its cut decided; 255 = :data:`~abcgs.masks.params.UNDECIDED`, what no cut claimed; the format
+:func:`abcgs.masks.content.read_label_files` reads), written atomically, and its strokes as a seed map in
+``<scene>/masks/strokes/<stem>.png`` (the ``masks`` stage binds the Gaussians under them, as the page does). Views
+without strokes get no file: the ``masks`` stage lifts labels from any subset of views. The views are the ones the
+pipeline reads (:func:`scene_views`: a scene's ``images:`` folder, a dataset's views, a bare splat's views made by
+the ``reconstruct`` stage), and the label maps go to ``<scene>/masks/``, where that stage reads them.
 
-The cut is :func:`abcgs.masks.grabcut.segment` (GrabCut per label from the strokes); the server only keeps strokes
-and results per view. Save also writes each view's strokes to ``<scene>/masks/strokes/<stem>.png``: the ``masks``
-stage binds the Gaussians under them, as the page does.
-
-**With the scene's fit** (``--scene NAME`` once ``dvc repro fit@NAME`` has run, or ``--fit PLY --colmap DIR``), each
-Segment carries the labels to every view (:mod:`abcgs.masks.paint_field`): the view is cut from its strokes and the
-labels already in 3-D, every painted view is lifted onto the Gaussians, the rest is decided in 3-D, and a strip under
-the view shows every view's labels, most doubtful first; a click opens a view. Without a fit the page says which
-command makes it and cuts one view at a time, on colour alone (``--one-view`` asks for that).
+**With the scene's fit** (``--scene NAME`` once ``dvc repro fit@NAME`` has made ``out/NAME/gs/point_cloud.ply``,
+with ``masks.field`` and ``masks.lift`` of the params file; or ``--fit PLY --colmap DIR``), the page's views are
+matched to the fit's cameras by image stem, and each Segment carries the labels to every view
+(:mod:`abcgs.masks.paint_field`): the view is cut from its strokes and the labels already in 3-D
+(:func:`abcgs.masks.field.cut_painted_view`), every painted view is lifted onto the Gaussians, the rest is decided
+in 3-D, and a strip under the view shows every view's labels (undecided white), most doubtful first; a click opens a
+view. Without a fit, or when a matched view is not its camera's size, the page says why (and which command makes the
+fit) and cuts one view at a time on colour alone (:func:`abcgs.masks.grabcut.segment`; ``--one-view`` asks for
+that).
 """
 
 from __future__ import annotations
@@ -37,19 +35,13 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import re
-import secrets
 import sys
 import threading
 import time
 import webbrowser
 from dataclasses import dataclass, field
-from http import HTTPStatus
-from http.cookies import SimpleCookie
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import TYPE_CHECKING
-from urllib.parse import parse_qs
 
 import cv2
 import numpy as np
@@ -57,40 +49,14 @@ import numpy as np
 from abcgs.errors import AbcgsError, InputError
 from abcgs.io.images import load_image, save_labels, save_stroke_map, stroke_map_path, to_uint8
 from abcgs.masks.grabcut import Segmentation, Stroke, rasterize_strokes, segment
+from abcgs.masks.paint_server import make_server, page_url
 from abcgs.masks.params import FieldParams, LiftParams
-from abcgs.masks.requests import (
-    REQUEST_TIMEOUT_S,
-    Refused,
-    body_flag,
-    body_revision,
-    body_strokes,
-    content_length,
-    image_index,
-    read_body,
-)
-from abcgs.viz import LABEL_COLOURS, colorize_labels
+from abcgs.viz import LABEL_COLOURS
 
 if TYPE_CHECKING:  # torch and the renderer load only with a fit (attach_fit)
     from abcgs.masks.paint_field import FieldSession
 
 log = logging.getLogger(__name__)
-
-PAGE = Path(__file__).resolve().parent / "static" / "paint.html"
-"""The drawing page (HTML + plain JavaScript in one file)."""
-
-
-def overlay_rgba(labels: np.ndarray, alpha: int = 150) -> np.ndarray:
-    """Label map ``(H, W)`` → ``(H, W, 4) uint8`` RGBA in the label colours, transparent where 0, with each region's
-    edge opaque so that the cut reads on any image."""
-    lab = np.asarray(labels)
-    rgba = np.zeros((*lab.shape, 4), np.uint8)
-    rgba[..., :3] = colorize_labels(lab)
-    src = lab.astype(np.uint16 if lab.max(initial=0) > 255 else np.uint8)
-    ring = np.ones((3, 3), np.uint8)
-    edge = cv2.dilate(src, ring) != cv2.erode(src, ring)
-    rgba[..., 3] = np.where(lab > 0, np.where(edge, 255, alpha), 0)
-    return rgba
-
 
 # ----------------------------------------------------------------------------------------------
 # Session: the views (or the painting), their strokes and cuts
@@ -197,13 +163,17 @@ class PaintSession:
         """Show every view's labels after each Segment (:mod:`abcgs.masks.paint_field`) from the fit ``ply`` and its
         layout ``colmap_root``; without them (or when the views do not match) the page cuts one view at a time and
         :attr:`field_note` says why (``make``: the command that makes the fit). Returns whether it is on."""
+        self.field = None
+        if not Path(ply).is_file():
+            self.field_note = f"one view at a time: no fit at {ply}; {make} makes it"
+            log.info("paint: %s", self.field_note)
+            return False
         from abcgs.masks.paint_field import FieldSession  # torch and the renderer: only with a fit
 
         try:
             self.field = FieldSession.open([it.image_path for it in self.items], ply, colmap_root, params, lift)
         except InputError as exc:
-            self.field = None
-            self.field_note = f"one view at a time: {exc}" + (f"; {make} makes it" if "no fit" in str(exc) else "")
+            self.field_note = f"one view at a time: {exc}"
             log.info("paint: %s", self.field_note)
             return False
         self.field_note = f"3-D labels from {ply}"
@@ -254,10 +224,16 @@ class PaintSession:
             item.stale = True
             if not strokes:
                 item.result = None
+                if self.field is not None and i in self.field.camera_of:
+                    self.field.forget(i)  # its cut no longer seeds the labels in 3-D
             return True
 
     def segment(self, i: int, fill: bool | None = None) -> Segmentation:
-        """Cut image ``i`` from its strokes (:func:`segment`) and keep the result; ``fill`` sets the session's."""
+        """Cut image ``i`` from its strokes and keep the result; ``fill`` sets the session's. With the scene's fit
+        (:attr:`field`) the cut is seeded by the labels already in 3-D as well, and the strip of every view is
+        updated (:meth:`abcgs.masks.paint_field.FieldSession.segment`; its seconds count from this call); otherwise
+        it is :func:`segment` on the view's colours alone."""
+        t0 = time.perf_counter()
         with self._lock:
             item = self._item(i)
             if fill is not None:
@@ -265,8 +241,7 @@ class PaintSession:
             if not any(s.label > 0 for s in item.strokes):
                 raise InputError(f"{item.name} has no label strokes yet: pick a label and draw over a region")
             if self.field is not None and i in self.field.camera_of:
-                t0 = time.perf_counter()
-                cut = self.field.segment(i, self.image(i), rasterize_strokes(item.strokes, self.size(i)))
+                cut = self.field.segment(i, self.image(i), rasterize_strokes(item.strokes, self.size(i)), t0)
                 item.result = Segmentation(np.maximum(cut, 0), cut >= 0, {}, time.perf_counter() - t0)
             else:
                 item.result = segment(self.image(i), item.strokes, iterations=self.iterations,
@@ -383,177 +358,6 @@ def worst_views(masks_json: Path) -> list[str]:
     return [str(v) for v in views]
 
 
-# ----------------------------------------------------------------------------------------------
-# HTTP server: the page and a small JSON API, on 127.0.0.1 only
-# ----------------------------------------------------------------------------------------------
-
-_ROUTE = re.compile(r"^/api/(state|image|strokes|segment|labels|overlay|save|strip|thumb)(?:/(\d+))?(?:\.png)?$")
-def _png(arr: np.ndarray) -> bytes:
-    if arr.ndim == 3 and arr.shape[2] == 4:
-        arr = cv2.cvtColor(arr, cv2.COLOR_RGBA2BGRA)
-    ok, buf = cv2.imencode(".png", arr)
-    if not ok:
-        raise InputError("could not encode a PNG")
-    return buf.tobytes()
-
-
-class _Handler(BaseHTTPRequestHandler):
-    session: PaintSession  # set on the subclass :func:`make_server` builds
-    token: str
-    server_version = "abcgs-paint"
-
-    def log_message(self, fmt, *args):  # requests go to the debug log, not stderr
-        log.debug("%s - %s", self.address_string(), fmt % args)
-
-    def _send(self, status: int, body: bytes, ctype: str, headers: dict[str, str] | None = None) -> None:
-        self.send_response(status)
-        self.send_header("Content-Type", ctype)
-        for k, v in (headers or {}).items():
-            self.send_header(k, v)
-        self.send_header("Content-Length", str(len(body)))
-        self.send_header("Cache-Control", "no-store")
-        self.end_headers()
-        self.wfile.write(body)
-
-    def _json(self, data, status: int = 200) -> None:
-        self._send(status, json.dumps(data).encode(), "application/json")
-
-    def _hosts(self) -> set[str]:
-        """The ``Host`` values of the address this server serves (``127.0.0.1:PORT``, ``localhost:PORT``)."""
-        host, port = self.server.server_address[:2]
-        names = {"127.0.0.1", "localhost"} if host in ("127.0.0.1", "localhost") else {"[::1]", "localhost"}
-        return {f"{n}:{port}" for n in names}
-
-    def _cookie(self) -> str:
-        return f"abcgs_paint_{self.server.server_address[1]}"  # cookies are per host, not per port
-
-    def _check_token(self, query: str) -> bool:
-        """The request carries the server's token, in the query (``?token=``, the address printed at start) or in
-        the cookie the page got with it; True when it came in the query (the page then sets the cookie)."""
-        given = parse_qs(query).get("token", [""])[0]
-        morsel = SimpleCookie(self.headers.get("Cookie", "")).get(self._cookie()) if not given else None
-        value = given or (morsel.value if morsel is not None else "")
-        if not secrets.compare_digest(value.encode(), self.token.encode()):
-            raise Refused(HTTPStatus.FORBIDDEN, "missing or wrong token: open the address (with ?token=) that "
-                                                "`python -m abcgs.masks.paint` printed")
-        return bool(given)
-
-    def _check_caller(self, method: str) -> None:
-        """Only the page this server serves drives it: ``Host`` is the server's own address (no DNS rebinding), an
-        ``Origin`` is its own (no other web page), and a POST body is declared JSON (a cross-origin page cannot send
-        that without a CORS preflight, which this server never grants)."""
-        hosts = self._hosts()
-        if self.headers.get("Host", "") not in hosts:
-            raise Refused(HTTPStatus.FORBIDDEN, f"Host {self.headers.get('Host', '')!r} is not this server "
-                                                f"({' or '.join(sorted(hosts))})")
-        origin = self.headers.get("Origin")
-        if origin is not None and origin not in {f"http://{h}" for h in hosts}:
-            raise Refused(HTTPStatus.FORBIDDEN, f"requests from {origin[:100]!r} are refused: only this server's "
-                                                "own page may use it")
-        if method == "POST":
-            ctype = (self.headers.get("Content-Type") or "").split(";", 1)[0].strip().lower()
-            if ctype != "application/json":
-                raise Refused(HTTPStatus.UNSUPPORTED_MEDIA_TYPE,
-                              f"Content-Type {ctype or '(none)'!r}: the API takes application/json")
-
-    def _body(self) -> dict:
-        return read_body(content_length(self.headers.get_all("Content-Length")), self.rfile)
-
-    def _dispatch(self, method: str) -> None:
-        path, _, query = self.path.partition("?")
-        try:
-            self._check_caller(method)
-            from_query = self._check_token(query)
-            if method == "GET" and path in ("/", "/index.html"):
-                cookie = {"Set-Cookie": f"{self._cookie()}={self.token}; HttpOnly; SameSite=Strict; Path=/"}
-                return self._send(200, PAGE.read_bytes(), "text/html; charset=utf-8", cookie if from_query else None)
-            m = _ROUTE.match(path)
-            if not m:
-                return self._json({"error": f"no such page: {path}"}, HTTPStatus.NOT_FOUND)
-            what, idx = m.group(1), image_index(m.group(2))
-            s = self.session
-            if what in ("image", "strokes", "segment", "labels", "overlay", "thumb") and idx is None:
-                raise InputError(f"/api/{what}/<index> needs an image index")
-            if method == "GET" and what == "state":
-                return self._json(s.state())
-            if method == "GET" and what in ("strip", "thumb"):
-                if s.field is None:
-                    return self._json({"error": s.field_note}, HTTPStatus.NOT_FOUND)
-                if what == "strip":
-                    return self._json(s.field.listing([it.name for it in s.items]))
-                return self._send(200, _png(cv2.cvtColor(s.field.thumbnail(idx), cv2.COLOR_RGB2BGR)), "image/png")
-            if method == "GET" and what == "image":
-                return self._send(200, s.image_png(idx), "image/png")
-            if method == "GET" and what == "strokes":
-                with s._lock:
-                    item = s._item(idx)
-                    return self._json({"strokes": [st.to_json() for st in item.strokes], "revision": item.revision})
-            if method == "POST" and what == "strokes":
-                body = self._body()
-                accepted = s.set_strokes(idx, body_strokes(body), body_revision(body))
-                return self._json({**s.state()["items"][idx], "accepted": accepted})
-            if method == "POST" and what == "segment":
-                body = self._body()
-                fill = body_flag(body, "fill")
-                if "strokes" in body:
-                    s.set_strokes(idx, body_strokes(body), body_revision(body))
-                seg = s.segment(idx, fill)
-                return self._json({"counts": {str(k): v for k, v in seg.counts().items()},
-                                   "seconds": round(seg.seconds, 3), "item": s.state()["items"][idx]})
-            if method == "GET" and what in ("labels", "overlay"):
-                item = s._item(idx)
-                labels = item.result.labels if item.result is not None else s.saved_labels(idx)
-                if labels is None:
-                    return self._json({"error": f"{item.name} is not cut yet (press Segment)"}, HTTPStatus.NOT_FOUND)
-                arr = labels.astype(np.uint8) if what == "labels" else overlay_rgba(labels)
-                return self._send(200, _png(arr), "image/png")
-            if method == "POST" and what == "save":
-                fill = body_flag(self._body(), "fill")
-                if fill is not None:
-                    s.fill = fill
-                written = s.save()
-                return self._json({"written": [str(p) for p in written], "state": s.state()})
-            return self._json({"error": f"{method} {path} is not supported"}, HTTPStatus.METHOD_NOT_ALLOWED)
-        except Refused as exc:
-            self.close_connection = True  # the body, if any, is left unread
-            return self._json({"error": str(exc)}, exc.status)
-        except AbcgsError as exc:
-            return self._json({"error": str(exc)}, HTTPStatus.BAD_REQUEST)
-        except Exception as exc:  # the page shows the message; the server keeps running
-            log.exception("request %s %s failed", method, path)
-            return self._json({"error": f"{type(exc).__name__}: {exc}"}, HTTPStatus.INTERNAL_SERVER_ERROR)
-
-    def do_GET(self):  # noqa: N802 (http.server's names)
-        self._dispatch("GET")
-
-    def do_POST(self):  # noqa: N802
-        self._dispatch("POST")
-
-
-def make_server(session: PaintSession, port: int = 0, host: str = "127.0.0.1",
-                token: str | None = None, timeout: float = REQUEST_TIMEOUT_S) -> ThreadingHTTPServer:
-    """An HTTP server for ``session`` on ``host:port`` (0 = any free port); call ``serve_forever()`` on it. A
-    connection that sends nothing for ``timeout`` seconds is answered 408 (mid-body) or closed.
-
-    ``server.server_port`` is the port it got. Only loopback addresses are allowed: the page can write files. Every
-    request must carry ``token`` (a fresh random one by default; ``server.token``), which :func:`page_url` puts in
-    the page's address, as Jupyter does: another user of the machine can reach the port, but not guess it.
-    """
-    if host not in ("127.0.0.1", "localhost", "::1"):
-        raise InputError(f"the paint server listens on the loopback address only, not {host}")
-    token = token or secrets.token_urlsafe(24)
-    handler = type("PaintHandler", (_Handler,), {"session": session, "token": token, "timeout": timeout})
-    server = ThreadingHTTPServer((host, port), handler)
-    server.daemon_threads = True
-    server.token = token  # type: ignore[attr-defined]
-    return server
-
-
-def page_url(server: ThreadingHTTPServer) -> str:
-    """The page's address with the server's token (the page then keeps it in a cookie for its requests)."""
-    return f"http://127.0.0.1:{server.server_port}/?token={server.token}"  # type: ignore[attr-defined]
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m abcgs.masks.paint", description=__doc__.strip().splitlines()[0],
                                  epilog="Views: the ones the pipeline reads (photos in <scene>/<images>/, a dataset's "
@@ -599,12 +403,15 @@ def main(argv: list[str] | None = None) -> int:
                 if args.scene is not None or args.images or args.views or args.format != "auto":
                     raise InputError("--scene NAME takes the folder, format, images and views from the params file; "
                                      "give either it or a scene folder (with --images/--format/--views)")
+                if args.fit is not None or args.colmap is not None:
+                    raise InputError("--scene NAME finds its own fit (out/NAME/gs/point_cloud.ply); --fit and --colmap "
+                                     "are for a scene folder")
                 session = PaintSession.for_params(args.params, args.scene_name, fit=not args.one_view, **kw)
             else:
-                session = PaintSession.for_scene(args.scene, images=args.images, fmt=args.format, views=args.views,
-                                                 **kw)
                 if (args.fit is None) != (args.colmap is None):
                     raise InputError("--fit and --colmap go together: the fit's PLY and its layout's folder")
+                session = PaintSession.for_scene(args.scene, images=args.images, fmt=args.format, views=args.views,
+                                                 **kw)
                 if args.fit is not None and not args.one_view:
                     session.attach_fit(args.fit, args.colmap)
         else:

@@ -1,6 +1,7 @@
-"""The masks page's 3-D labels: with the scene's fit, every Segment lifts the painted views' cuts and strokes onto the
+"""The masks page's 3-D labels: with the scene's fit, every Segment cuts the view from its strokes and the labels
+already in 3-D (:func:`abcgs.masks.field.cut_painted_view`), lifts the painted views' cuts and strokes onto the
 Gaussians, decides the rest in 3-D (:class:`abcgs.masks.field.LabelField`) and shows every view's labels in a strip
-(:class:`abcgs.masks.strip.Strip`), most doubtful first.
+(:class:`abcgs.masks.strip.Strip`), most doubtful first; a view whose strokes are cleared leaves the field.
 
 The page's views are matched to the fit's cameras by image stem, and each must have its camera's size (the views the
 fit was made from: a scene whose photos were undistorted to another size is painted one view at a time).
@@ -17,13 +18,26 @@ from pathlib import Path
 import numpy as np
 
 from abcgs.errors import InputError
-from abcgs.io.images import load_image, to_uint8
+from abcgs.io.images import image_header, load_image, to_uint8
 from abcgs.masks.field import FieldResult, LabelField, cut_painted_view
 from abcgs.masks.params import UNDECIDED, FieldParams, LiftParams
 from abcgs.masks.strip import Strip
 from abcgs.viz import colorize_labels
 
 log = logging.getLogger(__name__)
+
+THUMB_PHOTO = 0.4
+"""Share of the photo in a labelled pixel of a strip thumbnail (the rest: the label's colour)."""
+
+
+class _Photos:
+    """The views' photos ``(H, W, 3) uint8``, each read when asked for: the strip keeps only its small copies."""
+
+    def __init__(self, paths: list[Path]) -> None:
+        self.paths = paths
+
+    def __getitem__(self, i: int) -> np.ndarray:
+        return to_uint8(load_image(self.paths[i]))
 
 
 @dataclass
@@ -66,42 +80,64 @@ class FieldSession:
         if not camera_of:
             raise InputError(f"no view of the page is a camera of {colmap_root}")
         for i, c in camera_of.items():
-            h, w = load_image(item_paths[i]).shape[:2]
+            w, h, _ = image_header(item_paths[i], "view")
             cam = scene.cameras[c]
             if (h, w) != (cam.height, cam.width):
                 raise InputError(f"{Path(item_paths[i]).name} is {w}x{h} but the fit's view of it is {cam.width}x"
                                  f"{cam.height} (undistorted): paint the views one at a time")
         model = read_ply(ply)
-        photos = [to_uint8(load_image(p)) for p in scene.image_paths]
         field = LabelField(model, scene.cameras, params or FieldParams(), lift or LiftParams())
-        strip = Strip.record(model, scene.cameras, photos)
+        strip = Strip.record(model, scene.cameras, _Photos(scene.image_paths))
         log.info("3-D labels: %d Gaussians, %d views (strip recorded in %.1f s)", model.num_gaussians,
                  len(scene.cameras), strip.seconds)
         return cls(field, strip, camera_of)
 
-    def segment(self, item: int, photo: np.ndarray, strokes: np.ndarray) -> np.ndarray:
-        """Cut page item ``item`` (``photo`` ``(H, W, 3) uint8``, its stroke seed map) seeded by the labels in 3-D,
-        lift every painted view, solve and update the strip; returns the cut ``(H, W) int64`` (-1 undecided)."""
+    def segment(self, item: int, photo: np.ndarray, strokes: np.ndarray, started: float | None = None) -> np.ndarray:
+        """Cut page item ``item`` (``photo`` ``(H, W, 3) uint8``, its stroke seed map ``(H, W) int64``) seeded by the
+        labels in 3-D (:func:`cut_painted_view`), lift every painted view, solve and update the strip; returns the
+        cut ``(H, W) int64`` (-1 undecided). The strip's seconds count from ``started`` (``time.perf_counter()``
+        when the request came; default now)."""
+        started = time.perf_counter() if started is None else started
         with self._lock:
-            t0 = time.perf_counter()
             cam = self.camera_of[item]
             cut = cut_painted_view(self.field, self.result, cam, photo, strokes)
             self.field.set_view(cam, cut, strokes)
-            self.result = self.field.solve()
-            maps = self.strip.labels(self.result.labels, self.result.decided, self.result.n_labels)
-            self.state = StripState(maps, self.strip.doubt(maps), time.perf_counter() - t0)
+            self._solve(started)
             return cut
 
+    def forget(self, item: int) -> None:
+        """Page item ``item`` has no strokes any more: its cut and strokes leave the field, and the labels and the
+        strip are solved again from the other painted views (none left: back to the unlabelled strip)."""
+        with self._lock:
+            started = time.perf_counter()
+            cam = self.camera_of[item]
+            if cam not in self.field.painted:
+                return
+            self.field.set_view(cam, None, None)
+            if self.field.painted:
+                self._solve(started)
+            else:
+                self.result, self.state = None, None
+
+    def _solve(self, started: float) -> None:
+        self.result = self.field.solve()
+        maps = self.strip.labels(self.result.labels, self.result.decided, self.result.n_labels)
+        self.state = StripState(maps, self.strip.doubt(maps), time.perf_counter() - started)
+
     def listing(self, names: list[str]) -> dict:
-        """The strip for the page: its views, most doubtful first, each with its item index (None: a view of the fit
-        the page does not show), name, doubt and whether it is painted; the seconds of the last update and how many
-        Gaussians each step decided."""
+        """The strip for the page (``names``: the page items' names): its views, most doubtful first, each with
+        ``index`` (the page item; None: a view of the fit the page does not show), ``camera`` (its index in the
+        strip: ``/api/strip/<camera>.png``), ``name``, ``doubt`` and whether it is ``painted``; ``seconds``, from
+        the last Segment's request to the strip ready, and ``counts``, how many Gaussians each step decided (None
+        before the first Segment)."""
         with self._lock:
             item_of = {c: i for i, c in self.camera_of.items()}
             cams = self.field.cameras
             doubt = self.state.doubt if self.state else [0.0] * len(cams)
-            views = [{"camera": c, "item": item_of.get(c), "name": names[item_of[c]] if c in item_of else cams[c].name,
-                      "doubt": round(float(doubt[c]), 4), "painted": c in self.field.painted}
+            painted = set(self.field.painted)
+            views = [{"index": item_of.get(c), "camera": c,
+                      "name": names[item_of[c]] if c in item_of else cams[c].name,
+                      "doubt": round(float(doubt[c]), 4), "painted": c in painted}
                      for c in range(len(cams))]
             views.sort(key=lambda v: -v["doubt"])
             return {"views": views, "labelled": self.state is not None,
@@ -109,8 +145,9 @@ class FieldSession:
                     "counts": None if self.result is None else self.result.counts()}
 
     def thumbnail(self, camera: int) -> np.ndarray:
-        """Camera ``camera``'s strip picture ``(h, w, 3) uint8``: its photo with the label colours over it, white where
-        undecided (the photo alone before the first Segment)."""
+        """Camera ``camera``'s strip picture ``(h, w, 3) uint8``: its photo, where a label is shown
+        ``THUMB_PHOTO`` of it and the rest the label's colour (:func:`abcgs.viz.colorize_labels`, the page's palette),
+        white where undecided (the photo alone before the first Segment)."""
         with self._lock:
             if not 0 <= camera < len(self.strip.views):
                 raise InputError(f"no view {camera} in the strip; it has {len(self.strip.views)}")
@@ -118,7 +155,8 @@ class FieldSession:
             if self.state is None:
                 return photo.astype(np.uint8)
             lab = self.state.maps[camera]
-            colour = colorize_labels(np.where(lab == UNDECIDED, 0, lab)).astype(np.float32)
-            colour[lab == UNDECIDED] = 255.0
-            out = np.where((lab > 0)[..., None], 0.4 * photo + 0.6 * colour, photo)
-            return out.astype(np.uint8)
+            undecided = lab == UNDECIDED
+            colour = colorize_labels(np.where(undecided, 0, lab)).astype(np.float32)
+            out = np.where(((lab > 0) & ~undecided)[..., None], THUMB_PHOTO * photo + (1 - THUMB_PHOTO) * colour, photo)
+            out[undecided] = 255.0
+            return np.rint(out).astype(np.uint8)

@@ -15,7 +15,8 @@ from abcgs.runtime import setup
 setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
 from abcgs.masks.grabcut import Stroke
-from abcgs.masks.paint import PaintSession, make_server, page_url
+from abcgs.masks.paint import PaintSession
+from abcgs.masks.paint_server import make_server, page_url
 
 CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu-sandbox"]
 """Headless chromium flags for the page (no GPU is needed: it draws on a 2-D canvas)."""
