@@ -138,6 +138,33 @@ def test_without_fill_the_gaps_stay_unassigned() -> None:
     assert filled.claimed.all() and np.array_equal(gaps.claimed, gaps.labels > 0)
 
 
+def test_the_cuts_run_side_by_side_give_what_one_after_another_gives(monkeypatch) -> None:
+    import abcgs.masks.grabcut as grabcut
+
+    img, _ = two_shapes(3)
+    side_by_side = segment(img, SHAPE_STROKES + BACKGROUND_STROKES + [line(0, 150, 60, 155, 60)])
+
+    class OneAfterAnother:
+        def __init__(self, max_workers: int) -> None:
+            pass
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc) -> None:
+            pass
+
+        def map(self, fn, items):
+            return map(fn, items)
+
+    monkeypatch.setattr(grabcut, "ThreadPoolExecutor", OneAfterAnother)
+    serial = segment(img, SHAPE_STROKES + BACKGROUND_STROKES + [line(0, 150, 60, 155, 60)])
+    assert np.array_equal(side_by_side.labels, serial.labels)
+    assert np.array_equal(side_by_side.claimed, serial.claimed)
+    assert side_by_side.probability.keys() == serial.probability.keys() == {1, 2, 3}
+    assert all(np.array_equal(side_by_side.probability[k], serial.probability[k]) for k in serial.probability)
+
+
 def test_rasterize_strokes_paints_labels_in_order() -> None:
     seeds = rasterize_strokes([line(2, 10, 10, 30, 10, radius=2), line(0, 20, 5, 20, 15, radius=1),
                                Stroke(5, np.array([[40.0, 30.0]]), 3)], (40, 50))

@@ -33,7 +33,7 @@ from abcgs.cameras import Camera
 from abcgs.gaussians import GaussianModel
 from abcgs.masks.graph import GaussianGraph, decide_diffused, diffuse_labels, gaussian_graph
 from abcgs.masks.lifting import NO_VOTE, decide_labels, view_weights
-from abcgs.masks.params import FieldParams, LiftParams
+from abcgs.masks.params import UNDECIDED, FieldParams, LiftParams
 from abcgs.types import Backend
 
 log = logging.getLogger(__name__)
@@ -99,6 +99,11 @@ class LabelField:
     def painted(self) -> list[int]:
         """The camera indices with a cut or strokes, ascending."""
         return sorted(self._views)
+
+    def cut_of(self, index: int) -> np.ndarray | None:
+        """View ``index``'s cut ``(H, W) int64`` (0..L, NO_VOTE undecided), or None if it has none."""
+        view = self._views.get(index)
+        return None if view is None else view.cut
 
     def set_view(self, index: int, cut: np.ndarray | None, strokes: np.ndarray | None = None) -> None:
         """Set (or, with both None, remove) view ``index``'s cut ``(H, W) int`` (0..L, NO_VOTE) and stroke seed map
@@ -217,12 +222,8 @@ def render_field(field: LabelField, result: FieldResult, index: int, *, threshol
     the user saw and accepted on the page."""
     from abcgs.masks.lifting import render_label_map
 
-    undecided = result.n_labels + 1
-    cls = torch.as_tensor(np.where(result.decided, result.labels, undecided))
-    out = render_label_map(field.model, cls, undecided, field.cameras[index], threshold=threshold,
-                           backend=field.backend)
-    out = np.where(out == undecided, 0, out)
-    view = field._views.get(index)
-    if cut_where_painted and view is not None and view.cut is not None:
-        out = np.where(view.cut >= 0, view.cut, out)
-    return out
+    out = render_label_map(field.model, torch.as_tensor(result.labels), result.n_labels, field.cameras[index],
+                           decided=torch.as_tensor(result.decided), threshold=threshold, backend=field.backend)
+    out = np.where(out == UNDECIDED, 0, out)
+    cut = field.cut_of(index) if cut_where_painted else None
+    return out if cut is None else np.where(cut >= 0, cut, out)

@@ -19,7 +19,9 @@ edges, so a label stops where its surface does even when the colours on both sid
 
 from __future__ import annotations
 
+import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import cv2
@@ -171,19 +173,21 @@ def _grabcut_one(feats: np.ndarray, seeds: np.ndarray, k: int, iterations: int) 
     return (mask == cv2.GC_FGD) | (mask == cv2.GC_PR_FGD), fgd, bgd
 
 
-def _colour_distances(lab: np.ndarray, seeds: np.ndarray, centres: int = 24) -> dict[int, np.ndarray]:
-    """Per seed value (label or background), each pixel's squared distance to the nearest colour of its strokes.
+def _colour_distances(lab: np.ndarray, seeds: np.ndarray, where: np.ndarray, centres: int = 24) -> dict[int, np.ndarray]:
+    """Per seed value (label or background), the squared distance of each pixel in ``where`` to the nearest colour of
+    its strokes.
 
     A value's stroke colours are summarised by up to ``centres`` k-means centres.
 
     Args:
         lab: ``(H, W, C) float32`` CIELAB, optionally with further channels (:func:`fill_features`). seeds: ``(H, W)``
-            as :func:`rasterize_strokes` returns.
+            as :func:`rasterize_strokes` returns. where: ``(H, W) bool``, the pixels asked about.
 
     Returns:
-        ``{value: (H, W) float32}``.
+        ``{value: (M,) float32}``, in the order of ``lab[where]``.
     """
     flat = lab.reshape(-1, lab.shape[-1])
+    asked = flat[where.reshape(-1)]
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 20, 0.5)
     out = {}
     for v in (int(v) for v in np.unique(seeds) if v >= 0):
@@ -191,10 +195,10 @@ def _colour_distances(lab: np.ndarray, seeds: np.ndarray, centres: int = 24) -> 
         if len(samples) > centres:
             cv2.setRNGSeed(0)
             _, _, samples = cv2.kmeans(samples, centres, None, crit, 1, cv2.KMEANS_PP_CENTERS)
-        d = np.full(flat.shape[0], np.inf, np.float32)
+        d = np.full(asked.shape[0], np.inf, np.float32)
         for c in samples:
-            d = np.minimum(d, ((flat - c) ** 2).sum(-1))
-        out[v] = d.reshape(seeds.shape)
+            d = np.minimum(d, ((asked - c) ** 2).sum(-1))
+        out[v] = d
     return out
 
 
@@ -218,13 +222,16 @@ def fill_gaps(
     n, comp = cv2.connectedComponents((~claimed).astype(np.uint8), connectivity=4)
     if n <= 1:
         return out, claimed_after
-    dist = _colour_distances(lab, seeds)
+    gaps = comp > 0
+    dist = _colour_distances(lab, seeds, gaps)
+    in_gaps = comp[gaps]
     ring = np.ones((3, 3), np.uint8)
     for c in range(1, n):
         gap = comp == c
         rim = cv2.dilate(gap.astype(np.uint8), ring).astype(bool) & claimed
         around = [int(v) for v in np.unique(out[rim]) if int(v) in dist] or sorted(dist)
-        votes = np.bincount(np.stack([dist[v][gap] for v in around]).argmin(0), minlength=len(around))
+        mine = in_gaps == c
+        votes = np.bincount(np.stack([dist[v][mine] for v in around]).argmin(0), minlength=len(around))
         if len(around) == 1 or votes.max() >= majority * votes.sum():
             out[gap] = around[int(np.argmax(votes))]
             claimed_after[gap] = True
@@ -345,17 +352,24 @@ def _cut_every_kind(
     """
     sh, sw = seeds.shape
     pixels = feats.reshape(-1, 3).astype(np.float64)
-    out = np.zeros((sh, sw), np.int64)
-    best = np.full((sh, sw), -1.0, np.float32)
-    prob: dict[int, np.ndarray] = {}
-    for k in kinds:
+
+    def cut_one(k: int) -> tuple[np.ndarray, np.ndarray]:
         cut, fgd, bgd = _grabcut_one(feats, seeds, k, iterations)
         if keep_touching:
             _, comp = cv2.connectedComponents(cut.astype(np.uint8), connectivity=8)
             touched = np.unique(comp[(seeds == k) & cut])
             cut = np.isin(comp, touched[touched > 0])
         lf, lb = gmm_log_density(fgd, pixels), gmm_log_density(bgd, pixels)
-        p = (1.0 / (1.0 + np.exp(np.clip(lb - lf, -60, 60)))).reshape(sh, sw).astype(np.float32)
+        return cut, (1.0 / (1.0 + np.exp(np.clip(lb - lf, -60, 60)))).reshape(sh, sw).astype(np.float32)
+
+    # OpenCV and NumPy release the GIL, and each thread seeds its own OpenCV RNG: the cuts run side by side and
+    # are merged in the order of ``kinds``, as one after the other would be.
+    with ThreadPoolExecutor(max_workers=max(1, min(len(kinds), os.cpu_count() or 1))) as pool:
+        cuts = list(pool.map(cut_one, kinds))
+    out = np.zeros((sh, sw), np.int64)
+    best = np.full((sh, sw), -1.0, np.float32)
+    prob: dict[int, np.ndarray] = {}
+    for k, (cut, p) in zip(kinds, cuts):
         take = cut & (p > best)
         out[take], best[take] = k, p[take]
         if k > 0:

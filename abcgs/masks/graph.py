@@ -185,9 +185,9 @@ def diffuse_labels(graph: GaussianGraph, seeds: np.ndarray, n_labels: int, *, le
     if not free.size or not seeded.any():
         return probs
     w = graph.weights
-    w_uu = w[free][:, free]
-    a = (diags((1.0 + leak) * graph.degree[free]) - w_uu).tocsr()
-    w_us = w[free][:, np.flatnonzero(seeded)]
+    rows = w[free]
+    a = (diags((1.0 + leak) * graph.degree[free]) - rows[:, free]).tocsr()
+    w_us = rows[:, np.flatnonzero(seeded)]
     jacobi = diags(1.0 / np.maximum(a.diagonal(), 1e-300))
     for label in np.unique(seeds[seeded]):
         b = w_us @ (seeds[seeded] == label).astype(np.float64)

@@ -24,7 +24,7 @@ from torch import Tensor
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
-from abcgs.masks.params import LiftParams
+from abcgs.masks.params import UNDECIDED, LiftParams
 from abcgs.render import accumulate_weights, rasterize
 from abcgs.types import Backend
 
@@ -163,22 +163,43 @@ def propagate_unseen(model: GaussianModel, lifted: LiftResult, params: LiftParam
     return LiftResult(labels, lifted.weights, lifted.decided | (unseen & (labels > 0))), int(changed.sum())
 
 
+def label_colours(labels: Tensor, n_labels: int, decided: Tensor | None = None) -> Tensor:
+    """Per-Gaussian labels ``(N,)`` 0..n_labels → the one-hot "colours" that render them ``(N, n_labels + 2)
+    float32``: channel k for label k, and the last channel (``n_labels + 1``) for the Gaussians ``decided (N,) bool``
+    marks False (with ``decided`` None, every Gaussian counts as decided and the last channel stays empty)."""
+    cls = torch.as_tensor(labels).long()
+    if decided is not None:
+        cls = torch.where(torch.as_tensor(decided), cls, torch.full_like(cls, n_labels + 1))
+    return torch.nn.functional.one_hot(cls, n_labels + 2).to(torch.float32)
+
+
+def pick_labels(img: Tensor, alpha: Tensor, threshold: float, *, min_alpha: float = 1e-3, none: int = 0) -> Tensor:
+    """Rendered :func:`label_colours` ``img (..., H, W, C)`` with its ``alpha (..., H, W, 1)`` → each pixel's channel
+    of largest blending weight ``(..., H, W) int64``, where that weight is at least ``threshold`` of the pixel's alpha
+    and the alpha exceeds ``min_alpha``; ``none`` elsewhere."""
+    a = alpha[..., 0]
+    best_w, best = img.max(-1)
+    ok = (best_w >= threshold * a) & (a > min_alpha)
+    return torch.where(ok, best, torch.full_like(best, none))
+
+
 def render_label_map(
-    model: GaussianModel, labels: Tensor, n_labels: int, camera: Camera, *, threshold: float = 0.5, backend: Backend = "auto"
+    model: GaussianModel, labels: Tensor, n_labels: int, camera: Camera, *, decided: Tensor | None = None,
+    threshold: float = 0.5, backend: Backend = "auto",
 ) -> np.ndarray:
     """Render per-Gaussian labels into ``camera``: ``(H, W) int64``.
 
     Each pixel takes the label with the largest accumulated blending weight, if that weight is at least
-    ``threshold`` of the pixel's alpha (else 0, as are empty pixels).
+    ``threshold`` of the pixel's alpha (else 0, as are empty pixels). With ``decided`` ``(N,) bool``, the undecided
+    Gaussians render as a label of their own, and pixels they win are :data:`~abcgs.masks.params.UNDECIDED`.
     """
     act = model.detach().activated()
     dev = model.device
-    onehot = torch.nn.functional.one_hot(labels.long(), n_labels + 1).to(device=dev, dtype=torch.float32)
+    colours = label_colours(labels, n_labels, decided).to(dev)
     with torch.no_grad():
         img, alpha, _ = rasterize(
-            act["means"], act["quats"], act["scales"], act["opacities"], onehot, camera.torch_viewmat(dev),
+            act["means"], act["quats"], act["scales"], act["opacities"], colours, camera.torch_viewmat(dev),
             camera.torch_K(dev), camera.width, camera.height, backend=backend,
         )
-    best_w, best = img.max(-1)
-    ok = (best_w >= threshold * alpha[..., 0]) & (alpha[..., 0] > 1e-3)
-    return torch.where(ok, best, torch.zeros_like(best)).numpy(force=True).astype(np.int64)
+    out = pick_labels(img, alpha, threshold).numpy(force=True).astype(np.int64)
+    return np.where(out == n_labels + 1, UNDECIDED, out)

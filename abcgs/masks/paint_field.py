@@ -42,11 +42,13 @@ class _Photos:
 
 @dataclass
 class StripState:
-    """The strip after the last Segment: each view's small label map, its doubt, and the seconds that update took."""
+    """The strip after the last Segment: each view's small label map, its doubt, the seconds from the request to the
+    strip ready, and their split (``phases``: ``cut``, ``solve``, ``strip``; seconds)."""
 
     maps: list[np.ndarray]
     doubt: list[float]
     seconds: float
+    phases: dict[str, float]
 
 
 class FieldSession:
@@ -100,9 +102,10 @@ class FieldSession:
         started = time.perf_counter() if started is None else started
         with self._lock:
             cam = self.camera_of[item]
+            t0 = time.perf_counter()
             cut = cut_painted_view(self.field, self.result, cam, photo, strokes)
             self.field.set_view(cam, cut, strokes)
-            self._solve(started)
+            self._solve(started, cut_seconds=time.perf_counter() - t0)
             return cut
 
     def forget(self, item: int) -> None:
@@ -119,10 +122,14 @@ class FieldSession:
             else:
                 self.result, self.state = None, None
 
-    def _solve(self, started: float) -> None:
+    def _solve(self, started: float, cut_seconds: float = 0.0) -> None:
+        t0 = time.perf_counter()
         self.result = self.field.solve()
+        t1 = time.perf_counter()
         maps = self.strip.labels(self.result.labels, self.result.decided, self.result.n_labels)
-        self.state = StripState(maps, self.strip.doubt(maps), time.perf_counter() - started)
+        doubt = self.strip.doubt(maps)
+        t2 = time.perf_counter()
+        self.state = StripState(maps, doubt, t2 - started, {"cut": cut_seconds, "solve": t1 - t0, "strip": t2 - t1})
 
     def listing(self, names: list[str]) -> dict:
         """The strip for the page (``names``: the page items' names): its views, most doubtful first, each with

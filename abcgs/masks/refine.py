@@ -39,7 +39,9 @@ from abcgs.masks.lifting import (
     NO_VOTE,
     LiftResult,
     decide_labels,
+    label_colours,
     lift_labels,
+    pick_labels,
     propagate_unseen,
     view_weights,
 )
@@ -105,18 +107,15 @@ def render_seeds(
         ``depth (H, W) float32`` (expected depth, world units; 0 where nothing is rendered).
     """
     act = model.detach().activated()
-    undecided = n_labels + 1
-    cls = torch.where(lifted.decided, lifted.labels.long(), torch.full_like(lifted.labels.long(), undecided)).to(model.device)
-    onehot = torch.nn.functional.one_hot(cls, n_labels + 2).to(torch.float32)
+    colours = label_colours(lifted.labels, n_labels, lifted.decided).to(model.device)
     with torch.no_grad():
         img, alpha, meta = rasterize(
-            act["means"], act["quats"], act["scales"], act["opacities"], onehot, camera.torch_viewmat(model.device),
+            act["means"], act["quats"], act["scales"], act["opacities"], colours, camera.torch_viewmat(model.device),
             camera.torch_K(model.device), camera.width, camera.height, render_mode="RGB+ED", backend=backend,
         )
+    best = pick_labels(img, alpha, 0.5, min_alpha=0.5, none=NO_SEED)
+    rendered = torch.where(best == n_labels + 1, NO_SEED, best).numpy(force=True).astype(np.int64)
     a = alpha[..., 0]
-    best_w, best = img.max(-1)
-    ok = (best_w >= 0.5 * a) & (a > 0.5) & (best != undecided)
-    rendered = torch.where(ok, best, torch.full_like(best, NO_SEED)).numpy(force=True).astype(np.int64)
     depth = torch.where(a > 1e-3, meta.depth[..., 0], torch.zeros_like(a)).numpy(force=True).astype(np.float32)
     seeds = np.full(rendered.shape, NO_SEED, np.int64)
     for v in range(n_labels + 1):

@@ -22,6 +22,7 @@ import torch
 
 from abcgs.cameras import Camera
 from abcgs.gaussians import GaussianModel
+from abcgs.masks.lifting import label_colours, pick_labels
 from abcgs.masks.params import UNDECIDED
 from abcgs.render.frozen import FrozenView, blend_frozen, record_view
 
@@ -31,12 +32,17 @@ STRIP_SIDE = 160
 
 @dataclass
 class Strip:
-    """Every view's frozen label map at strip size (:func:`record_view`), and the views' photos at that size
-    ``(h, w, 3) uint8`` for the doubt (None: no doubt from colour)."""
+    """Every view's frozen label map at strip size (:func:`record_view`), the views' photos at that size
+    ``(h, w, 3) uint8`` (None: no doubt from colour) and their CIELAB ``(h * w, 3) float32`` for the doubt."""
 
     views: list[FrozenView]
     photos: list[np.ndarray] | None
     seconds: float
+    cielab: list[np.ndarray] | None = None
+
+    def __post_init__(self) -> None:
+        if self.photos is not None and self.cielab is None:
+            self.cielab = [cv2.cvtColor(p, cv2.COLOR_RGB2LAB).reshape(-1, 3).astype(np.float32) for p in self.photos]
 
     @classmethod
     def record(cls, model: GaussianModel, cameras: list[Camera], photos: list[np.ndarray] | None = None,
@@ -59,16 +65,12 @@ class Strip:
         """Each view's label map ``(h, w) int64``: the label of largest weight where it holds at least ``threshold``
         of a pixel's alpha (:func:`abcgs.masks.field.render_field`'s rule);
         :data:`UNDECIDED` where undecided Gaussians win, 0 where nothing is rendered or no label holds enough."""
-        undecided = n_labels + 1
-        cls = torch.as_tensor(np.where(decided, labels, undecided))
-        onehot = torch.nn.functional.one_hot(cls, n_labels + 2).float()
+        colours = label_colours(torch.as_tensor(labels), n_labels, torch.as_tensor(decided))
         out = []
         for view in self.views:
-            img, alpha = blend_frozen(view, onehot[view.ids].contiguous())
-            best_w, best = img.max(-1)
-            ok = (best_w >= threshold * alpha[..., 0]) & (alpha[..., 0] > 1e-3)
-            lab = torch.where(ok, best, torch.zeros_like(best)).numpy().astype(np.int64)
-            out.append(np.where(lab == undecided, UNDECIDED, lab))
+            img, alpha = blend_frozen(view, colours[view.ids].contiguous())
+            lab = pick_labels(img, alpha, threshold).numpy().astype(np.int64)
+            out.append(np.where(lab == n_labels + 1, UNDECIDED, lab))
         return out
 
     def doubt(self, maps: list[np.ndarray]) -> list[float]:
@@ -81,15 +83,14 @@ class Strip:
                 out.append(1.0)
                 continue
             undecided = float((lab == UNDECIDED).sum() / shown.sum())
-            out.append(undecided + (self._colour_disagreement(self.photos[i], lab) if self.photos else 0.0))
+            out.append(undecided + (self._colour_disagreement(self.cielab[i], lab) if self.cielab else 0.0))
         return out
 
     @staticmethod
-    def _colour_disagreement(photo: np.ndarray, lab: np.ndarray) -> float:
+    def _colour_disagreement(cie: np.ndarray, lab: np.ndarray) -> float:
         ids = [k for k in np.unique(lab) if 0 < k < UNDECIDED]
         if len(ids) < 2:
             return 0.0
-        cie = cv2.cvtColor(photo, cv2.COLOR_RGB2LAB).reshape(-1, 3).astype(np.float32)
         flat = lab.ravel()
         means = np.stack([cie[flat == k].mean(0) for k in ids])
         keep = np.isin(flat, ids)

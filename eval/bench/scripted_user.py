@@ -44,8 +44,9 @@ from abcgs.io.atomic import write_json
 from abcgs.io.images import load_image, save_image, to_uint8
 from abcgs.io.ply import read_ply
 from abcgs.masks.content import label_iou
-from abcgs.masks.field import LabelField, cut_painted_view, render_field
+from abcgs.masks.field import LabelField, render_field
 from abcgs.masks.grabcut import Stroke, rasterize_strokes
+from abcgs.masks.paint_field import FieldSession
 from abcgs.masks.params import FieldParams
 from abcgs.masks.strip import Strip
 from abcgs.sfm.model import read_colmap_scene
@@ -83,36 +84,32 @@ def score(maps: dict[str, np.ndarray], refs: dict[str, np.ndarray], n_labels: in
 
 
 class ScriptedUser:
-    """The page's state for one run: the field, each painted view's strokes, and the last result."""
+    """The page's state for one run (:class:`abcgs.masks.paint_field.FieldSession`, one page item per camera) and
+    each painted view's strokes."""
 
     def __init__(self, model, scene, refs: dict[str, np.ndarray], by_stem: dict[str, int], params: FieldParams):
         self.scene, self.refs, self.by_stem = scene, refs, by_stem
-        self.field = LabelField(model, scene.cameras, params)
         self.strokes: dict[int, list[Stroke]] = {}
-        self.result = None
         photos = [to_uint8(load_image(p)) for p in scene.image_paths]
-        self.strip = Strip.record(model, scene.cameras, photos)
-        print(f"strip of {len(self.strip.views)} views recorded in {self.strip.seconds:.1f} s", flush=True)
+        strip = Strip.record(model, scene.cameras, photos)
+        self.session = FieldSession(LabelField(model, scene.cameras, params), strip,
+                                    {i: i for i in range(len(scene.cameras))})
+        print(f"strip of {len(strip.views)} views recorded in {strip.seconds:.1f} s", flush=True)
 
     def segment(self, index: int) -> dict:
-        """What the page does on Segment for view ``index``: cut it, lift, solve, render the strip; the seconds."""
+        """What the page does on Segment for view ``index`` (:meth:`FieldSession.segment`); the seconds, split."""
         cam = self.scene.cameras[index]
         t0 = time.perf_counter()
         seeds = rasterize_strokes(self.strokes[index], (cam.height, cam.width))
         photo = to_uint8(load_image(self.scene.image_paths[index]))
-        cut = cut_painted_view(self.field, self.result, index, photo, seeds)
-        t1 = time.perf_counter()
-        self.field.set_view(index, cut, seeds)
-        self.result = self.field.solve()
-        t2 = time.perf_counter()
-        self.strip.doubt(self.strip.labels(self.result.labels, self.result.decided, self.result.n_labels))
-        t3 = time.perf_counter()
-        return {"cut": t1 - t0, "solve": t2 - t1, "strip": t3 - t2, "total": t3 - t0}
+        self.session.segment(index, photo, seeds, started=t0)
+        state = self.session.state
+        return {**state.phases, "total": state.seconds}
 
     def maps(self, rendered: bool = False) -> dict[str, np.ndarray]:
         """Each reference view's labels as the stage writes them (a painted view's cut where it decided), or, with
         ``rendered``, as rendered from the Gaussians alone."""
-        return {s: render_field(self.field, self.result, self.by_stem[s], cut_where_painted=not rendered)
+        return {s: render_field(self.session.field, self.session.result, self.by_stem[s], cut_where_painted=not rendered)
                 for s in self.refs}
 
 
@@ -125,7 +122,7 @@ def run(user: ScriptedUser, front: int, first: list[Stroke], n_labels: int, max_
         maps = user.maps()
         s = score(maps, user.refs, n_labels)
         steps.append({"strokes": sum(len(v) for v in user.strokes.values()), "seconds": seconds, **s,
-                      "rendered": score(user.maps(rendered=True), user.refs, n_labels), "counts": user.result.counts()})
+                      "rendered": score(user.maps(rendered=True), user.refs, n_labels), "counts": user.session.result.counts()})
         print(f"{steps[-1]['strokes']:3d} strokes: worst IoU {s['worst_iou']:.3f}, mean {s['mean_iou']:.3f}, "
               f"unlabelled ≤ {max(s['unlabelled'].values()):.1%}, Segment → every view {seconds['total']:.2f} s "
               f"(cut {seconds['cut']:.2f}, solve {seconds['solve']:.2f}, strip {seconds['strip']:.2f})", flush=True)
