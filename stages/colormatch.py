@@ -18,7 +18,7 @@ from abcgs.runtime import setup
 setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
 from abcgs import layout
-from abcgs.io.ply import read_ply
+from abcgs.gaussians.ply import read_ply
 from abcgs.masks.outputs import load_scene_masks
 from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.runtime import resolve_device, torch_threads

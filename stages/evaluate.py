@@ -20,9 +20,9 @@ setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 from abcgs import layout
 from abcgs.evaluation.evaluate import evaluate_scene, load_stylize_run, write_evaluation
 from abcgs.evaluation.reference import load_reference, model_digest
+from abcgs.gaussians.ply import read_ply
 from abcgs.io.images import load_image, load_render
 from abcgs.io.metrics import info_path
-from abcgs.io.ply import read_ply
 from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.runtime import resolve_device
 from abcgs.sfm.model import read_scene

@@ -19,7 +19,7 @@ from abcgs.runtime import setup
 setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
 from abcgs import layout
-from abcgs.io.ply import read_ply
+from abcgs.gaussians.ply import read_ply
 from abcgs.masks.content import make_content_masks
 from abcgs.masks.outputs import write_content_masks, write_unread_masks
 from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser

@@ -19,7 +19,7 @@ setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
 from abcgs import layout
 from abcgs.evaluation.reference import FLOW_SETTINGS, compute_reference, model_digest, save_reference
-from abcgs.io.ply import read_ply
+from abcgs.gaussians.ply import read_ply
 from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.progress import progress
 from abcgs.runtime import resolve_device

@@ -19,9 +19,9 @@ from test_add_scene import _run
 from test_splats import _write, make_model, render_all, ring_cameras
 
 from abcgs.fit.params import FitParams
+from abcgs.gaussians.ply import write_ply
 from abcgs.io.colmap import write_model
 from abcgs.io.images import save_image
-from abcgs.io.ply import write_ply
 from abcgs.params import load_params
 from abcgs.sources.read import read_source
 from abcgs.splats.exporting import give_back

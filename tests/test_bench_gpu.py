@@ -49,7 +49,7 @@ def test_every_tensor_stage_tracks_and_resolves_the_device(stage: str) -> None:
 def test_the_gpu_script_dry_run_on_the_cpu(tmp_path: Path) -> None:
     """``python -m eval.bench.gpu run --device cpu --tiny --quick``: every stage's entry point runs under
     ``runtime.device: cpu`` through the script that a lent GPU runs, and its outputs are on disk and on the CPU."""
-    from abcgs.io.ply import read_ply
+    from abcgs.gaussians.ply import read_ply
 
     record = gpu.run(gpu.main_parser().parse_args(
         ["run", "--device", "cpu", "--tiny", "--quick", "--work", str(tmp_path / "work"), "--json", str(tmp_path / "r.json")]))

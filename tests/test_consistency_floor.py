@@ -12,7 +12,7 @@ import torch
 
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
-from abcgs.io.ply import write_ply
+from abcgs.gaussians.ply import write_ply
 from abcgs.sfm.model import read_colmap_scene
 from eval.studies import consistency_floor
 

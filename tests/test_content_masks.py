@@ -124,7 +124,7 @@ def test_mask_lifting_script_scores_held_out_views(tiny_colmap, tmp_path) -> Non
     import json
     import math
 
-    from abcgs.io.ply import write_ply
+    from abcgs.gaussians.ply import write_ply
     from abcgs.sfm.model import read_colmap_scene
     from eval.studies import mask_lifting
 

@@ -20,8 +20,8 @@ from abcgs.fit.outputs import fit_and_save
 from abcgs.fit.params import FitParams, StrategyParams
 from abcgs.fit.training import fit, view_order
 from abcgs.gaussians import GaussianModel, render
+from abcgs.gaussians.ply import read_ply
 from abcgs.io.images import load_image, save_image
-from abcgs.io.ply import read_ply
 from abcgs.types import Cameras, Scene
 
 W, H = 48, 36

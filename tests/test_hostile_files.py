@@ -23,8 +23,8 @@ import yaml
 from conftest import REPO_ROOT
 
 from abcgs.errors import InputError, ParamsError
+from abcgs.gaussians.ply import write_ply
 from abcgs.io.images import MAX_IMAGE_PIXELS, load_labels, save_image, save_labels
-from abcgs.io.ply import write_ply
 from abcgs.sections import read_params_file
 from abcgs.sources.read import read_source
 from abcgs.splats.formats.gsplat_ckpt import write_gsplat_ckpt

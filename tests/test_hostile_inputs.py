@@ -21,7 +21,7 @@ import torch
 from conftest import REPO_ROOT
 
 from abcgs.errors import InputError
-from abcgs.io.ply import read_ply, write_ply
+from abcgs.gaussians.ply import read_ply, write_ply
 from abcgs.sfm.model import read_colmap_scene
 from abcgs.sources.read import read_source
 from abcgs.splats.formats.spz import decode_spz, encode_spz

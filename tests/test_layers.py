@@ -17,7 +17,14 @@ from pathlib import Path
 
 import pytest
 
-from eval.bench.structure import MAX_FUNCTION_LINES, floor_of, long_functions, module_path
+from eval.bench.structure import (
+    MAX_FUNCTION_LINES,
+    MAX_MODULE_LINES,
+    floor_of,
+    long_functions,
+    long_modules,
+    module_path,
+)
 from eval.bench.structure import module_name as _module_name
 from eval.bench.structure import upward_imports as _upward_imports
 
@@ -112,6 +119,19 @@ def test_no_function_is_longer_than_the_limit() -> None:
     found = long_functions(ROOT)
     assert not found, (f"functions over {MAX_FUNCTION_LINES} lines (split each into functions of one concept):\n"
                        + "\n".join(f"{name}: {n} lines" for name, n in found))
+
+
+def test_no_module_is_longer_than_the_limit() -> None:
+    found = long_modules(ROOT)
+    assert not found, (f"modules over {MAX_MODULE_LINES} lines (split each into modules of one concept):\n"
+                       + "\n".join(f"{name}: {n} lines" for name, n in found))
+
+
+def test_the_module_size_check_reads_every_code_folder(tmp_path: Path) -> None:
+    for folder, n in (("abcgs", 600), ("stages", 601), ("eval/bench", 700), ("tests", 900)):
+        (tmp_path / folder).mkdir(parents=True)
+        (tmp_path / folder / "m.py").write_text("x = 1\n" * n)
+    assert long_modules(tmp_path) == [("eval/bench/m.py", 700), ("stages/m.py", 601)]  # tests are not measured
 
 
 def test_the_size_check_counts_def_to_last_line_in_every_code_folder(tmp_path: Path) -> None:

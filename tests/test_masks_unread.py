@@ -16,7 +16,7 @@ from test_splats import make_model
 from abcgs import layout
 from abcgs.dag import load_stage
 from abcgs.features.params import TransferSpec, content_label_readers
-from abcgs.io.ply import write_ply
+from abcgs.gaussians.ply import write_ply
 from abcgs.masks.outputs import UNREAD_SOURCE, load_scene_masks
 from abcgs.pipeline import run_stage, stage_parser
 from abcgs.sfm.model import read_colmap_scene

@@ -116,7 +116,7 @@ def test_forward_views_of_an_object_hold_all_of_it_and_orbit_framing_is_the_same
     (a background: read_splat_source as the stages call it); the same views as a frame-filling scene frame its
     quantiles, which crop it (74-79 % of each view's border on the object). Orbit views frame every Gaussian either
     way, so the object flag does not move them."""
-    from abcgs.io.ply import write_ply
+    from abcgs.gaussians.ply import write_ply
     from abcgs.sources.splat import read_splat_source
 
     model = _flat_object()

@@ -208,7 +208,7 @@ def test_two_painted_views_show_their_labels_in_the_strip_of_every_view(browser,
     import math
 
     from abcgs.gaussians import GaussianModel
-    from abcgs.io.ply import write_ply
+    from abcgs.gaussians.ply import write_ply
     from abcgs.masks.paint_field import THUMB_PHOTO
     from abcgs.sfm.model import read_colmap_scene
     from abcgs.viz import LABEL_COLOURS

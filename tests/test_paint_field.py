@@ -35,7 +35,7 @@ def fit_tiny(colmap: Path, ply: Path, iterations: int = 200) -> Path:
     """A short fit of the tiny scene's layout ``colmap`` (no densification: its points' Gaussians, placed), to ``ply``."""
     from abcgs.fit.params import FitParams
     from abcgs.fit.training import fit
-    from abcgs.io.ply import write_ply
+    from abcgs.gaussians.ply import write_ply
     from abcgs.sfm.model import read_scene
 
     params = FitParams(iterations=iterations, backend="cpu", test_every=0, threads=1, seed=0, densify=False)

@@ -22,8 +22,8 @@ import pytest
 import yaml
 from conftest import REPO_ROOT, copy_repo, run_in
 
+from abcgs.gaussians.ply import read_ply
 from abcgs.io.metrics import numeric_leaves
-from abcgs.io.ply import read_ply
 from abcgs.pipeline import READ_AUDIT_ENV
 from eval.bench.regression import REDUCED, reduce
 from eval.bench.repo_copy import IDENTITY

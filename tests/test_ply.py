@@ -9,7 +9,7 @@ from plyfile import PlyData, PlyElement
 
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
-from abcgs.io.ply import gaussians_to_array, ply_property_names, read_ply, write_ply
+from abcgs.gaussians.ply import gaussians_to_array, ply_property_names, read_ply, write_ply
 
 
 def random_model(n: int, degree: int, seed: int = 0) -> GaussianModel:
@@ -43,8 +43,8 @@ def test_round_trip_bit_exact(tmp_path, degree):
 
 
 def test_the_body_written_in_blocks_is_plyfiles_whole_array_byte_for_byte(tmp_path, monkeypatch):
-    from abcgs.io import ply
-    from abcgs.io.ply import PlyLayout
+    from abcgs.gaussians import ply
+    from abcgs.gaussians.ply import PlyLayout
 
     model = random_model(1000, 3, seed=5)
     monkeypatch.setattr(ply, "PLY_CHUNK", 96)  # 11 blocks, the last one short

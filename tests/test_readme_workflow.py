@@ -23,8 +23,8 @@ from conftest import REPO_ROOT, copy_repo, run_in
 from readme_examples import README, readme_examples
 from test_splats import make_model
 
+from abcgs.gaussians.ply import read_ply
 from abcgs.io.metrics import info_path
-from abcgs.io.ply import read_ply
 from abcgs.splats.formats.splat import write_splat_file
 from abcgs.stylize.schedule import SHORT, SHORT_MAX_PIXELS
 

@@ -15,7 +15,7 @@ from abcgs.render.frozen import record_view, render_frozen
 from abcgs.render.sh import sh_to_color
 from abcgs.splats.cameras import cameras_around
 from abcgs.splats.params import SplatViewsParams
-from abcgs.stylize import loop, replay
+from abcgs.stylize import loop, replay, sh_bands
 from abcgs.stylize.params import StylizeOptim, StylizeParams
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -160,13 +160,13 @@ def test_a_colour_pass_that_replays_its_views_ends_where_one_that_renders_every_
 
 
 def test_a_pass_with_zero_untrained_higher_bands_renders_at_degree_0_with_the_same_image_and_gradients():
-    """``higher_sh: zero``: the passes render at degree 0 (:func:`loop.render_sh_degree`) and get the image, the
+    """``higher_sh: zero``: the passes render at degree 0 (:func:`sh_bands.render_sh_degree`) and get the image, the
     depth and the gradients of the degree-3 render of the zeroed bands, bit for bit; trained or nonzero bands keep
     every stored band."""
     model = make_model(1500, degree=3, seed=7)
     model.shN = torch.zeros_like(model.shN)
     cam = cameras_around(model, SplatViewsParams(kind="orbit", count=3, width=48, height=36))[0][1]
-    assert loop.render_sh_degree(model, {"sh0": 1e-3, "shN": 0.0}) == 0
+    assert sh_bands.render_sh_degree(model, {"sh0": 1e-3, "shN": 0.0}) == 0
     outs = []
     for degree in (None, 0):
         m = model.as_parameters(trainable=["means", "sh0", "quats", "log_scales", "opacity_logits"])
@@ -176,6 +176,6 @@ def test_a_pass_with_zero_untrained_higher_bands_renders_at_degree_0_with_the_sa
                     + [getattr(m, k).grad for k in ("means", "sh0", "quats", "log_scales", "opacity_logits")])
     for a, b in zip(*outs):
         assert torch.equal(a, b)
-    assert loop.render_sh_degree(model, {"shN": 1e-4}) is None  # trained bands
+    assert sh_bands.render_sh_degree(model, {"shN": 1e-4}) is None  # trained bands
     model.shN[0, 0, 0] = 0.1
-    assert loop.render_sh_degree(model, {"shN": 0.0}) is None  # a band that is not zero
+    assert sh_bands.render_sh_degree(model, {"shN": 0.0}) is None  # a band that is not zero

@@ -15,8 +15,8 @@ from abcgs.features.params import TransferSpec
 from abcgs.features.vgg import VGG16Features, random_state_dict
 from abcgs.fit.params import FitParams
 from abcgs.gaussians import GaussianModel, render
+from abcgs.gaussians.ply import read_ply
 from abcgs.io.images import save_image
-from abcgs.io.ply import read_ply
 from abcgs.sources.splat import read_splat_source
 from abcgs.splats.cameras import cameras_around
 from abcgs.splats.exporting import give_back
@@ -25,8 +25,9 @@ from abcgs.splats.importing import import_and_save
 from abcgs.splats.params import SplatViewsParams
 from abcgs.splats.registry import read_splat
 from abcgs.stylize.colormatch import color_match_and_refit
-from abcgs.stylize.loop import stylize, with_higher_sh
+from abcgs.stylize.loop import stylize
 from abcgs.stylize.params import ColorMatchParams, StylizeOptim, StylizeParams
+from abcgs.stylize.sh_bands import with_higher_sh
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_splats import make_model  # noqa: E402
@@ -88,7 +89,7 @@ def test_a_bare_splat_runs_through_import_stylization_and_give_back(tmp_path):
     with torch.no_grad():
         assert not torch.equal(res.model.sh0, original.sh0)
     (tmp_path / "stylized.ply").parent.mkdir(exist_ok=True)
-    from abcgs.io.ply import write_ply
+    from abcgs.gaussians.ply import write_ply
 
     write_ply(tmp_path / "stylized.ply", res.model)
     returned = give_back(tmp_path / "stylized.ply", tmp_path / "gs" / "splat_source.json", tmp_path / "returned")

@@ -12,7 +12,7 @@ import pytest
 import yaml
 from conftest import copy_repo, run_in
 
-from abcgs.io.ply import read_ply
+from abcgs.gaussians.ply import read_ply
 from abcgs.sfm.model import read_colmap_scene
 
 pytestmark = pytest.mark.slow

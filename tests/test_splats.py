@@ -16,8 +16,8 @@ from abcgs.errors import InputError
 from abcgs.fit import metrics as M
 from abcgs.fit.params import FitParams
 from abcgs.gaussians import GaussianModel, render
+from abcgs.gaussians.ply import PlyLayout, read_ply, read_ply_layout, write_ply
 from abcgs.io.images import save_image
-from abcgs.io.ply import PlyLayout, read_ply, read_ply_layout, write_ply
 from abcgs.sfm.align import Similarity
 from abcgs.splats import frames
 from abcgs.splats.exporting import give_back

@@ -102,7 +102,7 @@ def test_file_round_trip_and_record(tmp_path):
     assert not list(tmp_path.glob("*.tmp*"))
     d = read_spz(path)
     assert float((d.means - m.means).abs().max()) <= ROUND_TRIP_TOLERANCE["position"] + 1e-6
-    from abcgs.io.ply import write_ply
+    from abcgs.gaussians.ply import write_ply
 
     write_ply(tmp_path / "scene.ply", m)
     rec = export_record(m, tmp_path / "scene.ply", path, size)
@@ -116,7 +116,7 @@ def test_out_of_range_colours_are_clipped_and_counted(tmp_path):
     d = decode_spz(encode_spz(m))
     assert float(d.sh0[:10].max()) == pytest.approx(127.5 / (0.15 * 255), abs=1e-3)
     write_spz(tmp_path / "a.spz", m)
-    from abcgs.io.ply import write_ply
+    from abcgs.gaussians.ply import write_ply
 
     write_ply(tmp_path / "a.ply", m)
     rec = export_record(m, tmp_path / "a.ply", tmp_path / "a.spz", 1)

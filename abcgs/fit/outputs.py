@@ -14,9 +14,9 @@ from abcgs.fit.evaluation import comparison_grid, evaluate
 from abcgs.fit.params import FitParams
 from abcgs.fit.plausibility import check_fit
 from abcgs.fit.training import FitResult, fit
+from abcgs.gaussians.ply import write_ply
 from abcgs.io.atomic import write_json
 from abcgs.io.images import save_image
-from abcgs.io.ply import write_ply
 from abcgs.io.tables import write_csv
 from abcgs.layout import FitDir
 from abcgs.render.cpu import kernel_threads
@@ -33,7 +33,7 @@ def fit_and_save(
 ) -> FitResult:
     """:func:`fit`, then write into ``out_dir`` (each file atomically):
 
-    - ``point_cloud.ply``: INRIA-layout 3DGS PLY (:func:`abcgs.io.ply.write_ply`);
+    - ``point_cloud.ply``: INRIA-layout 3DGS PLY (:func:`abcgs.gaussians.ply.write_ply`);
     - ``metrics.json``: held-out ``psnr``/``ssim`` means and ``per_view``, ``n_gaussians``, ``seconds``, ``backend``, …,
       and ``check``: the plausibility check's numbers (:class:`~abcgs.fit.plausibility.FitCheck`);
     - ``history.csv``: ``step, seconds, loss, psnr, n_gaussians`` per step;

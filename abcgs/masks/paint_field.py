@@ -71,7 +71,7 @@ class FieldSession:
         Raises:
             InputError: no fit, no camera matches a page image, or a matched image is not its camera's size.
         """
-        from abcgs.io.ply import read_ply
+        from abcgs.gaussians.ply import read_ply
         from abcgs.sfm.model import read_scene
 
         if not Path(ply).is_file():

@@ -12,8 +12,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from abcgs.gaussians.ply import read_ply
 from abcgs.io.atomic import atomic_path, write_json
-from abcgs.io.ply import read_ply
 from abcgs.splats import frames
 from abcgs.splats.registry import read_provenance, returned_name, write_splat
 

@@ -21,9 +21,9 @@ from abcgs.fit.data import load_views
 from abcgs.fit.evaluation import comparison_grid, evaluate
 from abcgs.fit.outputs import HISTORY_COLUMNS
 from abcgs.fit.params import FitParams
+from abcgs.gaussians.ply import write_ply
 from abcgs.io.atomic import write_json
 from abcgs.io.images import save_image
-from abcgs.io.ply import write_ply
 from abcgs.io.tables import write_csv
 from abcgs.layout import FitDir
 from abcgs.render import select_backend

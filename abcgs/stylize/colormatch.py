@@ -19,9 +19,9 @@ from abcgs.fit.data import Views, load_views
 from abcgs.fit.params import FitParams
 from abcgs.fit.training import fit
 from abcgs.gaussians import GaussianModel
+from abcgs.gaussians.ply import write_ply
 from abcgs.io.atomic import atomic_path, write_json
 from abcgs.io.images import save_image
-from abcgs.io.ply import write_ply
 from abcgs.layout import ColorMatchDir
 from abcgs.silhouette import (
     Silhouette,

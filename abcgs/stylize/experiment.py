@@ -16,8 +16,8 @@ from abcgs.features.params import IsolationParams, TransferSpec, VggWeightsParam
 from abcgs.features.vgg import VGG16Features
 from abcgs.features.weights import WeightsInfo, resolve_vgg16
 from abcgs.gaussians import GaussianModel
+from abcgs.gaussians.ply import read_ply
 from abcgs.io.images import load_labels
-from abcgs.io.ply import read_ply
 from abcgs.layout import ColorMatchDir
 from abcgs.stylize.params import StylizeParams
 from abcgs.types import MatchingGroup

@@ -46,6 +46,7 @@ from abcgs.stylize.color import apply_group_transforms, fit_color_transform, pre
 from abcgs.stylize.params import StyleWeights, StylizeParams
 from abcgs.stylize.replay import ReplayedViews, can_replay
 from abcgs.stylize.schedule import choose_schedule
+from abcgs.stylize.sh_bands import higher_sh_lr, keep_bands_above_1_zero, render_sh_degree, with_higher_sh
 from abcgs.types import FRAME_FILLING, Background, MatchingGroup, SceneMasks, StyleMethod
 
 log = logging.getLogger(__name__)
@@ -186,43 +187,6 @@ def color_match_model(
         out.shN = (torch.zeros_like(out.shN) if gaussians is None
                    else torch.where(gaussians.to(out.shN.device)[:, None, None], 0.0, out.shN).contiguous())
     return out, transforms
-
-
-def with_higher_sh(model: GaussianModel, original: GaussianModel, mode: str) -> GaussianModel:
-    """``model`` with the SH bands above DC that ``stylize.higher_sh = mode`` starts from: ``zero`` leaves them as
-    they are (the colour match zeroed them), ``frozen``/``optimized`` put the ``original``'s back, ``degree1`` puts
-    back band 1 and zeroes bands 2–3."""
-    if mode == "zero" or not model.shN.numel():
-        return model
-    if original.shN.shape != model.shN.shape:
-        raise InputError(f"higher_sh={mode}: the original scene has SH shape {tuple(original.shN.shape)}, the colour-"
-                         f"matched one {tuple(model.shN.shape)}; re-run the colormatch stage")
-    out = model.detach()
-    shn = original.shN.detach().clone()
-    if mode == "degree1":
-        shn[:, 3:] = 0.0
-    out.shN = shn.contiguous()
-    return out
-
-
-def _keep_bands_above_1_zero(model: GaussianModel, params: StylizeParams) -> None:
-    """``degree1``: bands 2–3 get no gradient, so Adam leaves them at zero (a degree-1 scene in degree-3 storage)."""
-    if params.higher_sh == "degree1" and model.shN.shape[1] > 3 and model.shN.requires_grad:
-        model.shN.register_hook(lambda g: torch.cat([g[:, :3], torch.zeros_like(g[:, 3:])], dim=1))
-
-
-def higher_sh_lr(params: StylizeParams, model: GaussianModel) -> float:
-    """The higher SH bands' learning rate: ``optim.lr_shN`` when ``higher_sh`` optimises them (and the scene has them)."""
-    return params.optim.lr_shN if params.higher_sh in ("optimized", "degree1") and model.shN.numel() else 0.0
-
-
-def render_sh_degree(model: GaussianModel, lrs: dict[str, float]) -> int | None:
-    """The SH degree a pass renders ``model`` at: 0 when its higher bands are all zero and not trained
-    (``higher_sh: zero``), which gives the same colours and gradients without reading the 45 zeros of every Gaussian
-    each render (0.5 GB a step at 3 M Gaussians); otherwise every stored band (``None``)."""
-    if model.shN.numel() and lrs.get("shN", 0.0) == 0.0 and not bool(model.shN.detach().any()):
-        return 0
-    return None
 
 
 def group_pixel_masks(groups: list[MatchingGroup], label_map: np.ndarray) -> list[np.ndarray]:
@@ -385,7 +349,7 @@ def style_pass(
     lrs = main_pass_lrs(params) | {"shN": higher_sh_lr(params, model)}
     m = model.as_parameters(trainable=[k for k, lr in lrs.items() if lr > 0])
     opt = _optimizer(m, lrs)
-    _keep_bands_above_1_zero(m, params)
+    keep_bands_above_1_zero(m, params)
     views = _random_views(len(targets), params.seed)
     style_feats = [StyleFeatures.of(g.features) for g in groups]  # fixed for the run: prepared once
     w, fast, backend, log_every = params.weights, params.fast, params.compute.backend, params.compute.log_every
@@ -493,7 +457,7 @@ def color_pass(
     m = recolored.as_parameters(trainable=[k for k, lr in lrs.items() if lr > 0])
     del recolored
     opt = _optimizer(m, lrs)
-    _keep_bands_above_1_zero(m, params)
+    keep_bands_above_1_zero(m, params)
     replay = ReplayedViews(m, [t.camera for t in targets], params.compute.backend) if can_replay(
         m, params.compute.backend, lrs) else None
     freeze_gaussians(m, None if backdrop.gaussians is None else ~backdrop.gaussians)

@@ -18,9 +18,9 @@ from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.features.params import ALL_PIXELS
 from abcgs.gaussians import GaussianModel, render_each
+from abcgs.gaussians.ply import write_ply
 from abcgs.io.atomic import atomic_path
 from abcgs.io.images import save_image
-from abcgs.io.ply import write_ply
 from abcgs.io.tables import write_csv
 from abcgs.layout import StylizeDir
 from abcgs.silhouette import background_tensor, composite_rgba

@@ -10,7 +10,7 @@ import numpy as np
 
 from abcgs import layout
 from abcgs.errors import InputError
-from abcgs.io.ply import read_ply
+from abcgs.gaussians.ply import read_ply
 from abcgs.sfm.model import read_scene
 from abcgs.types import PathKind
 from abcgs.view.page import ViewerExperiment, prepare_experiment

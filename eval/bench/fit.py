@@ -27,8 +27,8 @@ import torch
 
 from abcgs.fit.params import FitParams, StrategyParams
 from abcgs.fit.training import fit
+from abcgs.gaussians.ply import write_ply
 from abcgs.io.atomic import write_json
-from abcgs.io.ply import write_ply
 from abcgs.runtime import resolve_device
 from abcgs.sfm.model import read_colmap_scene
 from abcgs.sfm.params import ReconstructParams

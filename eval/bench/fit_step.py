@@ -33,8 +33,8 @@ from abcgs.fit.losses import reconstruction_loss
 from abcgs.fit.params import FitParams
 from abcgs.fit.training import make_optimizers
 from abcgs.gaussians import render
+from abcgs.gaussians.ply import read_ply
 from abcgs.io.atomic import write_json
-from abcgs.io.ply import read_ply
 from abcgs.render import select_backend
 from abcgs.render.cpu import kernel_threads
 from abcgs.sfm.model import read_colmap_scene

@@ -167,7 +167,7 @@ class Target:
 
 def make_targets(work: Path, formats: tuple[str, ...] = FORMATS) -> dict[str, Target]:
     """A valid input of each format under ``work`` and its reader (module docstring); each reads as made."""
-    from abcgs.io.ply import write_ply
+    from abcgs.gaussians.ply import write_ply
     from abcgs.sfm.model import read_colmap_scene
     from abcgs.sources.read import read_source
     from abcgs.splats.formats.splat import write_splat_file

@@ -49,9 +49,9 @@ from abcgs.cameras import Camera, intrinsics, look_at
 from abcgs.features.params import ALL_PIXELS
 from abcgs.features.vgg import VGG16Features, extract_features, random_state_dict
 from abcgs.gaussians import GaussianModel, render
+from abcgs.gaussians.ply import write_ply
 from abcgs.io.atomic import write_json
 from abcgs.io.images import save_image
-from abcgs.io.ply import write_ply
 from abcgs.splats.formats.spz import write_spz
 from abcgs.splats.preview import decimate
 from abcgs.splats.registry import read_splat, write_splat

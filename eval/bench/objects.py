@@ -54,9 +54,9 @@ from abcgs.features.weights import resolve_vgg16
 from abcgs.fit.params import FitParams
 from abcgs.fit.training import fit
 from abcgs.gaussians import GaussianModel, render
+from abcgs.gaussians.ply import read_ply, write_ply
 from abcgs.io.atomic import write_json
 from abcgs.io.images import load_image, save_image
-from abcgs.io.ply import read_ply, write_ply
 from abcgs.scene.params import TinySceneParams
 from abcgs.scene.synthetic import write_object_dataset
 from abcgs.sfm.model import read_colmap_scene

@@ -24,7 +24,7 @@ from abcgs.features.matching import load_style
 from abcgs.features.vgg import VGG16Features, downsample_half, extract_features
 from abcgs.features.weights import resolve_vgg16
 from abcgs.gaussians import render
-from abcgs.io.ply import read_ply
+from abcgs.gaussians.ply import read_ply
 from abcgs.params import Params, load_params
 from abcgs.sfm.model import read_colmap_scene
 

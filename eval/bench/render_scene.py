@@ -27,7 +27,7 @@ setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 import torch
 
 from abcgs.gaussians import render
-from abcgs.io.ply import read_ply
+from abcgs.gaussians.ply import read_ply
 from abcgs.render.cpu import load_extension
 from abcgs.sfm.model import read_colmap_scene
 from eval.bench.timing import repeat_seconds

@@ -40,9 +40,9 @@ import cv2
 import numpy as np
 import torch
 
+from abcgs.gaussians.ply import read_ply
 from abcgs.io.atomic import write_json
 from abcgs.io.images import load_image, save_image, to_uint8
-from abcgs.io.ply import read_ply
 from abcgs.masks.content import label_iou
 from abcgs.masks.field import LabelField, render_field
 from abcgs.masks.grabcut import Stroke, rasterize_strokes

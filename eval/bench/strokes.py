@@ -44,9 +44,9 @@ import numpy as np
 import torch
 
 from abcgs.gaussians import GaussianModel
+from abcgs.gaussians.ply import read_ply
 from abcgs.io.atomic import write_json
 from abcgs.io.images import load_image, load_labels, save_image, save_labels, to_uint8
-from abcgs.io.ply import read_ply
 from abcgs.masks.content import ContentMasks, label_iou, make_content_masks, recut_outputs
 from abcgs.masks.grabcut import Stroke, segment
 from abcgs.masks.lifting import NO_VOTE, LiftResult, lift_labels, render_label_map

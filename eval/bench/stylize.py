@@ -36,9 +36,9 @@ from abcgs.features.vgg import VGG16Features, downsample_half, extract_features
 from abcgs.features.weights import resolve_vgg16
 from abcgs.fit.metrics import ssim as ssim_metric
 from abcgs.gaussians import render
+from abcgs.gaussians.ply import read_ply, write_ply
 from abcgs.io.atomic import write_json
 from abcgs.io.images import save_image
-from abcgs.io.ply import read_ply, write_ply
 from abcgs.losses.terms import gram_matrix
 from abcgs.params import load_params
 from abcgs.sfm.model import read_colmap_scene

@@ -34,8 +34,8 @@ from abcgs.runtime import setup
 
 setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
+from abcgs.gaussians.ply import read_ply
 from abcgs.io.atomic import write_json, write_text
-from abcgs.io.ply import read_ply
 from abcgs.sfm.model import read_colmap_scene
 from abcgs.view.page import prepare_experiment, viewer_page
 

@@ -33,9 +33,9 @@ from abcgs.features.vgg import VGG16Features
 from abcgs.features.weights import resolve_vgg16
 from abcgs.fit.params import FitParams
 from abcgs.gaussians import GaussianModel, render
+from abcgs.gaussians.ply import read_ply, write_ply
 from abcgs.io.atomic import write_json
 from abcgs.io.images import save_image
-from abcgs.io.ply import read_ply, write_ply
 from abcgs.params import load_params
 from abcgs.sources.splat import read_splat_source
 from abcgs.splats.exporting import give_back

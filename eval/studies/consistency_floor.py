@@ -41,8 +41,8 @@ from abcgs.evaluation.consistency import (
 from abcgs.evaluation.pairs import consistency_pairs
 from abcgs.evaluation.reference import compute_floor, render_views
 from abcgs.gaussians import render
+from abcgs.gaussians.ply import read_ply
 from abcgs.io.atomic import write_json
-from abcgs.io.ply import read_ply
 from abcgs.sfm.model import read_colmap_scene
 
 

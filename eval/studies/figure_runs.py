@@ -26,8 +26,8 @@ import torch
 from abcgs.errors import InputError
 from abcgs.features.matching import load_style
 from abcgs.gaussians import render
+from abcgs.gaussians.ply import read_ply
 from abcgs.io.images import save_image
-from abcgs.io.ply import read_ply
 from abcgs.sfm.model import read_colmap_scene
 from abcgs.viz import image_grid
 

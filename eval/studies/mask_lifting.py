@@ -28,9 +28,9 @@ from abcgs.runtime import setup
 setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
 from abcgs.errors import InputError
+from abcgs.gaussians.ply import read_ply
 from abcgs.io.atomic import write_json
 from abcgs.io.images import load_image, save_image
-from abcgs.io.ply import read_ply
 from abcgs.masks.content import find_given_masks_with_palette, grabcut_view, heldout_scores
 from abcgs.masks.lifting import lift_labels, propagate_unseen, render_label_map
 from abcgs.masks.params import GrabCutParams, LiftParams

@@ -35,16 +35,17 @@ from abcgs.features.weights import resolve_vgg16
 from abcgs.fit.params import FitParams, StrategyParams
 from abcgs.fit.training import fit
 from abcgs.gaussians import GaussianModel, render
+from abcgs.gaussians.ply import read_ply, write_ply
 from abcgs.io.atomic import write_json
 from abcgs.io.images import save_image
-from abcgs.io.ply import read_ply, write_ply
 from abcgs.params import load_params
 from abcgs.sfm.colmap import reconstruct
 from abcgs.sfm.model import read_colmap_scene
 from abcgs.sfm.params import ReconstructParams
 from abcgs.stylize.colormatch import color_match_and_refit
-from abcgs.stylize.loop import stylize, with_higher_sh
+from abcgs.stylize.loop import stylize
 from abcgs.stylize.params import ColorMatchParams, HigherSH
+from abcgs.stylize.sh_bands import with_higher_sh
 from abcgs.viz import image_grid
 from eval.bench.stylize import gram_distance
 

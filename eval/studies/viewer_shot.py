@@ -22,9 +22,9 @@ from abcgs.runtime import setup
 
 setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
+from abcgs.gaussians.ply import read_ply
 from abcgs.io.atomic import write_text
 from abcgs.io.images import save_image
-from abcgs.io.ply import read_ply
 from abcgs.splats.cameras import cameras_around
 from abcgs.splats.params import SplatViewsParams
 from abcgs.splats.registry import read_splat

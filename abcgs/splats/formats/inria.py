@@ -1,7 +1,7 @@
 """INRIA 3DGS output folders: ``point_cloud/iteration_<N>/point_cloud.ply`` (the highest ``N`` is the trained scene),
 ``cameras.json`` (per view ``img_name``, ``position`` = camera centre and ``rotation`` = camera-to-world rotation, in
 the frame of the COLMAP dataset it was trained on) and ``cfg_args`` (the training options as a printed
-``Namespace(...)``; its ``source_path`` names that dataset). The PLY is read by :mod:`abcgs.io.ply`.
+``Namespace(...)``; its ``source_path`` names that dataset). The PLY is read by :mod:`abcgs.gaussians.ply`.
 
 Frame: the dataset's; where the scene's cameras share names with ``cameras.json``, the similarity between the two
 sets of centres (identity when they agree).
@@ -18,9 +18,9 @@ import numpy as np
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
+from abcgs.gaussians.ply import PlyLayout, read_ply_layout, write_ply
 from abcgs.io.atomic import atomic_path, write_text
 from abcgs.io.guarded import parse_json, read_bounded, read_text
-from abcgs.io.ply import PlyLayout, read_ply_layout, write_ply
 from abcgs.sfm.align import Similarity, alignment_residual
 from abcgs.splats import frames
 from abcgs.splats.contract import SplatFormatSpec, SplatProvenance

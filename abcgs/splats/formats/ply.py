@@ -1,5 +1,5 @@
 """Any INRIA-layout PLY (SH degree 0–3; OpenSplat's with ``--keep-crs``, …), in the scene's frame. Read and written
-by :mod:`abcgs.io.ply` in the source's own property layout. The other PLY formats (:mod:`.gsplat_ply`,
+by :mod:`abcgs.gaussians.ply` in the source's own property layout. The other PLY formats (:mod:`.gsplat_ply`,
 :mod:`.opensplat`, :mod:`.splatfacto`) read and write their file with :func:`read` and :func:`write` and differ in
 their frame.
 """
@@ -11,8 +11,8 @@ from pathlib import Path
 
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
+from abcgs.gaussians.ply import PlyLayout, read_ply_layout, write_ply
 from abcgs.io.atomic import write_text
-from abcgs.io.ply import PlyLayout, read_ply_layout, write_ply
 from abcgs.splats.contract import SplatFormatSpec, SplatProvenance
 
 

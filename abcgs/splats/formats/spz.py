@@ -352,8 +352,8 @@ def sidecar(spz: str | os.PathLike) -> Path:
 
 def export_spz(ply: str | os.PathLike, spz: str | os.PathLike) -> dict:
     """Convert the PLY ``ply`` to ``spz`` and write its record (:func:`export_record`) to :func:`sidecar`."""
+    from abcgs.gaussians.ply import read_ply
     from abcgs.io.atomic import write_json
-    from abcgs.io.ply import read_ply
 
     model = read_ply(ply)
     record = export_record(model, ply, spz, write_spz(spz, model))
