@@ -131,3 +131,19 @@ def test_reconstruct_carries_the_strokes_beside_the_cuts(tiny_scene, tmp_path) -
                               load_labels(tmp_path / "colmap" / "masks" / "000.png").shape)
     assert set(np.unique(carried)) == {-1, 0, 2}
     assert abs(int((carried == 2).sum()) - int((seeds == 2).sum())) < 0.3 * (seeds == 2).sum()
+
+
+def test_the_colour_doubt_counts_pixels_nearer_another_labels_mean_colour() -> None:
+    rng = np.random.default_rng(7)
+    cie = rng.uniform(0, 100, (30 * 40, 3)).astype(np.float32)
+    lab = rng.integers(0, 5, (30, 40))
+    lab[:3] = UNDECIDED
+    flat = lab.ravel()
+    ids = [k for k in range(1, 5)]
+    means = np.stack([cie[flat == k].astype(np.float64).mean(0) for k in ids])
+    shown = (flat > 0) & (flat < UNDECIDED)
+    nearest = np.array(ids)[np.linalg.norm(cie[shown, None, :] - means[None], axis=-1).argmin(1)]
+    expected = float((nearest != flat[shown]).mean())
+    assert 0.5 < expected < 0.9  # random colours: most pixels are nearer another label's mean
+    assert np.isclose(Strip._colour_disagreement(cie, lab), expected, atol=1.0 / shown.sum())
+    assert Strip._colour_disagreement(cie, np.full_like(lab, 3)) == 0.0  # one label: nothing to disagree with

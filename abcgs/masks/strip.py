@@ -88,12 +88,16 @@ class Strip:
 
     @staticmethod
     def _colour_disagreement(cie: np.ndarray, lab: np.ndarray) -> float:
-        ids = [k for k in np.unique(lab) if 0 < k < UNDECIDED]
+        """The share of the labelled pixels of ``lab`` ``(h, w)`` whose colour ``cie`` ``(h * w, 3)`` is nearer
+        another label's mean colour in the view than its own's (0 with fewer than two labels)."""
+        flat = lab.ravel()
+        keep = (flat > 0) & (flat < UNDECIDED)
+        ids, own = np.unique(flat[keep], return_inverse=True)
         if len(ids) < 2:
             return 0.0
-        flat = lab.ravel()
-        means = np.stack([cie[flat == k].mean(0) for k in ids])
-        keep = np.isin(flat, ids)
-        dist = np.linalg.norm(cie[keep, None, :] - means[None], axis=-1)
-        own = np.searchsorted(ids, flat[keep])
+        colours = cie[keep]
+        counts = np.bincount(own, minlength=len(ids))[:, None]
+        means = (np.stack([np.bincount(own, colours[:, c], len(ids)) for c in range(3)], 1) / counts).astype(np.float32)
+        # |x - m|² less |x|², the same for every label of a pixel
+        dist = (means**2).sum(1)[None] - 2.0 * colours @ means.T
         return float((dist.argmin(1) != own).mean())
