@@ -125,7 +125,7 @@ def _writes_files_directly(path: Path) -> list[str]:
 
 
 def test_formats_write_bytes_only_through_the_atomic_writer():
-    files = [*sorted(FORMATS_DIR.glob("*.py")), ROOT / "abcgs" / "io" / "ply.py"]
+    files = [*sorted(FORMATS_DIR.glob("*.py")), ROOT / "abcgs" / "gaussians" / "ply.py"]
     found = [hit for p in files for hit in _writes_files_directly(p)]
     assert not found, f"format modules that write a file themselves (use abcgs.io.atomic.write_stream): {found}"
 
