@@ -149,6 +149,28 @@ def test_one_camera_batch_equals_the_unbatched_call():
         assert torch.equal(grads[name], expected[name]), name
 
 
+@pytest.mark.parametrize("backend", ["cpu", "reference"])
+def test_one_camera_is_a_batch_of_one_bit_for_bit(backend):
+    """The unbatched call is the batch of one: image, alpha, depth, every projection field and every gradient,
+    ``meta.means2d``'s included (the densifier's statistic, read through ``retain_grad()``), equal exactly."""
+    if backend == "cpu" and not is_available():
+        pytest.skip("C++ backend not built")
+    scene, viewmats, Ks, leaves = _setup(True, seed=4, n=120, width=40, height=30)
+    weights = [w[:1] for w in _weights(9, scene.height, scene.width, torch.float32)]
+    kw = {"render_mode": "RGB+ED", "background": torch.tensor([0.2, 0.4, 0.6])}
+    (image, alpha, meta), grads = _batched(scene, viewmats[:1], Ks[:1], leaves, weights, backend, **kw)
+    views, expected = _per_view(scene, viewmats[:1], Ks[:1], leaves, weights, backend, **kw)
+    one_image, one_alpha, one_meta = views[0]
+    assert one_image.shape == image.shape[1:] and one_meta.means2d.shape == (scene.n, 2)
+    assert torch.equal(image[0], one_image) and torch.equal(alpha[0], one_alpha)
+    for field in ("means2d", "radii", "depths", "visible", "depth"):
+        assert torch.equal(getattr(meta, field)[0], getattr(one_meta, field)), field
+    assert one_meta.means2d.grad is not None and one_meta.means2d.grad.abs().sum() > 0
+    assert torch.equal(meta.means2d.grad[0], one_meta.means2d.grad)
+    for name in grads:
+        assert torch.equal(grads[name], expected[name]), name
+
+
 def test_batched_reference_backend_equals_per_view():
     """The reference backend's batch is its per-view renders stacked; gradients equal the per-view sums up to the
     order autograd adds them in (float32 rounding)."""

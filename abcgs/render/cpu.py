@@ -167,49 +167,6 @@ def is_available() -> bool:
     return extension_or_none() is not None
 
 
-def rasterize_cpu(
-    means2d: Tensor, conics: Tensor, colors: Tensor, opacities: Tensor, depths: Tensor, extents: Tensor,
-    width: int, height: int, *, tile_size: int = 16,
-) -> tuple[Tensor, Tensor]:
-    """Fast-backend twin of :func:`abcgs.render.reference.rasterize_reference` (same arguments and outputs)."""
-    image, alpha = _RasterizeCPU.apply(means2d, conics, colors, opacities, depths, extents, width, height, tile_size)
-    return image, alpha[..., None]
-
-
-class _RasterizeCPU(torch.autograd.Function):
-    """Forward returns (image, alpha); backward passes both output gradients to the C++ kernel."""
-
-    @staticmethod
-    def forward(ctx, means2d, conics, colors, opacities, depths, extents, width, height, tile_size):
-        ext = load_extension()
-        means2d, conics, colors = means2d.contiguous(), conics.contiguous(), colors.contiguous()
-        opacities, extents = opacities.contiguous(), extents.detach().contiguous().to(colors.dtype)
-        depths = depths.detach().contiguous().to(colors.dtype)
-        # depth sort (stable radix) and tile binning happen in C++, same order/boxes as the reference backend
-        image, trans, last, *binning = ext.rasterize_forward(
-            means2d, conics, colors, opacities, depths, extents, width, height, tile_size, False
-        )
-        ctx.save_for_backward(means2d, conics, colors, opacities, extents, trans, last, *binning)
-        ctx.dims = (width, height, tile_size)
-        return image, 1.0 - trans
-
-    @staticmethod
-    def backward(ctx, v_image, v_alpha):
-        ext = load_extension()
-        width, height, tile_size = ctx.dims
-        (means2d, conics, colors, opacities, extents, trans, last, *binning) = ctx.saved_tensors
-        if v_image is None:
-            v_image = torch.zeros(height, width, colors.shape[1], dtype=colors.dtype)
-        if v_alpha is None:
-            v_alpha = torch.zeros(height, width, dtype=colors.dtype)
-        rows = binning[1].numel() * (6 + colors.shape[1])
-        vm, vc, vcol, vo = ext.rasterize_backward(
-            means2d, conics, colors, opacities, extents, trans, last, *binning,
-            v_image.contiguous(), v_alpha.contiguous(), width, height, tile_size, _scratch(rows, colors.dtype),
-        )
-        return vm, vc, vcol, vo, None, None, None, None, None
-
-
 _scratch_local = threading.local()
 
 
@@ -367,7 +324,8 @@ def project_batch_cpu(
 
 
 class _RasterizeBatchCPU(torch.autograd.Function):
-    """:class:`_RasterizeCPU` over C views: colours per view ``(C, N, F)`` or shared ``(N, F)``; with
+    """The blend of C views (the C++ ``rasterize_forward``/``rasterize_backward`` view by view, depth-sorted and
+    tile-binned there in the reference backend's order): colours per view ``(C, N, F)`` or shared ``(N, F)``; with
     ``depth_channel`` each view's depths are blended as channel F (and get its gradient)."""
 
     @staticmethod
@@ -391,6 +349,10 @@ class _RasterizeBatchCPU(torch.autograd.Function):
         width, height, tile_size, depth_channel = ctx.dims
         means2d, conics, colors, opacities, depths, extents, trans, last, *saved = ctx.saved_tensors
         C, F = means2d.shape[0], colors.shape[-1] + depth_channel
+        if means2d.shape[1] == 0:  # no Gaussian: no gradient (the kernel would index the empty depth column)
+            return (torch.zeros_like(means2d), torch.zeros_like(conics), torch.zeros_like(colors),
+                    torch.zeros_like(opacities), torch.zeros_like(depths) if depth_channel else None,
+                    None, None, None, None, None)
         if v_image is None:
             v_image = colors.new_zeros(C, height, width, F)
         if v_alpha is None:
@@ -407,7 +369,7 @@ def rasterize_batch_cpu(
     means2d: Tensor, conics: Tensor, colors: Tensor, opacities: Tensor, depths: Tensor, extents: Tensor,
     width: int, height: int, *, tile_size: int = 16, depth_channel: bool = False,
 ) -> tuple[Tensor, Tensor]:
-    """:func:`rasterize_cpu` for C views in one call: ``means2d`` ``(C, N, 2)``, ``conics`` ``(C, N, 3)``, ``colors``
+    """The compiled twin of :func:`abcgs.render.reference.rasterize_reference`, for C views in one call: ``means2d`` ``(C, N, 2)``, ``conics`` ``(C, N, 3)``, ``colors``
     ``(C, N, F)`` or ``(N, F)`` (shared by the views), ``opacities`` ``(N,)``, ``depths`` ``(C, N)``, ``extents``
     ``(C, N, 2)``. With ``depth_channel`` the depths are blended as one more channel (``RGB+D``). Returns image
     ``(C, H, W, F [+ 1])`` without background and alpha ``(C, H, W, 1)``."""

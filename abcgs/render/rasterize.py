@@ -10,17 +10,21 @@ Backends:
                     the reference backend with a warning when the preferred one cannot run.
 The environment variable ``ABCGS_RENDER_BACKEND`` overrides ``"auto"``. A backend named explicitly never
 falls back: it runs or raises :class:`BackendUnavailable`.
+
+Every backend has one path, over a batch of C cameras (gsplat's ``viewmats [C, 4, 4]``): one camera renders as a
+batch of one, and its outputs and gradients are those of the batch bit for bit (``tests/test_render_batched.py``).
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import re
 import typing
 import warnings
 from collections.abc import Sequence
-from dataclasses import fields
+from dataclasses import fields, replace
 
 import torch
 from torch import Tensor
@@ -179,45 +183,15 @@ def rasterize(
     if n_cameras is not None and background is not None and background.dim() == 2 and background.shape[0] != n_cameras:
         raise ValueError(f"background must be (D,) or ({n_cameras}, D) for {n_cameras} cameras, got {tuple(background.shape)}")
     name = select_backend(means.device, backend)
-    if name == "gsplat":
-        return _rasterize_gsplat(
-            means, quats, scales, opacities, colors, viewmats, Ks, width, height, sh_degree=sh_degree,
-            background=background, render_mode=render_mode, near=near, far=far, eps2d=eps2d, tile_size=tile_size,
-        )
-    if n_cameras is not None:
-        return _rasterize_batch(
-            name, means, quats, scales, opacities, colors, viewmats, Ks, width, height, sh_degree=sh_degree,
-            background=background, render_mode=render_mode, near=near, far=far, eps2d=eps2d, tile_size=tile_size,
-        )
-    return _rasterize_view(
-        name, means, quats, scales, opacities, colors, viewmats, Ks, width, height, sh_degree=sh_degree,
+    single = n_cameras is None  # one camera renders as a batch of one
+    if single:
+        viewmats, Ks = viewmats[None], Ks[None]
+    impl = _rasterize_gsplat if name == "gsplat" else functools.partial(_rasterize_batch, name)
+    image, alpha, meta = impl(
+        means, quats, scales, opacities, colors, viewmats, Ks, width, height, single=single, sh_degree=sh_degree,
         background=background, render_mode=render_mode, near=near, far=far, eps2d=eps2d, tile_size=tile_size,
     )
-
-
-def _rasterize_view(
-    name: Backend, means, quats, scales, opacities, colors, viewmat, K, width, height, *, sh_degree, background,
-    render_mode, near, far, eps2d, tile_size,
-) -> tuple[Tensor, Tensor, RenderMeta]:
-    """:func:`rasterize` for one camera on the CPU kernels or the reference backend: project, colour (SH evaluated
-    for the kept Gaussians only on the CPU kernels), blend."""
-    # The fused C++ projection treats the camera as constant; camera optimisation takes the autograd path.
-    camera_grad = viewmat.requires_grad or K.requires_grad
-    project = cpu_backend.project_cpu if name == "cpu" and not camera_grad else project_gaussians
-    proj = project(means, quats, scales, opacities, viewmat, K, width, height, near=near, far=far, eps2d=eps2d)
-    if sh_degree is not None and name == "cpu":
-        sh0, shN = sh_blocks(colors)
-        # evaluated only for the Gaussians the projection kept
-        colors = cpu_backend.sh_colors_cpu(sh_degree, sh0, shN, means, camera_position(viewmat), proj.visible)
-    elif sh_degree is not None:
-        colors = sh_to_color(sh_degree, sh_coefficients(colors), means, camera_position(viewmat))
-    n_color = colors.shape[1]
-    feats = torch.cat([colors, proj.depths[:, None]], dim=1) if render_mode != "RGB" else colors
-    blend = cpu_backend.rasterize_cpu if name == "cpu" else rasterize_reference
-    out, alpha = blend(proj.means2d, proj.conics, feats, opacities, proj.depths, proj.extents, width, height, tile_size=tile_size)
-    image, depth = _finish(out, alpha, n_color, render_mode, background)
-    meta = RenderMeta(proj.means2d, proj.radii, proj.depths, proj.visible, depth, name, width, height)
-    return image, alpha, meta
+    return (image[0], alpha[0], meta) if single else (image, alpha, meta)
 
 
 def camera_batch(viewmats: Tensor, Ks: Tensor) -> int | None:
@@ -241,10 +215,11 @@ def camera_batch(viewmats: Tensor, Ks: Tensor) -> int | None:
 
 
 def _rasterize_batch(
-    name: Backend, means, quats, scales, opacities, colors, viewmats, Ks, width, height, *, sh_degree, background,
-    render_mode, near, far, eps2d, tile_size,
+    name: Backend, means, quats, scales, opacities, colors, viewmats, Ks, width, height, *, single, sh_degree,
+    background, render_mode, near, far, eps2d, tile_size,
 ) -> tuple[Tensor, Tensor, RenderMeta]:
-    """:func:`rasterize` for C cameras on the CPU kernels or the reference backend (gsplat: :func:`_rasterize_gsplat`).
+    """:func:`rasterize` for C cameras on the CPU kernels or the reference backend (gsplat: :func:`_rasterize_gsplat`):
+    image ``(C, H, W, D)``, alpha ``(C, H, W, 1)`` and the meta, of the one camera when ``single`` (C = 1).
 
     The CPU kernels project (with the SH colours) and blend all views in one call each (``csrc/batch_cpu.cpp``).
     The reference backend, and the CPU backend when a camera takes gradients, project view by view with
@@ -272,9 +247,10 @@ def _rasterize_batch(
             colors = torch.stack([sh_to_color(sh_degree, coeffs, means, camera_position(viewmats[c]))
                                   for c in range(n_cameras)])
     n_color = colors.shape[-1]
+    means2d, meta_means2d = _screen_positions(proj.means2d, single)
     if name == "cpu":
         out, alpha = cpu_backend.rasterize_batch_cpu(
-            proj.means2d, proj.conics, colors, opacities, proj.depths, proj.extents, width, height,
+            means2d, proj.conics, colors, opacities, proj.depths, proj.extents, width, height,
             tile_size=tile_size, depth_channel=depth_channel,
         )
     else:
@@ -282,14 +258,24 @@ def _rasterize_batch(
         for c in range(n_cameras):
             col = colors[c] if colors.dim() == 3 else colors
             feats = torch.cat([col, proj.depths[c][:, None]], dim=1) if depth_channel else col
-            views.append(rasterize_reference(proj.means2d[c], proj.conics[c], feats, opacities, proj.depths[c],
+            views.append(rasterize_reference(means2d[c], proj.conics[c], feats, opacities, proj.depths[c],
                                              proj.extents[c], width, height, tile_size=tile_size))
         out, alpha = torch.stack([v[0] for v in views]), torch.stack([v[1] for v in views])
     if background is not None and background.dim() == 2:
         background = background[:, None, None, :]
     image, depth = _finish(out, alpha, n_color, render_mode, background)
     meta = RenderMeta(proj.means2d, proj.radii, proj.depths, proj.visible, depth, name, width, height)
-    return image, alpha, meta
+    return image, alpha, replace(meta.view(0), means2d=meta_means2d) if single else meta
+
+
+def _screen_positions(means2d: Tensor, single: bool) -> tuple[Tensor, Tensor]:
+    """The projected means ``(C, N, 2)`` the blend reads, and the tensor ``meta.means2d`` returns. For one camera that
+    is its ``(N, 2)`` row taken before the blend, which reads it back as a batch of one: ``retain_grad()`` on a row
+    taken after the blend would stay without a gradient."""
+    if not single:
+        return means2d, means2d
+    row = means2d[0]
+    return row[None], row
 
 
 def sh_blocks(colors: Tensor | Sequence[Tensor]) -> tuple[Tensor, Tensor]:
@@ -331,17 +317,13 @@ GSPLAT_CHANNEL_CHUNK = 32
 
 
 def _rasterize_gsplat(
-    means, quats, scales, opacities, colors, viewmats, Ks, width, height, *, sh_degree, background, render_mode, near,
-    far, eps2d, tile_size,
+    means, quats, scales, opacities, colors, viewmats, Ks, width, height, *, single, sh_degree, background,
+    render_mode, near, far, eps2d, tile_size,
 ):
-    """``rasterize`` on gsplat's kernels: the steps of ``gsplat.rasterization`` (unpacked), composed here so that
-    ``meta.means2d`` is the tensor the rasterizer reads (``retain_grad()`` on a view of gsplat's ``(C, N, 2)`` output
-    would stay without a gradient): ``(N, 2)`` for one camera, ``(C, N, 2)`` for a batch, which gsplat takes as its
-    own batch of cameras. Conventions: docs/RENDERING.md, "gsplat conventions"."""
+    """``rasterize`` on gsplat's kernels: the steps of ``gsplat.rasterization`` (unpacked) for C cameras, which gsplat
+    takes as its own batch, composed here so that ``meta.means2d`` is the tensor the rasterizer reads (of the one
+    camera when ``single``: :func:`_screen_positions`). Conventions: docs/RENDERING.md, "gsplat conventions"."""
     gsplat = _import_gsplat()
-    single = viewmats.dim() == 2
-    if single:
-        viewmats, Ks = viewmats[None], Ks[None]
     n_cameras = viewmats.shape[0]
     radii_c, means2d_c, depths_c, conics, _ = gsplat.fully_fused_projection(
         means, None, quats, scales, viewmats, Ks, width, height, eps2d=eps2d, near_plane=near, far_plane=far,
@@ -349,20 +331,14 @@ def _rasterize_gsplat(
     )
     kept = (radii_c > 0).all(dim=-1)  # (C, N)
     # gsplat's CUDA projection leaves the rows of the Gaussians it culls unwritten (torch.empty): never read them.
-    if single:
-        means2d_out = torch.where(kept[0][:, None], means2d_c[0], torch.zeros_like(means2d_c[0]))
-        means2d = means2d_out[None]
-        z = (means @ viewmats[0, 2, :3] + viewmats[0, 2, 3])[None]
-    else:
-        means2d = means2d_out = torch.where(kept[..., None], means2d_c, torch.zeros_like(means2d_c))
-        z = (means @ viewmats[:, 2, :3].T + viewmats[:, 2, 3]).T
+    means2d, means2d_out = _screen_positions(torch.where(kept[..., None], means2d_c, torch.zeros_like(means2d_c)),
+                                             single)
+    z = (means @ viewmats[:, 2, :3].T + viewmats[:, 2, 3]).T
     depths = torch.where(kept, depths_c, z)
     if sh_degree is not None:
         coeffs = sh_coefficients(colors)
-        dirs = means - camera_position(viewmats[0]) if single else means[None] - camera_position(viewmats)[:, None]
-        if not single:
-            coeffs = coeffs.expand(n_cameras, *coeffs.shape)
-        sh = gsplat.spherical_harmonics(sh_degree, dirs, coeffs, masks=kept[0] if single else kept)
+        dirs = means[None] - camera_position(viewmats)[:, None]
+        sh = gsplat.spherical_harmonics(sh_degree, dirs, coeffs.expand(n_cameras, *coeffs.shape), masks=kept)
         colors = torch.clamp_min(sh + 0.5, 0.0)
     colors = colors.expand(n_cameras, *colors.shape) if colors.dim() == 2 else colors
     n_color = colors.shape[-1]
@@ -379,9 +355,7 @@ def _rasterize_gsplat(
         chunks.append(out_c)
         alpha = alpha_c if alpha is None else alpha
     out = torch.cat(chunks, dim=-1)
-    if single:
-        out, alpha, conics, depths, kept = out[0], alpha[0], conics[0], depths[0], kept[0]
-    elif background is not None and background.dim() == 2:
+    if background is not None and background.dim() == 2:
         background = background[:, None, None, :]
     image, depth = _finish(out, alpha, n_color, render_mode, background)
     # gsplat keeps a Gaussian when its integer, opacity-aware radius box overlaps the image; meta.visible and
@@ -391,9 +365,9 @@ def _rasterize_gsplat(
         a, b, c = conics.detach().unbind(-1)
         det = a * c - b * b
         cov_diag = torch.where(kept[..., None], torch.stack([c / det, a / det], dim=-1), torch.zeros_like(conics[..., :2]))
-        _, radii, visible = screen_bounds(means2d_out, cov_diag, opacities, kept, width, height)
-    meta = RenderMeta(means2d_out, radii, depths, visible, depth, "gsplat", width, height)
-    return image, alpha, meta
+        _, radii, visible = screen_bounds(means2d.detach(), cov_diag, opacities, kept, width, height)
+    meta = RenderMeta(means2d, radii, depths, visible, depth, "gsplat", width, height)
+    return image, alpha, replace(meta.view(0), means2d=means2d_out) if single else meta
 
 
 def accumulate_weights(
