@@ -25,6 +25,15 @@ if TYPE_CHECKING:
     import torch
 
 
+def available_cores() -> int:
+    """Cores this process may run on: its affinity mask where the OS has one (a Slurm allocation, ``taskset``), else
+    ``os.cpu_count()``."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # macOS, Windows
+        return os.cpu_count() or 1
+
+
 def setup(threads: int | None = None) -> bool:
     """The process-wide settings of an abcgs program; call it before anything imports torch.
 

@@ -147,3 +147,19 @@ def test_the_colour_doubt_counts_pixels_nearer_another_labels_mean_colour() -> N
     assert 0.5 < expected < 0.9  # random colours: most pixels are nearer another label's mean
     assert np.isclose(Strip._colour_disagreement(cie, lab), expected, atol=1.0 / shown.sum())
     assert Strip._colour_disagreement(cie, np.full_like(lab, 3)) == 0.0  # one label: nothing to disagree with
+
+
+def test_pick_labels_maps_the_undecided_channel_and_the_weak_pixels() -> None:
+    """The last channel of :func:`label_colours` is the undecided Gaussians': its pixels take ``undecided``; a pixel
+    whose best label holds under ``threshold`` of its alpha, or with no alpha, takes ``none``."""
+    import torch
+
+    from abcgs.masks.lifting import label_colours, pick_labels
+
+    assert label_colours(torch.tensor([0, 2, 1]), 2, torch.tensor([True, True, False])).argmax(-1).tolist() == [0, 2, 3]
+    # pixels: label 1 strong, undecided strong, label 2 weak (0.3 of alpha 0.9), empty
+    img = torch.tensor([[[0.0, 0.8, 0.1, 0.0], [0.0, 0.1, 0.0, 0.7], [0.3, 0.3, 0.3, 0.0], [0.0, 0.0, 0.0, 0.0]]])
+    alpha = torch.tensor([[[0.9], [0.8], [0.9], [0.0]]])
+    assert pick_labels(img, alpha, 0.5).tolist() == [[1, UNDECIDED, 0, 0]]
+    assert pick_labels(img, alpha, 0.5, none=-1, undecided=-2).tolist() == [[1, -2, -1, -1]]
+    assert pick_labels(img, alpha, 0.0, none=-1, undecided=0).tolist() == [[1, 0, 0, -1]]

@@ -11,7 +11,6 @@ the workers use the cores; and they never spin, so on a shared machine they shar
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
 from typing import TypeVar
@@ -19,17 +18,10 @@ from typing import TypeVar
 import torch
 
 from abcgs.errors import InputError
+from abcgs.runtime import available_cores
 
 T = TypeVar("T")
 R = TypeVar("R")
-
-
-def available_cores() -> int:
-    """Cores this process may run on (its affinity mask where the OS has one, else ``os.cpu_count()``)."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # macOS, Windows
-        return os.cpu_count() or 1
 
 
 def resolve_workers(requested: int) -> int:

@@ -33,7 +33,7 @@ from abcgs.cameras import Camera
 from abcgs.gaussians import GaussianModel
 from abcgs.masks.graph import GaussianGraph, decide_diffused, diffuse_labels, gaussian_graph
 from abcgs.masks.lifting import NO_VOTE, decide_labels, view_weights
-from abcgs.masks.params import UNDECIDED, FieldParams, LiftParams
+from abcgs.masks.params import FieldParams, LiftParams
 from abcgs.types import Backend
 
 log = logging.getLogger(__name__)
@@ -223,7 +223,7 @@ def render_field(field: LabelField, result: FieldResult, index: int, *, threshol
     from abcgs.masks.lifting import render_label_map
 
     out = render_label_map(field.model, torch.as_tensor(result.labels), result.n_labels, field.cameras[index],
-                           decided=torch.as_tensor(result.decided), threshold=threshold, backend=field.backend)
-    out = np.where(out == UNDECIDED, 0, out)
+                           decided=torch.as_tensor(result.decided), threshold=threshold, undecided=0,
+                           backend=field.backend)
     cut = field.cut_of(index) if cut_where_painted else None
     return out if cut is None else np.where(cut >= 0, cut, out)

@@ -19,7 +19,6 @@ edges, so a label stops where its surface does even when the colours on both sid
 
 from __future__ import annotations
 
-import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -30,6 +29,7 @@ import numpy as np
 from abcgs.errors import InputError
 from abcgs.io.images import to_uint8
 from abcgs.masks.params import UNDECIDED
+from abcgs.runtime import available_cores
 
 BACKGROUND = 0
 """Stroke label of the background brush: certain background for every label, unassigned (0) in the saved map."""
@@ -364,7 +364,7 @@ def _cut_every_kind(
 
     # OpenCV and NumPy release the GIL, and each thread seeds its own OpenCV RNG: the cuts run side by side and
     # are merged in the order of ``kinds``, as one after the other would be.
-    with ThreadPoolExecutor(max_workers=max(1, min(len(kinds), os.cpu_count() or 1))) as pool:
+    with ThreadPoolExecutor(max_workers=max(1, min(len(kinds), available_cores()))) as pool:
         cuts = list(pool.map(cut_one, kinds))
     out = np.zeros((sh, sw), np.int64)
     best = np.full((sh, sw), -1.0, np.float32)

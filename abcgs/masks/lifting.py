@@ -173,25 +173,29 @@ def label_colours(labels: Tensor, n_labels: int, decided: Tensor | None = None) 
     return torch.nn.functional.one_hot(cls, n_labels + 2).to(torch.float32)
 
 
-def pick_labels(img: Tensor, alpha: Tensor, threshold: float, *, min_alpha: float = 1e-3, none: int = 0) -> Tensor:
+def pick_labels(img: Tensor, alpha: Tensor, threshold: float, *, min_alpha: float = 1e-3, none: int = 0,
+                undecided: int = UNDECIDED) -> Tensor:
     """Rendered :func:`label_colours` ``img (..., H, W, C)`` with its ``alpha (..., H, W, 1)`` → each pixel's channel
     of largest blending weight ``(..., H, W) int64``, where that weight is at least ``threshold`` of the pixel's alpha
-    and the alpha exceeds ``min_alpha``; ``none`` elsewhere."""
+    and the alpha exceeds ``min_alpha``; ``undecided`` where that channel is the last one (the undecided
+    Gaussians'), ``none`` elsewhere."""
     a = alpha[..., 0]
     best_w, best = img.max(-1)
     ok = (best_w >= threshold * a) & (a > min_alpha)
+    best = torch.where(best == img.shape[-1] - 1, torch.full_like(best, undecided), best)
     return torch.where(ok, best, torch.full_like(best, none))
 
 
 def render_label_map(
     model: GaussianModel, labels: Tensor, n_labels: int, camera: Camera, *, decided: Tensor | None = None,
-    threshold: float = 0.5, backend: Backend = "auto",
+    threshold: float = 0.5, undecided: int = UNDECIDED, backend: Backend = "auto",
 ) -> np.ndarray:
     """Render per-Gaussian labels into ``camera``: ``(H, W) int64``.
 
     Each pixel takes the label with the largest accumulated blending weight, if that weight is at least
     ``threshold`` of the pixel's alpha (else 0, as are empty pixels). With ``decided`` ``(N,) bool``, the undecided
-    Gaussians render as a label of their own, and pixels they win are :data:`~abcgs.masks.params.UNDECIDED`.
+    Gaussians render as a label of their own, and pixels they win are ``undecided``
+    (:data:`~abcgs.masks.params.UNDECIDED`).
     """
     act = model.detach().activated()
     dev = model.device
@@ -201,5 +205,4 @@ def render_label_map(
             act["means"], act["quats"], act["scales"], act["opacities"], colours, camera.torch_viewmat(dev),
             camera.torch_K(dev), camera.width, camera.height, backend=backend,
         )
-    out = pick_labels(img, alpha, threshold).numpy(force=True).astype(np.int64)
-    return np.where(out == n_labels + 1, UNDECIDED, out)
+    return pick_labels(img, alpha, threshold, undecided=undecided).numpy(force=True).astype(np.int64)

@@ -113,8 +113,7 @@ def render_seeds(
             act["means"], act["quats"], act["scales"], act["opacities"], colours, camera.torch_viewmat(model.device),
             camera.torch_K(model.device), camera.width, camera.height, render_mode="RGB+ED", backend=backend,
         )
-    best = pick_labels(img, alpha, 0.5, min_alpha=0.5, none=NO_SEED)
-    rendered = torch.where(best == n_labels + 1, NO_SEED, best).numpy(force=True).astype(np.int64)
+    rendered = pick_labels(img, alpha, 0.5, min_alpha=0.5, none=NO_SEED, undecided=NO_SEED).numpy(force=True).astype(np.int64)
     a = alpha[..., 0]
     depth = torch.where(a > 1e-3, meta.depth[..., 0], torch.zeros_like(a)).numpy(force=True).astype(np.float32)
     seeds = np.full(rendered.shape, NO_SEED, np.int64)

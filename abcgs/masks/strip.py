@@ -69,8 +69,7 @@ class Strip:
         out = []
         for view in self.views:
             img, alpha = blend_frozen(view, colours[view.ids].contiguous())
-            lab = pick_labels(img, alpha, threshold).numpy().astype(np.int64)
-            out.append(np.where(lab == n_labels + 1, UNDECIDED, lab))
+            out.append(pick_labels(img, alpha, threshold).numpy().astype(np.int64))
         return out
 
     def doubt(self, maps: list[np.ndarray]) -> list[float]:
