@@ -13,12 +13,12 @@ import torch
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
 from abcgs.gaussians.ply import write_ply
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 from eval.studies import consistency_floor
 
 
 def test_floor_rows_and_a_view_inconsistent_scene_scores_higher(tiny_colmap: Path, tmp_path: Path) -> None:
-    scene = read_colmap_scene(tiny_colmap / "sparse", tiny_colmap / "images")
+    scene = read_scene(tiny_colmap)
     model = GaussianModel.from_points(scene.points, scene.colors, init_opacity=0.95)
     model.log_scales = model.log_scales + math.log(3.0)  # cover the surfaces so that alpha > 0.95 somewhere
     write_ply(tmp_path / "scene.ply", model)

@@ -125,10 +125,10 @@ def test_mask_lifting_script_scores_held_out_views(tiny_colmap, tmp_path) -> Non
     import math
 
     from abcgs.gaussians.ply import write_ply
-    from abcgs.sfm.model import read_colmap_scene
+    from abcgs.sfm.model import read_scene
     from eval.studies import mask_lifting
 
-    scene = read_colmap_scene(tiny_colmap / "sparse", tiny_colmap / "images")
+    scene = read_scene(tiny_colmap)
     model = GaussianModel.from_points(scene.points, scene.colors, init_opacity=0.95)
     model.log_scales = model.log_scales + math.log(3.0)
     write_ply(tmp_path / "scene.ply", model)

@@ -22,7 +22,7 @@ from abcgs.fit.strategy import DefaultStrategy
 from abcgs.fit.training import fit, make_strategy
 from abcgs.scene.params import TinySceneParams
 from abcgs.scene.synthetic import ring_cameras
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 from abcgs.types import Cameras
 
 REPO = Path(__file__).resolve().parents[1]
@@ -137,7 +137,7 @@ def test_a_fit_whose_opacities_were_reset_after_the_last_step_fails_before_writi
 def test_a_fit_on_the_cameras_of_another_scene_fails(tiny_colmap, tmp_path):
     # the tiny scene's photos and points, each view with the pose of the orbit scene's view of that name (its
     # cameras go round the objects, in that scene's frame): a dataset read with another scene's poses
-    scene = read_colmap_scene(tiny_colmap / "sparse", tiny_colmap / "images")
+    scene = read_scene(tiny_colmap)
     orbit = ring_cameras(TinySceneParams(layout="orbit"), np.random.default_rng(0))
     cams = [Camera(c.name, c.K, o.viewmat, c.width, c.height) for c, o in zip(scene.cameras, orbit)]
     wrong = replace(scene, cameras=Cameras.from_list(cams))

@@ -22,7 +22,7 @@ from conftest import REPO_ROOT
 
 from abcgs.errors import InputError
 from abcgs.gaussians.ply import read_ply, write_ply
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import layout_scene, read_scene, write_scene
 from abcgs.sources.read import read_source
 from abcgs.splats.formats.spz import decode_spz, encode_spz
 from abcgs.splats.registry import read_splat
@@ -159,12 +159,19 @@ def datasets(tmp_path: Path):
     return make_targets(tmp_path / "data", ("colmap_bin", "colmap_txt", "transforms", "llff"))
 
 
-def test_a_truncated_cameras_bin_is_refused(datasets) -> None:
+def test_a_truncated_cameras_bin_is_refused(datasets, tmp_path: Path) -> None:
+    """By the dataset reader, and by the scene reader in a layout of the same model (as the reconstruct stage
+    leaves one: sparse/, images/, scene.json)."""
     t = datasets["colmap_bin"]
     cameras = t.files[0]
-    cameras.write_bytes(cameras.read_bytes()[:30])
     folder = cameras.parents[2]
-    for read in (lambda: read_source(folder, "colmap"), lambda: read_colmap_scene(cameras.parent, folder / "images")):
+    layout = tmp_path / "layout"
+    shutil.copytree(folder / "images", layout / "images")
+    shutil.copytree(cameras.parent, layout / "sparse")
+    write_scene(layout_scene(layout, format="colmap"), layout)
+    for c in (cameras, layout / "sparse" / "cameras.bin"):
+        c.write_bytes(c.read_bytes()[:30])
+    for read in (lambda: read_source(folder, "colmap"), lambda: read_scene(layout)):
         with pytest.raises(InputError, match=r"cameras.bin states 5 cameras but its 22 remaining bytes hold at most 0"):
             read()
 

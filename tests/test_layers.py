@@ -64,7 +64,7 @@ def test_no_module_imports_a_higher_floor() -> None:
 @pytest.mark.parametrize(("module", "source", "expected"), [
     ("abcgs.features.knn", "from abcgs.losses.params import FastParams\n",
      ["abcgs.features.knn:1 (scenes and features) imports abcgs.losses.params (losses)"]),
-    ("abcgs.features.knn", "from abcgs.sfm.model import read_colmap_scene\n", []),  # the same floor
+    ("abcgs.features.knn", "from abcgs.sfm.model import read_scene\n", []),  # the same floor
     ("abcgs.camera_paths", "import numpy\n\ndef f():\n    from abcgs.view import page\n",
      ["abcgs.camera_paths:4 (rendering) imports abcgs.view.page (presentation)"]),
     ("abcgs.render.cpu", "from ..stylize import loop\n", ["abcgs.render.cpu:1 (rendering) imports abcgs.stylize.loop (methods)"]),

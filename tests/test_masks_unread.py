@@ -19,7 +19,7 @@ from abcgs.features.params import TransferSpec, content_label_readers
 from abcgs.gaussians.ply import write_ply
 from abcgs.masks.outputs import UNREAD_SOURCE, load_scene_masks
 from abcgs.pipeline import run_stage, stage_parser
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 
 
 def test_the_colour_matches_that_read_a_scenes_labels() -> None:
@@ -66,7 +66,7 @@ def test_the_masks_stage_of_a_single_only_scene_writes_labels_at_0_at_once(tmp_p
     assert time.perf_counter() - t0 < 10.0
     record = json.loads(layout.MasksDir(out).record.read_text())
     assert record["source"] == UNREAD_SOURCE and record["warnings"] == [] and record["n_labels"] == 0
-    scene = read_colmap_scene(tiny_colmap / "sparse", tiny_colmap / "images")
+    scene = read_scene(tiny_colmap)
     masks = load_scene_masks(out, scene, 5000)  # as the colormatch and stylize stages load them
     assert int(masks.gaussian_labels.abs().sum()) == 0 and len(masks.view_labels) == len(scene.cameras)
     assert all(v.shape == (c.height, c.width) and not v.any() for v, c in zip(masks.view_labels, scene.cameras))

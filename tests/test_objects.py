@@ -21,7 +21,7 @@ from abcgs.layout import ColmapDir
 from abcgs.losses.terms import background_loss, silhouette_loss
 from abcgs.scene.params import TinySceneParams
 from abcgs.scene.synthetic import write_object_dataset
-from abcgs.sfm.model import read_colmap_scene, read_scene
+from abcgs.sfm.model import read_scene
 from abcgs.sfm.params import ReconstructParams
 from abcgs.silhouette import composite_rgba, object_gaussians, silhouettes
 from abcgs.sources.blender import read_blender_source
@@ -311,7 +311,7 @@ def test_a_nerfstudio_capture_with_masks_is_cut_out_by_them_on_its_background(tm
     (folder / "transforms.json").write_text(json.dumps(meta))
     bg = Background((0.2, 0.4, 0.6), object=True)
     write_source_model(read_nerfstudio_source(folder), tmp_path / "colmap", ReconstructParams(), background=bg)
-    scene = read_colmap_scene(tmp_path / "colmap" / "sparse", tmp_path / "colmap" / "images")
+    scene = read_scene(tmp_path / "colmap")
     assert scene.alpha_paths is not None
     img, alpha = load_image(scene.image_paths[0]), load_image(scene.alpha_paths[0])[..., 0]
     assert 0.05 < alpha.mean() < 0.95

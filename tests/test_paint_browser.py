@@ -210,10 +210,10 @@ def test_two_painted_views_show_their_labels_in_the_strip_of_every_view(browser,
     from abcgs.gaussians import GaussianModel
     from abcgs.gaussians.ply import write_ply
     from abcgs.masks.paint_field import THUMB_PHOTO
-    from abcgs.sfm.model import read_colmap_scene
+    from abcgs.sfm.model import read_scene
     from abcgs.viz import LABEL_COLOURS
 
-    scene = read_colmap_scene(tiny_colmap / "sparse", tiny_colmap / "images")
+    scene = read_scene(tiny_colmap)
     model = GaussianModel.from_points(scene.points, scene.colors, init_opacity=0.95)
     model.log_scales = model.log_scales + math.log(3.0)
     write_ply(tmp_path / "fit.ply", model)

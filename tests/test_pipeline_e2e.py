@@ -109,9 +109,9 @@ def test_report_viewer_renders_every_experiment(repo: Path, first_repro) -> None
     from test_viewer_browser import CHROMIUM_ARGS, _shot
 
     from abcgs.gaussians import render
-    from abcgs.sfm.model import read_colmap_scene
+    from abcgs.sfm.model import read_scene
 
-    cams = read_colmap_scene(repo / "out/tiny/colmap/sparse", repo / "out/tiny/colmap/images").cameras
+    cams = read_scene(repo / "out/tiny/colmap").cameras
     with launch_chromium(CHROMIUM_ARGS) as browser:
         page = browser.new_page(viewport={"width": 400, "height": 700})
         remote = []

@@ -28,7 +28,7 @@ from abcgs.fit.outputs import fit_and_save
 from abcgs.params import load_params, validate_params
 from abcgs.preflight import preflight
 from abcgs.scene.synthetic import cameras_from_json
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 from abcgs.splats.formats.splat import write_splat_file
 
 EXAMPLES = readme_examples(README.read_text(encoding="utf-8"))
@@ -301,7 +301,7 @@ def test_yaml_fit_override_fits_the_tiny_scene(tiny_scene: Path, tiny_colmap: Pa
     raw["data"]["scenes"][name] = {**entry, "path": str(tiny_scene)}
     fit = validate_params(raw).scene_section(name, "fit")
     assert fit.iterations == entry["fit"]["iterations"]
-    scene = read_colmap_scene(tiny_colmap / "sparse", tiny_colmap / "images")
+    scene = read_scene(tiny_colmap)
     metrics = fit_and_save(scene, fit, tmp_path / "gs", progress=False).metrics()
     assert metrics["psnr"] >= MIN_HELDOUT_DB, metrics["psnr"]
     assert (tmp_path / "gs" / "point_cloud.ply").is_file()

@@ -13,9 +13,10 @@ import pytest
 
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
+from abcgs.io.colmap import read_model
 from abcgs.io.images import save_image, save_labels
 from abcgs.layout import ColmapDir
-from abcgs.sfm.model import SCENE_VERSION, read_colmap_scene, read_scene, write_scene
+from abcgs.sfm.model import SCENE_VERSION, read_scene, write_scene
 from abcgs.sfm.params import ReconstructParams
 from abcgs.sources.model import write_source_model
 from abcgs.sources.splat import read_splat_source
@@ -78,8 +79,8 @@ def test_a_scene_round_trips_exactly(tmp_path: Path) -> None:
     assert {p.name: p.read_bytes() for p in (tmp_path / "sparse").iterdir()} == model  # kept, not rewritten
     again = read_scene(tmp_path)
     assert np.array_equal(again.cameras.viewmats, back.cameras.viewmats)
-    # the cameras a stage reads are the model's own, as read_colmap_scene reads them
-    assert np.array_equal(again.cameras.viewmats, read_colmap_scene(tmp_path / "sparse", tmp_path / "images").cameras.viewmats)
+    # the cameras a stage reads are the model's own, as the COLMAP parser reads them
+    assert np.array_equal(again.cameras.viewmats, read_model(tmp_path / "sparse").cameras().viewmats)
 
 
 def test_a_scene_without_alpha_masks_or_background_reads_back_frame_filling(tmp_path: Path) -> None:
@@ -184,12 +185,16 @@ def test_the_reconstruct_writer_records_a_bare_splats_file_format_and_views_for_
 
 
 def test_the_stages_read_the_reconstructed_model_as_it_is(tiny_colmap: Path) -> None:
-    """Structure from motion's model is kept byte for byte: a stage reads the cameras, images and points that
-    :func:`read_colmap_scene` reads, with the scene's format, background and label maps beside them."""
-    scene, model = read_scene(tiny_colmap), read_colmap_scene(tiny_colmap / "sparse", tiny_colmap / "images")
-    assert scene.cameras.names == model.cameras.names and scene.image_paths == model.image_paths
+    """Structure from motion's model is kept byte for byte: a stage reads the cameras and points that the COLMAP
+    parser (:func:`abcgs.io.colmap.read_model`) reads from ``sparse/`` and the views in ``images/``, with the scene's
+    format, background and label maps beside them."""
+    scene, model = read_scene(tiny_colmap), read_model(tiny_colmap / "sparse")
+    cameras = model.cameras()
+    assert scene.cameras.names == cameras.names
+    assert scene.image_paths == tuple(tiny_colmap / "images" / name for name in cameras.names)
     for key in ("viewmats", "intrinsics", "sizes", "camera_models", "distortion_params"):
-        assert np.array_equal(getattr(scene.cameras, key), getattr(model.cameras, key)), key
-    assert np.array_equal(scene.points, model.points) and np.array_equal(scene.colors, model.colors)
+        assert np.array_equal(getattr(scene.cameras, key), getattr(cameras, key)), key
+    assert np.array_equal(scene.points, model.points.astype(np.float32))
+    assert np.array_equal(scene.colors, (model.colors / 255.0).astype(np.float32))
     assert scene.format == "photos" and scene.background == Background() and scene.alpha_paths is None
     assert scene.mask_paths is not None and scene.mask_paths[0] == tiny_colmap / "masks" / "000.png"

@@ -1,10 +1,11 @@
-"""Structure from motion (pycolmap), COLMAP model reading and similarity alignment."""
+"""Structure from motion (pycolmap), reading a reconstructed scene's model and similarity alignment."""
 
 from __future__ import annotations
 
 import json
 import shutil
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -14,9 +15,10 @@ from abcgs.io.images import list_images, load_image, load_labels, save_image
 from abcgs.scene.synthetic import cameras_from_json
 from abcgs.sfm.align import alignment_residual, umeyama
 from abcgs.sfm.colmap import reconstruct
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 from abcgs.sfm.params import ReconstructParams
 from abcgs.sources.llff import llff_camera_centres
+from abcgs.sources.photos import reconstruct_photos
 
 FERN = Path(__file__).resolve().parents[2] / "shared" / "data" / "scenes" / "fern"  # ../shared next to the repo
 
@@ -77,7 +79,7 @@ def test_tiny_registers_all_views(tiny_scene: Path, tiny_colmap: Path) -> None:
 
 
 def test_tiny_poses_match_ground_truth(tiny_scene: Path, tiny_colmap: Path) -> None:
-    data = read_colmap_scene(tiny_colmap / "sparse", tiny_colmap / "images")
+    data = read_scene(tiny_colmap)
     gt = {c.name: c for c in cameras_from_json(json.loads((tiny_scene / "cameras.json").read_text()))}
     src = np.array([c.center for c in data.cameras])
     dst = np.array([gt[c.name].center for c in data.cameras])
@@ -93,8 +95,18 @@ def test_reconstruct_is_repeatable(tiny_scene: Path, tiny_colmap: Path, tmp_path
         assert (tmp_path / "again" / "sparse" / name).read_bytes() == (tiny_colmap / "sparse" / name).read_bytes()
 
 
-def test_read_colmap_scene_contract(tiny_colmap: Path) -> None:
-    data = read_colmap_scene(tiny_colmap / "sparse", tiny_colmap / "images")
+def _layout_with_model(tiny_colmap: Path, root: Path, rec: Any, text: bool = False) -> Path:
+    """A copy of the layout ``tiny_colmap`` (images, label maps, ``scene.json``) whose ``sparse/`` is the pycolmap
+    reconstruction ``rec`` (written as text or binary; ``None``: no model at all)."""
+    shutil.copytree(tiny_colmap, root, ignore=shutil.ignore_patterns("sparse"))
+    if rec is not None:
+        (root / "sparse").mkdir()
+        (rec.write_text if text else rec.write_binary)(str(root / "sparse"))
+    return root
+
+
+def test_read_scene_gives_the_models_views_and_points(tiny_colmap: Path) -> None:
+    data = read_scene(tiny_colmap)
     names = [c.name for c in data.cameras]
     assert names == sorted(names) and [p.name for p in data.image_paths] == names
     for cam, path in zip(data.cameras, data.image_paths):
@@ -110,17 +122,17 @@ def test_read_colmap_scene_contract(tiny_colmap: Path) -> None:
 
 
 @pytest.mark.parametrize("fmt", ["bin", "txt"])
-def test_read_colmap_scene_equals_pycolmaps_reading(tiny_colmap: Path, tmp_path: Path, fmt: str) -> None:
-    """The numpy reader (abcgs.io.colmap) gives pycolmap's cameras, poses and points (by id), from both formats."""
+def test_read_scene_equals_pycolmaps_reading(tiny_colmap: Path, tmp_path: Path, fmt: str) -> None:
+    """A layout's scene (its model read by abcgs.io.colmap) holds pycolmap's cameras, poses and points (by id), from
+    a binary model and from a text one."""
     import pycolmap
 
     rec = pycolmap.Reconstruction(str(tiny_colmap / "sparse"))
-    model = tiny_colmap / "sparse"
+    layout = tiny_colmap
     if fmt == "txt":
-        model = tmp_path / "txt"
-        model.mkdir()
-        rec.write_text(str(model))
-    data = read_colmap_scene(model, tiny_colmap / "images")
+        layout = _layout_with_model(tiny_colmap, tmp_path / "txt", rec, text=True)
+        assert not list((layout / "sparse").glob("*.bin"))
+    data = read_scene(layout)
     images = sorted((im for im in rec.images.values() if im.has_pose), key=lambda im: im.name)
     assert [c.name for c in data.cameras] == [im.name for im in images]
     for cam, im in zip(data.cameras, images):
@@ -133,16 +145,16 @@ def test_read_colmap_scene_equals_pycolmaps_reading(tiny_colmap: Path, tmp_path:
     np.testing.assert_allclose(data.colors, np.array([p.color for p in pts], np.float32) / 255.0, atol=1e-7)
 
 
-def test_read_colmap_scene_refuses_a_distorted_model(tiny_colmap: Path, tmp_path: Path) -> None:
+def test_read_scene_refuses_a_distorted_model(tiny_colmap: Path, tmp_path: Path) -> None:
     import pycolmap
 
     rec = pycolmap.Reconstruction(str(tiny_colmap / "sparse"))
     for cam in rec.cameras.values():
         cam.model = pycolmap.CameraModelId.SIMPLE_RADIAL
         cam.params = [cam.focal_length, cam.principal_point_x, cam.principal_point_y, 0.01]
-    rec.write(str(tmp_path))
+    layout = _layout_with_model(tiny_colmap, tmp_path / "layout", rec)
     with pytest.raises(InputError, match="SIMPLE_RADIAL camera.*undistorted"):
-        read_colmap_scene(tmp_path, tiny_colmap / "images")
+        read_scene(layout)
 
 
 def test_masks_are_undistorted_with_the_images(tiny_colmap: Path) -> None:
@@ -152,9 +164,10 @@ def test_masks_are_undistorted_with_the_images(tiny_colmap: Path) -> None:
         assert set(np.unique(labels)) <= {0, 1, 2, 3} and (labels == 3).any()
 
 
-def test_read_colmap_scene_rejects_missing_model(tmp_path: Path) -> None:
-    with pytest.raises(InputError, match="not a COLMAP model"):
-        read_colmap_scene(tmp_path, tmp_path)
+def test_read_scene_rejects_a_layout_without_its_model(tiny_colmap: Path, tmp_path: Path) -> None:
+    layout = _layout_with_model(tiny_colmap, tmp_path / "layout", None)
+    with pytest.raises(InputError, match="sparse is not a COLMAP model"):
+        read_scene(layout)
 
 
 # ---------------------------------------------------------------------------------- failure paths
@@ -243,9 +256,9 @@ def test_sift_options_reach_the_extractor(tiny_scene: Path, tmp_path: Path) -> N
 def test_fern_registers_all_and_matches_llff_poses(tmp_path: Path) -> None:
     if not (FERN / "images").is_dir():
         pytest.skip(f"real data not available at {FERN}")
-    report = reconstruct(FERN / "images", tmp_path / "colmap")
+    report = reconstruct_photos(FERN, tmp_path / "colmap", ReconstructParams())
     assert report.registered == report.total == 20
-    data = read_colmap_scene(tmp_path / "colmap" / "sparse", tmp_path / "colmap" / "images")
+    data = read_scene(tmp_path / "colmap")
     names = [p.name for p in list_images(FERN / "images")]
     llff = dict(zip(names, llff_camera_centres(FERN / "poses_bounds.npy")))
     src = np.array([c.center for c in data.cameras])

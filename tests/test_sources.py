@@ -24,7 +24,7 @@ from abcgs.fit.metrics import psnr
 from abcgs.io.images import load_image, load_labels, save_image
 from abcgs.scene.params import TinySceneParams
 from abcgs.scene.synthetic import _textures, cameras_from_json, render_view, scene_layout
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 from abcgs.sfm.params import ReconstructParams
 from abcgs.sources.detect import detect_format
 from abcgs.sources.model import write_source_model
@@ -239,7 +239,7 @@ def test_colmap_source_is_undistorted_into_the_reconstruct_layout(tmp_path: Path
     report = write_source_model(read_source(scene, "colmap"), tmp_path / "colmap", ReconstructParams(),
                                 masks_dir=scene / "masks")
     assert report.undistorted and report.points_method == "dataset" and report.points == 400
-    data = read_colmap_scene(tmp_path / "colmap" / "sparse", tmp_path / "colmap" / "images")
+    data = read_scene(tmp_path / "colmap")
     by_name = {c.name: c for c in cams}
     for cam in data.cameras:
         np.testing.assert_allclose(cam.viewmat, by_name[cam.name].viewmat, atol=1e-6)
@@ -277,7 +277,7 @@ def test_simple_radial_views_are_undistorted_onto_their_pinhole_cameras(tmp_path
             lensed = Camera(c.name, c.K, c.viewmat, c.width, c.height, {"k": 0.05})
             save_image(folder / "images" / c.name, render_view(lensed, layout, textures, 2)[0])
         write_source_model(read_source(folder, "colmap"), folder / "out", ReconstructParams())
-        data = read_colmap_scene(folder / "out" / "sparse", folder / "out" / "images")
+        data = read_scene(folder / "out")
         scores[k_model] = [psnr(load_image(path), render_view(cam, layout, textures, 2)[0])
                            for cam, path in zip(data.cameras, data.image_paths)]
     assert min(scores[0.05]) >= 30.0 and max(scores[0.0]) < 26.0, scores
@@ -378,7 +378,7 @@ def test_llff_poses_bounds_scaled_to_the_images_and_triangulated(tmp_path: Path,
     report = write_source_model(scene, tmp_path / "colmap", ReconstructParams())
     assert report.points_method == "triangulated" and report.points > 200
     assert report.mean_reprojection_error_px < 1.0 and report.median_epipolar_error_px < 0.3
-    data = read_colmap_scene(tmp_path / "colmap" / "sparse", tmp_path / "colmap" / "images")
+    data = read_scene(tmp_path / "colmap")
     assert_same_cameras(data.cameras, cams, render)
     record = json.loads((tmp_path / "colmap" / "metrics.json").read_text())
     assert record["points_method"] == "triangulated" and "seconds" not in record
@@ -432,7 +432,7 @@ def test_reconstruct_stage_reads_a_dataset_scene(tmp_path: Path, tiny_scene: Pat
         "--source", "{item.path}", "--out", str(out / "colmap"), "--metrics", str(out / "r.json")]) == 0
     record = json.loads((out / "r.json").read_text())
     assert record["format"] == "llff" and record["points_method"] == "triangulated" and record["seconds"] > 0
-    assert_same_cameras(read_colmap_scene(out / "colmap" / "sparse", out / "colmap" / "images").cameras, cams, render)
+    assert_same_cameras(read_scene(out / "colmap").cameras, cams, render)
     params = load_params(tmp_path / "params.yaml")
     assert check_scene_sources(params, tmp_path) == []
     (tmp_path / "scene" / "images" / "003.png").unlink()
@@ -450,7 +450,7 @@ def test_textureless_views_start_from_random_points_in_the_frustums(tmp_path: Pa
         cv2.imwrite(str(p), np.full((120, 160, 3), 40 + 10 * i, np.uint8))
     report = write_source_model(read_source(tmp_path / "scene", "llff"), tmp_path / "colmap", ReconstructParams())
     assert report.points_method == "random" and report.points == RANDOM_POINTS and report.verified_matches == 0
-    data = read_colmap_scene(tmp_path / "colmap" / "sparse", tmp_path / "colmap" / "images")
+    data = read_scene(tmp_path / "colmap")
     depth_in_some_view = np.zeros(len(data.points), bool)
     for cam in data.cameras:
         p = data.points @ cam.viewmat[:3, :3].T + cam.viewmat[:3, 3]

@@ -13,7 +13,7 @@ import yaml
 from conftest import copy_repo, run_in
 
 from abcgs.gaussians.ply import read_ply
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 
 pytestmark = pytest.mark.slow
 
@@ -33,7 +33,7 @@ def test_fit_stage_imports_an_inria_folder_and_export_gives_it_back(tmp_path: Pa
     trained = folder / "trained"
     (trained / "point_cloud/iteration_200").mkdir(parents=True)
     shutil.copy(repo / "out/tiny/gs/point_cloud.ply", trained / "point_cloud/iteration_200/point_cloud.ply")
-    scene = read_colmap_scene(repo / "out/tiny/colmap/sparse", repo / "out/tiny/colmap/images")
+    scene = read_scene(repo / "out/tiny/colmap")
     (trained / "cameras.json").write_text(json.dumps([
         {"id": i, "img_name": Path(c.name).stem, "width": c.width, "height": c.height, "position": c.center.tolist(),
          "rotation": np.linalg.inv(c.viewmat)[:3, :3].tolist(), "fx": float(c.K[0, 0]), "fy": float(c.K[1, 1])}

@@ -8,7 +8,8 @@ The ``reconstruct`` stage leaves a COLMAP layout (:class:`abcgs.layout.ColmapDir
     scene.json                             everything else the scene is (below)
 
 :func:`write_scene` writes a :class:`~abcgs.types.Scene` there and :func:`read_scene` reads it back; every stage,
-the viewer and the benchmarks that take a reconstructed scene read it through :func:`read_scene` only. ``scene.json``
+the viewer, the benchmarks and the tests that take a reconstructed scene read it through :func:`read_scene` only
+(a writer of the layout reads the scene it has staged with :func:`layout_scene`). ``scene.json``
 (version :data:`SCENE_VERSION`) holds the scene's format, its frame (``4 × 4`` float64, written as JSON numbers,
 which Python reads back to the same bits), its :class:`~abcgs.types.Background`, the splat it names, its depth
 range, notes and metadata, and per view its name and the paths of its image, alpha map and label map relative to
@@ -44,12 +45,11 @@ MAX_SCENE_JSON_BYTES = 64 << 20
 """Largest ``scene.json`` read (a scene of 1000 views writes about 150 kB)."""
 
 
-def read_colmap_scene(model_dir: str | os.PathLike, images_dir: str | os.PathLike) -> Scene:
-    """Read an undistorted COLMAP model (``sparse/``: ``*.bin`` or ``*.txt``, PINHOLE or SIMPLE_PINHOLE cameras) and
-    its images into a :class:`~abcgs.types.Scene` (views sorted by image name; ``alpha_paths`` from ``alpha/``
-    beside ``images/`` when the reconstruct stage wrote it). The model alone: a pipeline stage reads the scene
-    with :func:`read_scene`."""
-    model_dir, images_dir = Path(model_dir), Path(images_dir)
+def _model_scene(model_dir: Path, images_dir: Path) -> Scene:
+    """The model part of :func:`read_scene` and :func:`layout_scene`: the undistorted COLMAP model ``model_dir``
+    (``*.bin`` or ``*.txt``, PINHOLE or SIMPLE_PINHOLE cameras) and its images in ``images_dir`` as a
+    :class:`~abcgs.types.Scene` (views sorted by image name; ``alpha_paths`` from ``alpha/`` beside ``images/``
+    when the reconstruct stage wrote it)."""
     model = read_model(model_dir)
     if not model.images:
         raise InputError(f"COLMAP model {model_dir} has no registered images")
@@ -57,8 +57,8 @@ def read_colmap_scene(model_dir: str | os.PathLike, images_dir: str | os.PathLik
         cam = model.cameras_by_id[im.camera_id]
         if cam.model_id not in (0, 1):
             raise InputError(
-                f"image {im.name} uses a {CAMERA_MODELS[cam.model_id][0]} camera; read_colmap_scene needs an "
-                "undistorted (PINHOLE) model, i.e. the sparse/ folder written by the reconstruct stage")
+                f"image {im.name} of {model_dir} uses a {CAMERA_MODELS[cam.model_id][0]} camera; a scene's layout "
+                "holds an undistorted (PINHOLE) model, the sparse/ folder the reconstruct stage writes")
     cameras = model.cameras()
     paths = tuple(images_dir / name for name in cameras.names)
     missing = [p.name for p in paths if not p.is_file()]
@@ -73,12 +73,12 @@ def read_colmap_scene(model_dir: str | os.PathLike, images_dir: str | os.PathLik
 
 
 def layout_scene(root: str | os.PathLike, **fields: Any) -> Scene:
-    """The scene of the COLMAP layout ``root`` as a writer of it left it (:func:`read_colmap_scene` of ``sparse/``
-    and ``images/``, alpha maps from ``alpha/``, each view's label map ``masks/<stem>.png`` where there is one),
-    with the :class:`~abcgs.types.Scene` ``fields`` the model does not hold (format, frame, background, …): what
+    """The scene of the COLMAP layout ``root`` as a writer of it left it (the model in ``sparse/``, the views in
+    ``images/``, alpha maps from ``alpha/``, each view's label map ``masks/<stem>.png`` where there is one), with the
+    :class:`~abcgs.types.Scene` ``fields`` the model does not hold (format, frame, background, …): what
     :func:`write_scene` is given once that layout is complete."""
     d = ColmapDir(Path(root))
-    scene = read_colmap_scene(d.sparse, d.images)
+    scene = _model_scene(d.sparse, d.images)
     masks = tuple(d.masks / f"{PurePosixPath(n).stem}.png" for n in scene.cameras.names)
     masks = tuple(m if m.is_file() else None for m in masks)
     return Scene(scene.cameras, scene.image_paths, scene.points, scene.colors,
@@ -256,7 +256,7 @@ def read_scene(root: str | os.PathLike) -> Scene:
     if version != SCENE_VERSION or isinstance(version, bool):
         raise InputError(f"{d.scene} is scene record version {str(version)[:20]}; this abcgs reads version "
                          f"{SCENE_VERSION}: {rerun}")
-    base = read_colmap_scene(d.sparse, d.images)
+    base = _model_scene(d.sparse, d.images)
     try:
         fields = _fields(d.root, doc, base.cameras.names)
     except _Bad as exc:

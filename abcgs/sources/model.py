@@ -41,7 +41,7 @@ import pycolmap
 
 from abcgs.errors import InputError
 from abcgs.io.atomic import atomic_path, write_json
-from abcgs.io.colmap import write_model
+from abcgs.io.colmap import read_model, write_model
 from abcgs.io.images import decode_image, labels_for_view, load_image, load_labels, save_image, save_labels
 from abcgs.sfm.colmap import (
     carry_strokes,
@@ -51,7 +51,7 @@ from abcgs.sfm.colmap import (
     undistort_labels,
     undistort_model,
 )
-from abcgs.sfm.model import layout_scene, read_colmap_scene, write_scene
+from abcgs.sfm.model import layout_scene, write_scene
 from abcgs.sfm.params import ReconstructParams
 from abcgs.sources.lens import colmap_camera
 from abcgs.sources.validate import axes_meeting_point
@@ -296,7 +296,7 @@ def write_source_model(source: Scene, out_dir: str | os.PathLike, params: Recons
         else:
             write_posed(views, tmp / "sparse")
             shutil.copytree(staged, tmp / "images")
-        und = read_colmap_scene(tmp / "sparse", tmp / "images").cameras
+        und = read_model(tmp / "sparse").cameras()
         und_views = [View(cam.name, tmp / "images" / cam.name, cam) for cam in und]
         verified, error, epipolar = 0, None, None
         if source.points is not None and len(source.points):

@@ -29,8 +29,9 @@ from abcgs.fit.params import FitParams, StrategyParams
 from abcgs.fit.training import fit
 from abcgs.gaussians.ply import write_ply
 from abcgs.io.atomic import write_json
+from abcgs.layout import ColmapDir
 from abcgs.runtime import resolve_device
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 from abcgs.sfm.params import ReconstructParams
 from abcgs.sources.read import resolve_format
 from abcgs.sources.registry import formats, reader_of
@@ -63,17 +64,17 @@ def main(argv=None) -> dict:
     sfm = reader_of(fmt).cameras == "sfm"  # photos: cameras found by structure from motion
     run = args.scene.name if sfm else f"{args.scene.name}-{fmt}"
     colmap = args.work / run / "colmap"
-    if not (colmap / "sparse").is_dir():
+    if not ColmapDir(colmap).scene.is_file():
         if sfm:
-            from abcgs.sfm.colmap import reconstruct  # pycolmap: only where the cameras are still to be found
+            from abcgs.sources.photos import reconstruct_photos  # pycolmap: only where the cameras are to be found
 
-            reconstruct(args.scene / "images", colmap, reconstruct_params)
+            reconstruct_photos(args.scene, colmap, reconstruct_params)
         else:
             from abcgs.sources.model import write_source_model
             from abcgs.sources.read import read_source
 
             write_source_model(read_source(args.scene, fmt), colmap, ReconstructParams())
-    scene = read_colmap_scene(colmap / "sparse", colmap / "images")
+    scene = read_scene(colmap)
     params = FitParams(
         iterations=args.iterations, eval_every=args.eval_every, max_gaussians=args.max_gaussians,
         threads=args.threads, sh_degree=args.sh_degree, test_every=args.test_every,

@@ -35,9 +35,10 @@ from abcgs.fit.training import make_optimizers
 from abcgs.gaussians import render
 from abcgs.gaussians.ply import read_ply
 from abcgs.io.atomic import write_json
+from abcgs.layout import ColmapDir
 from abcgs.render import select_backend
 from abcgs.render.cpu import kernel_threads
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 
 PHASES = ("render", "loss", "loss_backward", "render_backward", "adam")
 
@@ -58,11 +59,11 @@ def main(argv=None) -> dict:
     base = args.work / args.scene.name
     colmap = base / "colmap"
     ply = args.ply or base / "gs" / "point_cloud.ply"
-    for path, what in ((colmap / "sparse", "reconstruction"), (ply, "fitted model")):
+    for path, what in ((ColmapDir(colmap).scene, "reconstruction"), (ply, "fitted model")):
         if not path.exists():
             sys.exit(f"bench_fit_step: no {what} at {path}; run eval/bench/fit.py --scene {args.scene} first")
     torch.set_num_threads(args.threads)
-    scene = read_colmap_scene(colmap / "sparse", colmap / "images")
+    scene = read_scene(colmap)
     params = FitParams()
     views = load_views(scene, params.resolution_scale, params.test_every, "cpu")
     model = read_ply(ply).as_parameters()

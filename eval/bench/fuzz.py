@@ -168,7 +168,6 @@ class Target:
 def make_targets(work: Path, formats: tuple[str, ...] = FORMATS) -> dict[str, Target]:
     """A valid input of each format under ``work`` and its reader (module docstring); each reads as made."""
     from abcgs.gaussians.ply import write_ply
-    from abcgs.sfm.model import read_colmap_scene
     from abcgs.sources.read import read_source
     from abcgs.splats.formats.splat import write_splat_file
     from abcgs.splats.formats.spz import write_spz
@@ -205,11 +204,8 @@ def make_targets(work: Path, formats: tuple[str, ...] = FORMATS) -> dict[str, Ta
             model = _colmap(folder, cams, text)
             ext = ".txt" if text else ".bin"
             files = [model / f"{stem}{ext}" for stem in ("cameras", "images", "points3D")]
-
-            def read(folder=folder, model=model):
-                read_colmap_scene(model, folder / "images")
-                return read_source(folder, "colmap")
-            out[name] = Target(name, files, read, "text" if text else "bytes")
+            out[name] = Target(name, files, lambda folder=folder: read_source(folder, "colmap"),
+                               "text" if text else "bytes")
     if "transforms" in formats:
         folder = work / "transforms"
         _images(folder / "images", cams)

@@ -51,7 +51,7 @@ from abcgs.params import Params, validate_params
 from abcgs.pipeline import stage_paths
 from abcgs.runtime import synchronize
 from abcgs.sections import deep_merge
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER = {"stylize_minutes": 1.60, "render_fps": 153.0, "card": "RTX 4090 (paper, LLFF)"}
@@ -306,7 +306,7 @@ def run_fern(bundle: Path | None, work: Path, common: dict, device: torch.device
     fit = _read(out / "fern" / "gs" / "metrics.json")
     styl = _read(out / "fern_starry_night_fast" / "stylize.json")
     ev = _read(out / "fern_starry_night_fast" / "eval.json")
-    cam = read_colmap_scene(colmap / "sparse", colmap / "images").cameras[0]
+    cam = read_scene(colmap).cameras[0]
     return {"cameras": route, "stage_s": stage_s, "heldout_psnr": fit.get("psnr"), "n_gaussians": styl.get("n_gaussians"),
             "stylize_seconds": styl.get("stylize_seconds"), "stylize_iterations": styl.get("iterations"),
             "seconds_per_iteration": styl.get("seconds_per_iteration"), "render_fps": ev.get("render_fps"),

@@ -57,9 +57,10 @@ from abcgs.gaussians import GaussianModel, render
 from abcgs.gaussians.ply import read_ply, write_ply
 from abcgs.io.atomic import write_json
 from abcgs.io.images import load_image, save_image
+from abcgs.layout import ColmapDir
 from abcgs.scene.params import TinySceneParams
 from abcgs.scene.synthetic import write_object_dataset
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 from abcgs.sfm.params import ReconstructParams
 from abcgs.silhouette import EMPTY_ALPHA, background_tensor
 from abcgs.sources.blender import read_blender_source
@@ -99,7 +100,7 @@ def rgba_object(work: Path, width: int, fit_iterations: int) -> ObjectCase:
     if not colmap.is_dir():
         source = read_blender_source(folder, background=(0.0, 0.0, 0.0))
         write_source_model(source, colmap, ReconstructParams(), background=OBJECT)
-    scene = read_colmap_scene(colmap / "sparse", colmap / "images")
+    scene = read_scene(colmap)
     if not ply.is_file():
         res = fit(scene, FitParams(iterations=fit_iterations, test_every=0, background=(0.0, 0.0, 0.0)), progress=True)
         write_ply(ply, res.model)
@@ -125,7 +126,7 @@ def cut_doll(model: GaussianModel, cameras: list[Camera], radius: float, below: 
 def miku_objects(work: Path, fit_ply: Path, args) -> list[ObjectCase]:
     """The doll as a bare splat (generated views) and with the capture's photos cut out by its alpha."""
     colmap = _miku_colmap(fit_ply)
-    capture = read_colmap_scene(colmap / "sparse", colmap / "images")
+    capture = read_scene(colmap)
     doll = cut_doll(read_ply(fit_ply), capture.cameras, args.doll_radius, args.doll_below, args.doll_above, 0.05)
     out = work / "miku"
     out.mkdir(parents=True, exist_ok=True)
@@ -159,9 +160,9 @@ def miku_objects(work: Path, fit_ply: Path, args) -> list[ObjectCase]:
 
 
 def _miku_colmap(fit_ply: Path) -> Path:
-    """The undistorted model beside an ``eval.bench.fit`` run's ``gs/point_cloud.ply``."""
+    """The reconstructed scene beside an ``eval.bench.fit`` run's ``gs/point_cloud.ply``."""
     colmap = fit_ply.parent.parent / "colmap"
-    if not (colmap / "sparse").is_dir():
+    if not ColmapDir(colmap).scene.is_file():
         raise SystemExit(f"{colmap} is missing: --miku-fit must be the gs/point_cloud.ply of an eval.bench.fit run")
     return colmap
 

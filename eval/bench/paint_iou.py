@@ -204,15 +204,15 @@ def _reconstruct_and_fit(tiny: Path, user: Path, work: Path, iterations: int) ->
     seeded SfM, so that its undistorted true maps match the user's views (checked: the same cameras)."""
     from abcgs.fit.params import FitParams, StrategyParams
     from abcgs.fit.training import fit
-    from abcgs.sfm.colmap import reconstruct
-    from abcgs.sfm.model import read_colmap_scene
+    from abcgs.sfm.model import read_scene
     from abcgs.sfm.params import ReconstructParams
+    from abcgs.sources.photos import reconstruct_photos
 
     rp = ReconstructParams()
-    reconstruct(user / "images", work / "colmap", rp, masks_dir=user / "masks")
-    reconstruct(tiny / "images", work / "colmap_truth", rp, masks_dir=tiny / "masks")  # the same model, seeded
-    scene = read_colmap_scene(work / "colmap" / "sparse", work / "colmap" / "images")
-    truth_scene = read_colmap_scene(work / "colmap_truth" / "sparse", work / "colmap_truth" / "images")
+    reconstruct_photos(user, work / "colmap", rp)  # images/ and the strokes' masks/
+    reconstruct_photos(tiny, work / "colmap_truth", rp)  # the same model, seeded; the true masks/
+    scene = read_scene(work / "colmap")
+    truth_scene = read_scene(work / "colmap_truth")
     for a, b in zip(scene.cameras, truth_scene.cameras):
         assert a.name == b.name and np.allclose(a.viewmat, b.viewmat) and np.allclose(a.K, b.K), "SfM not repeatable"
     it = iterations

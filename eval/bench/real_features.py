@@ -26,7 +26,7 @@ from abcgs.features.weights import resolve_vgg16
 from abcgs.gaussians import render
 from abcgs.gaussians.ply import read_ply
 from abcgs.params import Params, load_params
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 
 
 def stylization_vgg(params: Params) -> VGG16Features:
@@ -61,7 +61,7 @@ def rendered_features(
 def add_feature_arguments(ap: argparse.ArgumentParser) -> None:
     """The benchmarks' shared inputs: ``--colmap``, ``--ply NAME=PATH`` (repeatable), ``--style``, ``--params``,
     ``--views``."""
-    ap.add_argument("--colmap", type=Path, required=True, help="folder with sparse/ and images/ (the cameras)")
+    ap.add_argument("--colmap", type=Path, required=True, help="reconstruct output (sparse/, images/, scene.json)")
     ap.add_argument("--ply", action="append", required=True, help="NAME=PATH of a scene to render (repeatable)")
     ap.add_argument("--style", type=Path, required=True)
     ap.add_argument("--params", type=Path, default=Path("params.yaml"),
@@ -85,7 +85,7 @@ def load_bench_features(args: argparse.Namespace) -> BenchFeatures:
     params = load_params(args.params)
     vgg = stylization_vgg(params)
     style = style_features(vgg, params, args.style)
-    scene = read_colmap_scene(args.colmap / "sparse", args.colmap / "images")
+    scene = read_scene(args.colmap)
     cameras = list(scene.cameras[: args.views] if args.views else scene.cameras)
     rendered: list[tuple[str, torch.Tensor]] = []
     for item in args.ply:

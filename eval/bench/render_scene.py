@@ -29,7 +29,7 @@ import torch
 from abcgs.gaussians import render
 from abcgs.gaussians.ply import read_ply
 from abcgs.render.cpu import load_extension
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 from eval.bench.timing import repeat_seconds
 
 
@@ -44,7 +44,7 @@ def main(argv: list[str] | None = None) -> dict:
         ap.error("--repeats must be at least 1")
     if args.threads:
         torch.set_num_threads(args.threads)
-    scene = read_colmap_scene(args.work / "colmap" / "sparse", args.work / "colmap" / "images")
+    scene = read_scene(args.work / "colmap")
     model = read_ply(args.work / "gs" / "point_cloud.ply").map(lambda t: t.detach().requires_grad_(True))
     cams = scene.cameras[: args.views]
     forward, both = [], []

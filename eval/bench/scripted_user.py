@@ -49,7 +49,7 @@ from abcgs.masks.grabcut import Stroke, rasterize_strokes
 from abcgs.masks.paint_field import FieldSession
 from abcgs.masks.params import FieldParams
 from abcgs.masks.strip import Strip
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 from eval.bench.strokes import DATA, _overlay, _strokes, geometry_bound, reference_map
 
 GOAL = {"strokes": 10, "mean_iou": 0.85, "pair_iou": 0.80, "below_bound": 0.05, "unlabelled": 0.02}
@@ -166,7 +166,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(message)s")
     spec = json.loads((DATA / args.scene / "strokes.json").read_text())
     colmap = args.work / spec["work_colmap"]
-    scene = read_colmap_scene(colmap / "sparse", colmap / "images")
+    scene = read_scene(colmap)
     model = read_ply(args.work / spec["work_ply"])
     by_stem = {Path(c.name).stem: i for i, c in enumerate(scene.cameras)}
     refs = {s: reference_map(DATA / args.scene / "reference" / f"{s}.png", scene.cameras[by_stem[s]])

@@ -3,8 +3,9 @@
     python -m eval.bench.sfm_orbit --scene ../shared/data/scenes/bonsai --work /tmp/sfm \\
         --reconstruct '{"matcher": "exhaustive"}' --json docs/measurements/bonsai_sfm.json
 
-Runs :func:`abcgs.sfm.colmap.reconstruct` with the given ``reconstruct`` params (JSON, as ``params.yaml`` would set
-them) into ``--work/colmap`` (replaced) and reads the model back. Printed: registered / total views and which did not
+Runs :func:`abcgs.sources.photos.reconstruct_photos` (the reconstruct stage's photos route) with the given
+``reconstruct`` params (JSON, as ``params.yaml`` would set them) into ``--work/colmap`` (replaced) and reads the scene
+back. Printed: registered / total views and which did not
 register, 3-D points, mean reprojection error, and :func:`abcgs.camera_paths.capture_layout` of the registered
 cameras: its kind, the azimuth span the camera centres cover round the point the optical axes meet at (360° minus
 the largest gap), the largest gap, the share of cameras that have that point in front, and each view's azimuth. A
@@ -28,9 +29,10 @@ setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
 from abcgs.camera_paths import _plane_basis, capture_layout
 from abcgs.io.atomic import write_json
-from abcgs.sfm.colmap import reconstruct, set_colmap_log_level
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.colmap import set_colmap_log_level
+from abcgs.sfm.model import read_scene
 from abcgs.sfm.params import ReconstructParams
+from abcgs.sources.photos import reconstruct_photos
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -47,9 +49,9 @@ def main(argv: list[str] | None = None) -> dict:
     out = args.work / "colmap"
     shutil.rmtree(out, ignore_errors=True)
     t0 = time.perf_counter()
-    report = reconstruct(args.scene / "images", out, params)
+    report = reconstruct_photos(args.scene, out, params)
     seconds = time.perf_counter() - t0
-    cams = read_colmap_scene(out / "sparse", out / "images").cameras
+    cams = read_scene(out).cameras
     lay = capture_layout(cams)
     centers = np.stack([c.center for c in cams])
     dirs = np.stack([c.viewmat[2, :3] for c in cams])

@@ -6,7 +6,7 @@
         --figure docs/img/masks/bonsai_strokes.jpg
 
 ``--scene S`` reads ``eval/data/S/``: ``strokes.json`` names the fitted scene under ``--work`` (``work_colmap``: the
-reconstruction's folder with ``sparse/`` and ``images/``; ``work_ply``: the fitted Gaussians; as
+reconstruction's folder with ``sparse/``, ``images/`` and ``scene.json``; ``work_ply``: the fitted Gaussians; as
 ``python -m eval.bench.fit --scene <data>/scenes/S --work W`` leaves them), the labels, the strokes of a reference
 annotation on several views spread round the capture (``reference``), the test strokes on one view (``test``) and,
 optionally, strokes on a second view (``side``) for the two-view case; ``reference/<stem>.png`` are the reference
@@ -47,11 +47,12 @@ from abcgs.gaussians import GaussianModel
 from abcgs.gaussians.ply import read_ply
 from abcgs.io.atomic import write_json
 from abcgs.io.images import load_image, load_labels, save_image, save_labels, to_uint8
+from abcgs.layout import ColmapDir
 from abcgs.masks.content import ContentMasks, label_iou, make_content_masks, recut_outputs
 from abcgs.masks.grabcut import Stroke, segment
 from abcgs.masks.lifting import NO_VOTE, LiftResult, lift_labels, render_label_map
 from abcgs.masks.params import UNDECIDED, LiftParams, MaskParams, RefineParams
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 from abcgs.types import Scene
 
 DATA = Path(__file__).resolve().parents[1] / "data"
@@ -289,10 +290,10 @@ def _print_report(out: dict) -> None:
 def _load_fitted(spec: dict, scene_name: str, work: Path) -> tuple[Scene, GaussianModel]:
     """The reconstruction and the fitted Gaussians ``strokes.json`` (``spec``) names under ``work``."""
     colmap, ply = work / spec["work_colmap"], work / spec["work_ply"]
-    if not (colmap / "sparse").is_dir() or not ply.is_file():
+    if not ColmapDir(colmap).scene.is_file() or not ply.is_file():
         raise SystemExit(f"no fitted {scene_name} under {work} ({colmap}, {ply}): run python -m eval.bench.fit "
                          f"--scene <data>/scenes/{scene_name} --work {work} first")
-    return read_colmap_scene(colmap / "sparse", colmap / "images"), read_ply(ply)
+    return read_scene(colmap), read_ply(ply)
 
 
 def main(argv: list[str] | None = None) -> dict:

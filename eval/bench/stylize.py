@@ -41,7 +41,7 @@ from abcgs.io.atomic import write_json
 from abcgs.io.images import save_image
 from abcgs.losses.terms import gram_matrix
 from abcgs.params import load_params
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 from abcgs.stylize.colormatch import color_match_and_refit
 from abcgs.stylize.loop import stylize
 from abcgs.stylize.params import ColorMatchParams, StylizeParams
@@ -118,7 +118,7 @@ def main(argv=None) -> dict:
                              projection_candidates=args.projection_candidates,
                              projection_products=args.projection_products)
     base = args.work / args.scene.name
-    scene = read_colmap_scene(base / "colmap" / "sparse", base / "colmap" / "images")
+    scene = read_scene(base / "colmap")
     original = read_ply(base / "gs" / "point_cloud.ply")
     sd, info = resolve_vgg16(params.vgg)
     vgg = VGG16Features(sd, sp.layers, feature_scale=info.feature_scale)

@@ -36,7 +36,7 @@ setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
 from abcgs.gaussians.ply import read_ply
 from abcgs.io.atomic import write_json, write_text
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 from abcgs.view.page import prepare_experiment, viewer_page
 
 CHROMIUM_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--no-sandbox", "--disable-gpu-sandbox"]
@@ -85,7 +85,7 @@ def main(argv=None) -> dict:
     if not runs:
         sys.exit(f"no stylized runs under {args.study}/runs; run `make quality` first")
     colmap = args.bench_root / "colmap"
-    cams = read_colmap_scene(colmap / "sparse", colmap / "images").cameras
+    cams = read_scene(colmap).cameras
     original = read_ply(args.bench_root / "gs" / "point_cloud.ply")
     t0 = time.perf_counter()
     exps = [prepare_experiment(r.name.rsplit("-", 1)[0], read_ply(r / "point_cloud.ply"), cams, original=original,

@@ -2,7 +2,7 @@
 
 Usage: ``python eval/studies/check_fern_poses.py [--scene ../shared/data/scenes/fern] [--colmap out/fern/colmap]``
 
-If ``--colmap`` holds no ``sparse/`` model yet, the scene is reconstructed into it first (or into a
+If ``--colmap`` holds no scene yet (``scene.json``), the scene is reconstructed into it first (or into a
 temporary folder when ``--colmap`` is not given). Camera centres are compared after a similarity
 (Umeyama) alignment; the script prints the RMS residual relative to the scene extent (RMS distance
 of the LLFF centres from their centroid) and exits non-zero above ``--max-rel``.
@@ -24,11 +24,12 @@ from abcgs.runtime import setup
 setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
 from abcgs.io.images import list_images
+from abcgs.layout import ColmapDir
 from abcgs.sfm.align import alignment_residual
-from abcgs.sfm.colmap import reconstruct
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 from abcgs.sfm.params import ReconstructParams
 from abcgs.sources.llff import llff_camera_centres
+from abcgs.sources.photos import reconstruct_photos
 
 DEFAULT_SCENE = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "scenes" / "fern"
 
@@ -45,12 +46,12 @@ class PoseCheck:
 
 
 def check_poses(scene: Path, colmap_dir: Path, params: ReconstructParams | None = None) -> PoseCheck:
-    """Reconstruct ``scene`` into ``colmap_dir`` unless a model is there, then compare camera centres."""
-    if not (colmap_dir / "sparse").is_dir():
-        reconstruct(scene / "images", colmap_dir, params or ReconstructParams())
+    """Reconstruct ``scene`` into ``colmap_dir`` unless a scene is there, then compare camera centres."""
+    if not ColmapDir(colmap_dir).scene.is_file():
+        reconstruct_photos(scene, colmap_dir, params or ReconstructParams())
     names = [p.name for p in list_images(scene / "images")]
     llff = dict(zip(names, llff_camera_centres(scene / "poses_bounds.npy"), strict=True))
-    data = read_colmap_scene(colmap_dir / "sparse", colmap_dir / "images")
+    data = read_scene(colmap_dir)
     src = np.array([c.center for c in data.cameras])
     dst = np.array([llff[c.name] for c in data.cameras])
     rms, rel, sim = alignment_residual(src, dst)

@@ -43,7 +43,7 @@ from abcgs.evaluation.reference import compute_floor, render_views
 from abcgs.gaussians import render
 from abcgs.gaussians.ply import read_ply
 from abcgs.io.atomic import write_json
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 
 
 def _resolve(spec: str) -> tuple[str, Path]:
@@ -63,7 +63,7 @@ def depth_rmse(stylized: list[np.ndarray], corr: dict, pairs: list[tuple[int, in
 
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--colmap", type=Path, required=True, help="folder with sparse/ and images/")
+    ap.add_argument("--colmap", type=Path, required=True, help="reconstruct output (sparse/, images/, scene.json)")
     ap.add_argument("--scene-ply", type=Path, required=True, help="the fitted, unstylized scene")
     ap.add_argument("--ply", action="append", default=[], metavar="NAME=PATH", help="a scene to measure (glob ok)")
     ap.add_argument("--gaps", default="1,7", help="short,long view gaps (as evaluate.short_term_gap/long_term_gap)")
@@ -75,7 +75,7 @@ def main(argv=None) -> dict:
     torch.set_num_threads(args.threads)
     measured = [("unstylized scene (floor)", args.scene_ply)] + [_resolve(s) for s in args.ply]  # fail before work
     t0 = time.perf_counter()
-    scene = read_colmap_scene(args.colmap / "sparse", args.colmap / "images")
+    scene = read_scene(args.colmap)
     cams = scene.cameras
     base = read_ply(args.scene_ply)
     gaps = [int(g) for g in args.gaps.split(",")]

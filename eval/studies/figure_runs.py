@@ -28,20 +28,20 @@ from abcgs.features.matching import load_style
 from abcgs.gaussians import render
 from abcgs.gaussians.ply import read_ply
 from abcgs.io.images import save_image
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 from abcgs.viz import image_grid
 
 
 def main(argv=None) -> np.ndarray:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--colmap", type=Path, required=True, help="folder with sparse/ and images/ (the cameras)")
+    ap.add_argument("--colmap", type=Path, required=True, help="reconstruct output (sparse/, images/, scene.json)")
     ap.add_argument("--ply", action="append", required=True, help="NAME=PATH (repeatable; one column each)")
     ap.add_argument("--views", default="0", help="comma-separated view indices (rows)")
     ap.add_argument("--crop", default=None, help="x0,y0,x1,y1: a 2x crop row of the first view")
     ap.add_argument("--style", type=Path, default=None, help="painting shown as the last column")
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args(argv)
-    scene = read_colmap_scene(args.colmap / "sparse", args.colmap / "images")
+    scene = read_scene(args.colmap)
     views = [int(v) for v in args.views.split(",")]
     bad = [v for v in views if not 0 <= v < len(scene.cameras)]
     if bad:

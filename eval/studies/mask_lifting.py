@@ -34,7 +34,7 @@ from abcgs.io.images import load_image, save_image
 from abcgs.masks.content import find_given_masks_with_palette, grabcut_view, heldout_scores
 from abcgs.masks.lifting import lift_labels, propagate_unseen, render_label_map
 from abcgs.masks.params import GrabCutParams, LiftParams
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 from abcgs.viz import colorize_labels, image_grid
 
 
@@ -86,7 +86,7 @@ def _figure(path: Path, scene, given: dict[int, np.ndarray], views: dict[int, np
 
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
-    ap.add_argument("--colmap", type=Path, required=True, help="reconstruct output (sparse/, images/)")
+    ap.add_argument("--colmap", type=Path, required=True, help="reconstruct output (sparse/, images/, scene.json)")
     ap.add_argument("--ply", type=Path, required=True, help="the fitted scene")
     ap.add_argument("--masks", type=Path, required=True, help="folder of label PNGs named like the views")
     ap.add_argument("--lift", default=None, help="comma-separated view stems to lift from (default: the first mask)")
@@ -99,7 +99,7 @@ def main(argv: list[str] | None = None) -> dict:
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
 
-    scene = read_colmap_scene(args.colmap / "sparse", args.colmap / "images")
+    scene = read_scene(args.colmap)
     cams, model = scene.cameras, read_ply(args.ply)
     stems = [Path(c.name).stem for c in cams]
     if args.grabcut_box:

@@ -38,10 +38,11 @@ from abcgs.gaussians import GaussianModel, render
 from abcgs.gaussians.ply import read_ply, write_ply
 from abcgs.io.atomic import write_json
 from abcgs.io.images import save_image
+from abcgs.layout import ColmapDir
 from abcgs.params import load_params
-from abcgs.sfm.colmap import reconstruct
-from abcgs.sfm.model import read_colmap_scene
+from abcgs.sfm.model import read_scene
 from abcgs.sfm.params import ReconstructParams
+from abcgs.sources.photos import reconstruct_photos
 from abcgs.stylize.colormatch import color_match_and_refit
 from abcgs.stylize.loop import stylize
 from abcgs.stylize.params import ColorMatchParams, HigherSH
@@ -71,9 +72,9 @@ def label_cell(text: str) -> np.ndarray:
 
 def fitted_degree3(scene_dir: Path, work: Path, iterations: int, scale: float):
     colmap = work / scene_dir.name / "colmap"
-    if not (colmap / "sparse").is_dir():
-        reconstruct(scene_dir / "images", colmap, ReconstructParams())
-    scene = read_colmap_scene(colmap / "sparse", colmap / "images")
+    if not ColmapDir(colmap).scene.is_file():
+        reconstruct_photos(scene_dir, colmap, ReconstructParams())
+    scene = read_scene(colmap)
     ply = work / scene_dir.name / f"gs_sh3_{iterations}" / "point_cloud.ply"
     if not ply.is_file():
         params = FitParams(iterations=iterations, sh_degree=3, sh_degree_interval=max(1, iterations // 6),
