@@ -396,7 +396,8 @@ def test_ordered_map_keeps_order_and_raises_the_first_error() -> None:
 
 
 def test_resolve_workers_counts_cores_left_by_torch_threads() -> None:
-    from abcgs.evaluation.parallel import available_cores, resolve_workers
+    from abcgs.evaluation.parallel import resolve_workers
+    from abcgs.runtime import available_cores
 
     assert resolve_workers(3) == 3
     with torch_threads(1):

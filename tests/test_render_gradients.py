@@ -18,7 +18,7 @@ import torch
 from render_scenes import blend_margins, finite_difference_check, random_scene
 
 from abcgs.render import rasterize
-from abcgs.render.cpu import _RasterizeCPU, is_available
+from abcgs.render.cpu import is_available, rasterize_batch_cpu
 from abcgs.render.projection import project_gaussians
 from abcgs.render.sh import sh_to_color
 
@@ -133,8 +133,10 @@ def test_gradcheck_cpu_kernel_full_jacobian():
     proj = project_gaussians(scene.means, scene.quats, scene.scales, scene.opacities, scene.viewmat, scene.K, W, H)
     assert bool(proj.visible.all())
 
-    def kernel(means2d, conics, colors, opacities):
-        return _RasterizeCPU.apply(means2d, conics, colors, opacities, proj.depths, proj.extents, W, H, TILE)
+    def kernel(means2d, conics, colors, opacities):  # one view: a batch of one
+        image, alpha = rasterize_batch_cpu(means2d[None], conics[None], colors, opacities, proj.depths[None],
+                                           proj.extents[None], W, H, tile_size=TILE)
+        return image[0], alpha[0]
 
     raw = (proj.means2d, proj.conics, scene.colors, scene.opacities)
     inputs = tuple(t.detach().clone().requires_grad_(True) for t in raw)
