@@ -1,14 +1,19 @@
 """The benchmark suite's runner (``python -m eval``): it lists every benchmark and study from source and runs one by
-name with its own arguments."""
+name with its own arguments; every benchmark's ``--json`` record is written through :mod:`eval.record`, with the
+run's provenance."""
 
 from __future__ import annotations
 
+import ast
+import json
 import subprocess
 import sys
+from datetime import datetime, timedelta
 from pathlib import Path
 
 import pytest
 
+from eval.record import bench_parser, write_record
 from eval.suite import Benchmark, discover, find, main
 
 REPO = Path(__file__).resolve().parents[1]
@@ -49,3 +54,88 @@ def test_run_passes_the_arguments_after_the_name_to_the_benchmark():
                           text=True, timeout=120, cwd=REPO)
     assert proc.returncode == 0, proc.stderr
     assert "usage:" in proc.stdout and "Structure numbers" in proc.stdout
+
+
+# --- the record a benchmark writes (eval/record.py) ------------------------------------------------------------
+
+
+def _record_helpers_called(tree: ast.AST) -> set[str]:
+    """Which of ``bench_parser`` / ``write_record`` / ``provenance``, imported from :mod:`eval.record` (at any
+    depth), the module calls."""
+    imported = {a.asname or a.name: a.name for node in ast.walk(tree)
+                if isinstance(node, ast.ImportFrom) and node.module == "eval.record" for a in node.names}
+    return {imported[n.func.id] for n in ast.walk(tree)
+            if isinstance(n, ast.Call) and isinstance(n.func, ast.Name) and n.func.id in imported}
+
+
+def _adds_json_option(tree: ast.AST) -> bool:
+    """Whether the module declares ``--json`` itself (an ``add_argument("--json", ...)`` call)."""
+    return any(isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) and n.func.attr == "add_argument"
+               and any(isinstance(a, ast.Constant) and a.value == "--json" for a in n.args) for n in ast.walk(tree))
+
+
+def test_every_benchmark_with_a_json_record_uses_the_shared_parser_or_writer():
+    """A suite module that offers ``--json`` builds its parser with :func:`eval.record.bench_parser` or writes its
+    record with :func:`eval.record.write_record` (which adds the run's provenance)."""
+    offenders, with_record = [], []
+    for b in discover():
+        tree = ast.parse((REPO / "eval" / b.room / f"{b.name}.py").read_text(encoding="utf-8"))
+        used = _record_helpers_called(tree)
+        if used:
+            with_record.append(b.module)
+        if _adds_json_option(tree) and not used & {"bench_parser", "write_record"}:
+            offenders.append(b.module)
+    assert not offenders, ("these declare --json themselves and write their record by hand; build the parser with "
+                           f"eval.record.bench_parser or write with eval.record.write_record: {offenders}")
+    assert {"eval.bench.structure", "eval.bench.fit_schedule", "eval.bench.gpu"} <= set(with_record)
+
+
+def test_the_json_option_check_sees_a_hand_built_one():
+    hand = ast.parse("import argparse\nap = argparse.ArgumentParser()\nap.add_argument('--json')\n")
+    shared = ast.parse("def main():\n    from eval.record import bench_parser as bp\n    ap = bp(__doc__)\n")
+    assert _adds_json_option(hand) and not _record_helpers_called(hand)
+    assert not _adds_json_option(shared) and _record_helpers_called(shared) == {"bench_parser"}
+
+
+def test_bench_parser_takes_the_docstring_and_an_optional_json_path():
+    ap = bench_parser("What it measures.\n\n    python -m eval.bench.x --json out.json\n")
+    assert ap.parse_args([]).json is None
+    assert ap.parse_args(["--json", "a/b.json"]).json == Path("a/b.json")
+    assert "    python -m eval.bench.x --json out.json" in ap.format_help()  # kept as written
+
+
+def test_write_record_adds_the_provenance_and_keeps_the_records_own_keys(tmp_path):
+    import torch  # provenance names torch once it is loaded (as in every benchmark that uses it)
+
+    path = tmp_path / "deep" / "r.json"
+    write_record(path, {"rows": [{"ms": 1.5}], "machine": "the benchmark's own"}, ["--steps", "3", "--note", "a b"])
+    rec = json.loads(path.read_text())
+    assert rec["rows"] == [{"ms": 1.5}] and rec["machine"] == "the benchmark's own"
+    prov = rec["provenance"]
+    assert prov["command"].startswith("python ") and prov["command"].endswith(" --steps 3 --note 'a b'")
+    assert prov["cores"] >= 1 and prov["machine"] and prov["python"].count(".") == 2
+    assert prov["torch"] == torch.__version__ and prov["torch_threads"] == torch.get_num_threads()
+    assert datetime.fromisoformat(prov["date"]).utcoffset() == timedelta(0)
+    assert prov["loadavg"] is None or len(prov["loadavg"]) == 3
+    write_record(path, {"provenance": {"command": "kept"}, "x": 1})
+    assert json.loads(path.read_text()) == {"provenance": {"command": "kept"}, "x": 1}
+    assert not list(path.parent.glob(".*.tmp*")), "the atomic writer left its temporary file"
+
+
+def test_provenance_does_not_load_torch():
+    code = ("import sys; from eval.record import provenance; p = provenance([]); "
+            "print('torch' in sys.modules, 'torch' in p)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=REPO)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split() == ["False", "False"]
+
+
+def test_a_benchmark_run_through_the_suite_writes_its_record_with_the_command_that_reproduces_it(tmp_path):
+    out = tmp_path / "structure.json"
+    proc = subprocess.run([sys.executable, "-m", "eval", "run", "structure", "--json", str(out), "--label", "t"],
+                          capture_output=True, text=True, timeout=300, cwd=REPO)
+    assert proc.returncode == 0, proc.stderr
+    rec = json.loads(out.read_text())
+    assert rec["t"]["modules"] > 0 and rec["t"]["upward_imports"] == 0
+    assert rec["provenance"]["command"] == f"python -m eval.bench.structure --json {out} --label t"
+    assert "torch" not in rec["provenance"]  # the structure count never loads torch

@@ -27,11 +27,9 @@ run. Needs root and Debian's ``slurm-wlm`` and ``munge`` (installed when missing
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import os
-import platform
 import re
 import signal
 import subprocess
@@ -49,6 +47,7 @@ setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 from abcgs.cluster.run import load_run, read_state
 from eval.bench.regression import REDUCED, reduce
 from eval.bench.repo_copy import copy_repo, run_in
+from eval.record import bench_parser, write_record
 from eval.slurm_local import LocalSlurm, install
 
 TIMING_KEYS = re.compile(r"minutes|seconds|timings|_fps|speed")
@@ -166,8 +165,8 @@ def _median(xs: list[float]) -> float:
 
 
 def main(argv: list[str] | None = None) -> dict:
-    ap = argparse.ArgumentParser(prog="python -m eval.bench.cluster", description=__doc__.strip().splitlines()[0])
-    ap.add_argument("--json", type=Path, help="write the measurement here (docs/measurements/cluster_tiny.json)")
+    ap = bench_parser(__doc__)
+    ap.prog = "python -m eval.bench.cluster"
     ap.add_argument("--resources", type=Path, help="per-kind resources for the cluster run (default: see the code)")
     ap.add_argument("--first", choices=("plain", "cluster"), default="plain", help="which run goes first")
     ap.add_argument("--repeat", type=int, default=1, help="rounds; the order alternates (plain, cluster, cluster, "
@@ -191,10 +190,8 @@ def main(argv: list[str] | None = None) -> dict:
     diffs = [differences(p["results"], c["results"]) for p in runs["plain"] for c in runs["cluster"]]
     locks = lock_summary([r.pop("lock") for r in runs["plain"]], [r.pop("lock") for r in runs["cluster"]])
     ratio = cluster / plain
-    out = {"command": "python -m eval.bench.cluster " + " ".join(argv if argv is not None else sys.argv[1:]),
-           "date": time.strftime("%Y-%m-%d %H:%M"), "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
-                                                                "loadavg_before": [round(x, 2) for x in load_before]},
-           "reduced": dict(REDUCED), "order": order, "repeat": a.repeat,
+    out = {"loadavg_before": [round(x, 2) for x in load_before], "reduced": dict(REDUCED), "order": order,
+           "repeat": a.repeat,
            "plain_wall_s": [r["wall_s"] for r in runs["plain"]], "cluster_wall_s": [r["wall_s"] for r in runs["cluster"]],
            "plain_median_s": plain, "cluster_median_s": cluster, "ratio": round(ratio, 3),
            "metrics_equal": not any(d["metrics"] for d in diffs), "ply_equal": not any(d["ply"] for d in diffs),
@@ -219,8 +216,7 @@ def main(argv: list[str] | None = None) -> dict:
         for k, (va, vb) in list(d["metrics"].items())[:20]:
             print(f"  {k}: plain {va} / cluster {vb}")
     if a.json:
-        a.json.parent.mkdir(parents=True, exist_ok=True)
-        a.json.write_text(json.dumps(out, indent=1) + "\n")
+        write_record(a.json, out, argv)
         print(f"wrote {a.json}")
     return out
 

@@ -34,11 +34,9 @@ the step, the sum of the default parts and that sum with the cheaper arithmetic.
 
 from __future__ import annotations
 
-import argparse
 import os
 import platform
 import statistics
-from pathlib import Path
 
 from abcgs.runtime import setup
 
@@ -48,11 +46,11 @@ setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 import torch
 
 from abcgs.features import knn
-from abcgs.io.atomic import write_json
 from abcgs.losses import fast
 from abcgs.losses.params import FastParams
 from eval.bench.real_features import add_feature_arguments, load_bench_features
 from eval.bench.timing import median_ms
+from eval.record import bench_parser, write_record
 
 VARIANTS = ("library", "float32 statistics", "solve float32", "target bfloat16", "statistics bfloat16")
 
@@ -117,14 +115,13 @@ def part_functions(f_r: torch.Tensor, style: knn.StyleFeatures, fp: FastParams) 
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = bench_parser(__doc__)
     add_feature_arguments(ap)
     ap.add_argument("--group-sizes", default="0,600", help="comma-separated; 0 = the whole view")
     ap.add_argument("--time-views", type=int, default=3)
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--rest-ms", type=float, default=None, help="the rest of a stylization step, ms (see above)")
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
 
@@ -176,7 +173,7 @@ def main(argv=None) -> dict:
     algebra = ms["statistics float32"] + ms["solve float64"] + ms["target float32"] + ms["cosine fwd+bwd"]
     out = {"scenes": args.ply, "style": str(args.style), "views": len(views), "n_r": views[0].shape[1],
            "n_s": style.shape[1], "c": c, "fast_params": fp.model_dump(), "threads": args.threads,
-           "machine": platform.machine(), "cpus": os.cpu_count(), "bf16_dot_available": knn.bf16_dot_available(),
+           "bf16_dot_available": knn.bf16_dot_available(),
            "precision": results, "ms": ms, "sum_of_parts_ms": parts, "algebra_ms": algebra,
            "with_float32_solve_and_bf16_target_ms": cheaper}
     print(f"sum of the default parts {parts:.1f} ms (the algebra after the search {algebra:.1f} ms); with the float32 "
@@ -190,7 +187,7 @@ def main(argv=None) -> dict:
               f"{100 * out['share_default']:.1f} %, the cheaper arithmetic {100 * out['share_cheaper']:.1f} %; after the "
               f"default algebra the search would have {budget - algebra:.1f} ms")
     if args.json:
-        write_json(args.json, out)
+        write_record(args.json, out, argv)
     return out
 
 

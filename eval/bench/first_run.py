@@ -1,19 +1,17 @@
 """The README's first command on a machine that has nothing: a fresh clone, an empty HOME, no git identity.
 
-    python -m eval.bench.first_run --out docs/measurements/first_run.json [--rev HEAD] [--work /tmp/first-run]
+    python -m eval.bench.first_run --json docs/measurements/first_run.json [--rev HEAD] [--work /tmp/first-run]
 
 Clones ``--rev`` of this repository into ``--work`` and runs ``make install`` then ``make run`` there with ``HOME``
 an empty folder, no global git config and no git identity (as ``.ci/run`` does; pip's configuration, which holds
-the machine's package indexes, is kept). Records the wall time of each, the machine (cores, load average before
-and after) and the end of each log. ``make run`` is ``make install`` (a no-op by then) + the preflight + ``dvc
-repro``; the per-stage times come from DVC's log of the run.
+the machine's package indexes, is kept). Records the wall time of each, the load average before them (the
+record's provenance has the machine and the load after) and the end of each log. ``make run`` is ``make install``
+(a no-op by then) + the preflight + ``dvc repro``; the per-stage times come from DVC's log of the run.
 """
 
 from __future__ import annotations
 
-import argparse
 import os
-import platform
 import re
 import shutil
 import subprocess
@@ -26,7 +24,7 @@ from abcgs.runtime import setup
 
 setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
-from abcgs.io.atomic import write_json
+from eval.record import bench_parser, write_record
 
 ROOT = Path(__file__).resolve().parents[2]
 STAGE_DONE = re.compile(r"\[(\w+)\] done in ([0-9.]+) s")
@@ -58,11 +56,12 @@ def timed(cmd: list[str], cwd: Path, env: dict[str, str], log: Path) -> tuple[fl
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", type=Path, required=True, help="the record (JSON)")
+    ap = bench_parser(__doc__)
     ap.add_argument("--rev", default="HEAD", help="the revision to clone")
     ap.add_argument("--work", type=Path, help="where to clone (default: a temporary folder, removed afterwards)")
     args = ap.parse_args(argv)
+    if args.json is None:
+        ap.error("give --json PATH: the record is what this run is for")
     work = args.work or Path(tempfile.mkdtemp(prefix="abcgs-first-run-"))
     clone, home = work / "abcgs", work / "home"
     if clone.exists():
@@ -77,18 +76,15 @@ def main(argv: list[str] | None = None) -> int:
     run_s, run_rc, run_log = (timed(["make", "run"], clone, env, work / "run.log") if install_rc == 0
                               else (0.0, -1, ""))
     record = {
-        "command": "python -m eval.bench.first_run " + " ".join(argv if argv is not None else sys.argv[1:]),
         "revision": rev.strip(),
-        "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version(),
-                    "load_average_before": [round(x, 2) for x in load_before],
-                    "load_average_after": [round(x, 2) for x in os.getloadavg()]},
+        "load_average_before": [round(x, 2) for x in load_before],
         "make_install_s": round(install_s, 1), "make_install_exit": install_rc,
         "make_run_s": round(run_s, 1), "make_run_exit": run_rc,
         "total_s": round(install_s + run_s, 1), "total_min": round((install_s + run_s) / 60, 2),
         "stage_seconds": [{"stage": m.group(1), "seconds": float(m.group(2))} for m in STAGE_DONE.finditer(run_log)],
         "run_log_tail": run_log[-3000:],
     }
-    write_json(args.out, record)
+    write_record(args.json, record, argv)
     print(f"first run: install {install_s / 60:.1f} min + run {run_s / 60:.1f} min = {record['total_min']:.1f} min")
     if args.work is None:
         shutil.rmtree(work, ignore_errors=True)

@@ -13,7 +13,6 @@ steps only (evaluation excluded), on whatever machine runs it — the table head
 
 from __future__ import annotations
 
-import argparse
 import os
 import platform
 from pathlib import Path
@@ -28,17 +27,17 @@ import torch
 from abcgs.fit.params import FitParams, StrategyParams
 from abcgs.fit.training import fit
 from abcgs.gaussians.ply import write_ply
-from abcgs.io.atomic import write_json
 from abcgs.layout import ColmapDir
 from abcgs.runtime import resolve_device
 from abcgs.sfm.model import read_scene
 from abcgs.sfm.params import ReconstructParams
 from abcgs.sources.read import resolve_format
 from abcgs.sources.registry import formats, reader_of
+from eval.record import bench_parser, write_record
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = bench_parser(__doc__)
     ap.add_argument("--scene", type=Path, required=True, help="folder with images/ (or a dataset with cameras)")
     ap.add_argument("--format", default="photos", choices=("auto", *formats()),
                     help="where the cameras come from (photos: structure from motion)")
@@ -56,7 +55,6 @@ def main(argv=None) -> dict:
     ap.add_argument("--reconstruct", default="{}",
                     help="reconstruct params as JSON (abcgs.sfm.params.ReconstructParams), e.g. "
                          "'{\"matcher\": \"sequential\"}'; the reconstruction is cached in --work: use a new one")
-    ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     reconstruct_params = ReconstructParams.model_validate_json(args.reconstruct)
 
@@ -96,10 +94,10 @@ def main(argv=None) -> dict:
     out = {"scene": str(args.scene), "format": fmt, "points": int(len(scene.points)), "width": cam.width,
            "height": cam.height, "params": params.model_dump(), "reconstruct": reconstruct_params.model_dump(),
            "n_gaussians": result.model.num_gaussians, "curve": result.eval_history, "backend": result.backend,
-           "cpus": os.cpu_count(), "device": str(device),
+           "device": str(device),
            "gpu": torch.cuda.get_device_name() if torch.cuda.is_available() else None}
     if args.json:
-        write_json(args.json, out)
+        write_record(args.json, out, argv)
         import matplotlib
 
         matplotlib.use("Agg")

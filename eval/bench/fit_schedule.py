@@ -19,10 +19,7 @@ training minutes.
 
 from __future__ import annotations
 
-import argparse
 import json
-import os
-import platform
 import tempfile
 from pathlib import Path
 
@@ -34,7 +31,6 @@ setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 from abcgs.fit.params import FitParams
 from abcgs.fit.plausibility import check_fit
 from abcgs.fit.training import fit
-from abcgs.io.atomic import write_json
 from abcgs.layout import ColmapDir
 from abcgs.params import load_params
 from abcgs.scene.synthetic import make_tiny_scene, write_object_dataset
@@ -45,6 +41,7 @@ from abcgs.sources.params import SceneParams
 from abcgs.sources.read import loaded, read_source, resolve_format
 from abcgs.sources.registry import reader_of
 from abcgs.types import Scene
+from eval.record import bench_parser, write_record
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENES = {"tiny": make_tiny_scene, "object": write_object_dataset}
@@ -88,7 +85,7 @@ def run(name: str, iterations: int, work: Path, variant: dict | None = None) -> 
 
 
 def main(argv=None) -> list[dict]:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = bench_parser(__doc__)
     ap.add_argument("--scenes", nargs="+", choices=tuple(SCENES), default=list(SCENES))
     ap.add_argument("--iterations", nargs="+", type=int, default=[1000, 1500, 3000, 6000])
     ap.add_argument("--work", type=Path, default=None, help="where the scenes are generated (default: a temporary folder)")
@@ -96,7 +93,6 @@ def main(argv=None) -> list[dict]:
                     help="fit keys as JSON replacing params.yaml's, one run each (repeatable), e.g. the fixed 3DGS "
                          "steps: '{\"strategy\": {\"refine_start\": 500, \"refine_every\": 100, "
                          "\"refine_stop\": 15000, \"reset_every\": 3000}}'")
-    ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     rows = []
     with tempfile.TemporaryDirectory(prefix="abcgs-fit-schedule-") as tmp:
@@ -114,8 +110,7 @@ def main(argv=None) -> list[dict]:
                           f"{r['minutes']:>5.1f}" + (f"  {json.dumps(variant)}" if variant else ""), flush=True)
                     rows.append(r)
     if args.json:
-        write_json(args.json, {"command": "python -m eval.bench.fit_schedule", "variants": args.variant, "rows": rows,
-                               "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs"})
+        write_record(args.json, {"variants": args.variant, "rows": rows}, argv)
     return rows
 
 

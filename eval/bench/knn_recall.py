@@ -25,7 +25,6 @@ import argparse
 import os
 import platform
 import statistics
-from pathlib import Path
 
 from abcgs.runtime import setup
 
@@ -35,11 +34,11 @@ setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 import torch
 
 from abcgs.features import knn
-from abcgs.io.atomic import write_json
 from abcgs.losses import fast
 from abcgs.losses.params import FastParams
 from eval.bench.real_features import add_feature_arguments, load_bench_features
 from eval.bench.timing import median_ms
+from eval.record import bench_parser, write_record
 
 
 def _found(approx: torch.Tensor, exact: torch.Tensor) -> float:
@@ -49,7 +48,7 @@ def _found(approx: torch.Tensor, exact: torch.Tensor) -> float:
 
 def _parser() -> argparse.ArgumentParser:
     """The command line of :func:`main`."""
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = bench_parser(__doc__)
     add_feature_arguments(ap)
     ap.add_argument("--ranks", default="64,96,128")
     ap.add_argument("--candidates", default="8,16,32")
@@ -61,7 +60,6 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--knn-search", default="auto", choices=["auto", "exact", "bf16"])
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--json", type=Path, default=None)
     return ap
 
 
@@ -147,10 +145,10 @@ def main(argv=None) -> dict:
               f"{ms:>7.1f}")
     out = {"scenes": args.ply, "style": str(args.style), "views": len(cameras), "n_r": n_r, "n_s": n_s, "k": args.k,
            "exact_search": args.knn_search, "exact_ms": ms_exact, "threads": args.threads,
-           "machine": platform.machine(), "cpus": os.cpu_count(), "bf16_dot_available": knn.bf16_dot_available(),
+           "bf16_dot_available": knn.bf16_dot_available(),
            "results": rows_out}
     if args.json:
-        write_json(args.json, out)
+        write_record(args.json, out, argv)
     return out
 
 if __name__ == "__main__":

@@ -30,7 +30,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import resource
 import tempfile
 import time
@@ -50,7 +49,6 @@ from abcgs.features.params import ALL_PIXELS
 from abcgs.features.vgg import VGG16Features, extract_features, random_state_dict
 from abcgs.gaussians import GaussianModel, render
 from abcgs.gaussians.ply import write_ply
-from abcgs.io.atomic import write_json
 from abcgs.io.images import save_image
 from abcgs.splats.formats.spz import write_spz
 from abcgs.splats.preview import decimate
@@ -59,6 +57,7 @@ from abcgs.splats.validate import check_splat
 from abcgs.stylize.loop import stylize
 from abcgs.stylize.params import HigherSH, StylizeCompute, StylizeOptim, StylizeParams
 from abcgs.types import Cameras, MatchingGroup, Scene
+from eval.record import bench_parser, write_record
 
 
 def peak_rss_gib() -> float:
@@ -78,17 +77,6 @@ def reset_peak_rss() -> None:
         Path("/proc/self/clear_refs").write_text("5")
     except OSError:
         pass
-
-
-def cpu_model() -> str:
-    """The CPU's model name (/proc/cpuinfo), else the platform's."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def synthesize(n: int, seed: int = 0) -> GaussianModel:
@@ -169,7 +157,7 @@ def markdown_table(records: dict[str, dict]) -> str:
 
 def _parser() -> argparse.ArgumentParser:
     """The command line of :func:`main`."""
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = bench_parser(__doc__)
     ap.add_argument("--n", type=int, default=3_000_000)
     ap.add_argument("--views", type=int, default=4)
     ap.add_argument("--width", type=int, default=504)
@@ -185,7 +173,6 @@ def _parser() -> argparse.ArgumentParser:
                     help="stylize.higher_sh: the SH bands above DC in the stylization (default, as the pipeline's: "
                     "zero, the colour match zeroes them)")
     ap.add_argument("--work", type=Path, default=None, help="scratch folder (default: a temporary one)")
-    ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--table", type=Path, nargs="+", metavar="JSON",
                     help="print the markdown table of these records (one column each) and exit")
     return ap
@@ -258,8 +245,8 @@ def main(argv=None) -> dict:
     work = args.work or Path(tempfile.mkdtemp(prefix="large_splat_"))
     work.mkdir(parents=True, exist_ok=True)
     rec: dict = {"n_gaussians": args.n, "sh_degree": 3, "views": args.views, "width": args.width, "height": args.height,
-                 "threads": args.threads, "cpus": os.cpu_count(), "machine": cpu_model(),
-                 "color_pass_rotations": args.color_pass_rotations, "higher_sh": args.higher_sh, "load_average_start": os.getloadavg(),
+                 "threads": args.threads, "color_pass_rotations": args.color_pass_rotations,
+                 "higher_sh": args.higher_sh, "load_average_start": os.getloadavg(),
                  "phases": {}}
     phases = rec["phases"]
 
@@ -300,7 +287,7 @@ def main(argv=None) -> dict:
     stylize_phase(phases, "stylize (preview)", small, cams, vgg, groups, sp)
     rec["load_average"] = os.getloadavg()
     if args.json:
-        write_json(args.json, rec)
+        write_record(args.json, rec, argv)
     return rec
 
 if __name__ == "__main__":

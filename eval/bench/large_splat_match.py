@@ -15,11 +15,9 @@ of the full view. Prints a table and, with ``--json``, writes the record.
 
 from __future__ import annotations
 
-import argparse
 import os
 import time
 from dataclasses import replace
-from pathlib import Path
 
 from abcgs.runtime import setup
 
@@ -29,8 +27,8 @@ setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 import torch
 
 from abcgs.gaussians import render
-from abcgs.io.atomic import write_json
-from eval.bench.large_splat import cameras, cpu_model, synthesize
+from eval.bench.large_splat import cameras, synthesize
+from eval.record import bench_parser, write_record
 
 FIELDS = ("means", "quats", "log_scales", "opacity_logits", "sh0", "shN")
 
@@ -47,14 +45,13 @@ def run_backend(model, cam, backend: str, weights: dict[str, torch.Tensor]) -> d
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = bench_parser(__doc__)
     ap.add_argument("--n", type=int, default=3_000_000)
     ap.add_argument("--width", type=int, default=504)
     ap.add_argument("--height", type=int, default=378)
     ap.add_argument("--window", type=int, default=64, help="side of the square window both backends render (px)")
     ap.add_argument("--gaussians", type=int, default=20_000)
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
     model = synthesize(args.n)
@@ -74,7 +71,7 @@ def main(argv=None) -> dict:
     seen = torch.nonzero(res["cpu"]["visible"] & res["reference"]["visible"]).squeeze(1)
     gauss = seen[torch.randperm(seen.numel(), generator=g)[: args.gaussians]]
     rec: dict = {"n_gaussians": args.n, "width": args.width, "height": args.height, "window": [x0, y0, args.window],
-                 "machine": cpu_model(), "visible_in_window": int(seen.numel()),
+                 "visible_in_window": int(seen.numel()),
                  "sampled_gaussians": int(gauss.numel()), "load_average": os.getloadavg(),
                  "seconds": {b: float(r["seconds"]) for b, r in res.items()}, "max_abs_diff": {}, "max_abs": {},
                  "window_vs_full_view": float((whole - res["cpu"]["image"]).abs().max())}
@@ -89,7 +86,7 @@ def main(argv=None) -> dict:
     print(f"window vs the full view's pixels: {rec['window_vs_full_view']:.3g}")
     print(f"seconds: {rec['seconds']}   load {rec['load_average'][0]:.1f}")
     if args.json:
-        write_json(args.json, rec)
+        write_record(args.json, rec, argv)
     return rec
 
 

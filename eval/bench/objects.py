@@ -27,10 +27,8 @@ generated views the largest original alpha on any view's border (an object pixel
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
-import platform
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -73,6 +71,7 @@ from abcgs.stylize.loop import stylize
 from abcgs.stylize.params import ColorMatchParams, StylizeParams
 from abcgs.types import FRAME_FILLING, Background, Cameras, Scene
 from abcgs.viz import image_grid
+from eval.record import bench_parser, write_record
 
 ROOT = Path(__file__).resolve().parents[2]
 SHARED = ROOT.parent / "shared" / "data"
@@ -241,7 +240,7 @@ def figure(cases: list[ObjectCase], runs: list[tuple[str, str]], work: Path, pat
 
 
 def main(argv: list[str] | None = None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = bench_parser(__doc__)
     ap.add_argument("--work", type=Path, required=True, help="cache of the objects and the stylized PLYs")
     ap.add_argument("--objects", default="rgba,miku_splat,miku_scene")
     ap.add_argument("--paintings", default="starry_night,udnie", help="stems in ../shared/data/styles")
@@ -259,7 +258,6 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--frame-paintings", default="starry_night",
                     help="the paintings also run with the object treated as frame-filling (for comparison)")
     ap.add_argument("--quick", action="store_true", help="a short schedule (30 + 20 steps, 40-step re-fit)")
-    ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--figure", type=Path, default=None)
     args = ap.parse_args(argv)
     args.objects = args.objects.split(",")
@@ -281,8 +279,7 @@ def main(argv: list[str] | None = None) -> dict:
     paintings = args.paintings.split(",")
     framed = set(args.frame_paintings.split(",")) if args.frame_paintings else set()
     runs = [(p, m) for p in paintings for m in ("frame", "object") if m == "object" or p in framed]
-    record = {"machine": {"cpu": platform.processor() or platform.machine(), "threads": torch.get_num_threads(),
-                          "load_average_at_start": list(os.getloadavg())},
+    record = {"load_average_at_start": list(os.getloadavg()),
               "schedule": {"refit": cm.refit_iterations, "stylize": sp.optim.iterations,
                            "color_pass": sp.optim.color_pass_iterations}, "objects": {}}
     for case in cases:
@@ -303,7 +300,7 @@ def main(argv: list[str] | None = None) -> dict:
                   f"{r['stylize_seconds']:.0f} s", flush=True)
         record["objects"][case.name] = entry
         if args.json:
-            write_json(args.json, record)
+            write_record(args.json, record, argv)
     if args.figure:
         figure(cases, runs, work, args.figure, (0.0, 0.4))
     print(json.dumps({k: {"border_alpha": v["border_alpha"]} for k, v in record["objects"].items()}))

@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
-import platform
 import shutil
 import tempfile
 import time
@@ -44,12 +43,12 @@ import cv2
 import numpy as np
 
 from abcgs.gaussians import GaussianModel
-from abcgs.io.atomic import write_json
 from abcgs.io.images import load_image, load_labels, save_labels
 from abcgs.masks.content import ContentMasks, label_iou, make_content_masks
 from abcgs.masks.grabcut import Stroke, segment
 from abcgs.masks.params import LiftParams, MaskParams, RefineParams
 from abcgs.types import Scene
+from eval.record import bench_parser, write_record
 from eval.studies.mask_lifting import iou_summary
 
 GOAL = 0.9
@@ -169,7 +168,7 @@ def _score(views: list[np.ndarray], truth: dict[int, np.ndarray], skip: int, n_l
 
 def _parser() -> argparse.ArgumentParser:
     """The command line of :func:`main`."""
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = bench_parser(__doc__)
     ap.add_argument("--view", default="000", help="the view the user draws on (image stem)")
     ap.add_argument("--strokes", type=int, default=3, help="strokes per label, at most, in all rounds")
     ap.add_argument("--rounds", type=int, default=1,
@@ -182,7 +181,6 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--views", type=int, default=16, help="the tiny scene's n_views")
     ap.add_argument("--propagate-along", choices=("position", "surface"), default="position",
                     help="masks.lift.propagate_along of every lift")
-    ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--figure", type=Path, default=None, help="strokes, cut, and the lifted labels in three other views")
     return ap
 
@@ -327,13 +325,12 @@ def main(argv: list[str] | None = None) -> dict:
             "seconds": {"segment": seconds_segment, "reconstruct_and_fit": seconds_fit,
                         "lift_refine_and_render": seconds_lift,
                         "total": time.perf_counter() - t0},
-            "machine": f"{platform.processor() or platform.machine()}",
         }
         _print_result(result, len(cams) - 1)
         if args.figure:
             _figure(args.figure, work / "colmap", scene, strokes, cut.labels, image, lifted.view_labels, src)
         if args.json:
-            write_json(args.json, result)
+            write_record(args.json, result, argv)
         return result
 
 def _figure(path: Path, colmap: Path, scene, strokes: list[Stroke], cut: np.ndarray, image: np.ndarray,

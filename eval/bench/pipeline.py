@@ -46,8 +46,8 @@ from abcgs.runtime import setup
 setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
 from abcgs.dotted import set_dotted
-from abcgs.io.atomic import write_json
 from eval.bench.repo_copy import copy_repo, copy_revision, run_in
+from eval.record import bench_parser, write_record
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -274,13 +274,11 @@ def params_editor(params_file: Path | None, sets: list[str]):
 
 def _parser() -> argparse.ArgumentParser:
     """The command line of :func:`main`."""
-    ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    ap = bench_parser(__doc__)
     ap.add_argument("--params", type=Path, default=None, help="params file to run (default: this repository's)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="change a key (YAML value)")
     ap.add_argument("--targets", nargs="*", default=None, help="only these stages and the ones they need")
     ap.add_argument("--work", type=Path, default=None, help="where the copy goes (default: a temporary folder)")
-    ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--baseline", default=None, metavar="REV",
                     help="also run this git revision's pipeline, its stages interleaved with the working tree's "
                     "(a before/after comparison that machine-speed drift affects alike)")
@@ -326,9 +324,10 @@ def compare_files(paths: list[Path], paintings: int | None, measured: int) -> di
 
 
 def time_against_baseline(base: PipelineCopy, revision: str, current: PipelineCopy, machine: dict,
-                          json_path: Path | None) -> dict:
+                          json_path: Path | None, argv: list[str] | None = None) -> dict:
     """Both copies' stages interleaved (:func:`bench_interleaved`); the record is saved to ``json_path`` after each
-    stage (``complete: false``) and at the end with the comparison of the two."""
+    stage (``complete: false``) and at the end with the comparison of the two, with the provenance of the command line
+    ``argv``."""
     machine["loadavg_before"] = os.getloadavg()
     print(f"[bench_pipeline] baseline {revision} ({len(base.stages)} stages, {base.repo}) and the working "
           f"tree ({len(current.stages)} stages, {current.repo}) interleaved; {os.cpu_count()} CPUs, load average "
@@ -347,19 +346,19 @@ def time_against_baseline(base: PipelineCopy, revision: str, current: PipelineCo
 
     def save_partial(rows_b: list[dict], rows_c: list[dict]) -> None:
         if json_path:
-            write_json(json_path, ab_result(rows_b, rows_c, complete=False))
+            write_record(json_path, ab_result(rows_b, rows_c, complete=False), argv)
 
     rows_b, rows_c = bench_interleaved(base.repo, base.stages, current.repo, current.stages, on_stage=save_partial)
     result = ab_result(rows_b, rows_c, complete=True)
     result["comparison"] = compare(result["baseline"], result["current"])
     if json_path:
-        write_json(json_path, result)
+        write_record(json_path, result, argv)
     return result
 
 
-def time_alone(current: PipelineCopy, machine: dict, json_path: Path | None) -> dict:
+def time_alone(current: PipelineCopy, machine: dict, json_path: Path | None, argv: list[str] | None = None) -> dict:
     """The copy's stages in turn (:func:`bench`); the record is saved to ``json_path`` after each stage
-    (``complete: false``) and at the end, with the total wall time."""
+    (``complete: false``) and at the end, with the total wall time and the provenance of the command line ``argv``."""
     machine["loadavg_before"] = os.getloadavg()
     print(f"[bench_pipeline] {len(current.stages)} stages in {current.repo}; {os.cpu_count()} CPUs, load average "
           f"{machine['loadavg_before'][0]:.2f}", flush=True)
@@ -371,7 +370,7 @@ def time_alone(current: PipelineCopy, machine: dict, json_path: Path | None) -> 
 
     def save_partial(rows: list[dict]) -> None:
         if json_path:
-            write_json(json_path, record(rows, complete=False))
+            write_record(json_path, record(rows, complete=False), argv)
 
     rows = bench(current.repo, current.stages, on_stage=save_partial)
     total_wall = time.perf_counter() - t0
@@ -379,7 +378,7 @@ def time_alone(current: PipelineCopy, machine: dict, json_path: Path | None) -> 
     print(f"[bench_pipeline] total {total_wall / 60:.1f} min wall, cpu/wall {result['core_use']:.2f}, "
           f"peak RSS {result['peak_rss_mib']:.0f} MiB")
     if json_path:
-        write_json(json_path, result)
+        write_record(json_path, result, argv)
     return result
 
 
@@ -390,8 +389,7 @@ def main(argv: list[str] | None = None) -> dict:
     if args.paintings is not None:
         raise SystemExit("--paintings projects earlier runs: use it with --compare")
 
-    machine = {"cpus": os.cpu_count(), "cpu": cpu_description(), "platform": platform.platform(),
-               "python": platform.python_version()}
+    machine = {"cpus": os.cpu_count(), "cpu": cpu_description(), "platform": platform.platform()}
     print(f"[bench_pipeline] CPU {machine['cpu'].get('model')} ({', '.join(machine['cpu'].get('simd', []))})",
           flush=True)
     with tempfile.TemporaryDirectory() as tmp:
@@ -400,13 +398,13 @@ def main(argv: list[str] | None = None) -> dict:
         current = PipelineCopy(repo, stage_order(repo, args.targets), args.params, args.set)
         warm_up(repo)
         if args.baseline is None:
-            return time_alone(current, machine, args.json)
+            return time_alone(current, machine, args.json, argv)
         base_params = args.baseline_params or args.params
         # the same --set changes to both runs
         base_repo = copy_revision(work / "baseline", args.baseline, params_editor(base_params, args.set))
         base = PipelineCopy(base_repo, stage_order(base_repo, args.targets), base_params, args.set)
         warm_up(base_repo)
-        return time_against_baseline(base, args.baseline, current, machine, args.json)
+        return time_against_baseline(base, args.baseline, current, machine, args.json, argv)
 
 if __name__ == "__main__":
     main()

@@ -14,11 +14,9 @@ per-axis screen-space standard deviations log-normal around 1.5 px (σ_log = 0.8
 
 from __future__ import annotations
 
-import argparse
 import os
 import platform
 import statistics
-import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -32,6 +30,7 @@ setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 import torch
 
 from abcgs.render import rasterize
+from eval.record import bench_parser, write_record
 
 CASES = [(20_000, 128, 128), (100_000, 256, 256), (300_000, 512, 384)]
 
@@ -111,8 +110,7 @@ class Row:
 
 
 def main(argv: list[str] | None = None) -> list[Row]:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--json", help="write the rows as JSON here")
+    ap = bench_parser(__doc__)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--reference-repeats", type=int, default=1)
     ap.add_argument("--channels", type=int, nargs="+", default=[3, 16])
@@ -158,12 +156,7 @@ def main(argv: list[str] | None = None) -> list[Row]:
                 flush=True,
             )
     if args.json:
-        from abcgs.io.atomic import write_json
-
-        write_json(args.json, {"machine": {"cpus": os.cpu_count(), "threads": torch.get_num_threads(),
-                                           "kernel_threads": args.kernel_threads, "loadavg": os.getloadavg(),
-                                           "torch": torch.__version__, "python": sys.version.split()[0]},
-                               "rows": [r.__dict__ for r in rows]})
+        write_record(args.json, {"kernel_threads": args.kernel_threads, "rows": [r.__dict__ for r in rows]}, argv)
     return rows
 
 

@@ -23,11 +23,8 @@ reference view, within 10 strokes after the test strokes.
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
-import platform
-import sys
 import time
 from pathlib import Path
 
@@ -38,10 +35,8 @@ setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 # isort: split
 import cv2
 import numpy as np
-import torch
 
 from abcgs.gaussians.ply import read_ply
-from abcgs.io.atomic import write_json
 from abcgs.io.images import load_image, save_image, to_uint8
 from abcgs.masks.content import label_iou
 from abcgs.masks.field import LabelField, render_field
@@ -51,6 +46,7 @@ from abcgs.masks.params import FieldParams
 from abcgs.masks.strip import Strip
 from abcgs.sfm.model import read_scene
 from eval.bench.strokes import DATA, _overlay, _strokes, geometry_bound, reference_map
+from eval.record import bench_parser, write_record
 
 GOAL = {"strokes": 10, "mean_iou": 0.85, "pair_iou": 0.80, "below_bound": 0.05, "unlabelled": 0.02}
 
@@ -154,13 +150,12 @@ def figure(user: ScriptedUser, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
+    ap = bench_parser(__doc__)
     ap.add_argument("--scene", default="miku", help="eval/data/<scene>/ (strokes.json, reference/)")
     ap.add_argument("--work", type=Path, required=True, help="where eval.bench.fit left the fitted scene")
     ap.add_argument("--max-strokes", type=int, default=GOAL["strokes"], help="scripted strokes after the test ones")
     ap.add_argument("--radius", type=float, default=4.0, help="the scripted dots' largest radius (pixels)")
     ap.add_argument("--field", default="{}", help="masks.field settings as JSON (default: the masks section's)")
-    ap.add_argument("--json", type=Path, help="write the record here")
     ap.add_argument("--figure", type=Path, help="write the final labels beside the references here")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(message)s")
@@ -182,11 +177,9 @@ def main(argv: list[str] | None = None) -> int:
     print(json.dumps({"bound_worst": bound["worst_iou"]}))
     record = {"scene": spec["title"], "n_gaussians": model.num_gaussians, "views": len(scene.cameras),
               "labels": spec["labels"], "reference_views": list(refs), "field": params.model_dump(), "goal": GOAL,
-              "geometry_bound": bound, "steps": steps, "seconds": time.perf_counter() - t0,
-              "machine": platform.machine(), "threads": torch.get_num_threads(),
-              "command": "python -m eval.bench.scripted_user " + " ".join(sys.argv[1:] if argv is None else argv)}
+              "geometry_bound": bound, "steps": steps, "seconds": time.perf_counter() - t0}
     if args.json:
-        write_json(args.json, record)
+        write_record(args.json, record, argv)
     if args.figure:
         figure(user, args.figure)
     return 0

@@ -9,14 +9,13 @@ back. Printed: registered / total views and which did not
 register, 3-D points, mean reprojection error, and :func:`abcgs.camera_paths.capture_layout` of the registered
 cameras: its kind, the azimuth span the camera centres cover round the point the optical axes meet at (360° minus
 the largest gap), the largest gap, the share of cameras that have that point in front, and each view's azimuth. A
-capture that goes all the way round should register every view with a span near 360°.
+capture that goes all the way round should register every view with a span near 360°. ``--json`` appends the record,
+with its provenance (:func:`eval.record.provenance`), to a JSON list.
 """
 
 from __future__ import annotations
 
-import argparse
 import logging
-import platform
 import shutil
 import time
 from pathlib import Path
@@ -33,14 +32,14 @@ from abcgs.sfm.colmap import set_colmap_log_level
 from abcgs.sfm.model import read_scene
 from abcgs.sfm.params import ReconstructParams
 from abcgs.sources.photos import reconstruct_photos
+from eval.record import bench_parser, provenance
 
 
 def main(argv: list[str] | None = None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = bench_parser(__doc__, json_help="append the record to this JSON list")
     ap.add_argument("--scene", type=Path, required=True, help="folder with images/")
     ap.add_argument("--work", type=Path, required=True, help="the model is written to WORK/colmap (replaced)")
     ap.add_argument("--reconstruct", default="{}", help="reconstruct params as JSON (ReconstructParams)")
-    ap.add_argument("--json", type=Path, default=None, help="append the record to this JSON list")
     args = ap.parse_args(argv)
     params = ReconstructParams.model_validate_json(args.reconstruct)
     logging.basicConfig(level=logging.WARNING)
@@ -67,8 +66,7 @@ def main(argv: list[str] | None = None) -> dict:
         "azimuth_span_deg": lay.span_deg, "largest_azimuth_gap_deg": gap,
         "look_at_in_front": float(np.mean((-(off) * dirs).sum(1) > 0)),
         "azimuth_deg": {Path(c.name).stem: round(float(a), 1) for c, a in zip(cams, az)},
-        "seconds": round(seconds, 1), "machine": platform.processor() or platform.machine(),
-        "command": "python -m eval.bench.sfm_orbit " + " ".join(argv if argv is not None else __import__("sys").argv[1:]),
+        "seconds": round(seconds, 1),
     }
     print(f"{args.scene.name}: {report.registered}/{report.total} views registered"
           + (f" (not: {', '.join(report.unregistered)})" if report.unregistered else "")
@@ -79,7 +77,7 @@ def main(argv: list[str] | None = None) -> dict:
         import json
 
         runs = json.loads(args.json.read_text()) if args.json.is_file() else []
-        write_json(args.json, [*runs, record])
+        write_json(args.json, [*runs, {**record, "provenance": provenance(argv)}])
     return record
 
 

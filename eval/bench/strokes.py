@@ -29,7 +29,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import platform
 import tempfile
 import time
 from dataclasses import dataclass
@@ -45,7 +44,6 @@ import torch
 
 from abcgs.gaussians import GaussianModel
 from abcgs.gaussians.ply import read_ply
-from abcgs.io.atomic import write_json
 from abcgs.io.images import load_image, load_labels, save_image, save_labels, to_uint8
 from abcgs.layout import ColmapDir
 from abcgs.masks.content import ContentMasks, label_iou, make_content_masks, recut_outputs
@@ -54,6 +52,7 @@ from abcgs.masks.lifting import NO_VOTE, LiftResult, lift_labels, render_label_m
 from abcgs.masks.params import UNDECIDED, LiftParams, MaskParams, RefineParams
 from abcgs.sfm.model import read_scene
 from abcgs.types import Scene
+from eval.record import bench_parser, write_record
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 GOAL_IOU = {1: 0.85, 2: 0.9}
@@ -156,7 +155,7 @@ def score(view_labels: dict[str, np.ndarray], refs: dict[str, np.ndarray], n_lab
 
 def _parser() -> argparse.ArgumentParser:
     """The command line of :func:`main`."""
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = bench_parser(__doc__)
     ap.add_argument("--scene", default="bonsai", help="eval/data/<scene>/ (bonsai, miku)")
     ap.add_argument("--work", type=Path, default=Path("out/bench"),
                     help="eval.bench.fit's --work: holds the strokes.json's work_colmap and work_ply")
@@ -176,7 +175,6 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--order", choices=("together", "nearest_first"), default="together",
                     help="masks.refine.order")
     ap.add_argument("--small-regions", choices=("drop", "core"), default="drop", help="masks.refine.small_regions")
-    ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--figure", type=Path, default=None, help="the stroked view and the scored ones, overlaid")
     return ap
 
@@ -335,14 +333,13 @@ def main(argv: list[str] | None = None) -> dict:
            "propagate_split": args.propagate_split, "propagate_along": args.propagate_along,
            "refine_order": args.order, "refine_output": args.output, "refine_small_regions": args.small_regions,
            "cases": results, "geometry_bound": bound, "render_psnr_db": psnr,
-           "goal": {"iou": {str(k): v for k, v in GOAL_IOU.items()}, "unlabelled": GOAL_UNLABELLED},
-           "machine": platform.processor() or platform.machine(), "threads": torch.get_num_threads()}
+           "goal": {"iou": {str(k): v for k, v in GOAL_IOU.items()}, "unlabelled": GOAL_UNLABELLED}}
     out["seconds"] = time.perf_counter() - t0
     _print_report(out)
     if args.figure:
         _figure(args.figure, scene, by_stem, refs, extra)
     if args.json:
-        write_json(args.json, out)
+        write_record(args.json, out, argv)
     return out
 
 

@@ -24,12 +24,11 @@ Measured:
 ``eval/`` (``tests/test_layers.py`` fails on any).
 
 With ``--json FILE --label NAME`` the numbers are stored under ``NAME`` in ``FILE`` (other labels are kept), with the
-tree's git commit.
+tree's git commit; the file's ``provenance`` (:func:`eval.record.provenance`) is that of its last write.
 """
 
 from __future__ import annotations
 
-import argparse
 import ast
 import json
 import re
@@ -283,9 +282,11 @@ def markdown(record: dict, labels: list[str]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m eval.bench.structure", description=__doc__.splitlines()[0])
+    from eval.record import bench_parser, write_record  # here: importing this module (the layer checks) loads no abcgs
+
+    ap = bench_parser(__doc__, json_help="store the numbers in this file under --label")
+    ap.prog = "python -m eval.bench.structure"
     ap.add_argument("--root", type=Path, default=Path("."), help="the tree to measure (default: here)")
-    ap.add_argument("--json", type=Path, help="store the numbers in this file under --label")
     ap.add_argument("--label", default="now", help="the key the numbers are stored under (before, after, …)")
     ap.add_argument("--top", type=int, default=10, help="how many of the longest functions to list")
     ap.add_argument("--markdown", nargs="+", metavar="LABEL",
@@ -297,9 +298,9 @@ def main(argv: list[str] | None = None) -> int:
     numbers = measure(args.root, args.top)
     if args.json:
         record = json.loads(args.json.read_text()) if args.json.is_file() else {}
+        record.pop("provenance", None)  # an earlier write's
         record[args.label] = numbers
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(record, indent=1, ensure_ascii=False) + "\n")
+        write_record(args.json, record, argv)
     summary = {k: v for k, v in numbers.items() if k not in ("upward_import_lines", "longest_functions")}
     print(json.dumps(summary, indent=1))
     for f in numbers["longest_functions"]:

@@ -37,7 +37,6 @@ from abcgs.features.weights import resolve_vgg16
 from abcgs.fit.metrics import ssim as ssim_metric
 from abcgs.gaussians import render
 from abcgs.gaussians.ply import read_ply, write_ply
-from abcgs.io.atomic import write_json
 from abcgs.io.images import save_image
 from abcgs.losses.terms import gram_matrix
 from abcgs.params import load_params
@@ -47,6 +46,7 @@ from abcgs.stylize.loop import stylize
 from abcgs.stylize.params import ColorMatchParams, StylizeParams
 from abcgs.types import CandidateProducts, KnnSearch
 from abcgs.viz import image_grid
+from eval.record import bench_parser, write_record
 
 
 @torch.no_grad()
@@ -63,7 +63,7 @@ def gram_distance(model, cameras, vgg, style_img: np.ndarray, layers) -> float:
 
 def _parser() -> argparse.ArgumentParser:
     """The command line of :func:`main`."""
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = bench_parser(__doc__)
     ap.add_argument("--scene", type=Path, required=True)
     ap.add_argument("--style", type=Path, required=True)
     ap.add_argument("--work", type=Path, default=Path("out/bench"))
@@ -81,7 +81,6 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--projection-candidates", type=int, default=None, help="override stylize.fast.projection_candidates")
     ap.add_argument("--projection-products", choices=get_args(CandidateProducts), default=None,
                     help="override stylize.fast.projection_products (the candidates' products: float32 or bfloat16)")
-    ap.add_argument("--json", type=Path, default=None)
     return ap
 
 
@@ -149,7 +148,7 @@ def main(argv=None) -> dict:
         "gram_distance": {"original": g_orig, "color_matched": g_start, "stylized": g_end,
                           "drop_from_color_matched": 1.0 - g_end / g_start},
         "seconds": {"colormatch_refit": t_cm, "stylize": res.seconds},
-        "seconds_per_iteration": split, "vgg_weights": info.model_dump(), "threads": torch.get_num_threads(),
+        "seconds_per_iteration": split, "vgg_weights": info.model_dump(),
         "fast": res.fast_stats, "n_gaussians": res.model.num_gaussians,
     }
     print(f"SSIM(original, stylized) = {out['ssim_mean']:.3f} over {len(ssims)} views")
@@ -162,7 +161,7 @@ def main(argv=None) -> dict:
     print(f"{args.method} style loss: {100 * out['style_loss_share_of_step']:.1f}% of a main-pass step "
           f"({1000 * step_s:.0f} ms; {torch.get_num_threads()} torch threads, load {os.getloadavg()[0]:.2f})")
     if args.json:
-        write_json(args.json, out)
+        write_record(args.json, out, argv)
         save_image(args.json.with_suffix(".png"), image_grid(rows, ["original", "style", "colour-matched", "stylized"], height=200))
         write_ply(args.json.with_suffix(".ply"), res.model)
         write_ply(args.json.with_suffix(".colormatch.ply"), cm.model)  # the start (e.g. for eval/bench/knn_recall.py)

@@ -19,10 +19,8 @@ Software rendering on this 2-core VM is far slower than any GPU: the figures are
 
 from __future__ import annotations
 
-import argparse
 import base64
 import io
-import platform
 import shutil
 import sys
 import time
@@ -35,9 +33,10 @@ from abcgs.runtime import setup
 setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
 from abcgs.gaussians.ply import read_ply
-from abcgs.io.atomic import write_json, write_text
+from abcgs.io.atomic import write_text
 from abcgs.sfm.model import read_scene
 from abcgs.view.page import prepare_experiment, viewer_page
+from eval.record import bench_parser, write_record
 
 CHROMIUM_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--no-sandbox", "--disable-gpu-sandbox"]
 
@@ -70,14 +69,14 @@ def agreement(shot: np.ndarray, model, camera) -> float:
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
+    ap = bench_parser(__doc__, json_help="write the record here (default: out/bench/viewer.json)")
+    ap.set_defaults(json=Path("out/bench/viewer.json"))
     ap.add_argument("--study", type=Path, default=Path("out/quality/fern"))
     ap.add_argument("--bench-root", type=Path, default=Path("out/bench/fern"), help="fitted scene + COLMAP")
     ap.add_argument("--methods", default="fast,nnfm")
     ap.add_argument("--max-gaussians", type=int, default=100_000)
     ap.add_argument("--width", type=int, default=640, help="canvas width (CSS px)")
     ap.add_argument("--page", type=Path, default=Path("out/bench/viewer_fern.html"))
-    ap.add_argument("--json", type=Path, default=Path("out/bench/viewer.json"))
     ap.add_argument("--chromium", default=shutil.which("chromium") or "chromium")
     args = ap.parse_args(argv)
 
@@ -127,9 +126,8 @@ def main(argv=None) -> dict:
         "per_experiment": per_exp, "error": err, "remote_requests": remote,
         "how": "chromium headless, SwiftShader software WebGL, file:// page, time from navigation to the first drawn "
                "frame after the splats decoded",
-        "machine": {"processor": platform.processor() or platform.machine(), "python": platform.python_version()},
     }
-    write_json(args.json, out)
+    write_record(args.json, out, argv)
     print(f"page {args.page}: {size / 1e6:.1f} MB, {len(exps)} experiments × 2 layers × "
           f"{min(args.max_gaussians, original.num_gaussians):,} of {original.num_gaussians:,} Gaussians; built in {build_s:.1f} s")
     print(f"time to first frame (navigation → first experiment drawn): {first_frame_s:.1f} s")

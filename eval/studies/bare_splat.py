@@ -14,7 +14,6 @@ to the painting before and after, and the wall time of each step; the figure sho
 
 from __future__ import annotations
 
-import argparse
 import tempfile
 import time
 from pathlib import Path
@@ -34,7 +33,6 @@ from abcgs.features.weights import resolve_vgg16
 from abcgs.fit.params import FitParams
 from abcgs.gaussians import GaussianModel, render
 from abcgs.gaussians.ply import read_ply, write_ply
-from abcgs.io.atomic import write_json
 from abcgs.io.images import save_image
 from abcgs.params import load_params
 from abcgs.sources.splat import read_splat_source
@@ -48,10 +46,11 @@ from abcgs.stylize.loop import stylize
 from abcgs.stylize.params import ColorMatchParams
 from abcgs.viz import image_grid
 from eval.bench.stylize import gram_distance
+from eval.record import bench_parser, write_record
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = bench_parser(__doc__)
     ap.add_argument("--ply", type=Path, required=True)
     ap.add_argument("--style", type=Path, required=True)
     ap.add_argument("--params", type=Path, default=Path("params.yaml"))
@@ -59,7 +58,6 @@ def main(argv=None) -> dict:
     ap.add_argument("--iterations", type=int, default=100)
     ap.add_argument("--color-pass-iterations", type=int, default=40)
     ap.add_argument("--work", type=Path, default=None)
-    ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--figure", type=Path, default=None)
     args = ap.parse_args(argv)
     work = args.work or Path(tempfile.mkdtemp(prefix="bare_splat_"))
@@ -104,7 +102,7 @@ def main(argv=None) -> dict:
     rec["returned"]["reads_back_gaussians"] = back.num_gaussians
     print(rec)
     if args.json:
-        write_json(args.json, rec)
+        write_record(args.json, rec, argv)
     if args.figure:
         shown = [0, len(cams) // 3, 2 * len(cams) // 3]
         with torch.no_grad():

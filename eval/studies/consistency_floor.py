@@ -17,7 +17,6 @@ the flow-based one the paper defines.
 
 from __future__ import annotations
 
-import argparse
 import glob
 import time
 from pathlib import Path
@@ -42,8 +41,8 @@ from abcgs.evaluation.pairs import consistency_pairs
 from abcgs.evaluation.reference import compute_floor, render_views
 from abcgs.gaussians import render
 from abcgs.gaussians.ply import read_ply
-from abcgs.io.atomic import write_json
 from abcgs.sfm.model import read_scene
+from eval.record import bench_parser, write_record
 
 
 def _resolve(spec: str) -> tuple[str, Path]:
@@ -62,7 +61,7 @@ def depth_rmse(stylized: list[np.ndarray], corr: dict, pairs: list[tuple[int, in
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = bench_parser(__doc__)
     ap.add_argument("--colmap", type=Path, required=True, help="reconstruct output (sparse/, images/, scene.json)")
     ap.add_argument("--scene-ply", type=Path, required=True, help="the fitted, unstylized scene")
     ap.add_argument("--ply", action="append", default=[], metavar="NAME=PATH", help="a scene to measure (glob ok)")
@@ -70,7 +69,6 @@ def main(argv=None) -> dict:
     ap.add_argument("--pairs", default="pose", choices=("pose", "index"), help="view order before pairing (as evaluate.pairs)")
     ap.add_argument("--flow", default="dis", help="flow method (auto | raft | dis | deepflow | dualtvl1)")
     ap.add_argument("--threads", type=int, default=1)
-    ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
     measured = [("unstylized scene (floor)", args.scene_ply)] + [_resolve(s) for s in args.ply]  # fail before work
@@ -118,7 +116,7 @@ def main(argv=None) -> dict:
           f"valid fraction flow {flow_valid['short']:.2f}/{flow_valid['long']:.2f}, depth "
           f"{valid['short']:.2f}/{valid['long']:.2f}; {out['seconds']:.0f} s")
     if args.json:
-        write_json(args.json, out)
+        write_record(args.json, out, argv)
     return out
 
 

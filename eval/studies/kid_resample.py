@@ -15,7 +15,6 @@ between two methods can be read against the spread of the measurement itself. Wr
 
 from __future__ import annotations
 
-import argparse
 import time
 from pathlib import Path
 
@@ -30,13 +29,14 @@ import torch
 from abcgs.errors import InputError
 from abcgs.evaluation.fid import TFInception, mmd2_unbiased, random_patches, resize_short_side
 from abcgs.features.matching import load_style
-from abcgs.io.atomic import write_json
 from abcgs.io.images import load_image
 from abcgs.params import load_params
+from eval.record import bench_parser, write_record
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = bench_parser(__doc__, json_help="write the record here (default: out/bench/kid_resample.json)")
+    ap.set_defaults(json=Path("out/bench/kid_resample.json"))
     ap.add_argument("--params", type=Path, default=Path("params.yaml"))
     ap.add_argument("--root", type=Path, default=Path("out"))
     ap.add_argument("--patches-per-image", type=int, default=10)
@@ -44,7 +44,6 @@ def main(argv=None) -> dict:
     ap.add_argument("--draws", type=int, default=5)
     ap.add_argument("--methods", default="fast,nnfm", help="methods to compare")
     ap.add_argument("--threads", type=int, default=1)
-    ap.add_argument("--json", type=Path, default=Path("out/bench/kid_resample.json"))
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
     params = load_params(args.params)
@@ -84,7 +83,7 @@ def main(argv=None) -> dict:
     out["how"] = (f"{args.patches_per_image} crops of {args.patch_size} px per render and as many from the painting, "
                   f"{args.draws} independent draws, exact unbiased MMD² on TF-Inception pool features ({inception.path})")
     print(f"{out['how']}; {out['seconds']:.0f} s")
-    write_json(args.json, out)
+    write_record(args.json, out, argv)
     return out
 
 

@@ -17,7 +17,6 @@ and three other views with their given mask (where there is one) beside the lift
 
 from __future__ import annotations
 
-import argparse
 import time
 from pathlib import Path
 
@@ -29,13 +28,13 @@ setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
 from abcgs.errors import InputError
 from abcgs.gaussians.ply import read_ply
-from abcgs.io.atomic import write_json
 from abcgs.io.images import load_image, save_image
 from abcgs.masks.content import find_given_masks_with_palette, grabcut_view, heldout_scores
 from abcgs.masks.lifting import lift_labels, propagate_unseen, render_label_map
 from abcgs.masks.params import GrabCutParams, LiftParams
 from abcgs.sfm.model import read_scene
 from abcgs.viz import colorize_labels, image_grid
+from eval.record import bench_parser, write_record
 
 
 def overlay(img: np.ndarray, labels: np.ndarray) -> np.ndarray:
@@ -85,7 +84,7 @@ def _figure(path: Path, scene, given: dict[int, np.ndarray], views: dict[int, np
 
 
 def main(argv: list[str] | None = None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
+    ap = bench_parser(__doc__)
     ap.add_argument("--colmap", type=Path, required=True, help="reconstruct output (sparse/, images/, scene.json)")
     ap.add_argument("--ply", type=Path, required=True, help="the fitted scene")
     ap.add_argument("--masks", type=Path, required=True, help="folder of label PNGs named like the views")
@@ -95,7 +94,6 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--show", default=None, help="comma-separated view stems for the figure (default: three spread out)")
     ap.add_argument("--no-propagate", action="store_true", help="leave Gaussians no lifted view sees unlabelled")
     ap.add_argument("--figure", type=Path, default=None)
-    ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
 
@@ -138,7 +136,7 @@ def main(argv: list[str] | None = None) -> dict:
         _figure(args.figure, scene, given, views, lift_idx,
                 [stems.index(s) for s in args.show.split(",")] if args.show else None)
     if args.json:
-        write_json(args.json, result)
+        write_record(args.json, result, argv)
     return result
 
 if __name__ == "__main__":

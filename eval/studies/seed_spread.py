@@ -9,7 +9,6 @@ mean and standard deviation of the gated metrics (SSIM, short/long-range RMSE).
 
 from __future__ import annotations
 
-import argparse
 import json
 import tempfile
 from pathlib import Path
@@ -21,9 +20,9 @@ from abcgs.runtime import setup
 
 setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
-from abcgs.io.atomic import write_json
 from eval.bench.regression import GATED, REDUCED, reduce
 from eval.bench.repo_copy import copy_repo, run_in
+from eval.record import bench_parser, write_record
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -49,9 +48,8 @@ def run_once(seed: int, work: Path) -> dict[str, dict[str, float]]:
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = bench_parser(__doc__)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         runs = {s: run_once(s, Path(tmp)) for s in args.seeds}
@@ -65,7 +63,7 @@ def main(argv=None) -> dict:
             print(f"{exp:22s} {k:12s} mean {vals.mean():.4f} std {summary[exp][k]['std']:.4f} {vals.round(4).tolist()}")
     result = {"seeds": args.seeds, "reduced": dict(REDUCED), "metrics": summary}
     if args.json:
-        write_json(args.json, result)
+        write_record(args.json, result, argv)
     return result
 
 

@@ -15,7 +15,6 @@ the view-dependent part amplified ×4 around grey.
 
 from __future__ import annotations
 
-import argparse
 import time
 from pathlib import Path
 from typing import get_args
@@ -36,7 +35,6 @@ from abcgs.fit.params import FitParams, StrategyParams
 from abcgs.fit.training import fit
 from abcgs.gaussians import GaussianModel, render
 from abcgs.gaussians.ply import read_ply, write_ply
-from abcgs.io.atomic import write_json
 from abcgs.io.images import save_image
 from abcgs.layout import ColmapDir
 from abcgs.params import load_params
@@ -49,6 +47,7 @@ from abcgs.stylize.params import ColorMatchParams, HigherSH
 from abcgs.stylize.sh_bands import with_higher_sh
 from abcgs.viz import image_grid
 from eval.bench.stylize import gram_distance
+from eval.record import bench_parser, write_record
 
 
 def dc_only(model: GaussianModel) -> GaussianModel:
@@ -86,7 +85,7 @@ def fitted_degree3(scene_dir: Path, work: Path, iterations: int, scale: float):
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = bench_parser(__doc__)
     ap.add_argument("--scene", type=Path, required=True)
     ap.add_argument("--style", type=Path, required=True)
     ap.add_argument("--work", type=Path, default=Path("out/bench"))
@@ -97,7 +96,6 @@ def main(argv=None) -> dict:
     ap.add_argument("--color-pass-iterations", type=int, default=50)
     ap.add_argument("--refit-iterations", type=int, default=100)
     ap.add_argument("--fit-only", action="store_true")
-    ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--figure", type=Path, default=None)
     args = ap.parse_args(argv)
 
@@ -148,7 +146,7 @@ def main(argv=None) -> dict:
         labels_row.append(mode)
     out["vgg_weights"] = info.model_dump()
     if args.json:
-        write_json(args.json, out)
+        write_record(args.json, out, argv)
     if args.figure:
         grid = image_grid([[label_cell(name)] + r for name, r in zip(labels_row, rows)],
                           ["higher_sh", f"view {shown[0]}", f"view {shown[1]}", f"view {shown[2]}",
