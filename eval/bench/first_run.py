@@ -1,6 +1,6 @@
 """The README's first command on a machine that has nothing: a fresh clone, an empty HOME, no git identity.
 
-    python -m eval.bench.first_run --json docs/measurements/first_run.json [--rev HEAD] [--work /tmp/first-run]
+    python -m eval.bench.first_run [--json docs/measurements/first_run.json] [--rev HEAD] [--work /tmp/first-run]
 
 Clones ``--rev`` of this repository into ``--work`` and runs ``make install`` then ``make run`` there with ``HOME``
 an empty folder, no global git config and no git identity (as ``.ci/run`` does; pip's configuration, which holds
@@ -60,8 +60,6 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rev", default="HEAD", help="the revision to clone")
     ap.add_argument("--work", type=Path, help="where to clone (default: a temporary folder, removed afterwards)")
     args = ap.parse_args(argv)
-    if args.json is None:
-        ap.error("give --json PATH: the record is what this run is for")
     work = args.work or Path(tempfile.mkdtemp(prefix="abcgs-first-run-"))
     clone, home = work / "abcgs", work / "home"
     if clone.exists():
@@ -84,7 +82,8 @@ def main(argv: list[str] | None = None) -> int:
         "stage_seconds": [{"stage": m.group(1), "seconds": float(m.group(2))} for m in STAGE_DONE.finditer(run_log)],
         "run_log_tail": run_log[-3000:],
     }
-    write_record(args.json, record, argv)
+    if args.json:
+        write_record(args.json, record, argv)
     print(f"first run: install {install_s / 60:.1f} min + run {run_s / 60:.1f} min = {record['total_min']:.1f} min")
     if args.work is None:
         shutil.rmtree(work, ignore_errors=True)
