@@ -8,7 +8,7 @@ Per scene ``S``, colour match ``M`` (``colormatches.M``) and experiment ``E``::
     out/S/gs/{point_cloud.ply, metrics.json, history.csv, …}, fit_metrics.json  fit
     out/S/masks/{gaussian_labels.npy, views/*.png, overlay.png, masks.json}  masks
     out/S/reference/                                                         reference
-    out/S/colormatch/M/{point_cloud.ply, colormatch.json, recolored.png}     colormatch (shared by the E naming M)
+    out/S/colormatch/M/{point_cloud.ply, fitted_rows.npy, colormatch.json, recolored.png}  colormatch (for the E of M)
     out/S/point_cloud.spz                                                    export_scene
     out/E/stylize/{point_cloud.ply, renders/, grid.png, turntable.mp4}, stylize.json, stylize_history.csv  stylize
     out/E/{eval.json, metrics.json, eval_views.csv, eval_consistency.png}    evaluate
@@ -167,6 +167,11 @@ class ColorMatchDir:
     @property
     def ply(self) -> Path:
         return self.root / "point_cloud.ply"
+
+    @property
+    def fitted_rows(self) -> Path:
+        """``(N,)`` int64: each colour-matched Gaussian's row in the fitted scene (``abcgs.gaussians.FITTED_ROW``)."""
+        return self.root / "fitted_rows.npy"
 
     @property
     def record(self) -> Path:

@@ -144,6 +144,10 @@ class SceneMasks:
     gaussian_labels: Tensor
     view_labels: list[np.ndarray]
 
+    def at_rows(self, rows: Tensor) -> SceneMasks:
+        """The same masks for a re-fitted scene whose Gaussian ``i`` descends from fitted row ``rows[i]``."""
+        return SceneMasks(self.gaussian_labels[rows.to(self.gaussian_labels.device)], self.view_labels)
+
 
 @dataclass
 class MatchingGroup:

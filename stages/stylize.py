@@ -14,6 +14,7 @@ from abcgs.runtime import setup
 setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
 from abcgs import layout
+from abcgs.gaussians import fitted_rows
 from abcgs.gaussians.ply import read_ply
 from abcgs.io.metrics import info_path, write_metrics
 from abcgs.masks.outputs import load_scene_masks
@@ -49,8 +50,9 @@ def main(args, params) -> None:
     device = resolve_device(params.runtime.device)
     scene, original = read_scene(args.colmap), read_ply(args.model)
     background = scene.background
-    matched = read_colormatch(args.colormatch, exp.colormatch)
+    matched = read_colormatch(args.colormatch, exp.colormatch, original.num_gaussians)
     masks = load_scene_masks(args.masks, scene, original.num_gaussians, device=device)
+    masks = masks.at_rows(fitted_rows(matched))  # the fitted Gaussians' labels on the re-fitted ones
     original, matched = original.to(device), matched.to(device)
     vgg, info = load_vgg(params.vgg, sp.layers, device)
     styles = layout.StylesDir(args.styles)

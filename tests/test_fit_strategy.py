@@ -12,7 +12,7 @@ from abcgs.fit.params import FitParams, StrategyParams
 from abcgs.fit.strategy import DefaultStrategy, NoDensification
 from abcgs.fit.strategy.ops import duplicate, remove, reset_opacity, split
 from abcgs.fit.training import make_optimizers
-from abcgs.gaussians import PARAM_NAMES, GaussianModel
+from abcgs.gaussians import FROZEN, PARAM_NAMES, GaussianModel
 from abcgs.render import RenderMeta, quat_to_rotmat
 
 
@@ -291,6 +291,35 @@ def test_per_gaussian_attributes_follow_their_gaussians_through_1000_densificati
     sub = model.index(model.attributes["label"] == 3)
     assert bool((sub.attributes["label"] == 3).all()) and sub.num_gaussians == int((model.attributes["label"] == 3).sum())
     assert torch.equal(model.detach().attributes["label"], model.attributes["label"])
+
+
+def test_frozen_gaussians_are_never_grown_pruned_or_reset():
+    """Rows marked FROZEN keep their opacity through a reset, and the strategy neither grows nor prunes them, though
+    every Gaussian has a gradient over the threshold and half of them an opacity under the pruning one."""
+    model = make_model(40, seed=5)
+    n = model.num_gaussians
+    frozen = torch.arange(n) % 2 == 0
+    with torch.no_grad():
+        model.opacity_logits[: n // 2] = -8.0  # under prune_opacity
+        model.opacity_logits[n // 2:] = 4.0  # over reset_opacity
+    model.attributes = {FROZEN: frozen.clone()}
+    opts = warm_optimizers(model)
+    before = model.opacity_logits.detach().clone()
+    strategy = DefaultStrategy(StrategyParams(refine_start=0, refine_every=1, refine_stop=10, reset_every=2))
+    state = strategy.initialize_state(model)
+    state["grad2d"][:] = 1.0
+    state["count"][:] = 1.0
+    strategy._grow(model, opts, state)
+    assert int(model.attributes[FROZEN].sum()) == int(frozen.sum())  # none cloned or split
+    assert int((~model.attributes[FROZEN]).sum()) == 2 * int((~frozen).sum())  # each other one was
+    strategy._prune(model, opts, state, step=1)
+    kept = model.attributes[FROZEN]
+    assert int(kept.sum()) == int(frozen.sum())  # none pruned, though half are under prune_opacity
+    assert float(torch.sigmoid(model.opacity_logits.detach()[~kept]).min()) >= 0.005  # the others were
+    assert torch.equal(model.opacity_logits.detach()[kept], before[frozen])
+    reset_opacity(model, opts, 0.01, keep=model.attributes[FROZEN])
+    assert torch.equal(model.opacity_logits.detach()[kept], before[frozen])
+    assert float(model.opacity_logits.detach()[~kept].max()) <= math.log(0.01 / 0.99) + 1e-6
 
 
 def test_an_attribute_of_another_length_is_refused():

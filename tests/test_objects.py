@@ -15,7 +15,7 @@ from abcgs.evaluation.objects import object_scores
 from abcgs.features.matching import build_groups
 from abcgs.features.params import TransferSpec
 from abcgs.features.vgg import VGG16Features, random_state_dict
-from abcgs.gaussians import GaussianModel, render
+from abcgs.gaussians import FITTED_ROW, GaussianModel, fitted_rows, render
 from abcgs.io.images import load_render, save_image
 from abcgs.layout import ColmapDir
 from abcgs.losses.terms import background_loss, silhouette_loss
@@ -222,7 +222,8 @@ def _run(model, scene, vgg, groups, background, **sp_kw):
                        **sp_kw)
     cm = color_match_and_refit(model, scene, labels, view_labels, groups, ColorMatchParams(refit_iterations=6),
                                progress=False, background=background, color_only=sp.color_only)
-    return stylize(cm.model, scene.cameras, view_labels, labels, groups, vgg, sp, depth_model=model, progress=False,
+    return stylize(cm.model, scene.cameras, view_labels, labels[fitted_rows(cm.model)], groups, vgg, sp,
+                   depth_model=model, progress=False,
                    background=background).model
 
 
@@ -255,6 +256,28 @@ def test_an_object_scene_keeps_its_empty_space_and_silhouette(tmp_path):
     for k, t in as_object.items():  # the Gaussians off the object are kept exactly
         assert torch.equal(t[~on_object], getattr(model, k)[~on_object]), k
     assert not torch.equal(as_object.sh0[:1500], model.sh0[:1500])
+
+
+def test_the_colour_match_refit_densifies_the_object_and_keeps_its_rest_and_rows(tmp_path):
+    """The re-fit densifies: the object's Gaussians are cloned, split and pruned, each re-fitted Gaussian names the
+    fitted row it descends from, and the Gaussians off the object are each kept once, exactly."""
+    model, scene = _object_scene(tmp_path)
+    vgg, groups = _single_transfer(tmp_path, 48)
+    on_object = object_gaussians(model, scene.cameras, silhouettes(model, scene.cameras))
+    labels = torch.zeros(model.num_gaussians, dtype=torch.long)
+    view_labels = [np.zeros((c.height, c.width), np.int64) for c in scene.cameras]
+    cm = color_match_and_refit(model, scene, labels, view_labels, groups, ColorMatchParams(refit_iterations=60),
+                               progress=False, background=OBJECT)
+    rows = cm.model.attributes[FITTED_ROW]
+    assert rows.shape == (cm.model.num_gaussians,) and int(rows.min()) >= 0 and int(rows.max()) < model.num_gaussians
+    counts = torch.bincount(rows, minlength=model.num_gaussians)
+    assert int((counts > 1).sum()) > 20  # clones and split children carry their parent's row
+    assert bool(on_object[counts > 1].all())  # only the object grew
+    off = torch.where(~on_object)[0]
+    assert torch.equal(counts[off], torch.ones_like(off))
+    at = torch.argsort(rows)[torch.searchsorted(rows.sort().values, off)]  # where each off-object row went
+    for k, t in cm.model.items():
+        assert torch.equal(t[at], getattr(model, k)[off]), k
 
 
 def _no_pairs():

@@ -10,13 +10,15 @@ import numpy as np
 import pytest
 import torch
 
+from abcgs.errors import InputError
 from abcgs.features.matching import build_groups
 from abcgs.features.params import TransferSpec
 from abcgs.features.vgg import VGG16Features, random_state_dict
 from abcgs.fit.params import FitParams
-from abcgs.gaussians import GaussianModel, render
-from abcgs.gaussians.ply import read_ply
+from abcgs.gaussians import FITTED_ROW, GaussianModel, fitted_rows, render
+from abcgs.gaussians.ply import read_ply, write_ply
 from abcgs.io.images import save_image
+from abcgs.layout import ColorMatchDir
 from abcgs.sources.splat import read_splat_source
 from abcgs.splats.cameras import cameras_around
 from abcgs.splats.exporting import give_back
@@ -25,6 +27,7 @@ from abcgs.splats.importing import import_and_save
 from abcgs.splats.params import SplatViewsParams
 from abcgs.splats.registry import read_splat
 from abcgs.stylize.colormatch import color_match_and_refit
+from abcgs.stylize.experiment import read_colormatch
 from abcgs.stylize.loop import stylize
 from abcgs.stylize.params import ColorMatchParams, StylizeOptim, StylizeParams
 from abcgs.stylize.sh_bands import with_higher_sh
@@ -85,7 +88,8 @@ def test_a_bare_splat_runs_through_import_stylization_and_give_back(tmp_path):
     cm = color_match_and_refit(original, scene, labels, view_labels, groups, ColorMatchParams(refit_iterations=5),
                                progress=False)
     sp = StylizeParams(optim=StylizeOptim(iterations=4, color_pass_iterations=2), layers=["relu3_1"], style_height=64)
-    res = stylize(cm.model, scene.cameras, view_labels, labels, groups, vgg, sp, depth_model=original, progress=False)
+    res = stylize(cm.model, scene.cameras, view_labels, labels[fitted_rows(cm.model)], groups, vgg, sp,
+                  depth_model=original, progress=False)
     with torch.no_grad():
         assert not torch.equal(res.model.sh0, original.sh0)
     (tmp_path / "stylized.ply").parent.mkdir(exist_ok=True)
@@ -138,4 +142,32 @@ def test_higher_sh_modes_start_from_and_train_what_they_say(mode, tmp_path):
     elif mode == "optimized":
         assert not torch.equal(out, original.shN)
     else:
-        assert not torch.equal(out[:, :3], original.shN[:, :3]) and torch.equal(out[:, 3:], torch.zeros_like(out[:, 3:]))
+        assert not torch.equal(out[:, :3], original.shN[:, :3])
+        assert torch.equal(out[:, 3:], torch.zeros_like(out[:, 3:]))
+
+
+def test_a_refitted_scene_takes_the_bands_of_the_fitted_gaussians_it_descends_from():
+    original = make_model(50, 3, seed=6)
+    rows = torch.tensor([0, 3, 3, 49, 7, 7, 7])  # survivors, clones and split children of fitted rows
+    matched = original.index(rows)
+    matched.shN = torch.zeros_like(matched.shN)
+    matched.attributes = {FITTED_ROW: rows}
+    assert torch.equal(with_higher_sh(matched, original, "frozen").shN, original.shN[rows])
+    band1 = with_higher_sh(matched, original, "degree1").shN
+    assert torch.equal(band1[:, :3], original.shN[rows, :3]) and not bool(band1[:, 3:].any())
+
+
+def test_read_colormatch_checks_its_rows_against_the_fitted_scene(tmp_path):
+    d = ColorMatchDir(tmp_path / "m")
+    d.root.mkdir()
+    write_ply(d.ply, make_model(6, 0, seed=1))
+    with pytest.raises(InputError, match="dvc repro colormatch@m"):
+        read_colormatch(d.root, "m", 4)  # no fitted_rows.npy
+    for bad in (np.array([0, 1, 2, 3, 3]), np.array([0, 1, 2, 3, 3, 4]), np.array([0, 1, 2, 3, 3, -1]),
+                np.zeros(6, np.float32)):
+        np.save(d.fitted_rows, bad)
+        with pytest.raises(InputError, match="does not map the 6 colour-matched Gaussians onto the 4 fitted"):
+            read_colormatch(d.root, "m", 4)
+    np.save(d.fitted_rows, np.array([0, 1, 2, 3, 3, 1]))
+    assert read_colormatch(d.root, "m", 4).attributes[FITTED_ROW].tolist() == [0, 1, 2, 3, 3, 1]
+

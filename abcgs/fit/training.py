@@ -29,7 +29,7 @@ from abcgs.fit.evaluation import Evaluation, evaluate
 from abcgs.fit.losses import LossTerms, reconstruction_loss
 from abcgs.fit.params import FitParams
 from abcgs.fit.strategy import DefaultStrategy, NoDensification, Optimizers, RefineReport, Strategy
-from abcgs.gaussians import PARAM_NAMES, GaussianModel, freeze_gaussians, render
+from abcgs.gaussians import FROZEN, PARAM_NAMES, GaussianModel, freeze_gaussians, render
 from abcgs.losses.terms import silhouette_loss
 from abcgs.progress import progress as progress_bar
 from abcgs.render import select_backend
@@ -172,8 +172,8 @@ def fit(
             the SfM points. strategy: override the densification strategy built from ``params``.
         device: where to train (``runtime.device`` resolved); default: the device of ``views`` when given, else
             :func:`abcgs.runtime.resolve_device` of ``auto``.
-        frozen: ``(N,)`` bool over ``initial``: Gaussians that keep their values (:func:`freeze_gaussians`); only
-            without densification.
+        frozen: ``(N,)`` bool over ``initial``: Gaussians that keep their values (its
+            :data:`~abcgs.gaussians.FROZEN` attribute: no gradient, and densification leaves them as they are).
 
     Raises:
         InputError: unusable scene (no points, image/camera size mismatch, …).
@@ -207,9 +207,10 @@ def _fit(
     optimizers = make_optimizers(model, params, extent)
     strategy = strategy or make_strategy(params, extent, gen)
     if frozen is not None:
-        if not isinstance(strategy, NoDensification):
-            raise ValueError("fit: frozen Gaussians need a fit without densification (the rows would move)")
-        freeze_gaussians(model, frozen)
+        if tuple(frozen.shape) != (model.num_gaussians,):
+            raise InputError(f"fit: frozen has shape {tuple(frozen.shape)}, expected ({model.num_gaussians},)")
+        model.attributes[FROZEN] = frozen.to(device=device, dtype=torch.bool)
+    freeze_gaussians(model)
     state = strategy.initialize_state(model)
     fixed_bg = torch.tensor(params.background, dtype=torch.float32, device=device)
     test_cams, test_imgs = views.pick(views.test)
@@ -244,6 +245,7 @@ def _fit(
         report = strategy.step_post_backward(model, optimizers, state, step, meta)
         if report is not None:
             refinements.append(report)
+            freeze_gaussians(model)  # the strategy replaced the tensors that carried the hooks
             log.debug("step %d: %s", step, report)
         with torch.no_grad():
             psnr = M.psnr_from_mse(float(((image.detach().clamp(0, 1) - gt) ** 2).mean()))

@@ -16,7 +16,9 @@ field               shape           activation → physical quantity
 Besides the parameters, ``attributes`` holds any other per-Gaussian tensors, ``(N, ...)`` each and never
 optimised (content labels, a mask, a per-Gaussian style id): every operation that selects, copies, splits or
 prunes Gaussians applies to them as to the parameters (:meth:`GaussianModel.map`, :mod:`abcgs.fit.strategy.ops`),
-so a value stays with its Gaussian and a split's children inherit their parent's.
+so a value stays with its Gaussian and a split's children inherit their parent's. Two names have a meaning:
+:data:`FROZEN` (``(N,)`` bool: Gaussians that keep their values, see :func:`freeze_gaussians`) and :data:`FITTED_ROW`
+(``(N,)`` int64: the row of the fitted scene each Gaussian descends from, set by the colour match's re-fit).
 
 The densification strategies (:mod:`abcgs.fit.strategy`) replace these tensors in place of the
 dataclass fields (``setattr``) when they add or remove Gaussians; nothing else holds on to them.
@@ -42,6 +44,12 @@ from abcgs.types import Backend
 log = logging.getLogger(__name__)
 PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh0", "shN")
 """Names of the per-Gaussian parameter tensors, in a fixed order (also the optimiser keys)."""
+FROZEN = "frozen"
+"""Attribute ``(N,)`` bool: Gaussians that keep their values. They take no gradient (:func:`freeze_gaussians`), and
+the densification strategy never clones, splits, prunes or resets them."""
+FITTED_ROW = "fitted_row"
+"""Attribute ``(N,)`` int64: the row of the fitted scene (the ``fit`` stage's PLY) that a Gaussian is or descends from
+(a clone or split child carries its parent's): what maps the fitted scene's labels and SH bands onto a re-fitted one."""
 
 
 @dataclass
@@ -258,9 +266,19 @@ def valid_gaussians(model: GaussianModel, source: str, *, drop: bool = False, se
 assert tuple(f.name for f in fields(GaussianModel)) == (*PARAM_NAMES, "attributes")
 
 
-def freeze_gaussians(model: GaussianModel, frozen: Tensor | None) -> None:
-    """Zero every gradient of the ``frozen`` ``(N,)`` bool Gaussians of ``model`` (its fields that take gradients):
-    Adam then leaves their values exactly as they are, whatever the loss. ``None`` freezes nothing."""
+def fitted_rows(model: GaussianModel) -> Tensor:
+    """``(N,)`` int64: each Gaussian's row in the fitted scene, its :data:`FITTED_ROW` attribute; a model without one is
+    the fitted scene itself (``arange(N)``)."""
+    rows = model.attributes.get(FITTED_ROW)
+    return torch.arange(model.num_gaussians, device=model.device) if rows is None else rows
+
+
+def freeze_gaussians(model: GaussianModel, frozen: Tensor | None = None) -> None:
+    """Zero every gradient of the frozen ``(N,)`` bool Gaussians of ``model`` (its fields that take gradients): Adam
+    then leaves their values exactly as they are, whatever the loss. ``frozen`` defaults to the model's
+    :data:`FROZEN` attribute; None or no frozen row freezes nothing. The hooks belong to the current tensors: after a
+    densification step replaced them, call it again."""
+    frozen = model.attributes.get(FROZEN) if frozen is None else frozen
     if frozen is None or not bool(frozen.any()):
         return
     keep = (~frozen).to(model.device)

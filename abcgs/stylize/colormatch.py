@@ -1,7 +1,9 @@
 """ABC-GS colour match: per matching group, a linear map p' = A p + b that gives the content colours the
 style's mean and covariance (paper appendix), applied to the training images and to the Gaussians' DC
 colours, followed by a short re-fit of the Gaussians to the recoloured images with the reconstruction
-loss (authors' code: 400 iterations on LLFF).
+loss and 3DGS densification (authors' code: 400 iterations on LLFF, densifying every 50). Each re-fitted Gaussian
+carries the row of the fitted one it descends from (:data:`~abcgs.gaussians.FITTED_ROW`), which the later stages use
+to give it that Gaussian's content label and SH bands.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from abcgs.features.params import ALL_PIXELS, TransferSpec
 from abcgs.fit.data import Views, load_views
 from abcgs.fit.params import FitParams
 from abcgs.fit.training import fit
-from abcgs.gaussians import GaussianModel
+from abcgs.gaussians import FITTED_ROW, GaussianModel
 from abcgs.gaussians.ply import write_ply
 from abcgs.io.atomic import atomic_path, write_json
 from abcgs.io.images import save_image
@@ -42,7 +44,7 @@ from abcgs.viz import image_grid
 
 @dataclass
 class ColorMatchResult:
-    model: GaussianModel
+    model: GaussianModel  # its FITTED_ROW attribute: each Gaussian's row in the fitted scene
     transforms: dict[int, tuple[Tensor, Tensor]]
     images: list[Tensor]  # recoloured training images (H, W, 3)
     history: list[dict]
@@ -111,15 +113,19 @@ def color_match_and_refit(
     background: Background = FRAME_FILLING, color_only: bool = False,
 ) -> ColorMatchResult:
     """Colour-match ``model`` and its training images per group, then re-fit; everything on ``model``'s device
-    (``gaussian_labels`` ``(N,)`` too). An object scene (``background``) is matched on its object pixels, keeps its
-    empty pixels and re-fits on its background colour; ``color_only`` re-fits the colours alone (``stylize.color_only``:
-    the geometry stays bit-identical)."""
+    (``gaussian_labels`` ``(N,)`` too). The re-fit densifies; the result's :data:`~abcgs.gaussians.FITTED_ROW`
+    attribute gives each of its Gaussians the row of ``model`` it descends from. An object scene (``background``) is
+    matched on its object pixels, keeps its empty pixels and re-fits on its background colour, and its Gaussians off
+    the object are frozen (never densified); ``color_only`` re-fits the colours alone (``stylize.color_only``: the
+    geometry stays bit-identical, nothing is densified)."""
     views = load_views(scene, params.resolution_scale, test_every=0, device=model.device)
     if params.resolution_scale != 1.0:
         import cv2
 
         view_labels = [cv2.resize(v.astype(np.int32), (c.width, c.height), interpolation=cv2.INTER_NEAREST).astype(np.int64)
                        for v, c in zip(view_labels, views.cameras)]
+    rows = torch.arange(model.num_gaussians, device=model.device)
+    model = GaussianModel(**model.params(), attributes={**model.attributes, FITTED_ROW: rows})
     if not params.enabled:
         return ColorMatchResult(model.detach(), {}, views.images, [])
     objects = None
@@ -136,9 +142,9 @@ def color_match_and_refit(
     history: list[dict] = []
     schedule = choose_schedule(views.cameras, refit=params.refit_iterations)
     if schedule.steps["refit"] > 0:
-        # No densification: the Gaussians keep their lifted labels (the authors densify every 50 steps and
-        # keep per-view 2-D masks instead; with 3-D labels the set of Gaussians must stay fixed).
-        fp = FitParams(iterations=schedule.steps["refit"], test_every=0, densify=False, seed=params.seed,
+        # densifying as the fit does (its schedule follows the run's length); clones and split children carry
+        # their parent's FITTED_ROW, an object scene's frozen rest is never densified
+        fp = FitParams(iterations=schedule.steps["refit"], test_every=0, seed=params.seed,
                        backend=params.backend, resolution_scale=params.resolution_scale, lr_means=1.6e-6,
                        lr_means_final=1.6e-6, background=background.color, color_only=color_only)
         res = fit(scene, fp, progress, views=Views(views.cameras, images, views.train, [], views.alphas), initial=recolored,
@@ -150,16 +156,20 @@ def color_match_and_refit(
 def write_colormatch(out: Path, name: str, spec: TransferSpec, result: ColorMatchResult, groups: list[MatchingGroup],
                      vgg_weights: dict) -> None:
     """Write ``out/`` (a folder, atomically): ``point_cloud.ply`` (the colour-matched, re-fitted Gaussians),
-    ``colormatch.json`` (the transforms ``A``, ``b`` per group, the re-fit's length and final loss, the VGG weights'
+    ``fitted_rows.npy`` (``(N,)`` int64: each Gaussian's row in the fitted scene), ``colormatch.json`` (the
+    transforms ``A``, ``b`` per group, the re-fit's length, final loss and Gaussian counts, the VGG weights'
     provenance) and ``recolored.png`` (the first recoloured training images)."""
+    rows = result.model.attributes[FITTED_ROW].numpy(force=True).astype(np.int64)
     with atomic_path(out, is_dir=True) as tmp:
         d = ColorMatchDir(tmp)
         write_ply(d.ply, result.model)
+        np.save(d.fitted_rows, rows)
         write_json(d.record, {
             "colormatch": name, **spec.model_dump(mode="json"), "groups": [g.style_name for g in groups],
             "transforms": {str(k): {"A": A.tolist(), "b": b.tolist()} for k, (A, b) in result.transforms.items()},
             "refit_steps": len(result.history), "schedule": result.schedule,
             "refit_final_loss": result.history[-1]["loss"] if result.history else None,
+            "n_gaussians": len(rows), "fitted_rows_kept": len(np.unique(rows)),  # themselves or by descendants
             "vgg_weights": vgg_weights,
         })
         save_image(d.recolored, image_grid([[img.numpy(force=True) for img in result.images[:4]]]))

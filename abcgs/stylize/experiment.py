@@ -15,7 +15,7 @@ from abcgs.features.matching import build_groups
 from abcgs.features.params import IsolationParams, TransferSpec, VggWeightsParams
 from abcgs.features.vgg import VGG16Features
 from abcgs.features.weights import WeightsInfo, resolve_vgg16
-from abcgs.gaussians import GaussianModel
+from abcgs.gaussians import FITTED_ROW, GaussianModel
 from abcgs.gaussians.ply import read_ply
 from abcgs.io.images import load_labels
 from abcgs.layout import ColorMatchDir
@@ -61,10 +61,19 @@ def load_groups(spec: TransferSpec, vgg: VGG16Features, labels: torch.Tensor, st
     )
 
 
-def read_colormatch(folder: Path, name: str) -> GaussianModel:
-    """The colour-matched Gaussians of stage ``colormatch@<name>`` (its output ``folder``), with a clear error when
-    it has not run."""
-    ply = ColorMatchDir(folder).ply
-    if not ply.is_file():
-        raise InputError(f"{ply} is missing: run the colour match first (dvc repro colormatch@{name})")
-    return read_ply(ply)
+def read_colormatch(folder: Path, name: str, n_fitted: int) -> GaussianModel:
+    """The colour-matched Gaussians of stage ``colormatch@<name>`` (its output ``folder``), each with its row in the
+    fitted scene of ``n_fitted`` Gaussians (:data:`~abcgs.gaussians.FITTED_ROW`); a clear error when the stage has not
+    run or its files do not belong together."""
+    d = ColorMatchDir(folder)
+    if not d.ply.is_file() or not d.fitted_rows.is_file():
+        raise InputError(f"{d.root} has no point_cloud.ply and fitted_rows.npy: run the colour match first "
+                         f"(dvc repro colormatch@{name})")
+    model = read_ply(d.ply)
+    rows = np.load(d.fitted_rows, allow_pickle=False)
+    if rows.shape != (model.num_gaussians,) or rows.dtype.kind not in "iu" or (
+            len(rows) and (rows.min() < 0 or rows.max() >= n_fitted)):
+        raise InputError(f"{d.fitted_rows} does not map the {model.num_gaussians} colour-matched Gaussians onto the "
+                         f"{n_fitted} fitted ones; re-run the colour match (dvc repro colormatch@{name})")
+    model.attributes[FITTED_ROW] = torch.from_numpy(rows.astype(np.int64))
+    return model

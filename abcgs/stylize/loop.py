@@ -33,7 +33,7 @@ from abcgs.features.knn import StyleFeatures
 from abcgs.features.params import ALL_PIXELS
 from abcgs.features.vgg import VGG16Features, downsample_half, extract_features
 from abcgs.fit.losses import reconstruction_loss
-from abcgs.gaussians import GaussianModel, freeze_gaussians, render, render_each
+from abcgs.gaussians import GaussianModel, fitted_rows, freeze_gaussians, render, render_each
 from abcgs.losses.drift import opacity_drift, scale_drift
 from abcgs.losses.fast import FastStats
 from abcgs.losses.params import FastParams
@@ -509,10 +509,11 @@ def stylize(
     """Run the stylization passes on a (colour-matched) model.
 
     Args:
-        model: the colour-matched, re-fitted scene (the content target and the starting point).
+        model: the colour-matched, re-fitted scene (the content target and the starting point); its Gaussians map
+            onto ``depth_model``'s by their :func:`~abcgs.gaussians.fitted_rows`.
         cameras: the views to stylize from.
         label_maps: per view ``(H, W)`` rendered content labels (ignored by single transfer).
-        gaussian_labels: ``(N,)`` lifted content label of each Gaussian (for the colour pass).
+        gaussian_labels: ``(N,)`` lifted content label of each of ``model``'s Gaussians (for the colour pass).
         depth_model: the original (pre-colour-match) scene whose depth the depth loss keeps (paper: "we use
             the original Gaussians to render the initial depth map"); default ``model``.
         groups: matching groups with style features (:func:`abcgs.features.matching.build_groups`).
@@ -527,9 +528,10 @@ def stylize(
     t0 = time.perf_counter()
     backdrop = Backdrop.of(background, model.device)
     targets = prepare_targets(model, depth_model or model, cameras, label_maps, groups, vgg, params, backdrop)
-    if backdrop.object:
-        backdrop = replace(backdrop, gaussians=object_gaussians(depth_model or model, cameras,
-                                                                [t.silhouette for t in targets], params.compute.backend))
+    if backdrop.object:  # the original's object Gaussians, mapped onto the re-fitted rows
+        objects = object_gaussians(depth_model or model, cameras, [t.silhouette for t in targets],
+                                   params.compute.backend)
+        backdrop = replace(backdrop, gaussians=objects if depth_model is None else objects[fitted_rows(model)])
     for g, z in enumerate(groups):
         if not any(bool(t.group_masks[g].any()) for t in targets):
             raise InputError(f"matching group for content label {z.content_label} covers no pixel in any view")

@@ -12,21 +12,22 @@ from __future__ import annotations
 import torch
 
 from abcgs.errors import InputError
-from abcgs.gaussians import GaussianModel
+from abcgs.gaussians import GaussianModel, fitted_rows
 from abcgs.stylize.params import StylizeParams
 
 
 def with_higher_sh(model: GaussianModel, original: GaussianModel, mode: str) -> GaussianModel:
     """``model`` with the SH bands above DC that ``stylize.higher_sh = mode`` starts from: ``zero`` leaves them as
     they are (the colour match zeroed them), ``frozen``/``optimized`` put the ``original``'s back, ``degree1`` puts
-    back band 1 and zeroes bands 2–3."""
+    back band 1 and zeroes bands 2–3. A re-fitted ``model`` takes the bands of the fitted Gaussian each of its
+    Gaussians descends from (:func:`~abcgs.gaussians.fitted_rows`)."""
     if mode == "zero" or not model.shN.numel():
         return model
-    if original.shN.shape != model.shN.shape:
+    if original.shN.shape[1:] != model.shN.shape[1:]:
         raise InputError(f"higher_sh={mode}: the original scene has SH shape {tuple(original.shN.shape)}, the colour-"
                          f"matched one {tuple(model.shN.shape)}; re-run the colormatch stage")
     out = model.detach()
-    shn = original.shN.detach().clone()
+    shn = original.shN.detach()[fitted_rows(model).to(original.device)]
     if mode == "degree1":
         shn[:, 3:] = 0.0
     out.shN = shn.contiguous()

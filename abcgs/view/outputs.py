@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -44,7 +45,21 @@ def load_experiment(run_dir: Path, *, scene: str | None = None, root: Path | Non
     s = layout.scene(scene, root)
     views = read_scene(s.colmap.root)
     original = read_ply(s.fit.ply) if s.fit.ply.is_file() else None
-    labels = np.load(s.masks.gaussian_labels) if s.masks.gaussian_labels.is_file() else None
+    labels = np.load(s.masks.gaussian_labels, allow_pickle=False) if s.masks.gaussian_labels.is_file() else None
+    if labels is not None:
+        labels = _on_refitted_rows(labels, layout.ExperimentOut(run_dir).stylize_record, s)
     return prepare_experiment(run_dir.name, read_ply(ply), views.cameras, original=original, labels=labels,
                               max_gaussians=max_gaussians, full_artifact=str(ply), path_kind=path_kind,
                               path_frames=path_frames, background=views.background)
+
+
+def _on_refitted_rows(labels: np.ndarray, record: Path, s: layout.SceneOut) -> np.ndarray | None:
+    """The fitted scene's Gaussian ``labels`` on the stylized Gaussians, through the rows of the experiment's colour
+    match (its ``fitted_rows.npy``, named by the stylize record); None when the files do not map them."""
+    try:
+        rows = np.load(s.colormatch(json.loads(record.read_text())["colormatch"]).fitted_rows, allow_pickle=False)
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if rows.ndim != 1 or rows.dtype.kind not in "iu" or (len(rows) and (rows.min() < 0 or rows.max() >= len(labels))):
+        return None
+    return labels[rows]

@@ -9,7 +9,7 @@ import torch
 from abcgs.fit.params import REFERENCE_ITERATIONS, StrategyParams
 from abcgs.fit.strategy.base import RefineReport
 from abcgs.fit.strategy.ops import Optimizers, State, duplicate, remove, reset_opacity, split
-from abcgs.gaussians import GaussianModel
+from abcgs.gaussians import FROZEN, GaussianModel
 from abcgs.render import RenderMeta
 
 
@@ -27,6 +27,8 @@ class DefaultStrategy:
     ``split_samples`` children when large; then Gaussians with opacity < ``prune_opacity`` are removed,
     and — after the first opacity reset — those larger than ``prune_scale3d``·extent in world space or
     ``prune_screen_px`` on screen. Every ``reset_every`` steps opacities are clamped to ``reset_opacity``.
+
+    Gaussians marked :data:`~abcgs.gaussians.FROZEN` are never cloned, split, pruned or reset.
 
     ``max_gaussians`` caps growth: when the candidates would exceed it, only the highest-gradient ones
     grow (pruning is unaffected).
@@ -72,7 +74,7 @@ class DefaultStrategy:
             report.n_pruned = self._prune(model, optimizers, state, step)
             state.update(self.initialize_state(model))
         if step % p.reset_every == 0:
-            reset_opacity(model, optimizers, p.reset_opacity)
+            reset_opacity(model, optimizers, p.reset_opacity, keep=model.attributes.get(FROZEN))
             report = report or RefineReport(step)
             report.opacity_reset = True
         if report is not None:
@@ -106,6 +108,8 @@ class DefaultStrategy:
         p = self.params
         grads = state["grad2d"] / state["count"].clamp_min(1.0)
         high = grads > p.grow_grad2d
+        if FROZEN in model.attributes:
+            high &= ~model.attributes[FROZEN]
         small = torch.exp(model.log_scales).max(dim=-1).values <= p.grow_scale3d * self.scene_extent
         is_dup, is_split = high & small, high & ~small
         capped = False
@@ -134,4 +138,6 @@ class DefaultStrategy:
         if step > p.reset_every:
             prune |= torch.exp(model.log_scales).max(dim=-1).values > p.prune_scale3d * self.scene_extent
             prune |= state["max_radii"] > p.prune_screen_px
+        if FROZEN in model.attributes:
+            prune &= ~model.attributes[FROZEN]
         return remove(model, optimizers, state, prune) if prune.any() else 0

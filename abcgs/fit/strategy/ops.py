@@ -141,12 +141,13 @@ def remove(model: GaussianModel, optimizers: Optimizers, state: State, mask: Ten
 
 
 @torch.no_grad()
-def reset_opacity(model: GaussianModel, optimizers: Optimizers, value: float) -> None:
-    """Clamp every opacity to at most ``value`` and zero the opacity optimiser moments (3DGS reset)."""
+def reset_opacity(model: GaussianModel, optimizers: Optimizers, value: float, *, keep: Tensor | None = None) -> None:
+    """Clamp every opacity to at most ``value`` and zero the opacity optimiser moments (3DGS reset); the ``keep``
+    ``(N,)`` bool Gaussians keep their opacity."""
     cap = math.log(value / (1.0 - value))
-    update_params(
-        model, optimizers,
-        lambda _, p: p.clamp_max(cap),
-        lambda _, v: torch.zeros_like(v),
-        names=("opacity_logits",), attributes=False,
-    )
+
+    def clamp(_, p: Tensor) -> Tensor:
+        return p.clamp_max(cap) if keep is None else torch.where(keep, p, p.clamp_max(cap))
+
+    update_params(model, optimizers, clamp, lambda _, v: torch.zeros_like(v), names=("opacity_logits",),
+                  attributes=False)
