@@ -369,9 +369,9 @@ def rasterize_batch_cpu(
     means2d: Tensor, conics: Tensor, colors: Tensor, opacities: Tensor, depths: Tensor, extents: Tensor,
     width: int, height: int, *, tile_size: int = 16, depth_channel: bool = False,
 ) -> tuple[Tensor, Tensor]:
-    """The compiled twin of :func:`abcgs.render.reference.rasterize_reference`, for C views in one call: ``means2d`` ``(C, N, 2)``, ``conics`` ``(C, N, 3)``, ``colors``
-    ``(C, N, F)`` or ``(N, F)`` (shared by the views), ``opacities`` ``(N,)``, ``depths`` ``(C, N)``, ``extents``
-    ``(C, N, 2)``. With ``depth_channel`` the depths are blended as one more channel (``RGB+D``). Returns image
+    """The compiled twin of :func:`abcgs.render.reference.rasterize_reference`, for C views in one call: ``means2d``
+    ``(C, N, 2)``, ``conics`` ``(C, N, 3)``, ``colors`` ``(C, N, F)`` or ``(N, F)`` (shared by the views),
+    ``opacities`` ``(N,)``, ``depths`` ``(C, N)``, ``extents`` ``(C, N, 2)``. With ``depth_channel`` the depths are blended as one more channel (``RGB+D``). Returns image
     ``(C, H, W, F [+ 1])`` without background and alpha ``(C, H, W, 1)``."""
     image, alpha = _RasterizeBatchCPU.apply(
         means2d, conics, colors, opacities, depths, extents, width, height, tile_size, bool(depth_channel)
