@@ -301,6 +301,34 @@ def test_a_scene_override_reruns_only_that_scenes_branch(repo: Path, first_repro
         shutil.rmtree(repo / "out" / "tiny2", ignore_errors=True)
 
 
+def test_a_densifying_colour_refit_carries_its_labels_through_stylize_and_the_viewer(repo: Path, first_repro) -> None:
+    """``colormatch.refine_every`` set: the re-fit grows Gaussians, ``fitted_rows.npy`` maps each onto the
+    fitted scene, stylize reads it (labels, SH bands) and the viewer gives every stylized Gaussian its label."""
+    from abcgs.view.outputs import load_experiment
+
+    original = (repo / "params.yaml").read_text()
+    params = yaml.safe_load(original)
+    params["colormatch"]["refine_every"] = 10
+    (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    try:
+        proc = _run(["dvc", "repro", "stylize@tiny_compositional"], repo)
+        assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+        import numpy as np
+
+        fitted = read_ply(repo / "out/tiny/gs/point_cloud.ply").num_gaussians
+        rows = np.load(repo / "out/tiny/colormatch/tiny_compositional/fitted_rows.npy")
+        counts = np.bincount(rows, minlength=fitted)
+        assert (counts > 1).sum() > 0  # clones and split children name their parent's row
+        assert len(rows) == read_ply(repo / "out/tiny_compositional/stylize/point_cloud.ply").num_gaussians
+        labels = np.load(repo / "out/tiny/masks/gaussian_labels.npy")
+        exp = load_experiment(repo / "out/tiny_compositional", scene="tiny", max_gaussians=10 ** 9)
+        assert "labels" in exp.layers  # every stylized Gaussian has its fitted row's label
+        assert len(set(labels[rows])) > 1
+    finally:
+        (repo / "params.yaml").write_text(original)
+        assert _run(["dvc", "checkout", "--force"], repo).returncode == 0
+
+
 def test_experiments_of_one_scene_share_its_stages(repo: Path, first_repro) -> None:
     """a second experiment on the tiny scene (same painting, NNFM) runs only its own stylize and
     evaluate: not the scene's stages (fit, masks, the evaluation reference of original renders and flows) and

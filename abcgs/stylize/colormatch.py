@@ -1,9 +1,10 @@
 """ABC-GS colour match: per matching group, a linear map p' = A p + b that gives the content colours the
 style's mean and covariance (paper appendix), applied to the training images and to the Gaussians' DC
 colours, followed by a short re-fit of the Gaussians to the recoloured images with the reconstruction
-loss and 3DGS densification (authors' code: 400 iterations on LLFF, densifying every 50). Each re-fitted Gaussian
-carries the row of the fitted one it descends from (:data:`~abcgs.gaussians.FITTED_ROW`), which the later stages use
-to give it that Gaussian's content label and SH bands.
+loss, densifying every ``colormatch.refine_every`` steps where that is set (authors' code: 400 iterations on LLFF,
+densifying every 50). Each re-fitted Gaussian carries the row of the fitted one it descends from
+(:data:`~abcgs.gaussians.FITTED_ROW`), which the later stages use to give it that Gaussian's content label and SH
+bands.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from torch import Tensor
 from abcgs.errors import InputError
 from abcgs.features.params import ALL_PIXELS, TransferSpec
 from abcgs.fit.data import Views, load_views
-from abcgs.fit.params import FitParams
+from abcgs.fit.params import FitParams, StrategyParams
 from abcgs.fit.training import fit
 from abcgs.gaussians import FITTED_ROW, GaussianModel
 from abcgs.gaussians.ply import write_ply
@@ -113,8 +114,9 @@ def color_match_and_refit(
     background: Background = FRAME_FILLING, color_only: bool = False,
 ) -> ColorMatchResult:
     """Colour-match ``model`` and its training images per group, then re-fit; everything on ``model``'s device
-    (``gaussian_labels`` ``(N,)`` too). The re-fit densifies; the result's :data:`~abcgs.gaussians.FITTED_ROW`
-    attribute gives each of its Gaussians the row of ``model`` it descends from. An object scene (``background``) is
+    (``gaussian_labels`` ``(N,)`` too). The re-fit densifies every ``params.refine_every`` steps (0: never); the
+    result's :data:`~abcgs.gaussians.FITTED_ROW` attribute gives each of its Gaussians the row of ``model`` it
+    descends from. An object scene (``background``) is
     matched on its object pixels, keeps its empty pixels and re-fits on its background colour, and its Gaussians off
     the object are frozen (never densified); ``color_only`` re-fits the colours alone (``stylize.color_only``: the
     geometry stays bit-identical, nothing is densified)."""
@@ -142,11 +144,14 @@ def color_match_and_refit(
     history: list[dict] = []
     schedule = choose_schedule(views.cameras, refit=params.refit_iterations)
     if schedule.steps["refit"] > 0:
-        # densifying as the fit does (its schedule follows the run's length); clones and split children carry
-        # their parent's FITTED_ROW, an object scene's frozen rest is never densified
-        fp = FitParams(iterations=schedule.steps["refit"], test_every=0, seed=params.seed,
-                       backend=params.backend, resolution_scale=params.resolution_scale, lr_means=1.6e-6,
-                       lr_means_final=1.6e-6, background=background.color, color_only=color_only)
+        # densifying every refine_every steps to the end, never resetting; clones and split children carry their
+        # parent's FITTED_ROW, an object scene's frozen rest is never densified
+        steps = schedule.steps["refit"]
+        strategy = StrategyParams(refine_start=0, refine_every=max(params.refine_every, 1), refine_stop=steps,
+                                  reset_every=steps + 1)
+        fp = FitParams(iterations=steps, test_every=0, densify=params.refine_every > 0, strategy=strategy,
+                       seed=params.seed, backend=params.backend, resolution_scale=params.resolution_scale,
+                       lr_means=1.6e-6, lr_means_final=1.6e-6, background=background.color, color_only=color_only)
         res = fit(scene, fp, progress, views=Views(views.cameras, images, views.train, [], views.alphas), initial=recolored,
                   frozen=None if objects is None else ~objects.gaussians)
         recolored, history = res.model, res.history

@@ -168,6 +168,10 @@ class ColorMatchParams(BaseModel):
     refit_iterations: int | None = Field(
         None, ge=0, description="re-fit steps on the recoloured images (authors: 400); null: by the views' size, 100 "
         "for small views, 400 for photos (abcgs/stylize/schedule.py)")
+    refine_every: int = Field(
+        0, ge=0, description="densify every this many re-fit steps, to the end of the re-fit (authors: 50; new "
+        "Gaussians keep the content label of the one they come from); 0: the re-fit keeps the fitted Gaussians, "
+        "measured cheaper and closer to the content (docs/FIDELITY.md, row 7)")
     resolution_scale: float = Field(1.0, gt=0, le=1.0)
     seed: int = 0
     backend: Backend = "auto"
