@@ -292,6 +292,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--markdown", nargs="+", metavar="LABEL",
                     help="print the numbers stored in --json under these labels as a markdown table; measure nothing")
     args = ap.parse_args(argv)
+    if args.markdown and args.json is None:
+        ap.error("--markdown prints the numbers stored in a record: give it with --json")
     if args.markdown:
         print(markdown(json.loads(args.json.read_text()), args.markdown))
         return 0
