@@ -306,7 +306,7 @@ def test_a_densifying_colour_refit_carries_its_labels_through_stylize_and_the_vi
     fitted scene, stylize reads it (labels, SH bands) and the viewer gives every stylized Gaussian its label."""
     from abcgs.view.outputs import load_experiment
 
-    original = (repo / "params.yaml").read_text()
+    original, lock = (repo / "params.yaml").read_text(), (repo / "dvc.lock").read_text()
     params = yaml.safe_load(original)
     params["colormatch"]["refine_every"] = 10
     (repo / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
@@ -324,8 +324,9 @@ def test_a_densifying_colour_refit_carries_its_labels_through_stylize_and_the_vi
         exp = load_experiment(repo / "out/tiny_compositional", scene="tiny", max_gaussians=10 ** 9)
         assert "labels" in exp.layers  # every stylized Gaussian has its fitted row's label
         assert len(set(labels[rows])) > 1
-    finally:
+    finally:  # the locked outputs back, for the tests that follow
         (repo / "params.yaml").write_text(original)
+        (repo / "dvc.lock").write_text(lock)
         assert _run(["dvc", "checkout", "--force"], repo).returncode == 0
 
 

@@ -12,6 +12,7 @@ import numpy as np
 from abcgs import layout
 from abcgs.errors import InputError
 from abcgs.gaussians.ply import read_ply
+from abcgs.io.metrics import info_path
 from abcgs.sfm.model import read_scene
 from abcgs.types import PathKind
 from abcgs.view.page import ViewerExperiment, prepare_experiment
@@ -47,7 +48,7 @@ def load_experiment(run_dir: Path, *, scene: str | None = None, root: Path | Non
     original = read_ply(s.fit.ply) if s.fit.ply.is_file() else None
     labels = np.load(s.masks.gaussian_labels, allow_pickle=False) if s.masks.gaussian_labels.is_file() else None
     if labels is not None:
-        labels = _on_refitted_rows(labels, layout.ExperimentOut(run_dir).stylize_record, s)
+        labels = _on_refitted_rows(labels, info_path(layout.ExperimentOut(run_dir).stylize_record), s)
     return prepare_experiment(run_dir.name, read_ply(ply), views.cameras, original=original, labels=labels,
                               max_gaussians=max_gaussians, full_artifact=str(ply), path_kind=path_kind,
                               path_frames=path_frames, background=views.background)
@@ -55,7 +56,8 @@ def load_experiment(run_dir: Path, *, scene: str | None = None, root: Path | Non
 
 def _on_refitted_rows(labels: np.ndarray, record: Path, s: layout.SceneOut) -> np.ndarray | None:
     """The fitted scene's Gaussian ``labels`` on the stylized Gaussians, through the rows of the experiment's colour
-    match (its ``fitted_rows.npy``, named by the stylize record); None when the files do not map them."""
+    match (its ``fitted_rows.npy``, named by the stylize stage's full ``record``); None when the files do not map
+    them."""
     try:
         rows = np.load(s.colormatch(json.loads(record.read_text())["colormatch"]).fitted_rows, allow_pickle=False)
     except (OSError, ValueError, KeyError, TypeError):
