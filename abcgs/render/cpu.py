@@ -102,7 +102,8 @@ def _import_kernels(verbose: bool):
         return module
     raise BackendUnavailable(
         f"no C++ kernel variant loads here (built: {record['variants']}; this CPU: {capability}"
-        f"{', AVX512-BF16' if bf16 else ''}; {'; '.join(errors) or 'none of them runs on it'}); {kernel_variants.REBUILD}."
+        f"{', AVX512-BF16' if bf16 else ''}; {'; '.join(errors) or 'none of them runs on it'}); "
+        f"{kernel_variants.REBUILD}."
     )
 
 
@@ -371,8 +372,9 @@ def rasterize_batch_cpu(
 ) -> tuple[Tensor, Tensor]:
     """The compiled twin of :func:`abcgs.render.reference.rasterize_reference`, for C views in one call: ``means2d``
     ``(C, N, 2)``, ``conics`` ``(C, N, 3)``, ``colors`` ``(C, N, F)`` or ``(N, F)`` (shared by the views),
-    ``opacities`` ``(N,)``, ``depths`` ``(C, N)``, ``extents`` ``(C, N, 2)``. With ``depth_channel`` the depths are blended as one more channel (``RGB+D``). Returns image
-    ``(C, H, W, F [+ 1])`` without background and alpha ``(C, H, W, 1)``."""
+    ``opacities`` ``(N,)``, ``depths`` ``(C, N)``, ``extents`` ``(C, N, 2)``. With ``depth_channel`` the depths are
+    blended as one more channel (``RGB+D``). Returns image ``(C, H, W, F [+ 1])`` without background and alpha
+    ``(C, H, W, 1)``."""
     image, alpha = _RasterizeBatchCPU.apply(
         means2d, conics, colors, opacities, depths, extents, width, height, tile_size, bool(depth_channel)
     )

@@ -116,10 +116,9 @@ def color_match_and_refit(
     """Colour-match ``model`` and its training images per group, then re-fit; everything on ``model``'s device
     (``gaussian_labels`` ``(N,)`` too). The re-fit densifies every ``params.refine_every`` steps (0: never); the
     result's :data:`~abcgs.gaussians.FITTED_ROW` attribute gives each of its Gaussians the row of ``model`` it
-    descends from. An object scene (``background``) is
-    matched on its object pixels, keeps its empty pixels and re-fits on its background colour, and its Gaussians off
-    the object are frozen (never densified); ``color_only`` re-fits the colours alone (``stylize.color_only``: the
-    geometry stays bit-identical, nothing is densified)."""
+    descends from. An object scene (``background``) is matched on its object pixels, keeps its empty pixels and
+    re-fits on its background colour, and its Gaussians off the object are frozen (never densified); ``color_only``
+    re-fits the colours alone (``stylize.color_only``: the geometry stays bit-identical, nothing is densified)."""
     views = load_views(scene, params.resolution_scale, test_every=0, device=model.device)
     if params.resolution_scale != 1.0:
         import cv2
