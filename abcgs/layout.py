@@ -10,7 +10,7 @@ Per scene ``S``, colour match ``M`` (``colormatches.M``) and experiment ``E``::
     out/S/reference/                                                         reference
     out/S/colormatch/M/{point_cloud.ply, fitted_rows.npy, colormatch.json, recolored.png}  colormatch (for the E of M)
     out/S/point_cloud.spz                                                    export_scene
-    out/E/stylize/{point_cloud.ply, renders/, grid.png, turntable.mp4}, stylize.json, stylize_history.csv  stylize
+    out/E/stylize/{point_cloud.ply, fitted_rows.npy, renders/, grid.png, turntable.mp4}, stylize.json, …  stylize
     out/E/{eval.json, metrics.json, eval_views.csv, eval_consistency.png}    evaluate
     out/E/point_cloud.spz, out/E/returned/                                   export
 
@@ -191,6 +191,11 @@ class StylizeDir:
     @property
     def ply(self) -> Path:
         return self.root / "point_cloud.ply"
+
+    @property
+    def fitted_rows(self) -> Path:
+        """``(N,)`` int64: each stylized Gaussian's row in the fitted scene (its colour match's ``fitted_rows.npy``)."""
+        return self.root / "fitted_rows.npy"
 
     @property
     def renders(self) -> Path:

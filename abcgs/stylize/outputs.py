@@ -17,7 +17,7 @@ from abcgs.camera_paths import camera_path
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.features.params import ALL_PIXELS
-from abcgs.gaussians import GaussianModel, render_each
+from abcgs.gaussians import GaussianModel, fitted_rows, render_each
 from abcgs.gaussians.ply import write_ply
 from abcgs.io.atomic import atomic_path
 from abcgs.io.images import save_image
@@ -84,7 +84,8 @@ def write_stylized_scene(
     background: Background = FRAME_FILLING,
     grid_views: list[str] | None = None,
 ) -> dict:
-    """Write ``out/`` (a folder, atomically): the stylized PLY, a render of every camera, ``grid.png`` (content,
+    """Write ``out/`` (a folder, atomically): the stylized PLY, ``fitted_rows.npy`` (each Gaussian's row in the fitted
+    scene, :func:`~abcgs.gaussians.fitted_rows`), a render of every camera, ``grid.png`` (content,
     labels, each label beside its painting or painting region, stylized; one row per view of
     :func:`grid_indices` of ``grid_views``) and
     ``turntable.mp4`` along :func:`abcgs.camera_paths.camera_path`, all on the scene's ``background`` (the renders
@@ -95,6 +96,7 @@ def write_stylized_scene(
     with atomic_path(out, is_dir=True) as tmp, torch.no_grad():
         d = StylizeDir(tmp)
         write_ply(d.ply, stylized)
+        np.save(d.fitted_rows, fitted_rows(stylized).numpy(force=True).astype(np.int64))
         d.renders.mkdir()
         t0 = time.perf_counter()
         files = _view_files(stylized, cameras, backend, background)

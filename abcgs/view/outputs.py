@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -12,7 +11,6 @@ import numpy as np
 from abcgs import layout
 from abcgs.errors import InputError
 from abcgs.gaussians.ply import read_ply
-from abcgs.io.metrics import info_path
 from abcgs.sfm.model import read_scene
 from abcgs.types import PathKind
 from abcgs.view.page import ViewerExperiment, prepare_experiment
@@ -48,19 +46,21 @@ def load_experiment(run_dir: Path, *, scene: str | None = None, root: Path | Non
     original = read_ply(s.fit.ply) if s.fit.ply.is_file() else None
     labels = np.load(s.masks.gaussian_labels, allow_pickle=False) if s.masks.gaussian_labels.is_file() else None
     if labels is not None:
-        labels = _on_refitted_rows(labels, info_path(layout.ExperimentOut(run_dir).stylize_record), s)
+        labels = _on_stylized_rows(labels, layout.ExperimentOut(run_dir).stylize.fitted_rows)
     return prepare_experiment(run_dir.name, read_ply(ply), views.cameras, original=original, labels=labels,
                               max_gaussians=max_gaussians, full_artifact=str(ply), path_kind=path_kind,
                               path_frames=path_frames, background=views.background)
 
 
-def _on_refitted_rows(labels: np.ndarray, record: Path, s: layout.SceneOut) -> np.ndarray | None:
-    """The fitted scene's Gaussian ``labels`` on the stylized Gaussians, through the rows of the experiment's colour
-    match (its ``fitted_rows.npy``, named by the stylize stage's full ``record``); None when the files do not map
-    them."""
+def _on_stylized_rows(labels: np.ndarray, rows_file: Path) -> np.ndarray | None:
+    """The fitted scene's Gaussian ``labels`` on the stylized Gaussians, through the stylize stage's
+    ``fitted_rows.npy`` (``rows_file``): ``labels`` as they are where there is no such file (a stylized scene with
+    the fitted scene's rows), None where it does not map them."""
+    if not rows_file.is_file():
+        return labels
     try:
-        rows = np.load(s.colormatch(json.loads(record.read_text())["colormatch"]).fitted_rows, allow_pickle=False)
-    except (OSError, ValueError, KeyError, TypeError):
+        rows = np.load(rows_file, allow_pickle=False)
+    except (OSError, ValueError):
         return None
     if rows.ndim != 1 or rows.dtype.kind not in "iu" or (len(rows) and (rows.min() < 0 or rows.max() >= len(labels))):
         return None
