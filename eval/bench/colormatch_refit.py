@@ -60,10 +60,10 @@ def label_agreement(model, labels: torch.Tensor, refitted, cameras) -> float:
 
 def run(scene, model, groups, params: ColorMatchParams, densify: bool, labels: torch.Tensor | None) -> dict:
     """One colour match and re-fit of ``model`` with ``params``; ``densify`` False sets ``refine_every`` to 0."""
-    labels = torch.zeros(model.num_gaussians, dtype=torch.long)
+    single = torch.zeros(model.num_gaussians, dtype=torch.long)  # one group: every Gaussian, every pixel
     view_labels = [np.zeros((c.height, c.width), np.int64) for c in scene.cameras]
     t0 = time.perf_counter()
-    res = color_match_and_refit(model, scene, labels, view_labels, groups,
+    res = color_match_and_refit(model, scene, single, view_labels, groups,
                                 params if densify else params.model_copy(update={"refine_every": 0}),
                                 background=scene.background)
     seconds = time.perf_counter() - t0
