@@ -12,7 +12,7 @@ from abcgs.fit.params import FitParams, StrategyParams
 from abcgs.fit.strategy import DefaultStrategy, NoDensification
 from abcgs.fit.strategy.ops import duplicate, remove, reset_opacity, split
 from abcgs.fit.training import make_optimizers
-from abcgs.gaussians import FROZEN, PARAM_NAMES, GaussianModel
+from abcgs.gaussians import FROZEN, PARAM_NAMES, GaussianModel, freeze_gaussians
 from abcgs.render import RenderMeta, quat_to_rotmat
 
 
@@ -320,6 +320,24 @@ def test_frozen_gaussians_are_never_grown_pruned_or_reset():
     reset_opacity(model, opts, 0.01, keep=model.attributes[FROZEN])
     assert torch.equal(model.opacity_logits.detach()[kept], before[frozen])
     assert float(model.opacity_logits.detach()[~kept].max()) <= math.log(0.01 / 0.99) + 1e-6
+
+
+def test_freezing_again_after_a_reset_hooks_only_the_tensor_it_replaced():
+    """The fit calls freeze_gaussians after every refinement: a tensor the step kept keeps its one hook, the opacity
+    tensor a reset replaced gets one, and the frozen rows take no gradient in any field."""
+    model = make_model(12, seed=2)
+    model.attributes = {FROZEN: torch.arange(12) < 5}
+    opts = warm_optimizers(model)
+    freeze_gaussians(model)
+    kept = {name: t for name, t in model.items()}
+    reset_opacity(model, opts, 0.01)
+    freeze_gaussians(model)
+    for name, t in model.items():
+        assert (t is kept[name]) == (name != "opacity_logits")  # only the reset's tensor is new
+        assert len(t._backward_hooks) == 1, name  # noqa: SLF001  (one hook each, not one per call)
+    sum((t * t).sum() for _, t in model.items()).backward()
+    for name, t in model.items():
+        assert not t.grad[:5].any() and t.grad[5:].any(), name
 
 
 def test_an_attribute_of_another_length_is_refused():

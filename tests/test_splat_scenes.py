@@ -31,6 +31,7 @@ from abcgs.stylize.experiment import read_colormatch
 from abcgs.stylize.loop import stylize
 from abcgs.stylize.params import ColorMatchParams, StylizeOptim, StylizeParams
 from abcgs.stylize.sh_bands import with_higher_sh
+from abcgs.view.outputs import _on_stylized_rows
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_splats import make_model  # noqa: E402
@@ -164,10 +165,16 @@ def test_read_colormatch_checks_its_rows_against_the_fitted_scene(tmp_path):
     with pytest.raises(InputError, match="dvc repro colormatch@m"):
         read_colormatch(d.root, "m", 4)  # no fitted_rows.npy
     for bad in (np.array([0, 1, 2, 3, 3]), np.array([0, 1, 2, 3, 3, 4]), np.array([0, 1, 2, 3, 3, -1]),
-                np.zeros(6, np.float32)):
+                np.zeros(6, np.float32), np.array([[0, 1, 2], [3, 3, 1]])):
         np.save(d.fitted_rows, bad)
-        with pytest.raises(InputError, match="does not map the 6 colour-matched Gaussians onto the 4 fitted"):
+        with pytest.raises(InputError, match="does not map 6 Gaussians onto the 4 fitted ones; re-run the colour"):
             read_colormatch(d.root, "m", 4)
+        assert _on_stylized_rows(np.arange(4), d.fitted_rows, 6) is None  # the viewer drops its labels layer
+    np.save(d.fitted_rows, np.array([0, 1, 2, None, 3, 1], dtype=object), allow_pickle=True)
+    with pytest.raises(InputError, match="re-run the colour match"):  # a pickle is never loaded
+        read_colormatch(d.root, "m", 4)
     np.save(d.fitted_rows, np.array([0, 1, 2, 3, 3, 1]))
     assert read_colormatch(d.root, "m", 4).attributes[FITTED_ROW].tolist() == [0, 1, 2, 3, 3, 1]
+    assert _on_stylized_rows(np.array([5, 6, 7, 8]), d.fitted_rows, 6).tolist() == [5, 6, 7, 8, 8, 6]
+    assert _on_stylized_rows(np.arange(4), tmp_path / "none.npy", 4).tolist() == [0, 1, 2, 3]  # no rows: as fitted
 

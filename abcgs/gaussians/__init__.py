@@ -30,6 +30,7 @@ import logging
 import math
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, fields
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -273,19 +274,34 @@ def fitted_rows(model: GaussianModel) -> Tensor:
     return torch.arange(model.num_gaussians, device=model.device) if rows is None else rows
 
 
+def read_fitted_rows(path: Path, n_gaussians: int, n_fitted: int) -> np.ndarray:
+    """``(n_gaussians,)`` int64 from the ``.npy`` file ``path``: each Gaussian's row in a fitted scene of ``n_fitted``
+    Gaussians (:data:`FITTED_ROW`, as the colour match and stylize stages write it). ValueError (or OSError) when the
+    file is not a 1-D integer array of that length with every row in ``[0, n_fitted)``."""
+    rows = np.load(path, allow_pickle=False)
+    if rows.shape != (n_gaussians,) or rows.dtype.kind not in "iu" or (
+            n_gaussians and (rows.min() < 0 or rows.max() >= n_fitted)):
+        raise ValueError(f"{path} does not map {n_gaussians} Gaussians onto the {n_fitted} fitted ones")
+    return rows.astype(np.int64)
+
+
+_FROZEN_HOOK = "_abcgs_frozen_hook"  # set on a tensor that carries freeze_gaussians' gradient hook
+
+
 def freeze_gaussians(model: GaussianModel, frozen: Tensor | None = None) -> None:
     """Zero every gradient of the frozen ``(N,)`` bool Gaussians of ``model`` (its fields that take gradients): Adam
     then leaves their values exactly as they are, whatever the loss. ``frozen`` defaults to the model's
     :data:`FROZEN` attribute; None or no frozen row freezes nothing. The hooks belong to the current tensors: after a
-    densification step replaced them, call it again."""
+    densification step replaced some of them, call it again; a tensor that already has its hook gets no second one."""
     frozen = model.attributes.get(FROZEN) if frozen is None else frozen
     if frozen is None or not bool(frozen.any()):
         return
     keep = (~frozen).to(model.device)
     for _, t in model.items():
-        if t.requires_grad:
+        if t.requires_grad and not getattr(t, _FROZEN_HOOK, False):
             mask = keep.view((-1,) + (1,) * (t.dim() - 1)).to(t.dtype)
             t.register_hook(lambda g, m=mask: g * m)
+            setattr(t, _FROZEN_HOOK, True)
 
 
 def render(

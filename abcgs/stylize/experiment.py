@@ -15,7 +15,7 @@ from abcgs.features.matching import build_groups
 from abcgs.features.params import IsolationParams, TransferSpec, VggWeightsParams
 from abcgs.features.vgg import VGG16Features
 from abcgs.features.weights import WeightsInfo, resolve_vgg16
-from abcgs.gaussians import FITTED_ROW, GaussianModel
+from abcgs.gaussians import FITTED_ROW, GaussianModel, read_fitted_rows
 from abcgs.gaussians.ply import read_ply
 from abcgs.io.images import load_labels
 from abcgs.layout import ColorMatchDir
@@ -70,10 +70,9 @@ def read_colormatch(folder: Path, name: str, n_fitted: int) -> GaussianModel:
         raise InputError(f"{d.root} has no point_cloud.ply and fitted_rows.npy: run the colour match first "
                          f"(dvc repro colormatch@{name})")
     model = read_ply(d.ply)
-    rows = np.load(d.fitted_rows, allow_pickle=False)
-    if rows.shape != (model.num_gaussians,) or rows.dtype.kind not in "iu" or (
-            len(rows) and (rows.min() < 0 or rows.max() >= n_fitted)):
-        raise InputError(f"{d.fitted_rows} does not map the {model.num_gaussians} colour-matched Gaussians onto the "
-                         f"{n_fitted} fitted ones; re-run the colour match (dvc repro colormatch@{name})")
-    model.attributes[FITTED_ROW] = torch.from_numpy(rows.astype(np.int64))
+    try:
+        rows = read_fitted_rows(d.fitted_rows, model.num_gaussians, n_fitted)
+    except (OSError, ValueError) as e:
+        raise InputError(f"{e}; re-run the colour match (dvc repro colormatch@{name})") from e
+    model.attributes[FITTED_ROW] = torch.from_numpy(rows)
     return model

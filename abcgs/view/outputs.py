@@ -10,6 +10,7 @@ import numpy as np
 
 from abcgs import layout
 from abcgs.errors import InputError
+from abcgs.gaussians import read_fitted_rows
 from abcgs.gaussians.ply import read_ply
 from abcgs.sfm.model import read_scene
 from abcgs.types import PathKind
@@ -44,24 +45,22 @@ def load_experiment(run_dir: Path, *, scene: str | None = None, root: Path | Non
     s = layout.scene(scene, root)
     views = read_scene(s.colmap.root)
     original = read_ply(s.fit.ply) if s.fit.ply.is_file() else None
+    stylized = read_ply(ply)
     labels = np.load(s.masks.gaussian_labels, allow_pickle=False) if s.masks.gaussian_labels.is_file() else None
     if labels is not None:
-        labels = _on_stylized_rows(labels, layout.ExperimentOut(run_dir).stylize.fitted_rows)
-    return prepare_experiment(run_dir.name, read_ply(ply), views.cameras, original=original, labels=labels,
+        labels = _on_stylized_rows(labels, layout.ExperimentOut(run_dir).stylize.fitted_rows, stylized.num_gaussians)
+    return prepare_experiment(run_dir.name, stylized, views.cameras, original=original, labels=labels,
                               max_gaussians=max_gaussians, full_artifact=str(ply), path_kind=path_kind,
                               path_frames=path_frames, background=views.background)
 
 
-def _on_stylized_rows(labels: np.ndarray, rows_file: Path) -> np.ndarray | None:
-    """The fitted scene's Gaussian ``labels`` on the stylized Gaussians, through the stylize stage's
+def _on_stylized_rows(labels: np.ndarray, rows_file: Path, n_stylized: int) -> np.ndarray | None:
+    """The fitted scene's Gaussian ``labels`` on the ``n_stylized`` stylized Gaussians, through the stylize stage's
     ``fitted_rows.npy`` (``rows_file``): ``labels`` as they are where there is no such file (a stylized scene with
     the fitted scene's rows), None where it does not map them."""
     if not rows_file.is_file():
         return labels
     try:
-        rows = np.load(rows_file, allow_pickle=False)
+        return labels[read_fitted_rows(rows_file, n_stylized, len(labels))]
     except (OSError, ValueError):
         return None
-    if rows.ndim != 1 or rows.dtype.kind not in "iu" or (len(rows) and (rows.min() < 0 or rows.max() >= len(labels))):
-        return None
-    return labels[rows]
