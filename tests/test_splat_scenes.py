@@ -173,6 +173,13 @@ def test_read_colormatch_checks_its_rows_against_the_fitted_scene(tmp_path):
     np.save(d.fitted_rows, np.array([0, 1, 2, None, 3, 1], dtype=object), allow_pickle=True)
     with pytest.raises(InputError, match="re-run the colour match"):  # a pickle is never loaded
         read_colormatch(d.root, "m", 4)
+    np.save(d.fitted_rows, np.arange(6))
+    whole = d.fitted_rows.read_bytes()
+    for cut in (0, len(whole) - 8):  # empty, or one row short of its header's shape
+        d.fitted_rows.write_bytes(whole[:cut])
+        with pytest.raises(InputError, match="re-run the colour match"):
+            read_colormatch(d.root, "m", 4)
+        assert _on_stylized_rows(np.arange(4), d.fitted_rows, 6) is None
     np.save(d.fitted_rows, np.array([0, 1, 2, 3, 3, 1]))
     assert read_colormatch(d.root, "m", 4).attributes[FITTED_ROW].tolist() == [0, 1, 2, 3, 3, 1]
     assert _on_stylized_rows(np.array([5, 6, 7, 8]), d.fitted_rows, 6).tolist() == [5, 6, 7, 8, 8, 6]

@@ -278,7 +278,10 @@ def read_fitted_rows(path: Path, n_gaussians: int, n_fitted: int) -> np.ndarray:
     """``(n_gaussians,)`` int64 from the ``.npy`` file ``path``: each Gaussian's row in a fitted scene of ``n_fitted``
     Gaussians (:data:`FITTED_ROW`, as the colour match and stylize stages write it). ValueError (or OSError) when the
     file is not a 1-D integer array of that length with every row in ``[0, n_fitted)``."""
-    rows = np.load(path, allow_pickle=False)
+    try:
+        rows = np.load(path, allow_pickle=False)  # reads no more than its header's shape; never a pickle
+    except EOFError as e:  # an empty file
+        raise ValueError(f"{path} is empty") from e
     if rows.shape != (n_gaussians,) or rows.dtype.kind not in "iu" or (
             n_gaussians and (rows.min() < 0 or rows.max() >= n_fitted)):
         raise ValueError(f"{path} does not map {n_gaussians} Gaussians onto the {n_fitted} fitted ones")
