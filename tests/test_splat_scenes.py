@@ -72,7 +72,10 @@ def test_auto_views_orbit_a_compact_splat_and_face_a_layered_one():
                           SplatViewsParams(count=8, width=64, height=48))[1] == "orbit"
 
 
-def test_a_bare_splat_runs_through_import_stylization_and_give_back(tmp_path):
+@pytest.mark.parametrize("refine_every", [0, 5])
+def test_a_bare_splat_runs_through_import_stylization_and_give_back(refine_every, tmp_path):
+    """A bare ``.splat`` through import, the colour match's re-fit (densifying with ``refine_every`` 5), stylization
+    and give-back: the returned file holds every stylized Gaussian, in the source's format."""
     model = make_model(2500, 0, seed=3)
     src = tmp_path / "scene.splat"
     write_splat_file(src, model)
@@ -86,8 +89,9 @@ def test_a_bare_splat_runs_through_import_stylization_and_give_back(tmp_path):
     vgg, groups = _single_transfer(tmp_path, 64)
     labels = torch.zeros(original.num_gaussians, dtype=torch.long)
     view_labels = [np.zeros((c.height, c.width), np.int64) for c in scene.cameras]
-    cm = color_match_and_refit(original, scene, labels, view_labels, groups, ColorMatchParams(refit_iterations=5),
-                               progress=False)
+    cm = color_match_and_refit(original, scene, labels, view_labels, groups,
+                               ColorMatchParams(refit_iterations=12, refine_every=refine_every), progress=False)
+    assert (cm.model.num_gaussians > original.num_gaussians) == (refine_every > 0)
     sp = StylizeParams(optim=StylizeOptim(iterations=4, color_pass_iterations=2), layers=["relu3_1"], style_height=64)
     res = stylize(cm.model, scene.cameras, view_labels, labels[fitted_rows(cm.model)], groups, vgg, sp,
                   depth_model=original, progress=False)
@@ -100,7 +104,8 @@ def test_a_bare_splat_runs_through_import_stylization_and_give_back(tmp_path):
     returned = give_back(tmp_path / "stylized.ply", tmp_path / "gs" / "splat_source.json", tmp_path / "returned")
     assert returned["format"] == "splat" and returned["file"] == "scene.splat"
     back = read_splat(tmp_path / "returned" / "scene.splat").model
-    assert back.num_gaussians == model.num_gaussians
+    assert back.num_gaussians == returned["n_gaussians"] == res.model.num_gaussians
+    assert back.num_gaussians == model.num_gaussians or refine_every > 0
 
 
 def _single_transfer(tmp_path, size: int):
