@@ -332,8 +332,8 @@ def test_a_densifying_colour_refit_carries_its_labels_through_stylize_and_the_vi
         (repo / "dvc.lock").write_text(lock)
         shutil.rmtree(repo / "out")
         shutil.move(kept, repo / "out")
-    status = _run(["dvc", "status"], repo).stdout
-    assert "up to date" in status, status
+    changed = _changed_stages(repo) - {"preflight"}  # the input checks re-run on any params edit of earlier tests
+    assert not changed, changed
 
 
 def test_experiments_of_one_scene_share_its_stages(repo: Path, first_repro) -> None:
