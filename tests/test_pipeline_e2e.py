@@ -272,7 +272,7 @@ def test_a_scene_folder_with_a_space_and_accents_reconstructs(repo: Path, first_
 # These run last in this module: they add a scene, commit, queue experiments and push to a remote.
 def _changed_stages(repo: Path) -> set[str]:
     status = _run(["dvc", "status"], repo).stdout
-    return {line.split(":")[0].strip() for line in status.splitlines() if line and not line.startswith("\t")}
+    return {line[:-1] for line in status.splitlines() if line.endswith(":") and not line.startswith("\t")}
 
 
 def test_a_scene_override_reruns_only_that_scenes_branch(repo: Path, first_repro) -> None:
