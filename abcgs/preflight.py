@@ -42,7 +42,7 @@ import yaml
 from abcgs import layout
 from abcgs.dotted import has_key
 from abcgs.errors import InputError, ParamsError
-from abcgs.io.images import check_label_size, check_label_values, decode_image, image_header
+from abcgs.io.images import check_label_size, check_label_values, decode_image, image_header, stroke_map_path
 from abcgs.masks.params import UNDECIDED
 from abcgs.scene.params import TINY_STYLE_FILES
 from abcgs.sources.detect import DEFAULT_IMAGES, IMAGE_SUFFIXES, detect_format
@@ -254,6 +254,14 @@ def check_label_map_sizes(name: str, masks: Path, views: Mapping[str, tuple[str,
         if (h, w) != tuple(hw):
             check_label_size(p, (h, w), hw, view, f"or paint it on the views: {paint_command(masks.parent, images)}")
             scaled += 1
+        strokes = stroke_map_path(masks, p.stem)
+        if strokes.exists():  # the page's strokes of the view, scaled with it (abcgs.io.images.strokes_for_view)
+            sw, sh = _size(strokes)
+            mask_labels(strokes)
+            if (sh, sw) != tuple(hw):
+                check_label_size(strokes, (sh, sw), hw, view,
+                                 f"or paint it on the views: {paint_command(masks.parent, images)}")
+                scaled += 1
     if scaled:
         log.info("data.scenes.%s: %d label map(s) in %s are scaled to their views (nearest label)", name, scaled, masks)
     return scaled

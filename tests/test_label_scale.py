@@ -21,7 +21,16 @@ from test_sources import _copy_images, write_nerfstudio
 
 from abcgs.__main__ import main
 from abcgs.errors import InputError
-from abcgs.io.images import labels_for_view, load_labels, same_picture_scaled, save_labels
+from abcgs.io.images import (
+    labels_for_view,
+    load_labels,
+    load_stroke_map,
+    same_picture_scaled,
+    save_labels,
+    save_stroke_map,
+    stroke_map_path,
+    strokes_for_view,
+)
 from abcgs.params import load_params
 from abcgs.preflight import check_input_files
 from abcgs.scene.synthetic import cameras_from_json
@@ -133,3 +142,42 @@ def _repo_params(tmp_path: Path) -> Path:
     for name in ("params.yaml", "dvc.yaml"):
         shutil.copy(REPO_ROOT / name, repo / name)
     return repo / "params.yaml"
+
+
+def test_a_thin_stroke_painted_at_full_size_survives_a_view_four_times_smaller() -> None:
+    raw = np.zeros((1080, 1920), np.int64)
+    raw[500:502, 100:1800] = 3  # a 2-px line of label 2 (saved as seed + 1)
+    raw[800:840, 900:940] = 1  # a blob of the background brush
+    small = strokes_for_view(raw, (270, 480), "masks/strokes/a.png")
+    assert small.shape == (270, 480) and small.dtype == np.int64
+    row = small[125]  # rows 500..501 of 1080 fall in row 125 of 270
+    assert (row[25:450] == 3).all()  # nearest neighbour keeps one row in four: this line would be gone
+    assert set(np.unique(small)) == {0, 1, 3} and (small[200:210, 225:235] == 1).all()
+    with pytest.raises(InputError, match=r"is 1920×1080 but its view a\.jpg is 480×480, another aspect"):
+        strokes_for_view(raw, (480, 480), "masks/strokes/a.png", "a.jpg")
+
+
+def test_strokes_painted_on_full_size_frames_reach_the_images_4_views(quarter_scene: Path, tiny_scene: Path,
+                                                                       tmp_path: Path) -> None:
+    """The page saved view 000's strokes at the photo's size (160×120) beside its label map; the scene reads
+    ``images_4`` (40×30): preflight's check passes, the layout holds the strokes at the views' size, and the masks
+    stage's reader takes them."""
+    seeds = np.full((120, 160), -1, np.int64)
+    seeds[40:42, 20:140] = 1  # a thin stroke of label 1
+    seeds[100:110, 10:30] = 0  # the background brush
+    save_stroke_map(stroke_map_path(quarter_scene / "masks", "000"), seeds)
+    params = load_params(_params(tmp_path, quarter_scene))
+    check_scene_sources(params, tmp_path)
+    source = read_source(quarter_scene, "nerfstudio", images="images_4")
+    write_source_model(source, tmp_path / "colmap", ReconstructParams(), masks_dir=quarter_scene / "masks")
+    got = load_stroke_map(stroke_map_path(tmp_path / "colmap" / "masks", "000"), (30, 40))
+    assert (got[10, 5:35] == 1).all() and (got[25:27, 3:7] == 0).all() and (got >= 0).sum() < 0.2 * got.size
+
+
+def test_strokes_of_another_aspect_are_refused_before_any_work(quarter_scene: Path, tmp_path: Path) -> None:
+    save_stroke_map(stroke_map_path(quarter_scene / "masks", "000"), np.full((120, 120), -1, np.int64))
+    params = load_params(_params(tmp_path, quarter_scene))
+    t0 = time.perf_counter()
+    with pytest.raises(InputError, match=r"strokes/000\.png is 120×120 but its view 000\.png is 40×30"):
+        check_scene_sources(params, tmp_path)
+    assert time.perf_counter() - t0 < 10.0

@@ -172,6 +172,27 @@ def labels_for_view(labels: np.ndarray, view_hw: tuple[int, int], path: str | os
     return cv2.resize(src, (view_hw[1], view_hw[0]), interpolation=cv2.INTER_NEAREST).astype(np.int64)
 
 
+def strokes_for_view(raw: np.ndarray, view_hw: tuple[int, int], path: str | os.PathLike = "",
+                     view: str = "") -> np.ndarray:
+    """A saved stroke map (:func:`save_stroke_map`'s values: 0 no stroke, ``seed + 1`` a stroke) ``(h, w)`` at its
+    view's size ``view_hw`` ``(H, W)``: as it is when the sizes agree, else scaled when it is the same picture at
+    another scale (:func:`check_label_size` refuses another aspect). A pixel of the scaled map takes the stroke that
+    covers most of it, so a thin stroke painted at the photo's size survives on a view four times smaller (nearest
+    neighbour would drop three rows in four). Returns ``(H, W) int64``."""
+    if tuple(raw.shape[:2]) == tuple(view_hw):
+        return raw.astype(np.int64)
+    check_label_size(path, raw.shape[:2], view_hw, view)
+    values = [int(v) for v in np.unique(raw) if v > 0]
+    size = (view_hw[1], view_hw[0])
+    if not values:
+        return np.zeros(view_hw, np.int64)
+    shrink = view_hw[0] < raw.shape[0]
+    cover = np.stack([cv2.resize((raw == v).astype(np.float32), size,
+                                 interpolation=cv2.INTER_AREA if shrink else cv2.INTER_NEAREST) for v in values])
+    best = cover.argmax(0)
+    return np.where(cover.max(0) > 0, np.asarray(values, np.int64)[best], 0)
+
+
 def to_uint8(img: np.ndarray) -> np.ndarray:
     """``[0, 1]`` float image → uint8 with rounding."""
     return (np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)

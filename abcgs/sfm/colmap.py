@@ -35,7 +35,15 @@ import pycolmap
 
 from abcgs.errors import InputError, ReconstructionError
 from abcgs.io.atomic import atomic_path, write_json
-from abcgs.io.images import labels_for_view, list_images, load_image, load_labels, save_labels, stroke_map_path
+from abcgs.io.images import (
+    labels_for_view,
+    list_images,
+    load_image,
+    load_labels,
+    save_labels,
+    stroke_map_path,
+    strokes_for_view,
+)
 from abcgs.sfm.params import EXHAUSTIVE_MAX_IMAGES, ReconstructParams
 
 log = logging.getLogger(__name__)
@@ -243,12 +251,13 @@ def carry_strokes(masks_dir: Path, stem: str, view_hw: tuple[int, int], out: Pat
                   warp: Callable[[np.ndarray], np.ndarray] | None = None) -> bool:
     """Copy the strokes the masks page saved for view ``stem`` (:func:`abcgs.io.images.stroke_map_path` under
     ``masks_dir``), if any, into ``out/strokes/`` through ``warp`` (``(H, W) int64 → (H', W') int64``, the view's
-    undistortion, None: as it is; its empty pixels, 0, are no stroke). A stroke map must have the view's size ``view_hw``. Returns
-    whether there was one."""
+    undistortion, None: as it is; its empty pixels, 0, are no stroke). A stroke map painted at another scale of the
+    view (the photo's full size, the views a quarter of it) is scaled to ``view_hw`` first
+    (:func:`abcgs.io.images.strokes_for_view`). Returns whether there was one."""
     src = stroke_map_path(masks_dir, stem)
     if not src.is_file():
         return False
-    raw = load_labels(src, expect_hw=view_hw)
+    raw = strokes_for_view(load_labels(src), view_hw, src, stem)
     save_labels(stroke_map_path(out, stem), raw if warp is None else warp(raw))
     return True
 
