@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import torch
 
 from abcgs.errors import InputError
+from abcgs.gaussians import GaussianModel
 from abcgs.io.images import load_stroke_map, save_labels, save_stroke_map, stroke_map_path
 from abcgs.masks.content import label_iou, make_content_masks
 from abcgs.masks.field import LabelField, correction_seeds, render_field
@@ -163,3 +165,103 @@ def test_pick_labels_maps_the_undecided_channel_and_the_weak_pixels() -> None:
     assert pick_labels(img, alpha, 0.5).tolist() == [[1, UNDECIDED, 0, 0]]
     assert pick_labels(img, alpha, 0.5, none=-1, undecided=-2).tolist() == [[1, -2, -1, -1]]
     assert pick_labels(img, alpha, 0.0, none=-1, undecided=0).tolist() == [[1, 0, 0, -1]]
+
+
+def _ball_stroke(model, truth, cam, label: int = 1, radius: float = 4.0) -> np.ndarray:
+    ball_px = np.argwhere(render_label_map(model, truth, 2, cam) == 1).mean(0)
+    return rasterize_strokes([Stroke(label, np.array([ball_px[::-1] + 0.5]), radius)], (cam.height, cam.width))
+
+
+@pytest.mark.parametrize("evidence", ["soft", "hard"])
+def test_no_cut_flips_a_gaussian_that_a_stroke_on_another_view_bound(evidence: str) -> None:
+    model, truth = wall_and_ball(6)
+    cams = cameras(5)
+    maps = _truth_maps(model, truth, cams)
+    field = LabelField(model, cams, MaskParams().field.model_copy(update={"cut_evidence": evidence}))
+    field.set_view(0, maps[0], _ball_stroke(model, truth, cams[0]))
+    bound = field.solve().source == 1
+    assert bound.sum() > 5
+    wrong = np.full((cams[4].height, cams[4].width), 2)  # a far view's cut that calls the ball wall, with a stroke
+    strokes = np.full(wrong.shape, -1)
+    strokes[5:10, 5:10] = 2
+    field.set_view(4, wrong, strokes)
+    after = field.solve()
+    assert (after.labels[bound] == 1).all() and (after.source[bound] == 1).all()
+
+
+def test_a_cut_far_from_its_strokes_weighs_less_than_one_near_them() -> None:
+    """View 0's cut is right and painted all over; view 4's cut calls the ball wall, its one stroke in a corner of the
+    wall. As soft evidence, view 4's cut where it has no stroke near counts for little and the ball stays a ball;
+    as a hard vote (the earlier rule) it outvotes view 0 on the Gaussians both see."""
+    model, truth = wall_and_ball(7)
+    cams = cameras(5)
+    maps = _truth_maps(model, truth, cams)
+    h, w = maps[0].shape
+    everywhere = np.full((h, w), -1)
+    everywhere[::6, ::6] = maps[0][::6, ::6]  # dots all over view 0: its cut is sure everywhere
+    wrong = np.full((h, w), 2)
+    corner = np.full((h, w), -1)
+    corner[2:5, 2:5] = 2
+    ball = truth.numpy() == 1
+    kept = {}
+    for evidence in ("soft", "hard"):
+        field = LabelField(model, cams, MaskParams().field.model_copy(update={"cut_evidence": evidence,
+                                                                                 "stroke_weight": 1e9}))
+        field.set_view(0, maps[0], everywhere)
+        field.set_view(4, wrong, corner)
+        kept[evidence] = float((field.solve().labels[ball] == 1).mean())
+    assert kept["soft"] > 0.9 and kept["hard"] < kept["soft"] - 0.2, kept
+
+
+def test_cut_confidence_falls_with_the_distance_to_the_views_strokes() -> None:
+    from abcgs.masks.field import cut_confidence
+
+    strokes = np.full((50, 100), -1)
+    strokes[25, 10] = 1
+    conf = cut_confidence(strokes.shape, strokes, reach=0.2)  # r = 10 px
+    assert conf[25, 10] == 1.0 and conf[25, 20] == pytest.approx(np.exp(-1.0), abs=0.02)
+    assert conf[25, 90] < 1e-6 and np.all(np.diff(conf[25, 10:]) <= 0)
+    np.testing.assert_array_equal(cut_confidence(strokes.shape, None, reach=0.2), 1.0)  # a map given as it is
+
+
+def test_the_strip_blends_again_only_the_views_a_change_reaches() -> None:
+    model, truth = wall_and_ball(8)
+    cams = cameras(4)
+    strip = Strip.record(model, cams, side=48)
+    labels = truth.numpy().copy()
+    decided = np.ones_like(labels, dtype=bool)
+    before = strip.labels(labels, decided, 2)
+    changed = np.zeros_like(decided)
+    seen_by_0 = np.zeros_like(decided)
+    seen_by_0[strip.views[0].ids.numpy()] = True
+    unseen = set(strip.views[3].ids.numpy().tolist()) - set(strip.views[0].ids.numpy().tolist())
+    flip = np.array(sorted(unseen)[:50])  # Gaussians view 3 sees and view 0 does not
+    labels[flip], changed[flip] = 1, True
+    after = strip.labels(labels, decided, 2, previous=before, changed=changed)
+    full = strip.labels(labels, decided, 2)
+    for a, f in zip(after, full):
+        np.testing.assert_array_equal(a, f)
+    assert after[0] is before[0] and after[3] is not before[3]
+
+
+def test_a_dot_binds_the_gaussians_it_lies_on_not_a_large_splat_across_it() -> None:
+    """A faint splat as large as the view lies over the ball; a dot on the ball blends into it too (more than
+    stroke_weight), but holds a few thousandths of its weight in the view: with stroke_share it is not bound, without
+    it takes the dot's label."""
+    model, truth = wall_and_ball(9)
+    big = GaussianModel(means=torch.tensor([[0.0, 0.0, 2.0]]), quats=torch.tensor([[1.0, 0, 0, 0]]),
+                        log_scales=torch.full((1, 3), 2.0).log(), opacity_logits=torch.tensor([-1.5]),
+                        sh0=model.sh0[:1].detach().clone(), shN=torch.zeros(1, 0, 3))
+    both = GaussianModel(**{k: torch.cat([getattr(model, k).detach(), getattr(big, k).detach()])
+                            for k in ("means", "quats", "log_scales", "opacity_logits", "sh0", "shN")})
+    n = model.num_gaussians
+    cams = cameras(3)
+    dot = _ball_stroke(model, truth, cams[0])
+    bound = {}
+    for share in (0.0, 0.03):
+        field = LabelField(both, cams, MaskParams().field.model_copy(update={"stroke_share": share}))
+        field.set_view(0, None, dot)
+        result = field.solve()
+        bound[share] = result.source == 1
+        assert bound[share][:n][truth.numpy() == 1].sum() > 5  # the ball under the dot is bound either way
+    assert bound[0.0][n] and not bound[0.03][n]

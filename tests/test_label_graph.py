@@ -106,3 +106,31 @@ def test_seeds_of_the_wrong_shape_are_refused(bad):
     g = gaussian_graph(_model(pts, rgb), k=4)
     with pytest.raises(ValueError, match="seeds has shape"):
         diffuse_labels(g, bad, 1)
+
+
+def test_diffusion_with_priors_matches_a_dense_solve_of_grady_s_prior_model():
+    """Soft evidence: each free Gaussian joined to a terminal of each label with weight λ_il; the system
+    (L_UU + ε D_UU + diag(Σ_l λ_il)) x_l = W_US y_l + λ_l, solved densely here."""
+    pts, rgb = _two_blobs(2, 50)
+    g = gaussian_graph(_model(pts, rgb), k=6, colour_sigma=0.3, normal_weight=0.0)
+    rng = np.random.default_rng(3)
+    seeds = np.full(g.num_nodes, -1)
+    seeds[[0, 60]] = [1, 2]
+    priors = np.zeros((g.num_nodes, 3))
+    some = rng.choice(g.num_nodes, 30, replace=False)
+    priors[some, rng.integers(0, 3, 30)] = rng.uniform(0.1, 2.0, 30)
+    leak = 1e-2
+    probs = diffuse_labels(g, seeds, 2, leak=leak, rtol=1e-12, priors=priors)
+    w = g.weights.toarray()
+    free, fixed = np.flatnonzero(seeds < 0), np.flatnonzero(seeds >= 0)
+    a = np.diag((1 + leak) * w.sum(1) + priors.sum(1))[np.ix_(free, free)] - w[np.ix_(free, free)]
+    for label in (0, 1, 2):
+        want = np.linalg.solve(a, w[np.ix_(free, fixed)] @ (seeds[fixed] == label) + priors[free, label])
+        np.testing.assert_allclose(probs[free, label], want, atol=1e-8)
+    assert probs[fixed, seeds[fixed]].min() == 1.0  # seeds ignore their priors
+    # evidence alone, no seed: still a solution, and a Gaussian with strong evidence follows it
+    alone = diffuse_labels(g, np.full(g.num_nodes, -1), 2, leak=leak, rtol=1e-12, priors=priors * 100)
+    strong = some[priors[some].max(1) > 1.0]
+    np.testing.assert_array_equal(alone[strong].argmax(1), priors[strong].argmax(1))
+    with pytest.raises(ValueError, match="priors must be finite"):
+        diffuse_labels(g, seeds, 2, priors=-priors)

@@ -35,7 +35,7 @@ from abcgs.camera_paths import capture_layout
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel, render
-from abcgs.io.images import MAX_LABEL, decode_image, load_labels
+from abcgs.io.images import MAX_LABEL, decode_image, load_image, load_labels, to_uint8
 from abcgs.masks.lifting import NO_VOTE, LiftResult, lift_labels, propagate_unseen, render_label_map
 from abcgs.masks.params import UNDECIDED, AutoMaskParams, GrabCutParams, MaskParams
 from abcgs.masks.refine import Refinement, refine_labels
@@ -331,11 +331,12 @@ def _lift_and_refine(model: GaussianModel, cameras: list[Camera], images: list[P
 
 
 def _field_labels(model: GaussianModel, cameras: list[Camera], masks_dir: Path | None, idx: list[int],
-                  maps: list[np.ndarray], params: MaskParams, show_progress: bool
+                  maps: list[np.ndarray], params: MaskParams, show_progress: bool, images: list[Path] | None = None
                   ) -> tuple[LiftResult, int, list[np.ndarray]]:
     """Per-Gaussian labels from the label maps ``maps`` of the views ``idx`` and their saved strokes
     (``<masks_dir>/strokes/<stem>.png``, when there are any) by :class:`abcgs.masks.field.LabelField`, as the masks
-    page computes them, and every view's labels (a painted view keeps its map where it decided).
+    page computes them, and every view's labels (refined against the view's photo in ``images`` where given; a
+    painted view keeps its map where it decided).
 
     Returns:
         the labels (``weights`` empty), how many Gaussians the 3-D step decided, and the label map of every view.
@@ -351,7 +352,7 @@ def _field_labels(model: GaussianModel, cameras: list[Camera], masks_dir: Path |
         strokes = load_stroke_map(path, (cam.height, cam.width)) if path is not None and path.is_file() else None
         field_.set_view(i, m, strokes)
     result = field_.solve()
-    views = [render_field(field_, result, i)
+    views = [render_field(field_, result, i, photo=None if images is None else to_uint8(load_image(images[i])))
              for i in progress(range(len(cameras)), "masks: render every view's labels", enabled=show_progress)]
     lifted = LiftResult(torch.as_tensor(result.labels), torch.empty(0), torch.as_tensor(result.decided))
     return lifted, result.counts()["graph"], views
@@ -408,7 +409,7 @@ def make_content_masks(
                                   backend=params.backend) for c in cameras]
     else:
         lifted, propagated, views = _field_labels(model, cameras, masks_dir if source == "given" else None, idx, maps,
-                                                  params, show_progress)
+                                                  params, show_progress, images)
         refinement = None
     if params.refine.enabled and params.refine.output == "recut":
         views = recut_outputs(model, cameras, images, lifted, n_labels, views, skip=set(idx), params=params,

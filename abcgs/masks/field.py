@@ -5,14 +5,20 @@ For each painted view the page keeps its cut (the label map the page saved: 0..L
 where the cut left a pixel undecided) and its strokes (a seed map: -1 none, 0 the background brush, k label k).
 :meth:`LabelField.solve` turns them into one label per Gaussian:
 
-1. **Lift** (Eq. 2): every painted view's cut votes, each Gaussian for the labels of the pixels it blends into
-   (:func:`abcgs.masks.lifting.view_weights`); a Gaussian whose vote is clear (:func:`~abcgs.masks.lifting.decide_labels`,
-   ``masks.lift``) is a seed of its label.
-2. **Strokes are hard constraints**: a Gaussian that blends at least ``stroke_weight`` into a view's stroke pixels
-   takes the stroke's label, whatever the cuts voted (the largest such weight wins between strokes).
-3. **The 3-D step** (:mod:`abcgs.masks.graph`): the other Gaussians, seen by no painted view or split between labels,
-   take their labels from the seeds by a random walk over the Gaussians' nearest neighbours; what no seed reaches
-   clearly stays undecided.
+1. **Strokes are hard constraints**: a Gaussian that blends at least ``stroke_weight`` into a view's stroke pixels
+   takes the stroke's label, whatever the cuts say (the largest such weight wins between strokes). No cut of any
+   view flips it.
+2. **Cuts are soft evidence** (``cut_evidence: soft``, the default). Every painted view's cut votes (Eq. 2), each
+   Gaussian for the labels of the pixels it blends into, each pixel weighted by how sure the cut is there
+   (:func:`cut_confidence`): near the strokes of its own view fully, falling off with the distance to them
+   (``cut_reach``); where GrabCut's two colour models differ little (``cut_margin``) the page's cut leaves the pixel
+   undecided. A Gaussian's evidence for label l is its confident vote for l over all it blends into decided pixels.
+3. **The 3-D step** (:mod:`abcgs.masks.graph`): a random walk over the Gaussians' nearest neighbours with the strokes
+   as seeds and the cuts' evidence as priors (Grady's random walker with prior models: each Gaussian is also joined,
+   with ``cut_weight`` × its degree × its evidence, to a terminal of each label). A correction's cut so changes what
+   its view is sure of and what lies near it in 3-D, not what the other views are sure of; what no seed or evidence
+   reaches clearly stays undecided. ``cut_evidence: hard`` is the earlier rule: a Gaussian whose summed vote is clear
+   (:func:`~abcgs.masks.lifting.decide_labels`) is a seed of its label.
 
 Each view's votes are computed once, when its cut or strokes change, so a Segment on one view re-lifts one view and
 re-solves the graph. Rendering the labels into every view is the caller's (the stage renders full-size maps, the page
@@ -32,7 +38,7 @@ import torch
 from abcgs.cameras import Camera
 from abcgs.gaussians import GaussianModel
 from abcgs.masks.graph import GaussianGraph, decide_diffused, diffuse_labels, gaussian_graph
-from abcgs.masks.lifting import NO_VOTE, decide_labels, view_weights
+from abcgs.masks.lifting import NO_VOTE, decide_labels, one_hot_labels
 from abcgs.masks.params import FieldParams, LiftParams
 from abcgs.types import Backend
 
@@ -65,8 +71,20 @@ class FieldResult:
 class _View:
     cut: np.ndarray | None  # (H, W) int64, NO_VOTE undecided
     strokes: np.ndarray | None  # (H, W) int64 seed map, -1 none
-    votes: torch.Tensor | None = None  # (N, L_v + 1) the cut's Eq. 2 votes
-    stroke_votes: torch.Tensor | None = None  # (N, L_v + 1) blending weight in each label's stroke pixels
+    votes: torch.Tensor | None = None  # (N, L_v + 1) the cut's Eq. 2 votes, each pixel weighted by its confidence
+    cover: torch.Tensor | None = None  # (N,) blending weight in the cut's decided pixels
+    stroke_votes: torch.Tensor | None = None  # (N, L_v + 1) blending weight in each label's stroke pixels, if bound
+
+
+def cut_confidence(shape: tuple[int, int], strokes: np.ndarray | None, reach: float) -> np.ndarray:
+    """How sure a view's cut is at each pixel, ``(H, W) float32`` in ``(0, 1]``: ``exp(-(d / r)²)`` of the distance
+    ``d`` (pixels) to the nearest stroke of the view, ``r`` = ``reach`` × the view's shorter side. A view without
+    strokes (a label map given as it is) is sure everywhere."""
+    if strokes is None or not (strokes >= 0).any():
+        return np.ones(shape, np.float32)
+    d = cv2.distanceTransform((strokes < 0).astype(np.uint8), cv2.DIST_L2, 5)
+    r = max(reach * min(shape), 1e-6)
+    return np.exp(-((d / r) ** 2)).astype(np.float32)
 
 
 @dataclass
@@ -95,6 +113,13 @@ class LabelField:
                      self._graph.weights.nnz // 2, time.perf_counter() - t0)
         return self._graph
 
+    def use_graph(self, graph: GaussianGraph) -> None:
+        """Solve on ``graph`` (of this model's Gaussians) instead of the one ``params`` build, e.g. one with other
+        affinities (``eval/bench/graph_features.py``); the next :meth:`solve` starts from zero."""
+        if graph.num_nodes != self.model.num_gaussians:
+            raise ValueError(f"the graph has {graph.num_nodes} nodes, the model {self.model.num_gaussians} Gaussians")
+        self._graph, self._last = graph, None
+
     @property
     def painted(self) -> list[int]:
         """The camera indices with a cut or strokes, ascending."""
@@ -119,22 +144,58 @@ class LabelField:
         self._views[index] = _View(None if cut is None else np.asarray(cut, np.int64),
                                    None if strokes is None else np.asarray(strokes, np.int64))
 
-    def _votes(self, n_labels: int) -> tuple[torch.Tensor, torch.Tensor]:
-        """Summed cut votes and stroke weights ``(N, n_labels + 1)`` of every painted view (each view's own computed
-        once)."""
+    def _cut_votes(self, view: _View, cam: Camera) -> tuple[torch.Tensor, torch.Tensor]:
+        """One view's cut votes ``(N, L_v + 1)``, each pixel weighted by its confidence (1 with ``cut_evidence:
+        hard``), and each Gaussian's blending weight in the cut's decided pixels ``(N,)``."""
+        cut = view.cut
+        if self.params.cut_evidence == "soft":
+            conf = cut_confidence(cut.shape, view.strokes, self.params.cut_reach)
+        else:
+            conf = np.ones(cut.shape, np.float32)
+        hot = one_hot_labels(cut, int(cut.max(initial=0)))
+        decided = torch.from_numpy((cut >= 0).astype(np.float32))[..., None]
+        w = self._accumulate(cam, torch.cat([hot * torch.from_numpy(conf)[..., None], decided], -1))
+        return w[:, :-1], w[:, -1]
+
+    def _stroke_votes(self, strokes: np.ndarray, cam: Camera) -> torch.Tensor:
+        """One view's stroke weights ``(N, L_v + 1)``: per Gaussian and label, its blending weight in the label's
+        stroke pixels, kept only for the Gaussians that lie enough under the strokes to be bound by them (at least
+        ``stroke_share`` of their blending weight in the view), so that a large splat behind or across a dot is not."""
+        seeds = np.where(strokes >= 0, strokes, NO_VOTE)
+        hot = one_hot_labels(seeds, int(seeds.max(initial=0)))
+        w = self._accumulate(cam, torch.cat([hot, torch.ones(*hot.shape[:2], 1)], -1))
+        votes, total = w[:, :-1], w[:, -1]
+        under = votes.sum(1) >= self.params.stroke_share * total.clamp_min(1e-12)
+        return votes * under[:, None]
+
+    def _accumulate(self, cam: Camera, pixels: torch.Tensor) -> torch.Tensor:
+        """Per Gaussian and channel, its blending weight in ``cam`` times the pixel weights ``pixels (H, W, J)``
+        (:func:`abcgs.render.accumulate_weights`), on the host ``(N, J)``."""
+        from abcgs.render import accumulate_weights
+
+        act = self.model.detach().activated()
+        dev = self.model.device
+        return accumulate_weights(act["means"], act["quats"], act["scales"], act["opacities"], cam.torch_viewmat(dev),
+                                  cam.torch_K(dev), pixels.to(dev), backend=self.backend).cpu()
+
+    def _votes(self, n_labels: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Summed cut votes ``(N, n_labels + 1)``, blending weight in decided cut pixels ``(N,)`` and stroke weights
+        ``(N, n_labels + 1)`` of every painted view (each view's own computed once)."""
         n = self.model.num_gaussians
-        votes, strokes = torch.zeros(n, n_labels + 1), torch.zeros(n, n_labels + 1)
+        votes, cover, strokes = torch.zeros(n, n_labels + 1), torch.zeros(n), torch.zeros(n, n_labels + 1)
         for i, v in self._views.items():
             cam = self.cameras[i]
             if v.cut is not None and v.votes is None:
-                v.votes = view_weights(self.model, cam, v.cut, int(v.cut.max(initial=0)), backend=self.backend)
+                v.votes, v.cover = self._cut_votes(v, cam)
             if v.strokes is not None and v.stroke_votes is None:
-                seeds = np.where(v.strokes >= 0, v.strokes, NO_VOTE)
-                v.stroke_votes = view_weights(self.model, cam, seeds, int(seeds.max(initial=0)), backend=self.backend)
+                v.stroke_votes = self._stroke_votes(v.strokes, cam)
             for acc, part in ((votes, v.votes), (strokes, v.stroke_votes)):
                 if part is not None:
                     acc[:, : part.shape[1]] += part
-        return votes, strokes
+            if v.cover is not None:
+                cover += v.cover
+
+        return votes, cover, strokes
 
     def n_labels(self) -> int:
         """The largest label any painted view's cut or strokes holds."""
@@ -142,27 +203,35 @@ class LabelField:
                           if a is not None])
 
     def solve(self) -> FieldResult:
-        """Lift, apply the strokes and run the 3-D step (module docstring)."""
+        """Apply the strokes, weigh the cuts and run the 3-D step (module docstring)."""
         t0 = time.perf_counter()
         n_labels = self.n_labels()
-        votes, stroke_w = self._votes(n_labels)
+        votes, cover, stroke_w = self._votes(n_labels)
         n = self.model.num_gaussians
         seeds = np.full(n, -1, np.int64)
         source = np.zeros(n, np.uint8)
+        soft = self.params.cut_evidence == "soft"
         if self._views:
-            lifted = decide_labels(votes, self.lift)
-            cut_seed = lifted.decided.numpy()
-            seeds[cut_seed] = lifted.labels.numpy()[cut_seed]
-            source[cut_seed] = 2
+            if not soft:
+                lifted = decide_labels(votes, self.lift)
+                cut_seed = lifted.decided.numpy()
+                seeds[cut_seed] = lifted.labels.numpy()[cut_seed]
+                source[cut_seed] = 2
             best_w, best = stroke_w.max(1)
             stroked = (best_w >= self.params.stroke_weight).numpy()
             seeds[stroked] = best.numpy()[stroked]
             source[stroked] = 1
+        priors = None
+        evident = np.zeros(n, bool)
+        if soft and self._views:
+            evidence = (votes / (cover + self.lift.min_weight)[:, None]).double().numpy()
+            priors = self.params.cut_weight * self.graph.degree[:, None] * evidence
+            evident = cover.numpy() >= self.lift.min_weight
         x0 = self._last.probs if self._last is not None and self._last.probs.shape == (n, n_labels + 1) else None
-        probs = diffuse_labels(self.graph, seeds, n_labels, leak=self.params.leak, x0=x0)
+        probs = diffuse_labels(self.graph, seeds, n_labels, leak=self.params.leak, x0=x0, priors=priors)
         labels, decided = decide_diffused(probs, min_reach=self.params.min_reach, min_share=self.lift.min_share)
         labels[seeds >= 0], decided[seeds >= 0] = seeds[seeds >= 0], True
-        source[(seeds < 0) & decided] = 3
+        source[(seeds < 0) & decided] = np.where(evident, 2, 3)[(seeds < 0) & decided]
         self._last = FieldResult(labels, decided, probs, source, n_labels, time.perf_counter() - t0)
         log.info("labels of %d Gaussians from %d painted view(s) in %.2f s: %s", n, len(self._views),
                  self._last.seconds, self._last.counts())
@@ -192,11 +261,14 @@ def correction_seeds(rendered: np.ndarray, strokes: np.ndarray, erode_px: int, r
 
 
 def cut_painted_view(field: LabelField, result: FieldResult | None, index: int, photo: np.ndarray, strokes: np.ndarray,
-                     *, erode: float = 0.04, reach: float = 0.1, iterations: int = 5) -> np.ndarray:
+                     *, erode: float = 0.04, reach: float = 0.1, iterations: int = 5,
+                     min_margin: float = 0.0) -> np.ndarray:
     """The page's cut of view ``index`` (``(H, W) int64``, 0..L, :data:`NO_VOTE` undecided) on its ``photo``
     ``(H, W, 3)``: from its ``strokes`` seed map alone while no label exists in 3-D (``result`` None), else from
     :func:`correction_seeds` of the labels ``result`` renders into it (erosion: ``erode``, a stroke's reach:
-    ``reach``, both × the view's shorter side), on colour and rendered depth."""
+    ``reach``, both × the view's shorter side), on colour and rendered depth. A pixel where GrabCut's colour models
+    differ by less than ``min_margin`` (:attr:`abcgs.masks.grabcut.Segmentation.margin`) is left undecided: the cut
+    is not sure of it, and the page saves it so, for the ``masks`` stage to read the same evidence."""
     from abcgs.masks.grabcut import segment
     from abcgs.masks.lifting import LiftResult
     from abcgs.masks.refine import render_seeds
@@ -210,20 +282,27 @@ def cut_painted_view(field: LabelField, result: FieldResult | None, index: int, 
         short = min(cam.height, cam.width)
         seeds = correction_seeds(rendered, strokes, int(round(erode * short)), int(round(reach * short)))
     seg = segment(photo, seeds, iterations=iterations, depth=depth)
-    return np.where(seg.claimed, seg.labels, NO_VOTE).astype(np.int64)
+    return np.where(seg.claimed & (seg.margin >= min_margin), seg.labels, NO_VOTE).astype(np.int64)
 
 
 def render_field(field: LabelField, result: FieldResult, index: int, *, threshold: float = 0.0,
-                 cut_where_painted: bool = True) -> np.ndarray:
+                 cut_where_painted: bool = True, photo: np.ndarray | None = None) -> np.ndarray:
     """The labels of view ``index`` ``(H, W) int64``: rendered from ``result`` (a pixel takes the label of largest
     blending weight, if it holds at least ``threshold`` of its alpha; 0 where none does, where nothing is rendered,
-    and where undecided Gaussians win)
-    and, on a painted view with ``cut_where_painted``, its cut wherever the cut decided: a painted view keeps what
-    the user saw and accepted on the page."""
-    from abcgs.masks.lifting import render_label_map
+    and where undecided Gaussians win); with the view's ``photo`` ``(H, W, 3) uint8`` and ``edge_radius`` > 0,
+    refined against the photo's edges instead (:func:`abcgs.masks.edges.refine_to_photo`: borders on the photo's
+    edges, undecided pixels given the label around them); and, on a painted view with ``cut_where_painted``, its cut
+    wherever the cut decided: a painted view keeps what the user saw and accepted on the page."""
+    from abcgs.masks.edges import refine_to_photo
+    from abcgs.masks.lifting import pick_labels, render_label_weights
 
-    out = render_label_map(field.model, torch.as_tensor(result.labels), result.n_labels, field.cameras[index],
-                           decided=torch.as_tensor(result.decided), threshold=threshold, undecided=0,
-                           backend=field.backend)
+    img, alpha = render_label_weights(field.model, torch.as_tensor(result.labels), result.n_labels,
+                                      field.cameras[index], decided=torch.as_tensor(result.decided),
+                                      backend=field.backend)
+    p = field.params
+    if photo is not None and p.edge_radius > 0:
+        out = refine_to_photo(img.numpy(), alpha.numpy(), photo, p.edge_radius, p.edge_eps)
+    else:
+        out = pick_labels(img, alpha, threshold, undecided=0).numpy().astype(np.int64)
     cut = field.cut_of(index) if cut_where_painted else None
     return out if cut is None else np.where(cut >= 0, cut, out)

@@ -28,6 +28,7 @@ import numpy as np
 
 from abcgs.errors import InputError
 from abcgs.io.images import to_uint8
+from abcgs.masks.edges import guided_filter
 from abcgs.masks.params import UNDECIDED
 from abcgs.runtime import available_cores
 
@@ -38,6 +39,10 @@ FILL_MAJORITY = 0.7
 """A gap between several cuts takes the label nearest in colour for at least this share of its pixels, or stays 0.
 On the tiny scene's textured views a plain majority gives large gaps of wall to an object (box IoU 0.96 → 0.63 from
 strokes that differed by 26 pixels); at 0.7 such gaps stay unassigned."""
+
+FILL_MARGIN = 0.5
+"""Margin (:attr:`Segmentation.margin`) of a pixel the gap fill decided: by the colour of the strokes nearest, which
+no cut's models claimed."""
 
 GMM_COMPONENTS = 5
 """Gaussians per colour model in OpenCV's GrabCut (its model array is ``1 × 13·GMM_COMPONENTS``)."""
@@ -108,12 +113,16 @@ class Segmentation:
         claimed: ``(H, W) bool``: a cut, a stroke or the gap fill gave the pixel its value (the background's
             included); False where nothing did and the 0 means "undecided" rather than "unassigned".
         probability: per label k, GrabCut's foreground probability ``(H, W) float32`` (its colour models' posterior).
+        margin: ``(H, W) float32`` in 0..1, how sure the cut is at each pixel: ``|2p - 1|`` of the winning cut's
+            foreground probability ``p`` (0 where its two colour models agree, 1 where one alone explains the pixel),
+            1 on strokes, :data:`FILL_MARGIN` where the gap fill decided, 0 where nothing claimed the pixel.
         seconds: time spent.
     """
 
     labels: np.ndarray
     claimed: np.ndarray
     probability: dict[int, np.ndarray] = field(default_factory=dict)
+    margin: np.ndarray | None = None
     seconds: float = 0.0
 
     def saved_map(self) -> np.ndarray:
@@ -238,6 +247,43 @@ def fill_gaps(
     return out, claimed_after
 
 
+WORK_PIXELS = 1 << 18
+"""Pixels of the working size the cuts run at (about a quarter megapixel): a 12 Mpx phone photo is cut at 590 × 443, a
+1080 × 1920 frame at 384 × 683, so that one Segment takes seconds at any photo size; the labels are brought back to
+the photo's size along its edges (:func:`upsample_labels`)."""
+
+UPSAMPLE_EPS = 1e-3
+"""Regularisation ε of the guided filter that brings the cut's labels back to the photo's size (guide RGB in 0..1): a
+label's border follows a colour edge of more than about √ε ≈ 0.03 of contrast."""
+
+
+def working_size(hw: tuple[int, int], max_side: int, max_pixels: int = WORK_PIXELS) -> tuple[int, int]:
+    """The ``(h, w)`` a view of size ``hw`` is cut at: scaled down (never up) until its longest side is at most
+    ``max_side`` and it has at most ``max_pixels`` pixels."""
+    h, w = hw
+    scale = min(1.0, max_side / max(h, w), (max_pixels / (h * w)) ** 0.5)
+    return max(1, int(round(h * scale))), max(1, int(round(w * scale)))
+
+
+def upsample_labels(labels: np.ndarray, claimed: np.ndarray, photo: np.ndarray, eps: float = UPSAMPLE_EPS
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """A cut at the working size (``labels (h, w) int``, ``claimed (h, w) bool``) brought to the size of ``photo``
+    ``(H, W, 3) uint8`` along the photo's edges: each value's indicator (and the unclaimed one) is scaled up
+    bilinearly and filtered by a guided filter with the photo as guide (He et al., TPAMI 2013; OpenCV contrib's
+    ``ximgproc``), whose radius is twice the scale factor; each pixel takes the largest. Returns ``(H, W) int64`` and
+    ``(H, W) bool``."""
+    H, W = photo.shape[:2]
+    h, w = labels.shape
+    values = [int(v) for v in np.unique(labels[claimed])]
+    planes = np.stack([(labels == v) & claimed for v in values] + [~claimed], -1).astype(np.float32)
+    up = cv2.resize(planes, (W, H), interpolation=cv2.INTER_LINEAR).reshape(H, W, -1)
+    radius = max(1, int(np.ceil(2.0 * max(H / h, W / w))))
+    out = guided_filter(photo, up, radius, eps)
+    best = out.argmax(-1)
+    keep = best < len(values)
+    return np.where(keep, np.asarray(values + [0], np.int64)[best], 0), keep
+
+
 DEPTH_PERCENTILES = (1.0, 99.0)
 """Inverse depth is normalised between these percentiles of the view's rendered pixels (a few floaters must not set
 the scale)."""
@@ -301,7 +347,7 @@ def fill_features(rgb: np.ndarray, depth: np.ndarray | None, depth_weight: float
 def _working_inputs(
     rgb: np.ndarray, strokes: list[Stroke] | np.ndarray, depth: np.ndarray | None, max_side: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """The view, its seed map and its depth at the size the cuts run at (longest side at most ``max_side``).
+    """The view, its seed map and its depth at the size the cuts run at (:func:`working_size`).
 
     Args:
         rgb: ``(H, W, 3) uint8``. strokes: as :func:`segment` takes them. depth: ``(H, W)`` world units, or None.
@@ -315,8 +361,7 @@ def _working_inputs(
         InputError: a depth map or seed map of another size than the view.
     """
     h, w = rgb.shape[:2]
-    scale = min(1.0, max_side / max(h, w))
-    sh, sw = max(1, int(round(h * scale))), max(1, int(round(w * scale)))
+    sh, sw = working_size((h, w), max_side)
     small = rgb if (sh, sw) == (h, w) else cv2.resize(rgb, (sw, sh), interpolation=cv2.INTER_AREA)
     if depth is not None:
         depth = np.asarray(depth, np.float32)
@@ -347,8 +392,9 @@ def _cut_every_kind(
             of a cut that none of its value's strokes touch.
 
     Returns:
-        labels ``(h, w) int64`` (0 where nothing or the background won), claimed ``(h, w) bool`` and, per label
-        k > 0, its foreground probability ``(h, w) float32``.
+        labels ``(h, w) int64`` (0 where nothing or the background won), claimed ``(h, w) bool``, per label
+        k > 0, its foreground probability ``(h, w) float32``, and the margin ``(h, w) float32``
+        (:attr:`Segmentation.margin`, before any gap fill).
     """
     sh, sw = seeds.shape
     pixels = feats.reshape(-1, 3).astype(np.float64)
@@ -375,9 +421,10 @@ def _cut_every_kind(
         if k > 0:
             prob[k] = p
     claimed = best >= 0
+    margin = np.where(claimed, np.abs(2.0 * best - 1.0), 0.0).astype(np.float32)
     for k in kinds:  # strokes are certain
-        out[seeds == k], claimed[seeds == k] = k, True
-    return out, claimed, prob
+        out[seeds == k], claimed[seeds == k], margin[seeds == k] = k, True, 1.0
+    return out, claimed, prob, margin
 
 
 def segment(
@@ -406,8 +453,9 @@ def segment(
         strokes: :class:`Stroke` list in the image's pixel coordinates, or a seed map ``(H, W) int`` (-1 = none,
             0 = background, k = label k) as :func:`rasterize_strokes` makes.
         iterations: GrabCut iterations per label.
-        max_side: views larger than this are cut at this size (longest side) and the labels scaled back up
-            (nearest), which keeps one cut to a second or two on photo-sized views.
+        max_side: views larger than this are cut at this size (longest side); views of more than
+            :data:`WORK_PIXELS` pixels are cut at that many. The labels are brought back to the image's size along its
+            edges (:func:`upsample_labels`), which keeps one cut to seconds at any photo size.
         keep_touching: drop the parts of a label's cut that none of its strokes touch.
         fill: give gaps between the cuts a label from around them (off: they stay 0 and unclaimed, undecided).
         depth: ``(H, W)`` rendered depth of the view (world units, 0 where nothing is rendered): GrabCut and the gap
@@ -431,11 +479,16 @@ def segment(
     if not any(k > 0 for k in kinds):
         raise InputError("no label strokes: draw over at least one region with a label (1, 2, …) before segmenting")
     feats = grabcut_features(small, depth, depth_weight)
-    out, claimed, prob = _cut_every_kind(feats, seeds, kinds, iterations, keep_touching)
+    out, claimed, prob, margin = _cut_every_kind(feats, seeds, kinds, iterations, keep_touching)
     if fill and len(kinds) >= 2:
+        before = claimed
         out, claimed = fill_gaps(out, claimed, fill_features(small, depth, depth_weight), seeds)
+        margin[claimed & ~before] = FILL_MARGIN
     if (sh, sw) != (h, w):
-        out = cv2.resize(out.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).astype(np.int64)
-        claimed = cv2.resize(claimed.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).astype(bool)
+        out, claimed = upsample_labels(out, claimed, rgb)
+        full_seeds = strokes if isinstance(strokes, np.ndarray) else rasterize_strokes(strokes, (h, w))
+        stroked = full_seeds >= 0  # strokes stay where they were painted, at the photo's size
+        out[stroked], claimed[stroked] = full_seeds[stroked], True
         prob = {k: cv2.resize(p, (w, h), interpolation=cv2.INTER_LINEAR) for k, p in prob.items()}
-    return Segmentation(out, claimed, prob, time.perf_counter() - t0)
+        margin = np.where(stroked, 1.0, np.where(claimed, cv2.resize(margin, (w, h)), 0.0)).astype(np.float32)
+    return Segmentation(out, claimed, prob, margin, time.perf_counter() - t0)

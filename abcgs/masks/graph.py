@@ -119,13 +119,18 @@ def _nearest_outside(tree, pts: np.ndarray, members: np.ndarray, part: np.ndarra
         k *= 4
 
 
-def gaussian_graph(model: GaussianModel, k: int = 10, colour_sigma: float = 0.15, normal_weight: float = 1.0) -> GaussianGraph:
-    """The k-NN graph of ``model``'s Gaussians with distance, colour and normal affinities (module docstring).
+def gaussian_graph(model: GaussianModel, k: int = 10, colour_sigma: float = 0.15, normal_weight: float = 1.0,
+                   features: np.ndarray | None = None, feature_weight: float = 0.0) -> GaussianGraph:
+    """The k-NN graph of ``model``'s Gaussians with distance, colour and normal affinities (module docstring), and,
+    with ``features``, a part affinity.
 
     Args:
         model: the fitted scene. k: neighbours per Gaussian (before symmetrising).
         colour_sigma: σ_c of the colour affinity, in RGB 0..1 (``inf``: colour is ignored).
         normal_weight: λ_n of the normal affinity (0: normals are ignored).
+        features: ``(N, F)`` per-Gaussian features lifted from the views (:mod:`abcgs.masks.features`), each
+            channel of unit variance over the Gaussians, or None.
+        feature_weight: λ_f of the part affinity ``exp(-λ_f |f_i - f_j|² / F)`` (0: features are ignored).
     """
     from scipy.sparse import coo_matrix
     from scipy.spatial import cKDTree
@@ -148,6 +153,11 @@ def gaussian_graph(model: GaussianModel, k: int = 10, colour_sigma: float = 0.15
     if normal_weight > 0:
         normals = gaussian_normals(model).numpy()
         alike *= np.exp(-normal_weight * (1.0 - np.abs((normals[rows] * normals[cols]).sum(1))))
+    if features is not None and feature_weight > 0:
+        f = np.asarray(features, np.float64)
+        if f.shape[0] != n or not np.isfinite(f).all():
+            raise ValueError(f"features must be finite and of {n} rows, got {f.shape}")
+        alike *= np.exp(-feature_weight * ((f[rows] - f[cols]) ** 2).sum(1) / max(f.shape[1], 1))
     w = np.exp(-(d**2) / (local[rows] * local[cols])) * np.maximum(alike, MIN_ALIKE)
     w = np.maximum(w, 1e-12)
     b_rows, b_cols, b_d = bridges(pts, rows, cols)
@@ -161,16 +171,20 @@ def gaussian_graph(model: GaussianModel, k: int = 10, colour_sigma: float = 0.15
 
 
 def diffuse_labels(graph: GaussianGraph, seeds: np.ndarray, n_labels: int, *, leak: float = 1e-5,
-                   rtol: float = 1e-6, x0: np.ndarray | None = None) -> np.ndarray:
+                   rtol: float = 1e-6, x0: np.ndarray | None = None, priors: np.ndarray | None = None) -> np.ndarray:
     """Random-walker probabilities ``(N, n_labels + 1) float64`` of labels 0..n_labels (module docstring).
 
     Args:
         graph: :func:`gaussian_graph`. seeds: ``(N,) int``: the label (0..n_labels) of each seeded Gaussian, -1 for
             the others. leak: ε, the share of a walk's degree lost at each step. rtol: the solver's relative
             tolerance. x0: a previous result ``(N, n_labels + 1)`` to start from (the page re-solves after each
-            Segment with a few seeds changed).
+            Segment with a few seeds changed). priors: ``(N, n_labels + 1)`` float ≥ 0 or None: the weight of an edge
+            from each Gaussian to a terminal of each label (Grady's prior models, 2005): soft evidence that pulls a
+            free Gaussian to a label in proportion, against its neighbours (its degree); seeds ignore theirs.
 
-    Seeds keep their label with probability 1. A Gaussian no seed reaches has probability 0 for every label.
+    Seeds keep their label with probability 1. A Gaussian no seed or prior reaches has probability 0 for every label.
+    With priors, each label's system is ``(L_UU + ε D_UU + Λ_U) x_l = W_US y_l + λ_Ul`` (``Λ`` the diagonal of the
+    priors' row sums, ``λ_l`` label l's column).
     """
     from scipy.sparse import diags
     from scipy.sparse.linalg import cg
@@ -178,19 +192,31 @@ def diffuse_labels(graph: GaussianGraph, seeds: np.ndarray, n_labels: int, *, le
     seeds = np.asarray(seeds, np.int64)
     if seeds.shape != (graph.num_nodes,):
         raise ValueError(f"seeds has shape {seeds.shape}, the graph {graph.num_nodes} nodes")
+    if priors is not None:
+        priors = np.asarray(priors, np.float64)
+        if priors.shape != (graph.num_nodes, n_labels + 1) or not np.isfinite(priors).all() or (priors < 0).any():
+            raise ValueError(f"priors must be finite, ≥ 0 and of shape {(graph.num_nodes, n_labels + 1)}, got "
+                             f"{priors.shape}")
     probs = np.zeros((graph.num_nodes, n_labels + 1))
     seeded = seeds >= 0
     probs[np.flatnonzero(seeded), seeds[seeded]] = 1.0
     free = np.flatnonzero(~seeded)
-    if not free.size or not seeded.any():
+    prior_u = None if priors is None else priors[free]
+    labels = set(np.unique(seeds[seeded]).tolist())
+    if prior_u is not None:
+        labels |= set(np.flatnonzero(prior_u.sum(0) > 0).tolist())
+    if not free.size or not labels:
         return probs
     w = graph.weights
     rows = w[free]
-    a = (diags((1.0 + leak) * graph.degree[free]) - rows[:, free]).tocsr()
+    diag = (1.0 + leak) * graph.degree[free] + (0.0 if prior_u is None else prior_u.sum(1))
+    a = (diags(diag) - rows[:, free]).tocsr()
     w_us = rows[:, np.flatnonzero(seeded)]
     jacobi = diags(1.0 / np.maximum(a.diagonal(), 1e-300))
-    for label in np.unique(seeds[seeded]):
+    for label in sorted(labels):
         b = w_us @ (seeds[seeded] == label).astype(np.float64)
+        if prior_u is not None:
+            b = b + prior_u[:, label]
         start = None if x0 is None else x0[free, label]
         x, info = cg(a, b, x0=start, rtol=rtol, atol=0.0, maxiter=10 * free.size, M=jacobi)
         if info > 0:

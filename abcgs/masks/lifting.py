@@ -186,6 +186,22 @@ def pick_labels(img: Tensor, alpha: Tensor, threshold: float, *, min_alpha: floa
     return torch.where(ok, best, torch.full_like(best, none))
 
 
+def render_label_weights(model: GaussianModel, labels: Tensor, n_labels: int, camera: Camera, *,
+                         decided: Tensor | None = None, backend: Backend = "auto") -> tuple[Tensor, Tensor]:
+    """Per-Gaussian labels rendered into ``camera`` as weights: ``(H, W, n_labels + 2)`` (each label's blending weight
+    at each pixel, and the undecided Gaussians' in the last channel, :func:`label_colours`) and the alpha ``(H, W, 1)``,
+    on the host."""
+    act = model.detach().activated()
+    dev = model.device
+    colours = label_colours(labels, n_labels, decided).to(dev)
+    with torch.no_grad():
+        img, alpha, _ = rasterize(
+            act["means"], act["quats"], act["scales"], act["opacities"], colours, camera.torch_viewmat(dev),
+            camera.torch_K(dev), camera.width, camera.height, backend=backend,
+        )
+    return img.cpu(), alpha.cpu()
+
+
 def render_label_map(
     model: GaussianModel, labels: Tensor, n_labels: int, camera: Camera, *, decided: Tensor | None = None,
     threshold: float = 0.5, undecided: int = UNDECIDED, backend: Backend = "auto",
@@ -197,12 +213,5 @@ def render_label_map(
     Gaussians render as a label of their own, and pixels they win are ``undecided``
     (:data:`~abcgs.masks.params.UNDECIDED`).
     """
-    act = model.detach().activated()
-    dev = model.device
-    colours = label_colours(labels, n_labels, decided).to(dev)
-    with torch.no_grad():
-        img, alpha, _ = rasterize(
-            act["means"], act["quats"], act["scales"], act["opacities"], colours, camera.torch_viewmat(dev),
-            camera.torch_K(dev), camera.width, camera.height, backend=backend,
-        )
-    return pick_labels(img, alpha, threshold, undecided=undecided).numpy(force=True).astype(np.int64)
+    img, alpha = render_label_weights(model, labels, n_labels, camera, decided=decided, backend=backend)
+    return pick_labels(img, alpha, threshold, undecided=undecided).numpy().astype(np.int64)

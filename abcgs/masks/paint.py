@@ -241,8 +241,7 @@ class PaintSession:
             if not any(s.label > 0 for s in item.strokes):
                 raise InputError(f"{item.name} has no label strokes yet: pick a label and draw over a region")
             if self.field is not None and i in self.field.camera_of:
-                cut = self.field.segment(i, self.image(i), rasterize_strokes(item.strokes, self.size(i)), t0)
-                item.result = Segmentation(np.maximum(cut, 0), cut >= 0, {}, time.perf_counter() - t0)
+                item.result = self.field.segment(i, self.image(i), rasterize_strokes(item.strokes, self.size(i)), t0)
             else:
                 item.result = segment(self.image(i), item.strokes, iterations=self.iterations,
                                       max_side=self.max_side, fill=self.fill)

@@ -19,7 +19,9 @@ import numpy as np
 
 from abcgs.errors import InputError
 from abcgs.io.images import image_header, load_image, to_uint8
-from abcgs.masks.field import FieldResult, LabelField, cut_painted_view
+from abcgs.masks.field import FieldResult, LabelField, cut_painted_view, render_field
+from abcgs.masks.grabcut import Segmentation
+from abcgs.masks.lifting import NO_VOTE
 from abcgs.masks.params import UNDECIDED, FieldParams, LiftParams
 from abcgs.masks.strip import Strip
 from abcgs.viz import colorize_labels
@@ -43,7 +45,8 @@ class _Photos:
 @dataclass
 class StripState:
     """The strip after the last Segment: each view's small label map, its doubt, the seconds from the request to the
-    strip ready, and their split (``phases``: ``cut``, ``solve``, ``strip``; seconds)."""
+    strip and the painted view's labels ready, and their split (``phases``: ``cut``, ``solve``, ``strip``, ``view``:
+    the painted view's labels at full size; seconds)."""
 
     maps: list[np.ndarray]
     doubt: list[float]
@@ -54,10 +57,14 @@ class StripState:
 class FieldSession:
     """The fit behind the page: its Gaussians and cameras, the page item of each camera, the field and the strip.
 
-    ``camera_of``: page item index → camera index (items without a camera are cut one view at a time)."""
+    ``camera_of``: page item index → camera index (items without a camera are cut one view at a time). The field's
+    neighbour graph is built here, with the strip, so that the first Segment does not wait for it."""
 
     def __init__(self, field: LabelField, strip: Strip, camera_of: dict[int, int]) -> None:
         self.field, self.strip, self.camera_of = field, strip, camera_of
+        t0 = time.perf_counter()
+        _ = field.graph  # built with the strip, not at the first Segment
+        self.graph_seconds = time.perf_counter() - t0
         self.result: FieldResult | None = None
         self.state: StripState | None = None
         self._lock = threading.RLock()
@@ -90,23 +97,36 @@ class FieldSession:
         model = read_ply(ply)
         field = LabelField(model, scene.cameras, params or FieldParams(), lift or LiftParams())
         strip = Strip.record(model, scene.cameras, _Photos(scene.image_paths))
-        log.info("3-D labels: %d Gaussians, %d views (strip recorded in %.1f s)", model.num_gaussians,
-                 len(scene.cameras), strip.seconds)
-        return cls(field, strip, camera_of)
+        session = cls(field, strip, camera_of)
+        log.info("3-D labels: %d Gaussians, %d views (strip recorded in %.1f s, neighbour graph built in %.1f s)",
+                 model.num_gaussians, len(scene.cameras), strip.seconds, session.graph_seconds)
+        return session
 
-    def segment(self, item: int, photo: np.ndarray, strokes: np.ndarray, started: float | None = None) -> np.ndarray:
-        """Cut page item ``item`` (``photo`` ``(H, W, 3) uint8``, its stroke seed map ``(H, W) int64``) seeded by the
-        labels in 3-D (:func:`cut_painted_view`), lift every painted view, solve and update the strip; returns the
-        cut ``(H, W) int64`` (-1 undecided). The strip's seconds count from ``started`` (``time.perf_counter()``
-        when the request came; default now)."""
+    def segment(self, item: int, photo: np.ndarray, strokes: np.ndarray, started: float | None = None) -> Segmentation:
+        """Segment page item ``item`` (``photo`` ``(H, W, 3) uint8``, its stroke seed map ``(H, W) int64``): while no
+        label exists in 3-D, or with ``correction: cut``, cut the view seeded by its strokes and the labels in 3-D
+        (:func:`cut_painted_view`); otherwise (``correction: strokes``) its strokes alone are its evidence. Then lift
+        every painted view, solve and update the strip. Returns the view's labels as the page shows them (its cut
+        where the cut decided, the labels in 3-D elsewhere: ``labels``) and the evidence the view gives the field
+        (``claimed``: the pixels of its cut or strokes; :meth:`Segmentation.saved_map` is what the page saves and the
+        ``masks`` stage reads back). The seconds count from ``started`` (``time.perf_counter()`` when the request
+        came; default now)."""
         started = time.perf_counter() if started is None else started
         with self._lock:
             cam = self.camera_of[item]
             t0 = time.perf_counter()
-            cut = cut_painted_view(self.field, self.result, cam, photo, strokes)
+            if self.result is None or self.field.params.correction == "cut":
+                cut = cut_painted_view(self.field, self.result, cam, photo, strokes,
+                                       reach=self.field.params.correction_reach, min_margin=self.field.params.cut_margin)
+            else:
+                cut = np.where(strokes >= 0, strokes, NO_VOTE)
             self.field.set_view(cam, cut, strokes)
             self._solve(started, cut_seconds=time.perf_counter() - t0)
-            return cut
+            t1 = time.perf_counter()
+            shown = render_field(self.field, self.result, cam)
+            self.state.phases["view"] = time.perf_counter() - t1
+            self.state.seconds = time.perf_counter() - started
+            return Segmentation(shown, cut >= 0, seconds=self.state.seconds)
 
     def forget(self, item: int) -> None:
         """Page item ``item`` has no strokes any more: its cut and strokes leave the field, and the labels and the
@@ -124,9 +144,14 @@ class FieldSession:
 
     def _solve(self, started: float, cut_seconds: float = 0.0) -> None:
         t0 = time.perf_counter()
+        before = self.result
         self.result = self.field.solve()
         t1 = time.perf_counter()
-        maps = self.strip.labels(self.result.labels, self.result.decided, self.result.n_labels)
+        kept = {}
+        if before is not None and self.state is not None and before.n_labels == self.result.n_labels:
+            changed = (before.labels != self.result.labels) | (before.decided != self.result.decided)
+            kept = {"previous": self.state.maps, "changed": changed}
+        maps = self.strip.labels(self.result.labels, self.result.decided, self.result.n_labels, **kept)
         doubt = self.strip.doubt(maps)
         t2 = time.perf_counter()
         self.state = StripState(maps, doubt, t2 - started, {"cut": cut_seconds, "solve": t1 - t0, "strip": t2 - t1})

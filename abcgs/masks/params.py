@@ -71,6 +71,39 @@ class FieldParams(BaseModel):
     stroke_weight: float = Field(
         0.1, gt=0.0, description="least blending weight (summed over a view's stroke pixels) for a Gaussian to take "
         "the stroke's label as a hard constraint")
+    stroke_share: float = Field(
+        0.03, ge=0.0, le=1.0, description="least share of a Gaussian's blending weight in a view that must lie under "
+        "that view's strokes for them to bind it (0: any Gaussian that reaches stroke_weight)")
+    correction: Literal["strokes", "cut"] = Field(
+        "strokes", description="a Segment on a view once labels exist in 3-D: strokes: its strokes alone correct the "
+        "labels (bound where they cover a Gaussian, evidence where they touch it); cut: the view is cut again by "
+        "GrabCut, seeded by its strokes and the labels in 3-D, and the cut is its evidence (docs/MASKS.md, miku's "
+        "scripted user)")
+    correction_reach: float = Field(
+        0.1, gt=0.0, le=10.0, description="correction: cut: on a view the 3-D labels already reach, a stroke frees the "
+        "rendered region of another label it touches within this share of the view's shorter side, for the cut to "
+        "decide")
+    edge_radius: float = Field(
+        0.01, ge=0.0, le=0.5, description="each view's labels rendered from the Gaussians are refined against its "
+        "photo's edges by a guided filter of this radius (share of the view's shorter side; 0: not refined)")
+    edge_eps: float = Field(
+        1e-2, gt=0.0, le=1.0, description="the guided filter's regularisation (photo in 0..1): an edge of contrast "
+        "above about its square root holds a label's border")
+    cut_evidence: Literal["soft", "hard"] = Field(
+        "soft", description="soft: each painted view's cut is evidence weighted by how sure it is (near its own "
+        "strokes, GrabCut's margin), a prior of the 3-D step that no cut can make override a stroke; hard: a "
+        "Gaussian whose summed vote is clear (masks.lift) is a seed of its label, so a correction's cut outvotes "
+        "what other views decided (docs/MASKS.md, miku's scripted user)")
+    cut_weight: float = Field(
+        1.0, gt=0.0, le=1e6, description="cut_evidence: soft: strength of a Gaussian's cut evidence against its "
+        "neighbours in the 3-D step (× its degree in the graph)")
+    cut_reach: float = Field(
+        0.15, gt=0.0, le=10.0, description="cut_evidence: soft: a cut pixel's confidence falls as exp(-(d/r)²) with "
+        "its distance d to the nearest stroke of its view, r this share of the view's shorter side")
+    cut_margin: float = Field(
+        0.25, ge=0.0, le=1.0, description="a pixel of the page's cut where GrabCut's two colour models differ by less "
+        "than this (|2p - 1| of its foreground probability p) is left undecided: it votes for "
+        "nothing and is saved so")
 
 
 class RefineParams(BaseModel):

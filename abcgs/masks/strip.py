@@ -61,13 +61,21 @@ class Strip:
                 small.append(cv2.resize(photos[i], (c.width, c.height), interpolation=cv2.INTER_AREA))
         return cls(views, small if photos is not None else None, time.perf_counter() - t0)
 
-    def labels(self, labels: np.ndarray, decided: np.ndarray, n_labels: int, threshold: float = 0.0) -> list[np.ndarray]:
+    def labels(self, labels: np.ndarray, decided: np.ndarray, n_labels: int, threshold: float = 0.0, *,
+               previous: list[np.ndarray] | None = None, changed: np.ndarray | None = None) -> list[np.ndarray]:
         """Each view's label map ``(h, w) int64``: the label of largest weight where it holds at least ``threshold``
         of a pixel's alpha (:func:`abcgs.masks.field.render_field`'s rule);
-        :data:`UNDECIDED` where undecided Gaussians win, 0 where nothing is rendered or no label holds enough."""
+        :data:`UNDECIDED` where undecided Gaussians win, 0 where nothing is rendered or no label holds enough.
+
+        With the ``previous`` maps (of the same ``n_labels`` and ``threshold``) and ``changed`` ``(N,) bool``, the
+        Gaussians whose label or decision changed since, only the views that one of them blends into are blended
+        again; the others keep their map (a correction moves the labels of a few parts, seen in a few views)."""
         colours = label_colours(torch.as_tensor(labels), n_labels, torch.as_tensor(decided))
         out = []
-        for view in self.views:
+        for i, view in enumerate(self.views):
+            if previous is not None and changed is not None and not changed[view.ids.numpy()].any():
+                out.append(previous[i])
+                continue
             img, alpha = blend_frozen(view, colours[view.ids].contiguous())
             out.append(pick_labels(img, alpha, threshold).numpy().astype(np.int64))
         return out

@@ -1,0 +1,54 @@
+"""Labels in each view sharper than the Gaussians: a view's labels rendered from the Gaussians, refined against the
+edges of its photo.
+
+The labels rendered from the Gaussians follow the fitted geometry, whose borders are as soft as the splats'
+footprints, and a pixel where undecided Gaussians win has no label. :func:`refine_to_photo` filters each label's
+rendered weight with a guided filter (He, Sun and Tang, TPAMI 2013; OpenCV contrib's ``ximgproc``) whose guide is the
+view's photo: the weights average inside a region of one colour and not across the photo's edges, so each pixel
+takes the label whose filtered weight is largest, a label's border moves onto the photo's edge nearest to it, and a
+pixel of undecided Gaussians takes the label around it on its side of the edges.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+FILTER_CHANNELS = 4
+"""Channels OpenCV's guided filter takes at a time."""
+
+
+def guided_filter(photo: np.ndarray, planes: np.ndarray, radius: int, eps: float) -> np.ndarray:
+    """``planes`` ``(H, W, C) float32`` filtered with ``photo`` ``(H, W, 3) uint8`` as the guide (RGB in 0..1),
+    ``radius`` in pixels, regularisation ``eps``; ``(H, W, C) float32``."""
+    guide = photo.astype(np.float32) / 255.0
+    out = np.empty(planes.shape, np.float32)
+    for c0 in range(0, planes.shape[-1], FILTER_CHANNELS):
+        part = np.ascontiguousarray(planes[..., c0:c0 + FILTER_CHANNELS], np.float32)
+        out[..., c0:c0 + FILTER_CHANNELS] = cv2.ximgproc.guidedFilter(guide, part, radius, eps).reshape(part.shape)
+    return out
+
+
+def refine_to_photo(weights: np.ndarray, alpha: np.ndarray, photo: np.ndarray, radius: float = 0.01,
+                    eps: float = 1e-2, min_alpha: float = 1e-3) -> np.ndarray:
+    """A view's labels ``(H, W) int64`` from its rendered label weights refined against its photo (module docstring).
+
+    Args:
+        weights: ``(H, W, L + 2)``: labels 0..L and the undecided Gaussians' weight last
+            (:func:`abcgs.masks.lifting.render_label_weights`). alpha: ``(H, W, 1)``.
+        photo: ``(H, W, 3) uint8``. radius: the filter's radius as a share of the view's shorter side.
+        eps: the filter's regularisation (guide in 0..1): edges of a contrast above about √eps hold.
+        min_alpha: pixels of less alpha (nothing rendered) are 0.
+
+    Returns:
+        each pixel's label of largest filtered weight, 0 where nothing is rendered or no label reaches.
+    """
+    h, w = weights.shape[:2]
+    if photo.shape[:2] != (h, w):
+        raise ValueError(f"the photo is {photo.shape[1]}x{photo.shape[0]}, the labels {w}x{h}")
+    labels = np.asarray(weights, np.float32)[..., :-1]  # the undecided Gaussians take the labels around them
+    px = max(1, int(round(radius * min(h, w))))
+    filtered = guided_filter(photo, labels, px, eps)
+    best = filtered.argmax(-1)
+    ok = (filtered.max(-1) > 1e-3) & (np.asarray(alpha)[..., 0] > min_alpha)
+    return np.where(ok, best, 0).astype(np.int64)
