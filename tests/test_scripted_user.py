@@ -35,3 +35,25 @@ def test_a_step_scores_every_pair_and_the_unlabelled_share() -> None:
     assert s["iou"]["b"] == {"1": 1.0, "2": 1.0}
     assert np.isclose(s["iou"]["a"]["2"], 0.8) and s["worst_iou"] == s["iou"]["a"]["2"]
     assert np.isclose(s["mean_iou"], (1 + 0.8 + 1 + 1) / 4)
+
+
+def test_the_regression_check_finds_the_worst_drop_of_the_mean_and_of_a_view() -> None:
+    from eval.bench.scripted_user import regression, verdict
+
+    def step(n, a, b):
+        return {"strokes": n, "mean_iou": (a + b) / 2, "view_mean": {"a": a, "b": b},
+                "iou": {"a": {"1": a}, "b": {"1": b}}, "unlabelled": {"a": 0.0, "b": 0.01}}
+
+    steps = [step(15, 0.6, 0.6), step(16, 0.7, 0.55), step(17, 0.7, 0.62), step(18, 0.69, 0.59)]
+    drops = regression(steps)
+    assert drops["view"]["view"] == "b" and drops["view"]["strokes"] == 16
+    assert abs(drops["view"]["drop"] - 0.05) < 1e-9
+    assert abs(drops["mean"]["drop"] - 0.02) < 1e-9 and drops["mean"]["strokes"] == 18
+    bound = {"per_view": {"a": {"1": 0.9}, "b": {"1": 0.9}}}
+    v = verdict(steps, bound)
+    assert not v["mean_drop"] and not v["view_drop"] and v["unlabelled"] and not v["mean_iou"]
+    assert v["pairs_below"] == {"b/1": 0.59}  # below min(0.60, 0.9 - 0.05); a's 0.69 is not
+    low_bound = {"per_view": {"a": {"1": 0.9}, "b": {"1": 0.62}}}
+    assert verdict(steps, low_bound)["pairs"]  # against a bound of 0.62, 0.59 is within 0.05
+    ok = verdict([step(15, 0.8, 0.8), step(16, 0.8, 0.795)], bound)
+    assert ok["mean_drop"] and ok["view_drop"] and ok["mean_iou"] and ok["pairs"]

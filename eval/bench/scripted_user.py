@@ -12,19 +12,29 @@ mean IoU over its labels): a dot of the reference label at the interior-most pix
 edge) of the largest connected region whose label is wrong; that view is then cut again as the page cuts it (its
 strokes, and the labels rendered into it as seeds) and the field solved. Every reference view is scored, the stroked
 front view included: IoU per label against the reference (its undecided pixels not scored) and the share of pixels
-left unlabelled. Printed per stroke: the worst and mean IoU over all (view, label) pairs, the worst view's share of
-unlabelled pixels, and the seconds from Segment to every view's labels (cut, solve, and the strip of all views the page
-shows, :class:`abcgs.masks.strip.Strip`). Beside it, the bound the fitted geometry sets
-(:func:`eval.bench.strokes.geometry_bound`: all reference maps lifted together and rendered back).
+left unlabelled. The labels scored are the stage's: refined against each view's photo
+(:func:`abcgs.masks.edges.refine_to_photo`), a painted view's cut where it decided; beside them, the labels rendered
+from the Gaussians alone. Printed per stroke: the worst and mean IoU over all (view, label) pairs, the worst view's
+share of unlabelled pixels, and the seconds from Segment to every view's labels (cut, solve, the strip of all views the
+page shows, :class:`abcgs.masks.strip.Strip`, and the painted view's labels). Beside them, the bounds the fitted
+geometry sets (:func:`eval.bench.strokes.geometry_bound`: all reference maps lifted together and rendered back, as
+they are and refined the same way); the goal's pairs are held against the refined one. At the end, the ``masks``
+stage's labels from what the page saved (:func:`stage_maps`), scored the same way.
 
-The goal (``GOAL``): mean IoU ≥ 0.85, every pair ≥ min(0.80, bound − 0.05) and ≤ 2 % unlabelled pixels on every
-reference view, within 10 strokes after the test strokes.
+Every stroke is also a regression check: the change of the mean IoU and of each reference view's mean from the Segment
+before (``delta``), and the worst drop of either over the run (``regression``), which the figure's title shows.
+
+The goal (``GOAL``): mean IoU ≥ 0.75, every pair ≥ min(0.60, bound − 0.05) and ≤ 2 % unlabelled pixels on every
+reference view, within 10 strokes after the test strokes; no stroke lowers the mean by more than 0.01 or a reference
+view's mean by more than 0.03. ``verdict`` in the record says which of these the run met.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import statistics
+import tempfile
 import time
 from pathlib import Path
 
@@ -48,7 +58,8 @@ from abcgs.sfm.model import read_scene
 from eval.bench.strokes import DATA, _overlay, _strokes, geometry_bound, reference_map
 from eval.record import bench_parser, write_record
 
-GOAL = {"strokes": 10, "mean_iou": 0.85, "pair_iou": 0.80, "below_bound": 0.05, "unlabelled": 0.02}
+GOAL = {"strokes": 10, "mean_iou": 0.75, "pair_iou": 0.60, "below_bound": 0.05, "unlabelled": 0.02,
+        "mean_drop": 0.01, "view_drop": 0.03}
 
 
 def next_stroke(pred: np.ndarray, truth: np.ndarray, radius: float) -> Stroke | None:
@@ -76,7 +87,34 @@ def score(maps: dict[str, np.ndarray], refs: dict[str, np.ndarray], n_labels: in
     per_view = {s: {str(k): v for k, v in label_iou(maps[s], refs[s], n_labels).items()} for s in refs}
     pairs = [v for d in per_view.values() for v in d.values()]
     return {"iou": per_view, "unlabelled": {s: float((maps[s] == 0).mean()) for s in refs},
+            "view_mean": {s: float(np.mean(list(d.values()))) for s, d in per_view.items()},
             "worst_iou": float(min(pairs)), "mean_iou": float(np.mean(pairs))}
+
+
+def regression(steps: list[dict]) -> dict:
+    """The worst drop over a run: of the mean IoU from one Segment to the next, and of any reference view's mean
+    (positive numbers are drops; each with the number of strokes after which it happened and, for a view, which)."""
+    mean = {"drop": 0.0, "strokes": None}
+    view = {"drop": 0.0, "strokes": None, "view": None}
+    for prev, cur in zip(steps, steps[1:]):
+        if prev["mean_iou"] - cur["mean_iou"] > mean["drop"]:
+            mean = {"drop": prev["mean_iou"] - cur["mean_iou"], "strokes": cur["strokes"]}
+        for v, m in cur["view_mean"].items():
+            if prev["view_mean"][v] - m > view["drop"]:
+                view = {"drop": prev["view_mean"][v] - m, "strokes": cur["strokes"], "view": v}
+    return {"mean": mean, "view": view}
+
+
+def verdict(steps: list[dict], bound: dict) -> dict:
+    """Which parts of ``GOAL`` the run met: the mean, every pair against its bound, the unlabelled share (all at the
+    last step) and the drops (over the run)."""
+    last = steps[-1]
+    low = {f"{v}/{k}": iou for v, d in last["iou"].items() for k, iou in d.items()
+           if iou < min(GOAL["pair_iou"], bound["per_view"][v].get(k, 1.0) - GOAL["below_bound"])}
+    drops = regression(steps)
+    return {"mean_iou": last["mean_iou"] >= GOAL["mean_iou"], "pairs_below": low,
+            "pairs": not low, "unlabelled": max(last["unlabelled"].values()) <= GOAL["unlabelled"],
+            "mean_drop": drops["mean"]["drop"] <= GOAL["mean_drop"], "view_drop": drops["view"]["drop"] <= GOAL["view_drop"]}
 
 
 class ScriptedUser:
@@ -87,10 +125,12 @@ class ScriptedUser:
         self.scene, self.refs, self.by_stem = scene, refs, by_stem
         self.strokes: dict[int, list[Stroke]] = {}
         photos = [to_uint8(load_image(p)) for p in scene.image_paths]
+        self.photos = {s: photos[by_stem[s]] for s in refs}
         strip = Strip.record(model, scene.cameras, photos)
         self.session = FieldSession(LabelField(model, scene.cameras, params), strip,
                                     {i: i for i in range(len(scene.cameras))})
-        print(f"strip of {len(strip.views)} views recorded in {strip.seconds:.1f} s", flush=True)
+        print(f"strip of {len(strip.views)} views recorded in {strip.seconds:.1f} s, neighbour graph built in "
+              f"{self.session.graph_seconds:.1f} s", flush=True)
 
     def segment(self, index: int) -> dict:
         """What the page does on Segment for view ``index`` (:meth:`FieldSession.segment`); the seconds, split."""
@@ -103,10 +143,33 @@ class ScriptedUser:
         return {**state.phases, "total": state.seconds}
 
     def maps(self, rendered: bool = False) -> dict[str, np.ndarray]:
-        """Each reference view's labels as the stage writes them (a painted view's cut where it decided), or, with
-        ``rendered``, as rendered from the Gaussians alone."""
-        return {s: render_field(self.session.field, self.session.result, self.by_stem[s], cut_where_painted=not rendered)
-                for s in self.refs}
+        """Each reference view's labels as the stage writes them (refined against the view's photo, a painted view's
+        cut where it decided), or, with ``rendered``, as rendered from the Gaussians alone."""
+        f, r = self.session.field, self.session.result
+        return {s: render_field(f, r, self.by_stem[s], cut_where_painted=not rendered,
+                                photo=None if rendered else self.photos[s]) for s in self.refs}
+
+
+def stage_maps(user: ScriptedUser, params: FieldParams) -> dict[str, np.ndarray]:
+    """Each reference view's labels as the ``masks`` stage computes them from what the page saved at the end: every
+    painted view's label PNG (its cut, undecided where the field took none) and strokes written to a folder, then
+    :func:`abcgs.masks.content.make_content_masks` on it, as ``stages/masks.py`` runs it."""
+    from abcgs.io.images import save_labels, save_stroke_map, stroke_map_path
+    from abcgs.masks.content import make_content_masks
+    from abcgs.masks.params import UNDECIDED, MaskParams
+
+    with tempfile.TemporaryDirectory(prefix="abcgs-scripted-user-") as tmp:
+        masks = Path(tmp)
+        for i in user.session.field.painted:
+            stem = Path(user.scene.cameras[i].name).stem
+            cut = user.session.field.cut_of(i)
+            save_labels(masks / f"{stem}.png", np.where(cut >= 0, cut, UNDECIDED))
+            cam = user.scene.cameras[i]
+            save_stroke_map(stroke_map_path(masks, stem), rasterize_strokes(user.strokes[i], (cam.height, cam.width)))
+        result = make_content_masks(user.session.field.model, user.scene.cameras, masks,
+                                    MaskParams(source="given", field=params), user.scene.image_paths,
+                                    show_progress=False)
+    return {s: result.view_labels[user.by_stem[s]] for s in user.refs}
 
 
 def run(user: ScriptedUser, front: int, first: list[Stroke], n_labels: int, max_strokes: int, radius: float) -> list[dict]:
@@ -117,11 +180,19 @@ def run(user: ScriptedUser, front: int, first: list[Stroke], n_labels: int, max_
     while True:
         maps = user.maps()
         s = score(maps, user.refs, n_labels)
-        steps.append({"strokes": sum(len(v) for v in user.strokes.values()), "seconds": seconds, **s,
-                      "rendered": score(user.maps(rendered=True), user.refs, n_labels), "counts": user.session.result.counts()})
-        print(f"{steps[-1]['strokes']:3d} strokes: worst IoU {s['worst_iou']:.3f}, mean {s['mean_iou']:.3f}, "
+        step = {"strokes": sum(len(v) for v in user.strokes.values()), "seconds": seconds, **s,
+                "rendered": score(user.maps(rendered=True), user.refs, n_labels), "counts": user.session.result.counts()}
+        if steps:
+            step["delta"] = {"mean": s["mean_iou"] - steps[-1]["mean_iou"],
+                             "views": {v: m - steps[-1]["view_mean"][v] for v, m in s["view_mean"].items()}}
+        steps.append(step)
+        drop = "" if "delta" not in step else (f", Δ mean {step['delta']['mean']:+.3f}, worst Δ view "
+                                               f"{min(step['delta']['views'].values()):+.3f}")
+        print(f"{step['strokes']:3d} strokes: worst IoU {s['worst_iou']:.3f}, mean {s['mean_iou']:.3f} (Gaussians alone "
+              f"{step['rendered']['mean_iou']:.3f}){drop}, "
               f"unlabelled ≤ {max(s['unlabelled'].values()):.1%}, Segment → every view {seconds['total']:.2f} s "
-              f"(cut {seconds['cut']:.2f}, solve {seconds['solve']:.2f}, strip {seconds['strip']:.2f})", flush=True)
+              f"(cut {seconds['cut']:.2f}, solve {seconds['solve']:.2f}, strip {seconds['strip']:.2f}, the view "
+              f"{seconds['view']:.2f})", flush=True)
         if len(steps) > max_strokes:
             return steps
         view_means = {v: np.mean(list(d.values())) for v, d in s["iou"].items()}
@@ -135,8 +206,9 @@ def run(user: ScriptedUser, front: int, first: list[Stroke], n_labels: int, max_
         seconds = user.segment(idx)
 
 
-def figure(user: ScriptedUser, path: Path) -> None:
-    """Each reference view: its photo with the final labels (strokes black) and the reference."""
+def figure(user: ScriptedUser, steps: list[dict], path: Path) -> None:
+    """Each reference view: its photo with the final labels (strokes black) and the reference; the title row gives
+    the mean IoU from the first Segment to the last and the worst drop of the run (:func:`regression`)."""
     from abcgs.viz import image_grid
 
     maps = user.maps()
@@ -145,8 +217,11 @@ def figure(user: ScriptedUser, path: Path) -> None:
         i = user.by_stem[s]
         img = load_image(user.scene.image_paths[i])
         rows.append([_overlay(img, maps[s], user.strokes.get(i)), _overlay(img, np.where(ref < 0, 0, ref))])
-    save_image(path, image_grid(rows, ["labels after the scripted strokes (strokes black)", "reference"],
-                                height=user.scene.cameras[0].height))
+    drops = regression(steps)
+    labels = (f"labels after {steps[-1]['strokes']} strokes (black): mean IoU {steps[0]['mean_iou']:.3f} -> "
+              f"{steps[-1]['mean_iou']:.3f}")
+    reference = f"reference; worst drop of the mean {drops['mean']['drop']:.3f}, of a view {drops['view']['drop']:.3f}"
+    save_image(path, image_grid(rows, [labels, reference], height=user.scene.cameras[0].height))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -172,16 +247,28 @@ def main(argv: list[str] | None = None) -> int:
     params = FieldParams(**json.loads(args.field))
     bound = geometry_bound(model, scene.cameras, by_stem, refs, list(refs), n_labels)
     user = ScriptedUser(model, scene, refs, by_stem, params)
+    refined_bound = geometry_bound(model, scene.cameras, by_stem, refs, list(refs), n_labels, user.photos,
+                                   (params.edge_radius, params.edge_eps))
+    print(f"bound (six reference maps lifted): mean IoU {bound['mean_iou']:.3f} rendered from the Gaussians, "
+          f"{refined_bound['mean_iou']:.3f} refined against the photos", flush=True)
     t0 = time.perf_counter()
     steps = run(user, front, _strokes(items, spec, scene.cameras[front]), n_labels, args.max_strokes, args.radius)
+    stage = score(stage_maps(user, params), refs, n_labels)
+    print(f"the masks stage on what the page saved: mean IoU {stage['mean_iou']:.3f} (the page: "
+          f"{steps[-1]['mean_iou']:.3f})", flush=True)
     print(json.dumps({"bound_worst": bound["worst_iou"]}))
     record = {"scene": spec["title"], "n_gaussians": model.num_gaussians, "views": len(scene.cameras),
               "labels": spec["labels"], "reference_views": list(refs), "field": params.model_dump(), "goal": GOAL,
-              "geometry_bound": bound, "steps": steps, "seconds": time.perf_counter() - t0}
+              "geometry_bound": bound, "refined_bound": refined_bound, "steps": steps, "stage": stage, "regression": regression(steps),
+              "verdict": verdict(steps, refined_bound),
+              "median_segment_seconds": statistics.median(s["seconds"]["total"] for s in steps),
+              "seconds": time.perf_counter() - t0}
+    print(json.dumps({"regression": record["regression"], "verdict": record["verdict"],
+                      "median_segment_seconds": record["median_segment_seconds"]}))
     if args.json:
         write_record(args.json, record, argv)
     if args.figure:
-        figure(user, args.figure)
+        figure(user, steps, args.figure)
     return 0
 
 

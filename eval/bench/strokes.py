@@ -125,16 +125,28 @@ def make_reference(scene, spec: dict, out: Path, check: Path | None, only: list[
                                      height=scene.cameras[0].height))
 
 
-def geometry_bound(model, cams, by_stem: dict, refs: dict, scored: list[str], n_labels: int) -> dict:
+def geometry_bound(model, cams, by_stem: dict, refs: dict, scored: list[str], n_labels: int,
+                   photos: dict[str, np.ndarray] | None = None, edge: tuple[float, float] = (0.0, 0.0)) -> dict:
     """What the fitted scene's geometry allows: every reference map (the stroked view's too) lifted (Eq. 2) and
     rendered into each scored view, its own map included, scored like the test. A label rendered from the Gaussians
-    cannot follow the photo better than this where the view's camera or the geometry is off."""
+    cannot follow the photo better than this where the view's camera or the geometry is off. With the scored views'
+    ``photos`` (stem → ``(H, W, 3) uint8``) and ``edge`` = (radius, eps) of a guided filter, the rendered labels are
+    refined against each photo's edges first (:func:`abcgs.masks.edges.refine_to_photo`): the bound of the refined
+    maps."""
+    from abcgs.masks.edges import refine_to_photo
+    from abcgs.masks.lifting import render_label_weights
+
     lifted = lift_labels(model, [cams[by_stem[s]] for s in refs], list(refs.values()), n_labels, LiftParams())
     per_view = {}
     for s in scored:
-        lab = render_label_map(model, lifted.labels, n_labels, cams[by_stem[s]])
+        if photos is None:
+            lab = render_label_map(model, lifted.labels, n_labels, cams[by_stem[s]])
+        else:
+            img, alpha = render_label_weights(model, lifted.labels, n_labels, cams[by_stem[s]])
+            lab = refine_to_photo(img.numpy(), alpha.numpy(), photos[s], *edge)
         per_view[s] = {str(k): v for k, v in label_iou(lab, refs[s], n_labels).items()}
-    return {"per_view": per_view,
+    pairs = [v for d in per_view.values() for v in d.values()]
+    return {"per_view": per_view, "mean_iou": float(np.mean(pairs)),
             "worst_iou": {str(k): min(v.get(str(k), 1.0) for v in per_view.values()) for k in range(1, n_labels + 1)}}
 
 
