@@ -353,6 +353,51 @@ def _post(server, lengths: list[str]) -> bytes:
     return b"\r\n".join(lines) + b"\r\n\r\n"
 
 
+@pytest.mark.parametrize("where", ["headers", "body"])
+def test_a_client_that_drips_bytes_is_cut_off_at_the_deadline_while_another_is_served(tmp_path: Path, where) -> None:
+    """One byte every 0.3 s meets every read's timeout (1 s) but not the request's deadline (2 s here; 60 s by
+    default, abcgs.masks.requests.REQUEST_DEADLINE_S): the connection is closed by then, and a second client is
+    answered while the first drips."""
+    from abcgs.masks.paint import PaintSession
+    from abcgs.masks.paint_server import make_server
+
+    server = make_server(PaintSession.for_scene(_photos(tmp_path / "scene", 1)), timeout=1.0, deadline=2.0)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        body = b'{"strokes": []}'
+        head = _post(server, [str(len(body) + 1000)])
+        first, drip = (b"", head + body) if where == "headers" else (head, body + b" " * 1000)
+        t0 = time.perf_counter()
+        with socket.create_connection(("127.0.0.1", server.server_port), timeout=10) as s:
+            s.sendall(first)
+            other = None
+            closed_at = None
+            for i, byte in enumerate(drip):
+                if i == 2:  # meanwhile another client is served
+                    other = _raw(server, _post(server, [str(len(b'{"strokes": []}'))]), b'{"strokes": []}')
+                try:
+                    s.sendall(bytes([byte]))
+                except OSError:
+                    closed_at = time.perf_counter() - t0
+                    break
+                time.sleep(0.3)
+                if time.perf_counter() - t0 > 8:
+                    break
+            if closed_at is None:
+                s.settimeout(5)
+                try:
+                    rest = s.recv(65536)
+                except OSError:
+                    rest = b""
+                assert rest == b"" or not rest.startswith(b"HTTP/1.0 200"), rest
+                closed_at = time.perf_counter() - t0
+        assert closed_at < 8.0, closed_at
+        assert other is not None and other[0] == 200, other
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
 def test_the_masks_page_refuses_two_content_lengths_and_times_out_a_short_body(page) -> None:
     body = b'{"strokes": []}'
     status, answer, _ = _raw(page, _post(page, [str(len(body)), "5"]), body)

@@ -209,6 +209,20 @@ def test_segment_errors_say_what_to_do() -> None:
         Stroke.from_json({"label": 1, "points": "nowhere"})
 
 
+@pytest.mark.parametrize("label, why", [(2.7, "must be an integer, not 2.7"), (float("inf"), "must be an integer"),
+                                        (True, "must be an integer, not true"), ("2", "must be an integer"),
+                                        (255, r"outside 0\.\.254"), (-1, r"outside 0\.\.254"),
+                                        (10**400, r"outside 0\.\.254")])
+def test_a_stroke_label_is_an_integer_0_to_254_and_says_so(label, why) -> None:
+    """A label that is a float (2.7 would silently be 2; 1e400, read as inf, overflowed into a 500), a bool, a string
+    or out of range is refused in one line (the page's server answers 400 with it)."""
+    with pytest.raises(InputError, match=why):
+        Stroke.from_json({"label": label, "points": [[1.0, 2.0]]})
+    with pytest.raises(InputError, match="stroke"):
+        Stroke.from_json({"label": 1, "points": [[10**400, 2]]})
+    assert Stroke.from_json({"label": 254, "points": [[1.0, 2.0]]}).label == 254
+
+
 # ----------------------------------------------------------------------------------------------
 # Saving and the session
 # ----------------------------------------------------------------------------------------------

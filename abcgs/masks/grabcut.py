@@ -19,6 +19,7 @@ edges, so a label stops where its surface does even when the colours on both sid
 
 from __future__ import annotations
 
+import json
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -65,12 +66,15 @@ class Stroke:
 
     @classmethod
     def from_json(cls, data: dict) -> Stroke:
-        """``{"label": int, "points": [[x, y], …], "radius": float}`` → :class:`Stroke` (clear errors on bad input)."""
+        """``{"label": int, "points": [[x, y], …], "radius": float}`` → :class:`Stroke` (clear errors on bad input: a
+        label must be an integer 0..254, not a number that rounds to one)."""
         try:
-            label = int(data["label"])
+            label = data["label"]
+            if not isinstance(label, int) or isinstance(label, bool):
+                raise TypeError(f"the label must be an integer, not {json.dumps(label)[:40]}")
             pts = np.asarray(data["points"], dtype=np.float64).reshape(-1, 2)
             radius = float(data.get("radius", 3.0))
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:
             raise InputError(f"a stroke must be {{'label': int, 'points': [[x, y], ...], 'radius': float}}: {exc}") from exc
         if label < 0 or label >= UNDECIDED:
             raise InputError(f"stroke label {label} is outside 0..{UNDECIDED - 1} (0 is the background brush)")
@@ -248,7 +252,7 @@ def fill_gaps(
 
 
 WORK_PIXELS = 1 << 18
-"""Pixels of the working size the cuts run at (about a quarter megapixel): a 12 Mpx phone photo is cut at 590 × 443, a
+"""Pixels of the working size the cuts run at (about a quarter megapixel): a 12 Mpx phone photo is cut at 591 × 443, a
 1080 × 1920 frame at 384 × 683, so that one Segment takes seconds at any photo size; the labels are brought back to
 the photo's size along its edges (:func:`upsample_labels`)."""
 

@@ -25,6 +25,8 @@ import json
 import logging
 import re
 import secrets
+import socket
+import threading
 from http import HTTPStatus
 from http.cookies import SimpleCookie
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -37,6 +39,7 @@ import numpy as np
 
 from abcgs.errors import AbcgsError, InputError
 from abcgs.masks.requests import (
+    REQUEST_DEADLINE_S,
     REQUEST_TIMEOUT_S,
     Refused,
     body_flag,
@@ -143,11 +146,44 @@ class _Handler(BaseHTTPRequestHandler):
                 raise Refused(HTTPStatus.UNSUPPORTED_MEDIA_TYPE,
                               f"Content-Type {ctype or '(none)'!r}: the API takes application/json")
 
+    deadline: float = REQUEST_DEADLINE_S  # set on the subclass :func:`make_server` builds
+    _timer: threading.Timer | None = None
+
+    def handle_one_request(self):
+        """One request, whose headers and body must arrive within :attr:`deadline` seconds together (each read has
+        its own ``timeout`` too): past it the connection is shut, so a client that drips bytes holds no thread."""
+        self._timer = threading.Timer(self.deadline, self._cut_off)
+        self._timer.daemon = True
+        self._timer.start()
+        try:
+            super().handle_one_request()
+        except OSError:  # the connection was shut at the deadline, or the client left
+            self.close_connection = True
+        finally:
+            self._timer.cancel()
+
+    def _cut_off(self) -> None:
+        log.info("a request from %s did not arrive within %.0f s; connection closed", self.address_string(),
+                 self.deadline)
+        try:
+            self.connection.shutdown(socket.SHUT_RDWR)
+        except OSError:
+            pass
+
+    def _arrived(self) -> None:
+        """The request is in whole: its work is not held to the deadline."""
+        if self._timer is not None:
+            self._timer.cancel()
+
     def _body(self) -> dict:
-        return read_body(content_length(self.headers.get_all("Content-Length")), self.rfile)
+        body = read_body(content_length(self.headers.get_all("Content-Length")), self.rfile)
+        self._arrived()
+        return body
 
     def _dispatch(self, method: str) -> None:
         path, _, query = self.path.partition("?")
+        if method == "GET":
+            self._arrived()
         try:
             self._check_caller(method)
             from_query = self._check_token(query)
@@ -217,10 +253,11 @@ class _Handler(BaseHTTPRequestHandler):
         self._dispatch("POST")
 
 
-def make_server(session: PaintSession, port: int = 0, host: str = "127.0.0.1",
-                token: str | None = None, timeout: float = REQUEST_TIMEOUT_S) -> ThreadingHTTPServer:
+def make_server(session: PaintSession, port: int = 0, host: str = "127.0.0.1", token: str | None = None,
+                timeout: float = REQUEST_TIMEOUT_S, deadline: float = REQUEST_DEADLINE_S) -> ThreadingHTTPServer:
     """An HTTP server for ``session`` on ``host:port`` (0 = any free port); call ``serve_forever()`` on it. A
-    connection that sends nothing for ``timeout`` seconds is answered 408 (mid-body) or closed.
+    connection that sends nothing for ``timeout`` seconds is answered 408 (mid-body) or closed, and one whose request
+    has not arrived whole within ``deadline`` seconds is closed.
 
     ``server.server_port`` is the port it got. Only loopback addresses are allowed: the page can write files. Every
     request must carry ``token`` (a fresh random one by default; ``server.token``), which :func:`page_url` puts in
@@ -229,7 +266,8 @@ def make_server(session: PaintSession, port: int = 0, host: str = "127.0.0.1",
     if host not in ("127.0.0.1", "localhost", "::1"):
         raise InputError(f"the paint server listens on the loopback address only, not {host}")
     token = token or secrets.token_urlsafe(24)
-    handler = type("PaintHandler", (_Handler,), {"session": session, "token": token, "timeout": timeout})
+    handler = type("PaintHandler", (_Handler,), {"session": session, "token": token, "timeout": timeout,
+                                                 "deadline": deadline})
     server = ThreadingHTTPServer((host, port), handler)
     server.daemon_threads = True
     server.token = token  # type: ignore[attr-defined]

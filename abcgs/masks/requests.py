@@ -20,6 +20,10 @@ REQUEST_TIMEOUT_S = 30.0
 """Seconds a request's connection may wait for the client's next bytes (a body shorter than its ``Content-Length``
 would hold its thread until the client left); then the request is answered 408 and closed."""
 
+REQUEST_DEADLINE_S = 60.0
+"""Seconds a request has to arrive whole, its headers and its body together: a client that sends one byte every few
+seconds meets every read's timeout but not this; its connection is then closed."""
+
 
 class Refused(AbcgsError):
     """A request the server does not serve: ``status`` (400, 403, 415) and a one-line reason."""
