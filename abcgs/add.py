@@ -32,7 +32,7 @@ from abcgs.io.guarded import checked_path
 from abcgs.io.images import load_labels
 from abcgs.params import load_params, validate_params
 from abcgs.preflight import check_image, check_label_map_sizes, check_painting, check_scene_images, view_sizes
-from abcgs.sections import NAME_PATTERN, NAME_RE
+from abcgs.sections import NAME_PATTERN, NAME_RE, read_params_file
 from abcgs.sfm.params import ReconstructParams
 from abcgs.sources.detect import DEFAULT_IMAGES, image_files
 from abcgs.sources.lens import consistent_scale, image_size
@@ -107,6 +107,7 @@ def edit_params(path: str | os.PathLike, edit: Callable[[Any], None], *, write: 
     path = Path(path)
     if not path.is_file():
         raise ParamsError(f"{path} not found; run from the repository root or pass --params")
+    read_params_file(path)  # the guarded reader first: one line for a file it refuses (a key given twice, a bomb)
     text = path.read_text(encoding="utf-8")
     try:
         from ruamel.yaml import YAML

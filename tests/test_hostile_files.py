@@ -406,3 +406,43 @@ def test_the_masks_page_refuses_two_content_lengths_and_times_out_a_short_body(p
     assert status == 408 and "did not arrive in time" in answer["error"] and seconds < 5, (status, answer, seconds)
     status, _, _ = _raw(page, _post(page, [str(len(body)), str(len(body))]), body)  # the same one twice is one
     assert status == 200
+
+
+# ------------------------------------------------------------------------------------------ params.yaml
+
+
+def test_a_key_given_twice_in_params_yaml_is_refused_by_preflight_and_every_add_command(tmp_path: Path,
+                                                                                        capsys) -> None:
+    """PyYAML keeps the second of two equal keys silently, DVC refuses the file and ruamel.yaml raised a traceback:
+    preflight and add-scene, add-style and add-experiment (--dry-run too) refuse it in one line naming the key and
+    its two lines."""
+    import shutil
+
+    from abcgs.__main__ import main as abcgs_main
+    from abcgs.preflight import main as preflight_main
+
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    for name in ("params.yaml", "dvc.yaml"):
+        shutil.copy(Path(__file__).resolve().parents[1] / name, repo / name)
+    params = repo / "params.yaml"
+    text = params.read_text()
+    params.write_text(text + "\nruntime:\n  device: cpu\n")
+    first = 1 + text.splitlines().index("runtime:")
+    last = len(text.splitlines()) + 2
+    scene = _photos(tmp_path / "scene")
+    painting = tmp_path / "p.png"
+    save_image(painting, np.zeros((64, 64, 3), np.float32))
+    calls = [(preflight_main, [str(params)]),
+             (abcgs_main, ["add-scene", "s", str(scene), "--params", str(params)]),
+             (abcgs_main, ["add-style", "p", str(painting), "--params", str(params)]),
+             (abcgs_main, ["add-experiment", "e", "--scene", "tiny", "--style", "tiny_paint", "--dry-run",
+                           "--params", str(params)])]
+    for command, argv in calls:
+        t0 = time.perf_counter()
+        assert command(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "Traceback" not in err, err
+        assert f"gives the key 'runtime' at lines {first} and {last} of one mapping; keep one" in err, err
+        assert time.perf_counter() - t0 < 20
+    assert params.read_text() == text + "\nruntime:\n  device: cpu\n"  # nothing written

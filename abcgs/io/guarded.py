@@ -185,6 +185,31 @@ def expanded_size(node: yaml.Node, budget: int = MAX_YAML_NODES, max_depth: int 
     return size(node, frozenset())[0]
 
 
+def duplicate_key(node: yaml.Node) -> str | None:
+    """The first key given twice in one mapping of the composed YAML ``node`` (each distinct node looked at once),
+    as ``"'key' at lines A and B"``; None when there is none. PyYAML keeps the last of the two silently, where DVC
+    and ruamel.yaml refuse the file."""
+    seen: set[int] = set()
+    stack = [node]
+    while stack:
+        n = stack.pop()
+        if id(n) in seen:
+            continue
+        seen.add(id(n))
+        if isinstance(n, yaml.MappingNode):
+            first: dict[tuple[str, str], int] = {}
+            for key, value in n.value:
+                if isinstance(key, yaml.ScalarNode) and key.tag != "tag:yaml.org,2002:merge":
+                    line = key.start_mark.line + 1
+                    if (key.tag, key.value) in first:
+                        return f"{key.value!r} at lines {first[key.tag, key.value]} and {line}"
+                    first[key.tag, key.value] = line
+                stack += [key, value]
+        elif isinstance(n, yaml.SequenceNode):
+            stack += n.value
+    return None
+
+
 def _yaml_reason(exc: BaseException) -> str:
     """One line for an error of the YAML reader: PyYAML's problem and where, without its quoted snippet."""
     if isinstance(exc, yaml.MarkedYAMLError) and exc.problem_mark is not None:
@@ -203,6 +228,9 @@ def parse_yaml(text: str, source: str) -> Any:
         if node is None:
             return None
         expanded_size(node)
+        twice = duplicate_key(node)
+        if twice is not None:
+            raise InputError(f"{source} gives the key {twice} of one mapping; keep one (DVC refuses such a file)")
         return loader.construct_document(node)
     except _Refused as exc:
         raise InputError(f"{source} is refused: {exc}; write the values out plainly") from None
