@@ -5,9 +5,9 @@ For each painted view the page keeps its cut (the label map the page saved: 0..L
 where the cut left a pixel undecided) and its strokes (a seed map: -1 none, 0 the background brush, k label k).
 :meth:`LabelField.solve` turns them into one label per Gaussian:
 
-1. **Strokes are hard constraints**: a Gaussian that blends at least ``stroke_weight`` into a view's stroke pixels
-   takes the stroke's label, whatever the cuts say (the largest such weight wins between strokes). No cut of any
-   view flips it.
+1. **Strokes are hard constraints**: a Gaussian that blends at least ``stroke_weight`` into a view's stroke pixels,
+   with at least ``stroke_share`` of its blending weight in that view under them, takes the stroke's label, whatever
+   the cuts say (the largest such weight wins between strokes). No cut of any view flips it.
 2. **Cuts are soft evidence** (``cut_evidence: soft``, the default). Every painted view's cut votes (Eq. 2), each
    Gaussian for the labels of the pixels it blends into, each pixel weighted by how sure the cut is there
    (:func:`cut_confidence`): near the strokes of its own view fully, falling off with the distance to them
@@ -15,9 +15,9 @@ where the cut left a pixel undecided) and its strokes (a seed map: -1 none, 0 th
    undecided. A Gaussian's evidence for label l is its confident vote for l over all it blends into decided pixels.
 3. **The 3-D step** (:mod:`abcgs.masks.graph`): a random walk over the Gaussians' nearest neighbours with the strokes
    as seeds and the cuts' evidence as priors (Grady's random walker with prior models: each Gaussian is also joined,
-   with ``cut_weight`` × its degree × its evidence, to a terminal of each label). A correction's cut so changes what
-   its view is sure of and what lies near it in 3-D, not what the other views are sure of; what no seed or evidence
-   reaches clearly stays undecided. ``cut_evidence: hard`` is the earlier rule: a Gaussian whose summed vote is clear
+   with ``cut_weight`` × its degree × its evidence, to a terminal of each label). A correction (its strokes alone, or
+   with ``correction: cut`` its view's cut again) so changes what it binds, what its view is sure of and what lies
+   near it in 3-D, not what the other views are sure of; what no seed or evidence reaches clearly stays undecided. ``cut_evidence: hard`` is the earlier rule: a Gaussian whose summed vote is clear
    (:func:`~abcgs.masks.lifting.decide_labels`) is a seed of its label.
 
 Each view's votes are computed once, when its cut or strokes change, so a Segment on one view re-lifts one view and
@@ -38,7 +38,7 @@ import torch
 from abcgs.cameras import Camera
 from abcgs.gaussians import GaussianModel
 from abcgs.masks.graph import GaussianGraph, decide_diffused, diffuse_labels, gaussian_graph
-from abcgs.masks.lifting import NO_VOTE, decide_labels, one_hot_labels
+from abcgs.masks.lifting import NO_VOTE, blend_votes, decide_labels, one_hot_labels
 from abcgs.masks.params import FieldParams, LiftParams
 from abcgs.types import Backend
 
@@ -154,7 +154,8 @@ class LabelField:
             conf = np.ones(cut.shape, np.float32)
         hot = one_hot_labels(cut, int(cut.max(initial=0)))
         decided = torch.from_numpy((cut >= 0).astype(np.float32))[..., None]
-        w = self._accumulate(cam, torch.cat([hot * torch.from_numpy(conf)[..., None], decided], -1))
+        w = blend_votes(self.model, cam, torch.cat([hot * torch.from_numpy(conf)[..., None], decided], -1),
+                        backend=self.backend)
         return w[:, :-1], w[:, -1]
 
     def _stroke_votes(self, strokes: np.ndarray, cam: Camera) -> torch.Tensor:
@@ -163,20 +164,10 @@ class LabelField:
         ``stroke_share`` of their blending weight in the view), so that a large splat behind or across a dot is not."""
         seeds = np.where(strokes >= 0, strokes, NO_VOTE)
         hot = one_hot_labels(seeds, int(seeds.max(initial=0)))
-        w = self._accumulate(cam, torch.cat([hot, torch.ones(*hot.shape[:2], 1)], -1))
+        w = blend_votes(self.model, cam, torch.cat([hot, torch.ones(*hot.shape[:2], 1)], -1), backend=self.backend)
         votes, total = w[:, :-1], w[:, -1]
         under = votes.sum(1) >= self.params.stroke_share * total.clamp_min(1e-12)
         return votes * under[:, None]
-
-    def _accumulate(self, cam: Camera, pixels: torch.Tensor) -> torch.Tensor:
-        """Per Gaussian and channel, its blending weight in ``cam`` times the pixel weights ``pixels (H, W, J)``
-        (:func:`abcgs.render.accumulate_weights`), on the host ``(N, J)``."""
-        from abcgs.render import accumulate_weights
-
-        act = self.model.detach().activated()
-        dev = self.model.device
-        return accumulate_weights(act["means"], act["quats"], act["scales"], act["opacities"], cam.torch_viewmat(dev),
-                                  cam.torch_K(dev), pixels.to(dev), backend=self.backend).cpu()
 
     def _votes(self, n_labels: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Summed cut votes ``(N, n_labels + 1)``, blending weight in decided cut pixels ``(N,)`` and stroke weights
@@ -194,7 +185,6 @@ class LabelField:
                     acc[:, : part.shape[1]] += part
             if v.cover is not None:
                 cover += v.cover
-
         return votes, cover, strokes
 
     def n_labels(self) -> int:

@@ -93,12 +93,16 @@ def view_weights(model: GaussianModel, camera: Camera, label_map: np.ndarray, n_
             f"mask of view {camera.name} is {label_map.shape[1]}x{label_map.shape[0]}, the view is "
             f"{camera.width}x{camera.height}"
         )
+    return blend_votes(model, camera, one_hot_labels(label_map, n_labels), backend=backend)
+
+
+def blend_votes(model: GaussianModel, camera: Camera, pixels: Tensor, *, backend: Backend = "auto") -> Tensor:
+    """Per Gaussian and channel, its blending weight in ``camera`` times the pixel weights ``pixels (H, W, J)``,
+    summed over the view (:func:`abcgs.render.accumulate_weights`), on the host ``(N, J)``."""
     act = model.detach().activated()
     dev = model.device
-    return accumulate_weights(
-        act["means"], act["quats"], act["scales"], act["opacities"], camera.torch_viewmat(dev), camera.torch_K(dev),
-        one_hot_labels(label_map, n_labels).to(dev), backend=backend,
-    ).cpu()
+    return accumulate_weights(act["means"], act["quats"], act["scales"], act["opacities"], camera.torch_viewmat(dev),
+                              camera.torch_K(dev), pixels.to(dev), backend=backend).cpu()
 
 
 def decide_labels(weights: Tensor, params: LiftParams | None = None) -> LiftResult:

@@ -31,8 +31,8 @@ from abcgs.gaussians import GaussianModel
 from abcgs.gaussians.ply import read_ply
 from abcgs.io.images import load_image
 from abcgs.masks.graph import gaussian_graph
+from abcgs.masks.lifting import blend_votes
 from abcgs.masks.params import FieldParams
-from abcgs.render import accumulate_weights
 from abcgs.sfm.model import read_scene
 from eval.bench.scripted_user import ScriptedUser, score
 from eval.bench.strokes import DATA, _strokes, reference_map
@@ -43,7 +43,7 @@ def lift_features(model: GaussianModel, cameras: list[Camera], images: list[Path
                   dims: int = 8, scale: float = 0.5, seed: int = 0) -> np.ndarray:
     """``(N, dims) float64`` per-Gaussian features: VGG-16's ``layer`` on each image (at ``scale``), projected on
     the ``dims`` principal components of a sample of its pixels, upsampled to the view and lifted (each Gaussian's
-    blending-weighted mean, :func:`abcgs.render.accumulate_weights`); each channel standardised over the Gaussians
+    blending-weighted mean, :func:`abcgs.masks.lifting.blend_votes`); each channel standardised over the Gaussians
     some view sees (0 for the others)."""
     from abcgs.features.vgg import VGG16Features
     from abcgs.features.weights import resolve_vgg16
@@ -59,14 +59,12 @@ def lift_features(model: GaussianModel, cameras: list[Camera], images: list[Path
     sample = torch.cat([m.flatten(1)[:, torch.randperm(m[0].numel(), generator=g)[:2000]] for m in maps], 1).T
     mean = sample.mean(0)
     _, _, basis = torch.pca_lowrank(sample - mean, q=dims, center=False)
-    act = model.detach().activated()
     acc = torch.zeros(model.num_gaussians, dims + 1)
     for cam, m in zip(cameras, maps):
         proj = ((m.flatten(1).T - mean) @ basis).T.reshape(dims, *m.shape[1:])
         full = torch.nn.functional.interpolate(proj[None], size=(cam.height, cam.width), mode="bilinear")[0]
         pixels = torch.cat([full, torch.ones(1, cam.height, cam.width)]).permute(1, 2, 0).contiguous()
-        acc += accumulate_weights(act["means"], act["quats"], act["scales"], act["opacities"], cam.torch_viewmat(),
-                                  cam.torch_K(), pixels)
+        acc += blend_votes(model, cam, pixels)
     seen = (acc[:, dims] > 1e-3).numpy()
     feats = (acc[:, :dims] / acc[:, dims:].clamp_min(1e-6)).double().numpy()
     feats[seen] = (feats[seen] - feats[seen].mean(0)) / feats[seen].std(0).clip(1e-12)
