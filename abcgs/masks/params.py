@@ -72,7 +72,7 @@ class FieldParams(BaseModel):
         0.1, gt=0.0, description="least blending weight (summed over a view's stroke pixels) for a Gaussian to take "
         "the stroke's label as a hard constraint")
     stroke_share: float = Field(
-        0.03, ge=0.0, le=1.0, description="least share of a Gaussian's blending weight in a view that must lie under "
+        0.0, ge=0.0, le=1.0, description="least share of a Gaussian's blending weight in a view that must lie under "
         "that view's strokes for them to bind it (0: any Gaussian that reaches stroke_weight)")
     correction: Literal["strokes", "cut"] = Field(
         "strokes", description="a Segment on a view once labels exist in 3-D: strokes: its strokes alone correct the "
