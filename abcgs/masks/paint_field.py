@@ -107,7 +107,7 @@ class FieldSession:
         label exists in 3-D, or with ``correction: cut``, cut the view seeded by its strokes and the labels in 3-D
         (:func:`cut_painted_view`); otherwise (``correction: strokes``) its strokes alone are its evidence. Then lift
         every painted view, solve and update the strip. Returns the view's labels as the page shows them (its cut
-        where the cut decided, the labels in 3-D elsewhere: ``labels``) and the evidence the view gives the field
+        where the cut decided, the labels in 3-D refined against ``photo`` elsewhere: ``labels``) and the evidence the view gives the field
         (``claimed``: the pixels of its cut or strokes; :meth:`Segmentation.saved_map` is what the page saves and the
         ``masks`` stage reads back). The seconds count from ``started`` (``time.perf_counter()`` when the request
         came; default now)."""
@@ -123,7 +123,7 @@ class FieldSession:
             self.field.set_view(cam, cut, strokes)
             self._solve(started, cut_seconds=time.perf_counter() - t0)
             t1 = time.perf_counter()
-            shown = render_field(self.field, self.result, cam)
+            shown = render_field(self.field, self.result, cam, photo=photo)
             self.state.phases["view"] = time.perf_counter() - t1
             self.state.seconds = time.perf_counter() - started
             return Segmentation(shown, cut >= 0, seconds=self.state.seconds)
