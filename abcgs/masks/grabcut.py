@@ -253,7 +253,7 @@ def fill_gaps(
 
 WORK_PIXELS = 1 << 18
 """Pixels of the working size the cuts run at (about a quarter megapixel): a 12 Mpx phone photo is cut at 591 × 443, a
-1080 × 1920 frame at 384 × 683, so that one Segment takes seconds at any photo size; the labels are brought back to
+1080 × 1920 frame at 384 × 682, so that one Segment takes seconds at any photo size; the labels are brought back to
 the photo's size along its edges (:func:`upsample_labels`)."""
 
 UPSAMPLE_EPS = 1e-3
@@ -266,7 +266,9 @@ def working_size(hw: tuple[int, int], max_side: int, max_pixels: int = WORK_PIXE
     ``max_side`` and it has at most ``max_pixels`` pixels."""
     h, w = hw
     scale = min(1.0, max_side / max(h, w), (max_pixels / (h * w)) ** 0.5)
-    return max(1, int(round(h * scale))), max(1, int(round(w * scale)))
+    if scale == 1.0:
+        return h, w
+    return max(1, int(h * scale)), max(1, int(w * scale))  # rounded down: never more than max_pixels
 
 
 def upsample_labels(labels: np.ndarray, claimed: np.ndarray, photo: np.ndarray, eps: float = UPSAMPLE_EPS
