@@ -19,6 +19,11 @@ import time
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
+from abcgs.runtime import setup
+
+setup()  # before anything that may load torch: OpenMP's wait policy, OpenCV before pycolmap
+
+# isort: split
 from eval.record import bench_parser, write_record
 
 REPO = Path(__file__).resolve().parents[2]
