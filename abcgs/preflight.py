@@ -249,18 +249,12 @@ def check_label_map_sizes(name: str, masks: Path, views: Mapping[str, tuple[str,
         if p.stem not in views:
             continue
         view, hw = views[p.stem]
-        w, h = _size(p)
-        mask_labels(p)  # its values: a label above 255 is refused before any work
-        if (h, w) != tuple(hw):
-            check_label_size(p, (h, w), hw, view, f"or paint it on the views: {paint_command(masks.parent, images)}")
-            scaled += 1
-        strokes = stroke_map_path(masks, p.stem)
-        if strokes.exists():  # the page's strokes of the view, scaled with it (abcgs.io.images.strokes_for_view)
-            sw, sh = _size(strokes)
-            mask_labels(strokes)
-            if (sh, sw) != tuple(hw):
-                check_label_size(strokes, (sh, sw), hw, view,
-                                 f"or paint it on the views: {paint_command(masks.parent, images)}")
+        strokes = stroke_map_path(masks, p.stem)  # the page's strokes of the view, scaled with it (strokes_for_view)
+        for f in (p, strokes) if strokes.exists() else (p,):
+            w, h = _size(f)
+            mask_labels(f)  # its values: a label above 255 is refused before any work
+            if (h, w) != tuple(hw):
+                check_label_size(f, (h, w), hw, view, f"or paint it on the views: {paint_command(masks.parent, images)}")
                 scaled += 1
     if scaled:
         log.info("data.scenes.%s: %d label map(s) in %s are scaled to their views (nearest label)", name, scaled, masks)
