@@ -139,3 +139,23 @@ def test_a_benchmark_run_through_the_suite_writes_its_record_with_the_command_th
     assert rec["t"]["modules"] > 0 and rec["t"]["upward_imports"] == 0
     assert rec["provenance"]["command"] == f"python -m eval.bench.structure --json {out} --label t"
     assert "torch" not in rec["provenance"]  # the structure count never loads torch
+
+
+def test_the_test_suite_benchmark_times_a_pytest_run_and_keeps_its_outcomes(tmp_path):
+    """``python -m eval run test_suite`` on a small test file of its own: one pass, one failure, one skip. The
+    record counts each, names the failing test and passes pytest's exit code through."""
+    tests = tmp_path / "test_tiny.py"
+    tests.write_text("import pytest, time\n\n"
+                     "def test_ok():\n    time.sleep(0.2)\n\n"
+                     "def test_bad():\n    assert 1 == 2\n\n"
+                     "@pytest.mark.skip(reason='shown as skipped')\ndef test_skipped():\n    pass\n")
+    out = tmp_path / "suite.json"
+    proc = subprocess.run([sys.executable, "-m", "eval", "run", "test_suite", "--json", str(out), "--slowest", "2",
+                           "--", str(tests), "-p", "no:cacheprovider"],
+                          capture_output=True, text=True, timeout=300, cwd=REPO)
+    assert proc.returncode == 1, proc.stdout + proc.stderr  # pytest's own code for failed tests
+    rec = json.loads(out.read_text())
+    assert rec["exit_code"] == 1 and rec["counts"] == {"passed": 1, "failed": 1, "skipped": 1}
+    assert len(rec["slowest"]) == 2 and rec["slowest"][0]["test"].endswith("::test_ok")
+    assert rec["slowest"][0]["seconds"] >= 0.2 and rec["wall_seconds"] >= rec["test_seconds"]
+    assert "pytest exit 1" in proc.stdout and "test_ok" in proc.stdout
