@@ -269,7 +269,7 @@ def describe_labels(labels_path: Path, painting: Path) -> list[str]:
     labels = load_labels(labels_path)
     if not np.any(labels):
         raise InputError(f"{labels_path} is all 0 (unassigned): it labels no region; paint regions 1, 2, … "
-                         "(python -m abcgs.masks.paint --painting PAINTING)")
+                         "(python -m abcgs.masks.page --painting PAINTING)")
     h, w = labels.shape
     pw, ph = image_size(painting)
     if not consistent_scale((pw, ph), (w, h)):

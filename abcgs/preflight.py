@@ -234,7 +234,7 @@ def mask_labels(path: Path) -> np.ndarray | None:
 
 def paint_command(folder: Path, images: str | None = None) -> str:
     """The command that opens the strokes page on a scene's views (what a label map of the right size comes from)."""
-    return f"python -m abcgs.masks.paint {folder}" + (f" --images {images}" if images and images != DEFAULT_IMAGES else "")
+    return f"python -m abcgs.masks.page {folder}" + (f" --images {images}" if images and images != DEFAULT_IMAGES else "")
 
 
 def check_label_map_sizes(name: str, masks: Path, views: Mapping[str, tuple[str, tuple[int, int]]],

@@ -322,8 +322,8 @@ def test_a_tiny_applied_scale_is_refused(tmp_path: Path) -> None:
 
 @pytest.fixture
 def page(tmp_path: Path):
-    from abcgs.masks.paint import PaintSession
-    from abcgs.masks.paint_server import make_server
+    from abcgs.masks.page.server import make_server
+    from abcgs.masks.page.session import PaintSession
 
     scene = _photos(tmp_path / "scene", 1)
     server = make_server(PaintSession.for_scene(scene), timeout=1.0)
@@ -356,10 +356,10 @@ def _post(server, lengths: list[str]) -> bytes:
 @pytest.mark.parametrize("where", ["headers", "body"])
 def test_a_client_that_drips_bytes_is_cut_off_at_the_deadline_while_another_is_served(tmp_path: Path, where) -> None:
     """One byte every 0.3 s meets every read's timeout (1 s) but not the request's deadline (2 s here; 60 s by
-    default, abcgs.masks.requests.REQUEST_DEADLINE_S): the connection is closed by then, and a second client is
+    default, abcgs.masks.page.requests.REQUEST_DEADLINE_S): the connection is closed by then, and a second client is
     answered while the first drips."""
-    from abcgs.masks.paint import PaintSession
-    from abcgs.masks.paint_server import make_server
+    from abcgs.masks.page.server import make_server
+    from abcgs.masks.page.session import PaintSession
 
     server = make_server(PaintSession.for_scene(_photos(tmp_path / "scene", 1)), timeout=1.0, deadline=2.0)
     threading.Thread(target=server.serve_forever, daemon=True).start()

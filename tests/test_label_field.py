@@ -1,4 +1,4 @@
-"""The labels of the masks page and stage (abcgs/masks/field.py), the strip of every view (abcgs/masks/strip.py) and
+"""The labels of the masks page and stage (abcgs/masks/field.py), the strip of every view (abcgs/masks/page/strip.py) and
 the strokes' file, on the wall-and-ball scene of tests/test_content_masks.py."""
 
 from __future__ import annotations
@@ -12,10 +12,10 @@ from abcgs.gaussians import GaussianModel
 from abcgs.io.images import load_stroke_map, save_labels, save_stroke_map, stroke_map_path
 from abcgs.masks.content import label_iou, make_content_masks
 from abcgs.masks.field import LabelField, correction_seeds, render_field
-from abcgs.masks.grabcut import Stroke, rasterize_strokes
 from abcgs.masks.lifting import NO_VOTE, render_label_map
+from abcgs.masks.page.strip import Strip
 from abcgs.masks.params import UNDECIDED, MaskParams
-from abcgs.masks.strip import Strip
+from abcgs.masks.strokes import Stroke, rasterize_strokes
 from tests.test_content_masks import cameras, wall_and_ball
 
 

@@ -106,7 +106,7 @@ def test_a_label_map_of_another_aspect_is_refused_before_any_work(quarter_scene:
     assert time.perf_counter() - t0 < 10.0
     msg = str(err.value)
     assert msg.startswith("data.scenes.ns: label map ") and "masks/000.png is 120×120 but its view 000.png is 40×30" in msg
-    assert "save it at 40×30" in msg and f"python -m abcgs.masks.paint {quarter_scene} --images images_4" in msg
+    assert "save it at 40×30" in msg and f"python -m abcgs.masks.page {quarter_scene} --images images_4" in msg
 
     repo_params = _repo_params(tmp_path)
     before = repo_params.read_text()

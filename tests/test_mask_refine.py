@@ -14,10 +14,11 @@ from abcgs.errors import InputError
 from abcgs.gaussians import render
 from abcgs.io.images import save_labels, to_uint8
 from abcgs.masks.content import label_iou, make_content_masks
-from abcgs.masks.grabcut import Stroke, grabcut_features, inverse_depth, segment
+from abcgs.masks.grabcut import grabcut_features, inverse_depth, segment
 from abcgs.masks.lifting import NO_VOTE, LiftResult, decide_labels, lift_labels, one_hot_labels, render_label_map
 from abcgs.masks.params import MaskParams, RefineParams
 from abcgs.masks.refine import NO_SEED, render_seeds
+from abcgs.masks.strokes import Stroke
 from abcgs.render import accumulate_weights, rgb_to_sh0
 
 ON = RefineParams(enabled=True)

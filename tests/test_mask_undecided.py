@@ -12,10 +12,11 @@ from test_content_masks import cameras, wall_and_ball
 from abcgs.gaussians import GaussianModel
 from abcgs.io.images import save_labels
 from abcgs.masks.content import label_iou, make_content_masks, read_label_files, unlabelled_warnings
-from abcgs.masks.grabcut import BACKGROUND, Stroke, segment
+from abcgs.masks.grabcut import segment
 from abcgs.masks.lifting import NO_VOTE, LiftResult, lift_labels, propagate_unseen, render_label_map
 from abcgs.masks.params import UNDECIDED, LiftParams, MaskParams, RefineParams
 from abcgs.masks.refine import render_seeds
+from abcgs.masks.strokes import BACKGROUND, Stroke
 
 
 def _half_ball_mask(model, truth, cam, right_half_value: int) -> tuple[np.ndarray, np.ndarray]:
@@ -134,7 +135,7 @@ def test_split_votes_take_their_neighbours_label_and_a_vote_for_none_stays() -> 
 def test_the_page_opens_the_warned_views_first(tmp_path) -> None:
     from abcgs.errors import InputError
     from abcgs.io.images import save_image
-    from abcgs.masks.paint import PaintSession, worst_views
+    from abcgs.masks.page.session import PaintSession, worst_views
 
     for stem in ("a", "b", "c", "d"):
         save_image(tmp_path / "scene" / "images" / f"{stem}.png", np.zeros((8, 8, 3), np.float32))

@@ -1,4 +1,4 @@
-"""Masks from strokes (abcgs.masks.paint): GrabCut per label from a few strokes, the saved label PNGs, the JSON API.
+"""Masks from strokes (abcgs.masks.page): GrabCut per label from a few strokes, the saved label PNGs, the JSON API.
 
 The page itself is driven in a browser by tests/test_paint_browser.py.
 """
@@ -23,16 +23,11 @@ import pytest
 from abcgs.errors import InputError
 from abcgs.io.images import save_image
 from abcgs.masks.content import label_iou, read_label_files
-from abcgs.masks.grabcut import (
-    BACKGROUND,
-    Stroke,
-    fill_gaps,
-    gmm_log_density,
-    rasterize_strokes,
-    segment,
-)
-from abcgs.masks.paint import PaintSession, main
-from abcgs.masks.paint_server import make_server, page_url
+from abcgs.masks.grabcut import fill_gaps, gmm_log_density, segment
+from abcgs.masks.page.command import main
+from abcgs.masks.page.server import make_server, page_url
+from abcgs.masks.page.session import PaintSession
+from abcgs.masks.strokes import BACKGROUND, Stroke, rasterize_strokes
 from abcgs.viz import LABEL_COLOURS, colorize_labels
 
 H, W = 120, 160
@@ -175,7 +170,7 @@ def test_rasterize_strokes_paints_labels_in_order() -> None:
 
 
 def test_label_colours_cycle_past_the_end_and_the_page_overlay_uses_them() -> None:
-    from abcgs.masks.paint_server import overlay_rgba
+    from abcgs.masks.page.server import overlay_rgba
 
     n = len(LABEL_COLOURS)
     lab = np.array([[0, 1, n - 1, n]])
@@ -446,9 +441,9 @@ def raw_request(port: int, method: str, path: str, headers: dict[str, str], body
 
 @pytest.fixture()
 def paint_process(tmp_path):
-    """``python -m abcgs.masks.paint SCENE --no-open`` in a process of its own (its memory is measured): port, pid."""
+    """``python -m abcgs.masks.page SCENE --no-open`` in a process of its own (its memory is measured): port, pid."""
     scene = make_scene(tmp_path / "scene", 1)
-    proc = subprocess.Popen([sys.executable, "-m", "abcgs.masks.paint", str(scene), "--no-open"],
+    proc = subprocess.Popen([sys.executable, "-m", "abcgs.masks.page", str(scene), "--no-open"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     line = proc.stdout.readline()
     m = re.search(r"http://127\.0\.0\.1:(\d+)/\?token=([\w-]+)", line)

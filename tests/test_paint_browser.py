@@ -25,7 +25,7 @@ from conftest import launch_chromium
 from abcgs.io.images import load_labels
 from abcgs.masks.content import label_iou, read_label_files
 from abcgs.masks.lifting import NO_VOTE
-from abcgs.masks.paint import PaintSession
+from abcgs.masks.page.session import PaintSession
 from eval.bench.paint_iou import simulated_strokes
 from eval.bench.paint_page import CHROMIUM_ARGS, draw, open_page, press
 from eval.bench.paint_page import serve as serve_page
@@ -209,7 +209,7 @@ def test_two_painted_views_show_their_labels_in_the_strip_of_every_view(browser,
 
     from abcgs.gaussians import GaussianModel
     from abcgs.gaussians.ply import write_ply
-    from abcgs.masks.paint_field import THUMB_PHOTO
+    from abcgs.masks.page.field_session import THUMB_PHOTO
     from abcgs.sfm.model import read_scene
     from abcgs.viz import LABEL_COLOURS
 

@@ -1,4 +1,4 @@
-"""The masks page with the scene's fit (abcgs/masks/paint_field.py through abcgs/masks/paint.py): each Segment cuts
+"""The masks page with the scene's fit (abcgs/masks/page/field_session.py through abcgs/masks/page/session.py): each Segment cuts
 the view from its strokes and the labels already in 3-D, lifts every painted view and shows every view's labels in
 the strip; without a fit, or with views of another size, the page says why and cuts one view at a time.
 
@@ -23,10 +23,11 @@ from test_paint import request, served  # noqa: F401  (served: the fixture)
 from abcgs.errors import InputError
 from abcgs.io.images import load_labels, load_stroke_map, stroke_map_path
 from abcgs.masks.content import label_iou, read_label_files
-from abcgs.masks.grabcut import rasterize_strokes
-from abcgs.masks.paint import PaintSession, main
-from abcgs.masks.paint_field import THUMB_PHOTO
+from abcgs.masks.page.command import main
+from abcgs.masks.page.field_session import THUMB_PHOTO
+from abcgs.masks.page.session import PaintSession
 from abcgs.masks.params import UNDECIDED
+from abcgs.masks.strokes import rasterize_strokes
 from abcgs.viz import LABEL_COLOURS
 from eval.bench.paint_iou import simulated_strokes
 
@@ -180,7 +181,7 @@ def test_the_scene_of_the_params_file_opens_its_fit_with_its_masks_params(fitted
 
 def test_the_cli_names_the_command_that_makes_the_fit(tiny_colmap, tmp_path) -> None:
     params = _params_scene(tmp_path, tiny_colmap, {})
-    proc = subprocess.Popen([sys.executable, "-m", "abcgs.masks.paint", "--scene", "t", "--params", str(params),
+    proc = subprocess.Popen([sys.executable, "-m", "abcgs.masks.page", "--scene", "t", "--params", str(params),
                              "--no-open"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             cwd=Path(__file__).resolve().parents[1])
     try:

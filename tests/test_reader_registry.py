@@ -202,7 +202,7 @@ def test_no_stage_branches_on_a_scene_formats_name() -> None:
     branch = re.compile(rf"""(fmt|format|resolved)\s*(==|!=|in)\s*\(?["']({names})["']""")
     hits = [f"{p.relative_to(REPO_ROOT)}:{i}" for folder in ("stages", "abcgs/view", "abcgs/add.py",
                                                              "abcgs/source_check.py", "abcgs/preflight.py",
-                                                             "abcgs/masks/paint.py", "abcgs/sources/params.py")
+                                                             "abcgs/masks/page/session.py", "abcgs/sources/params.py")
             for p in ([REPO_ROOT / folder] if folder.endswith(".py") else sorted((REPO_ROOT / folder).rglob("*.py")))
             for i, line in enumerate(p.read_text().splitlines(), 1) if branch.search(line)]
     assert hits == []

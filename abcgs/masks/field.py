@@ -22,7 +22,7 @@ where the cut left a pixel undecided) and its strokes (a seed map: -1 none, 0 th
 
 Each view's votes are computed once, when its cut or strokes change, so a Segment on one view re-lifts one view and
 re-solves the graph. Rendering the labels into every view is the caller's (the stage renders full-size maps, the page
-a strip of small ones, :mod:`abcgs.masks.strip`).
+a strip of small ones, :mod:`abcgs.masks.page.strip`).
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ input is one seeded mutation of it (:data:`MUTATIONS`): truncated, bytes flipped
 inflated, a number replaced by 0, -1, NaN, infinity or a huge value, a record repeated, the JSON nested deeply, a
 gzip stream padded to a bomb, a PNG header claiming 10⁹ × 10⁹ pixels, a checkpoint field made 0-d, complex or
 empty, a YAML alias bomb, a FIFO or ``/dev/zero`` in a file's place. Its reader must return a scene, or refuse with
-:class:`~abcgs.errors.InputError` (the masks page: :class:`~abcgs.masks.requests.Refused`, a 4xx; ``params.yaml``:
+:class:`~abcgs.errors.InputError` (the masks page: :class:`~abcgs.masks.page.requests.Refused`, a 4xx; ``params.yaml``:
 :class:`~abcgs.errors.ParamsError`); any other exception, or an input slower than
 :data:`SLOW_S`, is a finding. Each format runs in a child process, so a reader that crashes the interpreter (a native
 abort) is reported with the input that did it instead of ending the run.
@@ -216,7 +216,7 @@ def make_targets(work: Path, formats: tuple[str, ...] = FORMATS) -> dict[str, Ta
         p = _poses_bounds(folder, cams)
         out["llff"] = Target("llff", [p], lambda folder=folder: read_source(folder, "llff"), "npy")
     if "paint" in formats:
-        from abcgs.masks.requests import Refused, image_index, read_body
+        from abcgs.masks.page.requests import Refused, image_index, read_body
 
         p = work / "paint" / "request.txt"
         p.parent.mkdir(parents=True)

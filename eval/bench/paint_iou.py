@@ -10,7 +10,7 @@ Steps, all in a temporary folder:
 2. The user: at most ``--strokes`` strokes per label on view ``--view`` (:func:`simulated_strokes`: straight strokes
    through the deepest points of each true region, i.e. on its medial axis, kept ``--radius`` + 2 px inside), then
    Segment; with ``--rounds`` ≥ 2, fewer strokes first and corrections after each cut (:func:`simulated_session`).
-3. :func:`abcgs.masks.paint.segment` cuts that view from the strokes; its IoU against the view's true labels is
+3. :func:`abcgs.masks.grabcut.segment` cuts that view from the strokes; its IoU against the view's true labels is
    printed as ``2-D``.
 4. ``reconstruct`` and a short ``fit`` (``--iterations``, densifying every 25 steps) of the scene.
 5. :func:`abcgs.masks.content.make_content_masks` with the strokes' mask as the only given mask, as the ``masks``
@@ -45,8 +45,9 @@ import numpy as np
 from abcgs.gaussians import GaussianModel
 from abcgs.io.images import load_image, load_labels, save_labels
 from abcgs.masks.content import ContentMasks, label_iou, make_content_masks
-from abcgs.masks.grabcut import Stroke, segment
+from abcgs.masks.grabcut import segment
 from abcgs.masks.params import LiftParams, MaskParams, RefineParams
+from abcgs.masks.strokes import Stroke
 from abcgs.types import Scene
 from eval.record import bench_parser, write_record
 from eval.studies.mask_lifting import iou_summary
@@ -337,7 +338,7 @@ def _figure(path: Path, colmap: Path, scene, strokes: list[Stroke], cut: np.ndar
             views: list[np.ndarray], src: int) -> None:
     """Row 1: the strokes and the cut on the drawn view; row 2: the lifted labels in three other views."""
     from abcgs.io.images import save_image
-    from abcgs.masks.grabcut import rasterize_strokes
+    from abcgs.masks.strokes import rasterize_strokes
     from abcgs.viz import colorize_labels, image_grid
     from eval.studies.mask_lifting import overlay
 

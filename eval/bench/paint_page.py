@@ -1,4 +1,4 @@
-"""A scripted user at the masks-from-strokes page (``python -m abcgs.masks.paint``), for the browser tests and the
+"""A scripted user at the masks-from-strokes page (``python -m abcgs.masks.page``), for the browser tests and the
 studies that make masks the way a person would: chromium (playwright) presses keys, moves the mouse over the
 canvas and clicks the page's buttons; nothing calls the server's API directly.
 """
@@ -14,9 +14,9 @@ from abcgs.runtime import setup
 
 setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
-from abcgs.masks.grabcut import Stroke
-from abcgs.masks.paint import PaintSession
-from abcgs.masks.paint_server import make_server, page_url
+from abcgs.masks.page.server import make_server, page_url
+from abcgs.masks.page.session import PaintSession
+from abcgs.masks.strokes import Stroke
 
 CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu-sandbox"]
 """Headless chromium flags for the page (no GPU is needed: it draws on a 2-D canvas)."""

@@ -16,7 +16,7 @@ left unlabelled. The labels scored are the stage's: refined against each view's 
 (:func:`abcgs.masks.edges.refine_to_photo`), a painted view's cut where it decided; beside them, the labels rendered
 from the Gaussians alone. Printed per stroke: the worst and mean IoU over all (view, label) pairs, the worst view's
 share of unlabelled pixels, and the seconds from Segment to every view's labels (cut, solve, the strip of all views the
-page shows, :class:`abcgs.masks.strip.Strip`, and the painted view's labels). Beside them, the bounds the fitted
+page shows, :class:`abcgs.masks.page.strip.Strip`, and the painted view's labels). Beside them, the bounds the fitted
 geometry sets (:func:`eval.bench.strokes.geometry_bound`: all reference maps lifted together and rendered back, as
 they are and refined the same way); the goal's pairs are held against the refined one. At the end, the ``masks``
 stage's labels from what the page saved (:func:`stage_maps`), scored the same way.
@@ -50,10 +50,10 @@ from abcgs.gaussians.ply import read_ply
 from abcgs.io.images import load_image, save_image, to_uint8
 from abcgs.masks.content import label_iou
 from abcgs.masks.field import LabelField, render_field
-from abcgs.masks.grabcut import Stroke, rasterize_strokes
-from abcgs.masks.paint_field import FieldSession
+from abcgs.masks.page.field_session import FieldSession
+from abcgs.masks.page.strip import Strip
 from abcgs.masks.params import FieldParams
-from abcgs.masks.strip import Strip
+from abcgs.masks.strokes import Stroke, rasterize_strokes
 from abcgs.sfm.model import read_scene
 from eval.bench.strokes import DATA, _overlay, _strokes, geometry_bound, reference_map
 from eval.record import bench_parser, write_record
@@ -118,7 +118,7 @@ def verdict(steps: list[dict], bound: dict) -> dict:
 
 
 class ScriptedUser:
-    """The page's state for one run (:class:`abcgs.masks.paint_field.FieldSession`, one page item per camera) and
+    """The page's state for one run (:class:`abcgs.masks.page.field_session.FieldSession`, one page item per camera) and
     each painted view's strokes."""
 
     def __init__(self, model, scene, refs: dict[str, np.ndarray], by_stem: dict[str, int], params: FieldParams):

@@ -7,7 +7,7 @@ The scene (:func:`generated_scene`): ``--gaussians`` Gaussians on a textured bac
 it (labels 3, 1, 2), seen by ``--views`` cameras on an arc at ``--width`` × ``--height`` (1920 × 1080 by default,
 portrait or landscape alike); each view's photo is the scene's own render, and its true labels the labels' render.
 The user (:func:`eval.bench.paint_iou.simulated_strokes`) draws ``--strokes`` strokes per label on view 0 and presses
-Segment (:meth:`abcgs.masks.paint_field.FieldSession.segment`, as the page does); then, for each of ``--corrections``
+Segment (:meth:`abcgs.masks.page.field_session.FieldSession.segment`, as the page does); then, for each of ``--corrections``
 further views, a dot on its largest wrong region (:func:`eval.bench.scripted_user.next_stroke`) and Segment again.
 Printed per Segment: the parts (``cut``: GrabCut at the working size, :data:`abcgs.masks.grabcut.WORK_PIXELS`, and the
 labels brought back to the photo's size; ``solve``: the lift of the changed view and the 3-D step; ``strip``: every
@@ -33,10 +33,11 @@ from abcgs.cameras import Camera, intrinsics, look_at
 from abcgs.gaussians import GaussianModel, render
 from abcgs.io.images import to_uint8
 from abcgs.masks.field import LabelField
-from abcgs.masks.grabcut import WORK_PIXELS, rasterize_strokes
+from abcgs.masks.grabcut import WORK_PIXELS
 from abcgs.masks.lifting import render_label_map
-from abcgs.masks.paint_field import FieldSession
-from abcgs.masks.strip import Strip
+from abcgs.masks.page.field_session import FieldSession
+from abcgs.masks.page.strip import Strip
+from abcgs.masks.strokes import rasterize_strokes
 from abcgs.render import rgb_to_sh0
 from eval.bench.paint_iou import simulated_strokes
 from eval.bench.scripted_user import next_stroke

@@ -47,9 +47,10 @@ from abcgs.gaussians.ply import read_ply
 from abcgs.io.images import load_image, load_labels, save_image, save_labels, to_uint8
 from abcgs.layout import ColmapDir
 from abcgs.masks.content import ContentMasks, label_iou, make_content_masks, recut_outputs
-from abcgs.masks.grabcut import Stroke, segment
+from abcgs.masks.grabcut import segment
 from abcgs.masks.lifting import NO_VOTE, LiftResult, lift_labels, render_label_map
 from abcgs.masks.params import UNDECIDED, LiftParams, MaskParams, RefineParams
+from abcgs.masks.strokes import Stroke
 from abcgs.sfm.model import read_scene
 from abcgs.types import Scene
 from eval.record import bench_parser, write_record
@@ -70,7 +71,7 @@ def _strokes(items: list[dict], spec: dict, cam) -> list[Stroke]:
 
 
 def _overlay(img: np.ndarray, labels: np.ndarray, strokes: list[Stroke] | None = None) -> np.ndarray:
-    from abcgs.masks.grabcut import rasterize_strokes
+    from abcgs.masks.strokes import rasterize_strokes
     from abcgs.viz import colorize_labels
 
     lab = np.where(labels < 0, 0, np.where(labels == UNDECIDED, 0, labels))

@@ -47,7 +47,7 @@ FLOORS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("scenes and features", ("abcgs.sfm", "abcgs.scene", "abcgs.layout", "abcgs.features")),
     ("losses", ("abcgs.losses",)),
     ("methods", ("abcgs.fit", "abcgs.splats", "abcgs.sources", "abcgs.masks", "abcgs.stylize", "abcgs.evaluation")),
-    ("presentation", ("abcgs.view", "abcgs.report")),
+    ("presentation", ("abcgs.view", "abcgs.report", "abcgs.masks.page")),
     ("orchestration", ("abcgs.params", "abcgs.preflight", "abcgs.pipeline", "abcgs.dag", "abcgs.overlay",
                        "abcgs.add", "abcgs.add_experiment", "abcgs.cluster", "abcgs.source_check", "abcgs.__main__",
                        "abcgs.view.__main__")),

@@ -8,7 +8,7 @@ and the result is a scene folder and a painting label map that a compositional a
         --copy out/fern_strokes_semantic/stylize/grid.png=docs/img/masks/fern_semantic_strokes.jpg \\
         --copy out/fern_strokes_compositional/stylize/grid.png=docs/img/masks/fern_compositional_strokes.jpg
 
-What the first command does, as a person would at ``python -m abcgs.masks.paint``:
+What the first command does, as a person would at ``python -m abcgs.masks.page``:
 
 1. ``<work>/fern/images/`` ← fern's photos, ``<work>/*.jpg`` ← Starry Night and the compositional transfer's other
    two paintings (copies; ``../shared`` stays as it is).
@@ -38,8 +38,8 @@ setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 import numpy as np
 
 from abcgs.errors import InputError
-from abcgs.masks.grabcut import Stroke
-from abcgs.masks.paint import PaintSession
+from abcgs.masks.page.session import PaintSession
+from abcgs.masks.strokes import Stroke
 
 VIEW = "IMG_4026.jpg"
 """The fern view the user draws on (the first one, 504 × 378)."""

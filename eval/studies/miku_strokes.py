@@ -11,7 +11,7 @@ transfer run from.
         --copy out/miku_strokes_semantic/stylize/grid.png=docs/img/masks/miku_semantic_strokes.jpg \\
         --copy out/miku_strokes_compositional/stylize/grid.png=docs/img/masks/miku_compositional_strokes.jpg
 
-What the second command does, as a person would at ``python -m abcgs.masks.paint``:
+What the second command does, as a person would at ``python -m abcgs.masks.page``:
 
 1. ``<work>/miku/``: the capture's COLMAP model (``sparse/0/``, copied), a subset of its photos in ``images/``
    (:func:`subset`: every :data:`STEP`-th photo in name order counted from the stroked view, and the arc's two far
@@ -48,8 +48,8 @@ setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 import numpy as np
 
 from abcgs.errors import InputError
-from abcgs.masks.grabcut import Stroke
-from abcgs.masks.paint import PaintSession
+from abcgs.masks.page.session import PaintSession
+from abcgs.masks.strokes import Stroke
 from abcgs.sources.detect import image_files
 from abcgs.sources.lens import image_size
 from eval.bench.strokes import DATA

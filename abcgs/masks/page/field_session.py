@@ -1,7 +1,7 @@
 """The masks page's 3-D labels: with the scene's fit, every Segment cuts the view from its strokes and the labels
 already in 3-D (:func:`abcgs.masks.field.cut_painted_view`), lifts the painted views' cuts and strokes onto the
 Gaussians, decides the rest in 3-D (:class:`abcgs.masks.field.LabelField`) and shows every view's labels in a strip
-(:class:`abcgs.masks.strip.Strip`), most doubtful first; a view whose strokes are cleared leaves the field.
+(:class:`abcgs.masks.page.strip.Strip`), most doubtful first; a view whose strokes are cleared leaves the field.
 
 The page's views are matched to the fit's cameras by image stem, and each must have its camera's size (the views the
 fit was made from: a scene whose photos were undistorted to another size is painted one view at a time).
@@ -20,10 +20,10 @@ import numpy as np
 from abcgs.errors import InputError
 from abcgs.io.images import image_header, load_image, to_uint8
 from abcgs.masks.field import FieldResult, LabelField, cut_painted_view, render_field
-from abcgs.masks.grabcut import Segmentation
 from abcgs.masks.lifting import NO_VOTE
+from abcgs.masks.page.strip import Strip
 from abcgs.masks.params import UNDECIDED, FieldParams, LiftParams
-from abcgs.masks.strip import Strip
+from abcgs.masks.strokes import Segmentation
 from abcgs.viz import colorize_labels
 
 log = logging.getLogger(__name__)

@@ -1,11 +1,11 @@
-"""The masks page's HTTP server (:mod:`abcgs.masks.paint`): the page and a small JSON API on the loopback address,
+"""The masks page's HTTP server (:mod:`abcgs.masks.page`): the page and a small JSON API on the loopback address,
 answering its own page only.
 
 Every request carries the server's random token (in the query of the printed address, then in the cookie the page
 gets with it); a request whose ``Host`` is not this server's address (DNS rebinding), with another page's ``Origin``,
 or a POST not declared ``application/json`` is refused, as is a body without one plain ``Content-Length`` from 1 to
-:data:`~abcgs.masks.requests.MAX_BODY` or one that does not arrive within
-:data:`~abcgs.masks.requests.REQUEST_TIMEOUT_S` (:mod:`abcgs.masks.requests`); each refusal is a 4xx with a one-line
+:data:`~abcgs.masks.page.requests.MAX_BODY` or one that does not arrive within
+:data:`~abcgs.masks.page.requests.REQUEST_TIMEOUT_S` (:mod:`abcgs.masks.page.requests`); each refusal is a 4xx with a one-line
 reason.
 
 The API (``<i>``: a page item's index, ``<c>``: a view's index in the strip):
@@ -15,7 +15,7 @@ The API (``<i>``: a page item's index, ``<c>``: a view's index in the strip):
 - ``GET /api/image/<i>``, ``GET|POST /api/strokes/<i>``, ``POST /api/segment/<i>``, ``GET /api/labels/<i>.png``,
   ``GET /api/overlay/<i>.png``, ``POST /api/save``: the views, their strokes, the cut and Save;
 - ``GET /api/strip``: with the scene's fit, every view of the strip, most doubtful first
-  (:meth:`abcgs.masks.paint_field.FieldSession.listing`); ``GET /api/strip/<c>.png``: its thumbnail, the labels in
+  (:meth:`abcgs.masks.page.field_session.FieldSession.listing`); ``GET /api/strip/<c>.png``: its thumbnail, the labels in
   the page's colours over the photo, undecided white. Without a fit both are 404 with the reason.
 """
 
@@ -31,14 +31,14 @@ from http import HTTPStatus
 from http.cookies import SimpleCookie
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Protocol
 from urllib.parse import parse_qs
 
 import cv2
 import numpy as np
 
 from abcgs.errors import AbcgsError, InputError
-from abcgs.masks.requests import (
+from abcgs.masks.page.requests import (
     REQUEST_DEADLINE_S,
     REQUEST_TIMEOUT_S,
     Refused,
@@ -49,12 +49,28 @@ from abcgs.masks.requests import (
     image_index,
     read_body,
 )
+from abcgs.masks.strokes import Segmentation, Stroke
 from abcgs.viz import colorize_labels
 
-if TYPE_CHECKING:
-    from abcgs.masks.paint import PaintSession
-
 log = logging.getLogger(__name__)
+
+
+class PageSession(Protocol):
+    """What the server asks of the page's state (:class:`abcgs.masks.page.session.PaintSession` is one); ``i`` is a
+    page item's index, ``camera`` a view's index in the strip."""
+
+    field_note: str
+    """Why the 3-D labels are off (the strip's 404 says it), or what they are on."""
+
+    def state(self) -> dict: ...
+    def image_png(self, i: int) -> bytes: ...
+    def strokes_of(self, i: int) -> dict: ...
+    def set_strokes(self, i: int, strokes: list[Stroke], revision: int | None = None) -> bool: ...
+    def segment(self, i: int, fill: bool | None = None) -> Segmentation: ...
+    def shown_labels(self, i: int) -> tuple[str, np.ndarray | None]: ...
+    def strip_listing(self) -> dict | None: ...
+    def strip_thumbnail(self, camera: int) -> np.ndarray | None: ...
+    def save(self, fill: bool | None = None) -> list[Path]: ...
 
 PAGE = Path(__file__).resolve().parent / "static" / "paint.html"
 """The drawing page (HTML + plain JavaScript in one file)."""
@@ -88,7 +104,7 @@ def _png(arr: np.ndarray) -> bytes:
 
 
 class _Handler(BaseHTTPRequestHandler):
-    session: PaintSession  # set on the subclass :func:`make_server` builds
+    session: PageSession  # set on the subclass :func:`make_server` builds
     token: str
     server_version = "abcgs-paint"
 
@@ -125,7 +141,7 @@ class _Handler(BaseHTTPRequestHandler):
         value = given or (morsel.value if morsel is not None else "")
         if not secrets.compare_digest(value.encode(), self.token.encode()):
             raise Refused(HTTPStatus.FORBIDDEN, "missing or wrong token: open the address (with ?token=) that "
-                                                "`python -m abcgs.masks.paint` printed")
+                                                "`python -m abcgs.masks.page` printed")
         return bool(given)
 
     def _check_caller(self, method: str) -> None:
@@ -200,17 +216,14 @@ class _Handler(BaseHTTPRequestHandler):
             if method == "GET" and what == "state":
                 return self._json(s.state())
             if method == "GET" and what == "strip":
-                if s.field is None:
+                shown = s.strip_listing() if idx is None else s.strip_thumbnail(idx)
+                if shown is None:
                     return self._json({"error": s.field_note}, HTTPStatus.NOT_FOUND)
-                if idx is None:
-                    return self._json(s.field.listing([it.name for it in s.items]))
-                return self._send(200, _png(s.field.thumbnail(idx)), "image/png")
+                return self._json(shown) if idx is None else self._send(200, _png(shown), "image/png")
             if method == "GET" and what == "image":
                 return self._send(200, s.image_png(idx), "image/png")
             if method == "GET" and what == "strokes":
-                with s._lock:
-                    item = s._item(idx)
-                    return self._json({"strokes": [st.to_json() for st in item.strokes], "revision": item.revision})
+                return self._json(s.strokes_of(idx))
             if method == "POST" and what == "strokes":
                 body = self._body()
                 accepted = s.set_strokes(idx, body_strokes(body), body_revision(body))
@@ -224,17 +237,13 @@ class _Handler(BaseHTTPRequestHandler):
                 return self._json({"counts": {str(k): v for k, v in seg.counts().items()},
                                    "seconds": round(seg.seconds, 3), "item": s.state()["items"][idx]})
             if method == "GET" and what in ("labels", "overlay"):
-                item = s._item(idx)
-                labels = item.result.labels if item.result is not None else s.saved_labels(idx)
+                name, labels = s.shown_labels(idx)
                 if labels is None:
-                    return self._json({"error": f"{item.name} is not cut yet (press Segment)"}, HTTPStatus.NOT_FOUND)
+                    return self._json({"error": f"{name} is not cut yet (press Segment)"}, HTTPStatus.NOT_FOUND)
                 arr = labels.astype(np.uint8) if what == "labels" else overlay_rgba(labels)
                 return self._send(200, _png(arr), "image/png")
             if method == "POST" and what == "save":
-                fill = body_flag(self._body(), "fill")
-                if fill is not None:
-                    s.fill = fill
-                written = s.save()
+                written = s.save(body_flag(self._body(), "fill"))
                 return self._json({"written": [str(p) for p in written], "state": s.state()})
             return self._json({"error": f"{method} {path} is not supported"}, HTTPStatus.METHOD_NOT_ALLOWED)
         except Refused as exc:
@@ -253,7 +262,7 @@ class _Handler(BaseHTTPRequestHandler):
         self._dispatch("POST")
 
 
-def make_server(session: PaintSession, port: int = 0, host: str = "127.0.0.1", token: str | None = None,
+def make_server(session: PageSession, port: int = 0, host: str = "127.0.0.1", token: str | None = None,
                 timeout: float = REQUEST_TIMEOUT_S, deadline: float = REQUEST_DEADLINE_S) -> ThreadingHTTPServer:
     """An HTTP server for ``session`` on ``host:port`` (0 = any free port); call ``serve_forever()`` on it. A
     connection that sends nothing for ``timeout`` seconds is answered 408 (mid-body) or closed, and one whose request

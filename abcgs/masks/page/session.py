@@ -1,44 +1,14 @@
-"""Masks from strokes: GrabCut guided by a user's scribbles (Rother et al. 2004), drawn on a local web page.
+"""The masks page's state (:class:`PaintSession`): the views of a scene (or one painting), each view's strokes, its
+latest cut and where its label map is saved; with a fit, a :class:`~abcgs.masks.page.field_session.FieldSession`
+carries each Segment to every view. :func:`scene_views` names the views the pipeline reads."""
 
-    python -m abcgs.masks.paint data/tiny                      # views of <scene>/images/ → <scene>/masks/<stem>.png
-    python -m abcgs.masks.paint /data/garden --images images_4 # views of <scene>/images_4/ (or of a dataset)
-    python -m abcgs.masks.paint --scene tiny                   # data.scenes.tiny of params.yaml, with its fit if any
-    python -m abcgs.masks.paint /data/s --fit out/s/gs/point_cloud.ply --colmap out/s/colmap  # a folder and its fit
-    python -m abcgs.masks.paint data/tiny --painting data/tiny/styles/paint.png \\
-        --labels-out data/tiny/styles/paint_labels.png         # one painting → its region label map
-
-The page (``static/paint.html``, plain JavaScript, nothing fetched from the network) is served on 127.0.0.1 to
-itself only, by :mod:`abcgs.masks.paint_server`: the address printed at start carries a random token (as Jupyter's
-does), and a request from anything but that page is refused with a one-line reason. Pick a label, draw strokes over
-the objects of one or more views, press **Segment** to see the cut over the view, add strokes where it is wrong, and
-press **Save**: every view with strokes gets a single-channel label PNG (1, 2, … the labels; 0 = no label, what the
-background brush or its cut decided; 255 = :data:`~abcgs.masks.params.UNDECIDED`, what no cut claimed; the format
-:func:`abcgs.masks.content.read_label_files` reads), written atomically, and its strokes as a seed map in
-``<scene>/masks/strokes/<stem>.png`` (the ``masks`` stage binds the Gaussians under them, as the page does). Views
-without strokes get no file: the ``masks`` stage lifts labels from any subset of views. The views are the ones the
-pipeline reads (:func:`scene_views`: a scene's ``images:`` folder, a dataset's views, a bare splat's views made by
-the ``reconstruct`` stage), and the label maps go to ``<scene>/masks/``, where that stage reads them.
-
-**With the scene's fit** (``--scene NAME`` once ``dvc repro fit@NAME`` has made ``out/NAME/gs/point_cloud.ply``,
-with ``masks.field`` and ``masks.lift`` of the params file; or ``--fit PLY --colmap DIR``), the page's views are
-matched to the fit's cameras by image stem, and each Segment carries the labels to every view
-(:mod:`abcgs.masks.paint_field`): the view is cut from its strokes and the labels already in 3-D
-(:func:`abcgs.masks.field.cut_painted_view`), every painted view is lifted onto the Gaussians, the rest is decided
-in 3-D, and a strip under the view shows every view's labels (undecided white), most doubtful first; a click opens a
-view. Without a fit, or when a matched view is not its camera's size, the page says why (and which command makes the
-fit) and cuts one view at a time on colour alone (:func:`abcgs.masks.grabcut.segment`; ``--one-view`` asks for
-that).
-"""
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
-import sys
 import threading
 import time
-import webbrowser
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -46,15 +16,15 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from abcgs.errors import AbcgsError, InputError
+from abcgs.errors import InputError
 from abcgs.io.images import load_image, save_labels, save_stroke_map, stroke_map_path, to_uint8
-from abcgs.masks.grabcut import Segmentation, Stroke, rasterize_strokes, segment
-from abcgs.masks.paint_server import make_server, page_url
+from abcgs.masks.grabcut import segment
 from abcgs.masks.params import FieldParams, LiftParams
+from abcgs.masks.strokes import Segmentation, Stroke, rasterize_strokes
 from abcgs.viz import LABEL_COLOURS
 
 if TYPE_CHECKING:  # torch and the renderer load only with a fit (attach_fit)
-    from abcgs.masks.paint_field import FieldSession
+    from abcgs.masks.page.field_session import FieldSession
 
 log = logging.getLogger(__name__)
 
@@ -160,7 +130,7 @@ class PaintSession:
 
     def attach_fit(self, ply: Path, colmap_root: Path, params: FieldParams | None = None,
                    lift: LiftParams | None = None, *, make: str = "the fit stage") -> bool:
-        """Show every view's labels after each Segment (:mod:`abcgs.masks.paint_field`) from the fit ``ply`` and its
+        """Show every view's labels after each Segment (:mod:`abcgs.masks.page.field_session`) from the fit ``ply`` and its
         layout ``colmap_root``; without them (or when the views do not match) the page cuts one view at a time and
         :attr:`field_note` says why (``make``: the command that makes the fit). Returns whether it is on."""
         self.field = None
@@ -168,7 +138,7 @@ class PaintSession:
             self.field_note = f"one view at a time: no fit at {ply}; {make} makes it"
             log.info("paint: %s", self.field_note)
             return False
-        from abcgs.masks.paint_field import FieldSession  # torch and the renderer: only with a fit
+        from abcgs.masks.page.field_session import FieldSession  # torch and the renderer: only with a fit
 
         try:
             self.field = FieldSession.open([it.image_path for it in self.items], ply, colmap_root, params, lift)
@@ -231,7 +201,7 @@ class PaintSession:
     def segment(self, i: int, fill: bool | None = None) -> Segmentation:
         """Cut image ``i`` from its strokes and keep the result; ``fill`` sets the session's. With the scene's fit
         (:attr:`field`) the cut is seeded by the labels already in 3-D as well, and the strip of every view is
-        updated (:meth:`abcgs.masks.paint_field.FieldSession.segment`; its seconds count from this call); otherwise
+        updated (:meth:`abcgs.masks.page.field_session.FieldSession.segment`; its seconds count from this call); otherwise
         it is :func:`segment` on the view's colours alone."""
         t0 = time.perf_counter()
         with self._lock:
@@ -261,12 +231,35 @@ class PaintSession:
         except InputError:
             return None
 
-    def save(self) -> list[Path]:
-        """Write the label PNG of every image with strokes (cutting those whose strokes changed), atomically.
+    def strokes_of(self, i: int) -> dict:
+        """Image ``i``'s strokes as the page sends them and the revision they are at."""
+        with self._lock:
+            item = self._item(i)
+            return {"strokes": [st.to_json() for st in item.strokes], "revision": item.revision}
+
+    def shown_labels(self, i: int) -> tuple[str, np.ndarray | None]:
+        """Image ``i``'s name and the labels the page shows on it: its latest cut, else its saved label PNG, else
+        ``None`` (not cut yet)."""
+        item = self._item(i)
+        return item.name, item.result.labels if item.result is not None else self.saved_labels(i)
+
+    def strip_listing(self) -> dict | None:
+        """Every view of the strip, most doubtful first (:meth:`FieldSession.listing`); ``None`` without a fit."""
+        return None if self.field is None else self.field.listing([it.name for it in self.items])
+
+    def strip_thumbnail(self, camera: int) -> np.ndarray | None:
+        """The strip's thumbnail of view ``camera`` (:meth:`FieldSession.thumbnail`); ``None`` without a fit."""
+        return None if self.field is None else self.field.thumbnail(camera)
+
+    def save(self, fill: bool | None = None) -> list[Path]:
+        """Write the label PNG of every image with strokes (cutting those whose strokes changed), atomically;
+        ``fill`` sets the session's first.
 
         Returns the files written. Images without strokes are left alone (no file is written or removed).
         """
         with self._lock:
+            if fill is not None:
+                self.fill = bool(fill)
             todo = [i for i, it in enumerate(self.items) if any(s.label > 0 for s in it.strokes)]
             if not todo:
                 raise InputError("nothing to save: no image has label strokes")
@@ -355,87 +348,3 @@ def worst_views(masks_json: Path) -> list[str]:
         raise InputError(f"--worst-first {masks_json}: not a masks stage record with warned_views ({exc}); give "
                          "out/<scene>/masks/masks.json") from exc
     return [str(v) for v in views]
-
-
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m abcgs.masks.paint", description=__doc__.strip().splitlines()[0],
-                                 epilog="Views: the ones the pipeline reads (photos in <scene>/<images>/, a dataset's "
-                                        "views, a bare splat's out/<name>/colmap/images/); masks: "
-                                        "<scene>/masks/<stem>.png (0 = no label, 1, 2, …, 255 = undecided). "
-                                        "Then `dvc repro` re-runs the masks stage and what follows.")
-    ap.add_argument("scene", nargs="?", type=Path, help="scene folder (photos or a dataset); not needed with --scene "
-                                                        "or --painting")
-    ap.add_argument("--scene", dest="scene_name", metavar="NAME",
-                    help="the scene data.scenes.NAME of --params: its folder, format and images (a bare splat: the "
-                         "views the reconstruct stage made, out/NAME/colmap/images/)")
-    ap.add_argument("--params", type=Path, default=Path("params.yaml"), help="the params file of --scene")
-    ap.add_argument("--images", help="the scene's image subfolder, as data.scenes.<name>.images (e.g. images_4)")
-    ap.add_argument("--format", default="auto", help="the scene's format, as data.scenes.<name>.format")
-    ap.add_argument("--views", type=Path, help="a bare splat scene: the folder of its views (out/<name>/colmap/images)")
-    ap.add_argument("--painting", type=Path, help="segment this painting into regions instead of a scene's views")
-    ap.add_argument("--labels-out", type=Path, help="the painting's label PNG (default: <painting>_labels.png beside it)")
-    ap.add_argument("--port", type=int, default=0, help="port on 127.0.0.1 (0: any free port)")
-    ap.add_argument("--no-open", action="store_true", help="print the address; do not open a browser")
-    ap.add_argument("--iterations", type=int, default=5, help="GrabCut iterations per label")
-    ap.add_argument("--max-side", type=int, default=1024, help="cut larger images at this size (longest side)")
-    ap.add_argument("--no-fill", action="store_true", help="leave gaps between the cuts unassigned (the page can switch)")
-    ap.add_argument("--fit", type=Path, help="a scene folder: the fit (point_cloud.ply) whose labels every view "
-                                             "shows after each Segment (with --colmap); --scene NAME finds its own")
-    ap.add_argument("--colmap", type=Path, help="the fit's layout (out/<name>/colmap): its cameras")
-    ap.add_argument("--one-view", action="store_true", help="cut one view at a time even where a fit exists")
-    ap.add_argument("--worst-first", type=Path, metavar="MASKS_JSON",
-                    help="the masks stage's masks.json (out/<scene>/masks/masks.json): open the views it warns about "
-                         "first, most unlabelled first")
-    args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
-    try:
-        kw = {"iterations": args.iterations, "max_side": args.max_side, "fill": not args.no_fill}
-        if args.painting is not None:
-            if args.scene is not None:
-                print(f"--painting given: showing {args.painting}; the scene folder {args.scene} is not used")
-            session = PaintSession.for_painting(args.painting, args.labels_out, **kw)
-        elif args.scene is not None or args.scene_name is not None:
-            if args.labels_out is not None:
-                raise InputError("--labels-out is for --painting; a scene's masks go to <scene>/masks/")
-            kw["first"] = worst_views(args.worst_first) if args.worst_first else ()
-            if args.scene_name is not None:
-                if args.scene is not None or args.images or args.views or args.format != "auto":
-                    raise InputError("--scene NAME takes the folder, format, images and views from the params file; "
-                                     "give either it or a scene folder (with --images/--format/--views)")
-                if args.fit is not None or args.colmap is not None:
-                    raise InputError("--scene NAME finds its own fit (out/NAME/gs/point_cloud.ply); --fit and --colmap "
-                                     "are for a scene folder")
-                session = PaintSession.for_params(args.params, args.scene_name, fit=not args.one_view, **kw)
-            else:
-                if (args.fit is None) != (args.colmap is None):
-                    raise InputError("--fit and --colmap go together: the fit's PLY and its layout's folder")
-                session = PaintSession.for_scene(args.scene, images=args.images, fmt=args.format, views=args.views,
-                                                 **kw)
-                if args.fit is not None and not args.one_view:
-                    session.attach_fit(args.fit, args.colmap)
-        else:
-            raise InputError("give a scene folder, --scene NAME (a scene of params.yaml) or --painting PATH")
-        server = make_server(session, args.port)
-    except (AbcgsError, OSError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    url = page_url(server)
-    what = (f"{len(session.items)} views; masks go to {session.items[0].out_path.parent}" if session.mode == "scene"
-            else f"the painting; its labels go to {session.items[0].out_path}")
-    print(f"paint: {url}  ({what}; {session.field_note}); Ctrl+C to stop")
-    if not args.no_open:
-        webbrowser.open(url)
-    try:
-        server.serve_forever()
-    except KeyboardInterrupt:
-        pass
-    finally:
-        server.server_close()
-    return 0
-
-
-if __name__ == "__main__":
-    from abcgs.runtime import setup
-
-    setup()  # the process settings (abcgs.runtime.setup): the wait policy only where torch is not loaded yet
-    sys.exit(main())

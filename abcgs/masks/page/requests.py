@@ -1,7 +1,7 @@
 """The masks page's requests, checked before the page acts on them: one ``Content-Length`` that is a plain byte
 count up to :data:`MAX_BODY`, a body that arrives whole (within the server's timeout, :data:`REQUEST_TIMEOUT_S`) and
 is a JSON object of bounded depth, an image index of at most 9 digits, and the fields of the body (strokes, revision,
-flags). Each refusal is a :class:`Refused` with its HTTP status and a one-line reason (:mod:`abcgs.masks.paint`
+flags). Each refusal is a :class:`Refused` with its HTTP status and a one-line reason (:mod:`abcgs.masks.page`
 answers it as JSON ``{"error": …}``)."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from typing import BinaryIO
 
 from abcgs.errors import AbcgsError, InputError
 from abcgs.io.guarded import parse_json
-from abcgs.masks.grabcut import Stroke
+from abcgs.masks.strokes import Stroke
 
 MAX_BODY = 16 << 20
 """Largest request body read (bytes): strokes of a long session are a few MB of JSON."""
