@@ -15,7 +15,7 @@ from abcgs.render.frozen import record_view, render_frozen
 from abcgs.render.sh import sh_to_color
 from abcgs.splats.cameras import cameras_around
 from abcgs.splats.params import SplatViewsParams
-from abcgs.stylize import loop, replay, sh_bands
+from abcgs.stylize import passes, replay, sh_bands
 from abcgs.stylize.params import StylizeOptim, StylizeParams
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -150,7 +150,7 @@ def test_a_colour_pass_that_replays_its_views_ends_where_one_that_renders_every_
     replayed = stylize(model, scene.cameras, view_labels, labels, groups, vgg, sp, depth_model=model, progress=False,
                        background=FRAME_FILLING).model
     assert len(calls) == 5
-    monkeypatch.setattr(loop, "can_replay", lambda *a: False)
+    monkeypatch.setattr(passes, "can_replay", lambda *a: False)
     rendered = stylize(model, scene.cameras, view_labels, labels, groups, vgg, sp, depth_model=model, progress=False,
                        background=FRAME_FILLING).model
     assert len(calls) == 5

@@ -101,7 +101,7 @@ def test_bad_inputs():
 def test_group_features_equal_boolean_indexing_values_and_gradients():
     """A mask covering every cell gives a view of all columns (no copy), a partial one the masked columns; both equal
     ``feats[:, mask]`` in value and gradient, and the full mask's result shares the features' storage."""
-    from abcgs.stylize.loop import group_features
+    from abcgs.stylize.targets import group_features
 
     g = torch.Generator().manual_seed(0)
     base = torch.randn(6, 4, 5, generator=g)

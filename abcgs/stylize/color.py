@@ -5,7 +5,8 @@ A linear map ``p' = A p + b`` makes the content colours' mean and covariance equ
 covariances (divide by n, as ARF's ``match_colors_for_image_set``) and eigenvalues clamped to
 ``eps_clamp``. Computed in float64; returned in the content pixels' floating dtype (float32 for
 non-float input). Colours are RGB, any range (the pipeline uses [0, 1]). :func:`apply_group_transforms` applies one
-transform per matching group, to Gaussians' DC colours or to an image's pixels.
+transform per matching group, to Gaussians' DC colours or to an image's pixels; :func:`color_match_model` fits and
+applies them to a model's DC colours, and :func:`recolor_to_content` preserves a model's content colours.
 """
 
 from __future__ import annotations
@@ -14,8 +15,13 @@ from collections.abc import Sequence
 
 import numpy as np
 import torch
+from torch import Tensor
 
 from abcgs.errors import InputError
+from abcgs.features.params import ALL_PIXELS
+from abcgs.gaussians import GaussianModel
+from abcgs.render import rgb_to_sh0, sh0_to_rgb
+from abcgs.types import MatchingGroup
 
 ArrayLike = torch.Tensor | np.ndarray
 
@@ -143,3 +149,46 @@ def preserve_color(
     iq = yo.narrow(channel_dim, 1, 2)
     out = yiq_to_rgb(torch.cat([y, iq], dim=channel_dim), channel_dim)
     return out.clamp(*clip) if clip is not None else out
+
+
+def color_match_model(
+    model: GaussianModel, labels: Tensor, groups: list[MatchingGroup], content_pixels: dict[int, np.ndarray],
+    *, zero_higher_sh: bool = True, gaussians: Tensor | None = None,
+) -> tuple[GaussianModel, dict[int, tuple[Tensor, Tensor]]]:
+    """Apply each group's mean/covariance colour transform to the DC colours of its Gaussians.
+
+    ``content_pixels[z]``: ``(n, 3)`` pixels of the content (training images) covered by group z.
+    Single transfer (one group over all pixels) recolours every Gaussian; ``gaussians`` ``(N,)`` bool limits it to
+    those (an object scene's object). The higher SH bands are zeroed unless ``zero_higher_sh`` is False
+    (``stylize.higher_sh`` other than ``zero``); those of Gaussians outside ``gaussians`` are kept.
+    """
+    out = model.detach()
+    rgb = sh0_to_rgb(out.sh0[:, 0, :])
+    transforms = {}
+    for g in groups:
+        pix = content_pixels.get(g.content_label)
+        if pix is None or len(pix) < 2:
+            raise InputError(f"colour match: no content pixels for content label {g.content_label}")
+        A, b = fit_color_transform(pix, g.style_pixels)
+        transforms[g.content_label] = (A, b)
+    selections = [torch.ones_like(labels, dtype=torch.bool) if g.content_label == ALL_PIXELS else labels == g.content_label
+                  for g in groups]
+    if gaussians is not None:
+        selections = [sel & gaussians.to(sel.device) for sel in selections]
+    rgb = apply_group_transforms(rgb, selections, [transforms[g.content_label] for g in groups])
+    if gaussians is None:
+        out.sh0 = rgb_to_sh0(rgb)[:, None, :].contiguous()
+    else:  # the others keep their exact coefficients
+        out.sh0 = torch.where(gaussians.to(rgb.device)[:, None, None], rgb_to_sh0(rgb)[:, None, :], out.sh0).contiguous()
+    if out.shN.numel() and zero_higher_sh:  # view-dependent colour would undo the match
+        out.shN = (torch.zeros_like(out.shN) if gaussians is None
+                   else torch.where(gaussians.to(out.shN.device)[:, None, None], 0.0, out.shN).contiguous())
+    return out, transforms
+
+
+def recolor_to_content(styled: GaussianModel, content: GaussianModel) -> GaussianModel:
+    """``preserve_color``: keep the stylised luminance, take chroma from the content colours (YIQ)."""
+    out = styled.detach()
+    rgb = preserve_color(sh0_to_rgb(styled.sh0[:, 0, :]), sh0_to_rgb(content.sh0[:, 0, :]))
+    out.sh0 = rgb_to_sh0(rgb)[:, None, :].contiguous()
+    return out

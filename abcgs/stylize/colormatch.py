@@ -35,10 +35,10 @@ from abcgs.silhouette import (
     silhouettes,
     unpremultiply,
 )
-from abcgs.stylize.color import apply_group_transforms
-from abcgs.stylize.loop import color_match_model, group_pixel_masks
+from abcgs.stylize.color import apply_group_transforms, color_match_model
 from abcgs.stylize.params import ColorMatchParams
 from abcgs.stylize.schedule import choose_schedule
+from abcgs.stylize.targets import group_pixel_masks
 from abcgs.types import FRAME_FILLING, Backend, Background, MatchingGroup, Scene
 from abcgs.viz import image_grid
 

@@ -24,14 +24,14 @@ from abcgs.io.images import save_image
 from abcgs.io.tables import write_csv
 from abcgs.layout import StylizeDir
 from abcgs.silhouette import background_tensor, composite_rgba
-from abcgs.stylize.loop import LoggedStep
+from abcgs.stylize.records import LoggedStep
 from abcgs.types import FRAME_FILLING, Backend, Background, MatchingGroup, PathKind
 from abcgs.viz import colorize_labels, image_grid, style_legend, write_video
 
 HISTORY_COLUMNS = ("step", "seconds", "loss", "style", "content", "tv", "depth", "scale", "opacity", "silhouette",
                    "background")
 """Columns of ``stylize_history.csv``: per logged step the total loss and Eq. 8's terms, each weighted by its λ
-(:class:`abcgs.stylize.loop.LoggedStep`); a term that is off is empty."""
+(:class:`abcgs.stylize.records.LoggedStep`); a term that is off is empty."""
 
 GRID_ROWS = 3
 """Views shown in ``grid.png`` when ``stylize.grid_views`` names none."""
