@@ -218,3 +218,34 @@ def test_the_api_serves_the_strip_and_its_thumbnails(fitted, tiny_colmap, tmp_pa
     status, body, _ = request(url + "/api/strip")
     assert status == 404 and json.loads(body)["error"] == plain.field_note == "one view at a time: no fit given"
     assert request(url + "/api/strip/0.png")[0] == 404
+
+
+def test_a_region_correction_saves_each_strokes_colour_region_and_the_stage_reads_the_same(fitted, tiny_colmap,
+                                                                                           tmp_path) -> None:
+    """``correction: region``: a correction's evidence is its strokes' regions in the photo
+    (:func:`abcgs.masks.regions.stroke_regions`), larger than the strokes, inside the reach; the page saves that map,
+    which is what the ``masks`` stage reads back as the view's cut."""
+    from abcgs.masks.params import FieldParams
+    from abcgs.masks.regions import stroke_regions
+    from abcgs.masks.strokes import Stroke
+
+    folder = fit_views(tiny_colmap, tmp_path / "scene")
+    s = PaintSession.for_scene(folder)
+    assert s.attach_fit(fitted, tiny_colmap, FieldParams(correction="region", correction_reach=0.1))
+    s.set_strokes(0, simulated_strokes(truth(tiny_colmap, 0), 2, radius=3.0))
+    s.segment(0)  # the first Segment is a cut, whatever the correction
+    inside = cv2.distanceTransform((truth(tiny_colmap, 5) == 1).astype(np.uint8), cv2.DIST_L2, 5)
+    y, x = np.unravel_index(int(np.argmax(inside)), inside.shape)
+    dot = [Stroke(1, np.array([[x + 0.5, y + 0.5]]), 2.0)]  # a dot in the middle of label 1
+    s.set_strokes(5, dot)
+    seg = s.segment(5)
+    hw = seg.labels.shape
+    seeds = rasterize_strokes(dot, hw)
+    region = stroke_regions(s.image(5), seeds, int(round(0.1 * min(hw))), FieldParams().region_tolerance)
+    assert np.array_equal(seg.claimed, region >= 0)
+    assert (region == 1).sum() > 2 * (seeds == 1).sum()  # the region reaches past the dot
+    truth_5 = truth(tiny_colmap, 5)
+    assert ((truth_5 == 1)[region == 1]).mean() > 0.8  # and stays on the dot's part
+    s.save()
+    maps, _ = read_label_files([folder / "masks" / "005.png"], [hw])
+    assert np.array_equal(maps[0], region)

@@ -6,6 +6,7 @@ The algorithm:
 - :mod:`abcgs.masks.graph`   — the 3-D step: a nearest-neighbour graph over the Gaussians and a random walk on it.
 - :mod:`abcgs.masks.field`   — a scene's labels from the views a user painted (the page's and the stage's path).
 - :mod:`abcgs.masks.edges`   — each view's rendered labels refined against its photo's edges.
+- :mod:`abcgs.masks.regions` — a stroke's colour region in its photo (``masks.field.correction: region``).
 - :mod:`abcgs.masks.grabcut` — GrabCut from strokes or seed maps, on colour and optionally depth.
 - :mod:`abcgs.masks.strokes` — the strokes a user paints and the segmentation a cut makes (types shared with the page).
 - :mod:`abcgs.masks.refine`  — ``masks.refine``: views without a mask re-cut on colour and rendered depth, then lifted.

@@ -74,15 +74,19 @@ class FieldParams(BaseModel):
     stroke_share: float = Field(
         0.0, ge=0.0, le=1.0, description="least share of a Gaussian's blending weight in a view that must lie under "
         "that view's strokes for them to bind it (0: any Gaussian that reaches stroke_weight)")
-    correction: Literal["strokes", "cut"] = Field(
+    correction: Literal["strokes", "region", "cut"] = Field(
         "strokes", description="a Segment on a view once labels exist in 3-D: strokes: its strokes alone correct the "
-        "labels (bound where they cover a Gaussian, evidence where they touch it); cut: the view is cut again by "
-        "GrabCut, seeded by its strokes and the labels in 3-D, and the cut is its evidence (docs/MASKS.md, miku's "
-        "scripted user)")
+        "labels (bound where they cover a Gaussian, evidence where they touch it); region: each stroke's region in "
+        "the photo (its colour, within correction_reach, abcgs.masks.regions) is its evidence besides; cut: the view "
+        "is cut again by GrabCut, seeded by its strokes and the labels in 3-D, and the cut is its evidence "
+        "(docs/MASKS.md, miku's scripted user)")
     correction_reach: float = Field(
         0.1, gt=0.0, le=10.0, description="correction: cut: on a view the 3-D labels already reach, a stroke frees the "
         "rendered region of another label it touches within this share of the view's shorter side, for the cut to "
-        "decide")
+        "decide; correction: region: how far a stroke's region reaches (the same share)")
+    region_tolerance: float = Field(
+        12.0, gt=0.0, le=200.0, description="correction: region: the largest CIELAB distance (ΔE*ab) from a stroke's "
+        "mean colour that its region takes in")
     edge_radius: float = Field(
         0.01, ge=0.0, le=0.5, description="each view's labels rendered from the Gaussians are refined against its "
         "photo's edges by a guided filter of this radius (share of the view's shorter side; 0: not refined)")

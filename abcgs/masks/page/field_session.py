@@ -23,6 +23,7 @@ from abcgs.masks.field import FieldResult, LabelField, cut_painted_view, render_
 from abcgs.masks.lifting import NO_VOTE
 from abcgs.masks.page.strip import Strip
 from abcgs.masks.params import UNDECIDED, FieldParams, LiftParams
+from abcgs.masks.regions import stroke_regions
 from abcgs.masks.strokes import Segmentation
 from abcgs.viz import colorize_labels
 
@@ -105,7 +106,8 @@ class FieldSession:
     def segment(self, item: int, photo: np.ndarray, strokes: np.ndarray, started: float | None = None) -> Segmentation:
         """Segment page item ``item`` (``photo`` ``(H, W, 3) uint8``, its stroke seed map ``(H, W) int64``): while no
         label exists in 3-D, or with ``correction: cut``, cut the view seeded by its strokes and the labels in 3-D
-        (:func:`cut_painted_view`); otherwise (``correction: strokes``) its strokes alone are its evidence. Then lift
+        (:func:`cut_painted_view`); with ``correction: region`` its strokes' regions in the photo
+        (:func:`~abcgs.masks.regions.stroke_regions`); otherwise (``correction: strokes``) its strokes alone are its evidence. Then lift
         every painted view, solve and update the strip. Returns the view's labels as the page shows them (its cut
         where the cut decided, the labels in 3-D refined against ``photo`` elsewhere: ``labels``) and the evidence the view gives the field
         (``claimed``: the pixels of its cut or strokes; :meth:`Segmentation.saved_map` is what the page saves and the
@@ -118,6 +120,9 @@ class FieldSession:
             if self.result is None or self.field.params.correction == "cut":
                 cut = cut_painted_view(self.field, self.result, cam, photo, strokes,
                                        reach=self.field.params.correction_reach, min_margin=self.field.params.cut_margin)
+            elif self.field.params.correction == "region":
+                reach = int(round(self.field.params.correction_reach * min(strokes.shape)))
+                cut = stroke_regions(photo, strokes, reach, self.field.params.region_tolerance)
             else:
                 cut = np.where(strokes >= 0, strokes, NO_VOTE)
             self.field.set_view(cam, cut, strokes)

@@ -1,0 +1,65 @@
+"""A stroke's region in its photo (abcgs/masks/regions.py): the correction evidence of ``masks.field.correction:
+region``, a colour flood fill from each stroke bounded by the photo's edges and by a disc of ``reach``."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from abcgs.masks.lifting import NO_VOTE
+from abcgs.masks.regions import stroke_regions
+
+H, W = 60, 90
+
+
+def two_colour_photo() -> np.ndarray:
+    """Left of x = 40 red, right blue, with a little noise."""
+    rng = np.random.default_rng(0)
+    photo = np.zeros((H, W, 3), np.float64)
+    photo[:, :40] = (200, 40, 40)
+    photo[:, 40:] = (40, 40, 200)
+    return np.clip(photo + rng.normal(0, 3, photo.shape), 0, 255).astype(np.uint8)
+
+
+def dot(y: int, x: int, label: int, r: int = 1) -> np.ndarray:
+    seeds = np.full((H, W), -1, np.int64)
+    seeds[y - r:y + r + 1, x - r:x + r + 1] = label
+    return seeds
+
+
+def test_a_dot_takes_its_colour_region_up_to_the_photo_edge_and_within_its_reach():
+    out = stroke_regions(two_colour_photo(), dot(30, 20, 3), reach_px=30, tolerance=12.0)
+    region = out == 3
+    assert region[:, :40].mean() > 0.7  # most of the red half lies within 30 px of the dot
+    assert not region[:, 40:].any()  # the edge holds
+    assert (out[~region] == NO_VOTE).all()
+    ys, xs = np.nonzero(region)
+    assert np.hypot(ys - 30, xs - 20).max() <= 30 + np.sqrt(2) + 1e-6  # and the disc (from the 3 × 3 dot)
+
+
+def test_two_strokes_of_one_colour_share_it_by_colour_and_reach_and_the_background_brush_counts():
+    seeds = dot(30, 10, 1)
+    seeds[28:33, 60:63] = 0  # the background brush on the blue half
+    out = stroke_regions(two_colour_photo(), seeds, reach_px=25, tolerance=12.0)
+    assert (out[:, :40][out[:, :40] != NO_VOTE] == 1).all()
+    assert (out[:, 40:][out[:, 40:] != NO_VOTE] == 0).all() and (out[:, 40:] == 0).mean() > 0.4
+
+
+def test_no_reach_or_tolerance_leaves_the_strokes_alone():
+    seeds = dot(30, 20, 2)
+    for reach, tol in ((0, 12.0), (20, 0.0)):
+        out = stroke_regions(two_colour_photo(), seeds, reach_px=reach, tolerance=tol)
+        assert ((out == 2) == (seeds == 2)).all() and (out[seeds < 0] == NO_VOTE).all()
+
+
+def test_a_stroke_across_the_edge_keeps_its_pixels_and_takes_both_sides_only_near_its_colour():
+    seeds = np.full((H, W), -1, np.int64)
+    seeds[30, 30:50] = 4  # mostly red (10 px), half blue: the mean colour lies between
+    out = stroke_regions(two_colour_photo(), seeds, reach_px=10, tolerance=12.0)
+    assert (out[seeds == 4] == 4).all()
+    assert (out == 4).sum() == (seeds == 4).sum()  # neither side is near the mean colour: the stroke alone
+
+
+def test_a_photo_of_another_size_is_refused():
+    with pytest.raises(ValueError, match="the photo is 90x59, the strokes 90x60"):
+        stroke_regions(two_colour_photo()[:-1], dot(30, 20, 1), reach_px=5, tolerance=10.0)
