@@ -5,6 +5,10 @@ functions and ``TYPE_CHECKING`` blocks too), is checked against :data:`eval.benc
 ``python -m eval.bench.structure`` counts with). A module's command-line block
 (``if __name__ == "__main__":``) is a program run on top of everything and is not checked.
 
+No import ring between modules either (:func:`eval.bench.structure.import_rings` of
+:func:`~eval.bench.structure.module_graph`): the imports that run count, inside functions too (a lazy import only
+defers a ring), not those of ``TYPE_CHECKING`` blocks. A ring is broken by moving what both sides need down.
+
 Also checked: a name is imported from the module that defines it (no re-exports), except from a package's face
 (its ``__init__.py``); settings classes thus come from their ``params`` module. And no function or method under
 ``abcgs/``, ``stages/`` or ``eval/`` spans more than :data:`eval.bench.structure.MAX_FUNCTION_LINES` (80) lines.
@@ -21,8 +25,10 @@ from eval.bench.structure import (
     MAX_FUNCTION_LINES,
     MAX_MODULE_LINES,
     floor_of,
+    import_rings,
     long_functions,
     long_modules,
+    module_graph,
     module_path,
 )
 from eval.bench.structure import module_name as _module_name
@@ -78,6 +84,37 @@ def test_no_module_imports_a_higher_floor() -> None:
 ])
 def test_the_check_names_the_importer_and_the_imported(module: str, source: str, expected: list[str]) -> None:
     assert upward_imports(module, source) == expected
+
+
+# ------------------------------------------------------------------------------------------------ no import ring
+def test_no_import_ring_between_modules() -> None:
+    graph = module_graph(ROOT)
+    rings = import_rings(graph)
+    shown = [" ↔ ".join(ring) + ": " + ", ".join(f"{a}:{graph[a][b]} imports {b}" for a in ring for b in ring
+                                                  if b in graph[a]) for ring in rings]
+    assert not rings, ("import rings between modules (move what both sides need into the lower one, or a module of "
+                       "its own):\n" + "\n".join(shown))
+
+
+def test_the_ring_check_finds_two_and_three_module_rings() -> None:
+    graph = {"a": {"b"}, "b": {"a", "c"}, "c": {"d"}, "d": {"e"}, "e": {"c", "f"}, "f": set(), "g": {"g", "a"}}
+    assert import_rings(graph) == [["a", "b"], ["c", "d", "e"]]  # g imports itself: no ring
+    assert import_rings({"x": {"y"}, "y": {"z"}}) == []
+
+
+def test_the_ring_graph_counts_lazy_imports_but_not_type_checking_ones(tmp_path: Path) -> None:
+    pkg = tmp_path / "abcgs" / "p"
+    pkg.mkdir(parents=True)
+    (tmp_path / "abcgs" / "__init__.py").write_text("")
+    (pkg / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("from abcgs.p.b import B\n")
+    (pkg / "b.py").write_text("B = 1\n\n\ndef late():\n    from abcgs.p import a\n")
+    (pkg / "c.py").write_text("from typing import TYPE_CHECKING\n\nif TYPE_CHECKING:\n    from abcgs.p.a import X\n")
+    (pkg / "d.py").write_text("from abcgs.p import c\n\nif __name__ == '__main__':\n    from abcgs.p import d\n")
+    graph = module_graph(tmp_path)
+    assert graph["abcgs.p.a"] == {"abcgs.p.b": 1} and graph["abcgs.p.b"] == {"abcgs.p.a": 5}
+    assert graph["abcgs.p.c"] == {} and graph["abcgs.p.d"] == {"abcgs.p.c": 1}
+    assert import_rings(graph) == [["abcgs.p.a", "abcgs.p.b"]]
 
 
 # ------------------------------------------------------------------------------------------------ no re-exports

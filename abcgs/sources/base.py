@@ -14,8 +14,9 @@ A reader turns a dataset folder into an :class:`abcgs.types.Scene` (the one scen
   splat trained on the same dataset lines up with the cameras.
 
 Each reader is the ``READER`` of one module of :mod:`abcgs.sources.formats` (or of a plugin folder,
-:mod:`abcgs.sources.registry`). This module imports nothing heavier than numpy and pydantic: :mod:`abcgs.preflight`
-(which every stage imports) and the ``params.yaml`` schema reach it through the registry.
+:mod:`abcgs.sources.registry`). This module imports nothing heavier than numpy and pydantic, and no other module of
+:mod:`abcgs.sources`: :mod:`abcgs.preflight` (which every stage imports) and the ``params.yaml`` schema reach it
+through the registry, which it does not import (:attr:`Source.registered_options`).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
@@ -78,13 +79,17 @@ class Source(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
+    registered_options: ClassVar[Callable[[], dict[str, type[Source]]]] = staticmethod(dict)
+    """Format → options model of every registered format, for the hooks below: the registry sets
+    :func:`abcgs.sources.registry.option_models` here as it loads, so that this module (which the registry imports)
+    imports no registry. The package's face and :mod:`abcgs.sources.params` import the registry, so it is set
+    wherever a scene's options are validated; before, no format is known and the hooks answer ``None``."""
+
     @classmethod
     def unknown_key_hint(cls, key: str) -> str | None:
         """For a key this format does not take: the formats that take it and how to write it
         (:func:`abcgs.sections.format_validation_error`)."""
-        from abcgs.sources.registry import option_models
-
-        takers = [fmt for fmt, kind in option_models().items() if key in kind.model_fields]
+        takers = [fmt for fmt, kind in cls.registered_options().items() if key in kind.model_fields]
         if not takers:
             return None
         fmt, named = cls.model_fields["format"].default, [t for t in takers if t != "auto"] or takers
@@ -95,9 +100,7 @@ class Source(BaseModel):
     def tagged_member(cls, tag: Any) -> type[BaseModel] | None:
         """The options model of the format ``tag`` (for :func:`abcgs.sections.format_validation_error`, which lists
         the keys it allows)."""
-        from abcgs.sources.registry import option_models
-
-        return option_models().get(tag) if isinstance(tag, str) else None
+        return cls.registered_options().get(tag) if isinstance(tag, str) else None
 
 
 class ImagesSource(Source):

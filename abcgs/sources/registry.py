@@ -133,3 +133,6 @@ def option_models() -> dict[str, type[Source]]:
                 f"{name.title()}Source", __base__=Source, __doc__=f"``source: {{format: {name}}}`` (no options).",
                 format=(Literal[name], name))
     return dict(_OPTIONS)
+
+
+Source.registered_options = staticmethod(option_models)  # the options hooks of base.Source ask this registry

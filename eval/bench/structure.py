@@ -14,6 +14,13 @@ Measured:
 - ``upward_imports``: imports from a module to a module on a higher floor of :data:`FLOORS` (``tests/test_layers.py``
   fails on any); ``upward_imports_by_package``: the same with each module on its unit's floor (no module placed apart
   from its package); ``mutual_pairs``: unit pairs that import each other (an arrow that runs back).
+- ``module_rings``: the import rings between modules (``tests/test_layers.py`` fails on any), each the sorted modules
+  of one strongly connected component of more than one module of :func:`module_graph` (:func:`import_rings`);
+  ``module_ring_count``: how many. An arrow here is an import statement run when the code runs: inside functions
+  too (a lazy import still closes a ring, it only defers it), but not in ``TYPE_CHECKING`` blocks (read by type
+  checkers only) nor in a module's ``__main__`` block; a module naming itself is no ring. A name looked up at run
+  time (``importlib.import_module``, as :mod:`abcgs.sources.registry` finds its format modules) is no import
+  statement and no arrow, as for ``import_arrows``.
 - ``side_effect_imports``: lines ``import abcgs  # noqa: F401`` under ``abcgs/``, ``stages/`` and ``eval/`` (an import
   made only for what importing the package does).
 - ``dvc_yaml_lines``: lines of the generated ``dvc.yaml``; ``core_pins_dvc_minor``: whether ``pyproject.toml``'s
@@ -34,6 +41,7 @@ import json
 import re
 import subprocess
 import sys
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 
 FLOORS: tuple[tuple[str, tuple[str, ...]], ...] = (
@@ -89,11 +97,23 @@ def is_main_block(node: ast.AST) -> bool:
             and isinstance(node.test.comparators[0], ast.Constant) and node.test.comparators[0].value == "__main__")
 
 
-def abcgs_imports(source: str, module: str, is_package: bool, root: Path) -> list[tuple[int, str]]:
+def is_type_checking_block(node: ast.AST) -> bool:
+    """Whether ``node`` is an ``if TYPE_CHECKING:`` / ``if typing.TYPE_CHECKING:`` block (its body is never run)."""
+    return isinstance(node, ast.If) and (
+        (isinstance(node.test, ast.Name) and node.test.id == "TYPE_CHECKING")
+        or (isinstance(node.test, ast.Attribute) and node.test.attr == "TYPE_CHECKING"))
+
+
+def abcgs_imports(source: str, module: str, is_package: bool, root: Path,
+                  type_checking: bool = True) -> list[tuple[int, str]]:
     """``(line, imported module)`` for every ``abcgs`` import of ``source`` (module ``module``) outside its
-    ``__main__`` block; ``from P import name`` counts as ``P.name`` where that is a module, else as ``P``."""
+    ``__main__`` block (and, with ``type_checking=False``, outside the bodies of its ``TYPE_CHECKING`` blocks: the
+    imports run); ``from P import name`` counts as ``P.name`` where that is a module, else as ``P``."""
     tree = ast.parse(source)
     skip = {id(n) for top in tree.body if is_main_block(top) for n in ast.walk(top)}
+    if not type_checking:
+        skip |= {id(n) for block in ast.walk(tree) if is_type_checking_block(block)
+                 for stmt in block.body for n in ast.walk(stmt)}
     out = []
     for node in ast.walk(tree):
         if id(node) in skip:
@@ -125,6 +145,61 @@ def upward_imports(module: str, source: str, root: Path, is_package: bool = Fals
         if own is not None and theirs is not None and theirs > own:
             out.append(f"{module}:{line} ({floors[own][0]}) imports {target} ({floors[theirs][0]})")
     return out
+
+
+def module_graph(root: Path) -> dict[str, dict[str, int]]:
+    """Module → {module it imports: the line of its first such import} for every module under ``root/abcgs``: the
+    imports that run (inside functions too; not in ``TYPE_CHECKING`` or ``__main__`` blocks), a module's imports of
+    itself left out."""
+    graph: dict[str, dict[str, int]] = {}
+    for path in sorted(p for p in (root / "abcgs").rglob("*.py") if "__pycache__" not in p.parts):
+        module = module_name(path, root)
+        edges = graph.setdefault(module, {})
+        for line, target in abcgs_imports(path.read_text(encoding="utf-8"), module, path.name == "__init__.py", root,
+                                          type_checking=False):
+            if target != module:
+                edges.setdefault(target, line)
+    return graph
+
+
+def import_rings(graph: Mapping[str, Iterable[str]]) -> list[list[str]]:
+    """The import rings of ``graph`` (node → the nodes it imports): each strongly connected component of more than one
+    node, its nodes sorted, the rings sorted (Tarjan's algorithm, without recursion)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    rings: list[list[str]] = []
+
+    def enter(node: str) -> tuple[str, Iterator[str]]:
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        on_stack.add(node)
+        return node, iter(sorted(graph.get(node, ())))
+
+    for start in sorted(set(graph).union(*graph.values())):
+        if start in index:
+            continue
+        work = [enter(start)]
+        while work:
+            node, targets = work[-1]
+            for target in targets:
+                if target not in index:
+                    work.append(enter(target))
+                    break
+                if target in on_stack:
+                    low[node] = min(low[node], index[target])
+            else:  # every target seen: close the node
+                work.pop()
+                if work:
+                    low[work[-1][0]] = min(low[work[-1][0]], low[node])
+                if low[node] == index[node]:
+                    component = stack[stack.index(node):]
+                    del stack[stack.index(node):]
+                    on_stack.difference_update(component)
+                    if len(component) > 1:
+                        rings.append(sorted(component))
+    return sorted(rings)
 
 
 def unit_of(module: str) -> str:
@@ -225,6 +300,7 @@ def measure(root: Path, top: int = 10) -> dict:
         functions += [(f"{path.relative_to(root).as_posix()}:{name}", n)
                       for name, n in _functions(ast.parse(source), "")]
     mutual = sorted({tuple(sorted(a)) for a in arrows if (a[1], a[0]) in arrows})
+    rings = import_rings(module_graph(root))
     side_effect = sorted(f"{p.relative_to(root).as_posix()}:{i}"
                          for folder in ("abcgs", "stages", "eval") for p in (root / folder).rglob("*.py")
                          for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1)
@@ -249,6 +325,8 @@ def measure(root: Path, top: int = 10) -> dict:
         "upward_imports_by_package": len(upward_by_package),
         "upward_by_package_lines": upward_by_package,
         "mutual_pairs": [list(p) for p in mutual],
+        "module_rings": rings,
+        "module_ring_count": len(rings),
         "unplaced_modules": unplaced,
         "side_effect_imports": len(side_effect),
         "functions": len(functions),
@@ -262,7 +340,8 @@ ROWS = (("modules", "modules under abcgs/"), ("lines", "lines under abcgs/"),
         ("packages", "units (sub-packages and top-level modules)"), ("import_arrows", "import arrows between units"),
         ("upward_imports", "imports up the floors (by module)"),
         ("upward_imports_by_package", "imports up the floors (by package)"),
-        ("mutual_pairs", "unit pairs importing each other"), ("side_effect_imports", "`import abcgs  # noqa: F401`"),
+        ("mutual_pairs", "unit pairs importing each other"), ("module_rings", "import rings between modules"),
+        ("side_effect_imports", "`import abcgs  # noqa: F401`"),
         ("functions_over_80_lines", "functions over 80 lines"),
         ("modules_over_600_lines", "modules over 600 lines (abcgs/, stages/, eval/)"), ("dvc_yaml_lines", "dvc.yaml lines"),
         ("core_pins_dvc_minor", "core package pins DVC's minor version"))
