@@ -103,23 +103,11 @@ def _views(args: argparse.Namespace) -> dict | None:
     return {k: v for k, v in given.items() if v is not None} or None
 
 
-def _binding(words: list[str] | None) -> dict[int, int] | str | None:
-    """``--binding``: ``auto``, or LABEL=REGION pairs of numbers."""
-    from abcgs.add_experiment import parse_pairs
-
-    if words is None or words == ["auto"]:
-        return None if words is None else "auto"
-    pairs = parse_pairs(words, "--binding")
-    if not all(v.isdigit() and int(v) >= 1 for v in pairs.values()):
-        raise AbcgsError(f"--binding {' '.join(words)}: each region is a number >= 1 of the painting's label map")
-    return {k: int(v) for k, v in pairs.items()}
-
-
 def _add_experiment(args: argparse.Namespace) -> int:
-    from abcgs.add_experiment import add_experiment, parse_pairs, plan_experiments
+    from abcgs.add_experiment import add_experiment, parse_binding, parse_pairs, plan_experiments
 
     styles = parse_pairs(args.styles, "--styles") if args.styles else None
-    plan = plan_experiments(args.name, args.scene, style=args.style, styles=styles, binding=_binding(args.binding),
+    plan = plan_experiments(args.name, args.scene, style=args.style, styles=styles, binding=parse_binding(args.binding),
                             methods=args.method)
     lines = add_experiment(args.params, plan, force=args.force, dry_run=args.dry_run)
     for line in lines:

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from abcgs.entry_checks import check_names, name_problem, pipeline_names
 from abcgs.errors import InputError, ParamsError
 from abcgs.fit.params import FitParams
 from abcgs.io.atomic import write_text
@@ -133,16 +134,34 @@ def edit_params(path: str | os.PathLike, edit: Callable[[Any], None], *, write: 
     return new
 
 
-def check_new_name(name: str, section: str, existing: Any, force: bool) -> None:
-    """Raise :class:`InputError` when ``name`` is not an identifier, is not a valid scene name (``data.scenes``), or
-    is a key of ``existing`` (``section``'s entries) and ``force`` is off."""
+def check_new_name(name: str, section: str, existing: Any, force: bool,
+                   params_path: str | os.PathLike | None = None) -> None:
+    """Raise :class:`InputError` when ``name`` is not an identifier, is not a valid scene name (``data.scenes``),
+    is one the pipeline cannot take (:func:`abcgs.entry_checks.name_problem`: too long, or its outputs or stages the
+    pipeline's own, from the ``dvc.yaml`` beside ``params_path``), or is a key of ``existing`` (``section``'s
+    entries) and ``force`` is off."""
     if not NAME_RE.fullmatch(name):
         raise InputError(f"{name!r}: a name must match {NAME_PATTERN} (it becomes a folder and a DVC stage name)")
     if section == "data.scenes" and (problem := scene_name_problem(name)) is not None:
         raise InputError(problem)
+    dvc_yaml = None if params_path is None else Path(params_path).resolve().parent / "dvc.yaml"
+    if (problem := name_problem(name, section, *pipeline_names(dvc_yaml))) is not None:
+        raise InputError(problem)
     if name in (existing or {}) and not force:
         raise InputError(f"{section}.{name} exists already in the params file; choose another name or pass --force to "
                          "replace it")
+
+
+def edit_checked(params_path: str | os.PathLike, edit: Callable[[Any], None], *, dry_run: bool = False) -> str:
+    """:func:`edit_params`, then the names of the edited file checked as the preflight checks them
+    (:func:`abcgs.entry_checks.check_names`: no two entries' outputs one path), before it is written (``dry_run``:
+    checked only); returns the new text."""
+    text = edit_params(params_path, edit, write=False)
+    check_names(validate_params(yaml.safe_load(text), str(params_path)),
+                *pipeline_names(Path(params_path).resolve().parent / "dvc.yaml"))
+    if not dry_run:
+        write_text(params_path, text)
+    return text
 
 
 def scene_entry(name: str, path: str | os.PathLike, *, fmt: str = "auto", images: str | None = None,
@@ -250,7 +269,7 @@ def add_scene(params_path: str | os.PathLike, name: str, path: str | os.PathLike
     """Check the scene and write ``data.scenes.<name>`` into the params file (``dry_run``: check the edited file
     as the real run does, write nothing). ``splat_format``, ``splat_nonfinite``, ``views``: :func:`scene_entry`."""
     params = load_params(params_path)
-    check_new_name(name, "data.scenes", params.data.scenes, force)
+    check_new_name(name, "data.scenes", params.data.scenes, force, params_path)
     entry, lines = scene_entry(name, path, fmt=fmt, images=images, background=background, splat=splat,
                                max_view_size_ratio=params.reconstruct.max_view_size_ratio,
                                min_psnr=params.fit.import_min_psnr, splat_format=splat_format,
@@ -259,7 +278,7 @@ def add_scene(params_path: str | os.PathLike, name: str, path: str | os.PathLike
     def edit(doc: Any) -> None:
         doc["data"]["scenes"][name] = entry
 
-    edit_params(params_path, edit, write=not dry_run)
+    edit_checked(params_path, edit, dry_run=dry_run)
     return entry, lines
 
 
@@ -284,7 +303,7 @@ def add_style(params_path: str | os.PathLike, name: str, path: str | os.PathLike
               labels: str | os.PathLike | None = None, force: bool = False, dry_run: bool = False
               ) -> tuple[dict, list[str]]:
     """Check the painting (and its region map) and write ``data.styles.<name>`` (and ``data.style_masks.<name>``)."""
-    check_new_name(name, "data.styles", load_params(params_path).data.styles, force)
+    check_new_name(name, "data.styles", load_params(params_path).data.styles, force, params_path)
     painting = checked_path(path, "painting")
     check_painting(painting, "painting")
     w, h = image_size(painting)
@@ -301,5 +320,5 @@ def add_style(params_path: str | os.PathLike, name: str, path: str | os.PathLike
                 doc["data"][section] = {}
             doc["data"][section][name] = value
 
-    edit_params(params_path, edit, write=not dry_run)
+    edit_checked(params_path, edit, dry_run=dry_run)
     return entry, lines

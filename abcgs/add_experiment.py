@@ -10,12 +10,16 @@ loss method on it, checked as the preflight checks them, with the command that r
 Names: ``colormatches.<NAME>`` and ``experiments.<NAME>`` for the first ``--method``, ``<NAME>_<method>`` for each
 further one (they share the colour match); with several single-transfer paintings, ``<NAME>_<painting>`` in place of
 ``<NAME>``. The params file is edited as data (:func:`abcgs.add.edit_params`), validated as a whole and checked as
-:func:`abcgs.preflight.preflight` checks it (the paintings, the label maps each transfer binds) before it is written.
+:func:`abcgs.preflight.preflight` checks it (the names, the label numbers, the paintings, the label maps each
+transfer binds) before it is written. Labels are given in the digits 0-9 and lie in 1 … 254 (:func:`parse_label`);
+a name is one the pipeline can take (:func:`abcgs.entry_checks.name_problem`: at most 100 characters, none of the
+pipeline's own outputs or stages).
 """
 
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, get_args
@@ -23,8 +27,10 @@ from typing import Any, get_args
 import yaml
 
 from abcgs.add import check_new_name, edit_params
+from abcgs.entry_checks import label_number_problem
 from abcgs.errors import InputError
 from abcgs.io.atomic import write_text
+from abcgs.io.images import MAX_LABEL
 from abcgs.params import load_params, validate_params
 from abcgs.preflight import preflight
 from abcgs.types import StyleMethod
@@ -51,17 +57,51 @@ class ExperimentPlan:
         return f'make repro ARGS="{" ".join(self.stages)}"'
 
 
+ASCII_DIGITS = re.compile(r"[0-9]+")
+"""A label number as the command line gives it: the digits 0-9 only (``int()`` would take ``²`` or ``٣``, and fail
+on those and on 5000 digits with a traceback)."""
+
+
+def parse_label(text: str, what: str, word: str, role: str = "label", example: str = "1=starry") -> int:
+    """``text`` (a part of the argument ``word`` of option ``what``) as a ``role`` of a label map: a number 1 …
+    :data:`~abcgs.io.images.MAX_LABEL` (:func:`abcgs.entry_checks.label_number_problem`) in the digits 0-9."""
+    shown = word if len(word) <= 60 else f"{word[:40]}…"
+    digits = text.strip()
+    if not ASCII_DIGITS.fullmatch(digits):
+        digits = digits if len(digits) <= 20 else f"{digits[:12]}… ({len(digits)} characters)"
+        raise InputError(f"{what} {shown}: the {role} {digits!r} is not a number in the digits 0-9; write a {role} "
+                         f"1 … {MAX_LABEL}, e.g. {example}")
+    value = digits.lstrip("0") or "0"
+    label = int(value) if len(value) <= 6 else MAX_LABEL + 1  # more digits: out of range, not worth converting
+    if (problem := label_number_problem(label, role, digits)) is not None:
+        raise InputError(f"{what} {shown}: {problem}; give a {role} 1 … {MAX_LABEL}, e.g. {example}")
+    return label
+
+
 def parse_pairs(words: list[str], what: str) -> dict[int, str]:
-    """``["1=starry", "2=kandinsky"]`` → ``{1: "starry", 2: "kandinsky"}``: label numbers ≥ 1, each once."""
+    """``["1=starry", "2=kandinsky"]`` → ``{1: "starry", 2: "kandinsky"}``: content labels 1 … 254 in ASCII digits
+    (:func:`parse_label`), each once."""
     out: dict[int, str] = {}
     for word in words:
         key, sep, value = word.partition("=")
-        if not sep or not key.strip().isdigit() or int(key) < 1 or not value.strip():
-            raise InputError(f"{what} {word!r}: expected LABEL=VALUE with LABEL a number >= 1, e.g. 1=starry")
-        if int(key) in out:
-            raise InputError(f"{what}: label {int(key)} is given twice")
-        out[int(key)] = value.strip()
+        if not sep or not value.strip():
+            shown = word if len(word) <= 60 else f"{word[:40]}…"
+            raise InputError(f"{what} {shown!r}: expected LABEL=VALUE with LABEL a number 1 … {MAX_LABEL}, e.g. "
+                             "1=starry")
+        label = parse_label(key, what, word, "content label", "1=3" if what == "--binding" else "1=starry")
+        if label in out:
+            raise InputError(f"{what}: label {label} is given twice")
+        out[label] = value.strip()
     return out
+
+
+def parse_binding(words: list[str] | None) -> dict[int, int] | str | None:
+    """``--binding``: ``auto``, or CONTENT=REGION pairs of label numbers (:func:`parse_label`); ``None`` when not
+    given."""
+    if words is None or words == ["auto"]:
+        return None if words is None else "auto"
+    return {label: parse_label(region, "--binding", f"{label}={region}", "painting region", "1=3")
+            for label, region in parse_pairs(words, "--binding").items()}
 
 
 def plan_experiments(name: str, scene: str, *, style: list[str] | None = None, styles: dict[int, str] | None = None,
@@ -100,10 +140,10 @@ def add_experiment(params_path: str | os.PathLike, plan: ExperimentPlan, *, forc
         scene = next(iter(plan.colormatches.values()))["scene"]
         raise InputError(f"scene {scene!r} is not in data.scenes ({', '.join(params.data.scenes)}); add it first "
                          "with python -m abcgs add-scene")
+    for n in plan.experiments:  # first: an experiment's name is the folder out/<name>/ (abcgs.entry_checks.name_problem)
+        check_new_name(n, "experiments", params.experiments, force, params_path)
     for n in plan.colormatches:
-        check_new_name(n, "colormatches", params.colormatches, force)
-    for n in plan.experiments:
-        check_new_name(n, "experiments", params.experiments, force)
+        check_new_name(n, "colormatches", params.colormatches, force, params_path)
 
     def edit(doc: Any) -> None:
         for section, entries in (("colormatches", plan.colormatches), ("experiments", plan.experiments)):

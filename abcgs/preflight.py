@@ -20,6 +20,10 @@ checks the params against the two other things a run depends on:
   (the embedded tiny scene, made by ``make_tiny``) is checked by that stage instead; a path into it must name a
   file the stage writes there (:data:`PRODUCED_FILES`). The labels the colour matches bind exist in the label
   maps where those are given files (:func:`check_bindings`).
+- the names and numbers (:mod:`abcgs.entry_checks`; no file read): an entry's name is a
+  file name of at most :data:`MAX_NAME_LENGTH` characters that none of the pipeline's own outputs or stages takes,
+  no two entries' outputs are one path (DVC stops every ``dvc repro`` on overlapping outputs, before the
+  ``preflight`` stage), and every label a colour match binds is one a label map holds (1 … 254).
 
 :func:`abcgs.pipeline.run_stage` runs the params checks for every stage; the ``preflight`` stage
 (``stages/preflight.py``), which every other stage depends on, runs the input checks too, so ``dvc repro`` stops
@@ -33,7 +37,6 @@ import logging
 import os
 from collections.abc import Collection, Iterable, Mapping
 from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
@@ -41,6 +44,8 @@ import yaml
 
 from abcgs import layout
 from abcgs.dotted import has_key
+from abcgs.dvc_file import dvc_stages, stage_body, stage_outs
+from abcgs.entry_checks import check_label_numbers, check_names, pipeline_names
 from abcgs.errors import InputError, ParamsError
 from abcgs.io.images import check_label_size, check_label_values, decode_image, image_header, stroke_map_path
 from abcgs.masks.params import UNDECIDED
@@ -51,20 +56,6 @@ from abcgs.sources.registry import reader_of
 log = logging.getLogger(__name__)
 
 
-def _stages(dvc_yaml: Path) -> dict[str, Any]:
-    try:
-        doc = yaml.safe_load(dvc_yaml.read_text(encoding="utf-8")) or {}
-    except yaml.YAMLError as exc:
-        raise ParamsError(f"{dvc_yaml} is not valid YAML: {exc}") from None
-    stages = doc.get("stages") or {}
-    return stages if isinstance(stages, dict) else {}
-
-
-def _bodies(stage: dict) -> dict:
-    """The stage definition itself, or the ``do`` body of a ``foreach`` stage."""
-    return stage.get("do", stage) if isinstance(stage, dict) else {}
-
-
 def dvc_tracked_keys(dvc_yaml: Path) -> dict[str, list[str]]:
     """Dotted params keys of ``params.yaml`` tracked by ``dvc.yaml`` stages → the stages tracking them.
 
@@ -72,8 +63,8 @@ def dvc_tracked_keys(dvc_yaml: Path) -> dict[str, list[str]]:
     Entries that name another params file (``{other.yaml: [...]}``) are left out too.
     """
     out: dict[str, list[str]] = {}
-    for name, stage in _stages(dvc_yaml).items():
-        for entry in _bodies(stage).get("params", []) or []:
+    for name, stage in dvc_stages(dvc_yaml).items():
+        for entry in stage_body(stage).get("params", []) or []:
             if isinstance(entry, str) and "${" not in entry:
                 out.setdefault(entry, []).append(name)
     return out
@@ -97,7 +88,7 @@ def check_scene_entries(raw: dict, dvc_yaml: Path, source: str = "params.yaml") 
     would stop with "Could not find 'item.path'" before any stage runs)."""
     reads_path = any(
         isinstance(stage, dict) and stage.get("foreach") == "${data.scenes}" and "${item.path}" in yaml.safe_dump(stage)
-        for stage in _stages(dvc_yaml).values()
+        for stage in dvc_stages(dvc_yaml).values()
     )
     scenes = ((raw.get("data") or {}).get("scenes") or {}) if isinstance(raw, dict) else {}
     plain = [name for name, v in scenes.items() if isinstance(v, str)] if isinstance(scenes, dict) else []
@@ -111,13 +102,7 @@ def check_scene_entries(raw: dict, dvc_yaml: Path, source: str = "params.yaml") 
 
 def dvc_outputs(dvc_yaml: Path) -> list[str]:
     """Paths a ``dvc.yaml`` stage writes (``outs``; templated ones left out)."""
-    paths = []
-    for stage in _stages(dvc_yaml).values():
-        for entry in _bodies(stage).get("outs", []) or []:
-            p = entry if isinstance(entry, str) else next(iter(entry), None) if isinstance(entry, dict) else None
-            if p and "${" not in p:
-                paths.append(p)
-    return paths
+    return [p for stage in dvc_stages(dvc_yaml).values() for p in stage_outs(stage) if "${" not in p]
 
 
 PRODUCED_FILES: dict[str, tuple[str, ...]] = {"make_tiny": TINY_STYLE_FILES}
@@ -128,12 +113,11 @@ stage has run)."""
 def dvc_output_files(dvc_yaml: Path) -> dict[str, tuple[str, ...]]:
     """Output folder of each stage of :data:`PRODUCED_FILES` → the files in it that params may name."""
     out: dict[str, tuple[str, ...]] = {}
-    for name, stage in _stages(dvc_yaml).items():
+    for name, stage in dvc_stages(dvc_yaml).items():
         if name not in PRODUCED_FILES:
             continue
-        for entry in _bodies(stage).get("outs", []) or []:
-            p = entry if isinstance(entry, str) else next(iter(entry), None) if isinstance(entry, dict) else None
-            if p and "${" not in p:
+        for p in stage_outs(stage):
+            if "${" not in p:
                 out[p] = PRODUCED_FILES[name]
     return out
 
@@ -334,22 +318,27 @@ def _size(path: Path) -> tuple[int, int]:
 
 
 def check_bindings(params, root: Path, produced: Iterable[str]) -> None:
-    """The labels each colour match binds exist in the label files the user gives: a compositional binding's
-    content labels in the scene's numbered masks, an explicit semantic binding's regions in the painting's label
-    map (:meth:`abcgs.features.params.TransferSpec.check_labels`). Files a stage makes are checked by the
+    """The labels each colour match binds exist in the label files the user gives: a compositional or an explicit
+    semantic binding's content labels in the scene's numbered masks, where the ``masks`` stage lifts them
+    (``masks.source`` auto or given), an explicit semantic binding's regions in the painting's label map
+    (:meth:`abcgs.features.params.TransferSpec.check_labels`). Files a stage makes are checked by the
     ``colormatch`` stage instead, before its work."""
     produced = list(produced)
+    known: dict[str, set[int] | None] = {}  # scene → the labels of its numbered masks (None: not known here)
     for name, spec in params.colormatches.items():
         scene = params.data.scenes[spec.scene].path
         content = None
-        if spec.transfer == "compositional" and not produced_by_stage(Path(scene), produced, root):
-            content = scene_mask_labels(root / scene)
+        if (spec.reads_content_labels and params.scene_section(spec.scene, "masks").source in ("auto", "given")
+                and not produced_by_stage(Path(scene), produced, root)):  # the masks stage lifts the given masks
+            if spec.scene not in known:
+                known[spec.scene] = scene_mask_labels(root / scene)
+            content = known[spec.scene]
         regions, map_path = None, ""
         if spec.transfer == "semantic" and spec.binding != "auto":
             map_path = params.data.style_masks.get(spec.style, "")
             if map_path and not produced_by_stage(Path(map_path), produced, root):
                 labels = mask_labels(root / map_path)
-                regions = None if labels is None else {int(v) for v in np.unique(labels)} - {0}
+                regions = None if labels is None else {int(v) for v in np.unique(labels)} - {0, UNDECIDED}
         spec.check_labels(name, content, f"the masks in {Path(scene) / 'masks'}", regions, map_path)
 
 
@@ -415,6 +404,7 @@ def check_input_files(params, root: Path, produced: Iterable[str] = (),
                              f"first: {next(iter(bad.values()))})")
         warnings += check_scene_images(name, images, params.scene_section(name, "reconstruct").max_view_size_ratio)
         warnings += check_scene_masks(name, folder, sub)
+    check_label_numbers(params)  # after the label files themselves: a map of label 60000 is named as the cause
     check_bindings(params, root, produced)
     return warnings
 
@@ -438,7 +428,7 @@ def check_report_inputs(params, dvc_yaml: Path) -> None:
     experiment's stages or leave it stale after them."""
     if not dvc_yaml.is_file():  # the stage run outside a pipeline checkout
         return
-    stage = _stages(dvc_yaml).get("report")
+    stage = dvc_stages(dvc_yaml).get("report")
     if not isinstance(stage, dict):
         return
     listed = {str(d) for d in stage.get("deps") or []}
@@ -464,6 +454,7 @@ def preflight(params, raw: dict, params_path: str | os.PathLike, *, files: bool 
         check_dvc_tracked_keys(raw, dvc_yaml, str(params_path))
         check_scene_entries(raw, dvc_yaml, str(params_path))
         produced, contents = dvc_outputs(dvc_yaml), dvc_output_files(dvc_yaml)
+    check_names(params, *pipeline_names(dvc_yaml))
     warnings = check_input_files(params, root, produced, contents) if files else []
     for w in warnings:
         log.warning("preflight: %s", w)

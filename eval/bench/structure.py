@@ -58,6 +58,7 @@ FLOORS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("presentation", ("abcgs.view", "abcgs.report", "abcgs.masks.page")),
     ("orchestration", ("abcgs.params", "abcgs.preflight", "abcgs.pipeline", "abcgs.dag", "abcgs.overlay",
                        "abcgs.add", "abcgs.add_experiment", "abcgs.cluster", "abcgs.source_check", "abcgs.__main__",
+                       "abcgs.entry_checks", "abcgs.dvc_file",
                        "abcgs.view.__main__")),
 )
 """Floors, lowest first, each a name and the modules or packages on it (the longest matching prefix decides). A
