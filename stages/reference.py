@@ -1,6 +1,6 @@
-"""Stage ``reference``: the original scene's renders, the consistency pairs, the optical flows between them and the
-unstylized scene's warp error over those pairs (the floor), which every experiment's evaluation of this scene
-compares against, computed once per scene.
+"""Stage ``reference``: the original scene's renders, the consistency pairs, the optical flows between them, each
+pair's occlusion/in-frame mask and the unstylized scene's warp error over those pairs (the floor), which every
+experiment's evaluation of this scene reads instead of recomputing them, computed once per scene.
 
     dvc repro reference@tiny     # its command, with every input and output path: dvc.yaml or --help
 
@@ -30,7 +30,7 @@ _S = layout.scene("{key}")
 SPEC = StageSpec("reference", foreach="data.scenes", params=(*(f"evaluate.{k}" for k in FLOW_SETTINGS), "runtime"), deps=(
     Dep("colmap", _S.colmap.root, "the scene's COLMAP layout (reconstruct)"),
     Dep("model", _S.fit.ply, "the fitted scene (fit)"),
-), outs=(Out(_S.reference, "out", help="renders, pairs, flows and the scene's own warp error"),))
+), outs=(Out(_S.reference, "out", help="renders, pairs, flows, pair masks and the scene's own warp error"),))
 
 
 def main(args, params) -> None:
@@ -39,7 +39,7 @@ def main(args, params) -> None:
     ref = compute_reference(scene.cameras, model.to(resolve_device(params.runtime.device)), params.evaluate, model_digest=digest,
                             progress=lambda keys: progress(keys, "flows"), background=scene.background)
     save_reference(args.out, ref)
-    log.info("%d views, %d flows; %s", len(ref.view_names), len(ref.flows),
+    log.info("%d views, %d flows, %d pair masks; %s", len(ref.view_names), len(ref.flows), len(ref.masks),
              ", ".join(f"{k} {v:.1f} s" for k, v in ref.timings_s.items()))
 
 

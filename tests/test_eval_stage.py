@@ -206,7 +206,7 @@ def test_a_reference_folder_is_the_same_bytes_when_computed_again(scene, tmp_pat
     assert set(again.timings_s) == {"render", "flow", "floor"}
     save_reference(tmp_path / "b", again)
     files = sorted(p.name for p in (tmp_path / "a").iterdir())
-    assert files == ["flows.npz", "reference.json", "renders.npz"]
+    assert files == ["flows.npz", "masks.npz", "reference.json", "renders.npz"]
     for name in files:
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes(), name
 

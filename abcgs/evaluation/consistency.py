@@ -295,22 +295,26 @@ def on_grid(img: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
 
 
 class FlowCache:
-    """Flows between original renders, computed once per ordered pair and grid.
+    """Flows between original renders, computed once per ordered pair and grid, and the pairs' masks.
 
     ``flows(i, j, hw)``: flow from view ``i`` to view ``j``, both first put on the grid ``hw`` (the grid of
-    the pair's reference view; :func:`on_grid`). :meth:`precomputed` serves stored flows only (the
-    per-scene evaluation reference, :mod:`abcgs.evaluation.reference`).
+    the pair's reference view; :func:`on_grid`). ``flows.mask(i, j, hw)``: the pair's occlusion/in-frame mask
+    (:func:`fb_consistency_mask` of the two flows), computed once. :meth:`precomputed` serves stored flows (and
+    masks) only (the per-scene evaluation reference, :mod:`abcgs.evaluation.reference`).
     """
 
     def __init__(self, originals: list[np.ndarray], estimator: FlowEstimatorLike | None,
-                 flows: dict | None = None, provenance: dict | None = None) -> None:
+                 flows: dict | None = None, provenance: dict | None = None, masks: dict | None = None) -> None:
         self.originals, self.estimator, self._c = originals, estimator, dict(flows or {})
         self._provenance = provenance
+        self._masks = dict(masks or {})
 
     @classmethod
-    def precomputed(cls, originals: list[np.ndarray], flows: dict, provenance: dict) -> FlowCache:
-        """Stored flows ``{(i, j, (H, W)): (H, W, 2)}`` made by the estimator that ``provenance`` describes."""
-        return cls(originals, None, flows, provenance)
+    def precomputed(cls, originals: list[np.ndarray], flows: dict, provenance: dict,
+                    masks: dict | None = None) -> FlowCache:
+        """Stored flows ``{(i, j, (H, W)): (H, W, 2)}`` made by the estimator that ``provenance`` describes, and
+        optionally the pairs' stored masks ``{(i, j, (H, W)): (H, W) bool}`` (others are computed from the flows)."""
+        return cls(originals, None, flows, provenance, masks)
 
     def provenance(self) -> dict:
         return self._provenance if self.estimator is None else self.estimator.provenance()
@@ -324,6 +328,15 @@ class FlowCache:
             self._c[(i, j, hw)] = self.estimator(on_grid(self.originals[i], hw), on_grid(self.originals[j], hw))
         return self._c[(i, j, hw)]
 
+    def mask(self, i: int, j: int, hw: tuple[int, int] | None = None) -> np.ndarray:
+        """Pair ``(i, j)``'s mask on the grid ``hw``: :func:`fb_consistency_mask` of the flows ``i → j`` and
+        ``j → i``, computed once (or the stored one; the same array: it is a function of the stored flows)."""
+        hw = tuple(hw) if hw is not None else tuple(np.shape(self.originals[i])[:2])
+        m = self._masks.get((i, j, hw))
+        if m is None:
+            m = self._masks[(i, j, hw)] = fb_consistency_mask(self(i, j, hw), self(j, i, hw))
+        return m
+
 
 def warp_error(i: int, j: int, stylized: list[np.ndarray], flow: np.ndarray, mask: np.ndarray,
                perceptual: PerceptualDistance | None) -> PairResult:
@@ -331,18 +344,23 @@ def warp_error(i: int, j: int, stylized: list[np.ndarray], flow: np.ndarray, mas
 
     ``flow`` is on view ``i``'s grid; view ``j`` is resampled onto that grid first when its size differs.
     """
+    r = _warped(i, j, stylized, flow, mask)
+    if perceptual is not None:
+        r.perceptual = perceptual(stylized[i], r.warped, mask)
+    return r
+
+
+def _warped(i: int, j: int, stylized: list[np.ndarray], flow: np.ndarray, mask: np.ndarray) -> PairResult:
+    """:func:`warp_error` without the perceptual distance (NaN): the warp, the masked RMSE, the valid fraction."""
     hw = flow.shape[:2]
     warped = backward_warp(on_grid(stylized[j], hw), flow)
-    rmse = masked_rmse(stylized[i], warped, mask)
-    perc = perceptual(stylized[i], warped, mask) if perceptual is not None else float("nan")
-    return PairResult(i, j, rmse, perc, float(mask.mean()), warped, mask,
+    return PairResult(i, j, masked_rmse(stylized[i], warped, mask), float("nan"), float(mask.mean()), warped, mask,
                       resampled=tuple(np.shape(stylized[j])[:2]) != tuple(hw))
 
 
 def evaluate_pair(i: int, j: int, stylized: list[np.ndarray], flows: FlowCache, perceptual: PerceptualDistance | None) -> PairResult:
     hw = tuple(np.shape(stylized[i])[:2])
-    f_ij, f_ji = flows(i, j, hw), flows(j, i, hw)
-    return warp_error(i, j, stylized, f_ij, fb_consistency_mask(f_ij, f_ji), perceptual)
+    return warp_error(i, j, stylized, flows(i, j, hw), flows.mask(i, j, hw), perceptual)
 
 
 @dataclass(frozen=True)
@@ -377,7 +395,10 @@ def consistency(
     ``pairs``: ``(i, j)`` list indices (view ``j`` warped into view ``i``; e.g. a
     :class:`~abcgs.evaluation.pairs.ViewPairs`' ``short``), or an int: that gap in list order (:func:`view_pairs`).
     ``workers``: threads over the pairs (:func:`abcgs.evaluation.parallel.ordered_map`; the same results for any
-    count). The flows are looked up (estimated, when ``flows`` has an estimator) first, in this thread.
+    count). The flows are looked up (estimated, when ``flows`` has an estimator) first, in this thread; then each
+    pair is warped and its mask taken (``flows.mask``: stored with a reference), and the perceptual distances of all
+    pairs are computed batched (:meth:`~abcgs.evaluation.content.PerceptualDistance.distances`): the numbers are those
+    of :func:`evaluate_pair` pair by pair.
     """
     check_same_count(originals, stylized)
     for k, (o, s) in enumerate(zip(originals, stylized)):
@@ -388,7 +409,17 @@ def consistency(
     for i, j in pairs:  # an estimator (one OpenCV object, or RAFT on torch's threads) runs here, not in the workers
         hw = tuple(np.shape(stylized[i])[:2])
         flows(i, j, hw), flows(j, i, hw)
-    results = ordered_map(lambda ij: evaluate_pair(ij[0], ij[1], stylized, flows, perceptual), pairs, workers)
+
+    def warped(ij: tuple[int, int]) -> PairResult:
+        hw = tuple(np.shape(stylized[ij[0]])[:2])
+        return _warped(ij[0], ij[1], stylized, flows(ij[0], ij[1], hw), flows.mask(ij[0], ij[1], hw))
+
+    results = ordered_map(warped, pairs, workers)
+    if perceptual is not None:
+        perc = perceptual.distances([stylized[r.i] for r in results], [r.warped for r in results],
+                                    [r.mask for r in results], workers=workers)
+        for r, d in zip(results, perc):
+            r.perceptual = d
     return Consistency(
         pairs=tuple(results),
         rmse=nan_mean([r.rmse for r in results]),

@@ -55,6 +55,9 @@ SSIM_K1 = 0.01
 SSIM_K2 = 0.03
 SSIM_DOC = "Wang et al. 2004: 11x11 Gaussian window sigma 1.5, K1 0.01, K2 0.03, data range 1, valid positions only, RGB channels averaged"
 LPIPS_ALEX_BACKBONE = "alexnet-owt-7be5be79.pth"
+BATCH_PIXELS = 1 << 19
+"""Pixels of one batched VGG forward of the proxy distance (:meth:`PerceptualDistance.distances`; both images of each
+pair): 4 images of 270 × 480 (2 pairs), 26 of 160 × 120; one relu1 activation of such a batch is 128 MiB."""
 
 
 def as_bchw(img: np.ndarray | Tensor) -> Tensor:
@@ -235,36 +238,96 @@ class PerceptualDistance:
             "why_not_lpips": why, "comparable_to_paper": False,
         }
 
-    @torch.no_grad()
-    def __call__(self, a, b, mask: np.ndarray | None = None) -> float:
-        """Distance of one image pair (channels-last, [0, 1]); ``mask`` (H, W) weights pixels, zeroing the rest."""
+    def _inputs(self, a, b, mask: np.ndarray | None) -> tuple[Tensor, Tensor, Tensor | None] | None:
+        """The network inputs of one pair, ``(1, 3, H, W)`` each in [0, 1] with masked-out pixels zeroed in both, and
+        the mask ``(1, 1, H, W)`` (None without one); None when the mask keeps no pixel."""
         check_pair(a, b)
+        m = None
         if mask is not None:
             m = np.asarray(mask, np.float32)
             if m.shape != np.shape(a)[:2]:
                 raise InputError(f"mask shape {m.shape} does not match image {np.shape(a)[:2]}")
             if m.sum() <= 0:
-                return float("nan")
+                return None
             a = np.asarray(a, np.float32) * m[..., None]
             b = np.asarray(b, np.float32) * m[..., None]
         x, y = as_bchw(a).to(self.device).clamp(0, 1), as_bchw(b).to(self.device).clamp(0, 1)
-        mt = torch.from_numpy(m)[None, None].to(self.device) if mask is not None else None
-        if self.name == "lpips":
-            if mask is None:
-                return float(self._lpips(x * 2 - 1, y * 2 - 1).mean())
-            dmap = self._lpips_spatial(x * 2 - 1, y * 2 - 1)  # (1, 1, H, W), upsampled to the input size
-            return float((dmap * mt).sum() / mt.sum())
-        feats = self._vgg(torch.cat([x, y]))
+        return x, y, (torch.from_numpy(m)[None, None].to(self.device) if m is not None else None)
+
+    def _proxy_distance(self, feats: dict[str, Tensor], i: int, j: int, mt: Tensor | None) -> float:
+        """The proxy distance between samples ``i`` and ``j`` of one VGG forward's ``feats``; ``mt``: the pair's mask."""
         total = 0.0
         for k in self.layers:
-            d = (_unit(feats[k][:1]) - _unit(feats[k][1:])).pow(2).sum(dim=1, keepdim=True)
-            if mask is None:
+            d = (_unit(feats[k][i : i + 1]) - _unit(feats[k][j : j + 1])).pow(2).sum(dim=1, keepdim=True)
+            if mt is None:
                 total += float(d.mean())
             else:
                 mk = F.interpolate(mt, size=d.shape[-2:], mode="area")
                 w = float(mk.sum())
                 total += float((d * mk).sum() / w) if w > 0 else 0.0
         return total
+
+    @torch.no_grad()
+    def __call__(self, a, b, mask: np.ndarray | None = None) -> float:
+        """Distance of one image pair (channels-last, [0, 1]); ``mask`` (H, W) weights pixels, zeroing the rest."""
+        inputs = self._inputs(a, b, mask)
+        if inputs is None:
+            return float("nan")
+        x, y, mt = inputs
+        if self.name == "lpips":
+            if mt is None:
+                return float(self._lpips(x * 2 - 1, y * 2 - 1).mean())
+            dmap = self._lpips_spatial(x * 2 - 1, y * 2 - 1)  # (1, 1, H, W), upsampled to the input size
+            return float((dmap * mt).sum() / mt.sum())
+        return self._proxy_distance(self._vgg(torch.cat([x, y])), 0, 1, mt)
+
+    def distances(self, a: Sequence, b: Sequence, masks: Sequence[np.ndarray | None] | None = None, *,
+                  workers: int = 1, batch_pixels: int = BATCH_PIXELS) -> list[float]:
+        """``[self(a[k], b[k], masks[k]) for k …]``, the pairs batched: consecutive pairs of one size share a VGG
+        forward of up to ``batch_pixels`` pixels (both images of each), the batches spread over ``workers`` threads
+        (:func:`abcgs.evaluation.parallel.ordered_map`). A VGG forward gives each sample the same features in any
+        batch on the CPU (tested: bitwise), and each pair's distance is then computed exactly as :meth:`__call__`
+        computes it, so the numbers are :meth:`__call__`'s. Real LPIPS runs pair by pair."""
+        if len(a) != len(b) or (masks is not None and len(masks) != len(a)):
+            raise InputError(f"{len(a)} first images, {len(b)} second images and "
+                             f"{len(a) if masks is None else len(masks)} masks: the pairs must match one to one")
+        ms = list(masks) if masks is not None else [None] * len(a)
+        if self.name == "lpips":
+            return ordered_map(lambda k: self(a[k], b[k], ms[k]), range(len(a)), workers)
+        return [d for chunk in ordered_map(lambda idx: self._batch(a, b, ms, idx), pair_batches(
+            [tuple(np.shape(x)[:2]) for x in a], batch_pixels, workers), workers) for d in chunk]
+
+    @torch.no_grad()
+    def _batch(self, a: Sequence, b: Sequence, masks: Sequence, idx: list[int]) -> list[float]:
+        """The proxy distances of the pairs ``idx`` (one size) from one VGG forward of all their images."""
+        inputs = {k: self._inputs(a[k], b[k], masks[k]) for k in idx}
+        live = [k for k in idx if inputs[k] is not None]
+        out = {k: float("nan") for k in idx if inputs[k] is None}
+        if live:
+            feats = self._vgg(torch.cat([inputs[k][0] for k in live] + [inputs[k][1] for k in live]))
+            for s, k in enumerate(live):
+                out[k] = self._proxy_distance(feats, s, len(live) + s, inputs[k][2])
+        return [out[k] for k in idx]
+
+
+def pair_batches(sizes: Sequence[tuple[int, int]], batch_pixels: int = BATCH_PIXELS, workers: int = 1) -> list[list[int]]:
+    """The pairs (indices into ``sizes``, each pair's ``(H, W)``) cut into batches for one VGG forward each: runs of
+    consecutive pairs of one size, each run cut into equal batches of at most ``batch_pixels // (2·H·W)`` pairs (at
+    least one) and into at least ``workers`` batches where it has that many pairs, so that the threads share it."""
+    runs: list[list[int]] = []
+    for k, hw in enumerate(sizes):
+        if runs and tuple(sizes[runs[-1][-1]]) == tuple(hw):
+            runs[-1].append(k)
+        else:
+            runs.append([k])
+    out = []
+    for run in runs:
+        h, w = sizes[run[0]]
+        most = max(1, batch_pixels // max(1, 2 * h * w))
+        count = max(-(-len(run) // most), min(max(1, workers), len(run)))
+        size = -(-len(run) // count)
+        out += [run[s : s + size] for s in range(0, len(run), size)]
+    return out
 
 
 # ---------------------------------------------------------------------------------------------- scores
@@ -295,9 +358,10 @@ class ContentScores:
 def content_scores(originals: Sequence[np.ndarray], stylized: Sequence[np.ndarray], ssim: SSIM,
                    perceptual: PerceptualDistance, workers: int = 1) -> ContentScores:
     """SSIM and perceptual distance of every (original, stylized) render pair, channels-last in [0, 1], on
-    ``workers`` threads (:func:`abcgs.evaluation.parallel.ordered_map`: the same numbers for any count)."""
+    ``workers`` threads (:func:`abcgs.evaluation.parallel.ordered_map`: the same numbers for any count); the
+    perceptual distances batched (:meth:`PerceptualDistance.distances`: the same numbers as pair by pair)."""
     check_same_count(originals, stylized)
     pairs = list(zip(originals, stylized))
     return ContentScores(tuple(ordered_map(lambda pair: ssim(*pair), pairs, workers)),
-                         tuple(ordered_map(lambda pair: perceptual(*pair), pairs, workers)),
+                         tuple(perceptual.distances(originals, stylized, workers=workers)),
                          perceptual.name, ssim.provenance()["ssim_impl"])

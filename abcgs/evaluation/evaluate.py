@@ -125,14 +125,16 @@ def _checked_pairs(originals, stylized, style_images, params: EvalParams, pairs:
     return pairs
 
 
-def _stopwatch() -> Callable[[], float]:
-    """A lap timer: each call returns the wall seconds since the previous call (or since its creation)."""
-    last = [time.perf_counter()]
+def _stopwatch() -> Callable[[], tuple[float, float]]:
+    """A lap timer: each call returns the wall and the process CPU seconds (all threads) since the previous call (or
+    since its creation)."""
+    last = [time.perf_counter(), time.process_time()]
 
-    def lap() -> float:
-        now = time.perf_counter()
-        seconds, last[0] = now - last[0], now
-        return seconds
+    def lap() -> tuple[float, float]:
+        now = [time.perf_counter(), time.process_time()]
+        wall, cpu = now[0] - last[0], now[1] - last[1]
+        last[:] = now
+        return wall, cpu
 
     return lap
 
@@ -200,7 +202,9 @@ def evaluate_images(
         content=content, short=short, long=long, floor=floor, fid=fk, gram=gram, artfid=art,
         provenance=MetricProvenance(ssim.provenance(), perceptual.info, flows.provenance(), vgg_info.model_dump(),
                                     Versions.installed(), params.seed),
-        timings=EvalTimings(content_s, consistency_s, fid_s, gram_s),
+        timings=EvalTimings(content_s[0], consistency_s[0], fid_s[0], gram_s[0],
+                            {"content_s": content_s[1], "consistency_s": consistency_s[1], "fid_s": fid_s[1],
+                             "gram_s": gram_s[1]}),
         panel=consistency_panel(originals, stylized, names, short, long, params),
     ))
 
@@ -242,7 +246,7 @@ def _evaluate_scene(cameras: list[Camera], original: GaussianModel, stylized: Ga
                     saved_renders: list[np.ndarray] | None = None, reference: SceneReference | None = None,
                     background: Background = FRAME_FILLING, **kwargs) -> EvalResult:
     cams = evaluated_cameras(cameras, params)
-    t = time.perf_counter()
+    lap, started = _stopwatch(), (time.perf_counter(), time.process_time())
     ref_alphas = None
     if reference is not None:
         if reference.view_names != [c.name for c in cams]:
@@ -257,21 +261,29 @@ def _evaluate_scene(cameras: list[Camera], original: GaussianModel, stylized: Ga
         originals, backend = render_views(original, cams, params.backend, background)
         kwargs.setdefault("pairs", pairs_for(cams, params))
     styl, backend_s = render_views(stylized, cams, params.backend, background)
-    render_s = time.perf_counter() - t
+    render_s, render_cpu_s = lap()
     # the stylize stage's PNGs must be these views (fail before the slow metrics)
     saved_rmse = saved_renders_rmse(styl, saved_renders) if saved_renders is not None else None
+    lap()
     speed = render_speed(stylized, cams, params, backend_s)
+    speed_s = lap()
     res = evaluate_images(originals, styl, style_images, params, view_names=[Path(c.name).stem for c in cams],
                           device=stylized.device, **kwargs)
+    lap()
     objects = None
     if background.object:
         ref_alphas = ref_alphas if ref_alphas is not None else render_alphas(original, cams, params.backend)
         objects = object_scores(originals, styl, ref_alphas, render_alphas(stylized, cams, params.backend),
                                 res.images.short, res.images.long)
+    objects_s = lap()
+    timings = {"render_cpu_s": render_cpu_s, "speed_s": speed_s[0], "speed_cpu_s": speed_s[1]}
+    if objects is not None:
+        timings.update(objects_s=objects_s[0], objects_cpu_s=objects_s[1])
+    timings.update(total_s=time.perf_counter() - started[0], total_cpu_s=time.process_time() - started[1])
     return EvalResult(
         res.images, speed, render_s, (backend, backend_s),
         StylizeTiming.of_record(stylize_info) if stylize_info is not None else None, saved_rmse,
-        None if reference is None else ReferenceUse.of(reference), objects,
+        None if reference is None else ReferenceUse.of(reference), objects, timings,
     )
 
 

@@ -83,6 +83,10 @@ class EvalTimings:
     """Patches and the TF-Inception FID/KID."""
     gram_s: float
     """The Gram distance, its VGG-16 and the style images' Gram matrices included."""
+    cpu_s: dict[str, float] = field(default_factory=dict)
+    """CPU seconds of the process (all its threads) in each part, by the same names (``content_s`` …): beside the wall
+    seconds, how many cores the part had (about ``evaluate.workers`` × ``num_threads`` on an idle machine, less where
+    others share it)."""
 
 
 @dataclass(frozen=True)
@@ -200,6 +204,10 @@ class EvalResult:
     """The stored reference the original renders and flows came from, when one was used."""
     objects: ObjectScores | None = None
     """An object scene's own metrics (:mod:`abcgs.evaluation.objects`); None for a frame-filling scene."""
+    scene_timings_s: dict[str, float] = field(default_factory=dict)
+    """Seconds of :func:`evaluate_scene`'s own parts, wall and CPU: ``render_cpu_s``, ``speed_s`` / ``speed_cpu_s``
+    (the render-speed passes), ``objects_s`` / ``objects_cpu_s``, ``total_s`` / ``total_cpu_s`` (the whole
+    evaluation of the scene); empty for :func:`evaluate_images` alone."""
 
     @property
     def metrics(self) -> dict:
@@ -309,7 +317,8 @@ def eval_record(res: EvalResult) -> dict:
                                        "scipy": v.scipy, "lpips": v.lpips, "pyiqa": v.pyiqa}),
         },
         "eval_timings_s": {"content_s": ev.timings.content_s, "consistency_s": ev.timings.consistency_s,
-                           "fid_s": ev.timings.fid_s, "gram_s": ev.timings.gram_s},
+                           "fid_s": ev.timings.fid_s, "gram_s": ev.timings.gram_s,
+                           **{f"{k.removesuffix('_s')}_cpu_s": v for k, v in ev.timings.cpu_s.items()}},
     }
     if res.render_backends is not None:
         record["provenance"]["render_backend"] = {"original": res.render_backends[0], "stylized": res.render_backends[1]}
@@ -318,6 +327,7 @@ def eval_record(res: EvalResult) -> dict:
                                              "n_flows": res.reference.n_flows}
     if res.render_s is not None:
         record["eval_timings_s"]["render_s"] = res.render_s
+    record["eval_timings_s"].update(res.scene_timings_s)
     if res.speed is not None:
         sp = res.speed
         record["render_fps"] = sp.fps

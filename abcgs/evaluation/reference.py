@@ -1,5 +1,6 @@
 """The per-scene evaluation reference: the original scene's renders, the consistency pairs, the optical flows
-between them and the unstylized scene's own warp error over those pairs (the floor).
+between them, each pair's occlusion/in-frame mask and the unstylized scene's own warp error over those pairs (the
+floor).
 
 All depend on the fitted scene, its views and the flow settings only, never on a stylization, so the
 ``reference`` DVC stage (``stages/reference.py``) computes them once per scene and every experiment's
@@ -13,8 +14,11 @@ On disk (one folder per scene)::
     renders.npz      view_0000 … : (H_i, W_i, 3) float32 renders in [0, 1] (exact, not 8-bit), on the scene's
                      background; alpha_0000 … : (H_i, W_i) float32 their alpha (object scenes)
     flows.npz        i_j_H_W : (H, W, 2) float32 flow from view i to view j on the grid (H, W)
+    masks.npz        i_j_H_W : pair (i, j)'s mask (H, W) (fb_consistency_mask of its two flows, made for the floor),
+                     bits packed (np.packbits), True = the pixel of view i counts
 
-The arrays stay float32, so metrics computed from a stored reference equal those computed in memory.
+The arrays stay float32 (the masks exact bits), so metrics computed from a stored reference equal those computed
+in memory; an evaluation reads the masks instead of recomputing them from the flows.
 """
 
 from __future__ import annotations
@@ -38,7 +42,7 @@ from abcgs.io.atomic import atomic_path, write_json
 from abcgs.silhouette import background_tensor
 from abcgs.types import FRAME_FILLING, Backend, Background
 
-REFERENCE_VERSION = 3
+REFERENCE_VERSION = 4
 FLOW_SETTINGS = ("flow", "raft_weights", "raft_iterations", "pairs", "short_term_gap", "long_term_gap", "max_views",
                  "backend")
 """The ``evaluate`` settings a reference is made with; ``dvc.yaml``'s reference stage tracks these keys."""
@@ -65,10 +69,12 @@ class SceneReference:
     is a dependency of every evaluation of the scene."""
     timings_s: dict[str, float] = field(default_factory=dict)
     """Wall seconds of ``render``, ``flow`` and ``floor`` when computed; logged by the stage, not stored."""
+    masks: dict[FlowKey, np.ndarray] = field(default_factory=dict)
+    """``(i, j, (H, W))`` → pair ``(i, j)``'s mask ``(H, W)`` bool (:meth:`FlowCache.mask`, made for the floor)."""
 
     def flow_cache(self) -> FlowCache:
-        """A :class:`FlowCache` that serves the stored flows and refuses to estimate others."""
-        return FlowCache.precomputed(self.originals, self.flows, self.info["flow_provenance"])
+        """A :class:`FlowCache` that serves the stored flows and masks and refuses to estimate other flows."""
+        return FlowCache.precomputed(self.originals, self.flows, self.info["flow_provenance"], masks=self.masks)
 
 
 def settings_of(params: EvalParams) -> dict:
@@ -119,6 +125,17 @@ def flow_pairs(originals: list[np.ndarray], pairs: ViewPairs) -> list[FlowKey]:
             for key in ((i, j, hw), (j, i, hw)):
                 if key not in keys:
                     keys.append(key)
+    return keys
+
+
+def mask_pairs(originals: list[np.ndarray], pairs: ViewPairs) -> list[FlowKey]:
+    """The masks the short- and long-term consistency pairs ask for: ``(i, j)`` on view ``i``'s grid, once each."""
+    keys: list[FlowKey] = []
+    for kind in ("short", "long"):
+        for i, j in pairs.of(kind):
+            key = (i, j, tuple(np.shape(originals[i])[:2]))
+            if key not in keys:
+                keys.append(key)
     return keys
 
 
@@ -195,16 +212,17 @@ def compute_reference(cameras: list[Camera], original: GaussianModel, params: Ev
     flow_s = time.perf_counter() - t
     t = time.perf_counter()
     floor = compute_floor(originals, pairs, flows)
+    masks = {k: flows.mask(*k) for k in mask_pairs(originals, pairs)}  # made by the floor: looked up
     info = {
         "version": REFERENCE_VERSION, "view_names": [c.name for c in cams],
         "sizes": [list(np.shape(o)[:2]) for o in originals], "settings": settings_of(params),
         "pairs": pairs.to_json(), "floor": floor.to_json(),
-        "render_backend": backend, "flow_provenance": flows.provenance(), "n_flows": len(keys),
+        "render_backend": backend, "flow_provenance": flows.provenance(), "n_flows": len(keys), "n_masks": len(masks),
         "model_digest": model_digest, "background": background.to_json(),
     }
     timings = {"render": render_s, "flow": flow_s, "floor": time.perf_counter() - t}
     return SceneReference([c.name for c in cams], originals, {k: flows(*k) for k in keys}, pairs, floor, alphas, info,
-                          timings)
+                          timings, masks)
 
 
 def model_digest(path: Path) -> str:
@@ -218,6 +236,8 @@ def save_reference(folder: Path, ref: SceneReference) -> None:
         np.savez(tmp / "renders.npz", **{f"view_{k:04d}": o for k, o in enumerate(ref.originals)},
                  **{f"alpha_{k:04d}": a for k, a in enumerate(ref.alphas or [])})
         np.savez(tmp / "flows.npz", **{f"{i}_{j}_{h}_{w}": f for (i, j, (h, w)), f in ref.flows.items()})
+        np.savez(tmp / "masks.npz", **{f"{i}_{j}_{h}_{w}": np.packbits(np.asarray(m, bool), axis=None)
+                                      for (i, j, (h, w)), m in ref.masks.items()})
         write_json(tmp / "reference.json", ref.info)
 
 
@@ -253,8 +273,19 @@ def load_reference(folder: Path, cameras: list[Camera], params: EvalParams, *, m
         for name in z.files:
             i, j, h, w = (int(v) for v in name.split("_"))
             flows[(i, j, (h, w))] = z[name]
-    ref = SceneReference(info["view_names"], originals, flows, pairs, WarpFloor.from_json(info["floor"]), alphas, info)
+    if not (folder / "masks.npz").is_file():
+        raise InputError(f"{folder} holds no pair masks (masks.npz missing): {redo}")
+    masks = {}
+    with np.load(folder / "masks.npz") as z:
+        for name in z.files:
+            i, j, h, w = (int(v) for v in name.split("_"))
+            masks[(i, j, (h, w))] = np.unpackbits(z[name], count=h * w).reshape(h, w).astype(bool)
+    ref = SceneReference(info["view_names"], originals, flows, pairs, WarpFloor.from_json(info["floor"]), alphas, info,
+                         masks=masks)
     missing = [k for k in flow_pairs(originals, pairs) if k not in flows]
     if missing:
         raise InputError(f"{folder} lacks {len(missing)} flows the consistency pairs need (e.g. {missing[0]}): {redo}")
+    missing = [k for k in mask_pairs(originals, pairs) if k not in masks]
+    if missing:
+        raise InputError(f"{folder} lacks {len(missing)} masks the consistency pairs need (e.g. {missing[0]}): {redo}")
     return ref
