@@ -8,6 +8,10 @@ stage, which every stage depends on, and the command-line tools), so a typo anyw
 
     params.yaml: fit.iteratons: unknown key; allowed keys here: iterations, sh_degree, ...
 
+A params file's numbers are held to plausible ranges (:class:`Bounded`, each section's ``BOUNDS``): a step count, an
+interval, a threshold or a size outside its range is refused naming the key, the range and why, and a soft range (a
+long run on purpose) is passed by naming the key in the section's ``unbounded`` list.
+
 Each section's model lives in a ``params`` module of the package it configures (``abcgs/fit/params.py``,
 ``abcgs/stylize/params.py``, …), which imports nothing heavier than pydantic; ``data`` (the scenes and paintings)
 in :mod:`abcgs.sources.params`, ``runtime`` in :mod:`abcgs.runtime`.
@@ -17,14 +21,16 @@ from __future__ import annotations
 
 import functools
 import importlib
+import math
 import os
 import re
 import typing
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, create_model, model_validator
+from pydantic_core import InitErrorDetails, PydanticCustomError
 
 from abcgs.errors import InputError, ParamsError
 from abcgs.io.guarded import load_yaml
@@ -34,6 +40,128 @@ SCENE_SECTIONS = ("reconstruct", "fit", "masks")
 NAME_PATTERN = r"[A-Za-z0-9][A-Za-z0-9_.-]*"
 """Names of scenes, styles, colour matches and experiments: folder names and DVC stage names, never shell syntax."""
 NAME_RE = re.compile(NAME_PATTERN)
+
+PARAMS_FILE = "abcgs_params_file"
+"""Key of the validation context of a params file's values (:data:`FILE_CONTEXT`: :func:`validate_sections`,
+:meth:`ParamsBase.scene_section`): there every :class:`Bounded` model holds its numbers to their plausible ranges. A
+model built in code (a test's 5-step fit, a benchmark's densify-every-step variant) is not held to them."""
+FILE_CONTEXT = {PARAMS_FILE: True}
+UNBOUNDED = "unbounded"
+"""The key of a section that lists the keys whose soft range (:attr:`Bound.soft`) is passed on purpose."""
+
+
+@dataclass(frozen=True)
+class Bound:
+    """The plausible range of one number of a params file: ``lo`` .. ``hi`` (None: open on that side), a float
+    finite. ``off``: a value outside the range that turns the setting off (``refine_every: 0``); ``why``: the reason
+    the message gives, ``low`` the one for a value under ``lo`` where it differs; ``soft``: an expert may pass the
+    range by naming the key in the section's ``unbounded`` list (a long run on purpose). A list or tuple is held
+    to it element by element; None (a value chosen later, by the scene) is not checked."""
+
+    lo: float | None = None
+    hi: float | None = None
+    why: str = ""
+    low: str = ""
+    soft: bool = False
+    off: float | None = None
+    unit: str = ""
+
+    def describe(self) -> str:
+        """The range in words: ``35 .. 2000000 steps``, ``0 (off) or 10 .. 30000 steps``."""
+        def num(v: float) -> str:
+            return f"{v:g}" if isinstance(v, float) else str(v)
+        if self.lo is not None and self.hi is not None:
+            span = f"{num(self.lo)} .. {num(self.hi)}"
+        else:
+            span = f"at least {num(self.lo)}" if self.lo is not None else f"at most {num(self.hi)}"
+        span += f" {self.unit}" if self.unit else ""
+        return f"{num(self.off)} (off) or {span}" if self.off is not None else span
+
+    def problem(self, value: Any) -> str | None:
+        """Why ``value`` is outside the range, with the range and the reason; None when it is inside."""
+        for v in value if isinstance(value, (list, tuple)) else (value,):
+            if v is None or isinstance(v, bool) or not isinstance(v, (int, float)):
+                continue
+            if isinstance(v, float) and not math.isfinite(v):
+                return f"must be a finite number, {self.describe()}: {self.why}"
+            if self.off is not None and v == self.off:
+                continue
+            if self.lo is not None and v < self.lo:
+                return f"must be {self.describe()}: {self.low or self.why}"
+            if self.hi is not None and v > self.hi:
+                return f"must be {self.describe()}: {self.why}"
+        return None
+
+
+def unbounded_field() -> Any:
+    """The ``unbounded`` field of a :class:`Bounded` section that has soft ranges (declared last, after the keys)."""
+    return Field(default_factory=list, description="keys of this section whose soft plausible range is passed on "
+                 "purpose, e.g. [iterations] for a run longer than the range (the message of a value outside it "
+                 "names the key)")
+
+
+MAX_THREADS = 1024
+"""The most threads a params file asks for: more than the cores of any machine these stages run on."""
+SEED = Bound(0, 2**32 - 1, "a seed of numpy's and torch's generators (32 bits, not negative)")
+"""The range of every ``seed`` (numpy's ``default_rng`` refuses a negative one)."""
+LEARNING_RATE = Bound(0.0, 1.0, "Adam moves each value by about its learning rate every step: at 1 a colour, an "
+                      "opacity logit or (x the scene's extent) a position crosses its whole range every step")
+"""The range of every ``lr_*`` (the fit's, the stylization's)."""
+RESOLUTION_SCALE = Bound(0.01, 1.0, "a fraction of the views' size: under 1 % a 4000-pixel photo is 40 pixels wide")
+"""The range of every ``resolution_scale``."""
+
+
+def from_params_file(info: ValidationInfo) -> bool:
+    """Whether a validator runs on a params file's values (:data:`FILE_CONTEXT`), where the plausible ranges hold."""
+    return bool((info.context or {}).get(PARAMS_FILE))
+
+
+class Bounded(BaseModel):
+    """A params model whose numbers have plausible ranges, :attr:`BOUNDS` (key → :class:`Bound`). In a params file
+    (the :data:`FILE_CONTEXT` validation) a value outside its range is refused naming the key, the range and why:
+
+        fit.iterations: must be 35 .. 2000000 steps: ...; to pass it on purpose, name the key in the section's
+        unbounded list: unbounded: [iterations] (got 1000000000000)
+
+    A soft range is passed by listing its key in the section's ``unbounded`` (:func:`unbounded_field`); a key
+    listed there without a soft range is refused. :meth:`bounds` may make a range depend on the section's other
+    values (``fit.iterations``' floor holds while the fit check's PSNR floor does)."""
+
+    BOUNDS: ClassVar[dict[str, Bound]] = {}
+
+    def bounds(self) -> dict[str, Bound]:
+        """The ranges in force for these values (:attr:`BOUNDS`, unless a section says otherwise)."""
+        return self.BOUNDS
+
+    @model_validator(mode="after")
+    def _within_bounds(self, info: ValidationInfo) -> Bounded:
+        if not from_params_file(info):
+            return self
+        bounds = self.bounds()
+        soft = [k for k, b in bounds.items() if b.soft]
+        passed = list(getattr(self, UNBOUNDED, None) or ())
+        errors: list[InitErrorDetails] = []
+
+        def refuse(loc: tuple, value: Any, reason: str) -> None:
+            errors.append(InitErrorDetails(type=PydanticCustomError("plausible_range", "{reason}", {"reason": reason}),
+                                           loc=loc, input=value))
+
+        for i, key in enumerate(passed):
+            if key not in soft:
+                refuse((UNBOUNDED, i), key, f"{key!r} is not a key of this section with a soft range; the keys it "
+                       f"can name: {', '.join(soft) or 'none'}")
+        for key, bound in bounds.items():
+            if bound.soft and key in passed:
+                continue
+            value = getattr(self, key)
+            if (reason := bound.problem(value)) is not None:
+                if bound.soft:
+                    reason += (f"; to pass it on purpose, name the key in the section's unbounded list: "
+                               f"{UNBOUNDED}: [{key}]")
+                refuse((key,), value, reason)
+        if errors:
+            raise ValidationError.from_exception_data(type(self).__name__, errors)
+        return self
 
 
 def deep_merge(base: dict, override: dict) -> dict:
@@ -114,7 +242,7 @@ class ParamsBase(BaseModel):
         override = getattr(self.data.scenes[scene], section)
         if not override:
             return base
-        return type(base).model_validate(deep_merge(base.model_dump(), override))
+        return type(base).model_validate(deep_merge(base.model_dump(), override), context=FILE_CONTEXT)
 
     def scene_path(self, scene: str) -> str:
         return self.data.scenes[scene].path
@@ -204,14 +332,16 @@ def params_model(sections: frozenset[str]) -> type[ParamsBase]:
 
 
 def validate_sections(raw: Any, sections: frozenset[str], source: str = "params.yaml") -> ParamsBase:
-    """The ``sections`` of an already-parsed params file, validated; :class:`ParamsError` lists every problem.
-    The file's other sections are neither read nor validated."""
+    """The ``sections`` of an already-parsed params file, validated (in :data:`FILE_CONTEXT`: every number within its
+    plausible range, :class:`Bounded`); :class:`ParamsError` lists every problem. The file's other sections are
+    neither read nor validated."""
     if not isinstance(raw, dict):
         raise ParamsError(f"{source} must be a YAML mapping at the top level, got {type(raw).__name__}")
     model = params_model(frozenset(sections))
     whole = frozenset(sections) == frozenset(SECTIONS)  # the whole file: an unknown top-level key is an error too
     try:
-        return model.model_validate(raw if whole else {k: v for k, v in raw.items() if k in sections})
+        return model.model_validate(raw if whole else {k: v for k, v in raw.items() if k in sections},
+                                    context=FILE_CONTEXT)
     except ValidationError as exc:
         raise ParamsError(format_validation_error(exc, source, model)) from None
 

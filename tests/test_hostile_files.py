@@ -31,7 +31,7 @@ from abcgs.splats.formats.gsplat_ckpt import write_gsplat_ckpt
 from abcgs.splats.formats.inria import frame_from_cameras, inria_camera_centres
 from abcgs.splats.frames import nerfstudio_similarity
 from abcgs.splats.registry import read_splat
-from eval.bench.fuzz import _cameras, _model, _points, make_targets
+from eval.bench.fuzz import make_targets, sample_cameras, sample_model, sample_points
 from eval.bench.fuzz_inputs import PARAMS, png_bytes, png_with_size
 
 SECONDS, GIB = 20.0, 1.5
@@ -245,7 +245,7 @@ def test_a_symlink_loop_given_as_a_path_is_one_line(tmp_path: Path, role: str) -
 
 def _ckpt(tmp_path: Path, edit) -> Path:
     p = tmp_path / "ckpt_9_rank0.pt"
-    write_gsplat_ckpt(p, _model(16), step=9)
+    write_gsplat_ckpt(p, sample_model(16), step=9)
     ckpt = torch.load(p, weights_only=True)
     edit(ckpt)
     torch.save(ckpt, p)
@@ -262,14 +262,14 @@ def _ckpt(tmp_path: Path, edit) -> Path:
     (lambda c: c["splats"].update(scales=c["splats"]["scales"][:5]), r"has shape \(5, 3\), expected \(16, 3\)"),
 ])
 def test_gsplat_checkpoint_values_are_checked(tmp_path: Path, edit, message: str) -> None:
-    scene = SimpleNamespace(cameras=_cameras(), points=_points())
+    scene = SimpleNamespace(cameras=sample_cameras(), points=sample_points())
     with pytest.raises(InputError, match=message) as exc:
         read_splat(_ckpt(tmp_path, edit), "gsplat_ckpt", scene=scene)
     one_line(exc)
 
 
 def test_a_ply_of_0_gaussians_is_refused(tmp_path: Path) -> None:
-    write_ply(tmp_path / "empty.ply", _model(16).index(torch.zeros(16, dtype=torch.bool)))
+    write_ply(tmp_path / "empty.ply", sample_model(16).index(torch.zeros(16, dtype=torch.bool)))
     with pytest.raises(InputError, match="empty.ply holds 0 Gaussians") as exc:
         read_splat(tmp_path / "empty.ply")
     one_line(exc)
@@ -291,7 +291,7 @@ def _inria(cams, edit=None) -> str:
      "centres do not fix a similarity .* all identical"),
 ])
 def test_inria_cameras_json_values_are_checked(text, message: str) -> None:
-    cams = _cameras()
+    cams = sample_cameras()
     with pytest.raises(InputError, match=message) as exc:
         frame_from_cameras(inria_camera_centres(text(cams), source="out/cameras.json"), cams,
                            source="out/cameras.json")
@@ -446,3 +446,123 @@ def test_a_key_given_twice_in_params_yaml_is_refused_by_preflight_and_every_add_
         assert f"gives the key 'runtime' at lines {first} and {last} of one mapping; keep one" in err, err
         assert time.perf_counter() - t0 < 20
     assert params.read_text() == text + "\nruntime:\n  device: cpu\n"  # nothing written
+
+
+# ------------------------------------------------------------------------------------------ fitted_rows.npy
+
+
+def _header_claiming(rows: int) -> bytes:
+    """A valid ``.npy`` header of ``rows`` int64 rows, followed by 6 rows only."""
+    import io
+
+    buf = io.BytesIO()
+    np.lib.format.write_array_header_1_0(buf, {"descr": "<i8", "fortran_order": False, "shape": (rows,)})
+    return buf.getvalue() + np.arange(6, dtype="<i8").tobytes()
+
+
+def _write_rows(path: Path, kind: str) -> None:
+    """A colour match's ``fitted_rows.npy`` for 6 Gaussians of a fitted scene of 4, made hostile as ``kind``."""
+    if kind == "zeros":
+        np.save(path, np.zeros(6, np.int64))
+    elif kind == "pickle":
+        np.save(path, np.array([0, 1, 2, None, 3, 1], dtype=object), allow_pickle=True)
+    elif kind == "negative":
+        np.save(path, np.array([0, 1, 2, 3, -7, 1]))
+    elif kind == "short":
+        np.save(path, np.array([0, 1, 2, 3, 3]))
+    elif kind == "truncated":
+        np.save(path, np.array([0, 1, 2, 3, 3, 1]))
+        path.write_bytes(path.read_bytes()[:-3])
+    elif kind == "oversized":
+        np.save(path, np.array([0, 1, 2, 3, 3, 1]))
+        path.write_bytes(path.read_bytes() + bytes(1 << 20))
+    elif kind == "header_1e10":
+        path.write_bytes(_header_claiming(10**10))
+    elif kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "dev_zero":
+        path.symlink_to("/dev/zero")
+    elif kind == "float":
+        np.save(path, np.zeros(6, np.float32))
+    else:
+        raise AssertionError(kind)
+
+
+ROWS_REFUSALS = {
+    "zeros": "puts all 6 Gaussians on the one fitted row 0",
+    "pickle": "holds Python objects, which numpy stores as a pickle; abcgs never loads a pickle",
+    "negative": "gives row 4 the fitted row -7, outside 0 .. 3",
+    "short": "holds 5 rows for 6 Gaussians",
+    "truncated": "is truncated: it is 173 bytes, its header states 6 values of 8 bytes, 176 bytes in all",
+    "oversized": "has 1048576 bytes after its data",
+    "header_1e10": "states 10000000000 values in its header, more than the 6 it can hold here",
+    "fifo": "is a FIFO (named pipe), not a regular file",
+    "dev_zero": "is a character device, not a regular file",
+    "float": "holds float32 values, not integers",
+}
+
+
+@pytest.mark.parametrize("kind", list(ROWS_REFUSALS))
+def test_a_hostile_fitted_rows_file_is_refused_by_stylize_in_one_line(tmp_path: Path, kind: str) -> None:
+    """The stylize stage reads its colour match's rows through the guarded reader: one line naming the file, the
+    reason and the fix, in well under a second and without reading a FIFO, /dev/zero or a header's 10^10 rows."""
+    import tracemalloc
+
+    from abcgs.layout import ColorMatchDir
+    from abcgs.stylize.experiment import read_colormatch
+
+    d = ColorMatchDir(tmp_path / "m")
+    d.root.mkdir()
+    write_ply(d.ply, sample_model(6))
+    _write_rows(d.fitted_rows, kind)
+    t0 = time.perf_counter()
+    tracemalloc.start()
+    try:
+        with pytest.raises(InputError) as exc:
+            read_colormatch(d.root, "m", 4)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    text = one_line(exc)
+    assert time.perf_counter() - t0 < 5 and peak < 16 << 20, (time.perf_counter() - t0, peak)
+    assert f"fitted rows {d.fitted_rows} {ROWS_REFUSALS[kind]}" in text, text
+    assert text.endswith("re-run the colour match (dvc repro colormatch@m)"), text
+
+
+def test_rows_that_repeat_as_a_densifying_re_fit_leaves_them_are_read(tmp_path: Path) -> None:
+    """Clones and split children keep their parent's row: repeats are no fault, one row for all of them is."""
+    from abcgs.gaussians import read_fitted_rows
+
+    path = tmp_path / "fitted_rows.npy"
+    np.save(path, np.array([0, 3, 3, 1, 1, 1], dtype=">i4"))  # another byte order and width: integers still
+    assert read_fitted_rows(path, 6, 4).tolist() == [0, 3, 3, 1, 1, 1]
+    np.save(path, np.zeros(1, np.int64))
+    assert read_fitted_rows(path, 1, 4).tolist() == [0]  # one Gaussian has one row
+    np.save(path, np.zeros(3, np.int64))
+    assert read_fitted_rows(path, 3, 1).tolist() == [0, 0, 0]  # a fitted scene of one Gaussian
+    np.save(path, np.zeros(3, np.int64))
+    with pytest.raises(InputError, match="puts all 3 Gaussians on the one fitted row 0"):
+        read_fitted_rows(path, 3, 4)
+
+
+@pytest.mark.parametrize("kind", ["pickle", "header_1e10", "fifo", "zeros"])
+def test_the_viewer_reports_why_it_leaves_the_labels_layer_out(tmp_path: Path, kind: str, caplog) -> None:
+    """A stylized scene's rows file that the guarded reader refuses: the viewer still shows the scene, and its
+    output (the page above the viewer, ``python -m abcgs.view``'s lines, the log) says the labels layer is left
+    out and why, instead of dropping it silently."""
+    from abcgs.view.outputs import _on_stylized_rows
+    from abcgs.view.page import ViewerExperiment, viewer_fragment
+
+    rows = tmp_path / "out" / "e" / "stylize" / "fitted_rows.npy"
+    rows.parent.mkdir(parents=True)
+    _write_rows(rows, kind)
+    notes: list[str] = []
+    with caplog.at_level("WARNING"):
+        assert _on_stylized_rows(np.arange(4), rows, 6, notes, fix="re-run its stylize stage") is None
+    assert len(notes) == 1 and notes[0].startswith(f"the labels layer is left out: fitted rows {rows} "), notes
+    assert ROWS_REFUSALS[kind] in notes[0] and notes[0].endswith("re-run its stylize stage"), notes
+    assert notes[0] in caplog.text
+    exp = ViewerExperiment("e", {"stylized": sample_model(6)}, sample_cameras()[:1], 6, target=np.zeros(3),
+                           notes=notes)
+    html_text = viewer_fragment([exp])
+    assert '<p class="abcgs-viewer-note">e: the labels layer is left out: fitted rows' in html_text

@@ -2,17 +2,20 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 
+from abcgs.sections import MAX_THREADS, SEED, Bound, Bounded
 from abcgs.types import Backend, FlowMethod
 
 LPIPS_VGG_LAYERS = ("relu1_2", "relu2_2", "relu3_3", "relu4_3", "relu5_3")
 """The five VGG-16 taps of LPIPS-vgg (Zhang et al. 2018), used by the ``lpips_proxy_vgg`` distance."""
+MAX_VIEWS = 20_000
+"""The most views of a capture (the dataset readers' limit): the bound of every view count and gap here."""
 
 
-class EvalParams(BaseModel):
+class EvalParams(Bounded):
     """``params.yaml``: ``evaluate``."""
 
     model_config = ConfigDict(extra="forbid")
@@ -79,3 +82,21 @@ class EvalParams(BaseModel):
     )
     fps_passes: int = Field(3, ge=1, description="full render passes over the views; FPS is their median")
     seed: int = 0
+
+    BOUNDS: ClassVar[dict[str, Bound]] = {
+        **{k: Bound(0, MAX_VIEWS, f"a count of views; a capture has at most {MAX_VIEWS} (the readers' limit)")
+           for k in ("max_views", "short_term_gap", "long_term_gap", "heatmap_view")},
+        "raft_iterations": Bound(1, 100, "RAFT's refinement updates (torchvision: 12, the paper at most 32)"),
+        "fid_patches_per_image": Bound(1, 1000, "crops per render; 1000 of 96 px cover a 3000 x 3000 view 1000 times"),
+        "fid_style_patches": Bound(2, 1_000_000, "crops of the paintings in all; each goes through the Inception"),
+        "fid_patch_size": Bound(16, 4096, unit="px", why="a crop's side, clipped to the image anyway"),
+        "fid_batch": Bound(1, 4096, "crops per Inception batch; 4096 of 299 x 299 are 4 GiB of input"),
+        "kid_subsets": Bound(1, 10_000, "subsets averaged for KID (the usual: 100)"),
+        "kid_subset_size": Bound(2, 1_000_000, "a KID subset's size, clipped to the smaller set (the usual: 1000)"),
+        "gram_style_height": Bound(16, 4096, unit="px", why="the painting's height before VGG; memory grows with "
+                                   "its square"),
+        "num_threads": Bound(1, MAX_THREADS, "torch intra-op threads"),
+        "workers": Bound(0, MAX_THREADS, "threads over the image pairs, 0 for one per core left"),
+        "fps_passes": Bound(1, 1000, "render passes over every view, for the FPS's median"),
+        "seed": SEED,
+    }

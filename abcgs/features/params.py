@@ -8,11 +8,12 @@ it configures (each stage's code dependencies stay its own: ``abcgs/dag.py``).
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Literal
+from typing import ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from abcgs.errors import InputError
+from abcgs.sections import Bound, Bounded
 from abcgs.types import StyleMethod
 
 TransferType = Literal["single", "compositional", "semantic"]
@@ -115,11 +116,16 @@ class ExperimentParams(BaseModel):
         return data
 
 
-class IsolationParams(BaseModel):
+class IsolationParams(Bounded):
     model_config = ConfigDict(extra="forbid")
 
     method: IsolationMethod = Field("mirror", description="how outside pixels are completed")
     erode_px: int = Field(0, ge=0, description="erode each style region by this many pixels first")
+
+    BOUNDS: ClassVar[dict[str, Bound]] = {
+        "erode_px": Bound(0, 1024, unit="px", why="pixels of the painting at stylize.style_height (256 by default): "
+                          "more erodes every region away"),
+    }
 
 
 IsolationMethod = Literal["mirror", "translate", "fill"]

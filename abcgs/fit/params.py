@@ -7,9 +7,12 @@ it configures (each stage's code dependencies stay its own: ``abcgs/dag.py``).
 
 from __future__ import annotations
 
-from typing import Literal
+from dataclasses import replace
+from typing import ClassVar, Literal
 
-from pydantic import BaseModel, Field, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
+
+from abcgs.sections import LEARNING_RATE, MAX_THREADS, RESOLUTION_SCALE, SEED, Bound, Bounded, unbounded_field
 
 MIN_RESET_EVERY = 3000
 """The fewest steps between two opacity resets of a schedule left to follow the run's length: 3DGS's own interval.
@@ -18,8 +21,31 @@ the tiny scene's fit held-out PSNR at every length measured: one reset at step 1
 none at 36.3 dB; two (1000 and 2000 of 6000) at 31.8 dB, none at 35.5 dB (``python -m eval.bench.fit_schedule``,
 docs/SCALING.md "The fit's schedule")."""
 
+MAX_FIT_ITERATIONS = 2_000_000
+"""The most fit steps a params file asks for without ``unbounded: [iterations]``: 67 times 3DGS's 30 000-step
+reference fit (``1000000000000``, a typo, passed every check and started a fit)."""
+MIN_CHECKED_ITERATIONS = 35
+"""The fewest fit steps while the fit check's PSNR floor is on (``fit.min_psnr`` > 0): the embedded tiny scene, the
+easiest scene measured, first holds out over the default 15 dB floor at 35 steps (11.6 dB after 1 step, 13.2 dB
+after 10, 14.7 dB after 30; 15.1 dB after 35, 15.9 dB after 50), so a shorter fit is refused by the check after it
+ran."""
+MIN_REFINE_EVERY = 10
+"""The fewest steps between two densifications a params file sets: the schedule that follows the run's length never
+densifies more often (:meth:`StrategyParams.resolved`); densifying every step clones and splits on one step's
+gradient (the colour re-fit of the tiny scene, every step: 54 773 → 470 409 Gaussians while its PSNR fell)."""
+MIN_SET_RESET_EVERY = 100
+"""The fewest steps between two opacity resets a params file sets: a reset clamps every opacity to
+``reset_opacity``, and the densification needs hundreds of steps to regrow what it then prunes (3DGS: 3000)."""
 
-class StrategyParams(BaseModel, extra="forbid"):
+
+def _steps(lo: int = 0, low: str = "") -> Bound:
+    """The soft range of a step number or interval of a fit: ``lo`` .. :data:`MAX_FIT_ITERATIONS` (``low``: why not
+    fewer)."""
+    return Bound(lo, MAX_FIT_ITERATIONS, f"a fit has at most {MAX_FIT_ITERATIONS} steps (the range of fit.iterations)",
+                 low=low, soft=True, unit="steps")
+
+
+class StrategyParams(Bounded, extra="forbid"):
     """Knobs of :class:`DefaultStrategy`. Steps count from 1.
 
     The four step fields default to ``null``: the schedule then follows the run's length (:meth:`resolved`) in the
@@ -50,6 +76,27 @@ class StrategyParams(BaseModel, extra="forbid"):
     prune_scale3d: float = Field(0.1, gt=0.0, description="after the first reset: prune if max scale > this × extent")
     prune_screen_px: float = Field(20.0, gt=0.0, description="after the first reset: prune if screen radius > this (px)")
     reset_opacity: float = Field(0.01, gt=0.0, lt=1.0, description="opacity cap applied at each reset")
+    unbounded: list[str] = unbounded_field()
+
+    BOUNDS: ClassVar[dict[str, Bound]] = {
+        "refine_start": _steps(),
+        "refine_stop": _steps(),
+        "refine_every": _steps(MIN_REFINE_EVERY, low=(
+            f"densifying more often than every {MIN_REFINE_EVERY} steps clones and splits on a step's or two's "
+            "gradient, not the statistics of many views (the schedule that follows fit.iterations never does; the "
+            "tiny scene's colour re-fit densifying every step grew 54 773 Gaussians to 470 409 while its PSNR "
+            "fell)")),
+        "reset_every": _steps(MIN_SET_RESET_EVERY, low=(
+            "each reset clamps every opacity to reset_opacity, and the densification needs hundreds of steps to "
+            "regrow what it then prunes (3DGS resets every 3000)")),
+        "grow_grad2d": Bound(0.0, 1.0, "a mean view-space gradient in NDC units (3DGS: 0.0002); above 1 nothing "
+                             "ever densifies: set fit.densify: false for that"),
+        "grow_scale3d": Bound(0.0, 1.0, "a fraction of the scene's extent (3DGS: 0.01)"),
+        "prune_scale3d": Bound(0.0, 10.0, "a multiple of the scene's extent (3DGS: 0.1); a Gaussian 10 times the "
+                               "scene's size is never kept anyway"),
+        "prune_screen_px": Bound(0.0, 100_000.0, "a screen radius in pixels (3DGS: 20), at most a view's size",
+                                 unit="px"),
+    }
 
     @model_validator(mode="after")
     def _check(self) -> StrategyParams:
@@ -100,7 +147,7 @@ REFERENCE_ITERATIONS = 30000
 """The iteration count the 3DGS densification schedule was designed for (:meth:`StrategyParams.resolved`)."""
 
 
-class FitParams(BaseModel, extra="forbid"):
+class FitParams(Bounded, extra="forbid"):
     """Options of the ``fit`` stage. Learning rates are per step; ``lr_means*`` are multiplied by the scene extent."""
 
     iterations: int = Field(30000, ge=1)
@@ -156,6 +203,52 @@ class FitParams(BaseModel, extra="forbid"):
         description="threads of the C++ rasterizer's own loops (0 = every core), independent of `threads`: they are "
         "plain threads joined after each loop, so they do not spin; results are bit-identical for any count",
     )
+    unbounded: list[str] = unbounded_field()
+
+    BOUNDS: ClassVar[dict[str, Bound]] = {
+        "iterations": Bound(
+            MIN_CHECKED_ITERATIONS, MAX_FIT_ITERATIONS, soft=True, unit="steps", why=(
+                f"{MAX_FIT_ITERATIONS} steps are 67 times 3DGS's 30000-step reference fit, days on a photo scene: a "
+                "typo?"), low=(
+                f"under {MIN_CHECKED_ITERATIONS} steps no fit has met the fit check's PSNR floor fit.min_psnr (the "
+                f"embedded tiny scene, the easiest measured, first holds out over 15 dB at {MIN_CHECKED_ITERATIONS} "
+                "steps, 14.7 dB at 30), so the fit stage would refuse what it fitted; set fit.min_psnr: 0 for a "
+                "shorter smoke run")),
+        "sh_degree_interval": _steps(),
+        "lr_means": LEARNING_RATE, "lr_means_final": LEARNING_RATE, "lr_sh0": LEARNING_RATE,
+        "lr_shN": LEARNING_RATE, "lr_opacity": LEARNING_RATE, "lr_scales": LEARNING_RATE, "lr_quats": LEARNING_RATE,
+        "test_every": Bound(0, 20_000, "every n-th view held out; a capture has at most 20000 views (the readers' "
+                            "limit)"),
+        "resolution_scale": RESOLUTION_SCALE,
+        "seed": SEED,
+        "background": Bound(0.0, 1.0, "an RGB colour, each channel in [0, 1]"),
+        "alpha_weight": Bound(0.0, 100.0, "a weight relative to the photometric loss, itself at most 1 a pixel"),
+        "max_gaussians": Bound(1, 100_000_000, soft=True, why=(
+            "100 M Gaussians hold 24 GB of parameters before Adam's two moments, and the .spz reader stops at "
+            "100 M")),
+        "eval_every": _steps(),
+        "threads": Bound(0, MAX_THREADS, "torch CPU threads, 0 for torch's default"),
+        "min_psnr": Bound(0.0, 60.0, unit="dB", why=(
+            "a PSNR floor no fit can clear above 60 dB (an RMS error of 0.1 % of the range; the tiny scene's "
+            "training views score 36-41 dB after 1000-6000 steps); 0 turns the floor off")),
+        "max_psnr_gap": Bound(1.0, 60.0, unit="dB", why=(
+            "held-out views score under the training views in every trained fit (the tiny scene: 2.7-6.0 dB at "
+            "1000-6000 steps, its object on nothing 4.1-8.5 dB), so a gap under 1 dB would refuse every fit; above "
+            "60 dB the check never fails")),
+        "import_min_psnr": Bound(0.0, 60.0, unit="dB", why=(
+            "a PSNR floor no splat's renders clear above 60 dB (an RMS error of 0.1 % of the range); 0 turns it "
+            "off")),
+        "import_max_gaussians": Bound(1, 100_000_000, soft=True, why=(
+            "a preview of more than 100 M Gaussians is no preview (the .spz reader stops at 100 M)")),
+        "rasterizer_threads": Bound(0, MAX_THREADS, "threads of the C++ rasterizer, 0 for every core"),
+    }
+
+    def bounds(self) -> dict[str, Bound]:
+        """:attr:`BOUNDS`, ``iterations`` floored at 1 instead of :data:`MIN_CHECKED_ITERATIONS` while the fit
+        check's PSNR floor is off (``min_psnr`` 0: a smoke run)."""
+        if self.min_psnr > 0:
+            return self.BOUNDS
+        return {**self.BOUNDS, "iterations": replace(self.BOUNDS["iterations"], lo=1)}
 
     @field_validator("test_every")
     @classmethod

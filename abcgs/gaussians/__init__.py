@@ -38,6 +38,7 @@ from torch import Tensor
 
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
+from abcgs.io.guarded import load_npy, regular_file
 from abcgs.render import RenderMeta, num_sh_bases, rasterize, rgb_to_sh0, sh0_to_rgb
 from abcgs.render.rasterize import select_backend
 from abcgs.types import Backend
@@ -274,17 +275,35 @@ def fitted_rows(model: GaussianModel) -> Tensor:
     return torch.arange(model.num_gaussians, device=model.device) if rows is None else rows
 
 
-def read_fitted_rows(path: Path, n_gaussians: int, n_fitted: int) -> np.ndarray:
+def read_fitted_rows(path: Path, n_gaussians: int, n_fitted: int, fix: str = "") -> np.ndarray:
     """``(n_gaussians,)`` int64 from the ``.npy`` file ``path``: each Gaussian's row in a fitted scene of ``n_fitted``
-    Gaussians (:data:`FITTED_ROW`, as the colour match and stylize stages write it). ValueError (or OSError) when the
-    file is not a 1-D integer array of that length with every row in ``[0, n_fitted)``."""
+    Gaussians (:data:`FITTED_ROW`, as the colour match and stylize stages write it), read through
+    :func:`abcgs.io.guarded.load_npy`: a regular file (no FIFO, no link to ``/dev/zero``) of integers (no pickle),
+    1-D, its row count read from the header and checked against ``n_gaussians`` before anything is allocated, the
+    file's size exactly what the header states. Every row must lie in ``[0, n_fitted)``. Rows may repeat (a
+    densifying re-fit's clones and split children keep their parent's row), but more than one Gaussian all on one
+    row of a fitted scene of several is no re-fit's output (a zero-filled file) and is refused.
+    :class:`~abcgs.errors.InputError` in one line naming the file, then ``fix`` (how to write it again)."""
     try:
-        rows = np.load(path, allow_pickle=False)  # reads no more than its header's shape; never a pickle
-    except EOFError as e:  # an empty file
-        raise ValueError(f"{path} is empty") from e
-    if rows.shape != (n_gaussians,) or rows.dtype.kind not in "iu" or (
-            n_gaussians and (rows.min() < 0 or rows.max() >= n_fitted)):
-        raise ValueError(f"{path} does not map {n_gaussians} Gaussians onto the {n_fitted} fitted ones")
+        regular_file(path, "fitted rows")
+    except InputError as exc:  # a FIFO, a device, a folder, a symlink loop: never opened
+        raise InputError(f"{exc}; {fix}" if fix else str(exc)) from None
+    end = f"it does not map {n_gaussians} Gaussians onto the {n_fitted} fitted ones" + (f"; {fix}" if fix else "")
+    rows = load_npy(path, "fitted rows", kinds="iu", ndim=1, max_items=n_gaussians, tail=end)
+
+    def refuse(reason: str) -> InputError:
+        return InputError(f"fitted rows {path} {reason}; {end}")
+
+    if len(rows) != n_gaussians:
+        raise refuse(f"holds {len(rows)} rows for {n_gaussians} Gaussians")
+    if n_gaussians:
+        bad = np.flatnonzero((rows < 0) | (rows >= n_fitted))
+        if len(bad):
+            raise refuse(f"gives row {bad[0]} the fitted row {rows[bad[0]]}, outside 0 .. {n_fitted - 1} "
+                         f"({len(bad)} of the {n_gaussians} rows outside it)")
+        if n_gaussians > 1 and n_fitted > 1 and rows.min() == rows.max():
+            raise refuse(f"puts all {n_gaussians} Gaussians on the one fitted row {rows[0]}: no colour match or "
+                         "stylization leaves that (a zero-filled file?)")
     return rows.astype(np.int64)
 
 

@@ -3,6 +3,7 @@
     data = read_bounded(path, "gsplat checkpoint", 8 << 30)          # bytes, at most 8 GiB
     meta = load_json(path, "cameras.json", 64 << 20)                 # a parsed JSON document, bounded
     doc = load_yaml(path, "params file", 4 << 20)                      # YAML, its aliases expanded under a budget
+    rows = load_npy(path, "fitted rows", kinds="iu", ndim=1, max_items=n)  # a .npy array, its header checked first
 
 :func:`regular_file` refuses what is not a regular file before anything opens it: a FIFO (opening one blocks until
 a writer comes), a device (``/dev/zero`` reads forever), a folder, a symlink loop or a missing file. The reads are
@@ -11,13 +12,15 @@ bounded by the caller's limit (the format's own), and every error of the decoder
 (:data:`MAX_JSON_DEPTH`) before it is parsed, so no reader recurses into a hostile document; YAML is composed with
 its depth bounded (:data:`MAX_YAML_DEPTH`), its aliases expanded under a node budget (:data:`MAX_YAML_NODES`: an
 alias bomb of a few hundred bytes names 10⁹ nodes, which every later walk of the document would visit) and its
-numbers bounded in length (:data:`MAX_NUMBER_CHARS`).
+numbers bounded in length (:data:`MAX_NUMBER_CHARS`). A ``.npy`` array (:func:`load_npy`) is checked from its
+header (dtype, no pickle, dimensions, count against the file's size) before any of it is allocated.
 """
 
 from __future__ import annotations
 
 import errno
 import json
+import math
 import os
 import re
 import stat
@@ -244,6 +247,68 @@ def parse_yaml(text: str, source: str) -> Any:
 def load_yaml(path: str | os.PathLike, what: str, max_bytes: int) -> Any:
     """The YAML document in the file ``path``: :func:`read_text`, then :func:`parse_yaml`."""
     return parse_yaml(read_text(path, what, max_bytes), f"{path}")
+
+
+MAX_NPY_HEADER = 10_000
+"""Longest ``.npy`` header read (bytes; numpy's own default limit): a header of one 1-D array is under 128."""
+_NPY_KINDS = {"iu": "integers", "i": "signed integers", "u": "unsigned integers", "f": "floating-point numbers",
+              "b": "booleans"}
+
+
+def load_npy(path: str | os.PathLike, what: str, *, kinds: str, ndim: int, max_items: int, tail: str = ""):
+    """The array in the ``.npy`` file ``path``, read through the guarded path: a regular file
+    (:func:`regular_file`: not a FIFO, a device such as ``/dev/zero``, a folder or a symlink loop) whose header
+    (numpy's ``read_magic`` and ``read_array_header_1_0``/``_2_0``, at most :data:`MAX_NPY_HEADER` bytes) states a
+    plain dtype of ``kinds`` (numpy kind letters: ``"iu"`` integers; never an object array, so no pickle is
+    loaded), ``ndim`` dimensions and at most ``max_items`` values, checked before anything is allocated; and whose
+    size is that header's plus the data it states, exactly (a truncated file, or bytes after the data, are
+    refused). :class:`InputError` naming ``what`` and ``path`` in one line otherwise, ``tail`` (what follows, the
+    fix) after the reason."""
+    import numpy as np  # here: reading params.yaml through this module imports no numpy
+    from numpy.lib import format as npy
+
+    size = regular_file(path, what).st_size
+    end = f"; {tail}" if tail else ""
+
+    def refuse(reason: str) -> InputError:
+        return InputError(f"{what} {path} {reason}{end}")
+
+    if size == 0:
+        raise refuse("is empty, not a .npy file")
+    try:
+        with open(path, "rb") as fh:
+            try:
+                version = npy.read_magic(fh)
+                read_header = {(1, 0): npy.read_array_header_1_0, (2, 0): npy.read_array_header_2_0}.get(version)
+                if read_header is None:
+                    raise refuse(f"is a .npy file of format version {version[0]}.{version[1]}; abcgs reads 1.0 and "
+                                 "2.0 (what numpy.save writes)")
+                shape, fortran, dtype = read_header(fh, max_header_size=MAX_NPY_HEADER)
+            except InputError:
+                raise
+            except (ValueError, SyntaxError, TypeError, OverflowError, EOFError) as exc:
+                raise refuse(f"is not a .npy array file ({' '.join(str(exc).split())[:160]})") from None
+            if dtype.hasobject:
+                raise refuse("holds Python objects, which numpy stores as a pickle; abcgs never loads a pickle")
+            if dtype.kind not in kinds or dtype.fields is not None or dtype.subdtype is not None:
+                raise refuse(f"holds {dtype} values, not {_NPY_KINDS.get(kinds, f'of the kinds {kinds}')}")
+            if len(shape) != ndim or any(d < 0 for d in shape):
+                raise refuse(f"holds an array of shape {shape}, not a {ndim}-D one")
+            count = math.prod(shape)
+            if count > max_items:
+                raise refuse(f"states {count} values in its header, more than the {max_items} it can hold here")
+            expected = fh.tell() + count * dtype.itemsize
+            if size != expected:
+                state = "is truncated" if size < expected else f"has {size - expected} bytes after its data"
+                raise refuse(f"{state}: it is {size} bytes, its header states {count} values of {dtype.itemsize} "
+                             f"bytes, {expected} bytes in all")
+            data = fh.read(count * dtype.itemsize)
+    except OSError as exc:
+        raise InputError(f"{what} {path} cannot be read ({exc.strerror or exc}){end}") from None
+    if len(data) != count * dtype.itemsize:
+        raise refuse("changed while it was read")
+    array = np.frombuffer(data, dtype=dtype, count=count).reshape(shape, order="F" if fortran else "C")
+    return array.astype(dtype.newbyteorder("="))  # a writable copy, in the machine's byte order
 
 
 def checked_path(path: str | os.PathLike, what: str) -> Path:

@@ -6,11 +6,12 @@ it configures (each stage's code dependencies stay its own: ``abcgs/dag.py``).
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 
 from abcgs.features.params import DEFAULT_MAX_BLOCK_ELEMS
+from abcgs.sections import Bound, Bounded
 from abcgs.types import CandidateProducts, KnnSearch
 
 CosineAxis = Literal["pixel", "channel"]
@@ -21,7 +22,7 @@ SMALL_GROUP_RATIO = 1.25
 groups")."""
 
 
-class FastParams(BaseModel):
+class FastParams(Bounded):
     """Knobs of the FAST loss."""
 
     model_config = ConfigDict(extra="forbid")
@@ -61,3 +62,12 @@ class FastParams(BaseModel):
     ``bfloat16`` or ``auto`` (bfloat16 where the CPU kernels have AVX512-BF16). The candidates are re-ranked exactly
     either way; docs/SCALING.md has the measured recall and time of both."""
 
+    BOUNDS: ClassVar[dict[str, Bound]] = {
+        "k": Bound(1, 256, "neighbours per feature (the authors: 5); a group's features are a few thousand"),
+        "eps": Bound(0.0, 1.0, "a ridge added to F_r D_r F_rᵀ (the authors: 1e-12); at 1 it outweighs the features"),
+        "max_block_elems": Bound(1, 2**31, "similarities held at once: 2**31 float32 are 8 GiB a tile"),
+        "projection_rank": Bound(0, 512, "principal feature directions; VGG-16's widest taps have 512 channels"),
+        "projection_candidates": Bound(1, 4096, "candidates per feature and direction; more than a group's "
+                                       "features search exactly"),
+        "projection_min_similarities": Bound(0, 2**62, "a count of similarities N_r x N_s"),
+    }

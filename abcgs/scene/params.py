@@ -6,12 +6,14 @@ it configures (each stage's code dependencies stay its own: ``abcgs/dag.py``).
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
-from pydantic import BaseModel, Field
+from pydantic import Field
+
+from abcgs.sections import SEED, Bound, Bounded
 
 
-class TinySceneParams(BaseModel, extra="forbid"):
+class TinySceneParams(Bounded, extra="forbid"):
     """Knobs of the embedded scene. Lengths in scene units, sizes in pixels."""
 
     seed: int = 0
@@ -35,6 +37,12 @@ class TinySceneParams(BaseModel, extra="forbid"):
         description="odd-numbered views are this many pixels narrower (a second camera with the same lens and a "
                     "cropped sensor, as COLMAP gives each camera its own undistorted size); 0: one camera",
     )
+
+    BOUNDS: ClassVar[dict[str, Bound]] = {
+        "seed": SEED,
+        "wall_depth": Bound(1.0, 1000.0, "scene units (the camera grid spans 1.2); a wall 1000 away is no backdrop"),
+        "mask_views": Bound(0, 64, "views with a label map; the scene has at most 64 views (n_views)"),
+    }
 
 
 TINY_STYLE_FILES = ("styles/paint.png", "styles/paint2.png", "styles/paint_labels.png")

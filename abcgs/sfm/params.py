@@ -6,15 +6,17 @@ it configures (each stage's code dependencies stay its own: ``abcgs/dag.py``).
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
-from pydantic import BaseModel, Field
+from pydantic import Field
+
+from abcgs.sections import MAX_THREADS, Bound, Bounded
 
 EXHAUSTIVE_MAX_IMAGES = 100
 """``matcher: auto`` matches all pairs up to this many images, sequentially above."""
 
 
-class ReconstructParams(BaseModel, extra="forbid"):
+class ReconstructParams(Bounded, extra="forbid"):
     """Options of the ``reconstruct`` stage (``params.yaml`` section ``reconstruct:``)."""
 
     min_registered_fraction: float = Field(0.9, ge=0.0, le=1.0, description="fail below this fraction of registered images")
@@ -45,3 +47,19 @@ class ReconstructParams(BaseModel, extra="forbid"):
         4.0, ge=0, description="preflight fails when a view has more than this many times the pixels of the "
         "capture's median view (a stray full-size photo among resized ones registers badly or makes the fit slow); "
         "0 turns the check off")
+
+    BOUNDS: ClassVar[dict[str, Bound]] = {
+        "sequential_overlap": Bound(1, 1000, "neighbours matched on each side (COLMAP: 10)"),
+        "max_image_size": Bound(100, 100_000, off=-1, unit="px", why=(
+            "the longest side SIFT runs on (COLMAP: 3200); under 100 px SIFT finds too few features, and no image "
+            "is wider than 100 000 px (the readers' limit)")),
+        "sift_peak_threshold": Bound(0.0, 1.0, "a difference-of-Gaussians peak on images in [0, 1] (COLMAP: "
+                                     "0.0067); at 1 no feature is found"),
+        "mapper_abs_pose_min_inliers": Bound(3, 10_000, "2-D–3-D inliers to register a view (COLMAP: 30)"),
+        "mapper_init_min_tri_angle": Bound(0.0, 90.0, unit="degrees", why="an angle between two viewing rays "
+                                           "(COLMAP: 16)"),
+        "num_threads": Bound(-1, MAX_THREADS, "COLMAP threads, -1 for all cores"),
+        "seed": Bound(0, 2**31 - 1, "COLMAP's seed, a C int"),
+        "max_view_size_ratio": Bound(0.0, 10_000.0, "a ratio of pixel counts to the median view; 0 turns the "
+                                     "check off"),
+    }

@@ -14,6 +14,7 @@ from pydantic import (
     Field,
     SerializeAsAny,
     TypeAdapter,
+    ValidationInfo,
     WrapValidator,
     field_validator,
     model_validator,
@@ -25,10 +26,11 @@ from abcgs.splats.params import SplatFormatParam, SplatViewsParams
 from abcgs.types import Background
 
 
-def _tagged(value: Any, handler: Any) -> Source:
+def _tagged(value: Any, handler: Any, info: ValidationInfo) -> Source:
     """``value`` validated as the options of the format its ``format`` tags: a tagged union of every registered
-    reader's options model (:func:`abcgs.sources.registry.option_models`), built when the registry changes."""
-    return _source_adapter(tuple(option_models().values())).validate_python(value)
+    reader's options model (:func:`abcgs.sources.registry.option_models`), built when the registry changes; in the
+    validation context of the whole (a params file's: the plausible ranges of a bare splat's ``views``)."""
+    return _source_adapter(tuple(option_models().values())).validate_python(value, context=info.context)
 
 
 @functools.lru_cache(maxsize=8)

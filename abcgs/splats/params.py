@@ -6,10 +6,11 @@ configures (each stage's code dependencies stay its own: ``abcgs/dag.py``).
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
-from pydantic import BaseModel, Field
+from pydantic import Field
 
+from abcgs.sections import Bound, Bounded
 from abcgs.types import SplatFormat
 
 SplatFormatParam = Literal["auto", SplatFormat]
@@ -18,7 +19,7 @@ UpAxis = Literal["auto", "+x", "-x", "+y", "-y", "+z", "-z"]
 """``auto`` or a format of :data:`abcgs.types.SplatFormat`."""
 
 
-class SplatViewsParams(BaseModel, extra="forbid"):
+class SplatViewsParams(Bounded, extra="forbid"):
     """Cameras made around a splat that comes without photos or cameras (:func:`abcgs.splats.cameras.cameras_around`);
     the splat's renders from them become the scene's content images."""
 
@@ -41,3 +42,8 @@ class SplatViewsParams(BaseModel, extra="forbid"):
                                 "(degrees), seen from the splat's centre")
     min_opacity: float = Field(0.1, ge=0.0, le=1.0, description="orbit: the Gaussians at least this opaque lie inside "
                                "every view, with two standard deviations around their centres")
+
+    BOUNDS: ClassVar[dict[str, Bound]] = {
+        "elevation_deg": Bound(-90.0, 90.0, unit="degrees", why="an elevation above the horizon: 90 looks straight "
+                               "down"),
+    }

@@ -6,11 +6,12 @@ it configures (each stage's code dependencies stay its own: ``abcgs/dag.py``).
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import ConfigDict, Field, model_validator
 
 from abcgs.losses.params import FastParams
+from abcgs.sections import LEARNING_RATE, MAX_THREADS, RESOLUTION_SCALE, SEED, Bound, Bounded, unbounded_field
 from abcgs.types import Backend
 
 LR_PRESETS: dict[str, dict[str, float]] = {
@@ -23,6 +24,19 @@ LR_PRESETS: dict[str, dict[str, float]] = {
 }
 """Learning-rate presets of the stylization optimiser (Adam, eps 1e-15), per parameter group."""
 
+MAX_STYLIZE_ITERATIONS = 30_000
+"""The most steps of a stylization pass (main or colour pass) a params file asks for without ``unbounded``: 50
+times the authors' 600 (``1000000000``, a typo, started a pass whose bar said 110 904 hours)."""
+MAX_REFIT_ITERATIONS = 30_000
+"""The most steps of the colour match's re-fit without ``unbounded``: 3DGS's whole 30 000-step fit from scratch
+(the authors' re-fit: 400)."""
+MIN_REFIT_REFINE_EVERY = 10
+"""The fewest re-fit steps between two densifications (``colormatch.refine_every``, 0 aside): every step grew the
+tiny scene from 54 773 to 470 409 Gaussians while its PSNR fell; the fit's own schedule never densifies more often
+(abcgs/fit/params.py ``MIN_REFINE_EVERY``)."""
+WEIGHT = Bound(0.0, 10_000.0, "a λ of Eq. 8 (paper: 0.005 to 2); over 10 000 one term drowns the others")
+"""The range of every ``stylize.weights`` entry."""
+
 
 HigherSH = Literal["zero", "frozen", "optimized", "degree1"]
 """What stylization does to the SH bands above the DC term of a degree 1–3 scene (docs/SPLATS.md "SH bands"):
@@ -32,7 +46,7 @@ original's bands kept and optimised with the DC colour (the authors' code); ``de
 bands 2–3 zeroed (StylizedGS's degree 1)."""
 
 
-class StyleWeights(BaseModel):
+class StyleWeights(Bounded):
     """``params.yaml``: ``stylize.weights``, the λ of Eq. 8 (paper {2, 0.005, 0.02, 0.01, 1, 1}); 0 drops a term."""
 
     model_config = ConfigDict(extra="forbid")
@@ -51,8 +65,11 @@ class StyleWeights(BaseModel):
     background: float = Field(10.0, ge=0, description="object scenes: mean |render − background| over the pixels "
                               "the original scene leaves empty; keeps empty space empty")
 
+    BOUNDS: ClassVar[dict[str, Bound]] = {k: WEIGHT for k in (
+        "style", "content", "tv", "depth", "scale", "opacity", "silhouette", "background")}
 
-class StylizeOptim(BaseModel):
+
+class StylizeOptim(Bounded):
     """``params.yaml``: ``stylize.optim``, the schedule and the Adam learning rates (eps 1e-15, as 3DGS) per
     Gaussian parameter group; densification stays off."""
 
@@ -81,6 +98,15 @@ class StylizeOptim(BaseModel):
     lr_shN: float = Field(LR_PRESETS["authors_code"]["lr_sh0"] / 20.0, ge=0,
                           description="learning rate of the higher SH bands when stylize.higher_sh is optimized or "
                           "degree1 (INRIA: the DC rate / 20)")
+    unbounded: list[str] = unbounded_field()
+
+    BOUNDS: ClassVar[dict[str, Bound]] = {
+        "iterations": Bound(0, MAX_STYLIZE_ITERATIONS, soft=True, unit="steps", why=(
+            f"{MAX_STYLIZE_ITERATIONS} steps are 50 times the authors' 600, hours to days a scene: a typo?")),
+        "color_pass_iterations": Bound(0, MAX_STYLIZE_ITERATIONS, soft=True, unit="steps", why=(
+            f"{MAX_STYLIZE_ITERATIONS} steps are 75 times the authors' 400-step colour pass: a typo?")),
+        **{k: LEARNING_RATE for k in ("lr_sh0", "lr_means", "lr_scales", "lr_opacity", "lr_quats", "lr_shN")},
+    }
 
     @model_validator(mode="before")
     @classmethod
@@ -93,7 +119,7 @@ class StylizeOptim(BaseModel):
         return data
 
 
-class StylizeCompute(BaseModel):
+class StylizeCompute(Bounded):
     """``params.yaml``: ``stylize.compute``, where and how the loop runs and how often it logs; no effect on the
     numbers but through the rasterizer chosen."""
 
@@ -103,6 +129,11 @@ class StylizeCompute(BaseModel):
     threads: int = Field(0, ge=0, description="torch CPU threads for this stage (0: torch's default, all cores); "
                          "with `dvc queue start -j N` on C cores, C // N (README 'Benchmarks at scale')")
     log_every: int = Field(10, ge=1, description="a row of stylize_history.csv every this many steps (and the last)")
+
+    BOUNDS: ClassVar[dict[str, Bound]] = {
+        "threads": Bound(0, MAX_THREADS, "torch CPU threads, 0 for torch's default"),
+        "log_every": Bound(1, 1_000_000, "steps between two rows of the history; the last step is always logged"),
+    }
 
 
 MOVED_KEYS: dict[str, str] = {
@@ -114,7 +145,7 @@ MOVED_KEYS: dict[str, str] = {
 """Flat ``stylize.<key>`` of earlier params files → its place in the sections (``stylize.<section>.<key>``)."""
 
 
-class StylizeParams(BaseModel):
+class StylizeParams(Bounded):
     """``params.yaml``: ``stylize``."""
 
     model_config = ConfigDict(extra="forbid")
@@ -142,6 +173,13 @@ class StylizeParams(BaseModel):
     optim: StylizeOptim = Field(default_factory=StylizeOptim)
     compute: StylizeCompute = Field(default_factory=StylizeCompute)
 
+    BOUNDS: ClassVar[dict[str, Bound]] = {
+        "style_height": Bound(16, 4096, unit="px", why=(
+            "the painting's height before VGG (the authors: 256); VGG's memory grows with its square")),
+        "resolution_scale": RESOLUTION_SCALE,
+        "seed": SEED,
+    }
+
     def with_schedule(self, iterations: int | None = None, color_pass_iterations: int | None = None) -> StylizeParams:
         """A copy with ``optim.iterations`` / ``optim.color_pass_iterations`` set where given (≥ 0)."""
         update = {k: v for k, v in (("iterations", iterations), ("color_pass_iterations", color_pass_iterations))
@@ -159,7 +197,7 @@ class StylizeParams(BaseModel):
         return data
 
 
-class ColorMatchParams(BaseModel):
+class ColorMatchParams(Bounded):
     """``params.yaml``: ``colormatch``."""
 
     model_config = ConfigDict(extra="forbid")
@@ -177,3 +215,18 @@ class ColorMatchParams(BaseModel):
     backend: Backend = "auto"
     threads: int = Field(0, ge=0, description="torch CPU threads for this stage (0: torch's default, all cores); "
                          "with `dvc queue start -j N` on C cores, C // N (README 'Benchmarks at scale')")
+    unbounded: list[str] = unbounded_field()
+
+    BOUNDS: ClassVar[dict[str, Bound]] = {
+        "refit_iterations": Bound(0, MAX_REFIT_ITERATIONS, soft=True, unit="steps", why=(
+            f"a re-fit of {MAX_REFIT_ITERATIONS} steps is as long as 3DGS's whole fit from scratch (the authors "
+            "re-fit 400 steps): a typo?")),
+        "refine_every": Bound(MIN_REFIT_REFINE_EVERY, MAX_REFIT_ITERATIONS, off=0, soft=True, unit="steps", why=(
+            f"the re-fit has at most {MAX_REFIT_ITERATIONS} steps"), low=(
+            f"densifying more often than every {MIN_REFIT_REFINE_EVERY} steps clones and splits on a step's or two's "
+            "gradient (every step grew the tiny scene's 54 773 Gaussians to 470 409 while its PSNR fell; the "
+            "authors densify every 50)")),
+        "resolution_scale": RESOLUTION_SCALE,
+        "seed": SEED,
+        "threads": Bound(0, MAX_THREADS, "torch CPU threads, 0 for torch's default"),
+    }

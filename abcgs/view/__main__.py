@@ -76,6 +76,8 @@ def main(argv=None) -> int:
     size = out.stat().st_size / 1e6
     print(f"wrote {out} ({size:.1f} MB; {exp.layers['stylized'].num_gaussians} of {exp.n_gaussians_full} Gaussians "
           f"per layer; layers: {', '.join(exp.layers)})")
+    for note in exp.notes:
+        print(f"note: {note}")
     if not args.no_open:
         webbrowser.open(out.resolve().as_uri())
     return 0

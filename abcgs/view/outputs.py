@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -15,6 +16,8 @@ from abcgs.gaussians.ply import read_ply
 from abcgs.sfm.model import read_scene
 from abcgs.types import PathKind
 from abcgs.view.page import ViewerExperiment, prepare_experiment
+
+log = logging.getLogger(__name__)
 
 
 def experiment_scene(run_dir: Path, experiments: Mapping[str, Any] | None = None) -> str:
@@ -47,20 +50,30 @@ def load_experiment(run_dir: Path, *, scene: str | None = None, root: Path | Non
     original = read_ply(s.fit.ply) if s.fit.ply.is_file() else None
     stylized = read_ply(ply)
     labels = np.load(s.masks.gaussian_labels, allow_pickle=False) if s.masks.gaussian_labels.is_file() else None
+    notes: list[str] = []
     if labels is not None:
-        labels = _on_stylized_rows(labels, layout.ExperimentOut(run_dir).stylize.fitted_rows, stylized.num_gaussians)
-    return prepare_experiment(run_dir.name, stylized, views.cameras, original=original, labels=labels,
-                              max_gaussians=max_gaussians, full_artifact=str(ply), path_kind=path_kind,
-                              path_frames=path_frames, background=views.background)
+        labels = _on_stylized_rows(labels, layout.ExperimentOut(run_dir).stylize.fitted_rows, stylized.num_gaussians,
+                                   notes, fix=f"re-run its stylize stage (dvc repro stylize@{run_dir.name})")
+    exp = prepare_experiment(run_dir.name, stylized, views.cameras, original=original, labels=labels,
+                             max_gaussians=max_gaussians, full_artifact=str(ply), path_kind=path_kind,
+                             path_frames=path_frames, background=views.background)
+    exp.notes += notes
+    return exp
 
 
-def _on_stylized_rows(labels: np.ndarray, rows_file: Path, n_stylized: int) -> np.ndarray | None:
+def _on_stylized_rows(labels: np.ndarray, rows_file: Path, n_stylized: int, notes: list[str] | None = None,
+                      fix: str = "re-run the stylize stage that wrote it") -> np.ndarray | None:
     """The fitted scene's Gaussian ``labels`` on the ``n_stylized`` stylized Gaussians, through the stylize stage's
-    ``fitted_rows.npy`` (``rows_file``): ``labels`` as they are where there is no such file (a stylized scene with
-    the fitted scene's rows), None where it does not map them."""
-    if not rows_file.is_file():
+    ``fitted_rows.npy`` (``rows_file``, read by the guarded :func:`~abcgs.gaussians.read_fitted_rows`): ``labels``
+    as they are where there is no such file (a stylized scene with the fitted scene's rows), None where the file is
+    refused, the labels layer then left out with the reason (and ``fix``) logged and appended to ``notes``."""
+    if not (rows_file.exists() or rows_file.is_symlink()):
         return labels
     try:
-        return labels[read_fitted_rows(rows_file, n_stylized, len(labels))]
-    except (OSError, ValueError):
+        return labels[read_fitted_rows(rows_file, n_stylized, len(labels), fix=fix)]
+    except (OSError, ValueError) as exc:  # InputError is a ValueError
+        note = f"the labels layer is left out: {exc}"
+        log.warning("%s", note)
+        if notes is not None:
+            notes.append(note)
         return None

@@ -56,6 +56,9 @@ class ViewerExperiment:
     spz_bytes: dict[str, int] = field(default_factory=dict)
     background: Background = FRAME_FILLING
     """The scene's: an object scene shows on its colour, or over the page when transparent."""
+    notes: list[str] = field(default_factory=list)
+    """What the page leaves out and why (a labels layer whose rows file is refused), one line each: printed by
+    ``python -m abcgs.view``, shown above the viewer (:func:`viewer_fragment`)."""
 
 
 def visibility_order(model: GaussianModel) -> torch.Tensor:
@@ -208,12 +211,15 @@ def viewer_fragment(experiments: list[ViewerExperiment], *, max_width: int = 960
             "background": exp.background.to_json() if exp.background.object else None,
         })
     payload = script_json(data)
+    notes = [f'<p class="abcgs-viewer-note">{html.escape(exp.name)}: {html.escape(note)}</p>'
+             for exp in experiments for note in exp.notes]
     js = gzip.decompress(bundle.read_bytes()).decode("utf-8").replace("</script", "<\\/script")
     return "\n".join([
         "<style>#abcgs-viewer .abcgs-bar{display:flex;flex-wrap:wrap;gap:6px;align-items:center;margin:6px 0}"
         "#abcgs-viewer button.active{background:#333;color:#fff}#abcgs-viewer .abcgs-note{color:#555;font-size:90%}"
         "#abcgs-viewer .abcgs-error{color:#a00;background:#fee;border:1px solid #a00;padding:8px;margin:6px 0}"
         "#abcgs-canvas{display:block;border:1px solid #ccc}</style>",
+        *notes,
         '<div id="abcgs-viewer"></div>',
         f'<script type="application/json" id="abcgs-viewer-data">{payload}</script>',
         *blobs,

@@ -6,12 +6,15 @@ it configures (each stage's code dependencies stay its own: ``abcgs/dag.py``).
 
 from __future__ import annotations
 
-from pydantic import BaseModel, ConfigDict, Field
+from typing import ClassVar
 
+from pydantic import ConfigDict, Field
+
+from abcgs.sections import Bound, Bounded, unbounded_field
 from abcgs.types import PathKind
 
 
-class ViewerParams(BaseModel):
+class ViewerParams(Bounded):
     """``params.yaml``: ``viewer`` (the 3-D viewer in the report)."""
 
     model_config = ConfigDict(extra="forbid")
@@ -24,3 +27,11 @@ class ViewerParams(BaseModel):
         "auto", description="path of the turntable video and the viewer's ▷ button: orbit (object-centred "
                             "captures), spiral (forward-facing) or auto (detected from the camera layout)")
     path_frames: int = Field(48, ge=2, le=1000, description="cameras on the path (the video plays 24 per second)")
+    unbounded: list[str] = unbounded_field()
+
+    BOUNDS: ClassVar[dict[str, Bound]] = {
+        "max_gaussians": Bound(100, 10_000_000, soft=True, why=(
+            "the page inlines every layer: 10 M Gaussians make a page of several hundred MB, more than a browser "
+            "opens")),
+        "max_width": Bound(64, 16_384, unit="CSS px", why="a canvas wider than any screen"),
+    }
