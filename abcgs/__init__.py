@@ -19,7 +19,8 @@ Importing abcgs changes nothing in the process: a program calls :func:`abcgs.run
   :mod:`abcgs.stylize` (colour match and stylization), :mod:`abcgs.evaluation` (the metrics).
 - Presentation: :mod:`abcgs.view` (the 3-D splat viewer), :mod:`abcgs.report`.
 - Orchestration: :mod:`abcgs.params` (the ``params.yaml`` schema), :mod:`abcgs.pipeline` (stage specs),
-  :mod:`abcgs.preflight` (with :mod:`abcgs.source_check`: datasets read by their readers), :mod:`abcgs.dag`
+  :mod:`abcgs.preflight` (with :mod:`abcgs.source_check`: datasets read by their readers; :mod:`abcgs.entry_checks`:
+  entry names and label numbers; :mod:`abcgs.dvc_file`: reading ``dvc.yaml``), :mod:`abcgs.dag`
   (``dvc.yaml``), :mod:`abcgs.add` (``python -m abcgs add-scene``, ``add-style``), :mod:`abcgs.add_experiment`
   (``python -m abcgs add-experiment``),
   :mod:`abcgs.overlay`, :mod:`abcgs.cluster` (Slurm job arrays; the ``cluster`` extra).

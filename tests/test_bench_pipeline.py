@@ -95,8 +95,8 @@ def test_an_interleaved_run_saves_each_stage_as_it_ends(tmp_path, monkeypatch, c
 
     def on_stage(rows_b, rows_c):
         saved.append((len(rows_b), len(rows_c)))
-        partial = {"baseline": {**bench_pipeline._summary(rows_b), "stage_count": 3},
-                   "current": {**bench_pipeline._summary(rows_c), "stage_count": 2}, "complete": False}
+        partial = {"baseline": {**bench_pipeline.summary(rows_b), "stage_count": 3},
+                   "current": {**bench_pipeline.summary(rows_c), "stage_count": 2}, "complete": False}
         (tmp_path / "ab.json").write_text(json.dumps(partial))
 
     rows_b, rows_c = bench_pipeline.bench_interleaved(tmp_path, ["a", "b", "c"], tmp_path, ["a", "b"], on_stage=on_stage)
@@ -105,7 +105,7 @@ def test_an_interleaved_run_saves_each_stage_as_it_ends(tmp_path, monkeypatch, c
     out = bench_pipeline.main(["--compare", str(tmp_path / "ab.json")])
     assert out["total_ratio"] == pytest.approx(30.0 / 10.0)
     assert "an unfinished run, 3 of 3 stages" in capsys.readouterr().out
-    assert bench_pipeline._summary([])["peak_rss_mib"] == 0.0  # a file saved before any stage ended
+    assert bench_pipeline.summary([])["peak_rss_mib"] == 0.0  # a file saved before any stage ended
 
 
 def test_baseline_runs_interleave_with_the_working_tree(tmp_path, capsys) -> None:

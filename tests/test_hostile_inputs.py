@@ -26,7 +26,7 @@ from abcgs.sfm.model import layout_scene, read_scene, write_scene
 from abcgs.sources.read import read_source
 from abcgs.splats.formats.spz import decode_spz, encode_spz
 from abcgs.splats.registry import read_splat
-from eval.bench.fuzz import _model, gzip_bomb, make_targets
+from eval.bench.fuzz import gzip_bomb, make_targets, sample_model
 
 
 @pytest.fixture
@@ -52,7 +52,7 @@ def _one_line(err: str) -> None:
 
 
 def test_a_gzip_bomb_spz_is_refused_with_bounded_memory() -> None:
-    raw = gzip.decompress(encode_spz(_model(1000)))
+    raw = gzip.decompress(encode_spz(sample_model(1000)))
     bomb = gzip_bomb(raw, 8 << 30)  # 8 MB that inflates to 8 GiB
     assert len(bomb) < 16 << 20
     tracemalloc.start()
@@ -73,7 +73,7 @@ def test_a_gzip_bomb_spz_is_refused_with_bounded_memory() -> None:
 
 
 def test_add_scene_refuses_a_bomb_in_one_line_within_10_s_and_1_gb(tmp_path: Path, params_file: Path, capsys) -> None:
-    raw = gzip.decompress(encode_spz(_model(1000)))
+    raw = gzip.decompress(encode_spz(sample_model(1000)))
     (tmp_path / "bomb.spz").write_bytes(gzip_bomb(raw, 8 << 30))
     argv = ["add-scene", "bomb", str(tmp_path / "bomb.spz"), "--params", str(params_file), "--dry-run"]
     t0 = time.perf_counter()
@@ -93,7 +93,7 @@ def test_add_scene_refuses_a_bomb_in_one_line_within_10_s_and_1_gb(tmp_path: Pat
 
 
 def test_non_finite_gaussians_are_refused_with_their_count_or_dropped(tmp_path: Path, caplog) -> None:
-    model = _model(64)
+    model = sample_model(64)
     model.means[3, 0] = float("nan")
     model.log_scales[5, 1] = float("inf")
     write_ply(tmp_path / "bad.ply", model)
@@ -108,7 +108,7 @@ def test_non_finite_gaussians_are_refused_with_their_count_or_dropped(tmp_path: 
 
 
 def test_add_scene_takes_every_setting_its_messages_name(tmp_path: Path, params_file: Path, capsys) -> None:
-    model = _model(64)
+    model = sample_model(64)
     model.means[3, 0] = float("nan")
     (tmp_path / "splat").mkdir()
     write_ply(tmp_path / "splat" / "scene.ply", model)
@@ -131,7 +131,7 @@ def test_add_scene_takes_every_setting_its_messages_name(tmp_path: Path, params_
 
 def test_add_scene_dry_run_refuses_what_the_real_run_refuses(tmp_path: Path, params_file: Path, capsys) -> None:
     (tmp_path / "s").mkdir()
-    write_ply(tmp_path / "s" / "scene.ply", _model(16))
+    write_ply(tmp_path / "s" / "scene.ply", sample_model(16))
     errors = []
     for extra in (["--dry-run"], []):
         rc, _, err = _cli(capsys, "add-scene", "a..", str(tmp_path / "s"), "--params", str(params_file), *extra)

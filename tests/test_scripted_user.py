@@ -1,11 +1,13 @@
-"""The scripted user of eval/bench/scripted_user.py: where its next stroke goes and how a step is scored (the miku
-run itself needs ../shared/data and minutes; docs/MASKS.md has its record)."""
+"""The scripted user of eval/bench/scripted_user.py: where its next stroke goes and how a step is scored
+(:func:`eval.labels.score_labels`, as a step records it; the miku run itself needs ../shared/data and minutes;
+docs/MASKS.md has its record)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from eval.bench.scripted_user import next_stroke, score
+from eval.bench.scripted_user import next_stroke
+from eval.labels import score_labels
 
 
 def test_the_next_stroke_is_a_dot_inside_the_largest_wrong_region_with_the_reference_label() -> None:
@@ -30,7 +32,7 @@ def test_a_step_scores_every_pair_and_the_unlabelled_share() -> None:
     truth[:, :5], truth[:, 5:] = 1, 2
     pred = truth.copy()
     pred[:, 9] = 0  # unlabelled
-    s = score({"a": pred, "b": truth}, {"a": truth, "b": truth}, 2)
+    s = score_labels({"a": pred, "b": truth}, {"a": truth, "b": truth}, 2).as_record()
     assert s["unlabelled"] == {"a": 0.1, "b": 0.0}
     assert s["iou"]["b"] == {"1": 1.0, "2": 1.0}
     assert np.isclose(s["iou"]["a"]["2"], 0.8) and s["worst_iou"] == s["iou"]["a"]["2"]

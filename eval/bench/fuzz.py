@@ -68,7 +68,8 @@ SPECIAL_BINARY = (b"\x00\x00\xc0\x7f", b"\x00\x00\x80\x7f", b"\x00\x00\x80\xff",
 # ------------------------------------------------------------------------------------------ valid inputs
 
 
-def _model(n: int = 64, degree: int = 1, seed: int = 0):
+def sample_model(n: int = 64, degree: int = 1, seed: int = 0):
+    """``n`` random Gaussians of SH degree ``degree`` round the origin (the same for the same ``seed``)."""
     from abcgs.gaussians import GaussianModel
 
     g = torch.Generator().manual_seed(seed)
@@ -79,7 +80,7 @@ def _model(n: int = 64, degree: int = 1, seed: int = 0):
         sh0=torch.rand(n, 1, 3, generator=g) - 0.5, shN=(torch.rand(n, k, 3, generator=g) - 0.5) * 0.2)
 
 
-def _cameras(n: int = 5, w: int = 32, h: int = 24) -> list[Camera]:
+def sample_cameras(n: int = 5, w: int = 32, h: int = 24) -> list[Camera]:
     """``n`` cameras on an arc 4 units from the origin, looking at it."""
     cams = []
     for i in range(n):
@@ -98,7 +99,8 @@ def _images(folder: Path, cams: list[Camera]) -> None:
         save_image(folder / c.name, rng.random((c.height, c.width, 3)).astype(np.float32))
 
 
-def _points(n: int = 60) -> np.ndarray:
+def sample_points(n: int = 60) -> np.ndarray:
+    """``n`` fixed random points ``(n, 3)`` in the cube of side 1 round the origin."""
     return np.random.default_rng(1).uniform(-0.5, 0.5, (n, 3))
 
 
@@ -107,7 +109,8 @@ def _colmap(folder: Path, cams: list[Camera], text: bool) -> Path:
     from abcgs.types import Cameras
 
     model = folder / "sparse" / "0"
-    write_model(model, Cameras.from_list(cams), _points(), np.full((len(_points()), 3), 128 / 255), text=text)
+    points = sample_points()
+    write_model(model, Cameras.from_list(cams), points, np.full((len(points), 3), 128 / 255), text=text)
     return model
 
 
@@ -173,28 +176,28 @@ def make_targets(work: Path, formats: tuple[str, ...] = FORMATS) -> dict[str, Ta
     from abcgs.splats.registry import read_splat
 
     out: dict[str, Target] = {}
-    cams = _cameras()
+    cams = sample_cameras()
     if "ply" in formats:
         p = work / "ply" / "point_cloud.ply"
         p.parent.mkdir(parents=True)
-        write_ply(p, _model())
+        write_ply(p, sample_model())
         out["ply"] = Target("ply", [p], lambda p=p: read_splat(p, "auto"), "bytes")
     if "supersplat" in formats:
         from abcgs.splats.formats.supersplat import write_compressed_ply
 
         p = work / "supersplat" / "scene.compressed.ply"
         p.parent.mkdir(parents=True)
-        write_compressed_ply(p, _model(300))
+        write_compressed_ply(p, sample_model(300))
         out["supersplat"] = Target("supersplat", [p], lambda p=p: read_splat(p, "supersplat"), "bytes")
     if "splat" in formats:
         p = work / "splat" / "scene.splat"
         p.parent.mkdir(parents=True)
-        write_splat_file(p, _model(degree=0))
+        write_splat_file(p, sample_model(degree=0))
         out["splat"] = Target("splat", [p], lambda p=p: read_splat(p, "splat"), "bytes")
     if "spz" in formats:
         p = work / "spz" / "scene.spz"
         p.parent.mkdir(parents=True)
-        write_spz(p, _model())
+        write_spz(p, sample_model())
         out["spz"] = Target("spz", [p], lambda p=p: read_splat(p, "spz"), "gzip")
     for name, text in (("colmap_bin", False), ("colmap_txt", True)):
         if name in formats:
@@ -237,7 +240,7 @@ def make_targets(work: Path, formats: tuple[str, ...] = FORMATS) -> dict[str, Ta
 def _more_targets(work: Path, formats: tuple[str, ...], cams: list[Camera], out: dict[str, Target]) -> None:
     """The targets of :mod:`eval.bench.fuzz_inputs` among ``formats``, added to ``out``."""
     makers = {"image": ("png", lambda w: fuzz_inputs.make_image(w)),
-              "gsplat_ckpt": ("ckpt", lambda w: fuzz_inputs.make_gsplat_ckpt(w, _model(), cams, _points())),
+              "gsplat_ckpt": ("ckpt", lambda w: fuzz_inputs.make_gsplat_ckpt(w, sample_model(), cams, sample_points())),
               "inria_cameras": ("json", lambda w: fuzz_inputs.make_inria_cameras(w, cams)),
               "splatfacto": ("json", fuzz_inputs.make_splatfacto_transforms),
               "params": ("yaml", fuzz_inputs.make_params),

@@ -34,8 +34,9 @@ from abcgs.masks.graph import gaussian_graph
 from abcgs.masks.lifting import blend_votes
 from abcgs.masks.params import FieldParams
 from abcgs.sfm.model import read_scene
-from eval.bench.scripted_user import ScriptedUser, score
-from eval.bench.strokes import DATA, _strokes, reference_map
+from eval.bench.scripted_user import ScriptedUser
+from eval.bench.strokes import DATA, reference_map, view_strokes
+from eval.labels import score_labels
 from eval.record import bench_parser, write_record
 
 
@@ -104,12 +105,12 @@ def main(argv: list[str] | None = None) -> int:
     for name, kw in settings.items():
         user = ScriptedUser(model, scene, refs, by_stem, default)
         user.session.field.use_graph(gaussian_graph(model, default.k, **kw))
-        user.strokes[front] = list(_strokes(spec["test"]["strokes"], spec, scene.cameras[front]))
+        user.strokes[front] = list(view_strokes(spec["test"]["strokes"], spec, scene.cameras[front]))
         user.segment(front)
-        s = score(user.maps(), refs, len(spec["labels"]))
-        rows[name] = {"mean_iou": s["mean_iou"], "view_mean": s["view_mean"]}
-        print(f"{name:28s} mean IoU {s['mean_iou']:.4f}  " + "  ".join(f"{v[-4:]} {m:.3f}" for v, m in
-                                                                      s["view_mean"].items()), flush=True)
+        s = score_labels(user.maps(), refs, len(spec["labels"]))
+        rows[name] = {"mean_iou": s.mean_iou, "view_mean": s.view_mean}
+        print(f"{name:28s} mean IoU {s.mean_iou:.4f}  " + "  ".join(f"{v[-4:]} {m:.3f}" for v, m in
+                                                                    s.view_mean.items()), flush=True)
     if args.json:
         write_record(args.json, {"scene": spec["title"], "n_gaussians": model.num_gaussians, "feature_views": len(idx),
                                  "dims": args.dims, "lift_seconds": lift_seconds, "settings": rows}, argv)

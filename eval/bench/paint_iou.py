@@ -44,13 +44,13 @@ import numpy as np
 
 from abcgs.gaussians import GaussianModel
 from abcgs.io.images import load_image, load_labels, save_labels
-from abcgs.masks.content import ContentMasks, label_iou, make_content_masks
+from abcgs.masks.content import ContentMasks, make_content_masks
 from abcgs.masks.grabcut import segment
 from abcgs.masks.params import LiftParams, MaskParams, RefineParams
 from abcgs.masks.strokes import Stroke
 from abcgs.types import Scene
+from eval.labels import overlay, score_labels
 from eval.record import bench_parser, write_record
-from eval.studies.mask_lifting import iou_summary
 
 GOAL = 0.9
 """Per-label IoU the lifted stroke masks should reach on every other view (the worst one counts)."""
@@ -149,22 +149,16 @@ def simulated_session(
         seg = segment(image, strokes)
         log_rounds.append({
             "strokes": {str(k): sum(s.label == k for s in strokes) for k in range(1, n_labels + 1)},
-            "iou": {str(k): v for k, v in label_iou(seg.labels, truth, n_labels).items()},
+            "iou": score_labels({0: seg.labels}, {0: truth}, n_labels).iou[0],
         })
     return strokes, log_rounds
 
 
-def _score(views: list[np.ndarray], truth: dict[int, np.ndarray], skip: int, n_labels: int) -> dict:
-    """Per label: mean and worst IoU of ``views`` against ``truth`` over every view but ``skip``."""
-    per: dict[int, list[float]] = {}
-    agree = []
-    for i, t in sorted(truth.items()):
-        if i == skip:
-            continue
-        for k, v in label_iou(views[i], t, n_labels).items():
-            per.setdefault(k, []).append(v)
-        agree.append(float((views[i] == t)[t > 0].mean()))
-    return {"iou_per_label": iou_summary(per), "pixel_agreement": float(np.mean(agree))}
+def _lifted_record(views: list[np.ndarray], truth: dict[int, np.ndarray], skip: int, n_labels: int) -> dict:
+    """Per label: mean and worst IoU of ``views`` against ``truth`` over every view but ``skip``
+    (:func:`eval.labels.score_labels`), and the mean pixel agreement (nan if a view's truth assigns no pixel)."""
+    scores = score_labels(views, {i: t for i, t in sorted(truth.items()) if i != skip}, n_labels)
+    return {"iou_per_label": scores.per_label_summary(), "pixel_agreement": scores.mean_agreement(empty_views="count")}
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -306,7 +300,7 @@ def main(argv: list[str] | None = None) -> dict:
         src = {Path(c.name).stem: i for i, c in enumerate(cams)}[args.view]
         truth = {i: load_labels(work / "colmap_truth" / "masks" / f"{Path(c.name).stem}.png") for i, c in enumerate(cams)}
         lifted, lift_only, ceiling, seconds_lift = _lift_three_ways(model, scene, work, args.view, args.propagate_along)
-        strokes_score = _score(lifted.view_labels, truth, src, n_labels)
+        strokes_score = _lifted_record(lifted.view_labels, truth, src, n_labels)
 
         result = {
             "scene": f"tiny (layout {args.layout}, {args.views} views)", "view": args.view, "radius": args.radius,
@@ -316,10 +310,10 @@ def main(argv: list[str] | None = None) -> dict:
                          "to": s.points[-1].round(2).tolist()}
                         for s in strokes],  # straight strokes: their ends
             "rounds": rounds,
-            "cut_iou": {str(k): v for k, v in label_iou(cut.labels, truth_raw, n_labels).items()},
+            "cut_iou": score_labels({0: cut.labels}, {0: truth_raw}, n_labels).iou[0],
             "lifted_from_strokes": strokes_score,
-            "lifted_from_strokes_without_refinement": _score(lift_only.view_labels, truth, src, n_labels),
-            "lifted_from_true_mask": _score(ceiling.view_labels, truth, src, n_labels),
+            "lifted_from_strokes_without_refinement": _lifted_record(lift_only.view_labels, truth, src, n_labels),
+            "lifted_from_true_mask": _lifted_record(ceiling.view_labels, truth, src, n_labels),
             "goal": GOAL,
             "goal_met": all(v["min"] >= GOAL for v in strokes_score["iou_per_label"].values()),
             "fit": {"iterations": args.iterations, "n_gaussians": model.num_gaussians},
@@ -340,7 +334,6 @@ def _figure(path: Path, colmap: Path, scene, strokes: list[Stroke], cut: np.ndar
     from abcgs.io.images import save_image
     from abcgs.masks.strokes import rasterize_strokes
     from abcgs.viz import colorize_labels, image_grid
-    from eval.studies.mask_lifting import overlay
 
     seeds = rasterize_strokes(strokes, cut.shape)
     drawn = image.copy()

@@ -161,7 +161,9 @@ def bench_interleaved(base: Path, base_stages: list[str], cur: Path, cur_stages:
     return rows_b, rows_c
 
 
-def _summary(rows: list[dict], wall: float | None = None) -> dict:
+def summary(rows: list[dict], wall: float | None = None) -> dict:
+    """A run's stage rows with their totals: wall seconds (their sum, or ``wall`` when given), CPU seconds, core use
+    and the peak resident memory (0 before any stage ended)."""
     total_wall = sum(r["wall_s"] for r in rows) if wall is None else wall
     total_cpu = sum(r["cpu_s"] for r in rows)
     return {"stages": rows, "total_wall_s": total_wall, "total_cpu_s": total_cpu,
@@ -335,9 +337,9 @@ def time_against_baseline(base: PipelineCopy, revision: str, current: PipelineCo
 
     def ab_result(rows_b: list[dict], rows_c: list[dict], complete: bool) -> dict:
         return {
-            "baseline": {**_summary(rows_b), "revision": revision, "params": str(base.params or "params.yaml"),
+            "baseline": {**summary(rows_b), "revision": revision, "params": str(base.params or "params.yaml"),
                          "stage_count": len(base.stages)},
-            "current": {**_summary(rows_c), "params": str(current.params or "params.yaml"), "set": current.sets,
+            "current": {**summary(rows_c), "params": str(current.params or "params.yaml"), "set": current.sets,
                         "stage_count": len(current.stages)},
             "machine": machine, "complete": complete,
             "how": HOW + "; the two pipelines' stages alternate (baseline first on even steps, current first "
@@ -365,7 +367,7 @@ def time_alone(current: PipelineCopy, machine: dict, json_path: Path | None, arg
     t0 = time.perf_counter()
 
     def record(rows: list[dict], complete: bool, wall: float | None = None) -> dict:
-        return {**_summary(rows, wall), "params": str(current.params or "params.yaml"), "set": current.sets,
+        return {**summary(rows, wall), "params": str(current.params or "params.yaml"), "set": current.sets,
                 "machine": machine, "how": HOW, "complete": complete, "stage_count": len(current.stages)}
 
     def save_partial(rows: list[dict]) -> None:

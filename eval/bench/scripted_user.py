@@ -48,14 +48,14 @@ import numpy as np
 
 from abcgs.gaussians.ply import read_ply
 from abcgs.io.images import load_image, save_image, to_uint8
-from abcgs.masks.content import label_iou
 from abcgs.masks.field import LabelField, render_field
 from abcgs.masks.page.field_session import FieldSession
 from abcgs.masks.page.strip import Strip
 from abcgs.masks.params import FieldParams
 from abcgs.masks.strokes import Stroke, rasterize_strokes
 from abcgs.sfm.model import read_scene
-from eval.bench.strokes import DATA, _overlay, _strokes, geometry_bound, reference_map
+from eval.bench.strokes import DATA, geometry_bound, reference_map, view_strokes
+from eval.labels import score_labels, stroke_overlay
 from eval.record import bench_parser, write_record
 
 GOAL = {"strokes": 10, "mean_iou": 0.75, "pair_iou": 0.60, "below_bound": 0.05, "unlabelled": 0.02,
@@ -80,15 +80,6 @@ def next_stroke(pred: np.ndarray, truth: np.ndarray, radius: float) -> Stroke | 
     dist = cv2.distanceTransform(np.pad(region, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1]
     y, x = np.unravel_index(int(np.argmax(dist)), dist.shape)
     return Stroke(k, np.array([[x + 0.5, y + 0.5]]), float(max(1.0, min(radius, dist[y, x] - 1.0))))
-
-
-def score(maps: dict[str, np.ndarray], refs: dict[str, np.ndarray], n_labels: int) -> dict:
-    """Per reference view: IoU per label and the unlabelled share; and the worst and mean IoU over all pairs."""
-    per_view = {s: {str(k): v for k, v in label_iou(maps[s], refs[s], n_labels).items()} for s in refs}
-    pairs = [v for d in per_view.values() for v in d.values()]
-    return {"iou": per_view, "unlabelled": {s: float((maps[s] == 0).mean()) for s in refs},
-            "view_mean": {s: float(np.mean(list(d.values()))) for s, d in per_view.items()},
-            "worst_iou": float(min(pairs)), "mean_iou": float(np.mean(pairs))}
 
 
 def regression(steps: list[dict]) -> dict:
@@ -179,9 +170,10 @@ def run(user: ScriptedUser, front: int, first: list[Stroke], n_labels: int, max_
     seconds = user.segment(front)
     while True:
         maps = user.maps()
-        s = score(maps, user.refs, n_labels)
+        s = score_labels(maps, user.refs, n_labels).as_record()
         step = {"strokes": sum(len(v) for v in user.strokes.values()), "seconds": seconds, **s,
-                "rendered": score(user.maps(rendered=True), user.refs, n_labels), "counts": user.session.result.counts()}
+                "rendered": score_labels(user.maps(rendered=True), user.refs, n_labels).as_record(),
+                "counts": user.session.result.counts()}
         if steps:
             step["delta"] = {"mean": s["mean_iou"] - steps[-1]["mean_iou"],
                              "views": {v: m - steps[-1]["view_mean"][v] for v, m in s["view_mean"].items()}}
@@ -216,7 +208,7 @@ def figure(user: ScriptedUser, steps: list[dict], path: Path) -> None:
     for s, ref in user.refs.items():
         i = user.by_stem[s]
         img = load_image(user.scene.image_paths[i])
-        rows.append([_overlay(img, maps[s], user.strokes.get(i)), _overlay(img, np.where(ref < 0, 0, ref))])
+        rows.append([stroke_overlay(img, maps[s], user.strokes.get(i)), stroke_overlay(img, np.where(ref < 0, 0, ref))])
     drops = regression(steps)
     labels = (f"labels after {steps[-1]['strokes']} strokes (black): mean IoU {steps[0]['mean_iou']:.3f} -> "
               f"{steps[-1]['mean_iou']:.3f}")
@@ -252,8 +244,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"bound (six reference maps lifted): mean IoU {bound['mean_iou']:.3f} rendered from the Gaussians, "
           f"{refined_bound['mean_iou']:.3f} refined against the photos", flush=True)
     t0 = time.perf_counter()
-    steps = run(user, front, _strokes(items, spec, scene.cameras[front]), n_labels, args.max_strokes, args.radius)
-    stage = score(stage_maps(user, params), refs, n_labels)
+    steps = run(user, front, view_strokes(items, spec, scene.cameras[front]), n_labels, args.max_strokes, args.radius)
+    stage = score_labels(stage_maps(user, params), refs, n_labels).as_record()
     print(f"the masks stage on what the page saved: mean IoU {stage['mean_iou']:.3f} (the page: "
           f"{steps[-1]['mean_iou']:.3f})", flush=True)
     print(json.dumps({"bound_worst": bound["worst_iou"]}))

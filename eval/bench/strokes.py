@@ -46,13 +46,14 @@ from abcgs.gaussians import GaussianModel
 from abcgs.gaussians.ply import read_ply
 from abcgs.io.images import load_image, load_labels, save_image, save_labels, to_uint8
 from abcgs.layout import ColmapDir
-from abcgs.masks.content import ContentMasks, label_iou, make_content_masks, recut_outputs
+from abcgs.masks.content import ContentMasks, make_content_masks, recut_outputs
 from abcgs.masks.grabcut import segment
 from abcgs.masks.lifting import NO_VOTE, LiftResult, lift_labels, render_label_map
 from abcgs.masks.params import UNDECIDED, LiftParams, MaskParams, RefineParams
 from abcgs.masks.strokes import Stroke
 from abcgs.sfm.model import read_scene
 from abcgs.types import Scene
+from eval.labels import LabelScores, score_labels, stroke_overlay
 from eval.record import bench_parser, write_record
 
 DATA = Path(__file__).resolve().parents[1] / "data"
@@ -61,25 +62,13 @@ GOAL_IOU = {1: 0.85, 2: 0.9}
 GOAL_UNLABELLED = 0.02
 
 
-def _strokes(items: list[dict], spec: dict, cam) -> list[Stroke]:
+def view_strokes(items: list[dict], spec: dict, cam) -> list[Stroke]:
     """The strokes of ``items`` at ``cam``'s size: ``strokes.json`` holds them in the pixels of ``spec["image_size"]``
     (the undistorted views they were drawn on); another reconstruction's undistortion gives views a few pixels
     larger or smaller, and the strokes scale with them."""
     w0, h0 = spec["image_size"]
     scale = np.array([cam.width / w0, cam.height / h0])
     return [Stroke(s.label, s.points * scale, s.radius) for s in (Stroke.from_json(d) for d in items)]
-
-
-def _overlay(img: np.ndarray, labels: np.ndarray, strokes: list[Stroke] | None = None) -> np.ndarray:
-    from abcgs.masks.strokes import rasterize_strokes
-    from abcgs.viz import colorize_labels
-
-    lab = np.where(labels < 0, 0, np.where(labels == UNDECIDED, 0, labels))
-    out = 0.45 * img + 0.55 * colorize_labels(lab) / 255.0
-    out[(labels == UNDECIDED) | (labels < 0)] = 1.0  # undecided: white
-    if strokes:
-        out[rasterize_strokes(strokes, labels.shape) > 0] = 0.0
-    return out.astype(np.float32)
 
 
 def reference_map(path: Path, cam) -> np.ndarray:
@@ -116,10 +105,10 @@ def make_reference(scene, spec: dict, out: Path, check: Path | None, only: list[
             raise SystemExit(f"reference view {stem} is not in this reconstruction; make the reference on one that has it")
         i = by_stem[stem]
         img = load_image(scene.image_paths[i])
-        strokes = _strokes(items, spec, scene.cameras[i])
+        strokes = view_strokes(items, spec, scene.cameras[i])
         seg = segment(to_uint8(img), strokes, fill=True)
         save_labels(out / f"{stem}.png", seg.saved_map())
-        rows.append([img, _overlay(img, seg.saved_map(), strokes), _overlay(img, seg.saved_map())])
+        rows.append([img, stroke_overlay(img, seg.saved_map(), strokes), stroke_overlay(img, seg.saved_map())])
         print(stem, {int(k): int(v) for k, v in zip(*np.unique(seg.saved_map(), return_counts=True))})
     if check is not None:
         save_image(check, image_grid(rows, ["view", "reference (strokes black, undecided white)", "reference"],
@@ -138,30 +127,24 @@ def geometry_bound(model, cams, by_stem: dict, refs: dict, scored: list[str], n_
     from abcgs.masks.lifting import render_label_weights
 
     lifted = lift_labels(model, [cams[by_stem[s]] for s in refs], list(refs.values()), n_labels, LiftParams())
-    per_view = {}
+    maps = {}
     for s in scored:
         if photos is None:
-            lab = render_label_map(model, lifted.labels, n_labels, cams[by_stem[s]])
+            maps[s] = render_label_map(model, lifted.labels, n_labels, cams[by_stem[s]])
         else:
             img, alpha = render_label_weights(model, lifted.labels, n_labels, cams[by_stem[s]])
-            lab = refine_to_photo(img.numpy(), alpha.numpy(), photos[s], *edge)
-        per_view[s] = {str(k): v for k, v in label_iou(lab, refs[s], n_labels).items()}
-    pairs = [v for d in per_view.values() for v in d.values()]
-    return {"per_view": per_view, "mean_iou": float(np.mean(pairs)),
-            "worst_iou": {str(k): min(v.get(str(k), 1.0) for v in per_view.values()) for k in range(1, n_labels + 1)}}
+            maps[s] = refine_to_photo(img.numpy(), alpha.numpy(), photos[s], *edge)
+    scores = score_labels(maps, {s: refs[s] for s in scored}, n_labels)
+    return {"per_view": scores.iou, "mean_iou": scores.mean_iou, "worst_iou": scores.worst_per_label(absent=1.0)}
 
 
-def score(view_labels: dict[str, np.ndarray], refs: dict[str, np.ndarray], n_labels: int, goal_iou: float) -> dict:
-    """Per scored view: IoU per label against its reference and the share of its pixels at 0; the worst of each over
-    the views, and whether the goal is met. A label absent from a view's reference and its labels is not scored
-    there."""
-    per_view = {}
-    for s, lab in view_labels.items():
-        per_view[s] = {"iou": {str(k): v for k, v in label_iou(lab, refs[s], n_labels).items()},
-                       "unlabelled": float((lab == 0).mean())}
-    worst = {str(k): min((v["iou"][str(k)] for v in per_view.values() if str(k) in v["iou"]), default=float("nan"))
-             for k in range(1, n_labels + 1)}
-    worst_unl = max(v["unlabelled"] for v in per_view.values())
+def case_record(scores: LabelScores, goal_iou: float) -> dict:
+    """A case's record of its scored views' :func:`eval.labels.score_labels`: per view its IoU per label against its
+    reference and the share of its pixels at 0; the worst of each over the views (nan for a label no view scores), and
+    whether the goal is met."""
+    per_view = {s: {"iou": scores.iou[s], "unlabelled": scores.unlabelled[s]} for s in scores.iou}
+    worst = scores.worst_per_label(absent=float("nan"))
+    worst_unl = max(scores.unlabelled.values())
     return {"per_view": per_view, "worst_iou": worst, "worst_unlabelled": worst_unl,
             "goal_met": all(not v < goal_iou for v in worst.values()) and worst_unl <= GOAL_UNLABELLED}
 
@@ -224,7 +207,7 @@ def run_case(bench: Bench, views: list[dict], params: MaskParams, output: str, p
     with tempfile.TemporaryDirectory(prefix=prefix) as d:
         for v in views:
             i = by_stem[v["view"]]
-            strokes = _strokes(v["strokes"], bench.spec, cams[i])
+            strokes = view_strokes(v["strokes"], bench.spec, cams[i])
             cut = segment(to_uint8(load_image(bench.scene.image_paths[i])), strokes, fill=True)  # the page: colour only
             cuts[v["view"]] = (strokes, cut)
             save_labels(Path(d) / f"{v['view']}.png", cut.labels if zero else cut.saved_map())
@@ -232,7 +215,9 @@ def run_case(bench: Bench, views: list[dict], params: MaskParams, output: str, p
         res = make_content_masks(bench.model, cams, Path(d), params, bench.scene.image_paths, show_progress=False)
         seconds = time.perf_counter() - t
     scored = [s for s in bench.refs if s not in cuts]
-    r = score({s: res.view_labels[by_stem[s]] for s in scored}, bench.refs, n_labels, GOAL_IOU[len(views)])
+    refs = {s: bench.refs[s] for s in scored}
+    r = case_record(score_labels({s: res.view_labels[by_stem[s]] for s in scored}, refs, n_labels),
+                    GOAL_IOU[len(views)])
     if output == "recut":
         # masks.refine.output: recut, on the scored views only: each view's cut depends on the final labels and
         # its own photo alone, so these are the maps the stage writes for them with that option
@@ -241,8 +226,8 @@ def run_case(bench: Bench, views: list[dict], params: MaskParams, output: str, p
         res.view_labels = recut_outputs(bench.model, cams, bench.scene.image_paths, lifted, n_labels, res.view_labels,
                                         skip={by_stem[v] for v in cuts}, params=params,
                                         only={by_stem[s] for s in scored})
-        r = {"render": r} | score({s: res.view_labels[by_stem[s]] for s in scored}, bench.refs, n_labels,
-                                  GOAL_IOU[len(views)])
+        r = {"render": r} | case_record(score_labels({s: res.view_labels[by_stem[s]] for s in scored}, refs, n_labels),
+                                        GOAL_IOU[len(views)])
         r["recut_seconds_per_view"] = (time.perf_counter() - t) / max(len(scored), 1)
     r.update({"stroked_views": list(cuts), "goal_iou": GOAL_IOU[len(views)],
               "strokes_per_label": {v: {str(k): sum(s.label == k for s in st) for k in range(1, n_labels + 1)}
@@ -256,7 +241,7 @@ def run_case(bench: Bench, views: list[dict], params: MaskParams, output: str, p
 
 
 def _print_iou_table(head: str, r: dict, n_labels: int) -> None:
-    """Per scored view of a :func:`score` record its IoU per label and unlabelled share, then the worst of each."""
+    """Per scored view of a :func:`case_record` its IoU per label and unlabelled share, then the worst of each."""
     print(head + f" {'unlabelled':>10}")
     for s, v in r["per_view"].items():
         print(f"{s:>16} " + " ".join(f"{v['iou'].get(str(k), float('nan')):10.3f}" for k in range(1, n_labels + 1))
@@ -369,10 +354,11 @@ def _figure(path: Path, scene, by_stem: dict, refs: dict, extra: dict) -> None:
     for res, cuts in extra.values():
         top = []
         for v, (strokes, cut) in cuts.items():
-            top += [_overlay(photo(v), cut.saved_map(), strokes), _overlay(photo(v), res.view_labels[by_stem[v]])]
+            top += [stroke_overlay(photo(v), cut.saved_map(), strokes),
+                    stroke_overlay(photo(v), res.view_labels[by_stem[v]])]
         rows.append(top + [np.ones_like(top[0])] * (n_cols - len(top)))
-        rows.append([_overlay(photo(s), res.view_labels[by_stem[s]]) for s in refs])
-    rows.append([_overlay(photo(s), r) for s, r in refs.items()])
+        rows.append([stroke_overlay(photo(s), res.view_labels[by_stem[s]]) for s in refs])
+    rows.append([stroke_overlay(photo(s), r) for s, r in refs.items()])
     save_image(path, image_grid(rows, list(refs), height=150))
 
 

@@ -29,27 +29,13 @@ setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 from abcgs.errors import InputError
 from abcgs.gaussians.ply import read_ply
 from abcgs.io.images import load_image, save_image
-from abcgs.masks.content import find_given_masks_with_palette, grabcut_view, heldout_scores
+from abcgs.masks.content import find_given_masks_with_palette, grabcut_view
 from abcgs.masks.lifting import lift_labels, propagate_unseen, render_label_map
 from abcgs.masks.params import GrabCutParams, LiftParams
 from abcgs.sfm.model import read_scene
 from abcgs.viz import colorize_labels, image_grid
+from eval.labels import overlay, score_labels
 from eval.record import bench_parser, write_record
-
-
-def overlay(img: np.ndarray, labels: np.ndarray) -> np.ndarray:
-    """Half the view, half the label colours (unassigned pixels keep the view)."""
-    col = colorize_labels(labels).astype(np.float32) / 255.0
-    out = img.astype(np.float32).copy()
-    on = labels > 0
-    out[on] = 0.45 * out[on] + 0.55 * col[on]
-    return out
-
-
-def iou_summary(per_label: dict[int, list[float]]) -> dict[str, dict]:
-    """Per label (by its number as text), the mean and the worst of its IoUs over the scored views and their count."""
-    return {str(k): {"mean": float(np.mean(v)), "min": float(np.min(v)), "n_views": len(v)}
-            for k, v in sorted(per_label.items())}
 
 
 def write_grabcut_masks(model, cams: list, stems: list[str], box: tuple[float, float, float, float], out: Path) -> None:
@@ -117,12 +103,12 @@ def main(argv: list[str] | None = None) -> dict:
     if not args.no_propagate:  # Gaussians no lifted view sees take their 3-D neighbours' label (LiftParams.propagate)
         lifted, _ = propagate_unseen(model, lifted, lp)
     views = {i: render_label_map(model, lifted.labels, n_labels, cams[i]) for i in range(len(cams))}
-    per_label, agree = heldout_scores(views, {i: given[i] for i in held}, n_labels)
+    scores = score_labels(views, {i: given[i] for i in held}, n_labels)
     result = {
         "lifted_from": [cams[i].name for i in lift_idx], "heldout_views": [cams[i].name for i in held],
         "n_labels": n_labels, "palette": {str(k): list(v) for k, v in palette.items()},
-        "iou_per_label": iou_summary(per_label),
-        "pixel_agreement": float(np.mean(agree)) if agree else None,
+        "iou_per_label": scores.per_label_summary(),
+        "pixel_agreement": scores.mean_agreement(empty_views="skip"),
         "gaussians_per_label": {str(k): int(v) for k, v in lifted.counts().items()},
         "masks": str(args.masks), "grabcut_box": args.grabcut_box, "propagated": not args.no_propagate,
         "seconds": time.perf_counter() - t0,
@@ -130,7 +116,7 @@ def main(argv: list[str] | None = None) -> dict:
     print(f"lifted {len(lift_idx)} view(s) onto {model.num_gaussians:,} Gaussians; scored on {len(held)} held-out view(s)")
     for k, v in result["iou_per_label"].items():
         print(f"  label {k}: IoU mean {v['mean']:.3f}, worst {v['min']:.3f} over {v['n_views']} views")
-    if agree:
+    if result["pixel_agreement"] is not None:
         print(f"  pixel agreement {result['pixel_agreement']:.3f}; {result['seconds']:.1f} s")
     if args.figure:
         _figure(args.figure, scene, given, views, lift_idx,
