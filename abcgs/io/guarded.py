@@ -24,6 +24,7 @@ import math
 import os
 import re
 import stat
+import tokenize
 from pathlib import Path
 from typing import Any
 
@@ -286,7 +287,7 @@ def load_npy(path: str | os.PathLike, what: str, *, kinds: str, ndim: int, max_i
                 shape, fortran, dtype = read_header(fh, max_header_size=MAX_NPY_HEADER)
             except InputError:
                 raise
-            except (ValueError, SyntaxError, TypeError, OverflowError, EOFError) as exc:
+            except (ValueError, SyntaxError, TypeError, OverflowError, EOFError, tokenize.TokenError) as exc:
                 raise refuse(f"is not a .npy array file ({' '.join(str(exc).split())[:160]})") from None
             if dtype.hasobject:
                 raise refuse("holds Python objects, which numpy stores as a pickle; abcgs never loads a pickle")

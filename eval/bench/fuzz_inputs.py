@@ -1,5 +1,6 @@
 """The fuzzing targets of the files just outside the scene readers (:mod:`eval.bench.fuzz`): images by their header,
-gsplat checkpoints, INRIA ``cameras.json``, splatfacto ``dataparser_transforms.json``, ``params.yaml``, and special
+gsplat checkpoints, INRIA ``cameras.json``, splatfacto ``dataparser_transforms.json``, ``params.yaml``, a stylized
+scene's ``fitted_rows.npy``, and special
 files (a FIFO, ``/dev/zero``, a symlink loop, a folder) named as a scene's files. Each maker writes a small valid
 input under ``folder`` and returns ``(files, read)``: the files a mutation may change and the reader that reads
 them as the pipeline does; the mutations of their own kind are here too (:data:`OWN_MUTATIONS`)."""
@@ -134,6 +135,19 @@ def make_params(folder: Path) -> tuple[list[Path], Callable[[], object]]:
             lines = str(exc).splitlines()
             raise ParamsError(" ".join(line.strip() for line in lines[:2])) from None
     return [p], read
+
+
+def make_fitted_rows(folder: Path, n: int = 200, n_fitted: int = 150) -> tuple[list[Path], Callable[[], object]]:
+    """A stylized scene's ``fitted_rows.npy`` (:data:`abcgs.gaussians.FITTED_ROW`): ``n`` Gaussians, each on a row of
+    a fitted scene of ``n_fitted`` (a densified re-fit's clones repeat rows), read as stylize and the viewer read it
+    (:func:`abcgs.gaussians.read_fitted_rows`)."""
+    from abcgs.gaussians import read_fitted_rows
+
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / "fitted_rows.npy"
+    rows = np.concatenate([np.arange(n_fitted), np.random.default_rng(0).integers(0, n_fitted, n - n_fitted)])
+    np.save(path, rows.astype(np.int64), allow_pickle=False)
+    return [path], lambda: read_fitted_rows(path, n, n_fitted)
 
 
 def make_special(folder: Path, cameras, transforms: Callable[[Path, list], Path],
