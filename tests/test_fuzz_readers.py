@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from eval.bench.fuzz import FORMATS, SLOW_S, fuzz_target, gzip_bomb, make_targets
+from eval.bench.fuzz import FORMATS, SLOW_S, fuzz_target, make_targets
+from eval.bench.fuzz_mutations import gzip_bomb
 
 INPUTS = 150
 

@@ -26,7 +26,8 @@ from abcgs.sfm.model import layout_scene, read_scene, write_scene
 from abcgs.sources.read import read_source
 from abcgs.splats.formats.spz import decode_spz, encode_spz
 from abcgs.splats.registry import read_splat
-from eval.bench.fuzz import gzip_bomb, make_targets, sample_model
+from eval.bench.fuzz import make_targets, sample_model
+from eval.bench.fuzz_mutations import gzip_bomb
 
 
 @pytest.fixture
