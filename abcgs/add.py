@@ -29,7 +29,7 @@ from abcgs.entry_checks import check_names, name_problem, pipeline_names
 from abcgs.errors import InputError, ParamsError
 from abcgs.fit.params import FitParams
 from abcgs.io.atomic import write_text
-from abcgs.io.guarded import checked_path
+from abcgs.io.guarded import checked_path, regular_file
 from abcgs.io.images import load_labels
 from abcgs.params import load_params, validate_params
 from abcgs.preflight import check_image, check_label_map_sizes, check_painting, check_scene_images, view_sizes
@@ -174,6 +174,11 @@ def scene_entry(name: str, path: str | os.PathLike, *, fmt: str = "auto", images
     ``splat_nonfinite`` and ``views`` (a :class:`~abcgs.splats.params.SplatViewsParams` mapping) are the entry's
     settings of the same names, written when they are not the defaults and used by the checks here."""
     folder = checked_path(path, "scene folder")
+    if folder.exists() and not folder.is_dir():
+        try:
+            regular_file(folder, "scene")  # a FIFO, a socket or a device is named as such, not "does not exist"
+        except InputError as exc:
+            raise InputError(f"{str(exc).split('; ')[0]}; give the scene's folder, or its splat file") from None
     resolved = resolve_format(folder, fmt, images)
     options: dict[str, Any] = {"format": resolved}
     if images:

@@ -572,3 +572,32 @@ def test_the_viewer_reports_why_it_leaves_the_labels_layer_out(tmp_path: Path, k
                            notes=notes)
     html_text = viewer_fragment([exp])
     assert '<p class="abcgs-viewer-note">e: the labels layer is left out: fitted rows' in html_text
+
+
+# ------------------------------------------------------------------------------------------ special files named as inputs
+
+
+def test_a_socket_or_a_fifo_given_to_add_scene_or_as_a_painting_is_named_as_such(tmp_path: Path) -> None:
+    """``add-scene`` on a socket or a FIFO, and the masks page's ``--painting`` on a FIFO, say what the path is (in
+    one line, without opening it: opening a FIFO would wait for a writer), not that it does not exist."""
+    import shutil
+
+    from abcgs.add import add_scene
+    from abcgs.masks.page.session import PaintSession
+
+    sock_path = tmp_path / "scene.sock"
+    with socket.socket(socket.AF_UNIX) as sock:
+        sock.bind(str(sock_path))
+        fifo = tmp_path / "fifo.png"
+        os.mkfifo(fifo)
+        params = tmp_path / "params.yaml"
+        shutil.copy(REPO_ROOT / "params.yaml", params)
+        for path, kind in ((sock_path, "a socket"), (fifo, "a FIFO (named pipe)")):
+            with pytest.raises(InputError) as exc:
+                add_scene(params, "s1", path, dry_run=True)
+            assert str(exc.value) == (f"scene {path} is {kind}, not a regular file; give the scene's folder, or its "
+                                      "splat file")
+        with pytest.raises(InputError, match=r"^painting .*fifo.png is a FIFO \(named pipe\), not a regular file"):
+            PaintSession.for_painting(fifo)
+        with pytest.raises(InputError, match=r"^painting .*none.png does not exist$"):
+            PaintSession.for_painting(tmp_path / "none.png")

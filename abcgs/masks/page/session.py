@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from abcgs.errors import InputError
+from abcgs.io.guarded import regular_file
 from abcgs.io.images import load_image, save_labels, save_stroke_map, stroke_map_path, to_uint8
 from abcgs.masks.grabcut import segment
 from abcgs.masks.params import FieldParams, LiftParams
@@ -119,8 +120,7 @@ class PaintSession:
     def for_painting(cls, painting: str | Path, labels_out: str | Path | None = None, **kw) -> PaintSession:
         """One painting; Save writes its region label map to ``labels_out`` (default ``<stem>_labels.png`` beside it)."""
         painting = Path(painting)
-        if not painting.is_file():
-            raise InputError(f"painting {painting} does not exist")
+        regular_file(painting, "painting")  # missing, a FIFO, a socket or a folder: named, never opened
         out = Path(labels_out) if labels_out else painting.with_name(f"{painting.stem}_labels.png")
         if out.suffix.lower() != ".png":
             raise InputError(f"--labels-out {out} must be a .png (label numbers need a lossless file)")
