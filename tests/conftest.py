@@ -4,6 +4,7 @@
   images/, masks/, cameras.json, styles/).
 - ``tiny_colmap``: the ``reconstruct`` output for ``tiny_scene`` (sparse/, images/, masks/, metrics.json),
   computed once per session (a few seconds of COLMAP).
+- ``proxy``: the LPIPS-style proxy distance over a seeded random VGG-16 (no weights file), for evaluation tests.
 - ``SHARED_DATA``: ``../shared/data`` next to the repository; tests that need it are marked
   ``@pytest.mark.shared_data`` (marker registered in pyproject.toml) and skip where it is absent.
 """
@@ -77,3 +78,11 @@ def tiny_colmap(tiny_scene: Path, tmp_path_factory: pytest.TempPathFactory) -> P
     reconstruct_photos(tiny_scene, out, ReconstructParams())
     return out
 
+
+@pytest.fixture(scope="session")
+def proxy():
+    """A perceptual distance of the ``proxy`` kind over seeded random VGG-16 weights (evaluation tests)."""
+    from abcgs.evaluation.content import PerceptualDistance
+    from abcgs.features.vgg import random_state_dict
+
+    return PerceptualDistance("proxy", vgg_state=random_state_dict(0, "relu5_3"), vgg_info={"source": "random (test)"})

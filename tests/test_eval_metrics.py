@@ -25,7 +25,6 @@ from abcgs.evaluation.consistency import (
     view_pairs,
 )
 from abcgs.evaluation.content import (
-    PerceptualDistance,
     masked_rmse,
     ssim_map_wang,
     ssim_wang,
@@ -55,13 +54,6 @@ def texture(h: int, w: int, seed: int = 0, sigma: float = 2.0) -> np.ndarray:
     img = scipy.ndimage.gaussian_filter(rng.random((h, w, 3)), sigma=(sigma, sigma, 0))
     img = (img - img.min()) / (img.max() - img.min())
     return img.astype(np.float32)
-
-
-@pytest.fixture(scope="module")
-def proxy() -> PerceptualDistance:
-    from abcgs.features.vgg import random_state_dict
-
-    return PerceptualDistance("proxy", vgg_state=random_state_dict(0, "relu5_3"), vgg_info={"source": "random (test)"})
 
 
 # ------------------------------------------------------------------------------------------------ SSIM / RMSE

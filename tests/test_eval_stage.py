@@ -15,7 +15,6 @@ import torch
 
 from abcgs.cameras import Camera, intrinsics, look_at
 from abcgs.errors import InputError
-from abcgs.evaluation.content import PerceptualDistance
 from abcgs.evaluation.evaluate import evaluate_images, evaluate_scene
 from abcgs.evaluation.params import EvalParams
 from abcgs.gaussians import GaussianModel
@@ -32,25 +31,24 @@ def _one_torch_thread():
         yield
 
 
-@pytest.fixture(scope="module")
-def proxy() -> PerceptualDistance:
-    from abcgs.features.vgg import random_state_dict
-
-    return PerceptualDistance("proxy", vgg_state=random_state_dict(0, "relu5_3"), vgg_info={"source": "random (test)"})
-
-
-@pytest.fixture(scope="module")
-def scene():
+def eval_scene(n_views: int = 5):
+    """A small random scene for the evaluation: ``n_views`` cameras round it, the scene, a recoloured copy (the
+    "stylized" one) and a random style image."""
     rng = np.random.default_rng(0)
-    pts = np.concatenate([rng.uniform([-1.5, -1, 0.0], [1.5, 1, 0.6], (600, 3))])
+    pts = rng.uniform([-1.5, -1, 0.0], [1.5, 1, 0.6], (600, 3))
     model = GaussianModel.from_points(pts, rng.random((600, 3)), init_opacity=0.9)
     w, h = 64, 48
     cams = [Camera(f"v{k:02d}.png", intrinsics(60.0, w, h), look_at(np.array([-0.3 + 0.1 * k, 0, -3.0]), np.array([0, 0, 0.3])), w, h)
-            for k in range(5)]
+            for k in range(n_views)]
     styl = model.detach()
     styl.sh0 = rgb_to_sh0(torch.from_numpy(rng.random((600, 3))).float())[:, None, :]
     style = rng.random((80, 120, 3)).astype(np.float32)
     return cams, model, styl, style
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return eval_scene()
 
 
 def walk_keys(obj, prefix=""):

@@ -13,12 +13,11 @@ import json
 import numpy as np
 import pytest
 import scipy.ndimage
-import torch
+from test_eval_stage import eval_scene
 
-from abcgs.cameras import Camera, intrinsics, look_at
 from abcgs.errors import InputError
 from abcgs.evaluation.consistency import backward_warp, fb_consistency_mask, make_flow_estimator
-from abcgs.evaluation.content import PerceptualDistance, masked_rmse, nan_mean, pair_batches, ssim_wang
+from abcgs.evaluation.content import masked_rmse, nan_mean, pair_batches, ssim_wang
 from abcgs.evaluation.evaluate import evaluate_scene, write_evaluation
 from abcgs.evaluation.params import EvalParams
 from abcgs.evaluation.reference import (
@@ -29,32 +28,14 @@ from abcgs.evaluation.reference import (
     render_views,
     save_reference,
 )
-from abcgs.gaussians import GaussianModel
-from abcgs.render.sh import rgb_to_sh0
 
 TOL = 1e-6
 PARAMS = EvalParams(fid=False, fps_passes=1, long_term_gap=3, workers=2, perceptual="proxy")
 
 
 @pytest.fixture(scope="module")
-def proxy() -> PerceptualDistance:
-    from abcgs.features.vgg import random_state_dict
-
-    return PerceptualDistance("proxy", vgg_state=random_state_dict(0, "relu5_3"), vgg_info={"source": "random (test)"})
-
-
-@pytest.fixture(scope="module")
 def scene():
-    rng = np.random.default_rng(0)
-    pts = rng.uniform([-1.5, -1, 0.0], [1.5, 1, 0.6], (600, 3))
-    model = GaussianModel.from_points(pts, rng.random((600, 3)), init_opacity=0.9)
-    w, h = 64, 48
-    cams = [Camera(f"v{k:02d}.png", intrinsics(60.0, w, h), look_at(np.array([-0.3 + 0.1 * k, 0, -3.0]),
-                                                                       np.array([0, 0, 0.3])), w, h) for k in range(6)]
-    styl = model.detach()
-    styl.sh0 = rgb_to_sh0(torch.from_numpy(rng.random((600, 3))).float())[:, None, :]
-    style = rng.random((80, 120, 3)).astype(np.float32)
-    return cams, model, styl, style
+    return eval_scene(n_views=6)
 
 
 def texture(h: int, w: int, seed: int) -> np.ndarray:
