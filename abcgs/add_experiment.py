@@ -6,6 +6,7 @@ loss method on it, checked as the preflight checks them, with the command that r
     python -m abcgs add-experiment garden_comp --scene garden --styles 1=starry 2=kandinsky         # compositional
     python -m abcgs add-experiment garden_sem --scene garden --style starry --binding 1=3 2=2 3=1  # semantic
     python -m abcgs add-experiment garden_sem --scene garden --style starry --binding auto
+    python -m abcgs add-experiment garden_comp --scene garden --styles 1=starry 2=kandinsky --content-weight 2=0.005
 
 Names: ``colormatches.<NAME>`` and ``experiments.<NAME>`` for the first ``--method``, ``<NAME>_<method>`` for each
 further one (they share the colour match); with several single-transfer paintings, ``<NAME>_<painting>`` in place of
@@ -18,6 +19,7 @@ pipeline's own outputs or stages).
 
 from __future__ import annotations
 
+import math
 import os
 import re
 from dataclasses import dataclass
@@ -29,6 +31,7 @@ import yaml
 from abcgs.add import check_new_name, edit_params
 from abcgs.entry_checks import label_number_problem
 from abcgs.errors import InputError
+from abcgs.features.params import MAX_LABEL_WEIGHT
 from abcgs.io.atomic import write_text
 from abcgs.io.images import MAX_LABEL
 from abcgs.params import load_params, validate_params
@@ -104,10 +107,31 @@ def parse_binding(words: list[str] | None) -> dict[int, int] | str | None:
             for label, region in parse_pairs(words, "--binding").items()}
 
 
+def parse_weights(words: list[str] | None, what: str) -> dict[int, float]:
+    """``--content-weight`` / ``--structure-weight``: LABEL=λ pairs (:func:`parse_pairs`), each λ a number in
+    [0, :data:`~abcgs.features.params.MAX_LABEL_WEIGHT`] (the schema's bound)."""
+    out: dict[int, float] = {}
+    for label, text in parse_pairs(words or [], what).items():
+        try:
+            value = float(text)
+        except ValueError:
+            value = float("nan")
+        if not math.isfinite(value) or value < 0:
+            raise InputError(f"{what} {label}={text}: the weight is not a number >= 0; write e.g. {label}=0.005")
+        if value > MAX_LABEL_WEIGHT:
+            raise InputError(f"{what} {label}={text}: the weight is outside [0, {MAX_LABEL_WEIGHT:g}]: a λ of Eq. 8 "
+                             "(paper: 0.005 to 2); over 10 000 one term drowns the others")
+        out[label] = value
+    return out
+
+
 def plan_experiments(name: str, scene: str, *, style: list[str] | None = None, styles: dict[int, str] | None = None,
-                     binding: dict[int, int] | str | None = None, methods: list[str] | None = None) -> ExperimentPlan:
+                     binding: dict[int, int] | str | None = None, methods: list[str] | None = None,
+                     content_weights: dict[int, float] | None = None,
+                     structure_weights: dict[int, float] | None = None) -> ExperimentPlan:
     """The entries for one transfer: ``styles`` (label → painting) is compositional, ``style`` with a ``binding``
-    semantic (one painting), ``style`` alone single (one colour match per painting)."""
+    semantic (one painting), ``style`` alone single (one colour match per painting); each experiment takes
+    ``content_weights`` / ``structure_weights`` (content label → its own λ) where given."""
     methods = list(dict.fromkeys(methods or ["fast"]))
     for m in methods:
         if m not in METHODS:
@@ -126,8 +150,10 @@ def plan_experiments(name: str, scene: str, *, style: list[str] | None = None, s
     else:
         names = [name] if len(style) == 1 else [f"{name}_{s}" for s in style]
         matches = {n: {"scene": scene, "transfer": "single", "style": s} for n, s in zip(names, style)}
+    own = {k: dict(v) for k, v in (("content_weights", content_weights), ("structure_weights", structure_weights))
+           if v}
     experiments = {(m_name if i == 0 else f"{m_name}_{method}"): {"scene": scene, "colormatch": m_name,
-                                                                  "method": method}
+                                                                  "method": method, **own}
                    for m_name in matches for i, method in enumerate(methods)}
     return ExperimentPlan(matches, experiments)
 

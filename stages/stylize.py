@@ -21,9 +21,10 @@ from abcgs.masks.outputs import load_scene_masks
 from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.runtime import resolve_device, torch_threads
 from abcgs.sfm.model import read_scene
-from abcgs.stylize.experiment import load_groups, load_vgg, read_colormatch
+from abcgs.stylize.experiment import check_label_weights, load_groups, load_vgg, read_colormatch
 from abcgs.stylize.loop import stylize_scene
 from abcgs.stylize.outputs import grid_indices, write_history, write_stylized_scene
+from abcgs.stylize.targets import LabelWeights
 
 _S, _E = layout.scene("{item.scene}"), layout.experiment("{key}")
 SPEC = StageSpec("stylize", foreach="experiments", params=(
@@ -53,6 +54,7 @@ def main(args, params) -> None:
     matched = read_colormatch(args.colormatch, exp.colormatch, original.num_gaussians)
     masks = load_scene_masks(args.masks, scene, original.num_gaussians, device=device)
     masks = masks.at_rows(fitted_rows(matched))  # the fitted Gaussians' labels on the re-fitted ones
+    check_label_weights(args.experiment, exp, masks.gaussian_labels, args.masks)
     original, matched = original.to(device), matched.to(device)
     vgg, info = load_vgg(params.vgg, sp.layers, device)
     styles = layout.StylesDir(args.styles)
@@ -61,7 +63,8 @@ def main(args, params) -> None:
     grid_indices(scene.cameras, sp.grid_views)  # a grid_views list that names none of the views fails before work
     with torch_threads(sp.compute.threads):
         res = stylize_scene(matched, original, scene.cameras, masks, groups, vgg, sp, method=exp.method,
-                            background=background)
+                            background=background,
+                            label_weights=LabelWeights(exp.content_weights, exp.structure_weights))
         written = write_stylized_scene(
             args.out, res.model, original, scene.cameras, masks.view_labels, groups, backend=sp.compute.backend,
             path_kind=params.viewer.camera_path, path_frames=params.viewer.path_frames, background=background,

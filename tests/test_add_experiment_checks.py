@@ -153,6 +153,14 @@ CLI_CASES = {
                                          "experiments.Tiny_Single and experiments.tiny_single differ only in case"),
     "a name made too long by --method": (["e" * 98, "--scene", "a", "--style", "p", "--method", "fast", "nnfm"],
                                          "the name has 103 characters, more than the 100 abcgs takes"),
+    "a weight that is not a number": (["w", "--scene", "s", "--styles", "1=p", "--content-weight", "1=lots"],
+                                      "--content-weight 1=lots: the weight is not a number >= 0"),
+    "a negative weight": (["w", "--scene", "s", "--styles", "1=p", "--structure-weight", "1=-2"],
+                          "--structure-weight 1=-2: the weight is not a number >= 0"),
+    "a weight on label 0": (["w", "--scene", "s", "--styles", "1=p", "--content-weight", "0=1"],
+                            "--content-weight 0=1"),
+    "a weight past the bound": (["w", "--scene", "s", "--styles", "1=p", "--content-weight", "1=1e9"],
+                                "--content-weight 1=1e9: the weight is outside [0, 10000]"),
 }
 
 
@@ -174,9 +182,15 @@ def test_what_the_checks_take_still_passes_add_experiment_and_preflight(repo: Pa
     for words in (["comp", "--scene", "s", "--styles", "1=p", "02=p"],
                   ["sem", "--scene", "s", "--style", "p", "--binding", "1=2", "2=1"],
                   ["x" * 100, "--scene", "a", "--style", "p"],
-                  ["fit_a", "--scene", "a", "--style", "p", "--method", "fast", "nnfm"]):
+                  ["fit_a", "--scene", "a", "--style", "p", "--method", "fast", "nnfm"],
+                  ["kept", "--scene", "s", "--styles", "1=p", "2=p", "--content-weight", "2=0.005",
+                   "--structure-weight", "2=1", "1=0", "--method", "fast", "nnfm"]):
         assert abcgs_main(_add(repo, *words)) == 0, capsys.readouterr()
     written = yaml.safe_load(Path(params).read_text())
+    for name in ("kept", "kept_nnfm"):  # every experiment of the colour match takes the label weights
+        assert written["experiments"][name]["content_weights"] == {2: 0.005}
+        assert written["experiments"][name]["structure_weights"] == {2: 1.0, 1: 0.0}
+    assert "content_weights" not in written["experiments"]["fit_a"]
     assert written["colormatches"]["comp"]["styles"] == {1: "p", 2: "p"}
     assert written["colormatches"]["sem"]["binding"] == {1: 2, 2: 1}
     assert {"x" * 100, "fit_a", "fit_a_nnfm"} <= set(written["experiments"])

@@ -31,13 +31,15 @@ def _cameras(n: int = 4) -> list[Camera]:
             for i in range(n)]
 
 
-def _two_blob_scene(seed: int = 0) -> tuple[GaussianModel, torch.Tensor]:
-    """Two clusters of small opaque Gaussians, left (label 1) and right (label 2), 4 units in front."""
+def _two_blob_scene(seed: int = 0, separation: float = 0.8, spread: float = 0.35) -> tuple[GaussianModel, torch.Tensor]:
+    """Two clusters of small opaque Gaussians, left (label 1) and right (label 2), 4 units in front, their centres
+    ``separation`` either side of the axis, ``spread`` the standard deviation across it."""
     g = torch.Generator().manual_seed(seed)
     n = 300
     labels = torch.cat([torch.ones(n // 2), 2 * torch.ones(n // 2)]).long()
-    centre = torch.where(labels[:, None] == 1, torch.tensor([-0.8, 0.0, 4.0]), torch.tensor([0.8, 0.0, 4.0]))
-    means = centre + 0.35 * torch.randn(n, 3, generator=g) * torch.tensor([1.0, 1.0, 0.3])
+    centre = torch.where(labels[:, None] == 1, torch.tensor([-separation, 0.0, 4.0]),
+                         torch.tensor([separation, 0.0, 4.0]))
+    means = centre + spread * torch.randn(n, 3, generator=g) * torch.tensor([1.0, 1.0, 0.3])
     rgb = torch.where(labels[:, None] == 1, torch.tensor([0.9, 0.2, 0.2]), torch.tensor([0.2, 0.3, 0.9]))
     model = GaussianModel(
         means=means, quats=torch.randn(n, 4, generator=g), log_scales=torch.full((n, 3), np.log(0.08)),

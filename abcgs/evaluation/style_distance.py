@@ -25,6 +25,7 @@ import torch
 from abcgs.errors import InputError
 from abcgs.evaluation.content import nan_mean
 from abcgs.evaluation.parallel import ordered_map
+from abcgs.features.isolation import downsample_mask
 from abcgs.features.matching import resize_to_height
 from abcgs.features.vgg import VGG16Features, downsample_half
 
@@ -81,6 +82,23 @@ class GramDistance:
         for k, f in self._vgg(x).items():
             g, n = _gram_sum(f)
             g = g / n
+            d.append(float((g - self._style[k]).norm() / self._style[k].norm()))
+        return float(np.mean(d))
+
+    @torch.no_grad()
+    def per_region(self, img: np.ndarray, mask: np.ndarray) -> float:
+        """:meth:`per_image` over the positions of ``mask`` ``(H, W)`` bool only (the render's part a painting styles,
+        at each tap's resolution: :func:`abcgs.features.isolation.downsample_mask`); nan for an empty mask."""
+        if not np.any(mask):
+            return float("nan")
+        x = _bchw(img).to(self.device)
+        if self.downsample:
+            x = downsample_half(x)
+        d = []
+        for k, f in self._vgg(x).items():
+            cells = downsample_mask(np.asarray(mask, bool), tuple(f.shape[-2:])).to(self.device)
+            cols = f[0][:, cells].double()
+            g = cols @ cols.t() / cols.shape[1]
             d.append(float((g - self._style[k]).norm() / self._style[k].norm()))
         return float(np.mean(d))
 

@@ -28,6 +28,11 @@ times of both budgets: ``docs/measurements/settings.yaml``, ``fast_max_block_ele
 ALL_PIXELS = -1
 """Content label of the single-image group: every pixel."""
 
+MAX_CONTENT_LABEL = 254
+"""The largest content label (label maps are 8-bit; 255 is kept for "no decision")."""
+MAX_LABEL_WEIGHT = 10_000.0
+"""The largest per-label λ of an experiment (``stylize.weights``' bound)."""
+
 
 def content_label_readers(colormatches: Mapping[str, TransferSpec], scene: str) -> list[str]:
     """The names of the colour matches of ``scene`` that read its content labels (not single-image), sorted: when
@@ -104,6 +109,29 @@ class ExperimentParams(BaseModel):
     colormatch: str = Field(description="a key of colormatches: the scene, transfer type and painting(s)")
     method: StyleMethod | Literal["none"] = Field(
         "fast", description="style loss (fast = ABC-GS); none: the colour-matched start itself, a baseline row")
+    content_weights: dict[int, float] = Field(
+        default_factory=dict, description="content label → λ_c on that label's pixels (stylize.weights.content "
+        "elsewhere): keep one region more recognisable than another (docs/FIDELITY.md 'Detail per label')")
+    structure_weights: dict[int, float] = Field(
+        default_factory=dict, description="content label → λ_st, the luminance-gradient term, on that label's pixels "
+        "(stylize.weights.structure elsewhere)")
+
+    @model_validator(mode="after")
+    def _check_label_weights(self) -> ExperimentParams:
+        for key in ("content_weights", "structure_weights"):
+            for label, value in getattr(self, key).items():
+                if not 1 <= label <= MAX_CONTENT_LABEL:
+                    raise ValueError(f"{key}: label {label} is outside 1..{MAX_CONTENT_LABEL} (0 is unlabelled; "
+                                     "content labels are the masks stage's)")
+                if not 0.0 <= value <= MAX_LABEL_WEIGHT:  # NaN fails too
+                    raise ValueError(f"{key}.{label} = {value} is outside [0, {MAX_LABEL_WEIGHT:g}]: a λ of Eq. 8 "
+                                     "(paper: 0.005 to 2); over 10 000 one term drowns the others")
+        return self
+
+    @property
+    def label_weighted(self) -> set[int]:
+        """The content labels this experiment gives a λ of their own."""
+        return set(self.content_weights) | set(self.structure_weights)
 
     @model_validator(mode="before")
     @classmethod

@@ -11,6 +11,13 @@ losses are summed, like FAST's.
 - :func:`content_loss` — MSE over all feature elements (ARF/ABC-GS code's convention: mean over
   channels and pixels; the paper writes a sum over channels / pixels, which is C × this).
 - :func:`tv_loss` — mean squared differences of horizontally and vertically adjacent pixels (ARF).
+- :func:`structure_loss` — mean squared difference of the luminance gradients (Sobel) of the render and the content
+  image: the fine structure (eyes, a mouth, lettering) that the content loss at relu3 sees only blurred.
+- :func:`luminance_gradients` — the Sobel gradients of Rec. 601 luminance that :func:`structure_loss` compares.
+
+The content and structure losses take an optional per-position weight map (``(h, w)`` / ``(H, W)``, the λ of each
+position: a content label's own λ, :class:`abcgs.stylize.targets.LabelWeights`); without one they are plain means,
+which the caller weights by a single λ.
 - :func:`silhouette_loss`, :func:`background_loss` — an object scene's hold on its silhouette and its empty space
   (:mod:`abcgs.silhouette`).
 """
@@ -106,11 +113,47 @@ def gram_loss(groups: Groups) -> torch.Tensor:
     return torch.stack([((gram_matrix(f_r) - gram_matrix(as_style_features(f_s).raw)) ** 2).mean() for f_r, f_s in groups]).sum()
 
 
-def content_loss(f_render: torch.Tensor, f_content: torch.Tensor) -> torch.Tensor:
-    """MSE between rendered and content (pre-stylisation render) features of any equal shape, e.g. ``(B, C, h, w)``."""
+def _weighted_mean(sq: torch.Tensor, weight: torch.Tensor | None, what: str) -> torch.Tensor:
+    """``mean(sq)``, or ``mean(weight · sq)`` with ``weight`` broadcast over the leading axes of ``sq`` (its last two
+    axes are the positions ``weight`` ``(h, w)`` weights)."""
+    if weight is None:
+        return sq.mean()
+    if weight.ndim != 2 or tuple(weight.shape) != tuple(sq.shape[-2:]):
+        raise InputError(f"{what}: weight map {tuple(weight.shape)} does not match positions {tuple(sq.shape[-2:])}")
+    return (sq * weight).mean()
+
+
+def content_loss(f_render: torch.Tensor, f_content: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
+    """MSE between rendered and content (pre-stylisation render) features of any equal shape, e.g. ``(C, h, w)``;
+    with ``weight`` ``(h, w)``, each position's squared error times its weight (the mean over every element still)."""
     if f_render.shape != f_content.shape:
         raise InputError(f"content loss: feature shapes differ {tuple(f_render.shape)} vs {tuple(f_content.shape)}")
-    return ((f_render - f_content.detach()) ** 2).mean()
+    return _weighted_mean((f_render - f_content.detach()) ** 2, weight, "content loss")
+
+
+LUMA = (0.299, 0.587, 0.114)
+"""Rec. 601 luminance weights of R, G, B."""
+
+
+def luminance_gradients(img: torch.Tensor) -> torch.Tensor:
+    """``(H, W, 3)`` RGB → ``(2, H, W)`` Sobel gradients ``(∂Y/∂x, ∂Y/∂y)`` of its Rec. 601 luminance ``Y``, each
+    divided by 4 (a unit step of ``Y`` across a pixel edge gives 1), with replicated borders."""
+    if img.ndim != 3 or img.shape[-1] != 3 or img.shape[0] < 2 or img.shape[1] < 2:
+        raise InputError(f"luminance gradients expect an (H, W, 3) image with H, W >= 2; got {tuple(img.shape)}")
+    y = (img * img.new_tensor(LUMA)).sum(-1)[None, None]
+    k = img.new_tensor([[-1.0, 0.0, 1.0], [-2.0, 0.0, 2.0], [-1.0, 0.0, 1.0]]) / 4.0
+    kernels = torch.stack([k, k.t()])[:, None]  # (2, 1, 3, 3): x then y
+    return torch.nn.functional.conv2d(torch.nn.functional.pad(y, (1, 1, 1, 1), mode="replicate"), kernels)[0]
+
+
+def structure_loss(img: torch.Tensor, content: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
+    """Mean over pixels and both axes of ``(∇Y(img) − ∇Y(content))²`` (:func:`luminance_gradients`) between a render
+    ``(H, W, 3)`` and the content image (the colour-matched render, no grad); ``weight`` ``(H, W)``: per pixel."""
+    if img.shape != content.shape:
+        raise InputError(f"structure loss: image shapes differ {tuple(img.shape)} vs {tuple(content.shape)}")
+    with torch.no_grad():
+        target = luminance_gradients(content)
+    return _weighted_mean((luminance_gradients(img) - target) ** 2, weight, "structure loss")
 
 
 def tv_loss(img: torch.Tensor) -> torch.Tensor:

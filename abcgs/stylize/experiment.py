@@ -12,7 +12,7 @@ import torch
 
 from abcgs.errors import InputError
 from abcgs.features.matching import build_groups
-from abcgs.features.params import IsolationParams, TransferSpec, VggWeightsParams
+from abcgs.features.params import ExperimentParams, IsolationParams, TransferSpec, VggWeightsParams
 from abcgs.features.vgg import VGG16Features
 from abcgs.features.weights import WeightsInfo, resolve_vgg16
 from abcgs.gaussians import FITTED_ROW, GaussianModel, read_fitted_rows
@@ -46,6 +46,17 @@ def check_bindings(name: str, spec: TransferSpec, labels: torch.Tensor, labels_f
         source = style_masks[spec.style]
         regions = {int(v) for v in np.unique(load_labels(source))} - {0}
     spec.check_labels(name, present, f"the Gaussians' labels ({labels_file})", regions, source)
+
+
+def check_label_weights(name: str, exp: ExperimentParams, labels: torch.Tensor, masks_dir: Path) -> None:
+    """The labels ``experiments.<name>`` gives a λ of their own are among the Gaussians' ``labels`` (cheap, before
+    any work): a λ on a label no Gaussian holds would change nothing, silently."""
+    present = {int(v) for v in labels.unique()} - {0}
+    unknown = sorted(exp.label_weighted - present)
+    if unknown:
+        raise InputError(f"experiments.{name}: content_weights / structure_weights name label(s) {unknown}, which the "
+                         f"Gaussians' labels ({masks_dir}) do not hold (labels present: {sorted(present)}); weight "
+                         "present labels or paint those")
 
 
 def load_groups(spec: TransferSpec, vgg: VGG16Features, labels: torch.Tensor, styles: Mapping[str, str],

@@ -1,8 +1,9 @@
 """The ABC-GS stylization stage: optimise the colour-matched Gaussians with
 
-    L = λ_FAST·L_style + λ_c·L_con + λ_tv·L_tv + λ_dep·L_dep + λ_sca·‖Δs‖ + λ_opa·‖Δα‖
+    L = λ_FAST·L_style + λ_c·L_con + λ_tv·L_tv + λ_dep·L_dep + λ_sca·‖Δs‖ + λ_opa·‖Δα‖  (+ λ_st·L_st)
 
-(paper λ = {2, 0.005, 0.02, 0.01, 1, 1}, densification off), optionally followed by the authors'
+(paper λ = {2, 0.005, 0.02, 0.01, 1, 1}, densification off; ``L_st``, this project's, keeps the content's luminance
+gradients; λ_c and λ_st may differ per content label: :class:`abcgs.stylize.targets.LabelWeights`), optionally followed by the authors'
 post-process ("colour pass"): re-render every view, colour-match the renders to the style again, and
 re-fit colours and rotations (xyz, scales, opacities frozen) to those images with the reconstruction
 loss ``0.8·L1 + 0.2·D-SSIM`` (vpx-ecnu/ABC-GS ``abcgs/phases/post_process_phase.py``). ``L_style`` is
@@ -37,7 +38,7 @@ from abcgs.stylize.passes import color_pass, style_pass
 from abcgs.stylize.records import StylizeResult, projected_search_record
 from abcgs.stylize.schedule import choose_schedule
 from abcgs.stylize.sh_bands import with_higher_sh
-from abcgs.stylize.targets import Backdrop, prepare_targets
+from abcgs.stylize.targets import Backdrop, LabelWeights, prepare_targets
 from abcgs.types import FRAME_FILLING, Background, MatchingGroup, SceneMasks, StyleMethod
 
 log = logging.getLogger(__name__)
@@ -56,6 +57,7 @@ def stylize(
     progress: bool = True,
     depth_model: GaussianModel | None = None,
     background: Background = FRAME_FILLING,
+    label_weights: LabelWeights = LabelWeights(),  # noqa: B008 (a frozen dataclass)
 ) -> StylizeResult:
     """Run the stylization passes on a (colour-matched) model.
 
@@ -70,6 +72,7 @@ def stylize(
         groups: matching groups with style features (:func:`abcgs.features.matching.build_groups`).
         background: the scene's; an object scene renders on its colour, styles its object pixels only and holds its
             silhouette and empty space (:mod:`abcgs.silhouette`).
+        label_weights: the λ_c and λ_st of the content labels (of ``label_maps``) that have their own.
     """
     if not cameras:
         raise InputError("stylize: no views")
@@ -78,7 +81,8 @@ def stylize(
     torch.manual_seed(params.seed)
     t0 = time.perf_counter()
     backdrop = Backdrop.of(background, model.device)
-    targets = prepare_targets(model, depth_model or model, cameras, label_maps, groups, vgg, params, backdrop)
+    targets = prepare_targets(model, depth_model or model, cameras, label_maps, groups, vgg, params, backdrop,
+                              label_weights)
     if backdrop.object:  # the original's object Gaussians, mapped onto the re-fitted rows
         objects = object_gaussians(depth_model or model, cameras, [t.silhouette for t in targets],
                                    params.compute.backend)
@@ -117,15 +121,18 @@ def stylize_scene(
     *,
     method: StyleMethod = "fast",
     background: Background = FRAME_FILLING,
+    label_weights: LabelWeights = LabelWeights(),  # noqa: B008 (a frozen dataclass)
 ) -> StylizeResult:
     """:func:`stylize` a colour-matched scene at ``params.resolution_scale`` of its views' size (label maps resized
-    with nearest neighbours), keeping the depth of the ``original`` scene; ``background``: the scene's."""
+    with nearest neighbours), keeping the depth of the ``original`` scene; ``background``: the scene's;
+    ``label_weights``: the experiment's λ per content label."""
     cams, labels = cameras, masks.view_labels
     if params.resolution_scale != 1.0:
         cams = [c.scaled(params.resolution_scale) for c in cameras]
         labels = [cv2.resize(v.astype(np.int32), (c.width, c.height), interpolation=cv2.INTER_NEAREST).astype(np.int64)
                   for v, c in zip(labels, cams)]
     res = stylize(with_higher_sh(matched, original, params.higher_sh), cams, labels, masks.gaussian_labels, groups,
-                  vgg, params, method=method, depth_model=original, background=background)
+                  vgg, params, method=method, depth_model=original, background=background,
+                   label_weights=label_weights)
     res.projected_search = projected_search_record(params.fast)
     return res

@@ -28,8 +28,8 @@ from abcgs.stylize.records import LoggedStep
 from abcgs.types import FRAME_FILLING, Backend, Background, MatchingGroup, PathKind
 from abcgs.viz import colorize_labels, image_grid, style_legend, write_video
 
-HISTORY_COLUMNS = ("step", "seconds", "loss", "style", "content", "tv", "depth", "scale", "opacity", "silhouette",
-                   "background")
+HISTORY_COLUMNS = ("step", "seconds", "loss", "style", "content", "structure", "tv", "depth", "scale", "opacity",
+                   "silhouette", "background")
 """Columns of ``stylize_history.csv``: per logged step the total loss and Eq. 8's terms, each weighted by its λ
 (:class:`abcgs.stylize.records.LoggedStep`); a term that is off is empty."""
 

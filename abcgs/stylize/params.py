@@ -56,6 +56,9 @@ class StyleWeights(Bounded):
         0.0005, ge=0, description="λ_c: content preservation (paper 0.005; with the Keras/Oxford VGG features here "
         "that value pins the colour-matched start, see docs/FIDELITY.md 'λ balance')")
     tv: float = Field(0.02, ge=0, description="λ_tv: total variation of the render")
+    structure: float = Field(0.0, ge=0, description="λ_st: MSE of the render's luminance gradients (Sobel) to the "
+                             "content image's, the fine structure the relu3 content term sees blurred "
+                             "(abcgs.losses.terms.structure_loss; docs/FIDELITY.md 'Detail per label')")
     depth: float = Field(0.01, ge=0, description="λ_dep: MSE to the original scene's depth")
     scale: float = Field(1.0, ge=0, description="λ_sca: mean ‖Δ scale‖ from the start (main pass, geometry optimised)")
     opacity: float = Field(1.0, ge=0, description="λ_opa: mean |Δ opacity| from the start (main pass, geometry "
@@ -66,7 +69,7 @@ class StyleWeights(Bounded):
                               "the original scene leaves empty; keeps empty space empty")
 
     BOUNDS: ClassVar[dict[str, Bound]] = {k: WEIGHT for k in (
-        "style", "content", "tv", "depth", "scale", "opacity", "silhouette", "background")}
+        "style", "content", "structure", "tv", "depth", "scale", "opacity", "silhouette", "background")}
 
 
 class StylizeOptim(Bounded):

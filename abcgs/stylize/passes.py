@@ -20,7 +20,7 @@ from abcgs.features.vgg import VGG16Features
 from abcgs.fit.losses import reconstruction_loss
 from abcgs.gaussians import GaussianModel, freeze_gaussians, render, render_each
 from abcgs.losses.drift import opacity_drift, scale_drift
-from abcgs.losses.terms import background_loss, content_loss, silhouette_loss, style_loss, tv_loss
+from abcgs.losses.terms import background_loss, content_loss, silhouette_loss, structure_loss, style_loss, tv_loss
 from abcgs.progress import progress as progress_bar
 from abcgs.stylize.color import apply_group_transforms, color_match_model
 from abcgs.stylize.params import StyleWeights, StylizeParams
@@ -94,11 +94,21 @@ def _object_terms(img: Tensor, alpha: Tensor, target: ViewTargets, w: StyleWeigh
 
 
 def _view_terms(img: Tensor, depth: Tensor | None, feats: Tensor, target: ViewTargets, w: StyleWeights) -> dict[str, Tensor]:
-    """Eq. 8's terms of one view besides the style: content (VGG features), TV (the render ``(H, W, 3)``), depth
-    (``(H, W, 1)``, when rendered), each weighted by its λ; a term whose λ is 0 is left out."""
+    """Eq. 8's terms of one view besides the style: content (VGG features), structure (the luminance gradients of the
+    render ``(H, W, 3)`` and of the content image), TV (the render), depth (``(H, W, 1)``, when rendered), each
+    weighted by its λ, or by the view's λ map of a term whose content labels have their own (:class:`~abcgs.stylize.targets.LabelWeights`);
+    a term whose λ is 0 everywhere is left out."""
     terms = {}
-    if w.content > 0:
+    if target.content_weight is not None:
+        if bool((target.content_weight > 0).any()):
+            terms["content"] = content_loss(feats, target.content_feats, target.content_weight)
+    elif w.content > 0:
         terms["content"] = w.content * content_loss(feats, target.content_feats)
+    if target.structure_weight is not None:
+        if bool((target.structure_weight > 0).any()):
+            terms["structure"] = structure_loss(img, target.content_image, target.structure_weight)
+    elif w.structure > 0:
+        terms["structure"] = w.structure * structure_loss(img, target.content_image)
     if w.tv > 0:
         terms["tv"] = w.tv * tv_loss(img.permute(2, 0, 1)[None])
     if w.depth > 0 and depth is not None:

@@ -1,5 +1,7 @@
 """The per-view targets of the style pass: each view's content features (of the colour-matched render), the
-original scene's depth, the per-group feature masks and, for an object scene, its silhouette and backdrop.
+original scene's depth, the per-group feature masks, the λ maps of the content labels that have their own (an
+experiment's ``content_weights`` / ``structure_weights``: :class:`LabelWeights`) and, for an object scene, its
+silhouette and backdrop.
 
 Shapes: renders ``(H, W, 3)``; VGG features ``(C, h, w)`` at 1/4 of the (×0.5 downsampled) render;
 per-group features ``(C, N)``.
@@ -7,10 +9,12 @@ per-group features ``(C, N)``.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from abcgs.cameras import Camera
@@ -33,6 +37,39 @@ class ViewTargets:
     group_masks: list[Tensor] = field(default_factory=list)  # per group (h, w) bool; object pixels only (object scene)
     content_image: Tensor | None = None  # (H, W, 3) the colour-matched render
     silhouette: Silhouette | None = None  # object scenes: the original scene's alpha in this view
+    content_weight: Tensor | None = None  # (h, w) λ_c per feature cell; None: stylize.weights.content everywhere
+    structure_weight: Tensor | None = None  # (H, W) λ_st per pixel; None: stylize.weights.structure everywhere
+
+
+@dataclass(frozen=True)
+class LabelWeights:
+    """The λ of the content and structure terms that content labels have of their own (``experiments.<name>``:
+    ``content_weights``, ``structure_weights``); every other pixel keeps ``stylize.weights``'. Empty: one λ each."""
+
+    content: Mapping[int, float] = field(default_factory=dict)
+    structure: Mapping[int, float] = field(default_factory=dict)
+
+    def pixel_map(self, term: str, default: float, label_map: np.ndarray) -> np.ndarray | None:
+        """``(H, W)`` float32 λ of ``term`` (``content`` or ``structure``) per pixel of one view's ``label_map``:
+        ``default`` but on the labels with their own; ``None`` when no label has one."""
+        own = getattr(self, term)
+        if not own:
+            return None
+        lam = np.full(label_map.shape, default, np.float32)
+        for label, value in own.items():
+            lam[label_map == label] = value
+        return lam
+
+    def maps(self, defaults: Mapping[str, float], label_map: np.ndarray, feature_hw: tuple[int, int],
+             device: torch.device) -> tuple[Tensor | None, Tensor | None]:
+        """One view's λ maps: content at the feature cells ``feature_hw`` (each cell the mean λ of its pixels, area
+        interpolation) and structure per pixel; ``None`` for a term no label has its own λ of."""
+        content = self.pixel_map("content", defaults["content"], label_map)
+        structure = self.pixel_map("structure", defaults["structure"], label_map)
+        if content is not None:
+            content = F.interpolate(torch.from_numpy(content)[None, None], size=feature_hw, mode="area")[0, 0]
+            content = content.to(device)
+        return content, None if structure is None else torch.from_numpy(structure).to(device)
 
 
 @dataclass(frozen=True)
@@ -76,9 +113,11 @@ def prepare_targets(
     vgg: VGG16Features,
     params: StylizeParams,
     backdrop: Backdrop = Backdrop(None),
+    label_weights: LabelWeights = LabelWeights(),  # noqa: B008 (a frozen dataclass)
 ) -> list[ViewTargets]:
-    """Content features (from the colour-matched scene), depth (from the original scene), group masks; for an object
-    scene (``backdrop``) also the original scene's silhouette, and the group masks keep its object pixels only."""
+    """Content features (from the colour-matched scene), depth (from the original scene), group masks, the λ maps of
+    ``label_weights``; for an object scene (``backdrop``) also the original scene's silhouette, and the group masks
+    keep its object pixels only."""
     targets = []
     backend = params.compute.backend
     with torch.no_grad():
@@ -100,7 +139,8 @@ def prepare_targets(
                 pixel_masks = [m & on_object for m in pixel_masks]
             masks = [downsample_mask(m, hw).to(feats.device) if m.any() else torch.zeros(hw, dtype=torch.bool, device=feats.device)
                      for m in pixel_masks]
-            targets.append(ViewTargets(cam, feats, meta.depth, masks, img, sil))
+            lam_c, lam_st = label_weights.maps(params.weights.model_dump(), lab, hw, feats.device)
+            targets.append(ViewTargets(cam, feats, meta.depth, masks, img, sil, lam_c, lam_st))
     return targets
 
 
