@@ -265,3 +265,41 @@ def test_a_dot_binds_the_gaussians_it_lies_on_not_a_large_splat_across_it() -> N
         bound[share] = result.source == 1
         assert bound[share][:n][truth.numpy() == 1].sum() > 5  # the ball under the dot is bound either way
     assert bound[0.0][n] and not bound[0.03][n]
+
+
+def test_what_a_painted_view_hides_casts_no_vote_with_occlusion() -> None:
+    """The ball hides part of the wall from view 0: those wall Gaussians blend a little into the ball's pixels of a
+    right cut. With ``occlusion`` they take no evidence from it; without, some are lifted as ball."""
+    from abcgs.masks.lifting import occluded_gaussians
+
+    model, truth = wall_and_ball(10)
+    cams = cameras(3)
+    hidden = occluded_gaussians(model, cams[0], 0.1).numpy()
+    wall, ball = truth.numpy() == 2, truth.numpy() == 1
+    z = model.means.detach().numpy()[:, 2]
+    assert hidden[wall].sum() > 50 and not hidden[ball & (z < 3.0)].any()  # the ball's front is what view 0 sees
+    assert not hidden[wall & (np.abs(model.means.detach().numpy()[:, 0]) > 2.0)].any()  # wall beside the ball
+    assert (z[hidden & wall] > 4.9).all()
+    maps = _truth_maps(model, truth, cams)
+    lifted_as_ball = {}
+    for occlusion in (0.0, 0.1):
+        field = LabelField(model, cams, MaskParams().field.model_copy(update={"occlusion": occlusion}))
+        field.set_view(0, maps[0])
+        result = field.solve()
+        lifted_as_ball[occlusion] = int(((result.source == 2) & (result.labels == 1) & wall & hidden).sum())
+    assert lifted_as_ball[0.0] > 0 and lifted_as_ball[0.1] == 0, lifted_as_ball
+
+
+def test_specks_take_the_label_around_them_and_large_regions_stay() -> None:
+    from abcgs.masks.edges import drop_specks
+
+    labels = np.ones((40, 60), np.int64)
+    labels[:, 30:] = 2
+    labels[5:8, 5:8] = 3  # a 9-pixel speck of label 3 inside label 1
+    labels[20:22, 40:42] = 0  # a 4-pixel hole in label 2
+    labels[30:40, 0:10] = 4  # a 100-pixel region: kept
+    out = drop_specks(labels, 50)
+    assert (out[5:8, 5:8] == 1).all() and (out[20:22, 40:42] == 2).all() and (out[30:40, 0:10] == 4).all()
+    assert set(np.unique(out)) == {1, 2, 4} and (out[labels != out] != 3).all()
+    np.testing.assert_array_equal(drop_specks(labels, 1), labels)
+    np.testing.assert_array_equal(drop_specks(np.full((5, 5), 7), 100), np.full((5, 5), 7))  # all small: kept

@@ -8,7 +8,14 @@ import pytest
 import torch
 
 from abcgs.gaussians import GaussianModel
-from abcgs.masks.graph import decide_diffused, diffuse_labels, gaussian_graph, gaussian_normals
+from abcgs.masks.graph import (
+    BRIDGE_WEIGHT,
+    decide_diffused,
+    diffuse_labels,
+    gaussian_graph,
+    gaussian_normals,
+    geodesic_labels,
+)
 from abcgs.render.sh import rgb_to_sh0
 
 
@@ -134,3 +141,76 @@ def test_diffusion_with_priors_matches_a_dense_solve_of_grady_s_prior_model():
     np.testing.assert_array_equal(alone[strong].argmax(1), priors[strong].argmax(1))
     with pytest.raises(ValueError, match="priors must be finite"):
         diffuse_labels(g, seeds, 2, priors=-priors)
+
+
+# ------------------------------------------------------------------------------------------ the geodesic step
+
+
+def _floyd(lengths: np.ndarray) -> np.ndarray:
+    """All-pairs shortest paths of a dense length matrix (0 = no edge), Floyd–Warshall: the reference."""
+    d = np.where(lengths > 0, lengths, np.inf)
+    np.fill_diagonal(d, 0.0)
+    for k in range(len(d)):
+        d = np.minimum(d, d[:, k : k + 1] + d[k : k + 1, :])
+    return d
+
+
+def test_edge_terms_are_aligned_with_the_weights_and_give_back_the_walk_s_weights():
+    pts, rgb = _two_blobs(5, 40)
+    g = gaussian_graph(_model(pts, rgb), k=6, colour_sigma=0.3, normal_weight=0.0)
+    assert g.spatial.shape == g.contrast.shape == g.weights.data.shape
+    # a k-NN edge's weight is exp(-spatial²) · exp(-contrast), a bridge's max(exp(-spatial²), BRIDGE_WEIGHT): the two
+    # terms say what the weight says
+    knn = np.isclose(g.weights.data, np.maximum(np.exp(-(g.spatial**2) - g.contrast), 1e-12), rtol=1e-9)
+    bridge = np.isclose(g.weights.data, np.maximum(np.exp(-(g.spatial**2)), BRIDGE_WEIGHT), rtol=1e-9)
+    assert (knn | bridge).all() and knn.mean() > 0.95
+    lengths = g.lengths(2.0).toarray()
+    assert abs(lengths - lengths.T).max() < 1e-12
+    np.testing.assert_allclose(g.lengths(2.0).data, g.spatial + 2.0 * g.contrast, rtol=1e-12)
+
+
+def test_geodesic_labels_match_the_nearest_source_by_floyd_warshall():
+    pts, rgb = _two_blobs(6, 40)
+    g = gaussian_graph(_model(pts, rgb), k=6, colour_sigma=0.3, normal_weight=0.0)
+    rng = np.random.default_rng(7)
+    seeds = np.full(g.num_nodes, -1)
+    seeds[[0, 45]] = [1, 2]
+    evidence = np.zeros((g.num_nodes, 3))
+    some = rng.choice(g.num_nodes, 25, replace=False)
+    evidence[some, rng.integers(0, 3, 25)] = rng.uniform(0.05, 1.0, 25)
+    labels, distance = geodesic_labels(g, seeds, 2, contrast_weight=3.0, evidence=evidence, evidence_cost=5.0)
+    d = _floyd(g.lengths(3.0).toarray())
+    best = np.full((g.num_nodes, 3), np.inf)  # per label: min over its sources of (start + path)
+    for i in np.flatnonzero(seeds >= 0):
+        best[:, seeds[i]] = np.minimum(best[:, seeds[i]], d[i])
+    for i, lab in zip(*np.nonzero((evidence > 0) & (seeds < 0)[:, None])):
+        best[:, lab] = np.minimum(best[:, lab], 5.0 * (1 - evidence[i, lab]) + d[i])
+    free = seeds < 0
+    np.testing.assert_allclose(distance[free], best[free].min(1), rtol=1e-9, atol=1e-6)
+    clear = np.sort(best, 1)[:, 1] - np.sort(best, 1)[:, 0] > 1e-9  # ties may go either way
+    np.testing.assert_array_equal(labels[free & clear], best[free & clear].argmin(1))
+    np.testing.assert_array_equal(labels[~free], seeds[~free])
+    with pytest.raises(ValueError, match="evidence must be finite"):
+        geodesic_labels(g, seeds, 2, evidence=-evidence)
+
+
+def test_a_one_gaussian_correction_claims_its_part_where_the_walk_lets_the_big_seed_win():
+    """Two parts of one colour, joined; the left part is covered by weak evidence for label 1 (a cut far from its
+    strokes), the right end holds a large stroke of label 1. One seeded Gaussian of label 2 in the left part: the
+    geodesic step gives it the left part; what it changes lies on its side only."""
+    rng = np.random.default_rng(8)
+    pts = np.concatenate([rng.uniform([0, 0, 0], [1, 0.2, 0.2], (150, 3)),
+                          rng.uniform([1, 0, 0], [2, 0.2, 0.2], (150, 3))])
+    g = gaussian_graph(_model(pts, np.full((300, 3), 0.5)), k=8, normal_weight=0.0)
+    seeds = np.full(300, -1)
+    seeds[np.flatnonzero(pts[:, 0] > 1.8)] = 1
+    evidence = np.zeros((300, 3))
+    evidence[pts[:, 0] < 1.0, 1] = 0.05
+    before, _ = geodesic_labels(g, seeds, 2, evidence=evidence, evidence_cost=20.0)
+    assert (before == 1).all()
+    seeds[np.argmin(np.linalg.norm(pts - [0.3, 0.1, 0.1], axis=1))] = 2
+    after, _ = geodesic_labels(g, seeds, 2, evidence=evidence, evidence_cost=20.0)
+    assert (after[pts[:, 0] < 0.6] == 2).mean() > 0.9
+    assert (after[pts[:, 0] > 1.2] == 1).all()  # the far side keeps its label
+    changed = after != before
+    assert pts[changed, 0].max() < 1.2

@@ -96,10 +96,12 @@ def test_each_segment_labels_every_view_and_save_keeps_the_strokes(fitted, tiny_
     assert written == [folder / "masks" / "000.png", folder / "masks" / "005.png"]
     maps, _ = read_label_files(written, [first.labels.shape] * 2)
     assert np.array_equal(np.maximum(maps[0], 0), np.where(first.claimed, first.labels, 0))  # the first view: its cut
-    # a correction (correction: strokes) gives the field its strokes alone: that is what is saved, for the stage
+    # a correction (correction: region) gives the field each stroke's colour region in the photo, its strokes
+    # included: that is what is saved, for the stage
     strokes_5 = rasterize_strokes(s.items[5].strokes, first.labels.shape)
-    assert np.array_equal(second.claimed, strokes_5 >= 0)
-    assert np.array_equal(maps[1], np.where(strokes_5 >= 0, strokes_5, -1))
+    assert second.claimed[strokes_5 >= 0].all() and second.claimed.sum() > (strokes_5 >= 0).sum()
+    assert np.array_equal(second.labels[strokes_5 >= 0], strokes_5[strokes_5 >= 0])
+    assert np.array_equal(maps[1], np.where(second.claimed, second.labels, -1))
     for i in (0, 5):  # the strokes, for the masks stage
         seeds = load_stroke_map(stroke_map_path(folder / "masks", f"{i:03d}"), first.labels.shape)
         assert np.array_equal(seeds, rasterize_strokes(s.items[i].strokes, first.labels.shape))

@@ -7,6 +7,10 @@ rendered weight with a guided filter (He, Sun and Tang, TPAMI 2013; OpenCV contr
 view's photo: the weights average inside a region of one colour and not across the photo's edges, so each pixel
 takes the label whose filtered weight is largest, a label's border moves onto the photo's edge nearest to it, and a
 pixel of undecided Gaussians takes the label around it on its side of the edges.
+
+A stray splat or two leaves specks of a label in a view, a few pixels that a painting would paint as its own;
+:func:`drop_specks` gives each connected region smaller than a share of the view the label of its surroundings, as
+SAM's mask post-processing removes small islands and holes (``remove_small_regions``).
 """
 
 from __future__ import annotations
@@ -52,3 +56,25 @@ def refine_to_photo(weights: np.ndarray, alpha: np.ndarray, photo: np.ndarray, r
     best = filtered.argmax(-1)
     ok = (filtered.max(-1) > 1e-3) & (np.asarray(alpha)[..., 0] > min_alpha)
     return np.where(ok, best, 0).astype(np.int64)
+
+
+def drop_specks(labels: np.ndarray, min_pixels: int) -> np.ndarray:
+    """``labels`` ``(H, W) int`` with every 8-connected region of one value smaller than ``min_pixels`` given the
+    value of the nearest pixel outside all such regions (Euclidean distance transform); unchanged where
+    ``min_pixels`` < 2 or every region is small."""
+    from scipy.ndimage import distance_transform_edt
+
+    labels = np.asarray(labels)
+    if min_pixels < 2:
+        return labels.copy()
+    small = np.zeros(labels.shape, bool)
+    for v in np.unique(labels):
+        n, comp, stats, _ = cv2.connectedComponentsWithStats((labels == v).astype(np.uint8), connectivity=8)
+        tiny = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] < min_pixels)
+        tiny = tiny[tiny > 0]
+        if len(tiny):
+            small |= np.isin(comp, tiny)
+    if not small.any() or small.all():
+        return labels.copy()
+    _, (iy, ix) = distance_transform_edt(small, return_indices=True)
+    return np.where(small, labels[iy, ix], labels)

@@ -37,8 +37,8 @@ import torch
 
 from abcgs.cameras import Camera
 from abcgs.gaussians import GaussianModel
-from abcgs.masks.graph import GaussianGraph, decide_diffused, diffuse_labels, gaussian_graph
-from abcgs.masks.lifting import NO_VOTE, blend_votes, decide_labels, one_hot_labels
+from abcgs.masks.graph import GaussianGraph, decide_diffused, diffuse_labels, gaussian_graph, geodesic_labels
+from abcgs.masks.lifting import NO_VOTE, blend_votes, decide_labels, occluded_gaussians, one_hot_labels
 from abcgs.masks.params import FieldParams, LiftParams
 from abcgs.types import Backend
 
@@ -73,7 +73,9 @@ class _View:
     strokes: np.ndarray | None  # (H, W) int64 seed map, -1 none
     votes: torch.Tensor | None = None  # (N, L_v + 1) the cut's Eq. 2 votes, each pixel weighted by its confidence
     cover: torch.Tensor | None = None  # (N,) blending weight in the cut's decided pixels
+    seen: torch.Tensor | None = None  # (N,) blending weight in the whole view
     stroke_votes: torch.Tensor | None = None  # (N, L_v + 1) blending weight in each label's stroke pixels, if bound
+    hidden: torch.Tensor | None = None  # (N,) bool: behind the view's surface (abcgs.masks.lifting.occluded_gaussians)
 
 
 def cut_confidence(shape: tuple[int, int], strokes: np.ndarray | None, reach: float) -> np.ndarray:
@@ -144,9 +146,10 @@ class LabelField:
         self._views[index] = _View(None if cut is None else np.asarray(cut, np.int64),
                                    None if strokes is None else np.asarray(strokes, np.int64))
 
-    def _cut_votes(self, view: _View, cam: Camera) -> tuple[torch.Tensor, torch.Tensor]:
+    def _cut_votes(self, view: _View, cam: Camera) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """One view's cut votes ``(N, L_v + 1)``, each pixel weighted by its confidence (1 with ``cut_evidence:
-        hard``), and each Gaussian's blending weight in the cut's decided pixels ``(N,)``."""
+        hard``), each Gaussian's blending weight in the cut's decided pixels ``(N,)`` and in the whole view
+        ``(N,)``."""
         cut = view.cut
         if self.params.cut_evidence == "soft":
             conf = cut_confidence(cut.shape, view.strokes, self.params.cut_reach)
@@ -154,9 +157,9 @@ class LabelField:
             conf = np.ones(cut.shape, np.float32)
         hot = one_hot_labels(cut, int(cut.max(initial=0)))
         decided = torch.from_numpy((cut >= 0).astype(np.float32))[..., None]
-        w = blend_votes(self.model, cam, torch.cat([hot * torch.from_numpy(conf)[..., None], decided], -1),
-                        backend=self.backend)
-        return w[:, :-1], w[:, -1]
+        w = blend_votes(self.model, cam, torch.cat([hot * torch.from_numpy(conf)[..., None], decided,
+                                                    torch.ones_like(decided)], -1), backend=self.backend)
+        return w[:, :-2], w[:, -2], w[:, -1]
 
     def _stroke_votes(self, strokes: np.ndarray, cam: Camera) -> torch.Tensor:
         """One view's stroke weights ``(N, L_v + 1)``: per Gaussian and label, its blending weight in the label's
@@ -169,15 +172,22 @@ class LabelField:
         under = votes.sum(1) >= self.params.stroke_share * total.clamp_min(1e-12)
         return votes * under[:, None]
 
-    def _votes(self, n_labels: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Summed cut votes ``(N, n_labels + 1)``, blending weight in decided cut pixels ``(N,)`` and stroke weights
-        ``(N, n_labels + 1)`` of every painted view (each view's own computed once)."""
+    def _votes(self, n_labels: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Summed cut votes ``(N, n_labels + 1)``, blending weight in decided cut pixels ``(N,)`` and in the cut
+        views as a whole ``(N,)``, and stroke weights ``(N, n_labels + 1)`` of every painted view (each view's own
+        computed once)."""
         n = self.model.num_gaussians
-        votes, cover, strokes = torch.zeros(n, n_labels + 1), torch.zeros(n), torch.zeros(n, n_labels + 1)
+        votes, cover, seen = torch.zeros(n, n_labels + 1), torch.zeros(n), torch.zeros(n)
+        strokes = torch.zeros(n, n_labels + 1)
         for i, v in self._views.items():
             cam = self.cameras[i]
+            if self.params.occlusion > 0 and v.hidden is None:
+                v.hidden = occluded_gaussians(self.model, cam, self.params.occlusion, backend=self.backend)
+            keep = None if v.hidden is None else (~v.hidden).to(torch.float32)  # the view's surface hides the rest
             if v.cut is not None and v.votes is None:
-                v.votes, v.cover = self._cut_votes(v, cam)
+                v.votes, v.cover, v.seen = self._cut_votes(v, cam)
+                if keep is not None:
+                    v.votes, v.cover, v.seen = v.votes * keep[:, None], v.cover * keep, v.seen * keep
             if v.strokes is not None and v.stroke_votes is None:
                 v.stroke_votes = self._stroke_votes(v.strokes, cam)
             for acc, part in ((votes, v.votes), (strokes, v.stroke_votes)):
@@ -185,7 +195,8 @@ class LabelField:
                     acc[:, : part.shape[1]] += part
             if v.cover is not None:
                 cover += v.cover
-        return votes, cover, strokes
+                seen += v.seen
+        return votes, cover, seen, strokes
 
     def n_labels(self) -> int:
         """The largest label any painted view's cut or strokes holds."""
@@ -196,11 +207,12 @@ class LabelField:
         """Apply the strokes, weigh the cuts and run the 3-D step (module docstring)."""
         t0 = time.perf_counter()
         n_labels = self.n_labels()
-        votes, cover, stroke_w = self._votes(n_labels)
+        votes, cover, seen, stroke_w = self._votes(n_labels)
         n = self.model.num_gaussians
         seeds = np.full(n, -1, np.int64)
         source = np.zeros(n, np.uint8)
-        soft = self.params.cut_evidence == "soft"
+        p = self.params
+        soft = p.cut_evidence == "soft"
         if self._views:
             if not soft:
                 lifted = decide_labels(votes, self.lift)
@@ -211,15 +223,24 @@ class LabelField:
             stroked = (best_w >= self.params.stroke_weight).numpy()
             seeds[stroked] = best.numpy()[stroked]
             source[stroked] = 1
-        priors = None
+        evidence = None
         evident = np.zeros(n, bool)
         if soft and self._views:
-            evidence = (votes / (cover + self.lift.min_weight)[:, None]).double().numpy()
-            priors = self.params.cut_weight * self.graph.degree[:, None] * evidence
+            whole = cover if p.evidence_of == "decided" else seen
+            evidence = (votes / (whole + self.lift.min_weight)[:, None]).double().numpy()
             evident = cover.numpy() >= self.lift.min_weight
-        x0 = self._last.probs if self._last is not None and self._last.probs.shape == (n, n_labels + 1) else None
-        probs = diffuse_labels(self.graph, seeds, n_labels, leak=self.params.leak, x0=x0, priors=priors)
-        labels, decided = decide_diffused(probs, min_reach=self.params.min_reach, min_share=self.lift.min_share)
+        if p.solver == "geodesic":
+            labels, distance = geodesic_labels(
+                self.graph, seeds, n_labels, contrast_weight=p.contrast,
+                evidence=None if evidence is None else evidence * evident[:, None], evidence_cost=p.evidence_cost)
+            decided = np.isfinite(distance)
+            probs = np.zeros((n, n_labels + 1))
+            probs[np.flatnonzero(decided), labels[decided]] = 1.0
+        else:
+            priors = None if evidence is None else p.cut_weight * self.graph.degree[:, None] * evidence
+            x0 = self._last.probs if self._last is not None and self._last.probs.shape == (n, n_labels + 1) else None
+            probs = diffuse_labels(self.graph, seeds, n_labels, leak=p.leak, x0=x0, priors=priors)
+            labels, decided = decide_diffused(probs, min_reach=p.min_reach, min_share=self.lift.min_share)
         labels[seeds >= 0], decided[seeds >= 0] = seeds[seeds >= 0], True
         source[(seeds < 0) & decided] = np.where(evident, 2, 3)[(seeds < 0) & decided]
         self._last = FieldResult(labels, decided, probs, source, n_labels, time.perf_counter() - t0)
@@ -283,7 +304,7 @@ def render_field(field: LabelField, result: FieldResult, index: int, *, threshol
     refined against the photo's edges instead (:func:`abcgs.masks.edges.refine_to_photo`: borders on the photo's
     edges, undecided pixels given the label around them); and, on a painted view with ``cut_where_painted``, its cut
     wherever the cut decided: a painted view keeps what the user saw and accepted on the page."""
-    from abcgs.masks.edges import refine_to_photo
+    from abcgs.masks.edges import drop_specks, refine_to_photo
     from abcgs.masks.lifting import pick_labels, render_label_weights
 
     img, alpha = render_label_weights(field.model, torch.as_tensor(result.labels), result.n_labels,
@@ -292,6 +313,7 @@ def render_field(field: LabelField, result: FieldResult, index: int, *, threshol
     p = field.params
     if photo is not None and p.edge_radius > 0:
         out = refine_to_photo(img.numpy(), alpha.numpy(), photo, p.edge_radius, p.edge_eps)
+        out = drop_specks(out, int(p.min_region * out.size))
     else:
         out = pick_labels(img, alpha, threshold, undecided=0).numpy().astype(np.int64)
     cut = field.cut_of(index) if cut_where_painted else None

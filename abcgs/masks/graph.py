@@ -39,14 +39,30 @@ class GaussianGraph:
     """A symmetric weighted k-NN graph over ``N`` Gaussians.
 
     ``weights``: ``(N, N)`` ``scipy.sparse.csr_matrix`` float64, zero diagonal, ``w_ij = w_ji ≥ 0`` (module
-    docstring). ``degree``: ``(N,)`` float64, its row sums."""
+    docstring). ``degree``: ``(N,)`` float64, its row sums. ``spatial`` and ``contrast``: ``(E,)`` float64, aligned
+    with ``weights.data``: each edge's length in its ends' local scale, ``d / sqrt(s_i s_j)``, and how unlike its ends
+    are, ``-log`` of the colour-normal(-feature) factor floored at :data:`MIN_ALIKE` (0 alike, at most
+    ``-log MIN_ALIKE``); :meth:`lengths` makes the geodesic step's edge lengths of them."""
 
     weights: object
     degree: np.ndarray
+    spatial: np.ndarray | None = None
+    contrast: np.ndarray | None = None
 
     @property
     def num_nodes(self) -> int:
         return int(self.degree.shape[0])
+
+    def lengths(self, contrast_weight: float) -> object:
+        """``(N, N) csr_matrix`` of edge lengths ``spatial + γ · contrast`` (γ = ``contrast_weight``) on the weights'
+        edges, each at least :data:`MIN_LENGTH` (SciPy's graph routines take a stored 0 for no edge)."""
+        from scipy.sparse import csr_matrix
+
+        if self.spatial is None or self.contrast is None:
+            raise ValueError("this graph has no edge terms: build it with gaussian_graph")
+        w = self.weights
+        data = np.maximum(self.spatial + contrast_weight * self.contrast, MIN_LENGTH)
+        return csr_matrix((data, w.indices, w.indptr), shape=w.shape)
 
 
 def gaussian_normals(model: GaussianModel) -> Tensor:
@@ -61,6 +77,9 @@ def gaussian_normals(model: GaussianModel) -> Tensor:
 MIN_ALIKE = 1e-3
 """Least colour-and-normal factor of an edge: a change of colour slows a label a thousandfold but does not wall a part
 off, or a region whose every edge to the rest crosses a colour change (a hood's rim) would be reached by no label."""
+
+MIN_LENGTH = 1e-9
+"""Least length of an edge in the geodesic step: two Gaussians at one place and alike are still one hop apart."""
 
 BRIDGE_WEIGHT = 1e-3
 """Least weight of an edge :func:`bridges` adds between two parts of the k-NN graph: weak against a neighbour's (up to
@@ -146,19 +165,28 @@ def gaussian_graph(model: GaussianModel, k: int = 10, colour_sigma: float = 0.15
     rows = np.repeat(np.arange(n), nn.shape[1])
     cols, d = nn.ravel(), dist.ravel()
     local = np.maximum(dist[:, -1], 1e-12) if dist.size else np.ones(n)  # each Gaussian's own scale: its k-th neighbour
-    alike = np.ones(len(rows))
+    rgb = normals = f = None
     if np.isfinite(colour_sigma):
         rgb = sh0_to_rgb(model.sh0.detach().cpu().double()[:, 0, :]).clamp(0.0, 1.0).numpy()
-        alike *= np.exp(-(np.linalg.norm(rgb[rows] - rgb[cols], axis=1) / colour_sigma) ** 2)
     if normal_weight > 0:
         normals = gaussian_normals(model).numpy()
-        alike *= np.exp(-normal_weight * (1.0 - np.abs((normals[rows] * normals[cols]).sum(1))))
     if features is not None and feature_weight > 0:
         f = np.asarray(features, np.float64)
         if f.shape[0] != n or not np.isfinite(f).all():
             raise ValueError(f"features must be finite and of {n} rows, got {f.shape}")
-        alike *= np.exp(-feature_weight * ((f[rows] - f[cols]) ** 2).sum(1) / max(f.shape[1], 1))
-    w = np.exp(-(d**2) / (local[rows] * local[cols])) * np.maximum(alike, MIN_ALIKE)
+
+    def alike(r: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """The colour, normal and feature factor of the edges ``(r, c)``, before the floor."""
+        out = np.ones(len(r))
+        if rgb is not None:
+            out *= np.exp(-(np.linalg.norm(rgb[r] - rgb[c], axis=1) / colour_sigma) ** 2)
+        if normals is not None:
+            out *= np.exp(-normal_weight * (1.0 - np.abs((normals[r] * normals[c]).sum(1))))
+        if f is not None:
+            out *= np.exp(-feature_weight * ((f[r] - f[c]) ** 2).sum(1) / max(f.shape[1], 1))
+        return out
+
+    w = np.exp(-(d**2) / (local[rows] * local[cols])) * np.maximum(alike(rows, cols), MIN_ALIKE)
     w = np.maximum(w, 1e-12)
     b_rows, b_cols, b_d = bridges(pts, rows, cols)
     rows, cols = np.concatenate([rows, b_rows]), np.concatenate([cols, b_cols])
@@ -167,7 +195,11 @@ def gaussian_graph(model: GaussianModel, k: int = 10, colour_sigma: float = 0.15
     mat = mat.maximum(mat.T).tocsr()  # symmetric: i near j or j near i
     mat.setdiag(0.0)
     mat.eliminate_zeros()
-    return GaussianGraph(mat, np.asarray(mat.sum(1)).ravel())
+    r = np.repeat(np.arange(n), np.diff(mat.indptr))
+    c = mat.indices
+    spatial = np.linalg.norm(pts[r] - pts[c], axis=1) / np.sqrt(local[r] * local[c])
+    contrast = -np.log(np.maximum(alike(r, c), MIN_ALIKE))
+    return GaussianGraph(mat, np.asarray(mat.sum(1)).ravel(), spatial, contrast)
 
 
 def diffuse_labels(graph: GaussianGraph, seeds: np.ndarray, n_labels: int, *, leak: float = 1e-5,
@@ -233,3 +265,61 @@ def decide_diffused(probs: np.ndarray, *, min_reach: float = 0.05, min_share: fl
     top = probs[np.arange(len(best)), best]
     decided = (top >= min_reach) & (top >= min_share * probs.sum(1))
     return np.where(decided, best, 0).astype(np.int64), decided
+
+
+def geodesic_labels(graph: GaussianGraph, seeds: np.ndarray, n_labels: int, *, contrast_weight: float = 1.0,
+                    evidence: np.ndarray | None = None, evidence_cost: float = 4.0) -> tuple[np.ndarray, np.ndarray]:
+    """The geodesic 3-D step: each Gaussian takes the label of the source nearest to it along the graph.
+
+    An edge's length is :meth:`GaussianGraph.lengths` (a hop in the local scale, plus γ = ``contrast_weight`` times
+    how unlike its ends are), so a label runs freely over a surface of one colour and pays to cross a change of colour
+    or of facing. The sources of label ``l`` are its seeds (``seeds``: ``(N,) int``, the label 0..n_labels of each
+    seeded Gaussian, -1 for the others), at distance 0, and, with ``evidence`` ``(N, n_labels + 1)`` in ``[0, 1]`` (a
+    Gaussian's share of its cut votes per label), every unseeded Gaussian with evidence for ``l``, at distance
+    ``evidence_cost × (1 - evidence)``: sure evidence is nearly a seed, weak evidence is taken over by a seed that is
+    geodesically near.
+
+    Unlike the random walk, where a seed pulls in proportion to its size, a seed of one Gaussian claims everything
+    nearer to it than to any other source: a correction changes what lies near it and nothing else (adding a
+    source can only change the Gaussians it is now nearest to). Seeds keep their label.
+
+    Returns ``labels (N,) int64`` and ``distance (N,) float64`` to the nearest source (``inf`` where none is
+    reachable; those Gaussians get label 0 and are the caller's undecided).
+    """
+    from scipy.sparse import coo_matrix, csr_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    n = graph.num_nodes
+    seeds = np.asarray(seeds, np.int64)
+    if seeds.shape != (n,):
+        raise ValueError(f"seeds has shape {seeds.shape}, the graph {n} nodes")
+    if not np.isfinite(contrast_weight) or contrast_weight < 0:
+        raise ValueError(f"contrast_weight must be finite and ≥ 0, got {contrast_weight}")
+    src_label, src_node, src_cost = [seeds[seeds >= 0]], [np.flatnonzero(seeds >= 0)], [np.zeros(int((seeds >= 0).sum()))]
+    if evidence is not None:
+        evidence = np.asarray(evidence, np.float64)
+        if evidence.shape != (n, n_labels + 1) or not np.isfinite(evidence).all() or (evidence < 0).any():
+            raise ValueError(f"evidence must be finite, ≥ 0 and of shape {(n, n_labels + 1)}, got {evidence.shape}")
+        node, label = np.nonzero((evidence > 0) & (seeds < 0)[:, None])
+        src_label.append(label)
+        src_node.append(node)
+        src_cost.append(evidence_cost * (1.0 - np.clip(evidence[node, label], 0.0, 1.0)))
+    label, node, cost = (np.concatenate(a) for a in (src_label, src_node, src_cost))
+    labels = np.zeros(n, np.int64)
+    distance = np.full(n, np.inf)
+    if not len(node):
+        return labels, distance
+    # one virtual source per label (nodes n .. n + n_labels), joined to its sources by their starting distance
+    m = n + n_labels + 1
+    lengths = graph.lengths(contrast_weight).tocoo()
+    start = coo_matrix((np.maximum(cost, MIN_LENGTH), (n + label, node)), shape=(m, m))
+    full = csr_matrix(coo_matrix((np.concatenate([lengths.data, start.data]),
+                                  (np.concatenate([lengths.row, start.row]), np.concatenate([lengths.col, start.col]))),
+                                 shape=(m, m)))
+    roots = n + np.unique(label)
+    dist, _, origin = dijkstra(full, directed=True, indices=roots, min_only=True, return_predecessors=True)
+    reached = np.isfinite(dist[:n])
+    labels[reached] = origin[:n][reached] - n
+    distance[reached] = dist[:n][reached]
+    labels[seeds >= 0] = seeds[seeds >= 0]
+    return labels, distance

@@ -105,6 +105,27 @@ def blend_votes(model: GaussianModel, camera: Camera, pixels: Tensor, *, backend
                               camera.torch_K(dev), pixels.to(dev), backend=backend).cpu()
 
 
+def occluded_gaussians(model: GaussianModel, camera: Camera, tolerance: float, *, backend: Backend = "auto") -> Tensor:
+    """``(N,) bool``: the Gaussians whose centre lies behind the surface ``camera`` sees there, its camera depth
+    beyond ``(1 + tolerance)`` × the view's expected depth at the pixel of its projected centre (where the view's
+    alpha is at least 0.5). A label painted on a view belongs to its surface: a Gaussian hidden behind it (a wall
+    behind a hood) still blends a little into its pixels, and would take that label from them."""
+    act = model.detach().activated()
+    dev = model.device
+    with torch.no_grad():
+        _, alpha, meta = rasterize(act["means"], act["quats"], act["scales"], act["opacities"],
+                                   torch.zeros(model.num_gaussians, 1, device=dev), camera.torch_viewmat(dev),
+                                   camera.torch_K(dev), camera.width, camera.height, render_mode="RGB+ED",
+                                   backend=backend)
+    uv = meta.means2d.detach().cpu().floor().long()
+    z = meta.depths.detach().cpu()
+    inside = (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
+    u, v = uv[:, 0].clamp(0, camera.width - 1), uv[:, 1].clamp(0, camera.height - 1)
+    surface = meta.depth[..., 0].detach().cpu()[v, u]
+    solid = alpha[..., 0].detach().cpu()[v, u] >= 0.5
+    return inside & solid & (z > surface * (1.0 + tolerance))
+
+
 def decide_labels(weights: Tensor, params: LiftParams | None = None) -> LiftResult:
     """Summed votes ``(N, L + 1)`` → labels: the winner where it holds at least ``min_weight`` and a ``min_share`` of
     the Gaussian's total, else 0 (undecided)."""

@@ -62,6 +62,25 @@ class FieldParams(BaseModel):
     normal_weight: float = Field(
         1.0, ge=0.0, description="weight of the normal affinity exp(-w (1 - |n_i·n_j|)) of an edge (0: normals "
         "ignored)")
+    solver: Literal["walk", "geodesic"] = Field(
+        "geodesic", description="the 3-D step (abcgs.masks.graph): walk: Grady's random walker with the cuts' evidence as "
+        "priors; geodesic: each Gaussian takes the label of the nearest stroke or cut evidence along the graph, so "
+        "a correction changes what lies nearest to it and nothing else (docs/MASKS.md, miku's scripted user)")
+    contrast: float = Field(
+        4.0, ge=0.0, le=1000.0, description="solver: geodesic: what crossing a change of colour or facing costs, "
+        "in hops of the graph per unit of -log(colour-normal affinity)")
+    evidence_cost: float = Field(
+        4.0, ge=0.0, le=1000.0, description="solver: geodesic: a Gaussian with cut evidence e for a label starts "
+        "that label at distance evidence_cost × (1 - e), in hops: the larger, the more a stroke nearby overrides "
+        "what the cuts say")
+    evidence_of: Literal["decided", "view"] = Field(
+        "view", description="cut_evidence: soft: a Gaussian's evidence for a label is its vote for the label over "
+        "its blending weight in the pixels its views' cuts decided (decided), or in the whole of those views "
+        "(view): a large splat that a correction's dot covers in part is then weak evidence, not a near-seed")
+    occlusion: float = Field(
+        0.0, ge=0.0, le=10.0, description="a Gaussian whose centre lies behind a painted view's surface by more than "
+        "this share of the surface's depth casts no vote in that view, neither from its cut nor from its strokes "
+        "(abcgs.masks.lifting.occluded_gaussians; 0: every Gaussian votes with its blending weight)")
     leak: float = Field(
         1e-5, gt=0.0, le=1.0, description="share of a random walk lost at each step: a part no painted label "
         "reaches ends undecided, not split")
@@ -72,10 +91,10 @@ class FieldParams(BaseModel):
         0.1, gt=0.0, description="least blending weight (summed over a view's stroke pixels) for a Gaussian to take "
         "the stroke's label as a hard constraint")
     stroke_share: float = Field(
-        0.0, ge=0.0, le=1.0, description="least share of a Gaussian's blending weight in a view that must lie under "
+        0.05, ge=0.0, le=1.0, description="least share of a Gaussian's blending weight in a view that must lie under "
         "that view's strokes for them to bind it (0: any Gaussian that reaches stroke_weight)")
     correction: Literal["strokes", "region", "cut"] = Field(
-        "strokes", description="a Segment on a view once labels exist in 3-D: strokes: its strokes alone correct the "
+        "region", description="a Segment on a view once labels exist in 3-D: strokes: its strokes alone correct the "
         "labels (bound where they cover a Gaussian, evidence where they touch it); region: each stroke's region in "
         "the photo (its colour, within correction_reach, abcgs.masks.regions) is its evidence besides; cut: the view "
         "is cut again by GrabCut, seeded by its strokes and the labels in 3-D, and the cut is its evidence "
@@ -90,6 +109,10 @@ class FieldParams(BaseModel):
     edge_radius: float = Field(
         0.01, ge=0.0, le=0.5, description="each view's labels rendered from the Gaussians are refined against its "
         "photo's edges by a guided filter of this radius (share of the view's shorter side; 0: not refined)")
+    min_region: float = Field(
+        0.003, ge=0.0, le=0.1, description="with edge_radius > 0: a region of one label in a view's refined labels "
+        "smaller than this share of the view's pixels takes the label around it (abcgs.masks.edges.drop_specks; "
+        "0: kept)")
     edge_eps: float = Field(
         1e-2, gt=0.0, le=1.0, description="the guided filter's regularisation (photo in 0..1): an edge of contrast "
         "above about its square root holds a label's border")

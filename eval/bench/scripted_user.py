@@ -112,12 +112,13 @@ class ScriptedUser:
     """The page's state for one run (:class:`abcgs.masks.page.field_session.FieldSession`, one page item per camera) and
     each painted view's strokes."""
 
-    def __init__(self, model, scene, refs: dict[str, np.ndarray], by_stem: dict[str, int], params: FieldParams):
+    def __init__(self, model, scene, refs: dict[str, np.ndarray], by_stem: dict[str, int], params: FieldParams,
+                 strip: Strip | None = None):
         self.scene, self.refs, self.by_stem = scene, refs, by_stem
         self.strokes: dict[int, list[Stroke]] = {}
         photos = [to_uint8(load_image(p)) for p in scene.image_paths]
         self.photos = {s: photos[by_stem[s]] for s in refs}
-        strip = Strip.record(model, scene.cameras, photos)
+        strip = strip if strip is not None else Strip.record(model, scene.cameras, photos)
         self.session = FieldSession(LabelField(model, scene.cameras, params), strip,
                                     {i: i for i in range(len(scene.cameras))})
         print(f"strip of {len(strip.views)} views recorded in {strip.seconds:.1f} s, neighbour graph built in "
@@ -216,6 +217,50 @@ def figure(user: ScriptedUser, steps: list[dict], path: Path) -> None:
     save_image(path, image_grid(rows, [labels, reference], height=user.scene.cameras[0].height))
 
 
+def run_setting(model, scene, refs: dict[str, np.ndarray], by_stem: dict[str, int], spec: dict, params: FieldParams,
+                max_strokes: int, radius: float, strip: Strip | None = None) -> tuple[dict, ScriptedUser]:
+    """One scripted run at ``params``: the bounds, the steps, the ``masks`` stage's score; its record (without
+    provenance) and the user, for the figure. ``strip``: a recorded strip to reuse (the Gaussians are the same)."""
+    n_labels = len(spec["labels"])
+    front_stem, items = spec["test"]["view"], spec["test"]["strokes"]
+    front = by_stem[front_stem]
+    bound = geometry_bound(model, scene.cameras, by_stem, refs, list(refs), n_labels)
+    user = ScriptedUser(model, scene, refs, by_stem, params, strip)
+    refined_bound = geometry_bound(model, scene.cameras, by_stem, refs, list(refs), n_labels, user.photos,
+                                   (params.edge_radius, params.edge_eps))
+    print(f"bound (six reference maps lifted): mean IoU {bound['mean_iou']:.3f} rendered from the Gaussians, "
+          f"{refined_bound['mean_iou']:.3f} refined against the photos", flush=True)
+    t0 = time.perf_counter()
+    steps = run(user, front, view_strokes(items, spec, scene.cameras[front]), n_labels, max_strokes, radius)
+    stage = score_labels(stage_maps(user, params), refs, n_labels).as_record()
+    print(f"the masks stage on what the page saved: mean IoU {stage['mean_iou']:.3f} (the page: "
+          f"{steps[-1]['mean_iou']:.3f})", flush=True)
+    record = {"scene": spec["title"], "n_gaussians": model.num_gaussians, "views": len(scene.cameras),
+              "labels": spec["labels"], "reference_views": list(refs), "field": params.model_dump(), "goal": GOAL,
+              "geometry_bound": bound, "refined_bound": refined_bound, "steps": steps, "stage": stage,
+              "regression": regression(steps), "verdict": verdict(steps, refined_bound),
+              "median_segment_seconds": statistics.median(s["seconds"]["total"] for s in steps),
+              "seconds": time.perf_counter() - t0}
+    print(json.dumps({"regression": record["regression"], "verdict": record["verdict"],
+                      "median_segment_seconds": record["median_segment_seconds"]}))
+    return record, user
+
+
+def summary(name: str, overrides: dict, record: dict) -> dict:
+    """One row of the settings table: a run's setting, its first and last mean IoU (the stage's maps and the
+    Gaussians alone), its worst drops, its unlabelled share, its median Segment and the stage's score."""
+    first, last = record["steps"][0], record["steps"][-1]
+    return {"setting": name, "overrides": overrides, "field": record["field"],
+            "first_mean_iou": first["mean_iou"], "last_mean_iou": last["mean_iou"],
+            "first_rendered_mean_iou": first["rendered"]["mean_iou"],
+            "last_rendered_mean_iou": last["rendered"]["mean_iou"], "last_worst_iou": last["worst_iou"],
+            "worst_mean_drop": record["regression"]["mean"]["drop"],
+            "worst_view_drop": record["regression"]["view"]["drop"],
+            "max_unlabelled": max(last["unlabelled"].values()),
+            "first_segment_seconds": first["seconds"]["total"],
+            "median_segment_seconds": record["median_segment_seconds"], "stage_mean_iou": record["stage"]["mean_iou"]}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = bench_parser(__doc__)
     ap.add_argument("--scene", default="miku", help="eval/data/<scene>/ (strokes.json, reference/)")
@@ -223,44 +268,42 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-strokes", type=int, default=GOAL["strokes"], help="scripted strokes after the test ones")
     ap.add_argument("--radius", type=float, default=4.0, help="the scripted dots' largest radius (pixels)")
     ap.add_argument("--field", default="{}", help="masks.field settings as JSON (default: the masks section's)")
+    ap.add_argument("--settings", type=Path,
+                    help="a YAML file of named masks.field settings (name: {key: value}, over --field): one run "
+                         "each, and --json gets the table of them (eval/data/miku/field_settings.yaml)")
     ap.add_argument("--figure", type=Path, help="write the final labels beside the references here")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(message)s")
     spec = json.loads((DATA / args.scene / "strokes.json").read_text())
-    colmap = args.work / spec["work_colmap"]
-    scene = read_scene(colmap)
+    scene = read_scene(args.work / spec["work_colmap"])
     model = read_ply(args.work / spec["work_ply"])
     by_stem = {Path(c.name).stem: i for i, c in enumerate(scene.cameras)}
     refs = {s: reference_map(DATA / args.scene / "reference" / f"{s}.png", scene.cameras[by_stem[s]])
             for s in spec["reference"] if s in by_stem}
-    n_labels = len(spec["labels"])
-    front_stem, items = spec["test"]["view"], spec["test"]["strokes"]
-    front = by_stem[front_stem]
-    params = FieldParams(**json.loads(args.field))
-    bound = geometry_bound(model, scene.cameras, by_stem, refs, list(refs), n_labels)
-    user = ScriptedUser(model, scene, refs, by_stem, params)
-    refined_bound = geometry_bound(model, scene.cameras, by_stem, refs, list(refs), n_labels, user.photos,
-                                   (params.edge_radius, params.edge_eps))
-    print(f"bound (six reference maps lifted): mean IoU {bound['mean_iou']:.3f} rendered from the Gaussians, "
-          f"{refined_bound['mean_iou']:.3f} refined against the photos", flush=True)
-    t0 = time.perf_counter()
-    steps = run(user, front, view_strokes(items, spec, scene.cameras[front]), n_labels, args.max_strokes, args.radius)
-    stage = score_labels(stage_maps(user, params), refs, n_labels).as_record()
-    print(f"the masks stage on what the page saved: mean IoU {stage['mean_iou']:.3f} (the page: "
-          f"{steps[-1]['mean_iou']:.3f})", flush=True)
-    print(json.dumps({"bound_worst": bound["worst_iou"]}))
-    record = {"scene": spec["title"], "n_gaussians": model.num_gaussians, "views": len(scene.cameras),
-              "labels": spec["labels"], "reference_views": list(refs), "field": params.model_dump(), "goal": GOAL,
-              "geometry_bound": bound, "refined_bound": refined_bound, "steps": steps, "stage": stage, "regression": regression(steps),
-              "verdict": verdict(steps, refined_bound),
-              "median_segment_seconds": statistics.median(s["seconds"]["total"] for s in steps),
-              "seconds": time.perf_counter() - t0}
-    print(json.dumps({"regression": record["regression"], "verdict": record["verdict"],
-                      "median_segment_seconds": record["median_segment_seconds"]}))
+    base = json.loads(args.field)
+    if args.settings is None:
+        record, user = run_setting(model, scene, refs, by_stem, spec, FieldParams(**base), args.max_strokes,
+                                   args.radius)
+        if args.json:
+            write_record(args.json, record, argv)
+        if args.figure:
+            figure(user, record["steps"], args.figure)
+        return 0
+    import yaml
+
+    settings = yaml.safe_load(args.settings.read_text(encoding="utf-8"))
+    rows, strip = [], None
+    for name, overrides in settings.items():
+        print(f"== {name}: {json.dumps(overrides or {})}", flush=True)
+        record, user = run_setting(model, scene, refs, by_stem, spec, FieldParams(**{**base, **(overrides or {})}),
+                                   args.max_strokes, args.radius, strip)
+        strip = user.session.strip
+        rows.append(summary(name, overrides or {}, record))
     if args.json:
-        write_record(args.json, record, argv)
-    if args.figure:
-        figure(user, steps, args.figure)
+        write_record(args.json, {"what": f"eval.bench.scripted_user on {spec['title']}, one run per masks.field "
+                                         f"setting of {args.settings.name}", "scene": spec["title"],
+                                 "n_gaussians": model.num_gaussians, "geometry_bound": record["geometry_bound"],
+                                 "refined_bound": record["refined_bound"], "runs": rows}, argv)
     return 0
 
 
