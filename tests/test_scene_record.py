@@ -106,11 +106,13 @@ def test_a_missing_or_other_version_scene_json_is_refused_naming_the_file_and_th
     write_scene(make_scene(tmp_path), tmp_path)
     record = ColmapDir(tmp_path).scene
     doc = json.loads(record.read_text())
-    for version in (SCENE_VERSION + 1, 0, "1", True, None):
+    for version in (SCENE_VERSION + 1, 0, "1", True, None, 1.0):
         record.write_text(json.dumps({**doc, "version": version}))
         with pytest.raises(InputError, match="re-run the reconstruct stage") as exc:
             read_scene(tmp_path)
         assert str(record) in str(exc.value) and "\n" not in str(exc.value)
+        if not isinstance(version, int) or isinstance(version, bool):  # the wrong type is named as such
+            assert f"holds version {type(version).__name__}" in str(exc.value) and "not the integer" in str(exc.value)
     record.unlink()
     with pytest.raises(InputError, match="scene.json does not exist.*re-run the reconstruct stage"):
         read_scene(tmp_path)
@@ -147,6 +149,16 @@ def _set(doc: dict, path: str, value) -> dict:
     ("views.2.mask", "masks/absent.png", "missing"),
     ("views.3", "v3.png", "not the model's view"),
     ("views", [], "lists 0 views"),
+    ("frame", np.zeros((4, 4)).tolist(), "last row"),
+    ("frame", [[0, 0, 0, 0], [0, 0, 0, 0], [0, 0, 0, 0], [0, 0, 0, 1]], "determinant 0"),
+    ("frame", [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, -1, 0], [0, 0, 0, 1]], "determinant -1"),
+    ("frame", [[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], "not a rotation times a positive scale"),
+    ("frame", [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 1, 1]], "last row"),
+    ("depth_range", [5.0, 1.0], "0 < near < far"),
+    ("depth_range", [0.0, 1.0], "0 < near < far"),
+    ("views.0.image", "images/v1.png", "views\\[1\\].image .* is also views\\[0\\].image"),
+    ("views.0.mask", "images/v0.png", "views\\[0\\].mask .* is also views\\[0\\].image"),
+    ("views.0.mask", "alpha/v2.png", "is also views\\[2\\].alpha"),
 ])
 def test_a_scene_json_with_a_bad_value_is_refused_in_one_line(tmp_path: Path, path: str, value, reason: str) -> None:
     write_scene(make_scene(tmp_path), tmp_path)
@@ -198,3 +210,24 @@ def test_the_stages_read_the_reconstructed_model_as_it_is(tiny_colmap: Path) -> 
     assert np.array_equal(scene.colors, (model.colors / 255.0).astype(np.float32))
     assert scene.format == "photos" and scene.background == Background() and scene.alpha_paths is None
     assert scene.mask_paths is not None and scene.mask_paths[0] == tiny_colmap / "masks" / "000.png"
+
+
+def test_a_label_map_that_is_a_photo_and_a_scene_json_that_is_no_file_are_refused_in_one_line(tmp_path: Path) -> None:
+    import os
+
+    write_scene(make_scene(tmp_path), tmp_path)
+    record = ColmapDir(tmp_path).scene
+    doc = json.loads(record.read_text())
+    save_image(tmp_path / "masks" / "photo.png", np.random.default_rng(1).random((8, 12, 3)).astype(np.float32))
+    record.write_text(json.dumps(_set(json.loads(json.dumps(doc)), "views.0.mask", "masks/photo.png")))
+    with pytest.raises(InputError, match="is a RGB image, not a single-channel label map"):
+        read_scene(tmp_path)
+    record.unlink()
+    os.mkfifo(record)  # opening a FIFO would block: refused from its stat, in one line
+    with pytest.raises(InputError, match="is a FIFO .*not a regular file") as exc:
+        read_scene(tmp_path)
+    assert "\n" not in str(exc.value)
+    record.unlink()
+    record.symlink_to(record)
+    with pytest.raises(InputError, match="symlink loop"):
+        read_scene(tmp_path)

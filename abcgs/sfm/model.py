@@ -36,11 +36,15 @@ from abcgs.errors import InputError
 from abcgs.io.atomic import write_json
 from abcgs.io.colmap import read_model, write_model
 from abcgs.io.guarded import load_json
+from abcgs.io.images import image_header
 from abcgs.layout import ColmapDir
 from abcgs.types import CAMERA_MODELS, Background, Scene
 
 SCENE_VERSION = 1
 """The version of ``scene.json`` this code writes and reads."""
+LABEL_MODES = ("1", "L", "I", "I;16", "I;16B", "I;16L")
+"""PIL's modes of a single-channel image, what a view's label map must be."""
+
 MAX_SCENE_JSON_BYTES = 64 << 20
 """Largest ``scene.json`` read (a scene of 1000 views writes about 150 kB)."""
 
@@ -218,7 +222,46 @@ def _views(root: Path, doc: Mapping, names: Sequence[str]
     missing = [str(p) for p in (*images, *alphas, *masks) if p is not None and not p.is_file()]
     if missing:
         raise _Bad(f"{len(missing)} file(s) it names are missing: {', '.join(missing[:5])}")
+    seen: dict[Path, str] = {}
+    for kind, paths in (("image", images), ("alpha", alphas), ("mask", masks)):
+        for i, path in enumerate(paths):
+            if path is None:
+                continue
+            key = path.resolve()
+            if key in seen:
+                raise _Bad(f"views[{i}].{kind} {path} is also {seen[key]}: each view has files of its own")
+            seen[key] = f"views[{i}].{kind}"
+    for i, path in enumerate(masks):
+        if path is not None and (mode := image_header(path, "label map")[2]) not in LABEL_MODES:
+            raise _Bad(f"views[{i}].mask {path} is a {mode} image, not a single-channel label map")
     return tuple(images), alphas, masks
+
+
+def _frame(doc: Mapping) -> np.ndarray:
+    """``frame``: a similarity, a rotation times a positive scale and a translation over ``[0, 0, 0, 1]``."""
+    frame = _numbers(_typed(doc, "frame", (list,)), (4, 4), "frame")
+    if not np.allclose(frame[3], [0.0, 0.0, 0.0, 1.0]):
+        raise _Bad(f"frame's last row is {frame[3].tolist()}, not [0, 0, 0, 1]")
+    m = frame[:3, :3]
+    det = float(np.linalg.det(m))
+    if not det > 0:
+        raise _Bad(f"frame's rotation part has determinant {det:.3g}: not a rotation times a positive scale")
+    r = m / np.cbrt(det)
+    if not np.allclose(r @ r.T, np.eye(3), atol=1e-6):
+        raise _Bad("frame's rotation part is not a rotation times a positive scale (its columns are not orthogonal "
+                   "and of one length)")
+    return frame
+
+
+def _depth_range(doc: Mapping) -> tuple[float, float] | None:
+    """``depth_range``: None, or near and far with 0 < near < far (world units)."""
+    depth = _typed(doc, "depth_range", (list, type(None)))
+    if depth is None:
+        return None
+    near, far = (float(v) for v in _numbers(depth, (2,), "depth_range"))
+    if not 0 < near < far:
+        raise _Bad(f"depth_range [{near}, {far}] is not a near and a far distance with 0 < near < far")
+    return near, far
 
 
 def _fields(root: Path, doc: Any, names: Sequence[str]) -> dict:
@@ -228,14 +271,12 @@ def _fields(root: Path, doc: Any, names: Sequence[str]) -> dict:
     _check_finite(doc, "scene")
     images, alphas, masks = _views(root, doc, names)
     splat = _typed(doc, "splat", (str, type(None)))
-    depth = _typed(doc, "depth_range", (list, type(None)))
     notes = _typed(doc, "notes", (list,))
     if not all(isinstance(n, str) for n in notes):
         raise _Bad("notes must be strings")
     return {"image_paths": images, "format": _typed(doc, "format", (str,)),
-            "frame": _numbers(_typed(doc, "frame", (list,)), (4, 4), "frame"), "background": _background(doc),
-            "splat": None if splat is None else Path(splat),
-            "depth_range": None if depth is None else tuple(float(v) for v in _numbers(depth, (2,), "depth_range")),
+            "frame": _frame(doc), "background": _background(doc), "splat": None if splat is None else Path(splat),
+            "depth_range": _depth_range(doc),
             "notes": tuple(notes), "metadata": _typed(doc, "metadata", (dict,)),
             "alpha_paths": tuple(alphas) if all(a is not None for a in alphas) else None,  # type: ignore[arg-type]
             "mask_paths": tuple(masks) if any(m is not None for m in masks) else None}
@@ -248,13 +289,16 @@ def read_scene(root: str | os.PathLike) -> Scene:
     finite, or naming a file outside ``root`` or absent."""
     d = ColmapDir(Path(root))
     rerun = "re-run the reconstruct stage of this scene (dvc repro reconstruct@<scene>)"
-    if not d.scene.is_file():
+    if not d.scene.exists() and not d.scene.is_symlink():
         raise InputError(f"{d.scene} does not exist: {d.root} was not written by this version of the reconstruct "
                          f"stage; {rerun}")
-    doc = load_json(d.scene, "scene record", MAX_SCENE_JSON_BYTES)
+    doc = load_json(d.scene, "scene record", MAX_SCENE_JSON_BYTES)  # a FIFO, a device or a link loop: one line
     version = doc.get("version") if isinstance(doc, dict) else None
-    if version != SCENE_VERSION or isinstance(version, bool):
-        raise InputError(f"{d.scene} is scene record version {str(version)[:20]}; this abcgs reads version "
+    if not isinstance(version, int) or isinstance(version, bool):
+        raise InputError(f"{d.scene} holds version {type(version).__name__} {str(version)[:20]!r}, not the integer "
+                         f"version of a scene record (this abcgs reads {SCENE_VERSION}): {rerun}")
+    if version != SCENE_VERSION:
+        raise InputError(f"{d.scene} is scene record version {version}; this abcgs reads version "
                          f"{SCENE_VERSION}: {rerun}")
     base = _model_scene(d.sparse, d.images)
     try:
