@@ -47,7 +47,8 @@ def main(args, params) -> None:
     spec = params.data.scenes[args.scene]
     device = resolve_device(params.runtime.device)
     if scene.splat is not None:  # the splat the scene names (a bare splat: its renders are the photos)
-        record = import_and_save(scene, scene.splat, spec.splat_format, fit, args.out, device=device,
+        splat = spec.recorded_splat(scene.splat, args.source)
+        record = import_and_save(scene, splat, spec.splat_format, fit, args.out, device=device,
                                  drop_invalid=spec.splat_nonfinite == "drop")
     else:
         record = fit_and_save(scene, fit, args.out, device=device).metrics()

@@ -231,3 +231,26 @@ def test_a_label_map_that_is_a_photo_and_a_scene_json_that_is_no_file_are_refuse
     record.symlink_to(record)
     with pytest.raises(InputError, match="symlink loop"):
         read_scene(tmp_path)
+
+
+def test_the_fit_imports_only_the_splat_of_the_entry_or_one_inside_the_scene_folder(tmp_path: Path) -> None:
+    """A scene record that names a splat elsewhere (a hand-edited scene.json) is refused: DVC tracks the scene's
+    folder, and a splat outside it that the entry does not name would be imported with nothing tracking it."""
+    from abcgs.sources.params import SceneParams
+
+    folder = tmp_path / "scene"
+    (folder / "gs").mkdir(parents=True)
+    inside, outside = folder / "gs" / "point_cloud.ply", tmp_path / "elsewhere.ply"
+    for p in (inside, outside):
+        p.write_bytes(b"ply\n")
+    plain = SceneParams(path=str(folder))
+    assert plain.recorded_splat(inside, folder) == inside
+    with pytest.raises(InputError, match="neither the scene's splat .* nor inside its folder") as exc:
+        plain.recorded_splat(outside, folder)
+    assert "re-run the reconstruct stage" in str(exc.value) and "\n" not in str(exc.value)
+    with pytest.raises(InputError, match="nor inside its folder"):
+        plain.recorded_splat(folder / ".." / "elsewhere.ply", folder)  # not inside once resolved
+    named = SceneParams(path=str(folder), splat=str(outside))  # an absolute splat the entry names
+    assert named.recorded_splat(outside, folder) == outside
+    bare = SceneParams(path=str(outside))  # a bare splat: the scene's path is the file
+    assert bare.recorded_splat(outside, outside) == outside

@@ -20,6 +20,7 @@ from pydantic import (
     model_validator,
 )
 
+from abcgs.errors import InputError
 from abcgs.sources.base import AutoSource, Source
 from abcgs.sources.registry import option_models, reader_of
 from abcgs.splats.params import SplatFormatParam, SplatViewsParams
@@ -121,6 +122,19 @@ class SceneParams(BaseModel):
             return None
         p = Path(self.splat)
         return p if p.is_absolute() else Path(self.path if folder is None else folder) / p
+
+    def recorded_splat(self, recorded: str | os.PathLike, folder: str | os.PathLike) -> Path:
+        """The splat a scene record (``scene.json``) names, ``recorded``, when it is this entry's splat or lies inside
+        the scene's ``folder`` (the file DVC tracks with the scene): the record is read from ``out/``, and a splat it
+        names elsewhere would be imported with nothing tracking it. :class:`InputError` otherwise."""
+        got = Path(recorded).resolve()
+        named = self.splat_path(folder)
+        base = Path(folder).resolve()
+        if (named is not None and got == named.resolve()) or got == base or got.is_relative_to(base):
+            return Path(recorded)
+        raise InputError(f"the scene record names the splat {recorded}, which is neither the scene's splat "
+                         f"({named}) nor inside its folder {folder}; re-run the reconstruct stage of this scene (dvc "
+                         "repro reconstruct@<scene>)")
 
     def resolved_background(self, fmt: str) -> Background:
         """The scene's :class:`~abcgs.types.Background` when read as ``fmt``: the entry's ``background`` when given
