@@ -146,7 +146,8 @@ def _renders(model, cams) -> list[np.ndarray]:
         return [render(model, c)[0].clamp(0, 1).numpy(force=True) for c in cams]
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parser():
+    """The benchmark's options (module docstring)."""
     ap = bench_parser(__doc__)
     ap.add_argument("--work", type=Path, required=True, help="where eval.bench.fit left the fitted miku scene")
     ap.add_argument("--styles", type=Path, default=Path("../shared/data/styles"), help="the paintings' folder")
@@ -161,7 +162,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--figure", type=Path, help="write the face crops here (JPEG or PNG)")
     ap.add_argument("--figure-views", type=int, default=3, help="rows of the figure: the views with the largest faces")
     ap.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def _line(name: str, r: dict) -> str:
+    """One setting's scores as the benchmark prints them."""
+    return (f"{name}: SSIM {r['ssim']:.3f}, face {r['face_ssim']:.3f}, face gradients {r['face_gradient_ssim']:.3f}; "
+            "Gram " + ", ".join(f"{p} {v:.3f}" for p, v in r["gram"].items()))
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
     settings = [parse_setting(s) for s in (args.setting or ["defaults="])]
     logging.basicConfig(level=logging.WARNING, format="%(message)s")
     if args.threads:
@@ -212,12 +223,8 @@ def main(argv: list[str] | None = None) -> int:
             "seconds": time.perf_counter() - t0, "first_terms": main_steps[0].terms, "last_terms": main_steps[-1].terms}
         used[name] = {"weights": sp.weights.model_dump(), "content_weights": dict(label_weights.content),
                       "structure_weights": dict(label_weights.structure)}
-        r = results[name]
-        print(f"{name}: SSIM {r['ssim']:.3f}, face {r['face_ssim']:.3f}, face gradients {r['face_gradient_ssim']:.3f}; "
-              "Gram " + ", ".join(f"{p} {v:.3f}" for p, v in r["gram"].items()) + f" ({r['seconds']:.0f} s)", flush=True)
-    r = results["colour-matched start"]
-    print(f"colour-matched start: SSIM {r['ssim']:.3f}, face {r['face_ssim']:.3f}, face gradients "
-          f"{r['face_gradient_ssim']:.3f}; Gram " + ", ".join(f"{p} {v:.3f}" for p, v in r["gram"].items()))
+        print(_line(name, results[name]) + f" ({results[name]['seconds']:.0f} s)", flush=True)
+    print(_line("colour-matched start", results["colour-matched start"]))
     record = {"scene": spec["title"], "views": stems, "n_gaussians": original.num_gaussians,
               "paintings": paintings, "labels": spec["labels"],
               "schedule": {"refit": args.refit_iterations, "main": args.iterations,
