@@ -2,7 +2,8 @@
 images matching cameras, camera and image sizes a consistent scale, cameras that look at the scene, label maps in
 ``masks/`` at their views' size or its scale) before any stage runs. Scenes whose cameras structure from motion finds
 (photos) are checked by :func:`abcgs.preflight.check_input_files`; those whose cameras a reader makes (bare splats) by
-the stage that reads them.
+the stage that reads them. A trained splat an entry names (``splat:``) is read by its reader too, its values checked and,
+with a dataset's cameras, its frame (:func:`abcgs.splats.registry.check_splat_file`).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from abcgs.errors import InputError
 from abcgs.preflight import check_label_map_sizes, produced_by_stage
 from abcgs.sources.read import read_source, resolve_format
 from abcgs.sources.registry import reader_of
+from abcgs.splats.registry import check_splat_file
 
 
 def check_scene_sources(params, root: Path, produced: Iterable[str] = ()) -> list[str]:
@@ -25,15 +27,18 @@ def check_scene_sources(params, root: Path, produced: Iterable[str] = ()) -> lis
         if produced_by_stage(Path(scene.path), produced, root):
             continue
         folder = root / scene.path
+        source = None
         try:
             fmt = resolve_format(folder, scene.format, scene.images)
-            if not reader_of(fmt).check:  # cameras found from photos or made around a splat: nothing to read yet
-                continue
-            source = read_source(folder, fmt, images=scene.images, background=scene.resolved_background(fmt).color,
-                                 source=scene.source)
-            check_label_map_sizes(name, folder / "masks", {Path(v.name).stem: (
-                v.name, (v.camera.height, v.camera.width)) for v in source.views}, scene.images)
+            if reader_of(fmt).check:  # not cameras found from photos or made around a splat: read them now
+                source = read_source(folder, fmt, images=scene.images,
+                                     background=scene.resolved_background(fmt).color, source=scene.source)
+                check_label_map_sizes(name, folder / "masks", {Path(v.name).stem: (
+                    v.name, (v.camera.height, v.camera.width)) for v in source.views}, scene.images)
+            if scene.splat is not None:  # the trained splat the fit stage imports, by its reader's checks
+                check_splat_file(scene.splat_path(folder), scene.splat_format, scene=source,
+                                 drop_invalid=scene.splat_nonfinite == "drop")
         except InputError as exc:
             raise InputError(f"data.scenes.{name}: {exc}") from None
-        warnings += [f"data.scenes.{name}: {note}" for note in source.notes]
+        warnings += [f"data.scenes.{name}: {note}" for note in (source.notes if source is not None else ())]
     return warnings

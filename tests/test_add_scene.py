@@ -146,3 +146,34 @@ def test_add_style_with_and_without_region_map(tmp_path: Path, tiny_scene: Path,
     rc, _, err = _run(capsys, "add-style", "q", str(tmp_path / "nope.jpg"), "--params", str(params_file))
     assert rc == 2 and "nope.jpg does not exist" in err
     assert "q" not in load_params(params_file).data.styles
+
+
+def test_preflight_reads_an_entrys_trained_splat_before_any_stage(tmp_path: Path, tiny_scene: Path) -> None:
+    """A hand-written entry's splat is checked by preflight as add-scene checks it: NaN means or no Gaussian are
+    refused in one line naming the entry (before the reconstruct stage runs); splat_nonfinite: drop passes them."""
+    import torch
+
+    from abcgs.errors import InputError
+    from abcgs.gaussians.ply import write_ply
+    from abcgs.params import validate_params
+    from tests.test_splats import make_model
+
+    good, nan, empty = tmp_path / "good.ply", tmp_path / "nan.ply", tmp_path / "empty.ply"
+    model = make_model(200, 0)
+    write_ply(good, model)
+    with torch.no_grad():
+        model.means[:3] = float("nan")
+    write_ply(nan, model)
+    write_ply(empty, make_model(0, 0))
+
+    def check(splat: Path, **entry) -> list[str]:
+        params = validate_params({"data": {"scenes": {"s": {"path": str(tiny_scene), "splat": str(splat), **entry}}}})
+        return check_scene_sources(params, tmp_path)
+
+    assert check(good) == []
+    with pytest.raises(InputError, match=r"data\.scenes\.s: .*nan\.ply: 3 of 200 Gaussians") as exc:
+        check(nan)
+    assert "\n" not in str(exc.value)
+    assert check(nan, splat_nonfinite="drop") == []
+    with pytest.raises(InputError, match=r"data\.scenes\.s: .*0 Gaussians"):
+        check(empty)

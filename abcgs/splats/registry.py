@@ -133,16 +133,41 @@ def read_splat(path: str | os.PathLike, fmt: str = "auto", *, scene=None, drop_i
     p = Path(path)
     fmt = detect_splat_format(p) if fmt == "auto" else fmt
     spec = format_of(fmt)
+    model, fields = _read_valid(spec, p, drop_invalid)
+    to_file = spec.frame(p, scene, fields)
+    prov = SplatProvenance(fmt, os.fspath(p), model.sh_degree, model.num_gaussians,
+                           frames.similarity_matrix(to_file).tolist(), **fields)
+    return ImportedSplat(frames.transform_model(model, frames.inverse(to_file)), prov)
+
+
+def _read_valid(spec: SplatFormatSpec, p: Path, drop_invalid: bool) -> tuple[GaussianModel, dict]:
+    """The format's reader on ``p`` (its header and value checks), then at least one Gaussian and every value
+    finite (:func:`abcgs.gaussians.valid_gaussians`); the model in the file's frame and the reader's fields."""
     if not p.exists():
         raise InputError(f"splat {p} does not exist")
     model, fields = spec.read(p, drop_invalid)
     if model.num_gaussians == 0:
         raise InputError(f"splat {p} holds 0 Gaussians; export the trained scene again (a splat needs at least one)")
-    to_file = spec.frame(p, scene, fields)
-    model = valid_gaussians(model, str(p), drop=drop_invalid)
-    prov = SplatProvenance(fmt, os.fspath(p), model.sh_degree, model.num_gaussians,
-                           frames.similarity_matrix(to_file).tolist(), **fields)
-    return ImportedSplat(frames.transform_model(model, frames.inverse(to_file)), prov)
+    return valid_gaussians(model, str(p), drop=drop_invalid), fields
+
+
+def check_splat_file(path: str | os.PathLike, fmt: str = "auto", *, scene=None, drop_invalid: bool = False) -> int:
+    """What the ``preflight`` stage checks of a scene's trained splat before any stage runs: the reader's header and
+    value checks (:func:`_read_valid`) and, given the ``scene`` (a dataset's cameras and points), its frame as
+    :func:`read_splat` finds it (an INRIA folder's ``cameras.json`` against the scene's cameras). The check of its
+    renders against the photos stays in the fit stage. Returns the number of Gaussians; :class:`InputError` in one
+    line otherwise."""
+    if scene is not None:
+        if scene.points is None:  # a dataset without points: a frame computed from them says it needs them
+            import dataclasses
+
+            import numpy as np
+
+            none = np.zeros((0, 3), np.float32)
+            scene = dataclasses.replace(scene, points=none, colors=none)
+        return read_splat(path, fmt, scene=scene, drop_invalid=drop_invalid).model.num_gaussians
+    p = Path(path)
+    return _read_valid(format_of(detect_splat_format(p) if fmt == "auto" else fmt), p, drop_invalid)[0].num_gaussians
 
 
 def returned_name(prov: SplatProvenance) -> str:
