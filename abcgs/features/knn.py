@@ -44,6 +44,7 @@ from typing import Literal
 import torch
 
 from abcgs.errors import InputError, NumericalError
+from abcgs.features.bf16 import bf16_matmul_is_native, bf16_similarity_bound, bf16_with_residuals
 from abcgs.features.params import DEFAULT_MAX_BLOCK_ELEMS
 from abcgs.types import CandidateProducts, KnnSearch, ProjectionSettings
 
@@ -54,27 +55,6 @@ product is cheap and the certification's fixed costs do not pay (the tiny scene 
 BF16_CANDIDATES = 16
 """Candidates per feature of the bf16 search (K): the more, the more features are certified; the rest fall back to
 the exact search (the share certified by K: ``docs/measurements/settings.yaml``, ``knn_bf16_certified_search``)."""
-
-_BF16_ROUNDING = 2.0**-8
-"""Unit roundoff of bfloat16 (8 significant bits, round to nearest)."""
-
-
-@functools.lru_cache(maxsize=1)
-def bf16_matmul_is_native() -> bool:
-    """Whether this CPU has bfloat16 dot-product instructions (AVX512-BF16 or AMX) for oneDNN's bf16 products;
-    without them oneDNN emulates bf16 and the product is no faster than float32."""
-    probes = ("_is_avx512_bf16_supported", "_is_amx_tile_supported")
-    try:
-        native = any(bool(getattr(torch.cpu, name)()) for name in probes if hasattr(torch.cpu, name))
-        return native and torch.backends.mkldnn.is_available()
-    except RuntimeError:
-        return False
-
-
-def bf16_with_residuals(x: torch.Tensor, dim: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """``x`` rounded to bfloat16, and the norm of each vector's rounding residual ``‖x − bf16(x)‖`` along ``dim``."""
-    low = x.to(torch.bfloat16)
-    return low, (x - low.float()).norm(dim=dim)
 
 
 @functools.lru_cache(maxsize=1)
@@ -352,18 +332,6 @@ def _certified_topk(
     if bad.numel() > 0:
         out[bad] = exact_rows(bad)
     return out, certified
-
-
-def bf16_similarity_bound(e_self: torch.Tensor, e_other_max: float, channels: int) -> torch.Tensor:
-    """Upper bound ``(N,)`` on ``|uᵀv − bf16 product(ũ, ṽ)|`` for unit ``u`` (rounding residuals ``e_self`` =
-    ``‖u − ũ‖``) against every unit ``v`` with ``‖v − ṽ‖ ≤ e_other_max``.
-
-    ``|uᵀv − ũᵀṽ| ≤ ‖u−ũ‖‖v‖ + ‖ũ‖‖v−ṽ‖`` with ``‖ũ‖ ≤ 1 + ‖u−ũ‖``; the float32 accumulation of ``C`` exact
-    bf16 products adds at most ``C·2⁻²⁴·‖ũ‖‖ṽ‖``; rounding the result to bf16 at most ``2⁻⁸`` of its magnitude.
-    """
-    acc = channels * 2.0**-24
-    mag = (1.0 + e_self) * (1.0 + e_other_max)
-    return e_self + (1.0 + e_self) * e_other_max + acc * mag + _BF16_ROUNDING * mag * (1.0 + acc)
 
 
 def _bf16_topk(u_r: torch.Tensor, style: StyleFeatures, k_rs: int, k_sr: int, max_block_elems: int):
