@@ -12,13 +12,19 @@ where the cut left a pixel undecided) and its strokes (a seed map: -1 none, 0 th
    Gaussian for the labels of the pixels it blends into, each pixel weighted by how sure the cut is there
    (:func:`cut_confidence`): near the strokes of its own view fully, falling off with the distance to them
    (``cut_reach``); where GrabCut's two colour models differ little (``cut_margin``) the page's cut leaves the pixel
-   undecided. A Gaussian's evidence for label l is its confident vote for l over all it blends into decided pixels.
-3. **The 3-D step** (:mod:`abcgs.masks.graph`): a random walk over the Gaussians' nearest neighbours with the strokes
-   as seeds and the cuts' evidence as priors (Grady's random walker with prior models: each Gaussian is also joined,
-   with ``cut_weight`` × its degree × its evidence, to a terminal of each label). A correction (its strokes alone, or
-   with ``correction: cut`` its view's cut again) so changes what it binds, what its view is sure of and what lies
-   near it in 3-D, not what the other views are sure of; what no seed or evidence reaches clearly stays undecided. ``cut_evidence: hard`` is the earlier rule: a Gaussian whose summed vote is clear
-   (:func:`~abcgs.masks.lifting.decide_labels`) is a seed of its label.
+   undecided. A Gaussian's evidence for label l is its confident vote for l over its blending weight in the whole
+   view (``evidence_of: view``; ``decided``: in the pixels the cut decided), so a large splat a correction covers in
+   part is weak evidence. With ``occlusion``, what lies behind the view's surface casts no vote there
+   (:func:`~abcgs.masks.lifting.occluded_gaussians`).
+3. **The 3-D step** (:mod:`abcgs.masks.graph`, ``solver``): ``geodesic`` (the default) gives each Gaussian the label
+   of the stroke or the evidence nearest to it along the Gaussians' neighbour graph, evidence e starting at
+   ``evidence_cost × (1 - e)``; ``walk`` is a random walk over the same graph with the strokes as seeds and the cuts'
+   evidence as priors (Grady's random walker with prior models: each Gaussian is also joined, with ``cut_weight`` ×
+   its degree × its evidence, to a terminal of each label). A correction (its strokes, each stroke's colour region
+   with ``correction: region``, or with ``correction: cut`` its view's cut again) so changes what it binds, what
+   its view is sure of and what lies nearest to it in 3-D, not what the other views are sure of. ``cut_evidence:
+   hard`` is the earlier rule: a Gaussian whose summed vote is clear (:func:`~abcgs.masks.lifting.decide_labels`) is a
+   seed of its label.
 
 Each view's votes are computed once, when its cut or strokes change, so a Segment on one view re-lifts one view and
 re-solves the graph. Rendering the labels into every view is the caller's (the stage renders full-size maps, the page
@@ -50,7 +56,7 @@ class FieldResult:
     """Per-Gaussian labels and how they were decided.
 
     ``labels`` ``(N,) int64`` 0..L (0 also where undecided); ``decided`` ``(N,) bool``; ``probs`` ``(N, L + 1)``
-    float64 the random walk's label probabilities (1 at seeds); ``source`` ``(N,) uint8``: 0 undecided, 1 a stroke,
+    float64 the random walk's label probabilities (1 at seeds; the geodesic step's: 1 at the decided label); ``source`` ``(N,) uint8``: 0 undecided, 1 a stroke,
     2 the lifted cuts, 3 the 3-D step. ``seconds``: lifting the changed views and solving."""
 
     labels: np.ndarray

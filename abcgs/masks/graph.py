@@ -1,4 +1,5 @@
-"""The 3-D step of the labels: a graph over the Gaussians' nearest neighbours and a label diffusion on it.
+"""The 3-D step of the labels: a graph over the Gaussians' nearest neighbours, and a label diffusion or a geodesic
+labelling on it.
 
 Lifting (Eq. 2) labels only the Gaussians that painted views see. The rest of an object, seen from no painted view,
 takes its labels from a graph over the Gaussians:
@@ -16,6 +17,11 @@ takes its labels from a graph over the Gaussians:
   ``S`` the seeded Gaussians, ``y_l`` the seeds' one-hot labels). The small leak ``ε`` lets a walk die, so a part no
   seed reaches ends with no probability at all, not an even split. The systems are solved by SciPy's conjugate
   gradients (``scipy.sparse.linalg.cg``, Jacobi-preconditioned; the matrix is symmetric positive definite).
+- **Geodesic step** (:func:`geodesic_labels`), the alternative to the diffusion that the labels use by default: each
+  Gaussian takes the label of the source nearest to it along the graph (Dijkstra, SciPy's ``csgraph``), an edge as
+  long as a hop in its ends' local scale plus γ × how unlike its ends are (:meth:`GaussianGraph.lengths`). A seed of
+  one Gaussian claims all that is nearer to it than to any other source; in the walk a seed pulls in proportion to
+  its size, so a small correction among large seeds moves little.
 - **Decision** (:func:`decide_diffused`): a Gaussian takes the label of largest probability when that probability is
   at least ``min_reach`` (a seed reached it) and at least ``min_share`` of what reached it; otherwise it stays
   undecided, and the page shows it as such.
