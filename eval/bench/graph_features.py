@@ -14,7 +14,6 @@ blending-weighted mean over the views that see it, each channel then of unit var
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
@@ -28,14 +27,12 @@ import torch
 
 from abcgs.cameras import Camera
 from abcgs.gaussians import GaussianModel
-from abcgs.gaussians.ply import read_ply
 from abcgs.io.images import load_image
 from abcgs.masks.graph import gaussian_graph
 from abcgs.masks.lifting import blend_votes
 from abcgs.masks.params import FieldParams
-from abcgs.sfm.model import read_scene
 from eval.bench.scripted_user import ScriptedUser
-from eval.bench.strokes import DATA, reference_map, view_strokes
+from eval.bench.strokes import DATA, load_case, view_strokes
 from eval.labels import score_labels
 from eval.record import bench_parser, write_record
 
@@ -81,12 +78,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--dims", type=int, default=8, help="principal components of the features kept")
     ap.add_argument("--feature-weights", default="0.5,2,10", help="λ_f of the part affinity, comma-separated")
     args = ap.parse_args(argv)
-    spec = json.loads((DATA / args.scene / "strokes.json").read_text())
-    scene = read_scene(args.work / spec["work_colmap"])
-    model = read_ply(args.work / spec["work_ply"])
-    by_stem = {Path(c.name).stem: i for i, c in enumerate(scene.cameras)}
-    refs = {s: reference_map(DATA / args.scene / "reference" / f"{s}.png", scene.cameras[by_stem[s]])
-            for s in spec["reference"] if s in by_stem}
+    case = load_case(DATA / args.scene, args.scene, args.work)
+    spec, scene, model, by_stem, refs = case.spec, case.scene, case.model, case.by_stem, case.refs
     front = by_stem[spec["test"]["view"]]
     t0 = time.perf_counter()
     idx = list(range(0, len(scene.cameras), args.every))

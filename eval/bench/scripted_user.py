@@ -46,15 +46,13 @@ setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 import cv2
 import numpy as np
 
-from abcgs.gaussians.ply import read_ply
 from abcgs.io.images import load_image, save_image, to_uint8
 from abcgs.masks.field import LabelField, render_field
 from abcgs.masks.page.field_session import FieldSession
 from abcgs.masks.page.strip import Strip
 from abcgs.masks.params import FieldParams
 from abcgs.masks.strokes import Stroke, rasterize_strokes
-from abcgs.sfm.model import read_scene
-from eval.bench.strokes import DATA, geometry_bound, reference_map, view_strokes
+from eval.bench.strokes import DATA, geometry_bound, load_case, view_strokes
 from eval.labels import score_labels, stroke_overlay
 from eval.record import bench_parser, write_record
 
@@ -274,12 +272,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--figure", type=Path, help="write the final labels beside the references here")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(message)s")
-    spec = json.loads((DATA / args.scene / "strokes.json").read_text())
-    scene = read_scene(args.work / spec["work_colmap"])
-    model = read_ply(args.work / spec["work_ply"])
-    by_stem = {Path(c.name).stem: i for i, c in enumerate(scene.cameras)}
-    refs = {s: reference_map(DATA / args.scene / "reference" / f"{s}.png", scene.cameras[by_stem[s]])
-            for s in spec["reference"] if s in by_stem}
+    case = load_case(DATA / args.scene, args.scene, args.work)
+    spec, scene, model, by_stem, refs = case.spec, case.scene, case.model, case.by_stem, case.refs
     base = json.loads(args.field)
     if args.settings is None:
         record, user = run_setting(model, scene, refs, by_stem, spec, FieldParams(**base), args.max_strokes,

@@ -283,13 +283,32 @@ def _print_report(out: dict) -> None:
     print(f"total {out['seconds']:.0f} s")
 
 
-def _load_fitted(spec: dict, scene_name: str, work: Path) -> tuple[Scene, GaussianModel]:
-    """The reconstruction and the fitted Gaussians ``strokes.json`` (``spec``) names under ``work``."""
+@dataclass(frozen=True)
+class FittedCase:
+    """A labelled scene of ``eval/data/<scene>/`` and its fit: ``strokes.json`` (``spec``), the reconstruction and the
+    fitted Gaussians it names under the work folder, each view's index by file stem (``by_stem``) and the reference
+    label maps of the views the reconstruction holds (``refs``, stem → ``(H, W) int64``)."""
+
+    spec: dict
+    scene: Scene
+    model: GaussianModel
+    by_stem: dict[str, int]
+    refs: dict[str, np.ndarray]
+
+
+def load_case(data: Path, scene_name: str, work: Path) -> FittedCase:
+    """The :class:`FittedCase` of ``data`` (``eval/data/<scene>``) fitted under ``work`` (``eval.bench.fit --work``);
+    ``SystemExit`` naming the fit's command when the fit is missing."""
+    spec = json.loads((data / "strokes.json").read_text())
     colmap, ply = work / spec["work_colmap"], work / spec["work_ply"]
     if not ColmapDir(colmap).scene.is_file() or not ply.is_file():
         raise SystemExit(f"no fitted {scene_name} under {work} ({colmap}, {ply}): run python -m eval.bench.fit "
                          f"--scene <data>/scenes/{scene_name} --work {work} first")
-    return read_scene(colmap), read_ply(ply)
+    scene = read_scene(colmap)
+    by_stem = {Path(c.name).stem: i for i, c in enumerate(scene.cameras)}
+    refs = {s: reference_map(data / "reference" / f"{s}.png", scene.cameras[by_stem[s]])
+            for s in spec["reference"] if s in by_stem}
+    return FittedCase(spec, scene, read_ply(ply), by_stem, refs)
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -297,17 +316,17 @@ def main(argv: list[str] | None = None) -> dict:
     logging.basicConfig(level=logging.WARNING, format="%(message)s")
 
     data = args.data or DATA / args.scene
-    spec = json.loads((data / "strokes.json").read_text())
-    scene, model = _load_fitted(spec, args.scene, args.work)
     if args.make_reference:
+        spec = json.loads((data / "strokes.json").read_text())
+        scene = read_scene(args.work / spec["work_colmap"])
         make_reference(scene, spec, data / "reference", args.figure, args.only)
         return {}
 
     t0 = time.perf_counter()
+    case = load_case(data, args.scene, args.work)
+    spec, scene, model, by_stem, refs = case.spec, case.scene, case.model, case.by_stem, case.refs
     cams = scene.cameras
-    by_stem = {Path(c.name).stem: i for i, c in enumerate(cams)}
     missing = [s for s in spec["reference"] if s not in by_stem]
-    refs = {s: reference_map(data / "reference" / f"{s}.png", cams[by_stem[s]]) for s in spec["reference"] if s in by_stem}
     bench = Bench(scene, model, spec, by_stem, refs, len(spec["labels"]))
     cases = args.cases or (["one", "two"] if "side" in spec else ["one"])
     stroked_views = {"one": [spec["test"]], "two": [spec["test"], spec.get("side")]}
