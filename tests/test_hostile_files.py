@@ -601,3 +601,29 @@ def test_a_socket_or_a_fifo_given_to_add_scene_or_as_a_painting_is_named_as_such
             PaintSession.for_painting(fifo)
         with pytest.raises(InputError, match=r"^painting .*none.png does not exist$"):
             PaintSession.for_painting(tmp_path / "none.png")
+
+
+# ------------------------------------------------------------------------------------------ saved stroke maps
+
+
+@pytest.mark.parametrize("kind", ["fifo", "dev_zero", "loop"])
+def test_a_stroke_map_that_is_no_regular_file_is_refused_not_skipped(tmp_path: Path, kind: str) -> None:
+    """The reconstruct stage carries the masks page's strokes into the layout: one that is a FIFO (opening it would
+    block), a link to a device or a link loop is refused in one line, before anything opens it."""
+    from abcgs.io.images import stroke_map_path
+    from abcgs.sfm.colmap import carry_strokes
+
+    masks = tmp_path / "masks"
+    path = stroke_map_path(masks, "000")
+    path.parent.mkdir(parents=True)
+    if kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "dev_zero":
+        path.symlink_to("/dev/zero")
+    else:
+        path.symlink_to(path)
+    t0 = time.perf_counter()
+    with pytest.raises(InputError) as exc:
+        carry_strokes(masks, "000", (12, 16), tmp_path / "out")
+    assert "\n" not in str(exc.value) and str(path) in str(exc.value) and time.perf_counter() - t0 < 5
+    assert not carry_strokes(masks, "001", (12, 16), tmp_path / "out")  # no strokes for that view: nothing carried

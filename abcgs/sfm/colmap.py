@@ -253,9 +253,10 @@ def carry_strokes(masks_dir: Path, stem: str, view_hw: tuple[int, int], out: Pat
     ``masks_dir``), if any, into ``out/strokes/`` through ``warp`` (``(H, W) int64 → (H', W') int64``, the view's
     undistortion, None: as it is; its empty pixels, 0, are no stroke). A stroke map painted at another scale of the
     view (the photo's full size, the views a quarter of it) is scaled to ``view_hw`` first
-    (:func:`abcgs.io.images.strokes_for_view`). Returns whether there was one."""
+    (:func:`abcgs.io.images.strokes_for_view`). Returns whether there was one; one that is no regular file (a FIFO, a
+    device, a link loop) is refused in one line, not skipped (:func:`abcgs.io.guarded.regular_file`)."""
     src = stroke_map_path(masks_dir, stem)
-    if not src.is_file():
+    if not src.exists() and not src.is_symlink():
         return False
     raw = strokes_for_view(load_labels(src), view_hw, src, stem)
     save_labels(stroke_map_path(out, stem), raw if warp is None else warp(raw))
