@@ -56,8 +56,9 @@ class FieldResult:
     """Per-Gaussian labels and how they were decided.
 
     ``labels`` ``(N,) int64`` 0..L (0 also where undecided); ``decided`` ``(N,) bool``; ``probs`` ``(N, L + 1)``
-    float64 the random walk's label probabilities (1 at seeds; the geodesic step's: 1 at the decided label); ``source`` ``(N,) uint8``: 0 undecided, 1 a stroke,
-    2 the lifted cuts, 3 the 3-D step. ``seconds``: lifting the changed views and solving."""
+    float64 the random walk's label probabilities (1 at seeds; the geodesic step's: 1 at the decided label);
+    ``source`` ``(N,) uint8``: 0 undecided, 1 a stroke, 2 the lifted cuts, 3 the 3-D step. ``seconds``: lifting the
+    changed views and solving."""
 
     labels: np.ndarray
     decided: np.ndarray
@@ -81,7 +82,6 @@ class _View:
     cover: torch.Tensor | None = None  # (N,) blending weight in the cut's decided pixels
     seen: torch.Tensor | None = None  # (N,) blending weight in the whole view
     stroke_votes: torch.Tensor | None = None  # (N, L_v + 1) blending weight in each label's stroke pixels, if bound
-    hidden: torch.Tensor | None = None  # (N,) bool: behind the view's surface (abcgs.masks.lifting.occluded_gaussians)
 
 
 def cut_confidence(shape: tuple[int, int], strokes: np.ndarray | None, reach: float) -> np.ndarray:
@@ -187,12 +187,10 @@ class LabelField:
         strokes = torch.zeros(n, n_labels + 1)
         for i, v in self._views.items():
             cam = self.cameras[i]
-            if self.params.occlusion > 0 and v.hidden is None:
-                v.hidden = occluded_gaussians(self.model, cam, self.params.occlusion, backend=self.backend)
-            keep = None if v.hidden is None else (~v.hidden).to(torch.float32)  # the view's surface hides the rest
             if v.cut is not None and v.votes is None:
                 v.votes, v.cover, v.seen = self._cut_votes(v, cam)
-                if keep is not None:
+                if self.params.occlusion > 0:  # what the view's surface hides casts no vote there
+                    keep = (~occluded_gaussians(self.model, cam, self.params.occlusion, backend=self.backend)).float()
                     v.votes, v.cover, v.seen = v.votes * keep[:, None], v.cover * keep, v.seen * keep
             if v.strokes is not None and v.stroke_votes is None:
                 v.stroke_votes = self._stroke_votes(v.strokes, cam)
