@@ -52,7 +52,7 @@ from abcgs.masks.page.field_session import FieldSession
 from abcgs.masks.page.strip import Strip
 from abcgs.masks.params import FieldParams
 from abcgs.masks.strokes import Stroke, rasterize_strokes
-from eval.bench.strokes import DATA, geometry_bound, load_case, view_strokes
+from eval.bench.strokes import DATA, FittedCase, geometry_bound, load_case, view_strokes
 from eval.labels import score_labels, stroke_overlay
 from eval.record import bench_parser, write_record
 
@@ -215,10 +215,12 @@ def figure(user: ScriptedUser, steps: list[dict], path: Path) -> None:
     save_image(path, image_grid(rows, [labels, reference], height=user.scene.cameras[0].height))
 
 
-def run_setting(model, scene, refs: dict[str, np.ndarray], by_stem: dict[str, int], spec: dict, params: FieldParams,
-                max_strokes: int, radius: float, strip: Strip | None = None) -> tuple[dict, ScriptedUser]:
-    """One scripted run at ``params``: the bounds, the steps, the ``masks`` stage's score; its record (without
-    provenance) and the user, for the figure. ``strip``: a recorded strip to reuse (the Gaussians are the same)."""
+def run_setting(case: FittedCase, params: FieldParams, max_strokes: int, radius: float,
+                strip: Strip | None = None) -> tuple[dict, ScriptedUser]:
+    """One scripted run on ``case`` at ``params``: the bounds, the steps, the ``masks`` stage's score; its record
+    (without provenance) and the user, for the figure. ``strip``: a recorded strip to reuse (the Gaussians are the
+    same)."""
+    spec, scene, model, by_stem, refs = case.spec, case.scene, case.model, case.by_stem, case.refs
     n_labels = len(spec["labels"])
     front_stem, items = spec["test"]["view"], spec["test"]["strokes"]
     front = by_stem[front_stem]
@@ -273,11 +275,9 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(message)s")
     case = load_case(DATA / args.scene, args.scene, args.work)
-    spec, scene, model, by_stem, refs = case.spec, case.scene, case.model, case.by_stem, case.refs
     base = json.loads(args.field)
     if args.settings is None:
-        record, user = run_setting(model, scene, refs, by_stem, spec, FieldParams(**base), args.max_strokes,
-                                   args.radius)
+        record, user = run_setting(case, FieldParams(**base), args.max_strokes, args.radius)
         if args.json:
             write_record(args.json, record, argv)
         if args.figure:
@@ -289,14 +289,14 @@ def main(argv: list[str] | None = None) -> int:
     rows, strip = [], None
     for name, overrides in settings.items():
         print(f"== {name}: {json.dumps(overrides or {})}", flush=True)
-        record, user = run_setting(model, scene, refs, by_stem, spec, FieldParams(**{**base, **(overrides or {})}),
-                                   args.max_strokes, args.radius, strip)
+        record, user = run_setting(case, FieldParams(**{**base, **(overrides or {})}), args.max_strokes, args.radius,
+                                   strip)
         strip = user.session.strip
         rows.append(summary(name, overrides or {}, record))
     if args.json:
-        write_record(args.json, {"what": f"eval.bench.scripted_user on {spec['title']}, one run per masks.field "
-                                         f"setting of {args.settings.name}", "scene": spec["title"],
-                                 "n_gaussians": model.num_gaussians, "geometry_bound": record["geometry_bound"],
+        write_record(args.json, {"what": f"eval.bench.scripted_user on {case.spec['title']}, one run per masks.field "
+                                         f"setting of {args.settings.name}", "scene": case.spec["title"],
+                                 "n_gaussians": case.model.num_gaussians, "geometry_bound": record["geometry_bound"],
                                  "refined_bound": record["refined_bound"], "runs": rows}, argv)
     return 0
 
