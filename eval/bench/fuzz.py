@@ -7,8 +7,8 @@ For each format a small valid input is made the way the project makes it (:func:
 SuperSplat compressed PLY, a ``.splat``, a ``.spz``, a COLMAP model (binary and text) with its images, a nerfstudio ``transforms.json``, an LLFF
 ``poses_bounds.npy``, the masks page's request body (``Content-Length`` and JSON, plus an image index), and
 (:mod:`eval.bench.fuzz_inputs`) a photo read by its header, a gsplat checkpoint, an INRIA ``cameras.json``, a
-splatfacto ``dataparser_transforms.json``, a ``params.yaml``, a stylized scene's ``fitted_rows.npy`` and a
-scene whose files become special files. Each
+splatfacto ``dataparser_transforms.json``, a ``params.yaml``, a stylized scene's ``fitted_rows.npy``, a
+reconstructed scene's ``scene.json`` and a scene whose files become special files. Each
 input is one seeded mutation of it (:data:`eval.bench.fuzz_mutations.MUTATIONS`): truncated, bytes flipped or inserted, a count or size field
 inflated, a number replaced by 0, -1, NaN, infinity or a huge value, a record repeated, the JSON nested deeply, a
 gzip stream padded to a bomb, a PNG header claiming 10⁹ × 10⁹ pixels, a checkpoint field made 0-d, complex or
@@ -51,7 +51,7 @@ from eval.bench.fuzz_mutations import MUTATIONS
 from eval.record import bench_parser, write_record
 
 FORMATS = ("ply", "supersplat", "splat", "spz", "colmap_bin", "colmap_txt", "transforms", "llff", "paint", "image",
-           "gsplat_ckpt", "inria_cameras", "splatfacto", "params", "fitted_rows", "special")
+           "gsplat_ckpt", "inria_cameras", "splatfacto", "params", "fitted_rows", "scene_record", "special")
 SLOW_S = 5.0
 """An input whose reader takes longer than this (seconds) is a finding."""
 # ------------------------------------------------------------------------------------------ valid inputs
@@ -234,6 +234,7 @@ def _more_targets(work: Path, formats: tuple[str, ...], cams: list[Camera], out:
               "splatfacto": ("json", fuzz_inputs.make_splatfacto_transforms),
               "params": ("yaml", fuzz_inputs.make_params),
               "fitted_rows": ("bytes", fuzz_inputs.make_fitted_rows),
+              "scene_record": ("json", lambda w: fuzz_inputs.make_scene_record(w, cams)),
               "special": ("special", lambda w: fuzz_inputs.make_special(w, cams, _transforms, _images))}
     for name, (kind, make) in makers.items():
         if name in formats:

@@ -150,6 +150,30 @@ def make_fitted_rows(folder: Path, n: int = 200, n_fitted: int = 150) -> tuple[l
     return [path], lambda: read_fitted_rows(path, n, n_fitted)
 
 
+def make_scene_record(folder: Path, cameras) -> tuple[list[Path], Callable[[], object]]:
+    """A reconstructed scene's ``scene.json`` (:func:`abcgs.sfm.model.write_scene`: the views' images, a label map, a
+    frame and a depth range), read by :func:`abcgs.sfm.model.read_scene` as every stage after ``reconstruct`` reads
+    it."""
+    from abcgs.io.images import save_image, save_labels
+    from abcgs.sfm.model import read_scene, write_scene
+    from abcgs.types import Cameras, Scene
+
+    rng = np.random.default_rng(0)
+    images = []
+    for cam in cameras:
+        images.append(folder / "images" / cam.name)
+        save_image(images[-1], rng.random((cam.height, cam.width, 3)).astype(np.float32))
+    first = cameras[0]
+    save_labels(folder / "masks" / first.name, rng.integers(0, 3, (first.height, first.width)))
+    frame = np.eye(4)
+    frame[:3, :3] *= 0.5
+    scene = Scene(Cameras.from_list(list(cameras)), tuple(images), rng.normal(size=(20, 3)).astype(np.float32),
+                  rng.random((20, 3)).astype(np.float32), mask_paths=(folder / "masks" / first.name,
+                                                                       *([None] * (len(cameras) - 1))),
+                  frame=frame, depth_range=(0.5, 10.0))
+    return [write_scene(scene, folder)], lambda: read_scene(folder)
+
+
 def make_special(folder: Path, cameras, transforms: Callable[[Path, list], Path],
                  images: Callable[[Path, list], None]) -> tuple[list[Path], Callable[[], object]]:
     """A nerfstudio scene whose ``transforms.json`` or a view a mutation replaces by a special file
