@@ -6,6 +6,7 @@ copy of the repository's, whose comments must survive the edit.
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
@@ -177,3 +178,14 @@ def test_preflight_reads_an_entrys_trained_splat_before_any_stage(tmp_path: Path
     assert check(nan, splat_nonfinite="drop") == []
     with pytest.raises(InputError, match=r"data\.scenes\.s: .*0 Gaussians"):
         check(empty)
+    # an INRIA output folder on a scene whose cameras structure from motion will find: its cameras.json's values are
+    # checked now, without the cameras to align it to
+    inria = tmp_path / "inria"
+    write_ply(inria / "point_cloud" / "iteration_7000" / "point_cloud.ply", make_model(50, 0))
+    views = [{"img_name": f"{i:03d}", "position": [float(i), 0.0, 1.0]} for i in range(4)]
+    (inria / "cameras.json").write_text(json.dumps(views))
+    assert check(inria) == []
+    views[2]["position"] = [float("nan"), 0.0, 1.0]
+    (inria / "cameras.json").write_text(json.dumps(views))
+    with pytest.raises(InputError, match=r"data\.scenes\.s: .*cameras\.json: view 2 \(002\) has the position"):
+        check(inria)

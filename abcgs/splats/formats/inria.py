@@ -131,8 +131,12 @@ def frame_from_cameras(centres: dict[str, np.ndarray], cameras: list[Camera], *,
 
 
 def read(path: Path, drop_invalid: bool) -> tuple[GaussianModel, dict]:
-    """The folder's PLY of the highest iteration, its layout, the iteration and the side files."""
+    """The folder's PLY of the highest iteration, its layout, the iteration and the side files; ``cameras.json``'s
+    views are checked here (:func:`inria_camera_centres`), so a reader without the scene's cameras (preflight on a
+    scene whose cameras structure from motion will find) refuses a corrupt one too."""
     folder = read_inria_folder(path)
+    if folder.cameras_json:
+        inria_camera_centres(folder.cameras_json, source=str(Path(path) / "cameras.json"))
     model, layout, _ = read_ply_layout(folder.ply, drop_invalid=drop_invalid)
     side = {k: v for k, v in (("cameras.json", folder.cameras_json), ("cfg_args", folder.cfg_args)) if v}
     return model, {"ply_layout": layout.to_list(), "iteration": folder.iteration, "side_files": side}
