@@ -187,7 +187,10 @@ def test_batched_reference_backend_equals_per_view():
 
 @needs_cpu
 def test_batched_cpu_matches_reference_backend():
-    """The batched kernels against the batched reference: same images and gradients up to float32 rounding."""
+    """The batched kernels against the batched reference: same images and gradients up to float32 rounding. The
+    gradients are held to the float64 reference: each within what float32 rounding costs the float32 reference
+    itself there (its largest error against float64, twice, at least 1e-4), since a gradient summed over many pixels
+    with cancellations loses more than 1e-4 in float32 on some CPUs' kernel variants, in both backends."""
     scene, viewmats, Ks, leaves = _setup(True, seed=4, n=80, width=32, height=24)
     weights = _weights(9, scene.height, scene.width, torch.float32)
     kw = {"render_mode": "RGB+ED", "background": torch.tensor([0.5, 0.1, 0.7])}
@@ -196,9 +199,15 @@ def test_batched_cpu_matches_reference_backend():
     torch.testing.assert_close(image, image_r, rtol=1e-5, atol=1e-5)
     torch.testing.assert_close(alpha, alpha_r, rtol=1e-5, atol=1e-5)
     torch.testing.assert_close(meta.depth, meta_r.depth, rtol=1e-4, atol=1e-4)
-    torch.testing.assert_close(meta.means2d.grad, meta_r.means2d.grad, rtol=1e-3, atol=1e-4)
-    for name in grads:
-        torch.testing.assert_close(grads[name], grads_r[name], rtol=1e-3, atol=1e-4, msg=name)
+    s64, v64, k64, l64 = _setup(True, seed=4, n=80, width=32, height=24, dtype=torch.float64)
+    kw64 = {"render_mode": "RGB+ED", "background": torch.tensor([0.5, 0.1, 0.7], dtype=torch.float64)}
+    (_, _, meta_64), grads_64 = _batched(s64, v64, k64, l64, _weights(9, s64.height, s64.width, torch.float64),
+                                         "reference", **kw64)
+    pairs = {"means2d": (meta.means2d.grad, meta_r.means2d.grad, meta_64.means2d.grad)}
+    pairs.update({name: (grads[name], grads_r[name], grads_64[name]) for name in grads})
+    for name, (cpu, ref, exact) in pairs.items():
+        rounding = float((ref.double() - exact).abs().max())
+        torch.testing.assert_close(cpu.double(), exact, rtol=1e-3, atol=max(1e-4, 2 * rounding), msg=name)
 
 
 @needs_cpu
