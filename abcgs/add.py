@@ -18,7 +18,6 @@ import os
 import re
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -253,9 +252,6 @@ def _splat_check(splat: Path, source: Scene | None, min_psnr: float, fmt: str = 
         if source is None or not len(plain):
             return (f"splat {splat} ({found}): checked against the photos in the fit stage, once the reconstruct "
                     "stage has the scene's undistorted cameras")
-        if source.points is None:  # a dataset without points: gsplat's frame then says it needs them
-            none = np.zeros((0, 3), np.float32)
-            source = replace(source, points=none, colors=none)
         model = read_splat(splat, found, scene=source, drop_invalid=drop).model
         check = check_splat(model, source.subset(plain), min_psnr=min_psnr, source=str(splat))
     except InputError as exc:  # the fixes the readers name as settings, as this command's options

@@ -365,3 +365,18 @@ def test_scene_params_name_a_splat_relative_to_the_scene_folder():
     assert validate_params({"data": {"scenes": {"g": "data/g"}}}).data.scenes["g"].splat_path() is None
     with pytest.raises(ParamsError, match="splat_format"):
         validate_params({"data": {"scenes": {"g": {"path": "data/g", "splat": "x.ply", "splat_format": "obj"}}}})
+
+
+def test_a_gsplat_splat_on_a_dataset_without_points_says_its_frame_needs_them(scene_and_model, tmp_path):
+    """gsplat's world is computed from the scene's sparse points: a dataset that has none (``points`` None) gets the
+    reader's one line from preflight's check and from the import alike, not a TypeError."""
+    from dataclasses import replace
+
+    from abcgs.splats.registry import check_splat_file
+
+    scene, model = scene_and_model
+    ckpt = _write("gsplat_ckpt", model, scene, tmp_path)
+    bare = replace(scene, points=None, colors=None)
+    for read in (read_splat, check_splat_file):
+        with pytest.raises(InputError, match=r"cameras and sparse points; the scene has \d+ camera\(s\) and 0 point"):
+            read(ckpt, "gsplat_ckpt", scene=bare)

@@ -197,14 +197,16 @@ def _rotation_aligning(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.eye(3) + k + k @ k / (1 + c)
 
 
-def gsplat_similarity(cameras: list[Camera], points: np.ndarray) -> Similarity:
+def gsplat_similarity(cameras: list[Camera], points: np.ndarray | None) -> Similarity:
     """Dataset frame → the world of gsplat's ``simple_trainer`` with ``normalize_world_space`` (its default).
 
     The same three steps as gsplat's COLMAP ``Parser``: (1) rotate the mean camera up (−y) onto +z, centre on the
     median of the points on each optical axis closest to the origin, scale by 1 / the median camera distance;
     (2) rotate the points' principal axes onto x, y, z (largest variance first, z the smallest) about their median;
     (3) turn 180° about x when the points' median height is above their mean (upside-down scenes).
+    ``points``: (P, 3) world units; None (a dataset without points) is refused as no points.
     """
+    points = np.zeros((0, 3)) if points is None else points
     if len(cameras) < 2 or len(points) < 4:
         raise InputError("gsplat's frame is computed from the scene's cameras and sparse points; the scene has "
                          f"{len(cameras)} camera(s) and {len(points)} point(s)")

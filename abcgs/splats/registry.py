@@ -158,13 +158,6 @@ def check_splat_file(path: str | os.PathLike, fmt: str = "auto", *, scene=None, 
     renders against the photos stays in the fit stage. Returns the number of Gaussians; :class:`InputError` in one
     line otherwise."""
     if scene is not None:
-        if scene.points is None:  # a dataset without points: a frame computed from them says it needs them
-            import dataclasses
-
-            import numpy as np
-
-            none = np.zeros((0, 3), np.float32)
-            scene = dataclasses.replace(scene, points=none, colors=none)
         return read_splat(path, fmt, scene=scene, drop_invalid=drop_invalid).model.num_gaussians
     p = Path(path)
     return _read_valid(format_of(detect_splat_format(p) if fmt == "auto" else fmt), p, drop_invalid)[0].num_gaussians
