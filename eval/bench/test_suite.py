@@ -4,7 +4,8 @@ tests are added.
     python -m eval run test_suite --json docs/measurements/test_suite.json        # the whole suite (what CI runs)
     python -m eval run test_suite -- tests/test_label_field.py -x                  # any pytest arguments after --
 
-Runs ``python -m pytest -q`` in the repository with a JUnit XML report (pytest's own ``--junitxml``) in a
+Runs ``python -m pytest -q`` in the repository as ``make test`` does (``--workers`` processes of pytest-xdist, each
+test file on one: the Makefile's ``TEST_WORKERS``), with a JUnit XML report (pytest's own ``--junitxml``) in a
 temporary folder, reads each test case's seconds from it and prints: the wall time, the counts (passed, failed,
 skipped, errors), the files by their summed seconds and the ``--slowest`` (30) tests. The record keeps them all,
 with pytest's exit code; the command's own exit code is pytest's.
@@ -27,6 +28,15 @@ setup()  # before anything that may load torch: OpenMP's wait policy, OpenCV bef
 from eval.record import bench_parser, write_record
 
 REPO = Path(__file__).resolve().parents[2]
+WORKERS = 2
+"""pytest-xdist processes of ``make test`` (the Makefile's ``TEST_WORKERS``): a test pins torch to one thread, so one
+process would leave the second core of the 2-core machine idle."""
+
+
+def worker_args(workers: int) -> list[str]:
+    """pytest's arguments for ``workers`` processes, each test file on one (its module fixtures computed once); none
+    for 0 (one process)."""
+    return ["-n", str(workers), "--dist", "loadfile"] if workers else []
 
 
 def read_junit(path: Path) -> list[dict]:
@@ -61,12 +71,14 @@ def summarise(cases: list[dict], wall: float, slowest: int) -> dict:
 def main(argv: list[str] | None = None) -> int:
     ap = bench_parser(__doc__)
     ap.add_argument("--slowest", type=int, default=30, help="how many of the slowest tests to print and keep")
+    ap.add_argument("--workers", type=int, default=WORKERS, help="pytest-xdist processes (0: one process)")
     ap.add_argument("pytest_args", nargs="*", help="arguments for pytest (after --); default: the whole suite")
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="abcgs-test-suite-") as tmp:
         report = Path(tmp) / "junit.xml"
         t0 = time.perf_counter()
-        rc = subprocess.call([sys.executable, "-m", "pytest", "-q", f"--junitxml={report}", *args.pytest_args],
+        rc = subprocess.call([sys.executable, "-m", "pytest", "-q", *worker_args(args.workers),
+                               f"--junitxml={report}", *args.pytest_args],
                              cwd=REPO)
         wall = time.perf_counter() - t0
         cases = read_junit(report) if report.is_file() else []
@@ -80,7 +92,8 @@ def main(argv: list[str] | None = None) -> int:
     for c in summary["slowest"]:
         print(f"  {c['seconds']:8.1f}  {c['test']} ({c['outcome']})")
     if args.json:
-        write_record(args.json, {"pytest_args": args.pytest_args, "exit_code": rc, **summary}, argv)
+        write_record(args.json, {"pytest_args": args.pytest_args, "workers": args.workers, "exit_code": rc,
+                                  **summary}, argv)
     return rc
 
 
