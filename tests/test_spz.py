@@ -132,6 +132,7 @@ def test_out_of_range_colours_are_clipped_and_counted(tmp_path):
         (gzip.compress(struct.pack("<IIIBBBB", 0x5053474E, 9, 0, 0, 12, 0, 0)), "version 9"),
         (gzip.compress(struct.pack("<IIIBBBB", 0x5053474E, 3, 10, 0, 12, 0, 0) + b"\0" * 5), "truncated"),
     ],
+    ids=["not gzip", "short", "magic", "version 9", "truncated"],  # the bytes hold gzip's time: not an id
 )
 def test_malformed_input_is_a_clear_error(data, message):
     with pytest.raises(InputError, match=message):
