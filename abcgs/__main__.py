@@ -95,7 +95,10 @@ def _parser() -> argparse.ArgumentParser:
                      "region closer to the photo (docs/FIDELITY.md 'Detail per label')")
     exp.add_argument("--structure-weight", nargs="+", default=None, metavar="LABEL=WEIGHT",
                      help="a content label's own λ_st, the luminance-gradient term (stylize.weights.structure "
-                     "elsewhere), e.g. 2=1")
+                     "elsewhere), e.g. 2=3000")
+    exp.add_argument("--keep", nargs="+", default=None, metavar="LABEL",
+                     help="content labels whose detail (a face's eyes and mouth) the painting should keep: each gets "
+                     "the measured λ_st 3000 unless --structure-weight gives its own (docs/FIDELITY.md 'Detail per label')")
     for p in (scene, style, exp):
         p.add_argument("--params", default="params.yaml", help="the params file to edit (default: params.yaml)")
         p.add_argument("--force", action="store_true", help="replace an entry of that name")
@@ -110,12 +113,20 @@ def _views(args: argparse.Namespace) -> dict | None:
 
 
 def _add_experiment(args: argparse.Namespace) -> int:
-    from abcgs.add_experiment import add_experiment, parse_binding, parse_pairs, parse_weights, plan_experiments
+    from abcgs.add_experiment import (
+        add_experiment,
+        keep_weights,
+        parse_binding,
+        parse_pairs,
+        parse_weights,
+        plan_experiments,
+    )
 
     styles = parse_pairs(args.styles, "--styles") if args.styles else None
     plan = plan_experiments(args.name, args.scene, style=args.style, styles=styles, binding=parse_binding(args.binding),
                             methods=args.method, content_weights=parse_weights(args.content_weight, "--content-weight"),
-                            structure_weights=parse_weights(args.structure_weight, "--structure-weight"))
+                            structure_weights=keep_weights(args.keep, parse_weights(args.structure_weight,
+                                                                                    "--structure-weight")))
     lines = add_experiment(args.params, plan, force=args.force, dry_run=args.dry_run)
     for line in lines:
         print(f"  {line}")

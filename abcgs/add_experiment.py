@@ -7,6 +7,7 @@ loss method on it, checked as the preflight checks them, with the command that r
     python -m abcgs add-experiment garden_sem --scene garden --style starry --binding 1=3 2=2 3=1  # semantic
     python -m abcgs add-experiment garden_sem --scene garden --style starry --binding auto
     python -m abcgs add-experiment garden_comp --scene garden --styles 1=starry 2=kandinsky --content-weight 2=0.005
+    python -m abcgs add-experiment garden_comp --scene garden --styles 1=starry 2=kandinsky --keep 2   # label 2's detail
 
 Names: ``colormatches.<NAME>`` and ``experiments.<NAME>`` for the first ``--method``, ``<NAME>_<method>`` for each
 further one (they share the colour match); with several single-transfer paintings, ``<NAME>_<painting>`` in place of
@@ -123,6 +124,19 @@ def parse_weights(words: list[str] | None, what: str) -> dict[int, float]:
                              "(paper: 0.005 to 2); over 10 000 one term drowns the others")
         out[label] = value
     return out
+
+
+KEEP_STRUCTURE_WEIGHT = 3000.0
+"""λ_st that ``--keep`` gives a content label: on miku's face under Starry Night it raised the face's luminance-gradient
+SSIM by 0.15 with every painting's Gram distance within 0.01 (docs/FIDELITY.md "Detail per label")."""
+
+
+def keep_weights(words: list[str] | None, structure: dict[int, float]) -> dict[int, float]:
+    """``--keep L …``: each content label (:func:`parse_label`) whose detail the painting should not wipe gets
+    :data:`KEEP_STRUCTURE_WEIGHT` as its λ_st; a label's own ``--structure-weight`` (``structure``) wins. Returns the
+    experiments' ``structure_weights``."""
+    kept = {parse_label(word, "--keep", word, "content label", "2"): KEEP_STRUCTURE_WEIGHT for word in words or []}
+    return {**kept, **structure}
 
 
 def plan_experiments(name: str, scene: str, *, style: list[str] | None = None, styles: dict[int, str] | None = None,

@@ -19,6 +19,7 @@ import yaml
 from conftest import REPO_ROOT
 
 from abcgs.__main__ import main as abcgs_main
+from abcgs.add_experiment import KEEP_STRUCTURE_WEIGHT
 from abcgs.io.images import save_image, save_labels
 from abcgs.preflight import main as preflight_main
 
@@ -97,6 +98,8 @@ DIGITS = "1" * 5000
 
 # (add-experiment's words, the line it prints: a part of it)
 CLI_CASES = {
+    "keep a non-label": (["e1", "--scene", "a", "--styles", "1=p", "--keep", "face"],
+                         "--keep face: the content label 'face' is not a number in the digits 0-9"),
     "label 255": (["e1", "--scene", "a", "--styles", "1=p", "255=p"],
                   "--styles 255=p: content label 255 is outside 1 … 254, the labels a label map holds (0 is no label, "
                   "255 a pixel left undecided); give a content label 1 … 254, e.g. 1=starry"),
@@ -184,13 +187,18 @@ def test_what_the_checks_take_still_passes_add_experiment_and_preflight(repo: Pa
                   ["x" * 100, "--scene", "a", "--style", "p"],
                   ["fit_a", "--scene", "a", "--style", "p", "--method", "fast", "nnfm"],
                   ["kept", "--scene", "s", "--styles", "1=p", "2=p", "--content-weight", "2=0.005",
-                   "--structure-weight", "2=1", "1=0", "--method", "fast", "nnfm"]):
+                   "--structure-weight", "2=1", "1=0", "--method", "fast", "nnfm"],
+                  ["face", "--scene", "s", "--styles", "1=p", "2=p", "--keep", "02"],
+                  ["own", "--scene", "s", "--styles", "1=p", "2=p", "--keep", "1", "2", "--structure-weight", "2=5"]):
         assert abcgs_main(_add(repo, *words)) == 0, capsys.readouterr()
     written = yaml.safe_load(Path(params).read_text())
     for name in ("kept", "kept_nnfm"):  # every experiment of the colour match takes the label weights
         assert written["experiments"][name]["content_weights"] == {2: 0.005}
         assert written["experiments"][name]["structure_weights"] == {2: 1.0, 1: 0.0}
     assert "content_weights" not in written["experiments"]["fit_a"]
+    assert written["experiments"]["face"]["structure_weights"] == {2: KEEP_STRUCTURE_WEIGHT}  # --keep: the measured λ
+    assert written["experiments"]["own"]["structure_weights"] == {1: KEEP_STRUCTURE_WEIGHT, 2: 5.0}  # its own wins
+    assert "content_weights" not in written["experiments"]["face"]
     assert written["colormatches"]["comp"]["styles"] == {1: "p", 2: "p"}
     assert written["colormatches"]["sem"]["binding"] == {1: 2, 2: 1}
     assert {"x" * 100, "fit_a", "fit_a_nnfm"} <= set(written["experiments"])
