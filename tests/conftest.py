@@ -54,14 +54,6 @@ def launch_chromium(args: list[str]):
 SHARED_DATA = REPO_ROOT.parent / "shared" / "data"
 
 
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """The files that hold a ``slow`` test run first, each file's tests in their own order: ``make test`` hands
-    whole files to its processes in this order (``--dist loadfile``), so the end-to-end pipelines start at once
-    side by side instead of one of them last on one process while the other sits idle."""
-    slow = {item.path for item in items if item.get_closest_marker("slow") is not None}
-    items.sort(key=lambda item: item.path not in slow)  # stable: each group keeps the collection's order
-
-
 @pytest.fixture(autouse=True)
 def _one_torch_thread():
     """Tests use tiny tensors: one intra-op thread avoids OpenMP spin-waiting, which makes small ops many times

@@ -151,7 +151,7 @@ def test_the_test_suite_benchmark_times_a_pytest_run_and_keeps_its_outcomes(tmp_
                      "@pytest.mark.skip(reason='shown as skipped')\ndef test_skipped():\n    pass\n")
     out = tmp_path / "suite.json"
     proc = subprocess.run([sys.executable, "-m", "eval", "run", "test_suite", "--json", str(out), "--slowest", "2",
-                           "--workers", "0", "--", str(tests), "-p", "no:cacheprovider"],
+                           "--", str(tests), "-p", "no:cacheprovider"],
                           capture_output=True, text=True, timeout=300, cwd=REPO)
     assert proc.returncode == 1, proc.stdout + proc.stderr  # pytest's own code for failed tests
     rec = json.loads(out.read_text())
@@ -162,14 +162,13 @@ def test_the_test_suite_benchmark_times_a_pytest_run_and_keeps_its_outcomes(tmp_
 
 
 def test_the_test_suite_benchmark_runs_pytest_as_make_test_does(tmp_path):
-    """The benchmark's default processes are the Makefile's ``TEST_WORKERS``, with each file on one process
-    (``--dist loadfile``, as ``TEST_ARGS``); on two processes it still counts every test of two files."""
+    """The benchmark's default is make test's one process (the Makefile's ``TEST_ARGS`` hold no ``-n``); with
+    ``--workers 2`` it runs pytest-xdist's two processes, each file on one, and still counts every test."""
     from eval.bench.test_suite import WORKERS, worker_args
 
     makefile = (REPO / "Makefile").read_text()
-    assert f"TEST_WORKERS ?= {WORKERS}\n" in makefile
-    assert "TEST_ARGS ?= -n $(TEST_WORKERS) --dist loadfile" in makefile and "pytest -q $(TEST_ARGS)" in makefile
-    assert worker_args(0) == [] and worker_args(WORKERS) == ["-n", str(WORKERS), "--dist", "loadfile"]
+    assert "pytest -q $(TEST_ARGS)" in makefile and "TEST_ARGS ?= --durations=20\n" in makefile
+    assert WORKERS == 0 and worker_args(0) == [] and worker_args(2) == ["-n", "2", "--dist", "loadfile"]
     for name in ("a", "b"):
         (tmp_path / f"test_{name}.py").write_text("def test_one():\n    pass\n\ndef test_two():\n    pass\n")
     out = tmp_path / "suite.json"
