@@ -4,6 +4,9 @@
   images/, masks/, cameras.json, styles/).
 - ``tiny_colmap``: the ``reconstruct`` output for ``tiny_scene`` (sparse/, images/, masks/, metrics.json),
   computed once per session (a few seconds of COLMAP).
+- ``tiny_pipeline``: a git + DVC copy of the working tree with REDUCED iteration counts after its first ``dvc repro``
+  (each stage's reads recorded under ``reads/`` beside it), computed once per session: the end-to-end tests work in
+  it, the cluster tests seed their shared DVC cache from it.
 - ``proxy``: the LPIPS-style proxy distance over a seeded random VGG-16 (no weights file), for evaluation tests.
 - ``SHARED_DATA``: ``../shared/data`` next to the repository; tests that need it are marked
   ``@pytest.mark.shared_data`` (marker registered in pyproject.toml) and skip where it is absent.
@@ -77,6 +80,21 @@ def tiny_colmap(tiny_scene: Path, tmp_path_factory: pytest.TempPathFactory) -> P
     out = tmp_path_factory.mktemp("tiny_colmap") / "colmap"
     reconstruct_photos(tiny_scene, out, ReconstructParams())
     return out
+
+
+@pytest.fixture(scope="session")
+def tiny_pipeline(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """The reduced tiny pipeline, run once: ``{"repo": Path, "repro": CompletedProcess, "reads": Path}``. The first
+    user of ``repo`` may change it afterwards (the end-to-end tests do); its DVC cache only grows."""
+    from abcgs.pipeline import READ_AUDIT_ENV
+    from eval.bench.regression import reduce
+
+    root = tmp_path_factory.mktemp("e2e")
+    repo, reads = copy_repo(root / "repo", reduce), root / "reads"
+    env = {**os.environ, READ_AUDIT_ENV: str(reads)}  # each stage records its reads under out/
+    proc = run_in(["dvc", "repro"], repo, timeout=2400, env=env)  # ~3-8 min on an idle 2-core VM; generous when shared
+    assert proc.returncode == 0, f"dvc repro failed:\n{proc.stdout[-4000:]}\n{proc.stderr[-4000:]}"
+    return {"repo": repo, "repro": proc, "reads": reads}
 
 
 @pytest.fixture(scope="session")

@@ -321,11 +321,26 @@ def slurm(tmp_path_factory: pytest.TempPathFactory):
     cluster.stop()
 
 
+KILLED_STAGES = ("stylize", "evaluate", "export")
+"""The stages of experiment KILLED that the cluster computes itself; every other stage is in the seeded cache."""
+
+
+def seed_cache(src: Path, dst: Path) -> None:
+    """Copy the DVC cache ``src`` (objects and run cache) to ``dst``, leaving out the run-cache entries of
+    KILLED's :data:`KILLED_STAGES`: a submit then restores the scene and the other experiments from the run cache
+    and computes only KILLED's branch, the one the tests kill, retry and compare."""
+    skip = {p.parent for s in KILLED_STAGES for p in _run_cache_entries(src, s, KILLED)}  # runs/<xx>/<stage key>/
+    shutil.copytree(src, dst, ignore=lambda d, names: [n for n in names if Path(d, n) in skip])
+    assert not any(_run_cache_entries(dst, s, KILLED) for s in KILLED_STAGES)
+
+
 @pytest.fixture(scope="module")
-def workspace(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    """A git + DVC copy of the working tree with REDUCED iteration counts, and a shared folder for the cluster."""
+def workspace(tmp_path_factory: pytest.TempPathFactory, tiny_pipeline: dict) -> dict[str, Path]:
+    """A git + DVC copy of the working tree with REDUCED iteration counts, and a shared folder for the cluster whose
+    cache holds the same pipeline's stages from :func:`conftest.tiny_pipeline` (:func:`seed_cache`)."""
     root = tmp_path_factory.mktemp("cluster")
     (root / "resources.yaml").write_text(yaml.safe_dump(RESOURCES))
+    seed_cache(tiny_pipeline["repo"] / ".dvc" / "cache", root / "shared" / "cache")
     return {"repo": copy_repo(root / "repo", reduce), "shared": root / "shared", "resources": root / "resources.yaml"}
 
 

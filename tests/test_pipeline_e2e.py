@@ -11,7 +11,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-import os
 import re
 import shutil
 import subprocess
@@ -20,12 +19,11 @@ from pathlib import Path
 
 import pytest
 import yaml
-from conftest import REPO_ROOT, copy_repo, run_in
+from conftest import REPO_ROOT, run_in
 
 from abcgs.gaussians.ply import read_ply
 from abcgs.io.metrics import numeric_leaves
-from abcgs.pipeline import READ_AUDIT_ENV
-from eval.bench.regression import REDUCED, reduce
+from eval.bench.regression import REDUCED
 from eval.bench.repo_copy import IDENTITY
 
 pytestmark = pytest.mark.slow
@@ -34,17 +32,16 @@ _run = run_in
 
 
 @pytest.fixture(scope="module")
-def repo(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A git+DVC copy of the working tree with reduced params (:func:`conftest.copy_repo`)."""
-    return copy_repo(tmp_path_factory.mktemp("e2e") / "repo", reduce)
+def repo(tiny_pipeline: dict) -> Path:
+    """A git+DVC copy of the working tree with reduced params (:func:`conftest.tiny_pipeline`, shared with the
+    cluster tests, which copy its cache before these tests change it)."""
+    return tiny_pipeline["repo"]
 
 
 @pytest.fixture(scope="module")
-def first_repro(repo: Path) -> subprocess.CompletedProcess:
-    env = {**os.environ, READ_AUDIT_ENV: str(repo.parent / "reads")}  # each stage records its reads under out/
-    proc = _run(["dvc", "repro"], repo, timeout=2400, env=env)  # ~8 min on an idle 2-core VM; generous when shared
-    assert proc.returncode == 0, f"dvc repro failed:\n{proc.stdout[-4000:]}\n{proc.stderr[-4000:]}"
-    return proc
+def first_repro(tiny_pipeline: dict) -> subprocess.CompletedProcess:
+    """Its first `dvc repro`, each stage's reads recorded under ``reads/`` beside it."""
+    return tiny_pipeline["repro"]
 
 
 def test_each_stage_reads_under_out_only_its_declared_inputs(repo: Path, first_repro) -> None:
