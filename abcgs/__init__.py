@@ -5,7 +5,8 @@ Importing abcgs changes nothing in the process: a program calls :func:`abcgs.run
 
 - Foundations: :mod:`abcgs.errors`, :mod:`abcgs.types` (modes and interfaces shared across packages),
   :mod:`abcgs.dotted` (dotted params keys), :mod:`abcgs.sections` (the params sections and their models),
-  :mod:`abcgs.progress`, :mod:`abcgs.cameras` (pinhole cameras), :mod:`abcgs.runtime` (setup, device, threads),
+  :mod:`abcgs.progress`, :mod:`abcgs.cameras` (a pinhole view, batched views and their COLMAP lenses),
+  :mod:`abcgs.runtime` (setup, device, threads), :mod:`abcgs.plugins` (the registry of format modules),
   :mod:`abcgs.io` (atomic writes, images, metrics records, tables; its ``ply`` and ``spz`` modules, which read
   into :class:`abcgs.gaussians.Gaussians`, are on the rendering floor).
 - Rendering: :mod:`abcgs.render` (the differentiable rasterizer: reference, C++ CPU kernels, gsplat),
@@ -14,7 +15,7 @@ Importing abcgs changes nothing in the process: a program calls :func:`abcgs.run
   :mod:`abcgs.scene` (the embedded synthetic scene), :mod:`abcgs.layout` (every path under ``out/``),
   :mod:`abcgs.features` (VGG features, style isolation, matching groups, neighbour search).
 - Losses: :mod:`abcgs.losses` (FAST and the NNFM, KNNFM, Gram baselines; content and TV terms).
-- Methods: :mod:`abcgs.sources` (one reader per dataset format), :mod:`abcgs.splats` (trained splats in and out),
+- Methods: :mod:`abcgs.sources` (one reader per dataset format; a scene entry to its layout), :mod:`abcgs.splats` (trained splats in and out),
   :mod:`abcgs.fit` (baseline 3DGS), :mod:`abcgs.masks` (content masks lifted onto the Gaussians),
   :mod:`abcgs.stylize` (colour match and stylization), :mod:`abcgs.evaluation` (the metrics).
 - Presentation: :mod:`abcgs.view` (the 3-D splat viewer), :mod:`abcgs.report`.

@@ -37,9 +37,9 @@ from abcgs.sfm.params import ReconstructParams
 from abcgs.sources.detect import DEFAULT_IMAGES, image_files
 from abcgs.sources.lens import consistent_scale, image_size
 from abcgs.sources.params import SceneParams, scene_name_problem
-from abcgs.sources.read import marker, read_source, resolve_format
+from abcgs.sources.read import marker, read_entry, resolve_format
 from abcgs.sources.registry import reader_of
-from abcgs.types import Scene
+from abcgs.types import SourceScene
 
 MIN_PHOTOS = 3
 """Structure from motion needs at least this many overlapping photos (as :mod:`abcgs.sfm.colmap`)."""
@@ -50,7 +50,7 @@ def _sizes(sizes: list[tuple[int, int]]) -> str:
     return ", ".join(f"{w}x{h}" + (f" ({n})" if len(counts) > 1 else "") for (w, h), n in counts.most_common(4))
 
 
-def describe_source(scene: Scene, folder: Path) -> list[str]:
+def describe_source(scene: SourceScene, folder: Path) -> list[str]:
     """Lines saying what a reader found: views, sizes, lenses, points, what it did."""
     lens = Counter(v.distortion.model if v.distortion else "pinhole" for v in scene.views)
     folders = Counter(str(v.image_path.parent.relative_to(folder)) if v.image_path.is_relative_to(folder)
@@ -205,9 +205,7 @@ def scene_entry(name: str, path: str | os.PathLike, *, fmt: str = "auto", images
         lines = [f"a bare splat scene: {folder}, {model.num_gaussians} Gaussians of SH degree {model.sh_degree} "
                  "(cameras are made around it; its renders are the photos)"]
     else:
-        spec = SceneParams.model_validate(entry)
-        source = read_source(folder, resolved, images=images, background=spec.resolved_background(resolved).color,
-                             source=spec.source)
+        source = read_entry(SceneParams.model_validate(entry), folder, resolved)
         lines = describe_source(source, folder)
         lines += label_map_lines(name, folder, {Path(v.name).stem: (v.name, (v.camera.height, v.camera.width))
                                                 for v in source.views}, images)
@@ -238,7 +236,7 @@ def _splat_file(path: Path, fmt: str) -> Path:
     return path
 
 
-def _splat_check(splat: Path, source: Scene | None, min_psnr: float, fmt: str = "auto", drop: bool = False) -> str:
+def _splat_check(splat: Path, source: SourceScene | None, min_psnr: float, fmt: str = "auto", drop: bool = False) -> str:
     """The fit stage's render-versus-photo check of a trained splat (:func:`abcgs.splats.validate.check_splat`), run
     now on the dataset's undistorted views; the file's frame comes from every camera and the dataset's points, as in
     the fit stage (gsplat's and OpenSplat's worlds are computed from them). Without such views the format is only

@@ -1,4 +1,6 @@
-"""Pinhole cameras.
+"""Cameras: one pinhole view (:class:`Camera`) and a batch of calibrated views with their lenses (:class:`Cameras`,
+:class:`Distortion`, COLMAP's camera models: :data:`CAMERA_MODELS`; the COLMAP codec :mod:`abcgs.io.colmap` reads and
+writes them).
 
 Convention (shared with COLMAP, OpenCV and gsplat): camera looks down +z, x right, y down; ``viewmat``
 maps world → camera coordinates; ``K`` maps camera coordinates to pixels with pixel centres at +0.5
@@ -7,8 +9,9 @@ maps world → camera coordinates; ``K`` maps camera coordinates to pixels with 
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, overload
 
 import numpy as np
 
@@ -130,3 +133,162 @@ def check_rotation(R, where: str, fix: str = "re-export the poses from the tool 
 
 def _fmt(vals: list[float]) -> str:
     return "(" + ", ".join(f"{v:g}" for v in vals) + ")"
+
+
+# ------------------------------------------------------------------------------------------------ lenses
+CAMERA_MODELS: tuple[tuple[str, int], ...] = (
+    ("SIMPLE_PINHOLE", 3), ("PINHOLE", 4), ("SIMPLE_RADIAL", 4), ("RADIAL", 5), ("OPENCV", 8), ("OPENCV_FISHEYE", 8),
+    ("FULL_OPENCV", 12), ("FOV", 5), ("SIMPLE_RADIAL_FISHEYE", 4), ("RADIAL_FISHEYE", 5), ("THIN_PRISM_FISHEYE", 12),
+    ("RAD_TAN_THIN_PRISM_FISHEYE", 16),
+)
+"""COLMAP's camera models, indexed by COLMAP's model id: ``(name, number of parameters)``
+(https://colmap.github.io/cameras.html)."""
+SINGLE_FOCAL_MODELS = frozenset({0, 2, 3, 8, 9})
+"""Model ids whose parameters start ``f, cx, cy``; the others start ``fx, fy, cx, cy``."""
+PINHOLE_MODEL = 1
+"""The model id of a view without distortion (``PINHOLE``)."""
+MAX_DISTORTION_PARAMS = 12
+"""Columns of :attr:`Cameras.distortion_params`: the most parameters a model has besides focal length(s) and
+principal point."""
+
+
+def camera_model_id(name: str) -> int:
+    """COLMAP's id of the camera model ``name``; ``ValueError`` listing the models for another name."""
+    for i, (model, _) in enumerate(CAMERA_MODELS):
+        if model == name:
+            return i
+    raise ValueError(f"unknown COLMAP camera model {name!r}; one of {', '.join(m for m, _ in CAMERA_MODELS)}")
+
+
+def lens_param_count(model_id: int) -> int:
+    """How many parameters of model ``model_id`` are not focal length(s) or principal point."""
+    return CAMERA_MODELS[model_id][1] - (3 if model_id in SINGLE_FOCAL_MODELS else 4)
+
+
+@dataclass(frozen=True)
+class Distortion:
+    """One view's lens as a COLMAP camera model (a view of :class:`Cameras`' ``camera_models`` and
+    ``distortion_params`` with its intrinsics).
+
+    Attributes:
+        model: COLMAP's model name (``SIMPLE_RADIAL``, ``OPENCV``, ``OPENCV_FISHEYE``, …).
+        params: the model's full parameter vector in COLMAP's order (focal length(s) and principal point included),
+            in pixels of the view's image as it lies on disk.
+    """
+
+    model: str
+    params: tuple[float, ...]
+
+
+@dataclass(frozen=True, eq=False)
+class Cameras:
+    """A batch of ``C`` calibrated views (nerfbaselines' ``Cameras``; gsplat's batched ``viewmats``/``Ks``).
+
+    Conventions of this module (:class:`Camera`'s): OpenCV camera axes (x right, y down, z forward), pixel centres at +0.5. The
+    arrays are read-only; ``cameras[i]`` is view ``i`` as a :class:`~abcgs.cameras.Camera` (its own copy of row ``i``),
+    ``cameras[a:b]`` or ``cameras[index_array]`` a sub-batch; iterating gives the per-view cameras.
+
+    Attributes:
+        names: ``(C,)`` the views' names (image file names, unique).
+        viewmats: ``(C, 4, 4) float64`` world→camera rigid transforms (world units).
+        intrinsics: ``(C, 4) float64`` ``fx, fy, cx, cy`` in pixels of the view's image (the lens model's focal
+            length(s) and principal point for a distorted view; ``fx == fy`` for a single-focal model).
+        sizes: ``(C, 2) int64`` image ``width, height`` in pixels.
+        camera_models: ``(C,) int32`` COLMAP camera model ids (:data:`CAMERA_MODELS`); :data:`PINHOLE_MODEL` (1) for
+            a view without distortion.
+        distortion_params: ``(C, MAX_DISTORTION_PARAMS) float64`` the model's parameters after focal length(s) and
+            principal point, in COLMAP's order (dimensionless), zero-padded (:func:`lens_param_count` are used).
+    """
+
+    names: tuple[str, ...]
+    viewmats: np.ndarray
+    intrinsics: np.ndarray
+    sizes: np.ndarray
+    camera_models: np.ndarray
+    distortion_params: np.ndarray
+
+    def __post_init__(self) -> None:
+        c = len(self.names)
+        fields = {"viewmats": (np.float64, (c, 4, 4)), "intrinsics": (np.float64, (c, 4)), "sizes": (np.int64, (c, 2)),
+                  "camera_models": (np.int32, (c,)), "distortion_params": (np.float64, (c, MAX_DISTORTION_PARAMS))}
+        for name, (dtype, shape) in fields.items():
+            arr = np.array(getattr(self, name), dtype=dtype)
+            if arr.shape != shape:
+                raise ValueError(f"Cameras.{name} has shape {arr.shape}; {c} views need {shape}")
+            arr.flags.writeable = False
+            object.__setattr__(self, name, arr)
+        object.__setattr__(self, "names", tuple(str(n) for n in self.names))
+        if ((self.camera_models < 0) | (self.camera_models >= len(CAMERA_MODELS))).any():
+            raise ValueError(f"Cameras.camera_models holds ids outside 0 .. {len(CAMERA_MODELS) - 1}")
+
+    @classmethod
+    def from_list(cls, cameras: Sequence[Camera], distortions: Sequence[Distortion | None] | None = None) -> Cameras:
+        """The batch of per-view ``cameras`` (and their lenses, ``None`` = pinhole); a distorted view's intrinsics
+        are its lens's focal length(s) and principal point."""
+        c = len(cameras)
+        distortions = list(distortions) if distortions is not None else [None] * c
+        if len(distortions) != c:
+            raise ValueError(f"{c} cameras but {len(distortions)} distortions")
+        intrinsics = np.array([[cam.K[0, 0], cam.K[1, 1], cam.K[0, 2], cam.K[1, 2]] for cam in cameras],
+                              np.float64).reshape(c, 4)
+        models = np.full(c, PINHOLE_MODEL, np.int32)
+        lens = np.zeros((c, MAX_DISTORTION_PARAMS))
+        for i, d in enumerate(distortions):
+            if d is None:
+                continue
+            models[i] = camera_model_id(d.model)
+            p = np.asarray(d.params, np.float64)
+            if len(p) != CAMERA_MODELS[models[i]][1]:
+                raise ValueError(f"{cameras[i].name}: a {d.model} lens has {CAMERA_MODELS[models[i]][1]} parameters, "
+                                 f"got {len(p)}")
+            single = models[i] in SINGLE_FOCAL_MODELS
+            intrinsics[i] = (p[0], p[0], p[1], p[2]) if single else p[:4]
+            rest = p[3:] if single else p[4:]
+            lens[i, : len(rest)] = rest
+        return cls(tuple(cam.name for cam in cameras), np.array([cam.viewmat for cam in cameras]).reshape(c, 4, 4),
+                   intrinsics, np.array([(cam.width, cam.height) for cam in cameras]).reshape(c, 2), models, lens)
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    @overload
+    def __getitem__(self, index: int) -> Camera: ...
+
+    @overload
+    def __getitem__(self, index: slice | Sequence[int] | np.ndarray) -> Cameras: ...
+
+    def __getitem__(self, index):
+        if isinstance(index, (int, np.integer)):
+            i = range(len(self))[index]  # IndexError past the end, negative indices from the end
+            fx, fy, cx, cy = self.intrinsics[i]
+            K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+            return Camera(self.names[i], K, self.viewmats[i].copy(), int(self.sizes[i, 0]), int(self.sizes[i, 1]))
+        idx = np.arange(len(self))[index]
+        return Cameras(tuple(self.names[i] for i in idx), self.viewmats[idx], self.intrinsics[idx], self.sizes[idx],
+                       self.camera_models[idx], self.distortion_params[idx])
+
+    def __iter__(self) -> Iterator[Camera]:
+        return (self[i] for i in range(len(self)))
+
+    @property
+    def Ks(self) -> np.ndarray:
+        """``(C, 3, 3) float64`` the intrinsics as matrices (zero skew)."""
+        K = np.zeros((len(self), 3, 3))
+        K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2] = self.intrinsics.T
+        K[:, 2, 2] = 1.0
+        return K
+
+    @property
+    def distorted(self) -> np.ndarray:
+        """``(C,) bool``: the views whose model is not a pinhole one."""
+        return ~np.isin(self.camera_models, (0, PINHOLE_MODEL))
+
+    def distortion(self, i: int) -> Distortion | None:
+        """View ``i``'s lens with its full COLMAP parameter vector, ``None`` for a pinhole view."""
+        model = int(self.camera_models[i])
+        if not self.distorted[i]:
+            return None
+        fx, fy, cx, cy = (float(v) for v in self.intrinsics[i])
+        head = (fx, cx, cy) if model in SINGLE_FOCAL_MODELS else (fx, fy, cx, cy)
+        rest = tuple(float(v) for v in self.distortion_params[i, : lens_param_count(model)])
+        return Distortion(CAMERA_MODELS[model][0], head + rest)

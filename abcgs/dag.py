@@ -7,7 +7,8 @@ abcgs.dag`` prints each stage's code deps. A stage's code deps are the files it 
 :func:`import_closure` follows a stage script's imports through the project's own modules (``abcgs``; every
 ``import`` statement anywhere in a module, including the ones inside functions), adds each imported package's
 ``__init__.py`` (Python runs it first), every module of a package that ``importlib.import_module(f"abcgs.pkg.{name}")``
-may load (a registry's discovery: the splat formats), and the non-Python files the code loads at run time
+may load or that a :class:`abcgs.plugins.Registry` names (``Registry(kind, type, "abcgs.pkg", ...)``: a registry's
+discovery loads each format module of it), and the non-Python files the code loads at run time
 (:data:`DATA_FILES`: the C++ kernels' sources, the viewer bundle). :func:`missing_deps` compares it with the deps a
 stage declares, :func:`excess_deps` the other way round; :func:`minimal_deps` writes a package as one folder dep where
 the stage runs every file of it, and ``dvc.yaml`` lists a stage's deps by package (:func:`grouped_flow`).
@@ -92,6 +93,12 @@ def _imported_modules(tree: ast.AST, current: str | None) -> Iterable[str]:
             yield base
             for alias in node.names:
                 yield f"{base}.{alias.name}"
+        elif isinstance(node, ast.Call) and getattr(node.func, "id", getattr(node.func, "attr", None)) == "Registry":
+            # Registry(kind, type, "abcgs.pkg", ...): its discovery imports every module of that package
+            for arg in node.args:
+                if isinstance(arg, ast.Constant) and isinstance(arg.value, str) and arg.value.startswith(f"{PACKAGE}."):
+                    yield arg.value
+                    yield f"{arg.value}.*"
         elif (isinstance(node, ast.Call) and getattr(node.func, "attr", getattr(node.func, "id", None)) == "import_module"
               and node.args and isinstance(node.args[0], ast.JoinedStr) and current):
             # import_module(f"abcgs.pkg.{name}"): any module of the package the f-string names (else of the

@@ -3,7 +3,7 @@
 The overlay's ``data``, ``colormatches`` and ``experiments`` (:data:`REPLACED`) replace the base params' sections;
 every other section is merged into the base key by key. ``${shared}`` in an overlay's values stands for a data folder
 given on the command line (absolute once read; put into the parsed values, never into the YAML text).
-``python -m eval.bench.experiment`` turns the result into ``dvc exp run`` overrides; ``python -m abcgs.cluster
+``python -m eval run experiment`` turns the result into ``dvc exp run`` overrides; ``python -m abcgs.cluster
 submit --params`` writes it into each job's clone.
 """
 

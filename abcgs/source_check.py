@@ -13,7 +13,7 @@ from pathlib import Path
 
 from abcgs.errors import InputError
 from abcgs.preflight import check_label_map_sizes, produced_by_stage
-from abcgs.sources.read import read_source, resolve_format
+from abcgs.sources.read import read_entry, resolve_format
 from abcgs.sources.registry import reader_of
 from abcgs.splats.registry import check_splat_file
 
@@ -31,8 +31,7 @@ def check_scene_sources(params, root: Path, produced: Iterable[str] = ()) -> lis
         try:
             fmt = resolve_format(folder, scene.format, scene.images)
             if reader_of(fmt).check:  # not cameras found from photos or made around a splat: read them now
-                source = read_source(folder, fmt, images=scene.images,
-                                     background=scene.resolved_background(fmt).color, source=scene.source)
+                source = read_entry(scene, folder, fmt)
                 check_label_map_sizes(name, folder / "masks", {Path(v.name).stem: (
                     v.name, (v.camera.height, v.camera.width)) for v in source.views}, scene.images)
             if scene.splat is not None:  # the trained splat the fit stage imports, by its reader's checks

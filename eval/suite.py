@@ -8,7 +8,7 @@ A benchmark is a module of ``eval/bench`` or ``eval/studies`` that runs as a scr
 "__main__":``); the other modules there are helpers the benchmarks share (``timing``, ``regression``, ``browser``
 ...). Listing reads the modules' source (:mod:`ast`), so it imports neither torch nor the benchmarks; ``run`` runs
 the module as ``python -m`` would, with the arguments after the name. A benchmark's ``--json`` record is written by
-:mod:`eval.record`, with the run's provenance (the ``python -m eval.bench.NAME ...`` command that reproduces it, the
+:mod:`eval.record`, with the run's provenance (the ``python -m eval run NAME ...`` command that reproduces it, the
 machine, its load, the date).
 """
 

@@ -16,10 +16,7 @@ frame and background resolved here and the splat the scene names, which every la
 
 from __future__ import annotations
 
-import logging
 import sys
-import tempfile
-from dataclasses import replace
 
 from abcgs.runtime import setup
 
@@ -29,9 +26,7 @@ from abcgs import layout
 from abcgs.io.atomic import write_json
 from abcgs.pipeline import Dep, Out, StageSpec, run_stage, stage_parser
 from abcgs.sfm.colmap import set_colmap_log_level
-from abcgs.sources.model import write_source_model
-from abcgs.sources.read import loaded, read_source, resolve_format
-from abcgs.sources.registry import reader_of
+from abcgs.sources.reconstruct import reconstruct_scene
 
 _S = layout.scene("{key}")
 SPEC = StageSpec("reconstruct", foreach="data.scenes", params=("reconstruct", "data.scenes.{key}"), deps=(
@@ -40,33 +35,13 @@ SPEC = StageSpec("reconstruct", foreach="data.scenes", params=("reconstruct", "d
     Out(_S.colmap.root, "out", help="the undistorted COLMAP layout"),
     Out(_S.reconstruct_record, "metrics", help="the reconstruction record (JSON)"),
 ))
-log = logging.getLogger("reconstruct")
 
 
 def main(args, params) -> None:
     set_colmap_log_level(args.colmap_log)
-    scene = params.data.scenes[args.scene]
-    folder = args.source
-    options = params.scene_section(args.scene, "reconstruct")
-    fmt = resolve_format(folder, scene.format, scene.images)
-    reader, background = reader_of(fmt), scene.resolved_background(fmt)
-    if reader.reconstruct is not None:  # cameras found from the photos (structure from motion), not read
-        report = loaded(reader.reconstruct)(folder, args.out, options, images=scene.images, background=background,
-                                            splat=scene.splat_path(folder))
-        write_json(args.metrics, report.metrics())
-        log.info("%s: %s", fmt, report.summary())
-        return
-    with tempfile.TemporaryDirectory() as work:  # a bare splat's renders, until the model's images/ holds them
-        source = read_source(folder, fmt, images=scene.images, background=background.color if background.object else None,
-                             views=scene.views, work=work, drop_invalid=scene.splat_nonfinite == "drop",
-                             source=scene.source)
-        for note in source.notes:
-            log.info("%s: %s", fmt, note)
-        source = replace(source, splat=scene.splat_path(folder) or source.splat)
-        record = write_source_model(source, args.out, options, masks_dir=folder / "masks", background=background)
-    write_json(args.metrics, record.metrics())
-    log.info("%s: %d views with the dataset's cameras, %d points (%s), %.1f s", fmt, record.total, record.points,
-             record.points_method, record.seconds)
+    report = reconstruct_scene(params.data.scenes[args.scene], args.out, params.scene_section(args.scene, "reconstruct"),
+                               folder=args.source)
+    write_json(args.metrics, report.metrics())
 
 
 if __name__ == "__main__":

@@ -18,6 +18,7 @@ from conftest import REPO_ROOT
 from test_add_scene import _run
 from test_splats import _write, make_model, render_all, ring_cameras
 
+from abcgs.cameras import Cameras, Distortion
 from abcgs.fit.params import FitParams
 from abcgs.gaussians.ply import write_ply
 from abcgs.io.colmap import write_model
@@ -28,7 +29,7 @@ from abcgs.splats.exporting import give_back
 from abcgs.splats.importing import import_and_save
 from abcgs.splats.registry import detect_splat_format, read_splat
 from abcgs.splats.validate import check_splat
-from abcgs.types import Cameras, Distortion, Scene
+from abcgs.types import CalibratedScene
 
 REPORTED = re.compile(r"its renders match the photos at ([\d.]+) dB over (\d+) views")
 
@@ -49,7 +50,7 @@ def params_file(tmp_path: Path) -> Path:
 
 
 @pytest.fixture(scope="module")
-def colmap_scene(tmp_path_factory) -> tuple[Path, Scene, object]:
+def colmap_scene(tmp_path_factory) -> tuple[Path, CalibratedScene, object]:
     """``(folder, scene, model)``: a COLMAP folder (``images/``, ``sparse/0`` with PINHOLE cameras and points) whose
     photos are ``model``'s renders, and the same scene as test_splats' ``_write`` takes it."""
     model, cams = make_model(), ring_cameras()
@@ -60,10 +61,10 @@ def colmap_scene(tmp_path_factory) -> tuple[Path, Scene, object]:
         paths.append(folder / "images" / cam.name)
     pts = model.means[::10].numpy().astype(np.float32)
     write_model(folder / "sparse" / "0", Cameras.from_list(cams), pts)
-    return folder, Scene(Cameras.from_list(cams), paths, pts, np.full_like(pts, 0.5)), model
+    return folder, CalibratedScene(Cameras.from_list(cams), paths, pts, np.full_like(pts, 0.5)), model
 
 
-def _splat(route: str, scene: Scene, model, root: Path) -> Path:
+def _splat(route: str, scene: CalibratedScene, model, root: Path) -> Path:
     """The splat of ``route`` as its tool leaves it (a folder for INRIA's output and splatfacto's exports)."""
     if route == "ply":
         write_ply(root / "point_cloud.ply", model)

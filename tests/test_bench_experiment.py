@@ -1,4 +1,4 @@
-"""``python -m eval.bench.experiment run``: the experiment's ``dvc.yaml`` follows the overlaid params."""
+"""``python -m eval run experiment run``: the experiment's ``dvc.yaml`` follows the overlaid params."""
 
 from __future__ import annotations
 

@@ -47,7 +47,7 @@ def test_every_tensor_stage_tracks_and_resolves_the_device(stage: str) -> None:
 
 @pytest.mark.slow
 def test_the_gpu_script_dry_run_on_the_cpu(tmp_path: Path) -> None:
-    """``python -m eval.bench.gpu run --device cpu --tiny --quick``: every stage's entry point runs under
+    """``python -m eval run gpu run --device cpu --tiny --quick``: every stage's entry point runs under
     ``runtime.device: cpu`` through the script that a lent GPU runs, and its outputs are on disk and on the CPU."""
     from abcgs.gaussians.ply import read_ply
 

@@ -8,10 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from abcgs.cameras import Camera, intrinsics, look_at
+from abcgs.cameras import Camera, Cameras, Distortion, intrinsics, look_at
 from abcgs.errors import InputError
 from abcgs.io.colmap import read_model, write_model
-from abcgs.types import Cameras, Distortion
 
 
 def _cameras() -> Cameras:

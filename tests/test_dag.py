@@ -161,6 +161,22 @@ def test_the_closure_follows_imports_inside_functions_and_package_inits(tmp_path
     assert missing_deps(import_closure(script, tmp_path), ["stage.py", "abcgs/sub"]) == [Path("abcgs/__init__.py")]
 
 
+def test_a_registry_makes_every_module_of_the_package_it_names_a_dep(tmp_path: Path) -> None:
+    """``Registry(kind, type, "abcgs.pkg", ...)`` (abcgs.plugins) imports each module of ``abcgs.pkg`` by name when it
+    discovers the formats: all of them are code the stage runs, none of the registry's own package's siblings."""
+    pkg = tmp_path / "abcgs"
+    (pkg / "formats").mkdir(parents=True)
+    for rel in ("__init__.py", "plugins.py", "unrelated.py", "formats/__init__.py", "formats/one.py", "formats/two.py"):
+        (pkg / rel).write_text("")
+    (pkg / "registry.py").write_text('from abcgs.plugins import Registry\nR = Registry("format", object, '
+                                     '"abcgs.formats", "FORMAT", order=str)\n')
+    script = tmp_path / "stage.py"
+    script.write_text("from abcgs import registry\n")
+    got = {p.as_posix() for p in import_closure(script, tmp_path)}
+    assert got == {"stage.py", "abcgs/__init__.py", "abcgs/plugins.py", "abcgs/registry.py", "abcgs/formats/__init__.py",
+                   "abcgs/formats/one.py", "abcgs/formats/two.py"}
+
+
 def test_imports_under_type_checking_are_not_run_but_their_else_branch_is(tmp_path: Path) -> None:
     pkg = tmp_path / "abcgs"
     pkg.mkdir()

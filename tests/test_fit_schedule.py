@@ -14,7 +14,7 @@ import pytest
 import yaml
 from test_fit_trainer import make_scene
 
-from abcgs.cameras import Camera
+from abcgs.cameras import Camera, Cameras
 from abcgs.fit.outputs import fit_and_save
 from abcgs.fit.params import MIN_RECOVERY, MIN_RESET_EVERY, FitParams, StrategyParams
 from abcgs.fit.plausibility import FitCheck, FitError, problems, train_sample
@@ -23,7 +23,6 @@ from abcgs.fit.training import fit, make_strategy
 from abcgs.scene.params import TinySceneParams
 from abcgs.scene.synthetic import ring_cameras
 from abcgs.sfm.model import read_scene
-from abcgs.types import Cameras
 
 REPO = Path(__file__).resolve().parents[1]
 

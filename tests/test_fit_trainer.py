@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from abcgs.cameras import Camera, intrinsics, look_at
+from abcgs.cameras import Camera, Cameras, intrinsics, look_at
 from abcgs.errors import InputError, NumericalError
 from abcgs.fit.data import load_views
 from abcgs.fit.evaluation import evaluate
@@ -22,12 +22,12 @@ from abcgs.fit.training import fit, view_order
 from abcgs.gaussians import GaussianModel, render
 from abcgs.gaussians.ply import read_ply
 from abcgs.io.images import load_image, save_image
-from abcgs.types import Cameras, Scene
+from abcgs.types import CalibratedScene
 
 W, H = 48, 36
 
 
-def make_scene(folder: Path, n: int = 200, n_views: int = 6, seed: int = 0) -> tuple[Scene, GaussianModel]:
+def make_scene(folder: Path, n: int = 200, n_views: int = 6, seed: int = 0) -> tuple[CalibratedScene, GaussianModel]:
     """``n`` random Gaussians in front of a small arc of cameras, rendered as the ground-truth images.
 
     The SfM points are the true means with 0.08 noise (scene size ≈ 2) and the colours with 0.1 noise.
@@ -56,7 +56,7 @@ def make_scene(folder: Path, n: int = 200, n_views: int = 6, seed: int = 0) -> t
     pts = (means.numpy() + rng.normal(0, 0.08, (n, 3))).astype(np.float32)
     rgb = gt.sh0[:, 0].numpy() * 0.28209479177387814 + 0.5
     cols = np.clip(rgb + rng.normal(0, 0.1, (n, 3)), 0, 1).astype(np.float32)
-    return Scene(Cameras.from_list(cams), paths, pts, cols), gt
+    return CalibratedScene(Cameras.from_list(cams), paths, pts, cols), gt
 
 
 def small_params(**kw) -> FitParams:
@@ -69,7 +69,7 @@ def small_params(**kw) -> FitParams:
 
 
 @pytest.fixture(scope="module")
-def scene(tmp_path_factory) -> Scene:
+def scene(tmp_path_factory) -> CalibratedScene:
     return make_scene(tmp_path_factory.mktemp("scene"))[0]
 
 

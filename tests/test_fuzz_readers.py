@@ -1,7 +1,7 @@
 """Fuzzing every reader of files from other tools (eval/bench/fuzz.py): a few hundred seeded mutations per format —
 truncated, bytes flipped, counts inflated, numbers replaced by NaN/inf/0/huge, records repeated, JSON nested — each
 read as a scene or refused with a one-line InputError (the masks page: a 4xx Refused), none slower than SLOW_S.
-The longer run is ``python -m eval.bench.fuzz --inputs 10000`` (docs/measurements/fuzz.json)."""
+The longer run is ``python -m eval run fuzz --inputs 10000`` (docs/measurements/fuzz.json)."""
 
 from __future__ import annotations
 

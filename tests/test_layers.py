@@ -2,7 +2,7 @@
 
 Every module under ``abcgs/`` is parsed (not imported) and each of its ``abcgs`` imports, at any depth (inside
 functions and ``TYPE_CHECKING`` blocks too), is checked against :data:`eval.bench.structure.FLOORS` (which
-``python -m eval.bench.structure`` counts with). A module's command-line block
+``python -m eval run structure`` counts with). A module's command-line block
 (``if __name__ == "__main__":``) is a program run on top of everything and is not checked.
 
 No import ring between modules either (:func:`eval.bench.structure.import_rings` of

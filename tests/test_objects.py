@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 
+from abcgs.cameras import Cameras
 from abcgs.evaluation.objects import object_scores
 from abcgs.features.matching import build_groups
 from abcgs.features.params import TransferSpec
@@ -33,7 +34,7 @@ from abcgs.splats.params import SplatViewsParams
 from abcgs.stylize.colormatch import color_match_and_refit
 from abcgs.stylize.loop import stylize
 from abcgs.stylize.params import ColorMatchParams, StylizeOptim, StylizeParams
-from abcgs.types import FRAME_FILLING, Background, Cameras, Scene
+from abcgs.types import FRAME_FILLING, Background, CalibratedScene
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_splats import make_model  # noqa: E402
@@ -118,7 +119,7 @@ def test_forward_views_of_an_object_hold_all_of_it_and_orbit_framing_is_the_same
     quantiles, which crop it (74-79 % of each view's border on the object). Orbit views frame every Gaussian either
     way, so the object flag does not move them."""
     from abcgs.gaussians.ply import write_ply
-    from abcgs.sources.splat import read_splat_source
+    from abcgs.sources.bare_splat import read_splat_source
 
     model = _flat_object()
     params = SplatViewsParams(count=12, width=64, height=48)
@@ -202,7 +203,7 @@ def _object_scene(tmp_path, n_views=6, size=(64, 48)):
         with torch.no_grad():
             save_image(tmp_path / c.name, render(model, c)[0].clamp(0, 1).numpy())
         paths.append(tmp_path / c.name)
-    scene = Scene(Cameras.from_list(cams), paths, model.means.numpy()[:10], np.zeros((10, 3), np.float32))
+    scene = CalibratedScene(Cameras.from_list(cams), paths, model.means.numpy()[:10], np.zeros((10, 3), np.float32))
     return model, scene
 
 

@@ -62,7 +62,7 @@ def test_params_yaml_and_the_defaults_are_within_the_ranges() -> None:
 
 @pytest.mark.parametrize("overlay", OVERLAYS, ids=lambda p: p.name)
 def test_every_benchmark_overlay_is_within_the_ranges(overlay: Path, tmp_path: Path) -> None:
-    """As ``python -m eval.bench.experiment`` and ``abcgs.cluster`` lay it over the workspace's params.yaml."""
+    """As ``python -m eval run experiment`` and ``abcgs.cluster`` lay it over the workspace's params.yaml."""
     validate_params(apply_overlay(_params(), read_overlay(overlay, tmp_path)), str(overlay))
 
 

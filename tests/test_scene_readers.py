@@ -1,4 +1,4 @@
-"""Scene readers by registry: every built-in format's module brings a ``READER`` with one signature, found by its
+"""SourceScene readers by registry: every built-in format's module brings a ``READER`` with one signature, found by its
 name; :func:`abcgs.sources.read.load` detects, reads and checks; a reader registered at run time is detected, read
 and checked like the built-in ones."""
 
@@ -15,7 +15,7 @@ from abcgs.errors import InputError
 from abcgs.sources.base import ReadOptions, SceneReader
 from abcgs.sources.read import load, resolve_format
 from abcgs.sources.registry import formats, reader_of, register, unregister
-from abcgs.types import Scene, View
+from abcgs.types import SourceScene, View
 
 
 @pytest.mark.parametrize("fmt", formats())
@@ -30,7 +30,7 @@ def test_an_unknown_format_names_the_known_ones():
 
 
 # ---- a toy format: a JSON list of cameras, one module's worth of code ---------------------------------------------
-def _toy_read(folder: Path, options: ReadOptions) -> Scene:
+def _toy_read(folder: Path, options: ReadOptions) -> SourceScene:
     views = []
     for v in json.loads((folder / "toy.json").read_text()):
         K = np.array([[100.0, 0, 32], [0, 100.0, 24], [0, 0, 1]])
@@ -38,7 +38,7 @@ def _toy_read(folder: Path, options: ReadOptions) -> Scene:
         viewmat[2, 3] = v["z"]
         cam = Camera(v["name"], K, viewmat, 64, 48)
         views.append(View(v["name"], folder / v["name"], cam))
-    return Scene.from_views(views, format="toy")
+    return SourceScene.from_views(views, format="toy")
 
 
 TOY = SceneReader("toy", _toy_read, "toy.json", detect=lambda folder: (folder / "toy.json").is_file())
@@ -62,9 +62,9 @@ def test_a_registered_reader_is_detected_read_and_checked(toy, tmp_path: Path):
 
 
 def test_a_built_in_format_cannot_be_replaced(toy):
-    with pytest.raises(ValueError, match="already has a reader"):
+    with pytest.raises(ValueError, match="already registered"):
         register(SceneReader("colmap", _toy_read, "x"))
-    with pytest.raises(ValueError, match="already has a reader"):
+    with pytest.raises(ValueError, match="already registered"):
         register(TOY)
 
 

@@ -11,18 +11,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from abcgs.cameras import Camera
+from abcgs.cameras import Camera, Cameras, Distortion
 from abcgs.errors import InputError
 from abcgs.io.colmap import read_model
 from abcgs.io.images import save_image, save_labels
 from abcgs.layout import ColmapDir
 from abcgs.sfm.model import SCENE_VERSION, read_scene, write_scene
 from abcgs.sfm.params import ReconstructParams
+from abcgs.sources.bare_splat import read_splat_source
 from abcgs.sources.model import write_source_model
-from abcgs.sources.splat import read_splat_source
 from abcgs.splats.formats.splat import write_splat_file
 from abcgs.splats.params import SplatViewsParams
-from abcgs.types import Background, Cameras, Distortion, Scene
+from abcgs.types import Background, CalibratedScene
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_splats import make_model  # noqa: E402
@@ -34,7 +34,7 @@ def _rotation(rng: np.random.Generator) -> np.ndarray:
     return q * np.linalg.det(q)
 
 
-def make_scene(root: Path, seed: int = 0) -> Scene:
+def make_scene(root: Path, seed: int = 0) -> CalibratedScene:
     """Four 12 × 8 views with images, alpha maps and two label maps in ``root``, every other field set."""
     rng = np.random.default_rng(seed)
     cams = []
@@ -50,9 +50,9 @@ def make_scene(root: Path, seed: int = 0) -> Scene:
         save_labels(root / "masks" / cam.name, rng.integers(0, 3, (8, 12)))
     frame = np.eye(4)
     frame[:3, :3], frame[:3, 3] = 0.3 * _rotation(rng), rng.normal(size=3)  # bits a decimal rounding would lose
-    return Scene(Cameras.from_list(cams), tuple(root / "images" / c.name for c in cams),
+    return CalibratedScene(Cameras.from_list(cams), tuple(root / "images" / c.name for c in cams),
                  rng.normal(size=(50, 3)).astype(np.float32), (rng.integers(0, 256, (50, 3)) / 255.0).astype(np.float32),
-                 mask_paths=(root / "masks/v0.png", root / "masks/v1.png", None, None),
+                 label_paths=(root / "masks/v0.png", root / "masks/v1.png", None, None),
                  alpha_paths=tuple(root / "alpha" / c.name for c in cams), format="nerfstudio", frame=frame,
                  background=Background((0.1, 0.25, 1 / 3), transparent=True, object=True), depth_range=(0.5, 7.25),
                  notes=("scaled by 0.3",), metadata={"views_kind": "orbit", "n": 3, "nested": {"a": [1.5, None]}},
@@ -67,7 +67,7 @@ def test_a_scene_round_trips_exactly(tmp_path: Path) -> None:
     assert back.format == "nerfstudio" and back.background == scene.background and back.metadata == scene.metadata
     assert back.splat == scene.splat and back.depth_range == scene.depth_range and back.notes == scene.notes
     assert back.image_paths == scene.image_paths and back.alpha_paths == scene.alpha_paths
-    assert back.mask_paths == scene.mask_paths
+    assert back.label_paths == scene.label_paths
     assert back.cameras.names == scene.cameras.names
     for key in ("intrinsics", "sizes", "camera_models", "distortion_params"):
         assert np.array_equal(getattr(back.cameras, key), getattr(scene.cameras, key)), key
@@ -85,10 +85,10 @@ def test_a_scene_round_trips_exactly(tmp_path: Path) -> None:
 
 def test_a_scene_without_alpha_masks_or_background_reads_back_frame_filling(tmp_path: Path) -> None:
     scene = make_scene(tmp_path)
-    plain = Scene(scene.cameras, scene.image_paths, scene.points, scene.colors)
+    plain = CalibratedScene(scene.cameras, scene.image_paths, scene.points, scene.colors)
     write_scene(plain, tmp_path)
     back = read_scene(tmp_path)
-    assert back.background == Background() and back.alpha_paths is None and back.mask_paths is None
+    assert back.background == Background() and back.alpha_paths is None and back.label_paths is None
     assert back.format == "colmap" and np.array_equal(back.frame, np.eye(4)) and back.splat is None
 
 
@@ -97,7 +97,7 @@ def test_write_scene_refuses_files_outside_its_folder_and_distorted_cameras(tmp_
     with pytest.raises(ValueError, match="not inside"):
         write_scene(scene, tmp_path / "b")
     lens = [Distortion("SIMPLE_RADIAL", (10.0, 6.0, 4.0, 0.01))] + [None] * 3
-    distorted = Scene(Cameras.from_list(list(scene.cameras), lens), scene.image_paths)
+    distorted = CalibratedScene(Cameras.from_list(list(scene.cameras), lens), scene.image_paths, scene.points, scene.colors)
     with pytest.raises(ValueError, match="undistorted"):
         write_scene(distorted, tmp_path / "a")
 
@@ -209,7 +209,7 @@ def test_the_stages_read_the_reconstructed_model_as_it_is(tiny_colmap: Path) -> 
     assert np.array_equal(scene.points, model.points.astype(np.float32))
     assert np.array_equal(scene.colors, (model.colors / 255.0).astype(np.float32))
     assert scene.format == "photos" and scene.background == Background() and scene.alpha_paths is None
-    assert scene.mask_paths is not None and scene.mask_paths[0] == tiny_colmap / "masks" / "000.png"
+    assert scene.label_paths is not None and scene.label_paths[0] == tiny_colmap / "masks" / "000.png"
 
 
 def test_a_label_map_that_is_a_photo_and_a_scene_json_that_is_no_file_are_refused_in_one_line(tmp_path: Path) -> None:

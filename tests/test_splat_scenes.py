@@ -19,7 +19,7 @@ from abcgs.gaussians import FITTED_ROW, GaussianModel, fitted_rows, render
 from abcgs.gaussians.ply import read_ply, write_ply
 from abcgs.io.images import save_image
 from abcgs.layout import ColorMatchDir
-from abcgs.sources.splat import read_splat_source
+from abcgs.sources.bare_splat import read_splat_source
 from abcgs.splats.cameras import cameras_around
 from abcgs.splats.exporting import give_back
 from abcgs.splats.formats.splat import write_splat_file

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 
-from abcgs.cameras import Camera, intrinsics, look_at
+from abcgs.cameras import Camera, Cameras, intrinsics, look_at
 from abcgs.errors import InputError
 from abcgs.fit import metrics as M
 from abcgs.fit.params import FitParams
@@ -28,7 +28,7 @@ from abcgs.splats.formats.supersplat import write_compressed_ply
 from abcgs.splats.importing import import_and_save
 from abcgs.splats.registry import detect_splat_format, read_splat, write_splat
 from abcgs.splats.validate import check_splat
-from abcgs.types import Cameras, Scene
+from abcgs.types import CalibratedScene
 
 W, H = 96, 72
 
@@ -66,7 +66,7 @@ def psnr_between(a: GaussianModel, b: GaussianModel, cams: list[Camera]) -> floa
 
 
 @pytest.fixture(scope="module")
-def scene_and_model(tmp_path_factory) -> tuple[Scene, GaussianModel]:
+def scene_and_model(tmp_path_factory) -> tuple[CalibratedScene, GaussianModel]:
     """A scene whose photos are the renders of a degree-3 model (its sparse points: every 10th mean)."""
     model = make_model()
     cams = ring_cameras()
@@ -76,7 +76,7 @@ def scene_and_model(tmp_path_factory) -> tuple[Scene, GaussianModel]:
         save_image(folder / cam.name, img.numpy())
         paths.append(folder / cam.name)
     pts = model.means[::10].numpy().astype(np.float32)
-    return Scene(Cameras.from_list(cams), paths, pts, np.full_like(pts, 0.5)), model
+    return CalibratedScene(Cameras.from_list(cams), paths, pts, np.full_like(pts, 0.5)), model
 
 
 def moved_cameras(cams: list[Camera], sim: Similarity) -> list[Camera]:
@@ -120,7 +120,7 @@ def test_similarity_from_matrix_refuses_reflections_and_shear():
 # ----------------------------------------------------------------------------------------------- formats
 
 
-def _write(fmt: str, model: GaussianModel, scene: Scene, root: Path) -> Path:
+def _write(fmt: str, model: GaussianModel, scene: CalibratedScene, root: Path) -> Path:
     """``model`` (scene frame) written as a ``fmt`` file the way its tool would have written it."""
     root.mkdir(parents=True, exist_ok=True)
     if fmt == "inria":
@@ -290,7 +290,7 @@ def test_coefficient_major_sh_is_diagnosed_as_sh_layout(scene_and_model, tmp_pat
     for cam, img in zip(cams, render_all(strong, cams)):
         save_image(tmp_path / cam.name, img.numpy())
         paths.append(tmp_path / cam.name)
-    strong_scene = Scene(cams, paths, scene.points, scene.colors)
+    strong_scene = CalibratedScene(cams, paths, scene.points, scene.colors)
     n = strong.num_gaussians
     bad = GaussianModel(strong.means, strong.quats, strong.log_scales, strong.opacity_logits, strong.sh0,
                         strong.shN.reshape(n, -1).reshape(n, 3, 15).transpose(1, 2).contiguous())
@@ -370,13 +370,12 @@ def test_scene_params_name_a_splat_relative_to_the_scene_folder():
 def test_a_gsplat_splat_on_a_dataset_without_points_says_its_frame_needs_them(scene_and_model, tmp_path):
     """gsplat's world is computed from the scene's sparse points: a dataset that has none (``points`` None) gets the
     reader's one line from preflight's check and from the import alike, not a TypeError."""
-    from dataclasses import replace
-
     from abcgs.splats.registry import check_splat_file
+    from abcgs.types import SourceScene
 
     scene, model = scene_and_model
     ckpt = _write("gsplat_ckpt", model, scene, tmp_path)
-    bare = replace(scene, points=None, colors=None)
+    bare = SourceScene(scene.cameras, scene.image_paths)  # a reader's scene without points
     for read in (read_splat, check_splat_file):
         with pytest.raises(InputError, match=r"cameras and sparse points; the scene has \d+ camera\(s\) and 0 point"):
             read(ckpt, "gsplat_ckpt", scene=bare)

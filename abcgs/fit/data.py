@@ -16,7 +16,7 @@ from torch import Tensor
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.io.images import load_image
-from abcgs.types import Scene
+from abcgs.types import CalibratedScene
 
 
 @dataclass
@@ -46,7 +46,7 @@ def split_views(n: int, test_every: int) -> tuple[list[int], list[int]]:
     return train, test
 
 
-def load_views(scene: Scene, resolution_scale: float = 1.0, test_every: int = 8, device: str | torch.device = "cpu") -> Views:
+def load_views(scene: CalibratedScene, resolution_scale: float = 1.0, test_every: int = 8, device: str | torch.device = "cpu") -> Views:
     """Load every image once, downscaled by ``resolution_scale`` with ``cv2.INTER_AREA``.
 
     Each image must have its camera's size (the undistorted images of the reconstruct stage do);

@@ -21,14 +21,14 @@ from abcgs.io.tables import write_csv
 from abcgs.layout import FitDir
 from abcgs.render.cpu import kernel_threads
 from abcgs.runtime import torch_threads
-from abcgs.types import Scene
+from abcgs.types import CalibratedScene
 
 HISTORY_COLUMNS = ("step", "seconds", "loss", "psnr", "n_gaussians")
 """Columns of ``history.csv``: one row per training step (training-view PSNR in dB, ``seconds`` of training so far)."""
 
 
 def fit_and_save(
-    scene: Scene, params: FitParams, out_dir: str | os.PathLike, progress: bool = True, *,
+    scene: CalibratedScene, params: FitParams, out_dir: str | os.PathLike, progress: bool = True, *,
     device: torch.device | None = None,
 ) -> FitResult:
     """:func:`fit`, then write into ``out_dir`` (each file atomically):

@@ -18,7 +18,7 @@ MIN_RESET_EVERY = 3000
 """The fewest steps between two opacity resets of a schedule left to follow the run's length: 3DGS's own interval.
 Resets only fall while densifying (until half the run), so runs of up to 6000 steps reset none. Closer resets cost
 the tiny scene's fit held-out PSNR at every length measured: one reset at step 1000 of 3000 holds it out at 34.7 dB,
-none at 36.3 dB; two (1000 and 2000 of 6000) at 31.8 dB, none at 35.5 dB (``python -m eval.bench.fit_schedule``,
+none at 36.3 dB; two (1000 and 2000 of 6000) at 31.8 dB, none at 35.5 dB (``python -m eval run fit_schedule``,
 docs/SCALING.md "The fit's schedule")."""
 
 MAX_FIT_ITERATIONS = 2_000_000

@@ -28,7 +28,7 @@ TRAIN_VIEWS = 8
 RESET_SHARE = 0.9
 """Share of the Gaussians at or under the reset opacity from which the fit is said to have ended on a reset: a reset
 on the last step leaves them all there; healthy fits leave the Gaussians that learnt to be empty (the tiny scene:
-7-19 %, ``python -m eval.bench.fit_schedule``; 35 % on a 300-step fit of random Gaussians on black)."""
+7-19 %, ``python -m eval run fit_schedule``; 35 % on a 300-step fit of random Gaussians on black)."""
 
 
 class FitError(AbcgsError):

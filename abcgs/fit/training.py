@@ -36,7 +36,7 @@ from abcgs.render import select_backend
 from abcgs.render.cpu import kernel_threads
 from abcgs.runtime import resolve_device, torch_threads
 from abcgs.silhouette import over, unpremultiply
-from abcgs.types import Backend, Scene
+from abcgs.types import Backend, CalibratedScene
 
 log = logging.getLogger(__name__)
 
@@ -152,7 +152,7 @@ def _eval_row(step: int, seconds: float, ev: Evaluation) -> dict:
 
 
 def fit(
-    scene: Scene,
+    scene: CalibratedScene,
     params: FitParams | None = None,
     progress: bool = True,
     *,
@@ -165,7 +165,7 @@ def fit(
     """Fit 3-D Gaussians to ``scene`` (cameras, image paths, SfM points and colours).
 
     Args:
-        scene: a :class:`~abcgs.types.Scene`.
+        scene: a :class:`~abcgs.types.CalibratedScene`.
         params: :class:`FitParams` (defaults: the 3DGS recipe, 30k steps).
         progress: show a tqdm bar with loss, PSNR, Gaussian count and ETA.
         views: preloaded images (skip :func:`load_views`). initial: start from these Gaussians instead of
@@ -187,7 +187,7 @@ def fit(
 
 
 def _fit(
-    scene: Scene,
+    scene: CalibratedScene,
     params: FitParams,
     progress: bool,
     views: Views | None,

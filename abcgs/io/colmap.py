@@ -1,7 +1,7 @@
 """COLMAP models (https://colmap.github.io/format.html): the one reader and the one writer of this project.
 
     model = read_model("data/garden/sparse/0")        # *.bin, else *.txt; checked (below); points by id
-    cameras = model.cameras()                          # abcgs.types.Cameras of the images, sorted by name
+    cameras = model.cameras()                          # abcgs.cameras.Cameras of the images, sorted by name
     write_model(out / "sparse", cameras, xyz, rgb)     # cameras.bin, images.bin, points3D.bin (or text=True)
 
 The reader is numpy only (no pycolmap), so the stages that only read a scene run where no pycolmap wheel exists. It
@@ -25,10 +25,17 @@ from pathlib import Path
 
 import numpy as np
 
-from abcgs.cameras import Camera, check_intrinsics
+from abcgs.cameras import (
+    CAMERA_MODELS,
+    PINHOLE_MODEL,
+    SINGLE_FOCAL_MODELS,
+    Camera,
+    Cameras,
+    Distortion,
+    check_intrinsics,
+)
 from abcgs.errors import InputError
 from abcgs.io.guarded import read_bounded, read_text
-from abcgs.types import CAMERA_MODELS, PINHOLE_MODEL, SINGLE_FOCAL_MODELS, Cameras, Distortion
 
 FIX = "re-export the model from COLMAP (or run the reconstruct stage again)"
 FILES = ("cameras", "images", "points3D")
@@ -43,7 +50,7 @@ _TRACK = struct.calcsize("<ii")
 
 @dataclass(frozen=True)
 class ColmapCamera:
-    """One camera record: COLMAP's ``model_id`` (:data:`abcgs.types.CAMERA_MODELS`), image size in px and the model's
+    """One camera record: COLMAP's ``model_id`` (:data:`abcgs.cameras.CAMERA_MODELS`), image size in px and the model's
     full parameter vector (px for focal lengths and principal point)."""
 
     model_id: int
@@ -109,7 +116,7 @@ class ColmapModel:
         return Camera(image.name, K, image.viewmat, cam.width, cam.height), lens
 
     def cameras(self) -> Cameras:
-        """The images' :class:`~abcgs.types.Cameras`, sorted by name."""
+        """The images' :class:`~abcgs.cameras.Cameras`, sorted by name."""
         views = [self.view(im) for im in self.images]
         return Cameras.from_list([c for c, _ in views], [d for _, d in views])
 

@@ -50,7 +50,7 @@ class FastParams(Bounded):
     the painting's ``r`` principal feature directions, re-ranked by their exact similarities
     (:class:`abcgs.features.knn.Projection`); used by FAST, NNFM and KNNFM. Its recall by rank and candidates, and
     what it changes in a whole run: docs/SCALING.md "The neighbour search of FAST and NNFM"
-    (``python -m eval.bench.knn_recall``); its time: ``docs/measurements/settings.yaml``,
+    (``python -m eval run knn_recall``); its time: ``docs/measurements/settings.yaml``,
     ``knn_projected_search_time``."""
     projection_candidates: int = Field(16, ge=1)
     """Candidates per feature and direction of the approximate search (at least ``k``)."""

@@ -20,7 +20,7 @@ from abcgs.errors import InputError
 from abcgs.io.atomic import atomic_path, write_json
 from abcgs.io.images import load_image, load_labels, save_image, save_labels
 from abcgs.layout import MasksDir
-from abcgs.types import Scene, SceneMasks
+from abcgs.types import CalibratedScene, SceneMasks
 from abcgs.viz import colorize_labels, image_grid
 
 if TYPE_CHECKING:  # the writer takes the computed masks; the stages that only read them do not import that code
@@ -85,7 +85,7 @@ def write_unread_masks(out: Path, n_gaussians: int, cameras: list[Camera]) -> No
         })
 
 
-def load_scene_masks(masks_dir: Path, scene: Scene, n_gaussians: int, *,
+def load_scene_masks(masks_dir: Path, scene: CalibratedScene, n_gaussians: int, *,
                      device: torch.device | str = "cpu") -> SceneMasks:
     """The masks stage's output: Gaussian labels on ``device``, view label maps as host arrays."""
     d = MasksDir(masks_dir)

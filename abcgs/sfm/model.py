@@ -7,7 +7,7 @@ The ``reconstruct`` stage leaves a COLMAP layout (:class:`abcgs.layout.ColmapDir
     alpha/, masks/                         an object's alpha maps, the views' label maps (when there are any)
     scene.json                             everything else the scene is (below)
 
-:func:`write_scene` writes a :class:`~abcgs.types.Scene` there and :func:`read_scene` reads it back; every stage,
+:func:`write_scene` writes a :class:`~abcgs.types.CalibratedScene` there and :func:`read_scene` reads it back; every stage,
 the viewer, the benchmarks and the tests that take a reconstructed scene read it through :func:`read_scene` only
 (a writer of the layout reads the scene it has staged with :func:`layout_scene`). ``scene.json``
 (version :data:`SCENE_VERSION`) holds the scene's format, its frame (``4 × 4`` float64, written as JSON numbers,
@@ -32,13 +32,14 @@ from typing import Any
 
 import numpy as np
 
+from abcgs.cameras import CAMERA_MODELS
 from abcgs.errors import InputError
 from abcgs.io.atomic import write_json
 from abcgs.io.colmap import read_model, write_model
 from abcgs.io.guarded import load_json
 from abcgs.io.images import image_header
 from abcgs.layout import ColmapDir
-from abcgs.types import CAMERA_MODELS, Background, Scene
+from abcgs.types import FRAME_FILLING, Background, CalibratedScene
 
 SCENE_VERSION = 1
 """The version of ``scene.json`` this code writes and reads."""
@@ -49,10 +50,10 @@ MAX_SCENE_JSON_BYTES = 64 << 20
 """Largest ``scene.json`` read (a scene of 1000 views writes about 150 kB)."""
 
 
-def _model_scene(model_dir: Path, images_dir: Path) -> Scene:
+def _model_scene(model_dir: Path, images_dir: Path) -> CalibratedScene:
     """The model part of :func:`read_scene` and :func:`layout_scene`: the undistorted COLMAP model ``model_dir``
     (``*.bin`` or ``*.txt``, PINHOLE or SIMPLE_PINHOLE cameras) and its images in ``images_dir`` as a
-    :class:`~abcgs.types.Scene` (views sorted by image name; ``alpha_paths`` from ``alpha/`` beside ``images/``
+    :class:`~abcgs.types.CalibratedScene` (views sorted by image name; ``alpha_paths`` from ``alpha/`` beside ``images/``
     when the reconstruct stage wrote it)."""
     model = read_model(model_dir)
     if not model.images:
@@ -72,22 +73,23 @@ def _model_scene(model_dir: Path, images_dir: Path) -> Scene:
     alphas = tuple(alpha_dir / name for name in cameras.names) if alpha_dir.is_dir() else None
     if alphas is not None and not all(p.is_file() for p in alphas):
         raise InputError(f"{alpha_dir} lacks the alpha map of some views; re-run the reconstruct stage")
-    return Scene(cameras, paths, model.points.astype("float32"), (model.colors / 255.0).astype("float32"),
+    return CalibratedScene(cameras, paths, model.points.astype("float32"), (model.colors / 255.0).astype("float32"),
                  alpha_paths=alphas)
 
 
-def layout_scene(root: str | os.PathLike, **fields: Any) -> Scene:
+def layout_scene(root: str | os.PathLike, **fields: Any) -> CalibratedScene:
     """The scene of the COLMAP layout ``root`` as a writer of it left it (the model in ``sparse/``, the views in
     ``images/``, alpha maps from ``alpha/``, each view's label map ``masks/<stem>.png`` where there is one), with the
-    :class:`~abcgs.types.Scene` ``fields`` the model does not hold (format, frame, background, …): what
-    :func:`write_scene` is given once that layout is complete."""
+    :class:`~abcgs.types.CalibratedScene` ``fields`` the model does not hold (format, frame, background, …): what
+    :func:`write_scene` is given once that layout is complete (``background=None``: a frame-filling scene)."""
     d = ColmapDir(Path(root))
     scene = _model_scene(d.sparse, d.images)
     masks = tuple(d.masks / f"{PurePosixPath(n).stem}.png" for n in scene.cameras.names)
     masks = tuple(m if m.is_file() else None for m in masks)
-    return Scene(scene.cameras, scene.image_paths, scene.points, scene.colors,
-                 mask_paths=masks if any(m is not None for m in masks) else None, alpha_paths=scene.alpha_paths,
-                 **fields)
+    background = fields.pop("background", None) or FRAME_FILLING
+    return CalibratedScene(scene.cameras, scene.image_paths, scene.points, scene.colors, background=background,
+                           label_paths=masks if any(m is not None for m in masks) else None,
+                           alpha_paths=scene.alpha_paths, **fields)
 
 
 # ------------------------------------------------------------------------------------------------ writing
@@ -101,7 +103,7 @@ def _relative(path: Path | None, root: Path, what: str) -> str | None:
                          "folder (stage them there first)") from None
 
 
-def _model_holds(model_dir: Path, scene: Scene) -> bool:
+def _model_holds(model_dir: Path, scene: CalibratedScene) -> bool:
     """Whether the COLMAP model in ``model_dir`` reads back as exactly ``scene``'s cameras and points."""
     if not model_dir.is_dir() or not any(model_dir.glob("images.*")):
         return False
@@ -116,7 +118,7 @@ def _model_holds(model_dir: Path, scene: Scene) -> bool:
             and np.array_equal((model.colors / 255.0).astype(np.float32), colors))
 
 
-def write_scene(scene: Scene, root: str | os.PathLike) -> Path:
+def write_scene(scene: CalibratedScene, root: str | os.PathLike) -> Path:
     """Write ``scene`` into the folder ``root``: its cameras and points as the COLMAP model ``sparse/`` (kept as it
     is when it already reads back as exactly these: the model structure from motion or the undistorter wrote) and
     the rest as ``scene.json`` (module docstring). The scene's images, alpha and label maps must lie inside ``root``
@@ -126,16 +128,16 @@ def write_scene(scene: Scene, root: str | os.PathLike) -> Path:
         raise ValueError("write_scene stores an undistorted scene (PINHOLE cameras); undistort it first")
     frame = np.asarray(scene.frame, np.float64)
     if frame.shape != (4, 4) or not np.isfinite(frame).all():
-        raise ValueError(f"Scene.frame must be a finite 4 x 4 matrix, got {frame.tolist()}")
+        raise ValueError(f"CalibratedScene.frame must be a finite 4 x 4 matrix, got {frame.tolist()}")
     c = len(scene.cameras)
     alphas = scene.alpha_paths or (None,) * c
-    masks = scene.mask_paths or (None,) * c
+    masks = scene.label_paths or (None,) * c
     views = [{"name": name, "image": _relative(image, d.root, "image"), "alpha": _relative(alpha, d.root, "alpha map"),
               "mask": _relative(mask, d.root, "label map")}
              for name, image, alpha, mask in zip(scene.cameras.names, scene.image_paths, alphas, masks)]
     if not _model_holds(d.sparse, scene):
         write_model(d.sparse, scene.cameras, scene.points, scene.colors)
-    background = scene.background or Background()
+    background = scene.background
     write_json(d.scene, {
         "version": SCENE_VERSION, "format": scene.format, "frame": frame.tolist(), "background": background.to_json(),
         "splat": None if scene.splat is None else str(scene.splat),
@@ -265,7 +267,7 @@ def _depth_range(doc: Mapping) -> tuple[float, float] | None:
 
 
 def _fields(root: Path, doc: Any, names: Sequence[str]) -> dict:
-    """The :class:`~abcgs.types.Scene` fields of the parsed ``scene.json`` ``doc`` besides the model's."""
+    """The :class:`~abcgs.types.CalibratedScene` fields of the parsed ``scene.json`` ``doc`` besides the model's."""
     if not isinstance(doc, dict):
         raise _Bad(f"it holds a {type(doc).__name__}, not an object")
     _check_finite(doc, "scene")
@@ -279,11 +281,11 @@ def _fields(root: Path, doc: Any, names: Sequence[str]) -> dict:
             "depth_range": _depth_range(doc),
             "notes": tuple(notes), "metadata": _typed(doc, "metadata", (dict,)),
             "alpha_paths": tuple(alphas) if all(a is not None for a in alphas) else None,  # type: ignore[arg-type]
-            "mask_paths": tuple(masks) if any(m is not None for m in masks) else None}
+            "label_paths": tuple(masks) if any(m is not None for m in masks) else None}
 
 
-def read_scene(root: str | os.PathLike) -> Scene:
-    """The :class:`~abcgs.types.Scene` that :func:`write_scene` (the ``reconstruct`` stage) wrote into ``root``: the
+def read_scene(root: str | os.PathLike) -> CalibratedScene:
+    """The :class:`~abcgs.types.CalibratedScene` that :func:`write_scene` (the ``reconstruct`` stage) wrote into ``root``: the
     cameras and points of ``sparse/``, everything else from ``scene.json``. :class:`~abcgs.errors.InputError` in one
     line naming the file for a missing ``scene.json``, one of another version, or any value of the wrong type, not
     finite, or naming a file outside ``root`` or absent."""
@@ -305,4 +307,4 @@ def read_scene(root: str | os.PathLike) -> Scene:
         fields = _fields(d.root, doc, base.cameras.names)
     except _Bad as exc:
         raise InputError(f"{d.scene} is not a scene record ({exc}); {rerun}") from None
-    return Scene(base.cameras, points=base.points, colors=base.colors, **fields)
+    return CalibratedScene(base.cameras, points=base.points, colors=base.colors, **fields)

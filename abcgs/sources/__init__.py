@@ -11,7 +11,7 @@
   registered readers' options.
 - The reading code of the built-in formats, one module each: :mod:`~abcgs.sources.photos`,
   :mod:`~abcgs.sources.colmap`, :mod:`~abcgs.sources.nerfstudio`, :mod:`~abcgs.sources.blender`,
-  :mod:`~abcgs.sources.llff`, :mod:`~abcgs.sources.splat`; :mod:`~abcgs.sources.transforms_json`: the
+  :mod:`~abcgs.sources.llff`, :mod:`~abcgs.sources.bare_splat`; :mod:`~abcgs.sources.transforms_json`: the
   ``transforms.json`` conventions nerfstudio and Blender share; :mod:`~abcgs.sources.lens`: image sizes and lenses.
 - :mod:`~abcgs.sources.model`: what the ``reconstruct`` stage writes for a scene with cameras (the undistorted COLMAP
   layout every later stage reads, with points triangulated from the given poses where the dataset has none).

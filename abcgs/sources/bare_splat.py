@@ -23,7 +23,7 @@ from abcgs.sources.detect import splat_file
 from abcgs.splats.cameras import cameras_around
 from abcgs.splats.params import SplatViewsParams
 from abcgs.splats.registry import read_splat
-from abcgs.types import Backend, Scene, View
+from abcgs.types import Backend, SourceScene, View
 
 MAX_POINTS = 100_000
 
@@ -31,10 +31,10 @@ MAX_POINTS = 100_000
 @torch.no_grad()
 def read_splat_source(path: Path, out_images_dir: Path, params: SplatViewsParams | None = None, *,
                       fmt: str = "auto", backend: Backend = "auto",
-                      background: tuple[float, float, float] | None = None, drop_invalid: bool = False) -> Scene:
+                      background: tuple[float, float, float] | None = None, drop_invalid: bool = False) -> SourceScene:
     """Read the splat at ``path`` (``drop_invalid``: dropping its non-finite Gaussians), make ``params``' cameras around
     it, write its render from each on ``background`` (RGB in ``[0, 1]``, default black) into ``out_images_dir`` (PNG,
-    named like the cameras) and return the :class:`Scene` (``format`` ``"splat"``, naming ``path`` as its splat). A
+    named like the cameras) and return the :class:`SourceScene` (``format`` ``"splat"``, naming ``path`` as its splat). A
     ``background`` makes the splat an object on nothing (the stages give a bare splat one): every view, orbit or
     forward, frames all of it (:func:`~abcgs.splats.cameras.cameras_around`'s ``object_scene``); without one, forward
     views frame its quantiles."""
@@ -54,11 +54,11 @@ def read_splat_source(path: Path, out_images_dir: Path, params: SplatViewsParams
         keep = keep[:: -(-len(keep) // MAX_POINTS)]
     points = model.means[keep].numpy().astype(np.float32)
     colors = sh0_to_rgb(model.sh0[keep, 0, :]).clamp(0, 1).numpy().astype(np.float32)
-    return Scene.from_views(views, points=points, colors=colors, format="splat", background=background,
+    return SourceScene.from_views(views, points=points, colors=colors, format="splat", background=background,
                             metadata={"views_kind": kind}, splat=path)
 
 
-def read(folder: Path, options: ReadOptions) -> Scene:
+def read(folder: Path, options: ReadOptions) -> SourceScene:
     """The ``splat`` format's reading (:mod:`abcgs.sources.formats.splat`): the splat file ``folder`` (or the one in
     it), its views rendered into ``options.work``."""
     if options.work is None:

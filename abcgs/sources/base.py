@@ -1,15 +1,15 @@
 """What a scene reader is: a format's name, how a folder of it is recognised, its options in ``params.yaml`` and its
 ``read(folder, options)``.
 
-A reader turns a dataset folder into an :class:`abcgs.types.Scene` (the one scene contract: batched
-:class:`~abcgs.types.Cameras`, images, optional points and masks):
+A reader turns a dataset folder into an :class:`abcgs.types.SourceScene` (the reader's half of the scene contract: batched
+:class:`~abcgs.cameras.Cameras`, images, optional points and masks):
 
 - its cameras are in the *scene frame* with OpenCV camera axes (x right, y down, z forward), ``viewmats``
   world→camera, intrinsics at the pixel size of the view's image file as it lies on disk (pixel centres at +0.5);
 - a view whose lens has distortion carries it as a COLMAP camera model (``Cameras.camera_models`` and
   ``distortion_params``); the ``reconstruct`` stage undistorts it as it undistorts its own SfM model;
-- the views are sorted by name (:meth:`abcgs.types.Scene.from_views` sorts them);
-- the scene frame is the dataset's own world frame up to the similarity :attr:`abcgs.types.Scene.frame` that the
+- the views are sorted by name (:meth:`abcgs.types.SourceScene.from_views` sorts them);
+- the scene frame is the dataset's own world frame up to the similarity :attr:`abcgs.types.SourceScene.frame` that the
   reader undoes (nerfstudio's ``applied_transform`` / ``applied_scale``); nothing is re-centred or re-scaled, so that a
   splat trained on the same dataset lines up with the cameras.
 
@@ -31,7 +31,7 @@ from typing import Any, ClassVar, Literal
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from abcgs.sections import NAME_RE
-from abcgs.types import Background, Scene
+from abcgs.types import Background, SourceScene
 
 LOADER_RE = re.compile(r"[a-z_][a-z0-9_]*:[A-Za-z_][A-Za-z0-9_]*")
 """A built-in reader's ``read`` / ``reconstruct`` named as ``"<module of abcgs.sources>:<function>"``."""
@@ -130,7 +130,7 @@ class SceneReader:
 
     Attributes:
         name: the format (``params.yaml``'s ``source: {format: <name>}``, ``add-scene --format``).
-        read: ``(folder, options) → Scene``, or ``"<module>:<function>"`` naming one of a module of
+        read: ``(folder, options) → SourceScene``, or ``"<module>:<function>"`` naming one of a module of
             :mod:`abcgs.sources` (a built-in format's reading code, loaded when a scene is read:
             :func:`abcgs.sources.read.loaded`; so that the ``params.yaml`` schema, which every stage validates, does
             not import it).
@@ -151,7 +151,7 @@ class SceneReader:
     """
 
     name: str
-    read: Callable[[Path, ReadOptions], Scene] | str
+    read: Callable[[Path, ReadOptions], SourceScene] | str
     marker: str
     detect: Callable[..., bool] | None = None
     priority: int = 100

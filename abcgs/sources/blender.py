@@ -23,7 +23,7 @@ from abcgs.sources.base import ReadOptions
 from abcgs.sources.lens import image_size
 from abcgs.sources.transforms_json import OPENGL_TO_OPENCV, camera_to_world, frames_of, load_json, number
 from abcgs.sources.validate import check_inside
-from abcgs.types import Scene, View
+from abcgs.types import SourceScene, View
 
 SPLITS = ("train", "test")
 DEFAULT_BACKGROUND = (1.0, 1.0, 1.0)
@@ -39,7 +39,7 @@ def _angle(path: Path, meta: dict, key: str) -> float | None:
 
 
 def read_blender_source(folder: str | os.PathLike, background: tuple[float, float, float] | None = None
-                        ) -> Scene:
+                        ) -> SourceScene:
     """The views of ``folder/transforms_{train,test}.json`` (module docstring)."""
     folder = Path(folder)
     views = []
@@ -74,9 +74,9 @@ def read_blender_source(folder: str | os.PathLike, background: tuple[float, floa
     if len(set(names)) != len(names):
         raise InputError(f"{folder}: two frames of one split name the same image file; each frame needs its own image")
     bg = tuple(float(c) for c in (background if background is not None else DEFAULT_BACKGROUND))
-    return Scene.from_views(views, format="blender", background=bg)
+    return SourceScene.from_views(views, format="blender", background=bg)
 
 
-def read(folder: Path, options: ReadOptions) -> Scene:
+def read(folder: Path, options: ReadOptions) -> SourceScene:
     """The ``blender`` format's reading (its ``READER``: :mod:`abcgs.sources.formats.blender`)."""
     return read_blender_source(folder, options.background)

@@ -28,7 +28,7 @@ from abcgs.sources.base import ReadOptions
 from abcgs.sources.detect import DEFAULT_IMAGES, colmap_model_dir, image_files
 from abcgs.sources.lens import fit_to_image, image_size, pinhole_and_lens
 from abcgs.sources.validate import check_count, check_inside
-from abcgs.types import Scene, View
+from abcgs.types import SourceScene, View
 
 log = logging.getLogger(__name__)
 
@@ -37,7 +37,7 @@ def _examples(names: list[str], n: int = 3) -> str:
     return ", ".join(names[:n]) + (f" … (+{len(names) - n} more)" if len(names) > n else "")
 
 
-def read_colmap_source(folder: str | os.PathLike, images: str | None = None) -> Scene:
+def read_colmap_source(folder: str | os.PathLike, images: str | None = None) -> SourceScene:
     """Read ``folder``'s COLMAP model and the images in ``folder/images`` (module docstring)."""
     folder = Path(folder)
     model_dir = colmap_model_dir(folder)
@@ -85,10 +85,10 @@ def read_colmap_source(folder: str | os.PathLike, images: str | None = None) -> 
         notes.append(f"cameras calibrated at {wm}x{hm} scaled to the {wi}x{hi} images of {images_dir.name}/")
     xyz = model.points.astype(np.float32)
     rgb = model.colors.astype(np.float32) / 255.0
-    return Scene.from_views(views, points=xyz if len(xyz) else None, colors=rgb if len(xyz) else None,
+    return SourceScene.from_views(views, points=xyz if len(xyz) else None, colors=rgb if len(xyz) else None,
                             format="colmap", notes=tuple(notes))
 
 
-def read(folder: Path, options: ReadOptions) -> Scene:
+def read(folder: Path, options: ReadOptions) -> SourceScene:
     """The ``colmap`` format's reading (its ``READER``: :mod:`abcgs.sources.formats.colmap`)."""
     return read_colmap_source(folder, options.images)

@@ -1,5 +1,5 @@
 """What the readers share about images and lenses: image sizes, fitting a camera to the image it is used with, and
-COLMAP camera models (:class:`abcgs.types.Distortion`) as pycolmap cameras.
+COLMAP camera models (:class:`abcgs.cameras.Distortion`) as pycolmap cameras.
 
 A dataset may calibrate its cameras at one resolution and ship images at another (LLFF's full-size model beside
 ``images_8``, Mip-NeRF 360's ``images_2/4/8``, nerfstudio's downscaled folders). :func:`fit_to_image` scales the
@@ -14,10 +14,9 @@ import os
 import numpy as np
 import pycolmap
 
-from abcgs.cameras import Camera
+from abcgs.cameras import Camera, Distortion
 from abcgs.errors import InputError
 from abcgs.io.images import image_header
-from abcgs.types import Distortion
 
 PINHOLE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE")
 

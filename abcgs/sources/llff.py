@@ -20,7 +20,7 @@ from abcgs.sources.base import ReadOptions
 from abcgs.sources.detect import DEFAULT_IMAGES, image_files
 from abcgs.sources.lens import fit_to_image, image_size
 from abcgs.sources.validate import check_count
-from abcgs.types import Scene, View
+from abcgs.types import SourceScene, View
 
 POSES_FILE = "poses_bounds.npy"
 
@@ -79,7 +79,7 @@ def llff_cameras(path: str | os.PathLike, names: list[str], size: tuple[int, int
             for i, (n, row) in enumerate(zip(names, arr))]
 
 
-def read_llff_source(folder: str | os.PathLike, images: str | None = None) -> Scene:
+def read_llff_source(folder: str | os.PathLike, images: str | None = None) -> SourceScene:
     """``folder/poses_bounds.npy`` and the images of ``folder/images`` (module docstring)."""
     folder = Path(folder)
     path = folder / POSES_FILE
@@ -99,9 +99,9 @@ def read_llff_source(folder: str | os.PathLike, images: str | None = None) -> Sc
     near, far = float(arr[:, 15].min()), float(arr[:, 16].max())
     if not (0 < near < far):
         raise InputError(f"{path}: the depth bounds (columns 15, 16) are {near:g} .. {far:g}; LLFF writes 0 < near < far")
-    return Scene.from_views(views, format="llff", depth_range=(near, far))
+    return SourceScene.from_views(views, format="llff", depth_range=(near, far))
 
 
-def read(folder: Path, options: ReadOptions) -> Scene:
+def read(folder: Path, options: ReadOptions) -> SourceScene:
     """The ``llff`` format's reading (its ``READER``: :mod:`abcgs.sources.formats.llff`)."""
     return read_llff_source(folder, options.images)

@@ -39,6 +39,7 @@ import cv2
 import numpy as np
 import pycolmap
 
+from abcgs.cameras import Cameras, Distortion
 from abcgs.errors import InputError
 from abcgs.io.atomic import atomic_path, write_json
 from abcgs.io.colmap import read_model, write_model
@@ -55,7 +56,7 @@ from abcgs.sfm.model import layout_scene, write_scene
 from abcgs.sfm.params import ReconstructParams
 from abcgs.sources.lens import colmap_camera
 from abcgs.sources.validate import axes_meeting_point
-from abcgs.types import Background, Cameras, Distortion, Scene, View
+from abcgs.types import Background, SourceScene, View
 
 log = logging.getLogger(__name__)
 
@@ -90,6 +91,11 @@ class SourceReport:
         if not seconds:
             data.pop("seconds")
         return data
+
+    def summary(self) -> str:
+        """One log line: views, points and how they were made, wall time (s)."""
+        return (f"{self.total} views with the dataset's cameras, {self.points} points ({self.points_method}), "
+                f"{self.seconds:.1f} s")
 
 
 def _stage_image(view: View, dst: Path, background: tuple[float, float, float] | None) -> np.ndarray | None:
@@ -239,7 +245,7 @@ def points_by_id(rec: pycolmap.Reconstruction) -> tuple[np.ndarray, np.ndarray]:
     return xyz, rgb
 
 
-def _masks(source: Scene, masks_dir: Path | None, dist: dict[str, pycolmap.Camera], und: Cameras, out: Path
+def _masks(source: SourceScene, masks_dir: Path | None, dist: dict[str, pycolmap.Camera], und: Cameras, out: Path
            ) -> int:
     """Label maps for the views: the scene's ``masks/<stem>.png`` (labels), else the view's ``mask_path`` (non-zero =
     kept → 1, else 2); undistorted like the views. Returns the count."""
@@ -268,7 +274,7 @@ def _masks(source: Scene, masks_dir: Path | None, dist: dict[str, pycolmap.Camer
     return count
 
 
-def write_source_model(source: Scene, out_dir: str | os.PathLike, params: ReconstructParams,
+def write_source_model(source: SourceScene, out_dir: str | os.PathLike, params: ReconstructParams,
                        masks_dir: str | os.PathLike | None = None, background: Background | None = None) -> SourceReport:
     """Write ``out_dir`` (module docstring) atomically for ``source``; ``masks_dir``: the scene's label PNGs;
     ``background``: the scene's (default: a frame-filling scene on black), recorded with the source's format,

@@ -8,7 +8,7 @@ COLMAP defines them), ``k1 k2 k3 k4 p1 p2``, ``mask_path``; at the top level ``a
 
 Frames: nerfstudio saves poses as ``x_file = applied_scale · (A x_orig)`` with ``A = applied_transform`` (the
 rotation ``ns-process-data`` applies to COLMAP's world). The reader undoes both, so the scene frame is the original
-data's (COLMAP's) frame and :attr:`abcgs.types.Scene.frame` is ``(s·A)⁻¹``. Camera axes become OpenCV's (y and z flipped).
+data's (COLMAP's) frame and :attr:`abcgs.types.SourceScene.frame` is ``(s·A)⁻¹``. Camera axes become OpenCV's (y and z flipped).
 A camera whose ``w``/``h`` differ from its image (``images:`` naming a downscaled folder, ``images_2``) is scaled to
 it, as for COLMAP. Masks (``mask_path``: non-zero = keep) are passed to the ``masks`` stage as labels 1 (kept) and
 2 (masked out).
@@ -22,14 +22,14 @@ from pathlib import Path, PurePosixPath
 
 import numpy as np
 
-from abcgs.cameras import Camera, check_intrinsics, check_rotation
+from abcgs.cameras import Camera, Distortion, check_intrinsics, check_rotation
 from abcgs.errors import InputError
 from abcgs.sources.base import ReadOptions
 from abcgs.sources.detect import DEFAULT_IMAGES
 from abcgs.sources.lens import fit_to_image, image_size, pinhole_and_lens
 from abcgs.sources.transforms_json import OPENGL_TO_OPENCV, camera_to_world, frames_of, load_json, number, number_array
 from abcgs.sources.validate import check_file_name, check_inside
-from abcgs.types import Distortion, Scene, View
+from abcgs.types import SourceScene, View
 
 log = logging.getLogger(__name__)
 TRANSFORMS = "transforms.json"
@@ -143,7 +143,7 @@ def read_points(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return xyz, rgb
 
 
-def read_nerfstudio_source(folder: str | os.PathLike, images: str | None = None) -> Scene:
+def read_nerfstudio_source(folder: str | os.PathLike, images: str | None = None) -> SourceScene:
     """``folder/transforms.json`` and the images (and masks) it names (module docstring)."""
     folder = Path(folder)
     path = folder / TRANSFORMS
@@ -186,10 +186,10 @@ def read_nerfstudio_source(folder: str | os.PathLike, images: str | None = None)
     notes = []
     if not np.allclose(file_from_scene, np.eye(4)):
         notes.append("applied_transform/applied_scale undone: the scene is in the original data's frame")
-    return Scene.from_views(views, points=points, colors=colors, format="nerfstudio",
+    return SourceScene.from_views(views, points=points, colors=colors, format="nerfstudio",
                             frame=np.linalg.inv(file_from_scene), notes=tuple(notes))
 
 
-def read(folder: Path, options: ReadOptions) -> Scene:
+def read(folder: Path, options: ReadOptions) -> SourceScene:
     """The ``nerfstudio`` format's reading (its ``READER``: :mod:`abcgs.sources.formats.nerfstudio`)."""
     return read_nerfstudio_source(folder, options.images)

@@ -100,6 +100,11 @@ class SceneParams(BaseModel):
             return {**data, "source": {"format": "auto", **data["source"]}}  # the tag's default
         return data
 
+    @classmethod
+    def at(cls, path: str | os.PathLike, fmt: str = "auto") -> SceneParams:
+        """The entry of the scene at ``path`` read as ``fmt`` (``auto``: detected), every other setting its default."""
+        return cls.model_validate({"path": str(path), "source": {"format": fmt}})
+
     @property
     def format(self) -> str:
         """The scene's format (``source.format``: a registered reader's name; ``auto``: detected)."""

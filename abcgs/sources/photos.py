@@ -15,7 +15,7 @@ from abcgs.sfm.model import layout_scene, read_scene, write_scene
 from abcgs.sfm.params import ReconstructParams
 from abcgs.sources.base import ReadOptions
 from abcgs.sources.detect import DEFAULT_IMAGES
-from abcgs.types import Background, Scene
+from abcgs.types import Background, SourceScene
 
 
 def reconstruct_photos(folder: str | os.PathLike, out_dir: str | os.PathLike, params: ReconstructParams,
@@ -31,12 +31,13 @@ def reconstruct_photos(folder: str | os.PathLike, out_dir: str | os.PathLike, pa
     return report
 
 
-def read(folder: Path, options: ReadOptions) -> Scene:
+def read(folder: Path, options: ReadOptions) -> SourceScene:
     """The ``photos`` format's reading (:mod:`abcgs.sources.formats.photos`): structure from motion with the default
     :class:`~abcgs.sfm.params.ReconstructParams` into ``options.work``, and the scene written there read back
-    (:func:`abcgs.sfm.model.read_scene`); ``options.background``: an object on that colour."""
+    (:func:`abcgs.sfm.model.read_scene`, as a :class:`~abcgs.types.SourceScene`); ``options.background``: an object
+    on that colour."""
     if options.work is None:
         raise ValueError("a photos scene's cameras are found by structure from motion into `work`; give a folder")
     background = Background(options.background, object=True) if options.background is not None else Background()
     reconstruct_photos(folder, options.work, ReconstructParams(), options.images, background=background)
-    return read_scene(options.work)
+    return read_scene(options.work).as_source()

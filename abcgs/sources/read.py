@@ -7,7 +7,8 @@ Each format's reader is the ``READER`` (a :class:`~abcgs.sources.base.SceneReade
 :mod:`abcgs.sources.formats` (or of a plugin folder), found by :mod:`abcgs.sources.registry`.
 :func:`resolve_format` is the params' ``format`` or detection (:func:`abcgs.sources.detect.detect_format`);
 :func:`read_source` runs the reader and then, for cameras read from the dataset,
-:func:`abcgs.sources.validate.check_cameras`.
+:func:`abcgs.sources.validate.check_cameras`; :func:`read_entry` reads a ``data.scenes`` entry with its options, as the
+``reconstruct`` stage does (:func:`abcgs.sources.reconstruct.reconstruct_scene`), for the checks before it.
 """
 
 from __future__ import annotations
@@ -16,13 +17,16 @@ import importlib
 import os
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from abcgs.errors import InputError
 from abcgs.sources.base import ReadOptions, Source
 from abcgs.sources.detect import detect_format
 from abcgs.sources.registry import formats, reader_of
-from abcgs.types import Scene
+from abcgs.types import SourceScene
+
+if TYPE_CHECKING:
+    from abcgs.sources.params import SceneParams
 
 
 def loaded(target: Callable | str) -> Callable:
@@ -51,7 +55,7 @@ def resolve_format(folder: str | os.PathLike, fmt: str = "auto", images: str | N
 def read_source(folder: str | os.PathLike, fmt: str, *, images: str | None = None,
                 background: tuple[float, float, float] | None = None, views=None,
                 work: str | os.PathLike | None = None, drop_invalid: bool = False, source: Source | None = None
-                ) -> Scene:
+                ) -> SourceScene:
     """The scene at ``folder`` read as ``fmt`` by its reader, its cameras checked where they are read from the
     dataset. The options are :class:`~abcgs.sources.base.ReadOptions`' (``work``: the folder a bare splat's views are
     rendered into, or a ``photos`` scene's structure-from-motion model is written to; ``source``: the scene entry's
@@ -67,7 +71,21 @@ def read_source(folder: str | os.PathLike, fmt: str, *, images: str | None = Non
     return scene
 
 
-def load(path: str | os.PathLike, format: str = "auto", **options: Any) -> Scene:
+def read_entry(entry: SceneParams, folder: str | os.PathLike | None = None, fmt: str | None = None, *,
+               work: str | os.PathLike | None = None) -> SourceScene:
+    """The dataset of the scene entry ``entry`` read as the ``reconstruct`` stage reads it: as ``fmt`` (default: the
+    entry's format, detected when ``auto``), with the entry's image folder, bare-splat views, reading options and
+    non-finite policy; an object's RGBA views composited on its background colour; the cameras checked where they are
+    read. ``folder``: the entry's folder (default ``entry.path``); ``work``: where a bare splat's views are rendered
+    (a ``photos`` scene is not read: :func:`abcgs.sources.reconstruct.reconstruct_scene` finds its cameras)."""
+    folder = Path(entry.path if folder is None else folder)
+    fmt = fmt or resolve_format(folder, entry.format, entry.images)
+    background = entry.resolved_background(fmt)
+    return read_source(folder, fmt, images=entry.images, background=background.color if background.object else None,
+                       views=entry.views, work=work, drop_invalid=entry.splat_nonfinite == "drop", source=entry.source)
+
+
+def load(path: str | os.PathLike, format: str = "auto", **options: Any) -> SourceScene:
     """The scene at ``path``: its format (``auto``: detected) read by that format's reader, its cameras checked;
     ``options``: :class:`~abcgs.sources.base.ReadOptions`' fields."""
     return read_source(path, resolve_format(path, format, options.get("images")), **options)

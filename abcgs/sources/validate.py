@@ -22,7 +22,7 @@ import numpy as np
 
 from abcgs.cameras import Camera
 from abcgs.errors import InputError
-from abcgs.types import Scene
+from abcgs.types import SourceScene
 
 OUTSIDE_FIX = ("DVC tracks only the scene's folder, so an edit to a file elsewhere would not re-run the stages that "
                "read it: copy the file into the scene's folder and name it relative to it")
@@ -38,7 +38,7 @@ MIN_CONVERGENCE = 1e-3
 forward-facing capture): where they meet is then not defined and not checked."""
 
 
-def visible_fraction(scene: Scene) -> np.ndarray:
+def visible_fraction(scene: SourceScene) -> np.ndarray:
     """Per view: the fraction of the scene's points in front of the camera and inside its image, ``(N,)`` (on every
     k-th point of large models: at most :data:`MAX_CHECKED_POINTS`)."""
     pts = np.asarray(scene.points, np.float64)
@@ -71,7 +71,7 @@ def axes_meeting_point(cameras: list[Camera]) -> np.ndarray | None:
     return np.linalg.solve(A, b)
 
 
-def check_cameras(scene: Scene, what: str) -> None:
+def check_cameras(scene: SourceScene, what: str) -> None:
     """Raise :class:`InputError` naming ``what`` (the dataset's file) when the cameras look away from the scene
     (module docstring)."""
     n = len(scene.cameras)

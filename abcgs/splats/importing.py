@@ -32,7 +32,7 @@ from abcgs.runtime import torch_threads
 from abcgs.splats.preview import decimate
 from abcgs.splats.registry import read_splat
 from abcgs.splats.validate import check_splat
-from abcgs.types import Scene
+from abcgs.types import CalibratedScene
 
 
 def write_fitted_source(out_dir: str | os.PathLike) -> None:
@@ -40,7 +40,7 @@ def write_fitted_source(out_dir: str | os.PathLike) -> None:
     write_json(FitDir(Path(out_dir)).splat_source, {"format": None, "note": "fitted from the photos by abcgs"})
 
 
-def import_and_save(scene: Scene, splat: str | os.PathLike, fmt: str, params: FitParams,
+def import_and_save(scene: CalibratedScene, splat: str | os.PathLike, fmt: str, params: FitParams,
                     out_dir: str | os.PathLike, *, device: torch.device | str = "cpu", drop_invalid: bool = False) -> dict:
     """Read ``splat`` (:func:`~abcgs.splats.registry.read_splat`), check it against the photos
     (:func:`~abcgs.splats.validate.check_splat` with ``params.import_min_psnr``; raises before writing anything

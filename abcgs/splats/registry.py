@@ -6,7 +6,7 @@
 
 Every format is a module of :mod:`abcgs.splats.formats` whose ``FORMAT`` is a
 :class:`~abcgs.splats.contract.SplatFormatSpec`; :func:`registered` finds them all (adding a format is adding one
-module), and :func:`register` adds one at run time. The built-in ones:
+module; :class:`abcgs.plugins.Registry`, as for the scene readers), and :func:`register` adds one at run time. The built-in ones:
 
 ==================  =====================================================  =============================================
 format              input                                                  frame (file → scene)
@@ -30,54 +30,29 @@ their frame.
 
 from __future__ import annotations
 
-import importlib
 import json
 import os
-import pkgutil
 from dataclasses import dataclass
 from pathlib import Path
 
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel, valid_gaussians
+from abcgs.plugins import Registry
 from abcgs.splats import frames
 from abcgs.splats.contract import SplatFormatSpec, SplatProvenance
 
-_FORMATS: dict[str, SplatFormatSpec] = {}
-_DISCOVERED = False
+FORMATS: Registry[SplatFormatSpec] = Registry("splat format", SplatFormatSpec, "abcgs.splats.formats", "FORMAT",
+                                               order=lambda f: (f.rank, f.name))
+"""Every splat format (:class:`abcgs.plugins.Registry`, as the scene readers): the modules of
+:mod:`abcgs.splats.formats` and the formats registered at run time."""
 
-
-def _discover() -> None:
-    """Register the ``FORMAT`` of every module of :mod:`abcgs.splats.formats` (once)."""
-    global _DISCOVERED
-    if _DISCOVERED:
-        return
-    folder = Path(__file__).with_name("formats")
-    for info in sorted(pkgutil.iter_modules([str(folder)]), key=lambda m: m.name):
-        module = importlib.import_module(f"abcgs.splats.formats.{info.name}")
-        spec = getattr(module, "FORMAT", None)
-        if isinstance(spec, SplatFormatSpec) and spec.name not in _FORMATS:
-            _FORMATS[spec.name] = spec
-    _DISCOVERED = True
-
-
-def register(spec: SplatFormatSpec) -> None:
-    """Add a format (a format module's ``FORMAT`` is found without this); its name must be new."""
-    _discover()
-    if spec.name in _FORMATS:
-        raise ValueError(f"splat format {spec.name!r} is already registered")
-    _FORMATS[spec.name] = spec
-
-
-def unregister(name: str) -> None:
-    """Remove the format ``name`` (a test's toy format)."""
-    _discover()
-    _FORMATS.pop(name, None)
+register = FORMATS.register
+unregister = FORMATS.unregister
 
 
 def registered() -> dict[str, SplatFormatSpec]:
     """Name → format, in detection order (rank, then name)."""
-    _discover()
-    return dict(sorted(_FORMATS.items(), key=lambda kv: (kv[1].rank, kv[0])))
+    return FORMATS.items()
 
 
 def format_of(name: str) -> SplatFormatSpec:

@@ -39,7 +39,7 @@ from abcgs.stylize.color import apply_group_transforms, color_match_model
 from abcgs.stylize.params import ColorMatchParams
 from abcgs.stylize.schedule import choose_schedule
 from abcgs.stylize.targets import group_pixel_masks
-from abcgs.types import FRAME_FILLING, Backend, Background, MatchingGroup, Scene
+from abcgs.types import FRAME_FILLING, Backend, Background, CalibratedScene, MatchingGroup
 from abcgs.viz import image_grid
 
 
@@ -109,7 +109,7 @@ def recolor_images(images: list[Tensor], view_labels: list[np.ndarray], groups: 
 
 
 def color_match_and_refit(
-    model: GaussianModel, scene: Scene, gaussian_labels: Tensor, view_labels: list[np.ndarray],
+    model: GaussianModel, scene: CalibratedScene, gaussian_labels: Tensor, view_labels: list[np.ndarray],
     groups: list[MatchingGroup], params: ColorMatchParams, *, progress: bool = True,
     background: Background = FRAME_FILLING, color_only: bool = False,
 ) -> ColorMatchResult:

@@ -1,6 +1,6 @@
 """The tiny pipeline through a one-node Slurm cluster against plain ``dvc repro``: wall time and equal results.
 
-    python -m eval.bench.cluster --repeat 2 --json docs/measurements/cluster_tiny.json
+    python -m eval run cluster --repeat 2 --json docs/measurements/cluster_tiny.json
 
 Both runs start from a clean copy of the working tree (``eval/bench/repo_copy.py``) with the REDUCED iteration
 counts of the regression test (``eval/bench/regression.py``) and an empty DVC cache:
@@ -166,7 +166,7 @@ def _median(xs: list[float]) -> float:
 
 def main(argv: list[str] | None = None) -> dict:
     ap = bench_parser(__doc__)
-    ap.prog = "python -m eval.bench.cluster"
+    ap.prog = "python -m eval run cluster"
     ap.add_argument("--resources", type=Path, help="per-kind resources for the cluster run (default: see the code)")
     ap.add_argument("--first", choices=("plain", "cluster"), default="plain", help="which run goes first")
     ap.add_argument("--repeat", type=int, default=1, help="rounds; the order alternates (plain, cluster, cluster, "

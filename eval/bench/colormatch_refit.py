@@ -1,7 +1,7 @@
 """The colour match's re-fit with and without densification, on a fitted scene: Gaussians, fit to the recoloured
 images and seconds.
 
-    python -m eval.bench.colormatch_refit --layout out/tiny/colmap --ply out/tiny/gs/point_cloud.ply \
+    python -m eval run colormatch_refit --layout out/tiny/colmap --ply out/tiny/gs/point_cloud.ply \
         --style data/tiny/styles/paint.png --json out/bench/colormatch_refit_tiny.json
 
 ``--layout`` is a scene as the ``reconstruct`` stage writes it (``read_scene``), ``--ply`` its fit. The colour match

@@ -1,8 +1,8 @@
 """Evaluation cost beside the stylization's: the evaluate stage's parts in wall and CPU seconds, and the ratio of the
 evaluation to the stylization, for one experiment's outputs.
 
-    python -m eval.bench.evaluate_cost --experiment tiny_single
-    python -m eval.bench.evaluate_cost --experiment fern_starry_night_fast --out out --json out/bench/evaluate_cost.json
+    python -m eval run evaluate_cost --experiment tiny_single
+    python -m eval run evaluate_cost --experiment fern_starry_night_fast --out out --json out/bench/evaluate_cost.json
 
 Runs nothing: reads what the stages already wrote, ``out/E/eval_info.json`` (``eval_timings_s``: the renders, the
 render-speed passes, content, consistency, FID/KID, Gram and the whole evaluation, wall and CPU seconds of the

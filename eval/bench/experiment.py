@@ -1,7 +1,7 @@
 """Benchmarks as DVC experiments of the one pipeline: run a params overlay, show and publish its results.
 
-    python -m eval.bench.experiment run eval/params/quality_fern.yaml --name quality-fern --shared ../shared/data
-    python -m eval.bench.experiment show quality-fern --readme README.md --figure docs/img/quality/fern_overview.jpg
+    python -m eval run experiment run eval/params/quality_fern.yaml --name quality-fern --shared ../shared/data
+    python -m eval run experiment show quality-fern --readme README.md --figure docs/img/quality/fern_overview.jpg
 
 ``run`` turns the overlay into ``dvc exp run --temp -n NAME -S ...`` overrides against the workspace's
 ``params.yaml``: the overlay's ``data``, ``colormatches`` and ``experiments`` replace the workspace's (keys it lacks
@@ -276,7 +276,7 @@ def cmd_show(a: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m eval.bench.experiment", description=__doc__.strip().splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m eval run experiment", description=__doc__.strip().splitlines()[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("run", help="run a params overlay as a DVC experiment (resumable)")
     r.add_argument("overlay", type=Path)

@@ -1,6 +1,6 @@
 """Precision and time of FAST's C×C algebra on real features: what each cheaper arithmetic costs in accuracy.
 
-    python eval/bench/fast_precision.py --colmap out/bench/fern/colmap \\
+    python -m eval run fast_precision --colmap out/bench/fern/colmap \\
         --ply start=<colour-matched PLY> --ply end=<stylized PLY> \\
         --style ../shared/data/styles/starry_night.jpg --group-sizes 0,600 --rest-ms 286 \\
         --json out/bench/fast_precision_starry.json

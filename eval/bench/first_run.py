@@ -1,6 +1,6 @@
 """The README's first command on a machine that has nothing: a fresh clone, an empty HOME, no git identity.
 
-    python -m eval.bench.first_run [--json docs/measurements/first_run.json] [--rev HEAD] [--work /tmp/first-run]
+    python -m eval run first_run [--json docs/measurements/first_run.json] [--rev HEAD] [--work /tmp/first-run]
 
 Clones ``--rev`` of this repository into ``--work`` and runs ``make install`` then ``make run`` there with ``HOME``
 an empty folder, no global git config and no git identity (as ``.ci/run`` does; pip's configuration, which holds

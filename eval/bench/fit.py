@@ -1,7 +1,7 @@
 """Benchmark the baseline 3DGS fit on a real scene: held-out PSNR against training wall time.
 
-    python eval/bench/fit.py --scene ../shared/data/scenes/fern --json out/bench/fit_fern.json
-    python eval/bench/fit.py --scene ../shared/data/scenes/fern --format llff   # LLFF's poses, no SfM
+    python -m eval run fit --scene ../shared/data/scenes/fern --json out/bench/fit_fern.json
+    python -m eval run fit --scene ../shared/data/scenes/fern --format llff   # LLFF's poses, no SfM
 
 Reconstructs the scene with pycolmap (``--format photos``, the default) or writes the dataset's own cameras
 (``--format llff``, ``colmap``, …, ``auto``: :mod:`abcgs.sources`; points triangulated from the given poses), cached
@@ -63,15 +63,10 @@ def main(argv=None) -> dict:
     run = args.scene.name if sfm else f"{args.scene.name}-{fmt}"
     colmap = args.work / run / "colmap"
     if not ColmapDir(colmap).scene.is_file():
-        if sfm:
-            from abcgs.sources.photos import reconstruct_photos  # pycolmap: only where the cameras are to be found
+        from abcgs.sources.params import SceneParams
+        from abcgs.sources.reconstruct import reconstruct_scene  # pycolmap: only where a layout is written
 
-            reconstruct_photos(args.scene, colmap, reconstruct_params)
-        else:
-            from abcgs.sources.model import write_source_model
-            from abcgs.sources.read import read_source
-
-            write_source_model(read_source(args.scene, fmt), colmap, ReconstructParams())
+        reconstruct_scene(SceneParams.at(args.scene, fmt), colmap, reconstruct_params)
     scene = read_scene(colmap)
     params = FitParams(
         iterations=args.iterations, eval_every=args.eval_every, max_gaussians=args.max_gaussians,

@@ -1,9 +1,9 @@
 """The fit's default schedule at any length: held-out PSNR, Gaussians and reset opacities of the pipeline's own ``fit``
 section at several ``fit.iterations``, nothing else changed.
 
-    python -m eval.bench.fit_schedule --json docs/measurements/fit_schedule.json
-    python -m eval.bench.fit_schedule --iterations 1000 1500 --scenes tiny      # a quick look
-    python -m eval.bench.fit_schedule --iterations 1000 --scenes tiny \
+    python -m eval run fit_schedule --json docs/measurements/fit_schedule.json
+    python -m eval run fit_schedule --iterations 1000 1500 --scenes tiny      # a quick look
+    python -m eval run fit_schedule --iterations 1000 --scenes tiny \
         --variant '{"strategy": {"refine_every": 50}}' --variant '{"seed": 1}'     # other fit settings, one run each
 
 Scenes, both generated here (no data needed): ``tiny``, the embedded default (a wall and objects seen from a
@@ -36,31 +36,21 @@ from abcgs.params import load_params
 from abcgs.scene.synthetic import make_tiny_scene, write_object_dataset
 from abcgs.sfm.colmap import set_colmap_log_level
 from abcgs.sfm.model import read_scene
-from abcgs.sources.model import write_source_model
-from abcgs.sources.params import SceneParams
-from abcgs.sources.read import loaded, read_source, resolve_format
-from abcgs.sources.registry import reader_of
-from abcgs.types import Scene
+from abcgs.sources.reconstruct import reconstruct_scene
+from abcgs.types import CalibratedScene
 from eval.record import bench_parser, write_record
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENES = {"tiny": make_tiny_scene, "object": write_object_dataset}
 
 
-def prepare(name: str, work: Path) -> Scene:
+def prepare(name: str, work: Path) -> CalibratedScene:
     """Generate scene ``name`` in ``work``, write its COLMAP layout as the reconstruct stage does and read it back."""
     folder, colmap = work / name, ColmapDir(work / f"{name}_colmap")
     if not colmap.scene.is_file():
         SCENES[name](folder)
         set_colmap_log_level("warning")
-        fmt, options = resolve_format(folder), load_params(ROOT / "params.yaml").reconstruct
-        background = SceneParams(path=str(folder)).resolved_background(fmt)
-        reader = reader_of(fmt)
-        if reader.reconstruct is not None:  # the tiny scene's photos: structure from motion, as its pipeline runs it
-            loaded(reader.reconstruct)(folder, colmap.root, options, background=background)
-        else:
-            source = read_source(folder, fmt, background=background.color if background.object else None)
-            write_source_model(source, colmap.root, options, background=background)
+        reconstruct_scene(folder, colmap.root, load_params(ROOT / "params.yaml").reconstruct)
     return read_scene(colmap.root)
 
 

@@ -1,7 +1,7 @@
 """Where a 3DGS fit step's time goes: render, loss, loss backward, render backward, Adam.
 
-    python eval/bench/fit_step.py --scene ../shared/data/scenes/fern            # after eval/bench/fit.py
-    python eval/bench/fit_step.py --scene ../shared/data/scenes/fern --loss torch   # the torch-op loss
+    python -m eval run fit_step --scene ../shared/data/scenes/fern            # after eval/bench/fit.py
+    python -m eval run fit_step --scene ../shared/data/scenes/fern --loss torch   # the torch-op loss
 
 Loads the scene's reconstruction and a fitted model (``--ply``; default: what ``eval/bench/fit.py`` wrote under
 ``--work``), then runs ``--steps`` fit steps over the training views (after ``--warmup`` steps) with the fit's

@@ -1,7 +1,7 @@
 """Fuzzing the readers of files made by other people's tools: every result is a scene or a one-line refusal.
 
-    python -m eval.bench.fuzz --inputs 10000 --json docs/measurements/fuzz.json
-    python -m eval.bench.fuzz --inputs 200 --formats spz ply          # a quick look at two formats
+    python -m eval run fuzz --inputs 10000 --json docs/measurements/fuzz.json
+    python -m eval run fuzz --inputs 200 --formats spz ply          # a quick look at two formats
 
 For each format a small valid input is made the way the project makes it (:func:`make_targets`): a 3DGS PLY, a
 SuperSplat compressed PLY, a ``.splat``, a ``.spz``, a COLMAP model (binary and text) with its images, a nerfstudio ``transforms.json``, an LLFF
@@ -94,8 +94,8 @@ def sample_points(n: int = 60) -> np.ndarray:
 
 
 def _colmap(folder: Path, cams: list[Camera], text: bool) -> Path:
+    from abcgs.cameras import Cameras
     from abcgs.io.colmap import write_model
-    from abcgs.types import Cameras
 
     model = folder / "sparse" / "0"
     points = sample_points()
@@ -348,7 +348,7 @@ def run_format(fmt: str, inputs: int, seed: int = 0) -> FormatRun:
 
 def main(argv: list[str] | None = None) -> int:
     ap = bench_parser(__doc__)
-    ap.prog = "python -m eval.bench.fuzz"
+    ap.prog = "python -m eval run fuzz"
     ap.add_argument("--inputs", type=int, default=1000, help="mutated inputs per format")
     ap.add_argument("--formats", nargs="+", choices=FORMATS, default=list(FORMATS))
     ap.add_argument("--seed", type=int, default=0)

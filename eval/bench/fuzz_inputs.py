@@ -154,9 +154,10 @@ def make_scene_record(folder: Path, cameras) -> tuple[list[Path], Callable[[], o
     """A reconstructed scene's ``scene.json`` (:func:`abcgs.sfm.model.write_scene`: the views' images, a label map, a
     frame and a depth range), read by :func:`abcgs.sfm.model.read_scene` as every stage after ``reconstruct`` reads
     it."""
+    from abcgs.cameras import Cameras
     from abcgs.io.images import save_image, save_labels
     from abcgs.sfm.model import read_scene, write_scene
-    from abcgs.types import Cameras, Scene
+    from abcgs.types import CalibratedScene
 
     rng = np.random.default_rng(0)
     images = []
@@ -167,10 +168,10 @@ def make_scene_record(folder: Path, cameras) -> tuple[list[Path], Callable[[], o
     save_labels(folder / "masks" / first.name, rng.integers(0, 3, (first.height, first.width)))
     frame = np.eye(4)
     frame[:3, :3] *= 0.5
-    scene = Scene(Cameras.from_list(list(cameras)), tuple(images), rng.normal(size=(20, 3)).astype(np.float32),
-                  rng.random((20, 3)).astype(np.float32), mask_paths=(folder / "masks" / first.name,
-                                                                       *([None] * (len(cameras) - 1))),
-                  frame=frame, depth_range=(0.5, 10.0))
+    scene = CalibratedScene(Cameras.from_list(list(cameras)), tuple(images), rng.normal(size=(20, 3)).astype(np.float32),
+                            rng.random((20, 3)).astype(np.float32),
+                            label_paths=(folder / "masks" / first.name, *([None] * (len(cameras) - 1))),
+                            frame=frame, depth_range=(0.5, 10.0))
     return [write_scene(scene, folder)], lambda: read_scene(folder)
 
 

@@ -3,9 +3,9 @@ against the CPU's metrics, and fern × one painting at the quality schedule, tim
 
 A lent GPU machine is bare and offline and is lent for minutes, so everything it lacks is prepared here first::
 
-    python -m eval.bench.gpu prepare .gpu --shared ../shared/data     # on this CPU machine (a few minutes)
-    python -m eval.bench.gpu run --bundle .gpu --device cuda --json docs/measurements/gpu_<card>.json
-    python -m eval.bench.gpu run --device cpu --tiny --quick          # the dry run (tests/test_bench_gpu.py)
+    python -m eval run gpu prepare .gpu --shared ../shared/data     # on this CPU machine (a few minutes)
+    python -m eval run gpu run --bundle .gpu --device cuda --json docs/measurements/gpu_<card>.json
+    python -m eval run gpu run --device cpu --tiny --quick          # the dry run (tests/test_bench_gpu.py)
 
 ``prepare`` writes the bundle: ``wheels/`` (gsplat and the pure-Python packages the GPU image lacks), ``vgg16.pth``
 (this machine's VGG-16 weights as a torchvision-layout file, :func:`bundle_vgg16`), and per scene the
@@ -103,7 +103,8 @@ def bundle_vgg16(out: Path) -> dict:
 def prepare(bundle: Path, shared: Path) -> None:
     """Write the bundle (see the module docstring); the scenes' COLMAP outputs come from the reconstruct stage."""
     from abcgs.scene.synthetic import make_tiny_scene
-    from abcgs.sources.photos import reconstruct_photos
+    from abcgs.sources.params import SceneParams
+    from abcgs.sources.reconstruct import reconstruct_scene
 
     bundle.mkdir(parents=True, exist_ok=True)
     wheels = bundle / "wheels"
@@ -118,16 +119,12 @@ def prepare(bundle: Path, shared: Path) -> None:
     tiny = bundle / "tiny"
     shutil.rmtree(tiny, ignore_errors=True)
     make_tiny_scene(tiny / "scene", params.tiny)
-    reconstruct_photos(tiny / "scene", tiny / "colmap", params.reconstruct)  # the reconstruct stage's photos route
-    fern = bundle / "fern"
-    if not (fern / "colmap").is_dir():
-        reconstruct_photos(shared / "scenes" / "fern", fern / "colmap", params.reconstruct)
+    reconstruct_scene(SceneParams.at(tiny / "scene", "photos"), tiny / "colmap", params.reconstruct)
+    fern = shared / "scenes" / "fern"
+    if not (bundle / "fern" / "colmap").is_dir():  # structure from motion, as the quality benchmark runs it
+        reconstruct_scene(SceneParams.at(fern, "photos"), bundle / "fern" / "colmap", params.reconstruct)
     if not (bundle / "fern_llff" / "colmap").is_dir():  # the dataset route: LLFF's poses, points triangulated
-        from abcgs.sources.model import write_source_model
-        from abcgs.sources.read import read_source
-
-        write_source_model(read_source(shared / "scenes" / "fern", "llff"), bundle / "fern_llff" / "colmap",
-                           params.reconstruct)
+        reconstruct_scene(SceneParams.at(fern, "llff"), bundle / "fern_llff" / "colmap", params.reconstruct)
     shutil.copy(shared / "styles" / "starry_night.jpg", bundle / "starry_night.jpg")
     write_json(bundle / "bundle.json", record)
     size = sum(p.stat().st_size for p in bundle.rglob("*") if p.is_file())
@@ -242,12 +239,13 @@ def run(args: argparse.Namespace, argv: list[str] | None = None) -> dict:
     tiny_colmap = bundle / "tiny" / "colmap" if bundle else None
     if tiny_colmap is None or not tiny_colmap.is_dir():  # the dry run: make the tiny scene and reconstruct it here
         from abcgs.scene.synthetic import make_tiny_scene
-        from abcgs.sources.photos import reconstruct_photos
+        from abcgs.sources.params import SceneParams
+        from abcgs.sources.reconstruct import reconstruct_scene
 
         p = _params(common)
         make_tiny_scene(work / "data" / "tiny", p.tiny)
         tiny_colmap = work / "tiny_colmap"
-        reconstruct_photos(work / "data" / "tiny", tiny_colmap, p.reconstruct)
+        reconstruct_scene(SceneParams.at(work / "data" / "tiny", "photos"), tiny_colmap, p.reconstruct)
         scene_dir = work / "data" / "tiny"
     else:
         scene_dir = bundle / "tiny" / "scene"
@@ -291,7 +289,7 @@ def run_fern(bundle: Path | None, work: Path, common: dict, device: torch.device
     from the bundle's COLMAP layout of ``route`` (``sfm``: structure from motion; ``llff``: LLFF's own poses)."""
     colmap = bundle / ("fern" if route == "sfm" else "fern_llff") / "colmap" if bundle is not None else None
     if colmap is None or not colmap.is_dir():
-        raise SystemExit(f"fern ({route}) needs --bundle with {colmap} (python -m eval.bench.gpu prepare)")
+        raise SystemExit(f"fern ({route}) needs --bundle with {colmap} (python -m eval run gpu prepare)")
     overlay = yaml.safe_load((ROOT / "eval" / "params" / "quality_fern.yaml").read_text())
     fern = overlay["data"]["scenes"]["fern"]
     fern["path"] = str(bundle / "fern")

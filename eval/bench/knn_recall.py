@@ -1,6 +1,6 @@
 """Recall and speed of the approximate (projected) neighbour search against the exact one, on real features.
 
-    python eval/bench/knn_recall.py --colmap out/bench/fern/colmap \
+    python -m eval run knn_recall --colmap out/bench/fern/colmap \
         --ply start=out/bench/fern/colormatch.ply --ply end=out/bench/sty_exact_starry.ply \
         --style ../shared/data/styles/starry_night.jpg --json out/bench/knn_recall_starry.json
 

@@ -1,7 +1,7 @@
 """Benchmark a splat of real size: import, stylize and export ``--n`` Gaussians of SH degree 3 on this machine.
 
-    python -m eval.bench.large_splat --n 3000000 --json docs/measurements/large_splat_3m.json
-    python -m eval.bench.large_splat --table docs/measurements/large_splat_3m*.json   # the records side by side
+    python -m eval run large_splat --n 3000000 --json docs/measurements/large_splat_3m.json
+    python -m eval run large_splat --table docs/measurements/large_splat_3m*.json   # the records side by side
 
 A scene trained for 30k iterations holds 1–6 M Gaussians. This synthesizes one (deterministic: ``--n`` Gaussians of
 SH degree 3 on three textured walls and a cloud in between, 0.3–3 cm across in a 2 m room), writes it as an INRIA PLY
@@ -44,7 +44,7 @@ setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 import numpy as np
 import torch
 
-from abcgs.cameras import Camera, intrinsics, look_at
+from abcgs.cameras import Camera, Cameras, intrinsics, look_at
 from abcgs.features.params import ALL_PIXELS
 from abcgs.features.vgg import VGG16Features, extract_features, random_state_dict
 from abcgs.gaussians import GaussianModel, render
@@ -56,7 +56,7 @@ from abcgs.splats.registry import read_splat, write_splat
 from abcgs.splats.validate import check_splat
 from abcgs.stylize.loop import stylize
 from abcgs.stylize.params import HigherSH, StylizeCompute, StylizeOptim, StylizeParams
-from abcgs.types import Cameras, MatchingGroup, Scene
+from abcgs.types import CalibratedScene, MatchingGroup
 from eval.record import bench_parser, write_record
 
 
@@ -260,7 +260,7 @@ def main(argv=None) -> dict:
     paths = render_photos(model, cams, work / "photos")
     record_phase(phases, "render the photos", time.perf_counter() - t, per_view_s=(time.perf_counter() - t) / len(cams))
     del model
-    scene = Scene(Cameras.from_list(cams), paths, np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32))
+    scene = CalibratedScene(Cameras.from_list(cams), paths, np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32))
 
     t = time.perf_counter()
     imported = read_splat(ply, scene=scene)

@@ -1,6 +1,6 @@
 """Check the CPU kernels against the reference backend on a splat of real size: sampled pixels and Gaussians.
 
-    python -m eval.bench.large_splat_match --n 3000000 --json docs/measurements/large_splat_match_3m.json
+    python -m eval run large_splat_match --n 3000000 --json docs/measurements/large_splat_match_3m.json
 
 The scene is :func:`eval.bench.large_splat.synthesize` (``--n`` Gaussians of SH degree 3), seen by one of its cameras
 at ``--width`` × ``--height``. The reference backend (pure torch, the tests' oracle) would take hours on the whole

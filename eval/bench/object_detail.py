@@ -1,10 +1,10 @@
 """Detail on objects under a strong painting: what the content and structure terms keep of a face.
 
-    python -m eval.bench.object_detail --work W --json docs/measurements/miku_face_detail.json \\
+    python -m eval run object_detail --work W --json docs/measurements/miku_face_detail.json \\
         --figure docs/img/fidelity/miku_face_detail.jpg \\
         --setting today=content=0.0005,structure=0 --setting face=2.content=0.005,2.structure=1
 
-A compositional transfer on the miku capture (``--work``: where ``python -m eval.bench.fit --scene
+A compositional transfer on the miku capture (``--work``: where ``python -m eval run fit --scene
 <data>/scenes/miku --format colmap`` left its fit): the doll (hair, face, hood, dress: labels 1-4) takes
 ``--doll-style``, the bed ``--bed-style``, the room ``--room-style``. The views are the six whose reference label maps
 (``eval/data/miku/reference/``) mark the face; the Gaussians' labels are those maps lifted (Eq. 2), the stylization's

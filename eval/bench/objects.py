@@ -1,8 +1,8 @@
 """Object benchmark: a splat of a thing on nothing comes back as the same thing painted, with empty space left empty.
 
-    python -m eval.bench.objects --work /work/bench/objects --miku-fit MIKU_PLY \\
+    python -m eval run objects --work /work/bench/objects --miku-fit MIKU_PLY \\
         --json docs/measurements/objects.json --figure docs/img/objects/objects.jpg
-    python -m eval.bench.objects --work /tmp/objects --objects rgba --paintings starry_night --quick   # a smoke run
+    python -m eval run objects --work /tmp/objects --objects rgba --paintings starry_night --quick   # a smoke run
 
 Objects (each made here, from the project's generator or the shared data):
 
@@ -10,7 +10,7 @@ Objects (each made here, from the project's generator or the shared data):
   three rings, :func:`abcgs.scene.synthetic.write_object_dataset`), read on black as the ``blender`` reader does,
   reconstructed with its own cameras and fitted (:func:`abcgs.fit.training.fit`, ``--fit-iterations``).
 - ``miku_splat``: the doll of ``../shared/data/scenes/miku`` cut from a fit of the scene (``--miku-fit``, e.g.
-  ``python -m eval.bench.fit --scene ../shared/data/scenes/miku --format colmap --test-every 0``) by a box and
+  ``python -m eval run fit --scene ../shared/data/scenes/miku --format colmap --test-every 0``) by a box and
   opacity (:func:`cut_doll`), written as a bare ``.splat`` and read back as a scene the way ``add-scene`` takes one:
   16 views generated around it (:func:`abcgs.splats.cameras.cameras_around`) at 320 × 240, its renders as the photos.
 - ``miku_scene``: the same doll with 16 of the capture's photos (every 6th, at half size): each photo cut out by the
@@ -42,7 +42,7 @@ import cv2
 import numpy as np
 import torch
 
-from abcgs.cameras import Camera
+from abcgs.cameras import Camera, Cameras
 from abcgs.evaluation.objects import object_scores
 from abcgs.evaluation.style_distance import gram_scores
 from abcgs.features.matching import build_groups
@@ -69,7 +69,7 @@ from abcgs.splats.params import SplatViewsParams
 from abcgs.stylize.colormatch import color_match_and_refit
 from abcgs.stylize.loop import stylize
 from abcgs.stylize.params import ColorMatchParams, StylizeParams
-from abcgs.types import FRAME_FILLING, Background, Cameras, Scene
+from abcgs.types import FRAME_FILLING, Background, CalibratedScene, SceneViews
 from abcgs.viz import image_grid
 from eval.record import bench_parser, write_record
 
@@ -85,7 +85,7 @@ class ObjectCase:
     """One object: its views, the original Gaussians, and whether the views were generated around it."""
 
     name: str
-    scene: Scene
+    scene: SceneViews
     original: GaussianModel
     generated_views: bool
 
@@ -133,11 +133,11 @@ def miku_objects(work: Path, fit_ply: Path, args) -> list[ObjectCase]:
     write_splat_file(splat, doll)
     cases = []
     if "miku_splat" in args.objects:
-        from abcgs.sources.splat import read_splat_source
+        from abcgs.sources.bare_splat import read_splat_source
         from abcgs.splats.registry import read_splat
 
         views = SplatViewsParams(count=args.miku_views, width=args.splat_width, height=args.splat_width * 3 // 4, up=args.miku_up)
-        source: Scene = read_splat_source(splat, out / "splat_views", views, background=(0.0, 0.0, 0.0))
+        source = read_splat_source(splat, out / "splat_views", views, background=(0.0, 0.0, 0.0))
         scene = source
         cases.append(ObjectCase("miku_splat", scene, read_splat(splat).model, True))
     if "miku_scene" in args.objects:
@@ -154,7 +154,8 @@ def miku_objects(work: Path, fit_ply: Path, args) -> list[ObjectCase]:
                 photo = cv2.resize(load_image(capture.image_paths[i]), (cam.width, cam.height), interpolation=cv2.INTER_AREA)
                 save_image(dst, photo * alpha)
             paths.append(dst)
-        cases.append(ObjectCase("miku_scene", Scene(Cameras.from_list(cams), paths, capture.points, capture.colors), doll, False))
+        cases.append(ObjectCase("miku_scene", CalibratedScene(Cameras.from_list(cams), paths, capture.points, capture.colors),
+                                doll, False))
     return cases
 
 

@@ -1,8 +1,8 @@
 """Masks from strokes, end to end on the tiny scene: a simulated user's strokes on one view → GrabCut labels →
 lifted onto a fitted scene (Eq. 2) → scored on every other view against the scene's true labels.
 
-    python -m eval.bench.paint_iou                                   # prints the table; about 1 min on 2 cores
-    python -m eval.bench.paint_iou --json docs/measurements/paint_iou_tiny.json --figure paint_iou.png
+    python -m eval run paint_iou                                   # prints the table; about 1 min on 2 cores
+    python -m eval run paint_iou --json docs/measurements/paint_iou_tiny.json --figure paint_iou.png
 
 Steps, all in a temporary folder:
 
@@ -48,7 +48,7 @@ from abcgs.masks.content import ContentMasks, make_content_masks
 from abcgs.masks.grabcut import segment
 from abcgs.masks.params import LiftParams, MaskParams, RefineParams
 from abcgs.masks.strokes import Stroke
-from abcgs.types import Scene
+from abcgs.types import CalibratedScene
 from eval.labels import overlay, score_labels
 from eval.record import bench_parser, write_record
 
@@ -191,7 +191,7 @@ def _work_folder(work: Path | None) -> Iterator[Path]:
         yield work
 
 
-def _reconstruct_and_fit(tiny: Path, user: Path, work: Path, iterations: int) -> tuple[Scene, GaussianModel]:
+def _reconstruct_and_fit(tiny: Path, user: Path, work: Path, iterations: int) -> tuple[CalibratedScene, GaussianModel]:
     """The user's folder ``user`` reconstructed into ``work/colmap`` and fitted for ``iterations`` steps (densifying
     every 25); the tiny scene ``tiny`` with its true label maps reconstructed into ``work/colmap_truth`` by the same
     seeded SfM, so that its undistorted true maps match the user's views (checked: the same cameras)."""
@@ -199,11 +199,12 @@ def _reconstruct_and_fit(tiny: Path, user: Path, work: Path, iterations: int) ->
     from abcgs.fit.training import fit
     from abcgs.sfm.model import read_scene
     from abcgs.sfm.params import ReconstructParams
-    from abcgs.sources.photos import reconstruct_photos
+    from abcgs.sources.params import SceneParams
+    from abcgs.sources.reconstruct import reconstruct_scene
 
     rp = ReconstructParams()
-    reconstruct_photos(user, work / "colmap", rp)  # images/ and the strokes' masks/
-    reconstruct_photos(tiny, work / "colmap_truth", rp)  # the same model, seeded; the true masks/
+    reconstruct_scene(SceneParams.at(user, "photos"), work / "colmap", rp)  # images/ and the strokes' masks/
+    reconstruct_scene(SceneParams.at(tiny, "photos"), work / "colmap_truth", rp)  # the same model, seeded; the true masks/
     scene = read_scene(work / "colmap")
     truth_scene = read_scene(work / "colmap_truth")
     for a, b in zip(scene.cameras, truth_scene.cameras):
@@ -215,7 +216,7 @@ def _reconstruct_and_fit(tiny: Path, user: Path, work: Path, iterations: int) ->
     return scene, fit(scene, fp, progress=False).model
 
 
-def _lift_three_ways(model: GaussianModel, scene: Scene, work: Path, view: str,
+def _lift_three_ways(model: GaussianModel, scene: CalibratedScene, work: Path, view: str,
                      propagate_along: str) -> tuple[ContentMasks, ContentMasks, ContentMasks, float]:
     """The ``masks`` stage on the fitted scene three ways: the strokes' mask of ``view`` (``work/colmap/masks``) with
     refinement, the same without, and ``view``'s true mask alone (copied to ``work/truth_mask_of_view``) with it.

@@ -1,12 +1,12 @@
 """Wall time, core use and peak memory of every pipeline stage, from a clean copy of this repository.
 
-    python eval/bench/pipeline.py                           # the default params (tiny scene)
-    python eval/bench/pipeline.py --set fit.iterations=300 --json out/bench/pipeline_tiny.json
-    python eval/bench/pipeline.py --params my_params.yaml   # e.g. a real scene × paintings (absolute paths)
-    python eval/bench/pipeline.py --targets fit@tiny        # one stage and what it needs
-    python eval/bench/pipeline.py --compare before.json after.json   # two runs' JSON side by side, no run
-    python eval/bench/pipeline.py --compare ab.json --paintings 3   # a --baseline run, projected to 3 paintings
-    python eval/bench/pipeline.py --baseline 0a3aad0 --baseline-params old.yaml --params new.yaml --json ba.json
+    python -m eval run pipeline                           # the default params (tiny scene)
+    python -m eval run pipeline --set fit.iterations=300 --json out/bench/pipeline_tiny.json
+    python -m eval run pipeline --params my_params.yaml   # e.g. a real scene × paintings (absolute paths)
+    python -m eval run pipeline --targets fit@tiny        # one stage and what it needs
+    python -m eval run pipeline --compare before.json after.json   # two runs' JSON side by side, no run
+    python -m eval run pipeline --compare ab.json --paintings 3   # a --baseline run, projected to 3 paintings
+    python -m eval run pipeline --baseline 0a3aad0 --baseline-params old.yaml --params new.yaml --json ba.json
 
 How it measures: the working tree is copied into a fresh git + DVC repository (``eval/bench/repo_copy.py``: no
 outputs, empty cache, as a clean clone after ``make install``: the C++ extension is built, or loaded, before

@@ -5,7 +5,7 @@ scenes, forward and forward+backward, RGB and 16 channels, and prints a table; `
 the rows. Each timing is the median of ``--repeats`` runs after one warm-up run; the peak resident
 memory of each case is sampled every 2 ms from /proc/self/statm while the fast backend runs.
 
-    python eval/bench/rasterizer.py --json out/bench/rasterizer.json
+    python -m eval run rasterizer --json out/bench/rasterizer.json
 
 Scenes: N Gaussians uniformly in the camera frustum at depth 2–8 world units, random rotations,
 per-axis screen-space standard deviations log-normal around 1.5 px (σ_log = 0.8, so ~95% between

@@ -2,7 +2,7 @@
 
 ``tests/test_pipeline_e2e.py`` runs ``dvc repro`` on the embedded scene with :data:`REDUCED` iteration counts and
 gates :data:`GATED` against ``tests/baselines/tiny_seed_spread.json``, whose tolerances
-``python -m eval.studies.seed_spread`` measures with the same settings.
+``python -m eval run seed_spread`` measures with the same settings.
 """
 
 from abcgs.runtime import setup

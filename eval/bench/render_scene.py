@@ -1,6 +1,6 @@
 """Render forward and forward + backward of a fitted scene on its own training views.
 
-    python eval/bench/render_scene.py --work out/bench/fern          # after eval/bench/fit.py --scene .../fern
+    python -m eval run render_scene --work out/bench/fern          # after eval/bench/fit.py --scene .../fern
 
 How it measures: the model ``<work>/gs/point_cloud.ply`` and the cameras of ``<work>/colmap``; for each of
 ``--views`` views, ``--repeats`` timed calls after a warm-up (``eval.bench.timing.repeat_seconds``) of a no-grad render

@@ -1,7 +1,7 @@
 """The scripted user of the interactive-segmentation benchmarks (NoC@IoU, as GaussianCut, SAGA and SA3D count it) on a
 capture round an object, with the labels the masks page shows (:mod:`abcgs.masks.field`).
 
-    python -m eval.bench.scripted_user --scene miku --work /work/bench/miku \\
+    python -m eval run scripted_user --scene miku --work /work/bench/miku \\
         --json docs/measurements/miku_scripted_user.json --figure docs/img/masks/miku_scripted_user.jpg
 
 ``--scene S`` reads ``eval/data/S/strokes.json`` and ``reference/`` as :mod:`eval.bench.strokes` does (the fitted

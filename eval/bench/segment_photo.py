@@ -1,7 +1,7 @@
 """Segment on the masks page at photo size: the seconds from a Segment to every view's labels, split into the cut,
 the 3-D step and the strip, on a generated scene whose views are full-size phone frames.
 
-    python -m eval.bench.segment_photo --json docs/measurements/segment_photo_1080p.json
+    python -m eval run segment_photo --json docs/measurements/segment_photo_1080p.json
 
 The scene (:func:`generated_scene`): ``--gaussians`` Gaussians on a textured back wall, a box and a ball in front of
 it (labels 3, 1, 2), seen by ``--views`` cameras on an arc at ``--width`` × ``--height`` (1920 × 1080 by default,

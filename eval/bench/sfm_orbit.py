@@ -1,9 +1,9 @@
 """Does structure from motion hold on an object-centred capture? Registered views, azimuth round the object, time.
 
-    python -m eval.bench.sfm_orbit --scene ../shared/data/scenes/bonsai --work /tmp/sfm \\
+    python -m eval run sfm_orbit --scene ../shared/data/scenes/bonsai --work /tmp/sfm \\
         --reconstruct '{"matcher": "exhaustive"}' --json docs/measurements/bonsai_sfm.json
 
-Runs :func:`abcgs.sources.photos.reconstruct_photos` (the reconstruct stage's photos route) with the given
+Runs :func:`abcgs.sources.reconstruct.reconstruct_scene` on the folder as ``photos`` (the reconstruct stage's route) with the given
 ``reconstruct`` params (JSON, as ``params.yaml`` would set them) into ``--work/colmap`` (replaced) and reads the scene
 back. Printed: registered / total views and which did not
 register, 3-D points, mean reprojection error, and :func:`abcgs.camera_paths.capture_layout` of the registered
@@ -31,7 +31,8 @@ from abcgs.io.atomic import write_json
 from abcgs.sfm.colmap import set_colmap_log_level
 from abcgs.sfm.model import read_scene
 from abcgs.sfm.params import ReconstructParams
-from abcgs.sources.photos import reconstruct_photos
+from abcgs.sources.params import SceneParams
+from abcgs.sources.reconstruct import reconstruct_scene
 from eval.record import bench_parser, provenance
 
 
@@ -48,7 +49,7 @@ def main(argv: list[str] | None = None) -> dict:
     out = args.work / "colmap"
     shutil.rmtree(out, ignore_errors=True)
     t0 = time.perf_counter()
-    report = reconstruct_photos(args.scene, out, params)
+    report = reconstruct_scene(SceneParams.at(args.scene, "photos"), out, params)
     seconds = time.perf_counter() - t0
     cams = read_scene(out).cameras
     lay = capture_layout(cams)

@@ -1,13 +1,13 @@
 """Masks from strokes on one view (or two) of an object-centred capture, scored on reference views round it.
 
-    python -m eval.bench.strokes --scene miku --work /work/bench/miku --json docs/measurements/miku_strokes.json \\
+    python -m eval run strokes --scene miku --work /work/bench/miku --json docs/measurements/miku_strokes.json \\
         --figure docs/img/masks/miku_strokes.jpg
-    python -m eval.bench.strokes --scene bonsai --work out/bench --json docs/measurements/bonsai_strokes.json \\
+    python -m eval run strokes --scene bonsai --work out/bench --json docs/measurements/bonsai_strokes.json \\
         --figure docs/img/masks/bonsai_strokes.jpg
 
 ``--scene S`` reads ``eval/data/S/``: ``strokes.json`` names the fitted scene under ``--work`` (``work_colmap``: the
 reconstruction's folder with ``sparse/``, ``images/`` and ``scene.json``; ``work_ply``: the fitted Gaussians; as
-``python -m eval.bench.fit --scene <data>/scenes/S --work W`` leaves them), the labels, the strokes of a reference
+``python -m eval run fit --scene <data>/scenes/S --work W`` leaves them), the labels, the strokes of a reference
 annotation on several views spread round the capture (``reference``), the test strokes on one view (``test``) and,
 optionally, strokes on a second view (``side``) for the two-view case; ``reference/<stem>.png`` are the reference
 label maps (values as the page saves them: 0 none, 1..n, 255 undecided; undecided pixels are not scored). Strokes
@@ -52,7 +52,7 @@ from abcgs.masks.lifting import NO_VOTE, LiftResult, lift_labels, render_label_m
 from abcgs.masks.params import UNDECIDED, LiftParams, MaskParams, RefineParams
 from abcgs.masks.strokes import Stroke
 from abcgs.sfm.model import read_scene
-from abcgs.types import Scene
+from abcgs.types import CalibratedScene
 from eval.labels import LabelScores, score_labels, stroke_overlay
 from eval.record import bench_parser, write_record
 
@@ -185,7 +185,7 @@ class Bench:
             reference views this reconstruction has, by stem. n_labels: the annotation's labels.
     """
 
-    scene: Scene
+    scene: CalibratedScene
     model: GaussianModel
     spec: dict
     by_stem: dict[str, int]
@@ -290,7 +290,7 @@ class FittedCase:
     label maps of the views the reconstruction holds (``refs``, stem → ``(H, W) int64``)."""
 
     spec: dict
-    scene: Scene
+    scene: CalibratedScene
     model: GaussianModel
     by_stem: dict[str, int]
     refs: dict[str, np.ndarray]
@@ -302,7 +302,7 @@ def load_case(data: Path, scene_name: str, work: Path) -> FittedCase:
     spec = json.loads((data / "strokes.json").read_text())
     colmap, ply = work / spec["work_colmap"], work / spec["work_ply"]
     if not ColmapDir(colmap).scene.is_file() or not ply.is_file():
-        raise SystemExit(f"no fitted {scene_name} under {work} ({colmap}, {ply}): run python -m eval.bench.fit "
+        raise SystemExit(f"no fitted {scene_name} under {work} ({colmap}, {ply}): run python -m eval run fit "
                          f"--scene <data>/scenes/{scene_name} --work {work} first")
     scene = read_scene(colmap)
     by_stem = {Path(c.name).stem: i for i, c in enumerate(scene.cameras)}

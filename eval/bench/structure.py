@@ -1,7 +1,7 @@
 """Structure numbers of the ``abcgs`` package, read from the source (parsed, never imported).
 
-    python -m eval.bench.structure                         # this tree, printed
-    python -m eval.bench.structure --json docs/measurements/structure.json --label now   # stored, with the commit
+    python -m eval run structure                         # this tree, printed
+    python -m eval run structure --json docs/measurements/structure.json --label now   # stored, with the commit
 
 Measured:
 
@@ -19,7 +19,7 @@ Measured:
   ``module_ring_count``: how many. An arrow here is an import statement run when the code runs: inside functions
   too (a lazy import still closes a ring, it only defers it), but not in ``TYPE_CHECKING`` blocks (read by type
   checkers only) nor in a module's ``__main__`` block; a module naming itself is no ring. A name looked up at run
-  time (``importlib.import_module``, as :mod:`abcgs.sources.registry` finds its format modules) is no import
+  time (``importlib.import_module``, as :class:`abcgs.plugins.Registry` finds the format modules) is no import
   statement and no arrow, as for ``import_arrows``.
 - ``side_effect_imports``: lines ``import abcgs  # noqa: F401`` under ``abcgs/``, ``stages/`` and ``eval/`` (an import
   made only for what importing the package does).
@@ -47,7 +47,7 @@ from pathlib import Path
 FLOORS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("foundations", (
         "abcgs", "abcgs.errors", "abcgs.types", "abcgs.dotted", "abcgs.sections", "abcgs.progress", "abcgs.cameras",
-        "abcgs.runtime",
+        "abcgs.runtime", "abcgs.plugins",
         "abcgs.io", "abcgs.io.atomic", "abcgs.io.digest", "abcgs.io.images", "abcgs.io.metrics", "abcgs.io.tables",
     )),
     ("rendering", ("abcgs.render", "abcgs.gaussians", "abcgs.viz",
@@ -365,7 +365,7 @@ def main(argv: list[str] | None = None) -> int:
     from eval.record import bench_parser, write_record  # here: importing this module (the layer checks) loads no abcgs
 
     ap = bench_parser(__doc__, json_help="store the numbers in this file under --label")
-    ap.prog = "python -m eval.bench.structure"
+    ap.prog = "python -m eval run structure"
     ap.add_argument("--root", type=Path, default=Path("."), help="the tree to measure (default: here)")
     ap.add_argument("--label", default="now", help="the key the numbers are stored under (before, after, …)")
     ap.add_argument("--top", type=int, default=10, help="how many of the longest functions to list")

@@ -1,6 +1,6 @@
 """Benchmark ABC-GS stylization on a real scene: content preservation, style distance, time split.
 
-    python eval/bench/stylize.py --scene ../shared/data/scenes/fern \
+    python -m eval run stylize --scene ../shared/data/scenes/fern \
         --style ../shared/data/styles/starry_night.jpg --json out/bench/stylize_fern_starry.json
 
 Needs the fitted scene of ``eval/bench/fit.py`` (``out/bench/<scene>/{colmap,gs}``). Runs single-image

@@ -1,6 +1,6 @@
 """Time the VGG-16 feature extractor in both memory layouts, at the sizes the pipeline uses.
 
-    python eval/bench/vgg.py [--repeats 5] [--threads 0]
+    python -m eval run vgg [--repeats 5] [--threads 0]
 
 Cases: stylization (relu3_1..3 of a 504×378 render halved to 252×189, forward and forward+backward to the
 input) and evaluation (the perceptual proxy's relu1_2..relu5_3 on a pair of 497×373 renders, forward).

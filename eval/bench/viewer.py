@@ -1,7 +1,7 @@
 """Benchmark: the splat viewer page for the fern quality-study scenes, opened in chromium.
 
-    python eval/bench/viewer.py                         # out/quality/fern runs (make quality first)
-    python eval/bench/viewer.py --max-gaussians 30000 --json out/bench/viewer.json
+    python -m eval run viewer                         # out/quality/fern runs (make quality first)
+    python -m eval run viewer --max-gaussians 30000 --json out/bench/viewer.json
 
 Builds one page (``out/bench/viewer_fern.html``) holding, per stylized run of the study (FAST and NNFM on
 each painting), the original and the stylized scene over the same subsampled Gaussians, opens it from

@@ -1,12 +1,12 @@
 """A splat with no photos and no cameras, stylized end to end: the check behind docs/SPLATS.md "A splat with no photos".
 
-    python -m eval.studies.bare_splat --ply out/bench/fern/gs_sh3_2000/point_cloud.ply \\
+    python -m eval run bare_splat --ply out/bench/fern/gs_sh3_2000/point_cloud.ply \\
         --style ../shared/data/styles/starry_night.jpg --json docs/measurements/bare_splat_fern.json \\
         --figure docs/img/splats/bare_splat_fern.jpg
 
 Writes the fitted scene ``--ply`` as a ``.splat`` (SH degree 0, as the format holds) and forgets its cameras and
 photos. Then, as the pipeline does for a scene that is only a splat: cameras made around it and its renders as photos
-(:func:`abcgs.sources.splat.read_splat_source`), the import with its check (:func:`abcgs.splats.importing.import_and_save`),
+(:func:`abcgs.sources.bare_splat.read_splat_source`), the import with its check (:func:`abcgs.splats.importing.import_and_save`),
 the colour match, the stylization, and the stylized scene given back as ``.splat``
 (:func:`abcgs.splats.exporting.give_back`). Records the views' kind and count, the import check, the Gram distance
 to the painting before and after, and the wall time of each step; the figure shows generated views before and after.
@@ -35,7 +35,7 @@ from abcgs.gaussians import GaussianModel, render
 from abcgs.gaussians.ply import read_ply, write_ply
 from abcgs.io.images import save_image
 from abcgs.params import load_params
-from abcgs.sources.splat import read_splat_source
+from abcgs.sources.bare_splat import read_splat_source
 from abcgs.splats.exporting import give_back
 from abcgs.splats.formats.splat import write_splat_file
 from abcgs.splats.importing import import_and_save

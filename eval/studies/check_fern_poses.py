@@ -1,6 +1,6 @@
 """Check a COLMAP reconstruction of LLFF fern against LLFF's own poses (``poses_bounds.npy``).
 
-Usage: ``python eval/studies/check_fern_poses.py [--scene ../shared/data/scenes/fern] [--colmap out/fern/colmap]``
+Usage: ``python -m eval run check_fern_poses [--scene ../shared/data/scenes/fern] [--colmap out/fern/colmap]``
 
 If ``--colmap`` holds no scene yet (``scene.json``), the scene is reconstructed into it first (or into a
 temporary folder when ``--colmap`` is not given). Camera centres are compared after a similarity
@@ -29,7 +29,8 @@ from abcgs.sfm.align import alignment_residual
 from abcgs.sfm.model import read_scene
 from abcgs.sfm.params import ReconstructParams
 from abcgs.sources.llff import llff_camera_centres
-from abcgs.sources.photos import reconstruct_photos
+from abcgs.sources.params import SceneParams
+from abcgs.sources.reconstruct import reconstruct_scene
 
 DEFAULT_SCENE = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "scenes" / "fern"
 
@@ -48,7 +49,7 @@ class PoseCheck:
 def check_poses(scene: Path, colmap_dir: Path, params: ReconstructParams | None = None) -> PoseCheck:
     """Reconstruct ``scene`` into ``colmap_dir`` unless a scene is there, then compare camera centres."""
     if not ColmapDir(colmap_dir).scene.is_file():
-        reconstruct_photos(scene, colmap_dir, params or ReconstructParams())
+        reconstruct_scene(SceneParams.at(scene, "photos"), colmap_dir, params)
     names = [p.name for p in list_images(scene / "images")]
     llff = dict(zip(names, llff_camera_centres(scene / "poses_bounds.npy"), strict=True))
     data = read_scene(colmap_dir)

@@ -1,6 +1,6 @@
 """How much of a warp-error consistency number is the measurement: optical flow vs the scene's own geometry.
 
-    python eval/studies/consistency_floor.py --colmap out/bench/fern/colmap --scene-ply out/bench/fern/gs/point_cloud.ply \\
+    python -m eval run consistency_floor --colmap out/bench/fern/colmap --scene-ply out/bench/fern/gs/point_cloud.ply \\
         --ply fast=out/quality/fern/runs/starry_night__fast-*/point_cloud.ply [--ply name=path ...] [--json out.json]
 
 For the fitted (unstylized) scene and each given stylized PLY, renders every view and prints the short/long

@@ -1,10 +1,10 @@
 """Regions from strokes alone, on LLFF fern and Starry Night: a scripted user draws on the masks page (in chromium),
 and the result is a scene folder and a painting label map that a compositional and a semantic transfer run from.
 
-    python -m eval.studies.fern_strokes --shared ../shared/data --work data/fern_strokes \\
+    python -m eval run fern_strokes --shared ../shared/data --work data/fern_strokes \\
         --screenshots docs/img/masks
-    python -m eval.bench.experiment run eval/params/fern_strokes.yaml --name fern-strokes --shared data/fern_strokes
-    python -m eval.bench.experiment show fern-strokes \\
+    python -m eval run experiment run eval/params/fern_strokes.yaml --name fern-strokes --shared data/fern_strokes
+    python -m eval run experiment show fern-strokes \\
         --copy out/fern_strokes_semantic/stylize/grid.png=docs/img/masks/fern_semantic_strokes.jpg \\
         --copy out/fern_strokes_compositional/stylize/grid.png=docs/img/masks/fern_compositional_strokes.jpg
 
@@ -115,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
 
     report_saved({"view " + VIEW: scene / "masks" / f"{Path(VIEW).stem}.png", "painting": labels_out}, a.work,
                  a.screenshots, "fern_strokes")
-    print(f"wrote {scene}/masks/ and {labels_out}; next: python -m eval.bench.experiment run "
+    print(f"wrote {scene}/masks/ and {labels_out}; next: python -m eval run experiment run "
           f"eval/params/fern_strokes.yaml --name fern-strokes --shared {a.work}")
     return 0
 

@@ -1,6 +1,6 @@
 """Render several scenes (PLYs) from the same views side by side, with a 2× crop row: a before/after figure.
 
-    python eval/studies/figure_runs.py --colmap out/bench/fern/colmap --ply original=out/bench/fern/gs/point_cloud.ply \
+    python -m eval run figure_runs --colmap out/bench/fern/colmap --ply original=out/bench/fern/gs/point_cloud.ply \
         --ply "FAST exact=out/quality/fern_exact/runs/<run>/point_cloud.ply" \
         --ply "FAST projected=out/quality/fern_proj/runs/<run>/point_cloud.ply" \
         --views 2,13 --crop 240,180,480,360 --out docs/img/scaling/fern_starry_projected.jpg

@@ -1,12 +1,12 @@
 """How stable is the KID proxy: re-measure it with more patches and several patch draws.
 
-    python -m eval.studies.kid_resample [--params params.yaml] [--root out] [--patches-per-image 10] [--draws 5]
+    python -m eval run kid_resample [--params params.yaml] [--root out] [--patches-per-image 10] [--draws 5]
 
 The evaluate stage's KID proxy (TF-Inception pool features of random 96-px crops: ``fid_patches_per_image`` = 2
 crops per render, as many from the painting) compares 40 crops with 40 on fern's 20 views — one draw of the crops.
 This script reads the experiments of a pipeline run (``params.yaml`` and the stylize stage's saved renders in
 ``out/<experiment>/stylize/renders``; for a DVC experiment, check it out first, e.g. with
-``python -m eval.bench.experiment show``'s worktree or ``dvc exp apply``), groups the single-painting experiments
+``python -m eval run experiment show``'s worktree or ``dvc exp apply``), groups the single-painting experiments
 by colour match, and for ``--draws`` independent crop draws (``--patches-per-image`` crops per render, as many from
 the painting) computes KID (unbiased MMD², the exact estimate over all crops) of every method. It prints, per
 colour match and method, the mean ± std over draws and how often each method wins within a draw, so a difference

@@ -2,12 +2,12 @@
 on the views left out.
 
     # the user's path: label PNGs (numbers or paint colours) named like the views, lifted from one of them
-    python eval/studies/mask_lifting.py --colmap out/tiny/colmap --ply out/tiny/gs/point_cloud.ply \\
+    python -m eval run mask_lifting --colmap out/tiny/colmap --ply out/tiny/gs/point_cloud.ply \\
         --masks out/tiny/colmap/masks --lift 000 --figure lifted.png --json lifted.json
 
     # no masks at hand: GrabCut (box + depth seeds) segments every view on its own, one of them is lifted and
     # the others score it (agreement with an independent per-view segmentation, not with a hand-drawn truth)
-    python eval/studies/mask_lifting.py --colmap out/bench/fern/colmap --ply out/bench/fern/gs/point_cloud.ply \\
+    python -m eval run mask_lifting --colmap out/bench/fern/colmap --ply out/bench/fern/gs/point_cloud.ply \\
         --grabcut-box 0.1,0.0,0.9,1.0 --masks out/bench/fern/grabcut_masks --lift image000 --figure fig.png
 
 Prints, per label, the IoU of the lifted masks against the given masks on every held-out view (mean and

@@ -4,7 +4,7 @@ Documents (and lets anyone re-check) the number behind ``abcgs.features.weights.
 Images: every ``*.jpg`` under ``--data`` (default ``/work/shared/data``: the fern photos and the style
 paintings), resized to long side ``--long-side`` and then ×0.5 (the renders' pre-VGG downsampling).
 
-    python eval/studies/measure_vgg_scale.py [--data DIR] [--long-side 512]
+    python -m eval run measure_vgg_scale [--data DIR] [--long-side 512]
 
 Prints, per layer, mean and RMS of the raw activations (feature_scale = 1) and after the source's
 feature scale.

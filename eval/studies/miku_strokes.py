@@ -2,12 +2,12 @@
 page (in chromium), and the result is a scene folder and a painting label map that a compositional and a semantic
 transfer run from.
 
-    python -m eval.bench.fit --scene ../shared/data/scenes/miku --format colmap --work W --iterations 3000 \\
+    python -m eval run fit --scene ../shared/data/scenes/miku --format colmap --work W --iterations 3000 \\
         --test-every 0 --threads 1                                  # the fitted splat, as eval.bench.strokes uses it
-    python -m eval.studies.miku_strokes --shared ../shared/data --splat W/miku-colmap/gs/point_cloud.ply \\
+    python -m eval run miku_strokes --shared ../shared/data --splat W/miku-colmap/gs/point_cloud.ply \\
         --work data/miku_strokes
-    python -m eval.bench.experiment run eval/params/miku_strokes.yaml --name miku-strokes --shared data/miku_strokes
-    python -m eval.bench.experiment show miku-strokes \\
+    python -m eval run experiment run eval/params/miku_strokes.yaml --name miku-strokes --shared data/miku_strokes
+    python -m eval run experiment show miku-strokes \\
         --copy out/miku_strokes_semantic/stylize/grid.png=docs/img/masks/miku_semantic_strokes.jpg \\
         --copy out/miku_strokes_compositional/stylize/grid.png=docs/img/masks/miku_compositional_strokes.jpg
 

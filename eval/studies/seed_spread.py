@@ -1,6 +1,6 @@
 """Measure the seed-to-seed spread of the tiny-scene regression metrics (justifies the CI tolerances).
 
-    python eval/studies/seed_spread.py --seeds 0 1 2 --json tests/baselines/tiny_seed_spread.json
+    python -m eval run seed_spread --seeds 0 1 2 --json tests/baselines/tiny_seed_spread.json
 
 For each seed, runs `dvc repro` in a fresh copy of the working tree with the reduced iteration counts of
 tests/test_pipeline_e2e.py and every seed in params.yaml set to that seed, then reports per experiment the

@@ -1,7 +1,7 @@
 """What stylization should do to the SH bands above DC of a degree-3 scene: the measurement behind
 ``stylize.higher_sh``'s default (docs/SPLATS.md "SH bands").
 
-    python -m eval.studies.sh_bands --scene ../shared/data/scenes/fern --style ../shared/data/styles/starry_night.jpg \\
+    python -m eval run sh_bands --scene ../shared/data/scenes/fern --style ../shared/data/styles/starry_night.jpg \\
         --json docs/measurements/sh_bands_fern.json --figure docs/img/splats/sh_bands_fern.jpg
 
 Fits the scene with SH degree 3 (reconstruction and fit cached in ``--work``), colour-matches it to the painting and
@@ -39,8 +39,8 @@ from abcgs.io.images import save_image
 from abcgs.layout import ColmapDir
 from abcgs.params import load_params
 from abcgs.sfm.model import read_scene
-from abcgs.sfm.params import ReconstructParams
-from abcgs.sources.photos import reconstruct_photos
+from abcgs.sources.params import SceneParams
+from abcgs.sources.reconstruct import reconstruct_scene
 from abcgs.stylize.colormatch import color_match_and_refit
 from abcgs.stylize.loop import stylize
 from abcgs.stylize.params import ColorMatchParams, HigherSH
@@ -72,7 +72,7 @@ def label_cell(text: str) -> np.ndarray:
 def fitted_degree3(scene_dir: Path, work: Path, iterations: int, scale: float):
     colmap = work / scene_dir.name / "colmap"
     if not ColmapDir(colmap).scene.is_file():
-        reconstruct_photos(scene_dir, colmap, ReconstructParams())
+        reconstruct_scene(SceneParams.at(scene_dir, "photos"), colmap)
     scene = read_scene(colmap)
     ply = work / scene_dir.name / f"gs_sh3_{iterations}" / "point_cloud.ply"
     if not ply.is_file():

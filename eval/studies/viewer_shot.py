@@ -1,7 +1,7 @@
 """A screenshot of the report's 3-D viewer (Spark, headless chromium) on a stylized scene whose cameras were made
 around a bare splat: what a user who brought only a ``.splat`` sees at the end of the pipeline.
 
-    python -m eval.studies.viewer_shot --splat fern.splat --stylized stylized.ply --count 12 \\
+    python -m eval run viewer_shot --splat fern.splat --stylized stylized.ply --count 12 \\
         --out docs/img/splats/bare_splat_fern_viewer.jpg
 
 The cameras are :func:`abcgs.splats.cameras.cameras_around` of ``--splat`` as :mod:`eval.studies.bare_splat` makes them

@@ -1,5 +1,5 @@
 """Format ``splat``: a scene that is only a trained splat (a splat file, or a folder holding one and nothing but
-``masks/``); cameras are made around it and its renders are the photos (:mod:`abcgs.sources.splat`). An object on
+``masks/``); cameras are made around it and its renders are the photos (:mod:`abcgs.sources.bare_splat`). An object on
 black unless the scene's entry names a ``background``."""
 
 from __future__ import annotations
@@ -22,5 +22,5 @@ class SplatSource(Source):
 
 
 
-READER = SceneReader("splat", "splat:read", "the splat file", detect=is_bare_splat, priority=60, order=60,
+READER = SceneReader("splat", "bare_splat:read", "the splat file", detect=is_bare_splat, priority=60, order=60,
                      options=SplatSource, cameras="made", background=(0.0, 0.0, 0.0))
