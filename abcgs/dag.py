@@ -48,7 +48,7 @@ def _module_file(root: Path, dotted: str) -> Path | None:
     return None
 
 
-def _is_type_checking(node: ast.AST) -> bool:
+def is_type_checking_block(node: ast.AST) -> bool:
     """``if TYPE_CHECKING:`` / ``if typing.TYPE_CHECKING:``: its body is read by type checkers only, never run."""
     if not isinstance(node, ast.If):
         return False
@@ -71,7 +71,7 @@ def _run_nodes(tree: ast.AST, imported: bool = False) -> Iterable[ast.AST]:
     while todo:
         node = todo.pop()
         yield node
-        if _is_type_checking(node) or (imported and is_main_block(node)):
+        if is_type_checking_block(node) or (imported and is_main_block(node)):
             todo.extend(node.orelse)
             continue
         todo.extend(ast.iter_child_nodes(node))

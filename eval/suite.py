@@ -21,7 +21,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from eval.bench.structure import is_main_block
+from abcgs.dag import is_main_block
 
 ROOT = Path(__file__).resolve().parent
 ROOMS = ("bench", "studies")

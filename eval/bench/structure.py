@@ -44,6 +44,8 @@ import sys
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 
+from abcgs.dag import is_main_block, is_type_checking_block
+
 FLOORS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("foundations", (
         "abcgs", "abcgs.errors", "abcgs.types", "abcgs.dotted", "abcgs.sections", "abcgs.progress", "abcgs.cameras",
@@ -89,20 +91,6 @@ def floor_of(module: str, floors: tuple[tuple[str, tuple[str, ...]], ...] = FLOO
             if (module == entry or module.startswith(entry + ".")) and len(entry) > best_len:
                 best, best_len = i, len(entry)
     return best
-
-
-def is_main_block(node: ast.AST) -> bool:
-    """Whether ``node`` is a module's ``if __name__ == "__main__":`` block."""
-    return (isinstance(node, ast.If) and isinstance(node.test, ast.Compare) and isinstance(node.test.left, ast.Name)
-            and node.test.left.id == "__name__" and len(node.test.comparators) == 1
-            and isinstance(node.test.comparators[0], ast.Constant) and node.test.comparators[0].value == "__main__")
-
-
-def is_type_checking_block(node: ast.AST) -> bool:
-    """Whether ``node`` is an ``if TYPE_CHECKING:`` / ``if typing.TYPE_CHECKING:`` block (its body is never run)."""
-    return isinstance(node, ast.If) and (
-        (isinstance(node.test, ast.Name) and node.test.id == "TYPE_CHECKING")
-        or (isinstance(node.test, ast.Attribute) and node.test.attr == "TYPE_CHECKING"))
 
 
 def abcgs_imports(source: str, module: str, is_package: bool, root: Path,
