@@ -4,6 +4,9 @@ the Gaussians no painted view decides labelled in 3-D as the masks page does (``
 
     dvc repro masks@tiny     # its command, with every input and output path: dvc.yaml or --help
 
+The given label maps are the ones the scene record names (:attr:`abcgs.types.CalibratedScene.label_paths`, each with
+its strokes in ``strokes/`` beside it), as the ``reconstruct`` stage wrote them.
+
 Where no colour match of the scene reads content labels (all are single-image transfer: ``--label-use``, written
 by the preflight stage), nothing is lifted or re-cut: every label is 0 (:func:`abcgs.masks.outputs.write_unread_masks`).
 """
@@ -47,7 +50,7 @@ def main(args, params) -> None:
         write_unread_masks(args.out, model.num_gaussians, scene.cameras)
         return
     model = read_ply(args.model, device=resolve_device(params.runtime.device))
-    result = make_content_masks(model, scene.cameras, colmap.masks, params.scene_section(args.scene, "masks"),
+    result = make_content_masks(model, scene.cameras, scene.label_paths, params.scene_section(args.scene, "masks"),
                                 scene.image_paths)
     write_content_masks(args.out, result, scene.cameras, scene.image_paths)
 

@@ -12,7 +12,7 @@ from abcgs.cameras import Camera, intrinsics, look_at
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
 from abcgs.io.images import save_labels
-from abcgs.masks.content import find_given_masks_with_palette, grabcut_view, label_iou, make_content_masks
+from abcgs.masks.content import grabcut_view, label_iou, label_paths_in, make_content_masks, read_given_masks
 from abcgs.masks.lifting import render_label_map
 from abcgs.masks.params import GrabCutParams, MaskParams, RefineParams
 from abcgs.render import rgb_to_sh0
@@ -85,7 +85,7 @@ def test_colour_label_pngs_from_a_paint_program(tmp_path) -> None:
         img[:, W // 2 : W // 2 + 2] = (t[..., None] * np.array(left) + (1 - t[..., None]) * np.array(right)).astype(np.uint8)
         img[0, 0] = (1, 2, 3)  # one stray pixel
         cv2.imwrite(str(tmp_path / f"{k:03d}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
-    given, palette = find_given_masks_with_palette(tmp_path, cams)
+    given, palette = read_given_masks(label_paths_in(tmp_path, cams), cams)
     assert sorted(given) == [0, 1]
     assert palette == {1: blue, 2: red}  # sorted by RGB value: one colour is one label in every view
     assert (given[0][:, 5] == 2).all() and (given[1][:, 5] == 1).all() and (given[0][:, -5] == 1).all()
@@ -95,11 +95,11 @@ def test_colour_label_pngs_from_a_paint_program(tmp_path) -> None:
 def test_numbered_pngs_and_size_errors(tmp_path) -> None:
     cams = cameras(2)
     save_labels(tmp_path / "000.png", np.ones((H, W), np.int64))
-    given, palette = find_given_masks_with_palette(tmp_path, cams)
+    given, palette = read_given_masks(label_paths_in(tmp_path, cams), cams)
     assert palette == {} and (given[0] == 1).all()
     save_labels(tmp_path / "001.png", np.ones((H, W + 1), np.int64))
     with pytest.raises(InputError, match=f"is {W + 1}x{H} but its view is {W}x{H}"):
-        find_given_masks_with_palette(tmp_path, cams)
+        read_given_masks(label_paths_in(tmp_path, cams), cams)
 
 
 def test_heldout_views_score_the_lifting(tmp_path) -> None:
@@ -108,14 +108,14 @@ def test_heldout_views_score_the_lifting(tmp_path) -> None:
     cams = cameras(6)
     for c in cams:
         save_labels(tmp_path / f"{c.name[:-4]}.png", render_label_map(model, truth, 2, c))
-    res = make_content_masks(model, cams, tmp_path, MaskParams(source="given", holdout_every=2))
+    res = make_content_masks(model, cams, label_paths_in(tmp_path, cams), MaskParams(source="given", holdout_every=2))
     assert res.input_views == ["000.png", "002.png", "004.png"]
     assert res.heldout_views == ["001.png", "003.png", "005.png"]
     assert set(res.heldout_iou) == {1, 2} and min(res.heldout_iou.values()) > 0.85, res.heldout_iou
     assert res.heldout_agreement > 0.9
     # a wrong user mask on a held-out view shows up in the score
     save_labels(tmp_path / "003.png", 3 - render_label_map(model, truth, 2, cams[3]).clip(1, 2))
-    worse = make_content_masks(model, cams, tmp_path, MaskParams(source="given", holdout_every=2))
+    worse = make_content_masks(model, cams, label_paths_in(tmp_path, cams), MaskParams(source="given", holdout_every=2))
     assert worse.heldout_iou[1] < res.heldout_iou[1] - 0.2
 
 
@@ -151,11 +151,12 @@ def test_lift_views_lifts_from_one_mask_and_scores_the_rest(tmp_path) -> None:
     cams = cameras(5)
     for c in cams:
         save_labels(tmp_path / f"{c.name[:-4]}.png", render_label_map(model, truth, 2, c))
-    res = make_content_masks(model, cams, tmp_path, MaskParams(source="given", lift_views=["002"]))
+    res = make_content_masks(model, cams, label_paths_in(tmp_path, cams),
+                             MaskParams(source="given", lift_views=["002"]))
     assert res.input_views == ["002.png"] and len(res.heldout_views) == 4
     assert min(res.heldout_iou.values()) > 0.6
-    with pytest.raises(InputError, match=r"lift_views names view\(s\) \['009'\] without a mask"):
-        make_content_masks(model, cams, tmp_path, MaskParams(source="given", lift_views=["009"]))
+    with pytest.raises(InputError, match=r"lift_views names view\(s\) \['009'\] without a label map"):
+        make_content_masks(model, cams, label_paths_in(tmp_path, cams), MaskParams(source="given", lift_views=["009"]))
 
 
 def test_the_3d_step_labels_the_unseen_side_and_keeps_unpainted_pixels_unpainted() -> None:
@@ -185,7 +186,7 @@ def make_content_masks_from(model, cams, maps):
     with tempfile.TemporaryDirectory() as tmp:
         for c, m in zip(cams, maps):
             save_labels(Path(tmp) / f"{c.name[:-4]}.png", m)
-        return make_content_masks(model, cams, Path(tmp), MaskParams(source="given"))
+        return make_content_masks(model, cams, label_paths_in(Path(tmp), cams), MaskParams(source="given"))
 
 
 def test_orbit_capture_propagates_by_default(tmp_path) -> None:
@@ -202,10 +203,12 @@ def test_orbit_capture_propagates_by_default(tmp_path) -> None:
     assert capture_layout(ring).kind == "orbit"
     ones = torch.ones(ball_model.num_gaussians, dtype=torch.long)
     save_labels(tmp_path / "000.png", render_label_map(ball_model, ones, 1, ring[0]))
-    res = make_content_masks(ball_model, ring, tmp_path, MaskParams(source="given", refine=RefineParams(enabled=False)))
+    res = make_content_masks(ball_model, ring, label_paths_in(tmp_path, ring),
+                             MaskParams(source="given", refine=RefineParams(enabled=False)))
     assert res.propagated > 0.2 * ball_model.num_gaussians
     # with the cross-view refinement the re-cut views see the far side themselves; either way it is labelled
-    refined = make_content_masks(ball_model, ring, tmp_path, MaskParams(source="given", refine=RefineParams(enabled=True)))
+    refined = make_content_masks(ball_model, ring, label_paths_in(tmp_path, ring),
+                                 MaskParams(source="given", refine=RefineParams(enabled=True)))
     assert refined.refinement is not None and len(refined.refinement.views) == 7
     for r in (res, refined):
         assert (r.gaussian_labels == 1).float().mean() > 0.95

@@ -10,7 +10,7 @@ import torch
 from abcgs.errors import InputError
 from abcgs.gaussians import GaussianModel
 from abcgs.io.images import load_stroke_map, save_labels, save_stroke_map, stroke_map_path
-from abcgs.masks.content import label_iou, make_content_masks
+from abcgs.masks.content import label_iou, label_paths_in, make_content_masks
 from abcgs.masks.field import LabelField, correction_seeds, render_field
 from abcgs.masks.lifting import NO_VOTE, render_label_map
 from abcgs.masks.page.strip import Strip
@@ -91,17 +91,19 @@ def test_the_stage_reads_the_saved_strokes(tmp_path) -> None:
     cams = cameras(3)
     wrong = np.full((cams[0].height, cams[0].width), 2)
     save_labels(tmp_path / "000.png", wrong)
-    plain = make_content_masks(model, cams, tmp_path, MaskParams(source="given"), show_progress=False)
+    plain = make_content_masks(model, cams, label_paths_in(tmp_path, cams),
+                               MaskParams(source="given"), show_progress=False)
     ball_px = np.argwhere(_truth_maps(model, truth, cams[:1])[0] == 1).mean(0)
     seeds = rasterize_strokes([Stroke(1, np.array([ball_px[::-1] + 0.5]), 4.0)], (cams[0].height, cams[0].width))
     save_stroke_map(stroke_map_path(tmp_path, "000"), seeds)
     np.testing.assert_array_equal(load_stroke_map(stroke_map_path(tmp_path, "000"), seeds.shape), seeds)
-    stroked = make_content_masks(model, cams, tmp_path, MaskParams(source="given"), show_progress=False)
+    stroked = make_content_masks(model, cams, label_paths_in(tmp_path, cams),
+                                 MaskParams(source="given"), show_progress=False)
     ball = truth == 1
     assert (stroked.gaussian_labels[ball] == 1).float().mean() > (plain.gaussian_labels[ball] == 1).float().mean()
     save_stroke_map(stroke_map_path(tmp_path, "000"), np.full((5, 5), -1))
     with pytest.raises(InputError, match="5x5"):
-        make_content_masks(model, cams, tmp_path, MaskParams(source="given"), show_progress=False)
+        make_content_masks(model, cams, label_paths_in(tmp_path, cams), MaskParams(source="given"), show_progress=False)
 
 
 def test_set_view_refuses_a_map_of_another_size() -> None:

@@ -13,7 +13,7 @@ from abcgs.cameras import Camera, look_at
 from abcgs.errors import InputError
 from abcgs.gaussians import render
 from abcgs.io.images import save_labels, to_uint8
-from abcgs.masks.content import label_iou, make_content_masks
+from abcgs.masks.content import label_iou, label_paths_in, make_content_masks
 from abcgs.masks.grabcut import grabcut_features, inverse_depth, segment
 from abcgs.masks.lifting import NO_VOTE, LiftResult, decide_labels, lift_labels, one_hot_labels, render_label_map
 from abcgs.masks.params import MaskParams, RefineParams
@@ -123,9 +123,11 @@ def test_refinement_removes_a_leak_that_one_view_lifted_into_the_other_views(tmp
     band[ys.min():ys.max() + 1, xs.max() + 1:xs.max() + 13] = True  # 12 px of wall right of the ball
     leaky[band & (leaky == 2)] = 1
     save_labels(tmp_path / "000.png", leaky)
-    alone = make_content_masks(model, cams, tmp_path, MaskParams(source="given", refine=RefineParams(enabled=False)))
-    refined = make_content_masks(model, cams, tmp_path, MaskParams(source="given", refine=ON), show_progress=False)
-    colour_only = make_content_masks(model, cams, tmp_path,
+    alone = make_content_masks(model, cams, label_paths_in(tmp_path, cams),
+                               MaskParams(source="given", refine=RefineParams(enabled=False)))
+    refined = make_content_masks(model, cams, label_paths_in(tmp_path, cams),
+                                 MaskParams(source="given", refine=ON), show_progress=False)
+    colour_only = make_content_masks(model, cams, label_paths_in(tmp_path, cams),
                                      MaskParams(source="given", refine=RefineParams(enabled=True, depth_weight=0.0)),
                                      show_progress=False)
     assert refined.refinement is not None and sorted(refined.refinement.views) == [c.name for c in cams[1:]]
@@ -140,7 +142,7 @@ def test_refinement_removes_a_leak_that_one_view_lifted_into_the_other_views(tmp
     # the refinement does not touch the user's view: its mask is still lifted as painted
     assert refined.input_views == ["000.png"]
     with pytest.raises(InputError, match="the photo of view 001.png is 95x72 but its camera is 96x72"):
-        make_content_masks(model, cams, tmp_path, MaskParams(source="given", refine=ON),
+        make_content_masks(model, cams, label_paths_in(tmp_path, cams), MaskParams(source="given", refine=ON),
                            [np.zeros((72, 96 if i != 1 else 95, 3), np.uint8) for i in range(len(cams))],
                            show_progress=False)
 
@@ -150,7 +152,8 @@ def test_refinement_keeps_what_the_user_left_unassigned(tmp_path) -> None:
     model, truth = wall_and_ball(3)
     cams = cameras(4)
     save_labels(tmp_path / "000.png", np.where(render_label_map(model, truth, 2, cams[0]) == 1, 1, 0))
-    res = make_content_masks(model, cams, tmp_path, MaskParams(source="given", refine=ON), show_progress=False)
+    res = make_content_masks(model, cams, label_paths_in(tmp_path, cams),
+                             MaskParams(source="given", refine=ON), show_progress=False)
     assert (res.gaussian_labels[truth == 2] == 0).float().mean() > 0.95
     for i, c in enumerate(cams[1:], 1):
         iou = label_iou(res.view_labels[i], np.where(render_label_map(model, truth, 2, c) == 1, 1, 0), 1)[1]
@@ -235,7 +238,8 @@ def test_nearest_first_refinement_lifts_what_every_cut_voted(tmp_path) -> None:
     ys, xs = np.nonzero(leaky == 1)
     leaky[ys.min():ys.max() + 1, xs.max() + 1:xs.max() + 13][leaky[ys.min():ys.max() + 1, xs.max() + 1:xs.max() + 13] == 2] = 1
     save_labels(tmp_path / "000.png", leaky)
-    chained = make_content_masks(model, cams, tmp_path, MaskParams(source="given", refine=RefineParams(
+    chained = make_content_masks(model, cams, label_paths_in(tmp_path, cams),
+                                 MaskParams(source="given", refine=RefineParams(
         enabled=True, order="nearest_first")), show_progress=False)
     assert list(chained.refinement.views) == [cams[i].name for i in nearest_first_order(cams)]
     iou = np.mean([label_iou(chained.view_labels[i], render_label_map(model, truth, 2, c), 2)[1]

@@ -11,7 +11,7 @@ from test_content_masks import cameras, wall_and_ball
 
 from abcgs.gaussians import GaussianModel
 from abcgs.io.images import save_labels
-from abcgs.masks.content import label_iou, make_content_masks, read_label_files, unlabelled_warnings
+from abcgs.masks.content import label_iou, label_paths_in, make_content_masks, read_label_files, unlabelled_warnings
 from abcgs.masks.grabcut import segment
 from abcgs.masks.lifting import NO_VOTE, LiftResult, lift_labels, propagate_unseen, render_label_map
 from abcgs.masks.params import UNDECIDED, LiftParams, MaskParams, RefineParams
@@ -50,7 +50,8 @@ def test_an_undecided_gap_is_no_background_seed_and_a_background_stroke_is(tmp_p
         else:
             assert decided_0 > 0.2
         seeds[name] = render_seeds(model, lifted, 2, cams[3], erode_px=1)[0]
-        results[name] = make_content_masks(model, cams, d, MaskParams(source="given", refine=RefineParams(enabled=True)),
+        results[name] = make_content_masks(model, cams, label_paths_in(d, cams),
+                                           MaskParams(source="given", refine=RefineParams(enabled=True)),
                                            show_progress=False)
     ball_px = render_label_map(model, truth, 2, cams[3]) == 1
     assert not (seeds["undecided"][ball_px] == 0).any()  # no background seed on the ball

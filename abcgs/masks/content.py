@@ -24,6 +24,7 @@ machines; PyPI packages that wrap them ship no weights):
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -124,25 +125,29 @@ def read_label_files(paths: list[Path], sizes: list[tuple[int, int]]) -> tuple[l
     return maps, palette
 
 
-def find_given_masks(masks_dir: Path, cameras: list[Camera]) -> dict[int, np.ndarray]:
-    """Label PNGs in ``masks_dir`` whose stem matches a camera's image stem → {camera index: labels}."""
-    if not masks_dir.is_dir():
-        return {}
-    return find_given_masks_with_palette(masks_dir, cameras)[0]
-
-
-def find_given_masks_with_palette(masks_dir: Path, cameras: list[Camera]) -> tuple[dict[int, np.ndarray], dict]:
-    """:func:`find_given_masks` and the colour palette of colour label PNGs (see :func:`read_label_files`)."""
-    if not masks_dir.is_dir():
-        return {}, {}
+def label_paths_in(masks_dir: Path | None, cameras: Sequence[Camera]) -> list[Path | None]:
+    """Each view's label PNG in ``masks_dir`` (``<stem>.png``, the stem of the view's image), or ``None``: the
+    per-view label maps of a folder, as a scene record names them (:attr:`abcgs.types.CalibratedScene.label_paths`).
+    A PNG that matches no view is named in a warning."""
+    if masks_dir is None or not masks_dir.is_dir():
+        return [None] * len(cameras)
     by_stem = {Path(c.name).stem: i for i, c in enumerate(cameras)}
-    found = []
+    paths: list[Path | None] = [None] * len(cameras)
     for p in sorted(masks_dir.glob("*.png")):
         i = by_stem.get(p.stem)
         if i is None:
             log.warning("mask %s matches no registered view; ignored", p.name)
             continue
-        found.append((i, p))
+        paths[i] = p
+    return paths
+
+
+def read_given_masks(label_paths: Sequence[Path | None] | None, cameras: Sequence[Camera]
+                     ) -> tuple[dict[int, np.ndarray], dict]:
+    """The views' label maps (``label_paths[i]``: view ``i``'s, or ``None``) read at their views' sizes →
+    ``{camera index: (H, W) int64 labels}``, and the colour palette of colour label PNGs (see
+    :func:`read_label_files`)."""
+    found = [(i, p) for i, p in enumerate(label_paths or ()) if p is not None]
     if not found:
         return {}, {}
     maps, palette = read_label_files([p for _, p in found], [(cameras[i].height, cameras[i].width) for i, _ in found])
@@ -243,8 +248,8 @@ def label_iou(pred: np.ndarray, truth: np.ndarray, n_labels: int) -> dict[int, f
     return out
 
 
-def _given_views(given: dict[int, np.ndarray], cameras: list[Camera], lift_views: list[str], holdout_every: int,
-                 masks_dir: Path | None) -> tuple[list[int], list[int]]:
+def _given_views(given: dict[int, np.ndarray], cameras: list[Camera], lift_views: list[str], holdout_every: int
+                 ) -> tuple[list[int], list[int]]:
     """Which views with a given mask are lifted and which are held out and scored: the views ``lift_views`` names
     (file stems) when set, else all but every ``holdout_every``-th (< 2: none held out).
 
@@ -260,7 +265,7 @@ def _given_views(given: dict[int, np.ndarray], cameras: list[Camera], lift_views
         stems = {Path(cameras[i].name).stem: i for i in idx}
         missing = [v for v in lift_views if v not in stems]
         if missing:
-            raise InputError(f"masks.lift_views names view(s) {missing} without a mask in {masks_dir} "
+            raise InputError(f"masks.lift_views names view(s) {missing} without a label map "
                              f"(masks found for: {', '.join(sorted(stems)) or 'none'})")
         chosen = sorted(stems[v] for v in lift_views)
         heldout = [i for i in idx if i not in chosen]
@@ -272,7 +277,7 @@ def _given_views(given: dict[int, np.ndarray], cameras: list[Camera], lift_views
 
 
 def _reference_masks(model: GaussianModel, cameras: list[Camera], given: dict[int, np.ndarray],
-                     masks_dir: Path | None, params: MaskParams) -> tuple[str, list[int], list[np.ndarray], list[int]]:
+                     params: MaskParams) -> tuple[str, list[int], list[np.ndarray], list[int]]:
     """The label maps to lift, by ``params.source``: the given masks (when any, for ``auto`` and ``given``), else one
     reference view cut by GrabCut or by colour clustering.
 
@@ -284,7 +289,7 @@ def _reference_masks(model: GaussianModel, cameras: list[Camera], given: dict[in
         InputError: a reference view out of range, or ``lift_views`` naming a view without a mask.
     """
     if given and params.source in ("auto", "given"):
-        idx, heldout = _given_views(given, cameras, params.lift_views, params.holdout_every, masks_dir)
+        idx, heldout = _given_views(given, cameras, params.lift_views, params.holdout_every)
         return "given", idx, [given[i] for i in idx], heldout
     if params.source == "grabcut":
         i = params.grabcut.reference_view
@@ -330,11 +335,11 @@ def _lift_and_refine(model: GaussianModel, cameras: list[Camera], images: list[P
     return lifted, propagated, refinement
 
 
-def _field_labels(model: GaussianModel, cameras: list[Camera], masks_dir: Path | None, idx: list[int],
-                  maps: list[np.ndarray], params: MaskParams, show_progress: bool, images: list[Path] | None = None
-                  ) -> tuple[LiftResult, int, list[np.ndarray]]:
+def _field_labels(model: GaussianModel, cameras: list[Camera], label_paths: Sequence[Path | None] | None,
+                  idx: list[int], maps: list[np.ndarray], params: MaskParams, show_progress: bool,
+                  images: list[Path] | None = None) -> tuple[LiftResult, int, list[np.ndarray]]:
     """Per-Gaussian labels from the label maps ``maps`` of the views ``idx`` and their saved strokes
-    (``<masks_dir>/strokes/<stem>.png``, when there are any) by :class:`abcgs.masks.field.LabelField`, as the masks
+    (``strokes/<stem>.png`` beside the view's label map ``label_paths[i]``, when there are any) by :class:`abcgs.masks.field.LabelField`, as the masks
     page computes them, and every view's labels (refined against the view's photo in ``images`` where given; a
     painted view keeps its map where it decided).
 
@@ -348,7 +353,8 @@ def _field_labels(model: GaussianModel, cameras: list[Camera], masks_dir: Path |
     field_ = LabelField(model, cameras, params.field, params.lift, params.backend)
     for i, m in zip(idx, maps):
         cam = cameras[i]
-        path = stroke_map_path(masks_dir, Path(cam.name).stem) if masks_dir is not None else None
+        given = label_paths[i] if label_paths is not None else None
+        path = stroke_map_path(given.parent, Path(cam.name).stem) if given is not None else None
         strokes = load_stroke_map(path, (cam.height, cam.width)) if path is not None and path.is_file() else None
         field_.set_view(i, m, strokes)
     result = field_.solve()
@@ -384,7 +390,7 @@ def heldout_scores(views: list[np.ndarray] | dict[int, np.ndarray], truths: dict
 def make_content_masks(
     model: GaussianModel,
     cameras: list[Camera],
-    masks_dir: Path | None,
+    label_paths: Sequence[Path | None] | None,
     params: MaskParams,
     images: list[Path] | None = None,
     *,
@@ -393,12 +399,16 @@ def make_content_masks(
     """Given or automatic masks → per-Gaussian labels (Eq. 2; cross-view refinement with ``masks.refine``) →
     re-rendered masks for every view.
 
-    ``images``: the views' photos, which the refinement cuts (None: the scene's renders stand in for them).
+    ``label_paths``: each view's given label map or ``None`` (the scene record's
+    :attr:`~abcgs.types.CalibratedScene.label_paths`; :func:`label_paths_in` for a folder of them), a view's strokes
+    in ``strokes/`` beside its map. ``images``: the views' photos, which the refinement cuts (None: the scene's renders
+    stand in for them).
     """
-    given, palette = find_given_masks_with_palette(masks_dir, cameras) if masks_dir is not None else ({}, {})
+    given, palette = read_given_masks(label_paths, cameras)
     if params.source == "given" and not given:
-        raise InputError(f"masks.source is 'given' but no label PNG in {masks_dir} matches a view")
-    source, idx, maps, heldout = _reference_masks(model, cameras, given, masks_dir, params)
+        raise InputError("masks.source is 'given' but no view has a label map (masks/<stem>.png in the scene folder, "
+                         "carried by the reconstruct stage)")
+    source, idx, maps, heldout = _reference_masks(model, cameras, given, params)
     n_labels = int(max([m.max() for m in maps] + [given[i].max() for i in heldout]))
     if n_labels == 0:
         raise InputError("the content masks contain no label > 0 (0 means unassigned); nothing to lift")
@@ -408,8 +418,8 @@ def make_content_masks(
         views = [render_label_map(model, lifted.labels, n_labels, c, threshold=params.lift.render_threshold,
                                   backend=params.backend) for c in cameras]
     else:
-        lifted, propagated, views = _field_labels(model, cameras, masks_dir if source == "given" else None, idx, maps,
-                                                  params, show_progress, images)
+        lifted, propagated, views = _field_labels(model, cameras, label_paths if source == "given" else None, idx,
+                                                  maps, params, show_progress, images)
         refinement = None
     if params.refine.enabled and params.refine.output == "recut":
         views = recut_outputs(model, cameras, images, lifted, n_labels, views, skip=set(idx), params=params,

@@ -44,7 +44,7 @@ import numpy as np
 
 from abcgs.gaussians import GaussianModel
 from abcgs.io.images import load_image, load_labels, save_labels
-from abcgs.masks.content import ContentMasks, make_content_masks
+from abcgs.masks.content import ContentMasks, label_paths_in, make_content_masks
 from abcgs.masks.grabcut import segment
 from abcgs.masks.params import LiftParams, MaskParams, RefineParams
 from abcgs.masks.strokes import Stroke
@@ -232,13 +232,13 @@ def _lift_three_ways(model: GaussianModel, scene: CalibratedScene, work: Path, v
     t_lift = time.perf_counter()
     lift = LiftParams(propagate_along=propagate_along)
     refine = RefineParams(enabled=True)  # the re-cut is an option of the stage (off by default): these columns run it
-    lifted = make_content_masks(model, cams, work / "colmap" / "masks", MaskParams(source="given", lift=lift,
-                                                                                   refine=refine), photos,
+    given, truth = label_paths_in(work / "colmap" / "masks", cams), label_paths_in(only_truth, cams)
+    lifted = make_content_masks(model, cams, given, MaskParams(source="given", lift=lift, refine=refine), photos,
                                 show_progress=False)
     seconds_lift = time.perf_counter() - t_lift
-    lift_only = make_content_masks(model, cams, work / "colmap" / "masks",
+    lift_only = make_content_masks(model, cams, given,
                                    MaskParams(source="given", lift=lift, refine=RefineParams(enabled=False)))
-    ceiling = make_content_masks(model, cams, only_truth, MaskParams(source="given", lift=lift, refine=refine), photos,
+    ceiling = make_content_masks(model, cams, truth, MaskParams(source="given", lift=lift, refine=refine), photos,
                                  show_progress=False)
     return lifted, lift_only, ceiling, seconds_lift
 

@@ -145,7 +145,7 @@ def stage_maps(user: ScriptedUser, params: FieldParams) -> dict[str, np.ndarray]
     painted view's label PNG (its cut, undecided where the field took none) and strokes written to a folder, then
     :func:`abcgs.masks.content.make_content_masks` on it, as ``stages/masks.py`` runs it."""
     from abcgs.io.images import save_labels, save_stroke_map, stroke_map_path
-    from abcgs.masks.content import make_content_masks
+    from abcgs.masks.content import label_paths_in, make_content_masks
     from abcgs.masks.params import UNDECIDED, MaskParams
 
     with tempfile.TemporaryDirectory(prefix="abcgs-scripted-user-") as tmp:
@@ -156,7 +156,8 @@ def stage_maps(user: ScriptedUser, params: FieldParams) -> dict[str, np.ndarray]
             save_labels(masks / f"{stem}.png", np.where(cut >= 0, cut, UNDECIDED))
             cam = user.scene.cameras[i]
             save_stroke_map(stroke_map_path(masks, stem), rasterize_strokes(user.strokes[i], (cam.height, cam.width)))
-        result = make_content_masks(user.session.field.model, user.scene.cameras, masks,
+        result = make_content_masks(user.session.field.model, user.scene.cameras,
+                                    label_paths_in(masks, user.scene.cameras),
                                     MaskParams(source="given", field=params), user.scene.image_paths,
                                     show_progress=False)
     return {s: result.view_labels[user.by_stem[s]] for s in user.refs}

@@ -46,7 +46,7 @@ from abcgs.gaussians import GaussianModel
 from abcgs.gaussians.ply import read_ply
 from abcgs.io.images import load_image, load_labels, save_image, save_labels, to_uint8
 from abcgs.layout import ColmapDir
-from abcgs.masks.content import ContentMasks, make_content_masks, recut_outputs
+from abcgs.masks.content import ContentMasks, label_paths_in, make_content_masks, recut_outputs
 from abcgs.masks.grabcut import segment
 from abcgs.masks.lifting import NO_VOTE, LiftResult, lift_labels, render_label_map
 from abcgs.masks.params import UNDECIDED, LiftParams, MaskParams, RefineParams
@@ -212,7 +212,8 @@ def run_case(bench: Bench, views: list[dict], params: MaskParams, output: str, p
             cuts[v["view"]] = (strokes, cut)
             save_labels(Path(d) / f"{v['view']}.png", cut.labels if zero else cut.saved_map())
         t = time.perf_counter()
-        res = make_content_masks(bench.model, cams, Path(d), params, bench.scene.image_paths, show_progress=False)
+        res = make_content_masks(bench.model, cams, label_paths_in(Path(d), cams), params, bench.scene.image_paths,
+                                 show_progress=False)
         seconds = time.perf_counter() - t
     scored = [s for s in bench.refs if s not in cuts]
     refs = {s: bench.refs[s] for s in scored}

@@ -29,7 +29,7 @@ setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 from abcgs.errors import InputError
 from abcgs.gaussians.ply import read_ply
 from abcgs.io.images import load_image, save_image
-from abcgs.masks.content import find_given_masks_with_palette, grabcut_view
+from abcgs.masks.content import grabcut_view, label_paths_in, read_given_masks
 from abcgs.masks.lifting import lift_labels, propagate_unseen, render_label_map
 from abcgs.masks.params import GrabCutParams, LiftParams
 from abcgs.sfm.model import read_scene
@@ -88,7 +88,7 @@ def main(argv: list[str] | None = None) -> dict:
     stems = [Path(c.name).stem for c in cams]
     if args.grabcut_box:
         write_grabcut_masks(model, cams, stems, tuple(float(v) for v in args.grabcut_box.split(",")), args.masks)
-    given, palette = find_given_masks_with_palette(args.masks, cams)
+    given, palette = read_given_masks(label_paths_in(args.masks, cams), cams)
     if not given:
         raise InputError(f"no label PNG in {args.masks} is named like a view ({stems[0]}.png, …)")
     lift_stems = args.lift.split(",") if args.lift else [stems[min(given)]]
