@@ -297,12 +297,15 @@ def write_source_model(source: SourceScene, out_dir: str | os.PathLike, params: 
                 a is not None for a in alphas.values()):  # an object's RGBA views: their alpha supervises the fit
             for name, a in alphas.items():
                 save_image(tmp / "alpha" / name, a)
-        if distorted:
-            undistort_model(write_posed(views, work / "model"), staged, work, tmp, params)
+        if distorted:  # COLMAP's undistorter: the images into the layout, its model (no points) in the scratch
+            (work / "undistorted_model").mkdir()
+            undistort_model(write_posed(views, work / "model"), staged, work, work / "undistorted_model", params)
+            shutil.move(str(work / "undistorted_model" / "images"), str(tmp / "images"))
+            posed = work / "undistorted_model" / "sparse"
         else:
-            write_posed(views, tmp / "sparse")
+            posed = write_posed(views, work / "posed")
             shutil.copytree(staged, tmp / "images")
-        und = read_model(tmp / "sparse").cameras()
+        und = read_model(posed).cameras()  # sparse/ is written once, with its points, below
         und_views = [View(cam.name, tmp / "images" / cam.name, cam) for cam in und]
         verified, error, epipolar = 0, None, None
         if source.points is not None and len(source.points):
