@@ -10,7 +10,8 @@ becomes the absolute ``--shared`` folder. DVC runs the experiment in a temporary
 stage in its cache: run the same command again after an interruption and the finished stages are restored from
 the run cache, not recomputed (``dvc exp show`` lists the runs with their headline columns).
 
-``show`` checks the experiment's commit out into a temporary git worktree that shares this repository's DVC cache,
+``show`` checks the experiment's commit out into a temporary git worktree that shares this repository's DVC cache
+(the one its config names: ``dvc cache dir``),
 restores its outputs, prints the results table (the report stage's ``reports/results.md``) and, when asked, copies
 the comparison figure to ``--figure`` (and any other output with ``--copy SRC=DST``) and writes the table between
 README's ``<!-- results:begin -->`` and ``<!-- results:end -->`` lines, followed by the averages and comparisons
@@ -248,8 +249,9 @@ def cmd_show(a: argparse.Namespace) -> int:
         _git(["worktree", "add", "--detach", str(wt), sha], ROOT)
         try:
             dvc = [sys.executable, "-m", "dvc"]
-            subprocess.run(dvc + ["cache", "dir", "--local", str(ROOT / ".dvc" / "cache")], cwd=wt, check=True,
-                           capture_output=True)
+            cache = subprocess.run(dvc + ["cache", "dir"], cwd=ROOT, check=True, capture_output=True,
+                                   text=True).stdout.strip()  # the repository's own, wherever its config puts it
+            subprocess.run(dvc + ["cache", "dir", "--local", cache], cwd=wt, check=True, capture_output=True)
             co = subprocess.run(dvc + ["checkout", "--quiet"], cwd=wt, capture_output=True, text=True)
             if co.returncode != 0:
                 print(f"warning: dvc checkout restored only part of the outputs:\n{co.stderr.strip()[-2000:]}",
