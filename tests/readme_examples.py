@@ -147,7 +147,7 @@ REGISTRY: list[Entry] = [
           "experiment, is tests/test_bench_experiment.py::test_the_experiment_starts_with_the_dvc_yaml_of_its_overlay"),
     Entry(r"make viewer", None, "needs npm and the network; the committed bundle it builds is driven by "
           "tests/test_viewer_browser.py"),
-    Entry(r"python -m eval\.bench\.first_run", None, "times a fresh install and make run on a new machine (minutes, "
+    Entry(r"python -m eval run first_run", None, "times a fresh install and make run on a new machine (minutes, "
           "the network); its steps are make run's"),
     Entry(r"python -m eval list", "tests/test_eval_suite.py::test_list_prints_one_line_per_benchmark",
           "run as written; one line per benchmark of the suite"),

@@ -44,6 +44,11 @@ import sys
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 
+from abcgs.runtime import setup
+
+setup()  # as every benchmark does first (tests/test_openmp_wait_policy.py); this one loads no torch
+
+# isort: split
 from abcgs.dag import is_main_block, is_type_checking_block
 
 FLOORS: tuple[tuple[str, tuple[str, ...]], ...] = (
