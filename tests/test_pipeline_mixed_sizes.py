@@ -16,7 +16,7 @@ pytestmark = pytest.mark.slow
 
 def _mixed(params: dict) -> None:
     params["tiny"].update(n_views=8, odd_view_width_delta=1)
-    params["fit"]["iterations"] = 200
+    params["fit"].update(iterations=200, strategy={"refine_every": 20})  # as REDUCED: densifying every 10 steps of 200
     params["colormatch"]["refit_iterations"] = 10
     params["stylize"]["optim"].update(iterations=10, color_pass_iterations=5)
     params["colormatches"] = {"tiny_single": params["colormatches"]["tiny_single"]}
