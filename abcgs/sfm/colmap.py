@@ -228,23 +228,55 @@ def undistort_labels(labels: np.ndarray, distorted: pycolmap.Camera, undistorted
     return out.astype(np.int64)
 
 
-def _undistort_masks(masks_dir: Path, rec: pycolmap.Reconstruction, und: pycolmap.Reconstruction, out: Path) -> int:
-    """Write undistorted copies of ``masks_dir/<stem>.png`` for every registered image; returns the count."""
-    by_stem = {Path(im.name).stem: im for im in rec.images.values()}
+@dataclass(frozen=True)
+class ViewLabels:
+    """One view whose label map goes into the layout, and how it gets there (:func:`write_view_labels`)."""
+
+    name: str
+    """The view's image name (its label map is ``<stem>.png``)."""
+    size: tuple[int, int]
+    """``(H, W)`` of the view as the source has it (before undistortion): maps of another scale are scaled to it."""
+    warp: Callable[[np.ndarray], np.ndarray] | None = None
+    """The view's undistortion of a label map (:func:`undistort_labels`); None: the view is written as it is."""
+    keep_mask: Path | None = None
+    """The source's keep mask of the view (non-zero = kept → label 1, else 2), used where it has no label map."""
+
+
+def write_view_labels(views: list[ViewLabels], masks_dir: Path | None, out: Path) -> int:
+    """The label maps of ``views`` written into ``out`` (the layout's ``masks/``), the one way a label map reaches
+    the layout: each view's ``masks_dir/<stem>.png``, else its keep mask, scaled to the view, through its warp; the
+    strokes the masks page saved beside a label map come along (:func:`carry_strokes`). Returns the count."""
     count = 0
-    for mask_path in sorted(masks_dir.glob("*.png")):
-        im = by_stem.get(mask_path.stem)
-        if im is None:
-            log.warning("mask %s has no registered image with that stem; skipped", mask_path.name)
+    for view in views:
+        stem = Path(view.name).stem
+        user = masks_dir / f"{stem}.png" if masks_dir is not None else None
+        given = user is not None and (user.exists() or user.is_symlink())  # not a regular file: refused, not skipped
+        if given:
+            labels = labels_for_view(load_labels(user), view.size, user, view.name)
+        elif view.keep_mask is not None:
+            keep = labels_for_view(load_labels(view.keep_mask), view.size, view.keep_mask, view.name)
+            labels = np.where(keep > 0, 1, 2)
+        else:
             continue
-        cam = rec.cameras[im.camera_id]
-        labels = labels_for_view(load_labels(mask_path), (cam.height, cam.width), mask_path, im.name)
-        und_cam = und.cameras[und.find_image_with_name(im.name).camera_id]
-        save_labels(out / f"{mask_path.stem}.png", undistort_labels(labels, cam, und_cam))
-        carry_strokes(masks_dir, mask_path.stem, (cam.height, cam.width), out,
-                      functools.partial(undistort_labels, distorted=cam, undistorted=und_cam))
+        save_labels(out / f"{stem}.png", labels if view.warp is None else view.warp(labels))
+        if given:
+            carry_strokes(masks_dir, stem, view.size, out, view.warp)
         count += 1
     return count
+
+
+def _undistort_masks(masks_dir: Path, rec: pycolmap.Reconstruction, und: pycolmap.Reconstruction, out: Path) -> int:
+    """Write undistorted copies of ``masks_dir/<stem>.png`` for every registered image; returns the count."""
+    registered = {Path(im.name).stem for im in rec.images.values()}
+    for mask_path in sorted(masks_dir.glob("*.png")):
+        if mask_path.stem not in registered:
+            log.warning("mask %s has no registered image with that stem; skipped", mask_path.name)
+    views = []
+    for im in sorted(rec.images.values(), key=lambda im: im.name):
+        cam, und_cam = rec.cameras[im.camera_id], und.cameras[und.find_image_with_name(im.name).camera_id]
+        views.append(ViewLabels(im.name, (cam.height, cam.width),
+                                functools.partial(undistort_labels, distorted=cam, undistorted=und_cam)))
+    return write_view_labels(views, masks_dir, out)
 
 
 def carry_strokes(masks_dir: Path, stem: str, view_hw: tuple[int, int], out: Path,

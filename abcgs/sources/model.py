@@ -43,14 +43,15 @@ from abcgs.cameras import Cameras, Distortion
 from abcgs.errors import InputError
 from abcgs.io.atomic import atomic_path, write_json
 from abcgs.io.colmap import read_model, write_model
-from abcgs.io.images import decode_image, labels_for_view, load_image, load_labels, save_image, save_labels
+from abcgs.io.images import decode_image, load_image, load_labels, save_image
 from abcgs.sfm.colmap import (
-    carry_strokes,
+    ViewLabels,
     choose_matcher,
     extract_features,
     match_features,
     undistort_labels,
     undistort_model,
+    write_view_labels,
 )
 from abcgs.sfm.model import layout_scene, write_scene
 from abcgs.sfm.params import ReconstructParams
@@ -248,30 +249,17 @@ def points_by_id(rec: pycolmap.Reconstruction) -> tuple[np.ndarray, np.ndarray]:
 def _masks(source: SourceScene, masks_dir: Path | None, dist: dict[str, pycolmap.Camera], und: Cameras, out: Path
            ) -> int:
     """Label maps for the views: the scene's ``masks/<stem>.png`` (labels), else the view's ``mask_path`` (non-zero =
-    kept → 1, else 2); undistorted like the views. Returns the count."""
-    count = 0
+    kept → 1, else 2); undistorted like the views (:func:`abcgs.sfm.colmap.write_view_labels`). Returns the count."""
+    views = []
     for view in source.views:
-        stem = Path(view.name).stem
-        user = masks_dir / f"{stem}.png" if masks_dir is not None else None
-        cam = view.camera
-        if user is not None and user.is_file():
-            labels = labels_for_view(load_labels(user), (cam.height, cam.width), user, view.name)
-        elif view.mask_path is not None:
-            keep = labels_for_view(load_labels(view.mask_path), (cam.height, cam.width), view.mask_path, view.name)
-            labels = np.where(keep > 0, 1, 2)
-        else:
-            continue
         warp = None
         if view.name in dist:
             i = und.names.index(view.name)
             und_cam = colmap_camera(Distortion("PINHOLE", tuple(float(v) for v in und.intrinsics[i])),
                                     tuple(int(v) for v in und.sizes[i]))
             warp = functools.partial(undistort_labels, distorted=dist[view.name], undistorted=und_cam)
-        save_labels(out / f"{stem}.png", labels if warp is None else warp(labels))
-        if user is not None and user.is_file():
-            carry_strokes(masks_dir, stem, (cam.height, cam.width), out, warp)
-        count += 1
-    return count
+        views.append(ViewLabels(view.name, (view.camera.height, view.camera.width), warp, view.mask_path))
+    return write_view_labels(views, masks_dir, out)
 
 
 def write_source_model(source: SourceScene, out_dir: str | os.PathLike, params: ReconstructParams,
