@@ -111,9 +111,11 @@ def _imported_modules(tree: ast.AST, current: str | None) -> Iterable[str]:
                 yield f"{current.rsplit('.', 1)[0]}.*" if current.count(".") else f"{current}.*"
 
 
-def import_closure(script: Path, root: Path, also: Iterable[str] = ()) -> set[Path]:
+def import_closure(script: Path, root: Path, also: Iterable[str] = (), packages: tuple[str, ...] = (PACKAGE,)
+                   ) -> set[Path]:
     """Project files (relative to ``root``) that running ``script`` imports or loads, ``script`` included; ``also``:
-    dotted modules it imports by name at run time (importlib), followed the same way."""
+    dotted modules it imports by name at run time (importlib), followed the same way; ``packages``: the top-level
+    packages whose modules are followed (a benchmark's: ``abcgs`` and ``eval``)."""
     root = root.resolve()
     seen: set[Path] = set()
     todo: list[tuple[Path, str | None]] = [(script.resolve(), None)]
@@ -127,7 +129,7 @@ def import_closure(script: Path, root: Path, also: Iterable[str] = ()) -> set[Pa
             continue
         seen.add(path)
         for name in _imported_modules(ast.parse(path.read_text(encoding="utf-8")), dotted):
-            if name.split(".")[0] != PACKAGE:
+            if name.split(".")[0] not in packages:
                 continue
             if name.endswith(".*"):
                 pkg = root.joinpath(*name[:-2].split("."))
