@@ -7,10 +7,11 @@
 ``docs/`` is a DVC project of its own (``dvc init --subdir``): the repository's ``dvc repro`` and ``dvc status`` skip
 it, so the pipeline's users never run a benchmark by accident, and a record's stage lives beside the record. Each
 stage runs one benchmark of the suite (``python -m eval run NAME``, from the repository root) and writes its record
-(``measurements/NAME.json``, not DVC-cached: git keeps it). Its deps are the files the benchmark runs, each by name:
-its import closure through ``abcgs`` and ``eval`` (:func:`abcgs.dag.import_closure`), plus what it reads or runs
-beyond its imports (:attr:`Record.reads`: the params file, the whole tree for the structure numbers and the test
-suite). Files are listed one by one, not as folders: DVC hashes a folder outside its project with everything in it,
+(``measurements/NAME.json``, not DVC-cached: git keeps it; ``persist``: DVC does not delete it before the run, so a
+run that fails leaves the last record, and the test suite, which reads every record, runs with its own in place).
+Its deps are the files the benchmark runs, each by name: its import closure through ``abcgs`` and ``eval``
+(:func:`abcgs.dag.import_closure`), plus what it reads or runs beyond its imports (:attr:`Record.reads`: the params
+file, the whole tree for the structure numbers and the test suite). Files are listed one by one, not as folders: DVC hashes a folder outside its project with everything in it,
 bytecode and built kernels included, which would make every record stale on the next import.
 
 The other records in ``docs/measurements/`` need a fitted real scene or a GPU; the command that made each is in its
@@ -112,7 +113,7 @@ def records_yaml(root: Path = ROOT) -> str:
     for r in RECORDS:
         parts.append(f"  {r.name}:\n    cmd: {_quote_yaml(command(r))}\n")
         parts.append(f"    deps: {_flow(deps(r, root), len('    deps: '))}\n")
-        parts.append(f"    outs:\n    - {r.out}:\n        cache: false\n")
+        parts.append(f"    outs:\n    - {r.out}:\n        cache: false\n        persist: true\n")
     return "".join(parts)
 
 
