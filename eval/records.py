@@ -161,9 +161,10 @@ def main(argv: list[str] | None = None) -> int:
     mode.add_argument("--write", action="store_true", help="write docs/dvc.yaml")
     mode.add_argument("--check", action="store_true", help="exit 1 when docs/dvc.yaml is not what --write writes")
     mode.add_argument("--status", action="store_true", help="each owned record, current or stale (exit 1: stale)")
+    ap.add_argument("--root", type=Path, default=ROOT, help="the repository whose docs/ project --status reads")
     args = ap.parse_args(argv)
     if args.status:
-        return print_status()
+        return print_status(args.root)
     text, path = records_yaml(), ROOT / PROJECT / "dvc.yaml"
     if args.check:
         if not path.is_file() or path.read_text(encoding="utf-8") != text:

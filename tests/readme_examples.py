@@ -155,7 +155,8 @@ REGISTRY: list[Entry] = [
           "tests/test_eval_suite.py::test_the_test_suite_benchmark_times_a_pytest_run_and_keeps_its_outcomes",
           "run on a small test file of its own (the whole suite is what CI runs)"),
     Entry(r"python -m eval records --status", "tests/test_records.py::test_status_names_each_record_once",
-          "run as written in the repository"),
+          "run with --root on a copy of docs/'s DVC project over the tree's files, and as written where no run of "
+          "the records pipeline holds docs/"),
     Entry(r"python -m eval run <name>",
           "tests/test_eval_suite.py::test_run_passes_the_arguments_after_the_name_to_the_benchmark",
           "run with a benchmark's name and its own --help"),
