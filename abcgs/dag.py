@@ -25,7 +25,7 @@ import ast
 import importlib.util
 import re
 import sys
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -270,13 +270,13 @@ def _package(entry: str) -> str:
     return entry if not entry.endswith(".py") else Path(entry).parent.as_posix()
 
 
-def grouped_flow(entries: list[str], indent: int, width: int = 120) -> str:
-    """``entries`` as a YAML flow list wrapped at ``width``: the data deps first, then the code deps by package, a
-    package's files kept on one line (a line breaks between packages, inside one only where it is longer than a
-    line)."""
+def grouped_flow(entries: list[str], indent: int, width: int = 120, group: Callable[[str], str] = _package) -> str:
+    """``entries`` as a YAML flow list wrapped at ``width``: grouped by ``group`` (default: the data deps first, then
+    the code deps by package), a group's entries kept on one line (a line breaks between groups, inside one only where
+    it is longer than a line; the ``""`` group alone on its line)."""
     groups: dict[str, list[str]] = {}
     for e in entries:
-        groups.setdefault(_package(e), []).append(_flow_item(e))
+        groups.setdefault(group(e), []).append(_flow_item(e))
     room = width - indent - 2
     lines: list[str] = []
     line, line_is_data = "", False
@@ -335,8 +335,15 @@ def pipeline_yaml(root: Path, params_path: Path | None = None) -> str:
     stages = {name: stage_entry(root / "stages" / f"{name}.py", load_spec(root / "stages" / f"{name}.py"), root,
                                 params_path)
               for name in STAGES}
+    return stages_yaml(stages, HEADER)
+
+
+def stages_yaml(stages: dict[str, dict], header: str, group: Callable[[str], str] = _package) -> str:
+    """The text of a ``dvc.yaml`` holding ``stages`` (name → entry; a ``foreach`` stage's body under ``do``; each
+    body's ``deps`` a list, changed in place), after ``header``: each stage's deps written by :func:`grouped_flow`
+    with ``group``, the rest by PyYAML (which wraps flow lists anywhere)."""
     deps = []
-    for entry in stages.values():  # written below, one package a line: PyYAML wraps flow lists anywhere
+    for entry in stages.values():
         body = entry.get("do", entry)
         deps.append(body["deps"])
         body["deps"] = f"DEPS_{len(deps) - 1}"
@@ -344,9 +351,9 @@ def pipeline_yaml(root: Path, params_path: Path | None = None) -> str:
 
     def fill(m: re.Match) -> str:
         indent = len(m.group(1))
-        return f"{m.group(1)}deps: {grouped_flow(deps[int(m.group(2))], indent + len('deps: '))}"
+        return f"{m.group(1)}deps: {grouped_flow(deps[int(m.group(2))], indent + len('deps: '), group=group)}"
 
-    return HEADER + re.sub(r"^( *)deps: DEPS_(\d+)$", fill, text, flags=re.M)
+    return header + re.sub(r"^( *)deps: DEPS_(\d+)$", fill, text, flags=re.M)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -75,4 +75,4 @@ def test_status_names_each_record_once(tmp_path: Path) -> None:
     own = subprocess.run([sys.executable, "-m", "eval", "records", "--status"], cwd=REPO_ROOT, capture_output=True,
                          text=True, timeout=300)
     if own.returncode in (0, 1):  # the tree's own project, where no run holds it: the same verdicts
-        assert own.stdout == proc.stdout.replace(str(root), str(REPO_ROOT))
+        assert own.stdout == proc.stdout
