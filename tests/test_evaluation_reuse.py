@@ -17,7 +17,7 @@ from test_eval_stage import eval_scene
 
 from abcgs.errors import InputError
 from abcgs.evaluation.consistency import backward_warp, fb_consistency_mask, make_flow_estimator
-from abcgs.evaluation.content import masked_rmse, nan_mean, pair_batches, ssim_wang
+from abcgs.evaluation.content import PerceptualDistance, masked_rmse, nan_mean, pair_batches, ssim_wang
 from abcgs.evaluation.evaluate import evaluate_scene, write_evaluation
 from abcgs.evaluation.params import EvalParams
 from abcgs.evaluation.reference import (
@@ -28,6 +28,7 @@ from abcgs.evaluation.reference import (
     render_views,
     save_reference,
 )
+from abcgs.features.vgg import random_state_dict
 
 TOL = 1e-6
 PARAMS = EvalParams(fid=False, fps_passes=1, long_term_gap=3, workers=2, perceptual="proxy")
@@ -43,8 +44,12 @@ def texture(h: int, w: int, seed: int) -> np.ndarray:
     return ((img - img.min()) / (img.max() - img.min())).astype(np.float32)
 
 
-def test_batched_perceptual_distances_are_the_pair_by_pair_ones(proxy) -> None:
-    """Runs of two sizes, masks (one keeping nothing: NaN) and none, every batch size and thread count."""
+@pytest.mark.parametrize("precision", ["float32", "bfloat16"])
+def test_batched_perceptual_distances_are_the_pair_by_pair_ones(precision) -> None:
+    """Runs of two sizes, masks (one keeping nothing: NaN) and none, every batch size and thread count; in either
+    precision of the VGG (bf16 too gives each sample the same features in any batch)."""
+    proxy = PerceptualDistance("proxy", vgg_state=random_state_dict(0, "relu5_3"), vgg_info={"source": "random (test)"},
+                               precision=precision)
     sizes = [(40, 56)] * 3 + [(32, 48)] * 2 + [(40, 56)] * 2
     a = [texture(h, w, k) for k, (h, w) in enumerate(sizes)]
     b = [np.clip(x + 0.2 * texture(*x.shape[:2], 50 + k) - 0.1, 0, 1) for k, x in enumerate(a)]

@@ -182,7 +182,8 @@ def evaluate_images(
     vgg_state, vgg_info = resolve_vgg16(vgg_params)  # one VGG-16 for the perceptual proxy and the Gram distance
     ssim = SSIM(params.ssim_impl)
     perceptual = perceptual or PerceptualDistance(params.perceptual, layers=params.proxy_layers, vgg_state=vgg_state,
-                                                  vgg_info=vgg_info.model_dump(), device=device)
+                                                  vgg_info=vgg_info.model_dump(), device=device,
+                                                  precision=params.proxy_precision)
     content = content_scores(originals, stylized, ssim, perceptual, workers)
     content_s = lap()
     if flows is None:
