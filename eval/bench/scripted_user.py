@@ -45,12 +45,14 @@ setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 # isort: split
 import cv2
 import numpy as np
+import torch
 
 from abcgs.io.images import load_image, save_image, to_uint8
-from abcgs.masks.field import LabelField, render_field
+from abcgs.masks.field import FieldResult, LabelField, render_field
+from abcgs.masks.lifting import blend_votes, lift_labels
 from abcgs.masks.page.field_session import FieldSession
 from abcgs.masks.page.strip import Strip
-from abcgs.masks.params import FieldParams
+from abcgs.masks.params import FieldParams, LiftParams
 from abcgs.masks.strokes import Stroke, rasterize_strokes
 from eval.bench.strokes import DATA, FittedCase, geometry_bound, load_case, view_strokes
 from eval.labels import score_labels, stroke_overlay
@@ -138,6 +140,49 @@ class ScriptedUser:
         f, r = self.session.field, self.session.result
         return {s: render_field(f, r, self.by_stem[s], cut_where_painted=not rendered,
                                 photo=None if rendered else self.photos[s]) for s in self.refs}
+
+
+SOURCES = ("undecided", "stroke", "lifted", "graph")
+""":attr:`abcgs.masks.field.FieldResult.source`'s values, by index."""
+
+
+def attribute(user: ScriptedUser, n_labels: int, test_stem: str) -> dict:
+    """Where the Gaussians-alone labels of the reference views go wrong at the end of a run, and why.
+
+    ``wrong_pixels``: of the wrong pixels (label ≠ reference, where the reference decided) of every reference view, the
+    share rendered mostly from Gaussians of each :data:`SOURCES` step (each source rendered as a label).
+    ``wrong_gaussians``: the Gaussians with a blending weight of at least 0.05 in the references other than the test
+    view, and at least half of it on wrong pixels (``right``: under a tenth). For those the cuts decided: ``test_ref``,
+    the share whose label is the one the test view's reference alone gives them (lifted, Eq. 2); ``test_ref_is_all``,
+    the share where that label is the one all references lifted together give them. A low ``test_ref_is_all`` says the
+    views' references disagree on those Gaussians: the test view sees them as one part, the others as another."""
+    f, r = user.session.field, user.session.result
+    model, cams = f.model, f.cameras
+    as_labels = FieldResult(r.source.astype(np.int64), np.ones_like(r.decided), r.probs, r.source, len(SOURCES) - 1, 0)
+    wrong_by = np.zeros(len(SOURCES))
+    on_wrong, on_valid = torch.zeros(model.num_gaussians), torch.zeros(model.num_gaussians)
+    for s, ref in user.refs.items():
+        i = user.by_stem[s]
+        valid = ref >= 0
+        wrong = (render_field(f, r, i, cut_where_painted=False) != ref) & valid
+        np.add.at(wrong_by, render_field(f, as_labels, i, cut_where_painted=False)[wrong], 1)
+        if s != test_stem:
+            w = blend_votes(model, cams[i], torch.from_numpy(np.stack([wrong, valid], -1).astype(np.float32)))
+            on_wrong, on_valid = on_wrong + w[:, 0], on_valid + w[:, 1]
+    share = (on_wrong / on_valid.clamp_min(1e-12)).numpy()
+    seen = on_valid.numpy() >= 0.05
+    groups = {"wrong": seen & (share >= 0.5), "right": seen & (share < 0.1)}
+    test = lift_labels(model, [cams[user.by_stem[test_stem]]], [user.refs[test_stem]], n_labels, LiftParams())
+    every = lift_labels(model, [cams[user.by_stem[s]] for s in user.refs], list(user.refs.values()), n_labels, LiftParams())
+    t_lab, t_dec, a_lab = test.labels.numpy(), test.decided.numpy(), every.labels.numpy()
+    out = {"wrong_pixels": dict(zip(SOURCES, (wrong_by / max(1.0, wrong_by.sum())).round(4).tolist())),
+           "wrong_gaussians": {}}
+    for name, m in groups.items():
+        m = m & (r.source == SOURCES.index("lifted"))
+        out["wrong_gaussians"][name] = {
+            "lifted": int(m.sum()), "test_ref": float(np.mean(t_dec[m] & (t_lab[m] == r.labels[m]))),
+            "test_ref_is_all": float(np.mean(t_dec[m] & (t_lab[m] == a_lab[m])))}
+    return out
 
 
 def stage_maps(user: ScriptedUser, params: FieldParams) -> dict[str, np.ndarray]:
@@ -234,12 +279,18 @@ def run_setting(case: FittedCase, params: FieldParams, max_strokes: int, radius:
     t0 = time.perf_counter()
     steps = run(user, front, view_strokes(items, spec, scene.cameras[front]), n_labels, max_strokes, radius)
     stage = score_labels(stage_maps(user, params), refs, n_labels).as_record()
+    why = attribute(user, n_labels, front_stem)
+    g = why["wrong_gaussians"]
+    print(f"wrong pixels by the step that labelled them: {why['wrong_pixels']}; of the Gaussians wrong in the other "
+          f"references that the cuts decided ({g['wrong']['lifted']}), {g['wrong']['test_ref']:.0%} carry the test view's "
+          f"reference label, which all references lifted together give {g['wrong']['test_ref_is_all']:.0%} of them "
+          f"(right ones: {g['right']['test_ref_is_all']:.0%})", flush=True)
     print(f"the masks stage on what the page saved: mean IoU {stage['mean_iou']:.3f} (the page: "
           f"{steps[-1]['mean_iou']:.3f})", flush=True)
     record = {"scene": spec["title"], "n_gaussians": model.num_gaussians, "views": len(scene.cameras),
               "labels": spec["labels"], "reference_views": list(refs), "field": params.model_dump(), "goal": GOAL,
               "geometry_bound": bound, "refined_bound": refined_bound, "steps": steps, "stage": stage,
-              "regression": regression(steps), "verdict": verdict(steps, refined_bound),
+              "regression": regression(steps), "verdict": verdict(steps, refined_bound), "attribution": why,
               "median_segment_seconds": statistics.median(s["seconds"]["total"] for s in steps),
               "seconds": time.perf_counter() - t0}
     print(json.dumps({"regression": record["regression"], "verdict": record["verdict"],
