@@ -49,7 +49,7 @@ import torch
 
 from abcgs.io.images import load_image, save_image, to_uint8
 from abcgs.masks.field import FieldResult, LabelField, render_field
-from abcgs.masks.lifting import blend_votes, lift_labels
+from abcgs.masks.lifting import blend_votes, lift_labels, occluded_gaussians, one_hot_labels
 from abcgs.masks.page.field_session import FieldSession
 from abcgs.masks.page.strip import Strip
 from abcgs.masks.params import FieldParams, LiftParams
@@ -155,7 +155,9 @@ def attribute(user: ScriptedUser, n_labels: int, test_stem: str) -> dict:
     view, and at least half of it on wrong pixels (``right``: under a tenth). For those the cuts decided: ``test_ref``,
     the share whose label is the one the test view's reference alone gives them (lifted, Eq. 2); ``test_ref_is_all``,
     the share where that label is the one all references lifted together give them. A low ``test_ref_is_all`` says the
-    views' references disagree on those Gaussians: the test view sees them as one part, the others as another."""
+    views' references disagree on those Gaussians: the test view sees them as one part, the others as another. Beside
+    them, how the test view saw each group: the median blending weight there, the median share of it on the cut's
+    label, and the share hidden behind its surface (:func:`abcgs.masks.lifting.occluded_gaussians`, tolerance 0.3)."""
     f, r = user.session.field, user.session.result
     model, cams = f.model, f.cameras
     as_labels = FieldResult(r.source.astype(np.int64), np.ones_like(r.decided), r.probs, r.source, len(SOURCES) - 1, 0)
@@ -175,13 +177,22 @@ def attribute(user: ScriptedUser, n_labels: int, test_stem: str) -> dict:
     test = lift_labels(model, [cams[user.by_stem[test_stem]]], [user.refs[test_stem]], n_labels, LiftParams())
     every = lift_labels(model, [cams[user.by_stem[s]] for s in user.refs], list(user.refs.values()), n_labels, LiftParams())
     t_lab, t_dec, a_lab = test.labels.numpy(), test.decided.numpy(), every.labels.numpy()
+    front = cams[user.by_stem[test_stem]]
+    cut = f.cut_of(user.by_stem[test_stem])
+    w = blend_votes(model, front, torch.cat([one_hot_labels(cut, int(cut.max(initial=0))),
+                                             torch.ones(*cut.shape, 1)], -1))
+    weight = w[:, -1].numpy()  # each Gaussian's blending weight in the test view
+    evidence = (w[:, :-1].max(1).values / w[:, -1].clamp_min(1e-12)).numpy()  # its cut's largest label share there
+    hidden = occluded_gaussians(model, front, 0.3).numpy()
     out = {"wrong_pixels": dict(zip(SOURCES, (wrong_by / max(1.0, wrong_by.sum())).round(4).tolist())),
            "wrong_gaussians": {}}
     for name, m in groups.items():
         m = m & (r.source == SOURCES.index("lifted"))
         out["wrong_gaussians"][name] = {
             "lifted": int(m.sum()), "test_ref": float(np.mean(t_dec[m] & (t_lab[m] == r.labels[m]))),
-            "test_ref_is_all": float(np.mean(t_dec[m] & (t_lab[m] == a_lab[m])))}
+            "test_ref_is_all": float(np.mean(t_dec[m] & (t_lab[m] == a_lab[m]))),
+            "test_view_weight": float(np.median(weight[m])), "test_cut_share": float(np.median(evidence[m])),
+            "hidden_in_test_view": float(hidden[m].mean())}
     return out
 
 
@@ -284,7 +295,10 @@ def run_setting(case: FittedCase, params: FieldParams, max_strokes: int, radius:
     print(f"wrong pixels by the step that labelled them: {why['wrong_pixels']}; of the Gaussians wrong in the other "
           f"references that the cuts decided ({g['wrong']['lifted']}), {g['wrong']['test_ref']:.0%} carry the test view's "
           f"reference label, which all references lifted together give {g['wrong']['test_ref_is_all']:.0%} of them "
-          f"(right ones: {g['right']['test_ref_is_all']:.0%})", flush=True)
+          f"(right ones: {g['right']['test_ref_is_all']:.0%}); in the test view, wrong / right ones: median weight "
+          f"{g['wrong']['test_view_weight']:.2f} / {g['right']['test_view_weight']:.2f}, on the cut's label "
+          f"{g['wrong']['test_cut_share']:.2f} / {g['right']['test_cut_share']:.2f}, hidden behind its surface "
+          f"{g['wrong']['hidden_in_test_view']:.0%} / {g['right']['hidden_in_test_view']:.0%}", flush=True)
     print(f"the masks stage on what the page saved: mean IoU {stage['mean_iou']:.3f} (the page: "
           f"{steps[-1]['mean_iou']:.3f})", flush=True)
     record = {"scene": spec["title"], "n_gaussians": model.num_gaussians, "views": len(scene.cameras),
