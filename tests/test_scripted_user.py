@@ -59,3 +59,33 @@ def test_the_regression_check_finds_the_worst_drop_of_the_mean_and_of_a_view() -
     assert verdict(steps, low_bound)["pairs"]  # against a bound of 0.62, 0.59 is within 0.05
     ok = verdict([step(15, 0.8, 0.8), step(16, 0.8, 0.795)], bound)
     assert ok["mean_drop"] and ok["view_drop"] and ok["mean_iou"] and ok["pairs"]
+
+
+def test_the_attribution_finds_gaussians_the_references_disagree_on() -> None:
+    """The test view's cut is its reference (ball and wall); the other views' references call the ball wall. The ball's
+    Gaussians, decided by the cut, are then wrong in those views, carry the test view's reference label, and all
+    references lifted together give that label to few of them; with references that agree, nothing is wrong."""
+    from types import SimpleNamespace
+
+    from abcgs.masks.field import LabelField
+    from abcgs.masks.lifting import render_label_map
+    from eval.bench.scripted_user import attribute
+    from tests.test_content_masks import cameras, wall_and_ball
+
+    model, truth = wall_and_ball(1)
+    cams = cameras(3)
+    maps = [render_label_map(model, truth, 2, c) for c in cams]
+    field = LabelField(model, cams)
+    field.set_view(0, maps[0])
+    session = SimpleNamespace(field=field, result=field.solve())
+    by_stem = {f"v{i}": i for i in range(3)}
+    agree = attribute(SimpleNamespace(session=session, refs={f"v{i}": m for i, m in enumerate(maps)}, by_stem=by_stem),
+                      2, "v0")
+    wall = [np.where(m == 1, 2, m) for m in maps[1:]]
+    disagree = attribute(SimpleNamespace(session=session, refs={"v0": maps[0], "v1": wall[0], "v2": wall[1]},
+                                         by_stem=by_stem), 2, "v0")
+    g = disagree["wrong_gaussians"]
+    assert g["wrong"]["lifted"] > 20 and g["wrong"]["lifted"] > 5 * agree["wrong_gaussians"]["wrong"]["lifted"]
+    assert g["wrong"]["test_ref"] > 0.9 and g["wrong"]["test_ref_is_all"] < 0.2
+    assert g["right"]["test_ref_is_all"] > 0.9 and disagree["wrong_pixels"]["lifted"] > 0.5
+    assert g["wrong"]["hidden_in_test_view"] < 0.1 and g["wrong"]["test_view_weight"] > 0  # measured 2.7 %

@@ -188,11 +188,11 @@ def attribute(user: ScriptedUser, n_labels: int, test_stem: str) -> dict:
            "wrong_gaussians": {}}
     for name, m in groups.items():
         m = m & (r.source == SOURCES.index("lifted"))
-        out["wrong_gaussians"][name] = {
-            "lifted": int(m.sum()), "test_ref": float(np.mean(t_dec[m] & (t_lab[m] == r.labels[m]))),
-            "test_ref_is_all": float(np.mean(t_dec[m] & (t_lab[m] == a_lab[m]))),
-            "test_view_weight": float(np.median(weight[m])), "test_cut_share": float(np.median(evidence[m])),
-            "hidden_in_test_view": float(hidden[m].mean())}
+        stats = {"test_ref": t_dec & (t_lab == r.labels), "test_ref_is_all": t_dec & (t_lab == a_lab),
+                 "test_view_weight": weight, "test_cut_share": evidence, "hidden_in_test_view": hidden}
+        out["wrong_gaussians"][name] = {"lifted": int(m.sum()), **{  # shares are means, the rest medians; nan if none
+            k: float("nan") if not m.any() else float(np.median(v[m]) if v.dtype != bool else v[m].mean())
+            for k, v in stats.items()}}
     return out
 
 
