@@ -6,13 +6,13 @@
     READERS.items()              # name → item, in ``order``
     READERS.register(toy)        # a format added at run time (a test's toy format)
 
-The built-in formats are the modules of one package (``abcgs.sources.formats``: scene readers, each defining
-``READER``; ``abcgs.splats.formats``: splat codecs, each defining ``FORMAT``), imported on first use in name order; a
-module without the attribute is a helper. Where the registry names an environment variable, the ``*.py`` files of
-the folders it lists (``os.pathsep``-separated; not ``_*.py``, the helpers) are imported as ``<plugin_package>.<stem>``
-and each must define the attribute. An item's ``name`` is unique; a built-in one cannot be removed. Adding a format is
-adding one module: :mod:`abcgs.sources.registry` and :mod:`abcgs.splats.registry` are this class with their kind's
-lookups around it.
+The built-in formats are the modules of one package (``abcgs.sources.formats``: scene readers, each defining ``READER``;
+``abcgs.splats.formats``: splat codecs, each defining ``FORMAT``), imported on first use in name order; a module without
+the attribute is a helper. Where the registry names an environment variable, the ``*.py`` files of the folders it lists
+(``os.pathsep``-separated; not ``_*.py``, the helpers) are imported as ``<env variable, lowercase>.<stem>``
+(``abcgs_readers.my_format``) and each must define the attribute. An item's ``name`` is unique; a built-in one cannot be
+removed. Adding a format is adding one module: :mod:`abcgs.sources.registry` and :mod:`abcgs.splats.registry` are this
+class with their kind's lookups around it.
 """
 
 from __future__ import annotations
@@ -43,7 +43,6 @@ class Registry(Generic[T]):
         attribute: the module attribute that holds a format's item (``"READER"``).
         order: the sort key of :meth:`items` (e.g. detection priority, then name).
         plugins_env: the environment variable naming plugin folders, or ``None`` (built-in and registered only).
-        plugin_package: the package name plugin modules are imported under (default: the env variable, lowercase).
         on_change: called after the set of items changed (a cache built from them is cleared).
     """
 
@@ -53,7 +52,6 @@ class Registry(Generic[T]):
     attribute: str
     order: Callable[[T], Any]
     plugins_env: str | None = None
-    plugin_package: str | None = None
     on_change: Callable[[], None] | None = None
     _items: dict[str, T] = field(default_factory=dict, init=False, repr=False)
     _built_in: set[str] = field(default_factory=set, init=False, repr=False)
@@ -88,8 +86,8 @@ class Registry(Generic[T]):
         return dirs
 
     def _plugin_item(self, path: Path) -> T:
-        """The item of the plugin module ``path``, imported as ``<plugin_package>.<stem>``."""
-        name = f"{self.plugin_package or str(self.plugins_env).lower()}.{path.stem}"
+        """The item of the plugin module ``path``, imported as ``<plugins_env, lowercase>.<stem>``."""
+        name = f"{str(self.plugins_env).lower()}.{path.stem}"
         spec = importlib.util.spec_from_file_location(name, path)
         if spec is None or spec.loader is None:
             raise InputError(f"{self.plugins_env}: {path} cannot be imported as a Python module")
