@@ -9,7 +9,7 @@
 //
 // Included by kernels.cpp after projection_cpu.cpp, rasterize_cpu.cpp and sh_cpu.cpp (one translation unit).
 
-#include <torch/extension.h>
+#include "torch_api.h"
 
 #include <vector>
 

@@ -16,7 +16,7 @@
 //
 // Determinism: the terms are summed per chunk in double, in index order, and the chunks' sums are added in chunk
 // order, so the value does not depend on the thread count; each gradient element is written by one chunk.
-#include <torch/extension.h>
+#include "torch_api.h"
 
 #include <algorithm>
 #include <cmath>

@@ -19,7 +19,7 @@
 //
 // Determinism: every output element is written by one block, and the sums (L1, SSIM) are accumulated per
 // block in double and added in block order, so results do not depend on the thread count.
-#include <torch/extension.h>
+#include "torch_api.h"
 
 #include <algorithm>
 #include <cmath>

@@ -9,7 +9,7 @@
 //
 // Sixteen independent float accumulators (a vectorisable pattern without -ffast-math), summed at the end.
 // Every pair is written by exactly one worker: results do not depend on the thread count.
-#include <torch/extension.h>
+#include "torch_api.h"
 
 #include <algorithm>
 #if defined(__AVX__)

@@ -16,7 +16,7 @@
 // for fern's 92k Gaussians on two Zen 4 cores, now 0.8 and 0.9 ms: eval/bench_render_scene.py) gave the same
 // bits in float32.
 
-#include <torch/extension.h>
+#include "torch_api.h"
 
 #include "parallel.h"
 #include "thresholds.h"

@@ -21,7 +21,7 @@
 // state of a tile is kept by plane. The parameters a tile reads are packed in depth order (GaussianView), so a tile's list
 // walks one array forwards.
 
-#include <torch/extension.h>
+#include "torch_api.h"
 
 #include "fast_exp.h"
 #include "parallel.h"

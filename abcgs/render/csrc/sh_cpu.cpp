@@ -7,7 +7,7 @@
 // writes only the gradients asked for (the higher bands' and the means' are skipped when they are frozen).
 // Each row is computed by one worker, so results do not depend on the thread count (parallel.h).
 
-#include <torch/extension.h>
+#include "torch_api.h"
 
 #include <cmath>
 #include <cstdint>
