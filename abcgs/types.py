@@ -70,6 +70,10 @@ FlowMethod = Literal["auto", "raft", "dis", "deepflow", "dualtvl1"]
 """Optical flow of the consistency metrics (:mod:`abcgs.evaluation.consistency`): torchvision's RAFT, OpenCV's
 DIS, DeepFlow or Dual TV-L1; ``auto`` = RAFT when its weights are on disk, else DIS."""
 
+VggPrecision = Literal["auto", "float32", "bfloat16"]
+"""``evaluate.proxy_precision``: the perceptual proxy's VGG convolutions
+(:func:`abcgs.evaluation.content.proxy_precision`)."""
+
 
 # ------------------------------------------------------------------------------------------------ interfaces
 class FlowEstimatorLike(Protocol):

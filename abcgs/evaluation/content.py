@@ -47,6 +47,7 @@ from torch import Tensor
 
 from abcgs.errors import InputError
 from abcgs.evaluation.parallel import ordered_map
+from abcgs.types import VggPrecision
 
 log = logging.getLogger(__name__)
 
@@ -192,7 +193,6 @@ def real_lpips_status() -> tuple[bool, str]:
     return True, "lpips package + cached AlexNet backbone"
 
 
-VggPrecision = Literal["auto", "float32", "bfloat16"]
 PROXY_BF16_TOLERANCE = 1e-3
 """The stated bound on the change of one ``lpips_proxy_vgg`` distance (absolute, in the distance's units) when its
 convolutions run in bfloat16 instead of float32: bf16 rounds each conv input and weight to 8 significant bits; the sums

@@ -7,7 +7,7 @@ from typing import ClassVar, Literal
 from pydantic import ConfigDict, Field
 
 from abcgs.sections import MAX_THREADS, SEED, Bound, Bounded
-from abcgs.types import Backend, FlowMethod
+from abcgs.types import Backend, FlowMethod, VggPrecision
 
 LPIPS_VGG_LAYERS = ("relu1_2", "relu2_2", "relu3_3", "relu4_3", "relu5_3")
 """The five VGG-16 taps of LPIPS-vgg (Zhang et al. 2018), used by the ``lpips_proxy_vgg`` distance."""
@@ -32,9 +32,9 @@ class EvalParams(Bounded):
         "else the VGG feature distance lpips_proxy_vgg; lpips: require the real one; proxy: always the proxy",
     )
     proxy_layers: list[str] = Field(default_factory=lambda: list(LPIPS_VGG_LAYERS), description="VGG taps of the proxy")
-    proxy_precision: Literal["auto", "float32", "bfloat16"] = Field(
+    proxy_precision: VggPrecision = Field(
         "auto", description="the proxy's VGG convolutions: auto = bfloat16 on a CPU with native bf16 products (AMX or "
-        "AVX512-BF16; about 3.5x faster, each distance within 3e-3 of float32's, docs/METRICS.md), else float32",
+        "AVX512-BF16; 2.5 to 3.5x faster, each distance within 1e-3 of float32's, docs/METRICS.md), else float32",
     )
     # consistency
     flow: FlowMethod = Field(

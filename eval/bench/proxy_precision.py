@@ -14,7 +14,6 @@ mean; exits 1 when a change is over it.
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
@@ -31,43 +30,31 @@ from abcgs import layout
 from abcgs.errors import InputError
 from abcgs.evaluation.consistency import FlowCache, consistency
 from abcgs.evaluation.content import PROXY_BF16_TOLERANCE, PerceptualDistance
+from abcgs.evaluation.evaluate import load_stylize_run
 from abcgs.evaluation.parallel import resolve_workers
+from abcgs.evaluation.reference import load_reference
 from abcgs.features.weights import resolve_vgg16
 from abcgs.io.images import load_image
+from abcgs.io.metrics import info_path
 from abcgs.params import load_params
+from abcgs.sfm.model import read_scene
 from eval.record import bench_parser, write_record
 
 PRECISIONS = ("float32", "bfloat16")
 
 
-def _keyed(path: Path) -> dict:
-    """``flows.npz`` / ``masks.npz`` entries by ``(i, j, (h, w))``; masks unpacked to bool."""
-    out = {}
-    with np.load(path) as z:
-        for name in z.files:
-            i, j, h, w = (int(v) for v in name.split("_"))
-            a = z[name]
-            out[(i, j, (h, w))] = np.unpackbits(a, count=h * w).reshape(h, w).astype(bool) if "masks" in path.name else a
-    return out
-
-
-def load_views(out: Path, experiment: str, scene: str) -> tuple[list[np.ndarray], list[np.ndarray], FlowCache, list]:
-    """The original and stylized renders in the reference's view order, its stored flows and masks, and its pairs."""
-    ref = layout.scene(scene, out).reference
-    if not (ref / "reference.json").is_file():
-        raise InputError(f"{ref} holds no evaluation reference: run dvc repro reference@{scene} first")
-    names = json.loads((ref / "reference.json").read_text(encoding="utf-8"))["view_names"]
-    with np.load(ref / "renders.npz") as z:
-        originals = [z[f"view_{k:04d}"] for k in range(len(names))]
-    renders = layout.experiment(experiment, out).stylize.renders
-    pngs = {p.stem: p for p in renders.glob("*.png")}
-    missing = [n for n in names if Path(n).stem not in pngs]
-    if missing:
-        raise InputError(f"{renders} lacks renders of {missing[:3]}: run dvc repro stylize@{experiment} first")
-    stylized = [load_image(pngs[Path(n).stem]) for n in names]
-    masks = _keyed(ref / "masks.npz")
-    flows = FlowCache.precomputed(originals, _keyed(ref / "flows.npz"), {}, masks)
-    return originals, stylized, flows, [(i, j) for i, j, _ in masks]
+def load_views(out: Path, experiment: str, scene: str, params) -> tuple[list, list, FlowCache, list]:
+    """The original renders, the stored flows and masks and the pairs of the scene's reference
+    (:func:`abcgs.evaluation.reference.load_reference`, which checks them), and the stylized renders in its view order
+    (:func:`abcgs.evaluation.evaluate.load_stylize_run`)."""
+    s, e = layout.scene(scene, out), layout.experiment(experiment, out)
+    cameras = read_scene(s.colmap.root).cameras
+    ref = load_reference(s.reference, cameras, params.evaluate, scene=scene)
+    stems = [Path(c.name).stem for c in cameras]
+    _, _, pngs = load_stylize_run(e.stylize, info_path(e.stylize_record), experiment, stems)
+    stylized = [load_image(p) for p in pngs[: len(ref.originals)]]
+    flows = FlowCache.precomputed(ref.originals, ref.flows, {}, ref.masks)
+    return ref.originals, stylized, flows, [*ref.pairs.short, *ref.pairs.long]
 
 
 def measure(originals, stylized, flows, pairs, views: int, workers: int) -> dict:
@@ -104,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         params = load_params()
         scene = args.scene or params.experiments[args.experiment].scene
-        originals, stylized, flows, pairs = load_views(args.out, args.experiment, scene)
+        originals, stylized, flows, pairs = load_views(args.out, args.experiment, scene, params)
     except (InputError, KeyError) as exc:
         print(f"proxy_precision: {exc}", file=sys.stderr)
         return 2
