@@ -51,6 +51,10 @@ from abcgs.types import Backend
 log = logging.getLogger(__name__)
 
 
+SOURCES = ("undecided", "stroke", "lifted", "graph")
+""":attr:`FieldResult.source`'s values by index: how each Gaussian's label was decided."""
+
+
 @dataclass
 class FieldResult:
     """Per-Gaussian labels and how they were decided.
@@ -70,8 +74,7 @@ class FieldResult:
     def counts(self) -> dict[str, int]:
         """How many Gaussians each step decided (``stroke``, ``lifted``, ``graph``) and how many it left
         ``undecided``."""
-        names = ("undecided", "stroke", "lifted", "graph")
-        return {n: int((self.source == i).sum()) for i, n in enumerate(names)}
+        return {n: int((self.source == i).sum()) for i, n in enumerate(SOURCES)}
 
 
 @dataclass

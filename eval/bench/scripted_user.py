@@ -48,7 +48,7 @@ import numpy as np
 import torch
 
 from abcgs.io.images import load_image, save_image, to_uint8
-from abcgs.masks.field import FieldResult, LabelField, render_field
+from abcgs.masks.field import SOURCES, FieldResult, LabelField, render_field
 from abcgs.masks.lifting import blend_votes, lift_labels, occluded_gaussians, one_hot_labels
 from abcgs.masks.page.field_session import FieldSession
 from abcgs.masks.page.strip import Strip
@@ -140,10 +140,6 @@ class ScriptedUser:
         f, r = self.session.field, self.session.result
         return {s: render_field(f, r, self.by_stem[s], cut_where_painted=not rendered,
                                 photo=None if rendered else self.photos[s]) for s in self.refs}
-
-
-SOURCES = ("undecided", "stroke", "lifted", "graph")
-""":attr:`abcgs.masks.field.FieldResult.source`'s values, by index."""
 
 
 def attribute(user: ScriptedUser, n_labels: int, test_stem: str) -> dict:
