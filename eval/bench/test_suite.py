@@ -4,8 +4,9 @@ tests are added.
     python -m eval run test_suite --json docs/measurements/test_suite.json        # the whole suite (what CI runs)
     python -m eval run test_suite -- tests/test_label_field.py -x                  # any pytest arguments after --
 
-Runs ``python -m pytest -q`` in the repository as ``make test`` does (one process; ``--workers N``: N processes of
-pytest-xdist, each test file on one), with a JUnit XML report (pytest's own ``--junitxml``) in a
+Runs ``python -m pytest -q`` in the repository as ``make test`` does (``--workers 2``: two processes of pytest-xdist,
+``--dist loadfile``, where ``tests/conftest.py`` makes the files that run pipelines one lane; ``--workers 0``: one
+process), with a JUnit XML report (pytest's own ``--junitxml``) in a
 temporary folder, reads each test case's seconds from it and prints: the wall time, the counts (passed, failed,
 skipped, errors), the files by their summed seconds and the ``--slowest`` (30) tests. The record keeps them all,
 with pytest's exit code; the command's own exit code is pytest's.
@@ -28,14 +29,14 @@ setup()  # before anything that may load torch: OpenMP's wait policy, OpenCV bef
 from eval.record import bench_parser, write_record
 
 REPO = Path(__file__).resolve().parents[2]
-WORKERS = 0
-"""pytest-xdist processes of ``make test``: none (one process). Two took longer on the 2-core machine, where the
-end-to-end pipelines already use both cores (docs/SCALING.md "The test suite")."""
+WORKERS = 2
+"""pytest-xdist processes of ``make test``: two, the pipelines lane on one and the other files on the other
+(docs/SCALING.md "The test suite")."""
 
 
 def worker_args(workers: int) -> list[str]:
-    """pytest's arguments for ``workers`` processes, each test file on one (its module fixtures computed once); none
-    for 0 (one process)."""
+    """pytest's arguments for ``workers`` processes, each test file on one (its module fixtures computed once; in this
+    repository's tests the pipelines lane's files count as one); none for 0 (one process)."""
     return ["-n", str(workers), "--dist", "loadfile"] if workers else []
 
 
