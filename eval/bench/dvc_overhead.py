@@ -29,6 +29,11 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from abcgs.runtime import setup
+
+setup()  # before anything that may load torch: OpenMP's wait policy, OpenCV before pycolmap
+
+# isort: split
 from abcgs.pipeline import DVC_STAGE_ENV
 from eval.bench.regression import reduce
 from eval.bench.repo_copy import copy_repo, run_in
