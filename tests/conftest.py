@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import ast
 import contextlib
+import functools
 import os
 from pathlib import Path
 
@@ -81,8 +82,10 @@ class PipelineLane:
     DVC bookkeeping and Python start-ups keep only one core busy at a time, while the other runs the remaining files;
     each file's module fixtures and the lane's shared ``tiny_pipeline`` are computed once."""
 
-    def __init__(self) -> None:
-        self.lane = pipeline_lane_files()
+    @functools.cached_property
+    def lane(self) -> frozenset[str]:
+        """:func:`pipeline_lane_files`, read on first use: a run without xdist's processes never parses them."""
+        return pipeline_lane_files()
 
     def pytest_xdist_make_scheduler(self, config: pytest.Config, log):
         if config.getvalue("dist") != "loadfile":

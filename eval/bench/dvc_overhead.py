@@ -5,7 +5,7 @@
 
 The working tree is copied into a fresh git + DVC repository (``eval/bench/repo_copy.py``) with the regression runs'
 REDUCED schedule, keeping the committed ``dvc.lock`` (every stage's entry, as on a clone), and ``dvc repro
-export_scene@tiny`` runs the stages that one needs. Then, each timed ``--repeats`` times (median):
+export_scene@tiny`` runs the stages that one needs. Then, each timed ``--repeats`` times after one untimed run (median):
 
 - ``lock``: ruamel.yaml, which DVC uses, reading that ``dvc.lock`` the way DVC's checks do (``typ="safe"``: with the C
   loader of ``ruamel.yaml.clib`` where it is installed, and in pure Python) and the way DVC rewrites it after every
@@ -23,9 +23,7 @@ import os
 import shlex
 import statistics
 import subprocess
-import sys
 import tempfile
-import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -37,6 +35,7 @@ setup()  # before anything that may load torch: OpenMP's wait policy, OpenCV bef
 from abcgs.pipeline import DVC_STAGE_ENV
 from eval.bench.regression import reduce
 from eval.bench.repo_copy import copy_repo, run_in
+from eval.bench.timing import repeat_seconds
 from eval.record import bench_parser, write_record
 
 STAGE = "export_scene@tiny"
@@ -44,12 +43,8 @@ STAGE = "export_scene@tiny"
 
 
 def _median_s(fn: Callable[[], object], repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return round(statistics.median(times), 3)
+    """Median seconds of ``repeats`` calls of ``fn`` after one untimed warm-up call (:func:`repeat_seconds`)."""
+    return round(statistics.median(repeat_seconds(fn, repeats)), 3)
 
 
 def lock_parse_seconds(text: str, repeats: int) -> dict:
@@ -96,15 +91,13 @@ def measure(repo: Path, repeats: int) -> dict:
     lock_path = repo / "dvc.lock"
     text = lock_path.read_text(encoding="utf-8")
     stages = yaml.safe_load(text)["stages"]
-    cmd = shlex.split(stages[STAGE]["cmd"])
-    cmd = [sys.executable if cmd[0] == "python" else cmd[0], *cmd[1:]]
+    cmd = shlex.split(stages[STAGE]["cmd"])  # `python ...`: run_in puts this interpreter first on PATH, as DVC has it
 
     def through_dvc() -> None:
         _checked(run_in(["dvc", "repro", "--force", "--single-item", STAGE], repo), "dvc repro --force")
 
     def alone() -> None:
-        env = {**os.environ, DVC_STAGE_ENV: STAGE}
-        _checked(subprocess.run(cmd, cwd=repo, env=env, capture_output=True, text=True), f"{STAGE}'s command")
+        _checked(run_in(cmd, repo, env={**os.environ, DVC_STAGE_ENV: STAGE}), f"{STAGE}'s command")
 
     stage = {"through_dvc": _median_s(through_dvc, repeats), "alone": _median_s(alone, repeats)}
     stage["dvc_adds"] = round(stage["through_dvc"] - stage["alone"], 3)
