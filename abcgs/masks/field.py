@@ -303,6 +303,19 @@ def cut_painted_view(field: LabelField, result: FieldResult | None, index: int, 
     return np.where(seg.claimed & (seg.margin >= min_margin), seg.labels, NO_VOTE).astype(np.int64)
 
 
+def refine_labels(weights: np.ndarray, alpha: np.ndarray, photo: np.ndarray, params: FieldParams) -> np.ndarray:
+    """A view's labels ``(H, W) int64`` from its rendered label weights ``(H, W, L + 2)`` and alpha ``(H, W, 1)``
+    (:func:`~abcgs.masks.lifting.render_label_weights`), refined against its ``photo`` ``(H, W, 3) uint8`` as
+    ``params`` say (``edge_filter``, ``edge_radius``, ``edge_colour``, ``edge_eps``:
+    :func:`abcgs.masks.edges.refine_to_photo`) and rid of regions under ``min_region`` of the view
+    (:func:`abcgs.masks.edges.drop_specks`)."""
+    from abcgs.masks.edges import drop_specks, refine_to_photo
+
+    out = refine_to_photo(weights, alpha, photo, params.edge_radius, params.edge_eps, method=params.edge_filter,
+                          colour=params.edge_colour)
+    return drop_specks(out, int(params.min_region * out.size))
+
+
 def render_field(field: LabelField, result: FieldResult, index: int, *, threshold: float = 0.0,
                  cut_where_painted: bool = True, photo: np.ndarray | None = None) -> np.ndarray:
     """The labels of view ``index`` ``(H, W) int64``: rendered from ``result`` (a pixel takes the label of largest
@@ -311,16 +324,13 @@ def render_field(field: LabelField, result: FieldResult, index: int, *, threshol
     refined against the photo's edges instead (:func:`abcgs.masks.edges.refine_to_photo`: borders on the photo's
     edges, undecided pixels given the label around them); and, on a painted view with ``cut_where_painted``, its cut
     wherever the cut decided: a painted view keeps what the user saw and accepted on the page."""
-    from abcgs.masks.edges import drop_specks, refine_to_photo
     from abcgs.masks.lifting import pick_labels, render_label_weights
 
     img, alpha = render_label_weights(field.model, torch.as_tensor(result.labels), result.n_labels,
                                       field.cameras[index], decided=torch.as_tensor(result.decided),
                                       backend=field.backend)
-    p = field.params
-    if photo is not None and p.edge_radius > 0:
-        out = refine_to_photo(img.numpy(), alpha.numpy(), photo, p.edge_radius, p.edge_eps)
-        out = drop_specks(out, int(p.min_region * out.size))
+    if photo is not None and field.params.edge_radius > 0:
+        out = refine_labels(img.numpy(), alpha.numpy(), photo, field.params)
     else:
         out = pick_labels(img, alpha, threshold, undecided=0).numpy().astype(np.int64)
     cut = field.cut_of(index) if cut_where_painted else None

@@ -12,6 +12,9 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from abcgs.types import Backend
 
+EdgeFilter = Literal["domain", "guided"]
+"""How a view's rendered labels are refined against its photo (:mod:`abcgs.masks.edges`)."""
+
 UNDECIDED = 255
 """Value, in a saved label PNG, of a pixel the cut left undecided (no cut, stroke or gap fill claimed it). Lifted, it
 votes for nothing (:data:`abcgs.masks.lifting.NO_VOTE`): a gap the cut could not decide is not the user's "no label",
@@ -106,16 +109,24 @@ class FieldParams(BaseModel):
     region_tolerance: float = Field(
         12.0, gt=0.0, le=200.0, description="correction: region: the largest CIELAB distance (ΔE*ab) from a stroke's "
         "mean colour that its region takes in")
+    edge_filter: EdgeFilter = Field(
+        "domain", description="how each view's labels rendered from the Gaussians are refined against its photo "
+        "(abcgs.masks.edges): domain: the domain transform's normalized convolution, a label spreads along the photo "
+        "over edge_radius and stops at changes of colour of several edge_colour; guided: a guided filter of radius "
+        "edge_radius and regularisation edge_eps")
     edge_radius: float = Field(
-        0.01, ge=0.0, le=0.5, description="each view's labels rendered from the Gaussians are refined against its "
-        "photo's edges by a guided filter of this radius (share of the view's shorter side; 0: not refined)")
+        0.25, ge=0.0, le=1.0, description="how far a label spreads along the photo when refined, a share of the "
+        "view's shorter side (domain: the spatial sigma; guided: the radius, e.g. 0.01; 0: not refined)")
+    edge_colour: float = Field(
+        80.0, gt=0.0, le=3000.0, description="edge_filter: domain: the colour sigma, in 8-bit levels: a step of "
+        "colour whose RGB differences sum to this counts as edge_radius of distance")
     min_region: float = Field(
         0.003, ge=0.0, le=0.1, description="with edge_radius > 0: a region of one label in a view's refined labels "
         "smaller than this share of the view's pixels takes the label around it (abcgs.masks.edges.drop_specks; "
         "0: kept)")
     edge_eps: float = Field(
-        1e-2, gt=0.0, le=1.0, description="the guided filter's regularisation (photo in 0..1): an edge of contrast "
-        "above about its square root holds a label's border")
+        1e-2, gt=0.0, le=1.0, description="edge_filter: guided: the filter's regularisation (photo in 0..1): an edge "
+        "of contrast above about its square root holds a label's border")
     cut_evidence: Literal["soft", "hard"] = Field(
         "soft", description="soft: each painted view's cut is evidence weighted by how sure it is (near its own "
         "strokes, GrabCut's margin), a prior of the 3-D step that no cut can make override a stroke; hard: a "

@@ -280,7 +280,7 @@ def run_setting(case: FittedCase, params: FieldParams, max_strokes: int, radius:
     bound = geometry_bound(model, scene.cameras, by_stem, refs, list(refs), n_labels)
     user = ScriptedUser(model, scene, refs, by_stem, params, strip)
     refined_bound = geometry_bound(model, scene.cameras, by_stem, refs, list(refs), n_labels, user.photos,
-                                   (params.edge_radius, params.edge_eps))
+                                   params)
     print(f"bound (six reference maps lifted): mean IoU {bound['mean_iou']:.3f} rendered from the Gaussians, "
           f"{refined_bound['mean_iou']:.3f} refined against the photos", flush=True)
     t0 = time.perf_counter()

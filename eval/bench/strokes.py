@@ -49,7 +49,7 @@ from abcgs.layout import ColmapDir
 from abcgs.masks.content import ContentMasks, label_paths_in, make_content_masks, recut_outputs
 from abcgs.masks.grabcut import segment
 from abcgs.masks.lifting import NO_VOTE, LiftResult, lift_labels, render_label_map
-from abcgs.masks.params import UNDECIDED, LiftParams, MaskParams, RefineParams
+from abcgs.masks.params import UNDECIDED, FieldParams, LiftParams, MaskParams, RefineParams
 from abcgs.masks.strokes import Stroke
 from abcgs.sfm.model import read_scene
 from abcgs.types import CalibratedScene
@@ -116,24 +116,23 @@ def make_reference(scene, spec: dict, out: Path, check: Path | None, only: list[
 
 
 def geometry_bound(model, cams, by_stem: dict, refs: dict, scored: list[str], n_labels: int,
-                   photos: dict[str, np.ndarray] | None = None, edge: tuple[float, float] = (0.0, 0.0)) -> dict:
+                   photos: dict[str, np.ndarray] | None = None, refine: FieldParams | None = None) -> dict:
     """What the fitted scene's geometry allows: every reference map (the stroked view's too) lifted (Eq. 2) and
     rendered into each scored view, its own map included, scored like the test. A label rendered from the Gaussians
     cannot follow the photo better than this where the view's camera or the geometry is off. With the scored views'
-    ``photos`` (stem → ``(H, W, 3) uint8``) and ``edge`` = (radius, eps) of a guided filter, the rendered labels are
-    refined against each photo's edges first (:func:`abcgs.masks.edges.refine_to_photo`): the bound of the refined
-    maps."""
-    from abcgs.masks.edges import refine_to_photo
+    ``photos`` (stem → ``(H, W, 3) uint8``) and ``refine``'s edge settings, the rendered labels are refined against
+    each photo as the stage refines them (:func:`abcgs.masks.field.refine_labels`): the bound of the refined maps."""
+    from abcgs.masks.field import refine_labels
     from abcgs.masks.lifting import render_label_weights
 
     lifted = lift_labels(model, [cams[by_stem[s]] for s in refs], list(refs.values()), n_labels, LiftParams())
     maps = {}
     for s in scored:
-        if photos is None:
+        if photos is None or refine is None or refine.edge_radius <= 0:
             maps[s] = render_label_map(model, lifted.labels, n_labels, cams[by_stem[s]])
         else:
             img, alpha = render_label_weights(model, lifted.labels, n_labels, cams[by_stem[s]])
-            maps[s] = refine_to_photo(img.numpy(), alpha.numpy(), photos[s], *edge)
+            maps[s] = refine_labels(img.numpy(), alpha.numpy(), photos[s], refine)
     scores = score_labels(maps, {s: refs[s] for s in scored}, n_labels)
     return {"per_view": scores.iou, "mean_iou": scores.mean_iou, "worst_iou": scores.worst_per_label(absent=1.0)}
 
