@@ -321,8 +321,8 @@ def render_field(field: LabelField, result: FieldResult, index: int, *, threshol
     """The labels of view ``index`` ``(H, W) int64``: rendered from ``result`` (a pixel takes the label of largest
     blending weight, if it holds at least ``threshold`` of its alpha; 0 where none does, where nothing is rendered,
     and where undecided Gaussians win); with the view's ``photo`` ``(H, W, 3) uint8`` and ``edge_radius`` > 0,
-    refined against the photo's edges instead (:func:`abcgs.masks.edges.refine_to_photo`: borders on the photo's
-    edges, undecided pixels given the label around them); and, on a painted view with ``cut_where_painted``, its cut
+    refined against the photo instead (:func:`refine_labels`: borders on the photo's edges, undecided pixels given
+    the label around them, specks dropped); and, on a painted view with ``cut_where_painted``, its cut
     wherever the cut decided: a painted view keeps what the user saw and accepted on the page."""
     from abcgs.masks.lifting import pick_labels, render_label_weights
 
