@@ -13,6 +13,12 @@ from abcgs.masks.field import refine_labels
 from abcgs.masks.params import FieldParams
 
 H, W = 60, 90
+_FIELD = FieldParams()
+
+
+def _refine(w: np.ndarray, a: np.ndarray, photo: np.ndarray, radius: float, method: str = "domain") -> np.ndarray:
+    """:func:`refine_to_photo` with ``masks.field``'s default colour σ and regularisation."""
+    return refine_to_photo(w, a, photo, method=method, radius=radius, colour=_FIELD.edge_colour, eps=_FIELD.edge_eps)
 
 
 def _weights(labels: np.ndarray, n_labels: int, undecided: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -39,7 +45,7 @@ def test_a_border_a_few_pixels_off_moves_onto_the_photos_edge() -> None:
     rendered = np.where(np.arange(W)[None, :] < 42, 1, 2).repeat(H, 0)  # the photo's edge is at 45
     rendered[:, 49:52] = 1  # and a 3-px line of label 1 on the other side
     w, a = _weights(rendered, 2)
-    out = refine_to_photo(w, a, photo, 0.25, method="domain")
+    out = _refine(w, a, photo, 0.25)
     assert (out[:, :45] == 1).all() and (out[:, 45:] == 2).all()
 
 
@@ -48,8 +54,8 @@ def test_the_domain_transform_outweighs_a_blob_that_the_guided_filter_keeps() ->
     rendered = np.where(np.arange(W)[None, :] < 45, 1, 2).repeat(H, 0)
     rendered[20:32, 12:24] = 2  # 12 × 12 px of the bright side's label on the dark side
     w, a = _weights(rendered, 2)
-    domain = refine_to_photo(w, a, photo, 0.25, method="domain")
-    guided = refine_to_photo(w, a, photo, 0.01, method="guided")
+    domain = _refine(w, a, photo, 0.25)
+    guided = _refine(w, a, photo, 0.01, "guided")
     assert (domain[:, :45] == 1).all() and (domain[:, 45:] == 2).all()
     assert (guided[22:30, 14:22] == 2).all()  # a radius of a pixel keeps what is wider than it
 
@@ -60,7 +66,7 @@ def test_undecided_pixels_take_the_label_on_their_side_of_the_edge() -> None:
     undecided = np.zeros((H, W), bool)
     undecided[20:40, 35:55] = True  # a hole across the edge
     w, a = _weights(rendered, 2, undecided)
-    out = refine_to_photo(w, a, photo, 0.25, method="domain")
+    out = _refine(w, a, photo, 0.25)
     assert (out[20:40, 35:45] == 1).all() and (out[20:40, 45:55] == 2).all()
 
 
@@ -98,4 +104,4 @@ def test_the_refined_labels_are_the_same_at_twice_the_photo_size() -> None:
 def test_refine_refuses_a_photo_of_another_size() -> None:
     w, a = _weights(np.ones((H, W), np.int64), 1)
     with pytest.raises(ValueError, match="the photo is 10x10"):
-        refine_to_photo(w, a, np.zeros((10, 10, 3), np.uint8))
+        _refine(w, a, np.zeros((10, 10, 3), np.uint8), 0.25)

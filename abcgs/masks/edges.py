@@ -55,10 +55,10 @@ def domain_filter(photo: np.ndarray, planes: np.ndarray, sigma_space: float, sig
     return out
 
 
-def refine_to_photo(weights: np.ndarray, alpha: np.ndarray, photo: np.ndarray, radius: float = 0.25,
-                    eps: float = 1e-2, min_alpha: float = 1e-3, *, method: EdgeFilter = "domain",
-                    colour: float = 80.0) -> np.ndarray:
+def refine_to_photo(weights: np.ndarray, alpha: np.ndarray, photo: np.ndarray, *, method: EdgeFilter, radius: float,
+                    colour: float, eps: float, min_alpha: float = 1e-3) -> np.ndarray:
     """A view's labels ``(H, W) int64`` from its rendered label weights refined against its photo (module docstring).
+    The settings are ``masks.field``'s (:func:`abcgs.masks.field.refine_labels` passes them).
 
     Args:
         weights: ``(H, W, L + 2)``: labels 0..L and the undecided Gaussians' weight last

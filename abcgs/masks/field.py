@@ -311,8 +311,8 @@ def refine_labels(weights: np.ndarray, alpha: np.ndarray, photo: np.ndarray, par
     (:func:`abcgs.masks.edges.drop_specks`)."""
     from abcgs.masks.edges import drop_specks, refine_to_photo
 
-    out = refine_to_photo(weights, alpha, photo, params.edge_radius, params.edge_eps, method=params.edge_filter,
-                          colour=params.edge_colour)
+    out = refine_to_photo(weights, alpha, photo, method=params.edge_filter, radius=params.edge_radius,
+                          colour=params.edge_colour, eps=params.edge_eps)
     return drop_specks(out, int(params.min_region * out.size))
 
 
