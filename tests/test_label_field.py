@@ -305,3 +305,35 @@ def test_specks_take_the_label_around_them_and_large_regions_stay() -> None:
     assert set(np.unique(out)) == {1, 2, 4} and (out[labels != out] != 3).all()
     np.testing.assert_array_equal(drop_specks(labels, 1), labels)
     np.testing.assert_array_equal(drop_specks(np.full((5, 5), 7), 100), np.full((5, 5), 7))  # all small: kept
+
+
+def test_a_view_larger_than_the_lift_size_is_lifted_and_rendered_at_it(monkeypatch) -> None:
+    """A view of more than LIFT_PIXELS pixels (a phone photo) is lifted from and rendered into the same view scaled
+    to that many: its votes keep their units (photo pixels), its labels their size, and both agree with the view's
+    own size."""
+    import abcgs.masks.lifting as lifting
+
+    model, truth = wall_and_ball(1)
+    cams = [c.scaled(3.0) for c in cameras(3)]
+    maps = _truth_maps(model, truth, cams)
+    photo = (np.stack([maps[1] == 1, maps[1] == 2, maps[1] == 0], -1) * 200 + 30).astype(np.uint8)
+    dots = rasterize_strokes([Stroke(1, np.argwhere(maps[0] == 1).mean(0)[None, ::-1] + 0.5, 3.0)], maps[0].shape)
+    runs = {}
+    for name, pixels in (("own size", lifting.LIFT_PIXELS), ("lifted", cams[0].width * cams[0].height // 9)):
+        monkeypatch.setattr(lifting, "LIFT_PIXELS", pixels)
+        field = LabelField(model, cams)
+        field.set_view(0, maps[0], dots)
+        result = field.solve()
+        runs[name] = (field._views[0], result, render_field(field, result, 1, threshold=0.5),
+                      render_field(field, result, 1, photo=photo))
+    small = lifting.lift_camera(cams[0], cams[0].width * cams[0].height // 9)
+    assert small.width * small.height <= cams[0].width * cams[0].height // 9
+    (own, r_own, map_own, ref_own), (lifted, r_lifted, map_lifted, ref_lifted) = runs["own size"], runs["lifted"]
+    # the summed weight of the view is the same in photo pixels at either size (measured 0.2 % apart)
+    assert abs(float(lifted.seen.sum()) / float(own.seen.sum()) - 1) < 0.02
+    assert abs(float(lifted.stroke_votes.sum()) / float(own.stroke_votes.sum()) - 1) < 0.1  # measured 2.4 %
+    both = r_own.decided & r_lifted.decided
+    assert (r_own.labels[both] == r_lifted.labels[both]).mean() > 0.98  # measured 0.995
+    # the labels rendered, and refined against the photo, at the view's size (measured 0.993 and 1.0)
+    assert map_lifted.shape == ref_lifted.shape == maps[1].shape
+    assert (map_lifted == map_own).mean() > 0.97 and (ref_lifted == ref_own).mean() > 0.97

@@ -508,7 +508,8 @@ def test_the_server_refuses_other_pages_hosts_and_bodies(paint_process) -> None:
 
 
 def test_a_photo_size_view_is_cut_at_a_quarter_megapixel_and_its_labels_follow_the_photos_edge(monkeypatch) -> None:
-    from abcgs.masks.grabcut import WORK_PIXELS, upsample_labels
+    from abcgs.masks.edges import upsample_labels
+    from abcgs.masks.grabcut import WORK_PIXELS
 
     h, w = 1080, 1920
     yy, xx = np.mgrid[:h, :w]

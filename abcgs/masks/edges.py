@@ -30,7 +30,17 @@ import numpy as np
 from abcgs.masks.params import EdgeFilter
 
 FILTER_CHANNELS = 4
-"""Channels OpenCV's guided filter takes at a time."""
+"""Channels OpenCV's guided and box filters take at a time."""
+
+UPSAMPLE_EPS = 1e-3
+"""Regularisation ε of the guided filter that brings labels at a working size back to the photo's size (guide RGB in
+0..1): a label's border follows a colour edge of more than about √ε ≈ 0.03 of contrast."""
+
+UPSAMPLE_RADIUS = 2
+"""That filter's radius, in working pixels."""
+
+REMAP_COLUMNS = 4096
+"""Columns of the maps pixels are sampled through (OpenCV's ``remap``)."""
 
 
 def guided_filter(photo: np.ndarray, planes: np.ndarray, radius: int, eps: float) -> np.ndarray:
@@ -53,6 +63,118 @@ def domain_filter(photo: np.ndarray, planes: np.ndarray, sigma_space: float, sig
     for c in range(planes.shape[-1]):
         out[..., c] = dt.filter(np.ascontiguousarray(planes[..., c], np.float32))
     return out
+
+
+def box_mean(x: np.ndarray, radius: int) -> np.ndarray:
+    """The mean of the plane ``x`` ``(H, W) float32`` over each pixel's ``(2 radius + 1)²`` window (borders
+    reflected, as OpenCV's guided filter does)."""
+    return cv2.boxFilter(x, -1, (2 * radius + 1, 2 * radius + 1), borderType=cv2.BORDER_REFLECT)
+
+
+def _inverse3(m: np.ndarray) -> np.ndarray:
+    """The inverses of symmetric ``(M, 3, 3)`` matrices by their adjugates (the guided filter's regularised
+    covariances, positive definite)."""
+    a, b, c = m[:, 0, 0], m[:, 0, 1], m[:, 0, 2]
+    e, f, i = m[:, 1, 1], m[:, 1, 2], m[:, 2, 2]
+    adj = np.stack([e * i - f * f, c * f - b * i, b * f - c * e,
+                    c * f - b * i, a * i - c * c, b * c - a * f,
+                    b * f - c * e, b * c - a * f, a * e - b * b], -1).reshape(-1, 3, 3)
+    det = a * adj[:, 0, 0] + b * adj[:, 1, 0] + c * adj[:, 2, 0]
+    return adj / det[:, None, None]
+
+
+def guided_coefficients(guide: np.ndarray, planes: np.ndarray, radius: int, eps: float,
+                        active: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The guided filter's local linear model (He, Sun and Tang, TPAMI 2013, Eqs. 14-15, colour guide), averaged over
+    each window: ``A (C, 3, H, W)`` and ``B (C, H, W)`` such that plane c of the filter's output is
+    ``Σ_i A[c, i] guide[..., i] + B[c]``. ``guide`` ``(H, W, 3) float32`` (RGB in 0..1), ``planes`` ``(H, W, C)
+    float32``. With ``active`` ``(H, W) bool``, the model is solved there only: elsewhere every plane must be
+    constant over the pixel's window, where the model is that constant."""
+    h, w, c = planes.shape
+    at = np.flatnonzero(np.ones((h, w), bool) if active is None else active)
+    guide_planes = [np.ascontiguousarray(guide[..., i], np.float32) for i in range(3)]
+    mean_i = [box_mean(g, radius) for g in guide_planes]
+    mean_at = [m.ravel()[at] for m in mean_i]
+    sigma = np.empty((len(at), 3, 3), np.float32)
+    for i in range(3):
+        for j in range(i, 3):
+            v = box_mean(guide_planes[i] * guide_planes[j], radius).ravel()[at] - mean_at[i] * mean_at[j]
+            sigma[:, i, j] = sigma[:, j, i] = v + (eps if i == j else 0.0)
+    inverse = _inverse3(sigma)
+    A = np.empty((c, 3, h, w), np.float32)
+    B = np.empty((c, h, w), np.float32)
+    for k in range(c):
+        p = np.ascontiguousarray(planes[..., k], np.float32)
+        mean_p = box_mean(p, radius)
+        cov = np.stack([box_mean(g * p, radius).ravel()[at] - m * mean_p.ravel()[at]
+                        for g, m in zip(guide_planes, mean_at)], -1)
+        a = np.zeros((3, h * w), np.float32)
+        a[:, at] = np.einsum("mij,mj->im", inverse, cov)
+        a = a.reshape(3, h, w)
+        B[k] = box_mean(mean_p - a[0] * mean_i[0] - a[1] * mean_i[1] - a[2] * mean_i[2], radius)
+        for i in range(3):
+            A[k, i] = box_mean(a[i], radius)
+    return A, B
+
+
+def _bilinear(planes: np.ndarray, ys: np.ndarray, xs: np.ndarray, scale: tuple[float, float]) -> np.ndarray:
+    """``planes`` ``(C, h, w) float32`` sampled bilinearly at the pixel centres ``(ys, xs)`` ``(M,)`` of an image
+    ``scale`` = (H / h, W / w) times as large (pixel-centre convention, edges replicated): ``(M, C)``."""
+    m, cols = len(xs), REMAP_COLUMNS
+    rows = max(1, -(-m // cols))  # OpenCV's remap takes maps of fewer than 32767 rows and columns: fold them
+    map_x = np.zeros(rows * cols, np.float32)
+    map_y = np.zeros(rows * cols, np.float32)
+    map_x[:m] = (xs + 0.5) / scale[1] - 0.5
+    map_y[:m] = (ys + 0.5) / scale[0] - 0.5
+    map_x, map_y = map_x.reshape(rows, cols), map_y.reshape(rows, cols)
+    out = np.empty((m, len(planes)), np.float32)
+    for c, plane in enumerate(planes):
+        got = cv2.remap(plane, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        out[:, c] = got.ravel()[:m]
+    return out
+
+
+def upsample_labels(labels: np.ndarray, claimed: np.ndarray, photo: np.ndarray, eps: float = UPSAMPLE_EPS,
+                    radius: int = UPSAMPLE_RADIUS) -> tuple[np.ndarray, np.ndarray]:
+    """Labels at a working size (``labels (h, w) int``, ``claimed (h, w) bool``) brought to the size of ``photo``
+    ``(H, W, 3) uint8`` along the photo's edges, by the fast guided filter (He and Sun, arXiv:1505.00996): each
+    value's indicator (and the unclaimed one) is guided-filtered at the working size with the photo scaled down as
+    the guide (``radius`` working pixels, regularisation ``eps``, guide in 0..1), the filter's linear coefficients
+    are scaled up bilinearly and applied to the full-size photo, and each pixel takes the largest. Only pixels
+    within reach of a change of value are computed: elsewhere the coefficients are those of a constant and the
+    value is the working pixel's. Returns ``(H, W) int64`` and ``(H, W) bool``; the labels as they are when the
+    sizes agree."""
+    H, W = photo.shape[:2]
+    h, w = labels.shape
+    labels = np.asarray(labels, np.int64)
+    if (h, w) == (H, W):
+        return np.where(claimed, labels, 0), np.asarray(claimed, bool).copy()
+    values = np.asarray([int(v) for v in np.unique(labels[claimed])] + [0], np.int64)
+    index = np.where(claimed, np.searchsorted(values[:-1], labels), len(values) - 1)
+    planes = (index[..., None] == np.arange(len(values))).astype(np.float32)
+    small = cv2.resize(photo, (w, h), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
+    small_index = index.astype(np.uint16)
+
+    def near_a_change(reach: int) -> np.ndarray:
+        window = np.ones((2 * reach + 1,) * 2, np.uint8)
+        return cv2.dilate(small_index, window) != cv2.erode(small_index, window)
+
+    a, b = guided_coefficients(small, planes, radius, eps, active=near_a_change(radius))
+    # where the windows of 2 radius + 1 (and the bilinear step) hold one value, the filter returns that value
+    changes = near_a_change(2 * radius + 2)
+    full = cv2.resize(small_index, (W, H), interpolation=cv2.INTER_NEAREST)
+    band = cv2.resize(changes.astype(np.uint8), (W, H), interpolation=cv2.INTER_NEAREST).astype(bool)
+    ys, xs = np.nonzero(band)
+    scale = (H / h, W / w)
+    c = len(values)
+    coef = _bilinear(np.concatenate([a.reshape(3 * c, h, w), b]), ys, xs, scale)
+    guide = photo[ys, xs].astype(np.float32) / 255.0
+    q = coef[:, 3 * c:]
+    for i in range(3):
+        q += coef[:, i:3 * c:3] * guide[:, i:i + 1]
+    full[ys, xs] = q.argmax(-1)
+    keep = full < len(values) - 1
+    return np.where(keep, values[full], 0), keep
 
 
 def refine_to_photo(weights: np.ndarray, alpha: np.ndarray, photo: np.ndarray, *, method: EdgeFilter, radius: float,

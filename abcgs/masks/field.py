@@ -44,7 +44,15 @@ import torch
 from abcgs.cameras import Camera
 from abcgs.gaussians import GaussianModel
 from abcgs.masks.graph import GaussianGraph, decide_diffused, diffuse_labels, gaussian_graph, geodesic_labels
-from abcgs.masks.lifting import NO_VOTE, blend_votes, decide_labels, occluded_gaussians, one_hot_labels
+from abcgs.masks.lifting import (
+    NO_VOTE,
+    area_weights,
+    blend_votes,
+    decide_labels,
+    lift_camera,
+    occluded_gaussians,
+    one_hot_labels,
+)
 from abcgs.masks.params import FieldParams, LiftParams
 from abcgs.types import Backend
 
@@ -164,10 +172,13 @@ class LabelField:
             conf = cut_confidence(cut.shape, view.strokes, self.params.cut_reach)
         else:
             conf = np.ones(cut.shape, np.float32)
-        hot = one_hot_labels(cut, int(cut.max(initial=0)))
-        decided = torch.from_numpy((cut >= 0).astype(np.float32))[..., None]
-        w = blend_votes(self.model, cam, torch.cat([hot * torch.from_numpy(conf)[..., None], decided,
-                                                    torch.ones_like(decided)], -1), backend=self.backend)
+        small = lift_camera(cam)
+        conf_small = torch.from_numpy(area_weights(conf[..., None], small))
+        area = torch.from_numpy(area_weights(np.ones((*cut.shape, 1), np.float32), small))
+        hot = one_hot_labels(cut, int(cut.max(initial=0)), small)
+        decided = hot.sum(-1, keepdim=True)
+        w = blend_votes(self.model, small, torch.cat([hot * conf_small / area, decided, area], -1),
+                        backend=self.backend)
         return w[:, :-2], w[:, -2], w[:, -1]
 
     def _stroke_votes(self, strokes: np.ndarray, cam: Camera) -> torch.Tensor:
@@ -175,8 +186,10 @@ class LabelField:
         stroke pixels, kept only for the Gaussians that lie enough under the strokes to be bound by them (at least
         ``stroke_share`` of their blending weight in the view), so that a large splat behind or across a dot is not."""
         seeds = np.where(strokes >= 0, strokes, NO_VOTE)
-        hot = one_hot_labels(seeds, int(seeds.max(initial=0)))
-        w = blend_votes(self.model, cam, torch.cat([hot, torch.ones(*hot.shape[:2], 1)], -1), backend=self.backend)
+        small = lift_camera(cam)
+        hot = one_hot_labels(seeds, int(seeds.max(initial=0)), small)
+        area = torch.from_numpy(area_weights(np.ones((*seeds.shape, 1), np.float32), small))
+        w = blend_votes(self.model, small, torch.cat([hot, area], -1), backend=self.backend)
         votes, total = w[:, :-1], w[:, -1]
         under = votes.sum(1) >= self.params.stroke_share * total.clamp_min(1e-12)
         return votes * under[:, None]
@@ -322,16 +335,27 @@ def render_field(field: LabelField, result: FieldResult, index: int, *, threshol
     blending weight, if it holds at least ``threshold`` of its alpha; 0 where none does, where nothing is rendered,
     and where undecided Gaussians win); with the view's ``photo`` ``(H, W, 3) uint8`` and ``edge_radius`` > 0,
     refined against the photo instead (:func:`refine_labels`: borders on the photo's edges, undecided pixels given
-    the label around them, specks dropped); and, on a painted view with ``cut_where_painted``, its cut
+    the label around them, specks dropped); a view larger than :data:`~abcgs.masks.lifting.LIFT_PIXELS` is rendered
+    and refined at that size and its labels brought to its own along the photo's edges
+    (:func:`~abcgs.masks.edges.upsample_labels`); and, on a painted view with ``cut_where_painted``, its cut
     wherever the cut decided: a painted view keeps what the user saw and accepted on the page."""
+    from abcgs.masks.edges import upsample_labels
     from abcgs.masks.lifting import pick_labels, render_label_weights
 
-    img, alpha = render_label_weights(field.model, torch.as_tensor(result.labels), result.n_labels,
-                                      field.cameras[index], decided=torch.as_tensor(result.decided),
-                                      backend=field.backend)
+    cam = field.cameras[index]
+    small = lift_camera(cam)
+    img, alpha = render_label_weights(field.model, torch.as_tensor(result.labels), result.n_labels, small,
+                                      decided=torch.as_tensor(result.decided), backend=field.backend)
     if photo is not None and field.params.edge_radius > 0:
-        out = refine_labels(img.numpy(), alpha.numpy(), photo, field.params)
+        photo_small = photo if small is cam else cv2.resize(photo, (small.width, small.height),
+                                                            interpolation=cv2.INTER_AREA)
+        out = refine_labels(img.numpy(), alpha.numpy(), photo_small, field.params)
+        if small is not cam:
+            out = upsample_labels(out, np.ones(out.shape, bool), photo)[0]
     else:
         out = pick_labels(img, alpha, threshold, undecided=0).numpy().astype(np.int64)
+        if small is not cam:
+            out = cv2.resize(out.astype(np.int32), (cam.width, cam.height), interpolation=cv2.INTER_NEAREST
+                             ).astype(np.int64)
     cut = field.cut_of(index) if cut_where_painted else None
     return out if cut is None else np.where(cut >= 0, cut, out)

@@ -27,7 +27,7 @@ import numpy as np
 
 from abcgs.errors import InputError
 from abcgs.io.images import to_uint8
-from abcgs.masks.edges import guided_filter
+from abcgs.masks.edges import upsample_labels
 from abcgs.masks.strokes import BACKGROUND, Segmentation, Stroke, rasterize_strokes
 from abcgs.runtime import available_cores
 
@@ -159,11 +159,7 @@ def fill_gaps(
 WORK_PIXELS = 1 << 18
 """Pixels of the working size the cuts run at (about a quarter megapixel): a 12 Mpx phone photo is cut at 591 × 443, a
 1080 × 1920 frame at 384 × 682, so that one Segment takes seconds at any photo size; the labels are brought back to
-the photo's size along its edges (:func:`upsample_labels`)."""
-
-UPSAMPLE_EPS = 1e-3
-"""Regularisation ε of the guided filter that brings the cut's labels back to the photo's size (guide RGB in 0..1): a
-label's border follows a colour edge of more than about √ε ≈ 0.03 of contrast."""
+the photo's size along its edges (:func:`abcgs.masks.edges.upsample_labels`)."""
 
 
 def working_size(hw: tuple[int, int], max_side: int, max_pixels: int = WORK_PIXELS) -> tuple[int, int]:
@@ -174,25 +170,6 @@ def working_size(hw: tuple[int, int], max_side: int, max_pixels: int = WORK_PIXE
     if scale == 1.0:
         return h, w
     return max(1, int(h * scale)), max(1, int(w * scale))  # rounded down: never more than max_pixels
-
-
-def upsample_labels(labels: np.ndarray, claimed: np.ndarray, photo: np.ndarray, eps: float = UPSAMPLE_EPS
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """A cut at the working size (``labels (h, w) int``, ``claimed (h, w) bool``) brought to the size of ``photo``
-    ``(H, W, 3) uint8`` along the photo's edges: each value's indicator (and the unclaimed one) is scaled up
-    bilinearly and filtered by a guided filter with the photo as guide (He et al., TPAMI 2013; OpenCV contrib's
-    ``ximgproc``), whose radius is twice the scale factor; each pixel takes the largest. Returns ``(H, W) int64`` and
-    ``(H, W) bool``."""
-    H, W = photo.shape[:2]
-    h, w = labels.shape
-    values = [int(v) for v in np.unique(labels[claimed])]
-    planes = np.stack([(labels == v) & claimed for v in values] + [~claimed], -1).astype(np.float32)
-    up = cv2.resize(planes, (W, H), interpolation=cv2.INTER_LINEAR).reshape(H, W, -1)
-    radius = max(1, int(np.ceil(2.0 * max(H / h, W / w))))
-    out = guided_filter(photo, up, radius, eps)
-    best = out.argmax(-1)
-    keep = best < len(values)
-    return np.where(keep, np.asarray(values + [0], np.int64)[best], 0), keep
 
 
 DEPTH_PERCENTILES = (1.0, 99.0)
@@ -366,7 +343,7 @@ def segment(
         iterations: GrabCut iterations per label.
         max_side: views larger than this are cut at this size (longest side); views of more than
             :data:`WORK_PIXELS` pixels are cut at that many. The labels are brought back to the image's size along its
-            edges (:func:`upsample_labels`), which keeps one cut to seconds at any photo size.
+            edges (:func:`abcgs.masks.edges.upsample_labels`), which keeps one cut to seconds at any photo size.
         keep_touching: drop the parts of a label's cut that none of its strokes touch.
         fill: give gaps between the cuts a label from around them (off: they stay 0 and unclaimed, undecided).
         depth: ``(H, W)`` rendered depth of the view (world units, 0 where nothing is rendered): GrabCut and the gap

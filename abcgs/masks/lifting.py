@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 import torch
 from torch import Tensor
@@ -31,6 +32,41 @@ from abcgs.types import Backend
 NO_VOTE = -1
 """Label-map value of a pixel that votes for nothing (not even 0 = unassigned): e.g. what a re-cut view left
 undecided."""
+
+
+LIFT_PIXELS = 1 << 20
+"""Pixels of the largest view labels are lifted from and rendered into (about a megapixel): a larger view, a phone
+photo of 12 Mpx or a 1080 × 1920 frame, is lifted at that size (:func:`lift_camera`), each of its pixels weighing
+the photo pixels it covers, so that a Segment takes seconds at any photo size. Views of the pipeline's usual sizes
+are lifted as they are."""
+
+
+def lift_camera(camera: Camera, max_pixels: int | None = None) -> Camera:
+    """``camera``, or the same view scaled down to at most ``max_pixels`` pixels (:data:`LIFT_PIXELS` by default,
+    :meth:`Camera.scaled`)."""
+    max_pixels = LIFT_PIXELS if max_pixels is None else max_pixels
+    pixels = camera.width * camera.height
+    if pixels <= max_pixels:
+        return camera
+    small = camera.scaled((max_pixels / pixels) ** 0.5)
+    while small.width * small.height > max_pixels:  # rounding may add a row or a column
+        small = camera.scaled(0.999 * small.width / camera.width)
+    return small
+
+
+def area_weights(planes: np.ndarray, camera: Camera) -> np.ndarray:
+    """Pixel weights ``(H, W, J) float32`` of a view scaled to ``camera``'s size ``(h, w, J)``: each pixel of
+    ``camera`` holds the sum of the weights of the pixels it covers (OpenCV's area interpolation × the ratio of pixel
+    counts), so that blending weights summed over a view keep their units, photo pixels, at either size."""
+    planes = np.asarray(planes, np.float32)
+    H, W = planes.shape[:2]
+    if (H, W) == (camera.height, camera.width):
+        return planes
+    ratio = (H * W) / (camera.height * camera.width)
+    out = np.empty((camera.height, camera.width, planes.shape[-1]), np.float32)
+    for c in range(planes.shape[-1]):
+        out[..., c] = cv2.resize(planes[..., c], (camera.width, camera.height), interpolation=cv2.INTER_AREA)
+    return out * ratio
 
 
 @dataclass
@@ -48,12 +84,17 @@ class LiftResult:
         return {int(v): int(c) for v, c in zip(vals, cnt)}
 
 
-def one_hot_labels(labels: np.ndarray | Tensor, n_labels: int) -> Tensor:
+def one_hot_labels(labels: np.ndarray | Tensor, n_labels: int, camera: Camera | None = None) -> Tensor:
     """``(H, W)`` int labels in 0..n_labels (or :data:`NO_VOTE`) → ``(H, W, n_labels + 1) float32`` one-hot (all
-    zeros at :data:`NO_VOTE`)."""
+    zeros at :data:`NO_VOTE`); with ``camera`` of another size ``(h, w)``, ``(h, w, n_labels + 1)``: each label's
+    pixels counted into the camera's pixels (:func:`area_weights`)."""
     lab = torch.as_tensor(np.asarray(labels), dtype=torch.long)
     if lab.min() < NO_VOTE or lab.max() > n_labels:
         raise InputError(f"label map has labels outside 0..{n_labels}: found {int(lab.min())}..{int(lab.max())}")
+    if camera is not None and tuple(lab.shape) != (camera.height, camera.width):
+        lab_np = lab.numpy()
+        return torch.from_numpy(np.concatenate(
+            [area_weights((lab_np == k).astype(np.float32)[..., None], camera) for k in range(n_labels + 1)], -1))
     votes = lab >= 0
     return torch.nn.functional.one_hot(lab.clamp_min(0), n_labels + 1).to(torch.float32) * votes[..., None]
 
@@ -87,13 +128,15 @@ def lift_labels(
 def view_weights(model: GaussianModel, camera: Camera, label_map: np.ndarray, n_labels: int, *,
                  backend: Backend = "auto") -> Tensor:
     """One view's votes ``(N, n_labels + 1)`` on the host: per Gaussian and label, its blending weight summed over
-    the view's pixels of that label (:data:`NO_VOTE` pixels add nothing)."""
+    the view's pixels of that label (:data:`NO_VOTE` pixels add nothing); a view larger than :data:`LIFT_PIXELS` is
+    lifted at that size (:func:`lift_camera`)."""
     if tuple(label_map.shape) != (camera.height, camera.width):
         raise InputError(
             f"mask of view {camera.name} is {label_map.shape[1]}x{label_map.shape[0]}, the view is "
             f"{camera.width}x{camera.height}"
         )
-    return blend_votes(model, camera, one_hot_labels(label_map, n_labels), backend=backend)
+    small = lift_camera(camera)
+    return blend_votes(model, small, one_hot_labels(label_map, n_labels, small), backend=backend)
 
 
 def blend_votes(model: GaussianModel, camera: Camera, pixels: Tensor, *, backend: Backend = "auto") -> Tensor:
@@ -109,7 +152,9 @@ def occluded_gaussians(model: GaussianModel, camera: Camera, tolerance: float, *
     """``(N,) bool``: the Gaussians whose centre lies behind the surface ``camera`` sees there, its camera depth
     beyond ``(1 + tolerance)`` × the view's expected depth at the pixel of its projected centre (where the view's
     alpha is at least 0.5). A label painted on a view belongs to its surface: a Gaussian hidden behind it (a wall
-    behind a hood) still blends a little into its pixels, and would take that label from them."""
+    behind a hood) still blends a little into its pixels, and would take that label from them. A view larger than
+    :data:`LIFT_PIXELS` is rendered at that size (:func:`lift_camera`)."""
+    camera = lift_camera(camera)
     act = model.detach().activated()
     dev = model.device
     with torch.no_grad():

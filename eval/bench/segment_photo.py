@@ -2,6 +2,7 @@
 the 3-D step and the strip, on a generated scene whose views are full-size phone frames.
 
     python -m eval run segment_photo --json docs/measurements/segment_photo_1080p.json
+    python -m eval run segment_photo --width 4000 --height 3000 --json docs/measurements/segment_photo_12mpx.json
 
 The scene (:func:`generated_scene`): ``--gaussians`` Gaussians on a textured back wall, a box and a ball in front of
 it (labels 3, 1, 2), seen by ``--views`` cameras on an arc at ``--width`` × ``--height`` (1920 × 1080 by default,
@@ -10,9 +11,10 @@ The user (:func:`eval.bench.paint_iou.simulated_strokes`) draws ``--strokes`` st
 Segment (:meth:`abcgs.masks.page.field_session.FieldSession.segment`, as the page does); then, for each of ``--corrections``
 further views, a dot on its largest wrong region (:func:`eval.bench.scripted_user.next_stroke`) and Segment again.
 Printed per Segment: the parts (``cut``: GrabCut at the working size, :data:`abcgs.masks.grabcut.WORK_PIXELS`, and the
-labels brought back to the photo's size; ``solve``: the lift of the changed view and the 3-D step; ``strip``: every
-view's small label map; ``view``: the painted view's labels at the photo's size) and the share of the view's pixels
-left unlabelled; at the end the median Segment.
+labels brought back to the photo's size; ``solve``: the lift of the changed view, at most
+:data:`abcgs.masks.lifting.LIFT_PIXELS` pixels, and the 3-D step; ``strip``: every view's small label map; ``view``:
+the painted view's labels, rendered and refined at that size and brought to the photo's) and the share of the view's
+pixels left unlabelled; at the end the median Segment.
 """
 
 from __future__ import annotations
