@@ -329,7 +329,7 @@ def test_a_view_larger_than_the_lift_size_is_lifted_and_rendered_at_it(monkeypat
     small = lifting.lift_camera(cams[0], cams[0].width * cams[0].height // 9)
     assert small.width * small.height <= cams[0].width * cams[0].height // 9
     (own, r_own, map_own, ref_own), (lifted, r_lifted, map_lifted, ref_lifted) = runs["own size"], runs["lifted"]
-    # the summed weight of the view is the same in photo pixels at either size (measured 0.2 % apart)
+    # the summed weight of the view is the same in photo pixels at either size (measured 0.6 % apart)
     assert abs(float(lifted.seen.sum()) / float(own.seen.sum()) - 1) < 0.02
     assert abs(float(lifted.stroke_votes.sum()) / float(own.stroke_votes.sum()) - 1) < 0.1  # measured 2.4 %
     both = r_own.decided & r_lifted.decided
