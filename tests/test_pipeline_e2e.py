@@ -11,9 +11,12 @@ from __future__ import annotations
 import csv
 import io
 import json
+import os
 import re
 import shutil
+import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -409,13 +412,24 @@ def queued(repo: Path, shared: dict) -> dict[str, str]:
     """A queued sweep of two experiments, run two at a time: experiment name → lambda_style."""
     proc = _run(["dvc", "exp", "run", "--queue", "-S", "stylize.weights.style=1,4", "evaluate@tiny_single"], repo)
     assert proc.returncode == 0 and proc.stdout.count("Queued experiment") == 2, proc.stdout + proc.stderr
-    assert _run(["dvc", "queue", "start", "-j", "2"], repo).returncode == 0
-    deadline = time.monotonic() + 1800
-    while time.monotonic() < deadline:
-        status = _run(["dvc", "queue", "status"], repo).stdout
-        if "Queued" not in status and "Running" not in status and status.count("Success") + status.count("Failed") >= 2:
-            break
-        time.sleep(10)
+    # `dvc queue start` can outlive its queue: a worker that never shuts down keeps it (and any pipe it writes to)
+    # open, so it writes to a file, is not waited for, and is stopped once the queue's status says both are done
+    full = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}"}
+    with open(repo.parent / "queue-start.log", "w") as log:
+        starter = subprocess.Popen(["dvc", "queue", "start", "-j", "2"], cwd=repo, env=full, stdout=log,
+                                   stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 1800
+        while time.monotonic() < deadline:
+            status = _run(["dvc", "queue", "status"], repo).stdout
+            if "Queued" not in status and "Running" not in status and status.count("Success") + status.count("Failed") >= 2:
+                break
+            time.sleep(10)
+    finally:
+        _run(["dvc", "queue", "stop", "--kill"], repo)
+        if starter.poll() is None:  # the starter and its workers share its session's process group
+            os.killpg(starter.pid, signal.SIGKILL)
+        starter.wait(60)
     assert status.count("Success") == 2, status
     return {name: r["stylize.weights.style"] for name, r in _exp_rows(repo).items()}
 
