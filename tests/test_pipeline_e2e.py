@@ -16,7 +16,6 @@ import re
 import shutil
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -27,7 +26,7 @@ from conftest import REPO_ROOT, run_in
 from abcgs.gaussians.ply import read_ply
 from abcgs.io.metrics import numeric_leaves
 from eval.bench.regression import REDUCED
-from eval.bench.repo_copy import IDENTITY
+from eval.bench.repo_copy import IDENTITY, venv_env
 
 pytestmark = pytest.mark.slow
 
@@ -414,9 +413,8 @@ def queued(repo: Path, shared: dict) -> dict[str, str]:
     assert proc.returncode == 0 and proc.stdout.count("Queued experiment") == 2, proc.stdout + proc.stderr
     # `dvc queue start` can outlive its queue: a worker that never shuts down keeps it (and any pipe it writes to)
     # open, so it writes to a file, is not waited for, and is stopped once the queue's status says both are done
-    full = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}"}
     with open(repo.parent / "queue-start.log", "w") as log:
-        starter = subprocess.Popen(["dvc", "queue", "start", "-j", "2"], cwd=repo, env=full, stdout=log,
+        starter = subprocess.Popen(["dvc", "queue", "start", "-j", "2"], cwd=repo, env=venv_env(), stdout=log,
                                    stderr=subprocess.STDOUT, start_new_session=True)
     try:
         deadline = time.monotonic() + 1800

@@ -52,6 +52,7 @@ from abcgs.masks.lifting import (
     lift_camera,
     occluded_gaussians,
     one_hot_labels,
+    pixel_area,
 )
 from abcgs.masks.params import FieldParams, LiftParams
 from abcgs.types import Backend
@@ -174,7 +175,7 @@ class LabelField:
             conf = np.ones(cut.shape, np.float32)
         small = lift_camera(cam)
         conf_small = torch.from_numpy(area_weights(conf[..., None], small))
-        area = torch.full((small.height, small.width, 1), cut.size / (small.height * small.width))  # photo pixels
+        area = torch.full((small.height, small.width, 1), pixel_area(cut.shape, small))
         hot = one_hot_labels(cut, int(cut.max(initial=0)), small)
         decided = hot.sum(-1, keepdim=True)
         w = blend_votes(self.model, small, torch.cat([hot * conf_small / area, decided, area], -1),
@@ -188,7 +189,7 @@ class LabelField:
         seeds = np.where(strokes >= 0, strokes, NO_VOTE)
         small = lift_camera(cam)
         hot = one_hot_labels(seeds, int(seeds.max(initial=0)), small)
-        area = torch.full((small.height, small.width, 1), seeds.size / (small.height * small.width))
+        area = torch.full((small.height, small.width, 1), pixel_area(seeds.shape, small))
         w = blend_votes(self.model, small, torch.cat([hot, area], -1), backend=self.backend)
         votes, total = w[:, :-1], w[:, -1]
         under = votes.sum(1) >= self.params.stroke_share * total.clamp_min(1e-12)

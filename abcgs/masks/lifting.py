@@ -54,6 +54,11 @@ def lift_camera(camera: Camera, max_pixels: int | None = None) -> Camera:
     return small
 
 
+def pixel_area(shape: tuple[int, ...], camera: Camera) -> float:
+    """Pixels of a view of ``shape`` ``(H, W, ...)`` that one pixel of ``camera`` (the same view, scaled) covers."""
+    return (shape[0] * shape[1]) / (camera.height * camera.width)
+
+
 def area_weights(planes: np.ndarray, camera: Camera) -> np.ndarray:
     """Pixel weights ``(H, W, J) float32`` of a view scaled to ``camera``'s size ``(h, w, J)``: each pixel of
     ``camera`` holds the sum of the weights of the pixels it covers (OpenCV's area interpolation × the ratio of pixel
@@ -62,7 +67,7 @@ def area_weights(planes: np.ndarray, camera: Camera) -> np.ndarray:
     H, W = planes.shape[:2]
     if (H, W) == (camera.height, camera.width):
         return planes
-    ratio = (H * W) / (camera.height * camera.width)
+    ratio = pixel_area(planes.shape, camera)
     out = np.empty((camera.height, camera.width, planes.shape[-1]), np.float32)
     for c in range(planes.shape[-1]):
         out[..., c] = cv2.resize(planes[..., c], (camera.width, camera.height), interpolation=cv2.INTER_AREA)

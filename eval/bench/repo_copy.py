@@ -21,12 +21,18 @@ IDENTITY = (["git", "config", "user.name", "abcgs-ci"], ["git", "config", "user.
 and a fresh machine has none in its HOME."""
 
 
-def run_in(args: list[str], cwd: Path, timeout: int | None = 900, env: dict | None = None) -> subprocess.CompletedProcess:
-    """Run ``args`` in ``cwd`` with this interpreter's ``bin/`` first on ``PATH``; output captured as text."""
+def venv_env(env: dict | None = None) -> dict:
+    """``env`` (the process's environment by default) with this interpreter's ``bin/`` first on ``PATH`` (so ``dvc``
+    and ``python`` are the venv's) and Python's output unbuffered."""
     full = dict(os.environ if env is None else env)
     full["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{full.get('PATH', '')}"
     full["PYTHONUNBUFFERED"] = "1"
-    return subprocess.run(args, cwd=cwd, env=full, capture_output=True, text=True, timeout=timeout)
+    return full
+
+
+def run_in(args: list[str], cwd: Path, timeout: int | None = 900, env: dict | None = None) -> subprocess.CompletedProcess:
+    """Run ``args`` in ``cwd`` with :func:`venv_env`; output captured as text."""
+    return subprocess.run(args, cwd=cwd, env=venv_env(env), capture_output=True, text=True, timeout=timeout)
 
 
 def copy_repo(dst: Path, edit_params: Callable[[dict], None] | None = None, root: Path = ROOT,
