@@ -26,6 +26,7 @@ import importlib.util
 import re
 import sys
 from collections.abc import Callable, Iterable
+from functools import lru_cache
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -111,6 +112,13 @@ def _imported_modules(tree: ast.AST, current: str | None) -> Iterable[str]:
                 yield f"{current.rsplit('.', 1)[0]}.*" if current.count(".") else f"{current}.*"
 
 
+@lru_cache(maxsize=4096)
+def _imports_of_source(text: str, current: str | None) -> tuple[str, ...]:
+    """:func:`_imported_modules` of a module's source text, kept for the next stage's closure (every stage imports
+    much the same modules; keyed by the text, so an edited file is parsed again)."""
+    return tuple(_imported_modules(ast.parse(text), current))
+
+
 def import_closure(script: Path, root: Path, also: Iterable[str] = (), packages: tuple[str, ...] = (PACKAGE,)
                    ) -> set[Path]:
     """Project files (relative to ``root``) that running ``script`` imports or loads, ``script`` included; ``also``:
@@ -122,13 +130,13 @@ def import_closure(script: Path, root: Path, also: Iterable[str] = (), packages:
     for dotted in also:
         f = _module_file(root, dotted)
         if f is not None:
-            todo.append((f.resolve(), dotted))
+            todo.append((f, dotted))
     while todo:
         path, dotted = todo.pop()
         if path in seen:
             continue
         seen.add(path)
-        for name in _imported_modules(ast.parse(path.read_text(encoding="utf-8")), dotted):
+        for name in _imports_of_source(path.read_text(encoding="utf-8"), dotted):
             if name.split(".")[0] not in packages:
                 continue
             if name.endswith(".*"):
@@ -140,7 +148,7 @@ def import_closure(script: Path, root: Path, also: Iterable[str] = (), packages:
                 prefix = ".".join(parts[:i])
                 f = _module_file(root, prefix)
                 if f is not None:
-                    todo.append((f.resolve(), prefix if f.name != "__init__.py" else f"{prefix}.__init__"))
+                    todo.append((f, prefix if f.name != "__init__.py" else f"{prefix}.__init__"))
     files = {p.relative_to(root) for p in seen}
     for module, folders in DATA_FILES.items():
         if Path(module) in files:
@@ -193,10 +201,12 @@ def minimal_deps(closure: set[Path], root: Path) -> list[str]:
     """The closure as few ``deps`` entries as possible: a folder where every file under it is in the closure."""
     root = root.resolve()
     out: list[str] = []
+    listed: dict[Path, list[Path]] = {}
 
     def whole(folder: Path) -> bool:
-        files = source_files(root / folder, root)
-        return bool(files) and all(f in closure for f in files)
+        if folder not in listed:
+            listed[folder] = source_files(root / folder, root)
+        return bool(listed[folder]) and all(f in closure for f in listed[folder])
 
     for f in sorted(closure):
         if covered(f, out):

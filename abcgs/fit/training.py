@@ -24,6 +24,7 @@ import torch
 from abcgs.cameras import Camera
 from abcgs.errors import InputError, NumericalError
 from abcgs.fit import metrics as M
+from abcgs.fit.adam import Adam
 from abcgs.fit.data import Views, load_views, scene_extent
 from abcgs.fit.evaluation import Evaluation, evaluate
 from abcgs.fit.losses import LossTerms, reconstruction_loss
@@ -99,7 +100,7 @@ def make_optimizers(model: GaussianModel, params: FitParams, extent: float) -> O
     names = ("sh0", "shN") if params.color_only else PARAM_NAMES
     for name in set(PARAM_NAMES) - set(names):
         getattr(model, name).requires_grad_(False)
-    return {name: torch.optim.Adam([getattr(model, name)], lr=lrs[name], eps=1e-15) for name in names}
+    return {name: Adam([getattr(model, name)], lr=lrs[name], eps=1e-15) for name in names}
 
 
 def means_lr(step: int, params: FitParams, extent: float) -> float:

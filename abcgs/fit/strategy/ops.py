@@ -16,10 +16,11 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from abcgs.fit.adam import Adam
 from abcgs.gaussians import PARAM_NAMES, GaussianModel
 from abcgs.render import quat_to_rotmat
 
-Optimizers = dict[str, torch.optim.Optimizer]
+Optimizers = dict[str, Adam]
 """One optimiser per parameter name (:data:`abcgs.gaussians.PARAM_NAMES`); missing names are frozen."""
 
 State = dict[str, Any]
