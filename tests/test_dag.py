@@ -319,3 +319,29 @@ def test_dag_update_writes_dvc_yaml_only_where_it_is_not_current(tmp_path: Path,
     (tmp_path / "params.yaml").write_text(yaml.safe_dump(raw, sort_keys=False))
     assert dag_main(["--update"]) == 2
     assert "[dag] error:" in capsys.readouterr().err and (tmp_path / "dvc.yaml").read_text() == after
+
+
+def test_bytecode_beside_the_sources_changes_no_folder_dep(tmp_path: Path) -> None:
+    """Python writes ``__pycache__/*.pyc`` beside each module it imports (its default; not where
+    PYTHONDONTWRITEBYTECODE is set). With the project's ``.dvcignore`` DVC leaves them out of a folder dep's hash, so a
+    stage that imports a module of ``abcgs/fit`` does not make the stages depending on ``abcgs/fit`` out of date."""
+    import subprocess
+    import sys
+
+    (tmp_path / "pkg").mkdir()
+    (tmp_path / "pkg" / "mod.py").write_text("X = 1\n")
+    shutil.copy(ROOT / ".dvcignore", tmp_path / ".dvcignore")
+
+    def dvc(*args: str) -> str:
+        return subprocess.run([sys.executable, "-m", "dvc", *args], cwd=tmp_path, capture_output=True, text=True,
+                              check=True).stdout
+
+    dvc("init", "--no-scm", "-q")
+    dvc("stage", "add", "-q", "-n", "s", "-d", "pkg", "-o", "o.txt", "echo done > o.txt")
+    dvc("repro", "-q")
+    assert "up to date" in dvc("status")
+    (tmp_path / "pkg" / "__pycache__").mkdir()
+    (tmp_path / "pkg" / "__pycache__" / "mod.cpython-311.pyc").write_bytes(b"\x00bytecode")
+    assert "up to date" in dvc("status")
+    (tmp_path / "pkg" / "mod.py").write_text("X = 2\n")  # a source change still counts
+    assert "modified" in dvc("status")
