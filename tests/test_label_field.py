@@ -337,3 +337,39 @@ def test_a_view_larger_than_the_lift_size_is_lifted_and_rendered_at_it(monkeypat
     # the labels rendered, and refined against the photo, at the view's size (measured 0.993 and 1.0)
     assert map_lifted.shape == ref_lifted.shape == maps[1].shape
     assert (map_lifted == map_own).mean() > 0.97 and (ref_lifted == ref_own).mean() > 0.97
+
+
+def test_a_region_that_covers_a_splat_in_part_leaves_it_to_the_other_views() -> None:
+    """View 0's cut is right. A correction on view 4 claims the wall in a disc that also covers the ball's rim (a
+    region that bled across the border). With ``cut_share`` 0.5, a ball Gaussian with under half of its blending
+    weight in view 4 on the disc takes no vote from it and keeps the label view 0's cut gave it; without, the disc
+    turns some of them into wall."""
+    from abcgs.masks.lifting import blend_votes
+
+    model, truth = wall_and_ball(8)
+    cams = cameras(5)
+    maps = _truth_maps(model, truth, cams)
+    ball_px = np.argwhere(maps[4] == 1)
+    cy, cx = ball_px[:, 0].mean(), ball_px[:, 1].min()  # the ball's left rim in view 4
+    yy, xx = np.mgrid[: maps[4].shape[0], : maps[4].shape[1]]
+    disc = (yy - cy) ** 2 + (xx - cx) ** 2 <= 12.0**2
+    region = np.where(disc, 2, NO_VOTE)
+    strokes = np.where((yy - cy) ** 2 + (xx - (cx - 8)) ** 2 <= 2.0**2, 2, -1)
+    w = blend_votes(model, cams[4], torch.from_numpy(np.stack([disc, np.ones_like(disc)], -1).astype(np.float32)))
+    front = LabelField(model, cams)
+    front.set_view(0, maps[0])
+    lifted = front.solve().source == 2  # decided by view 0's cut
+    partly = ((w[:, 0] > 0) & (w[:, 0] < 0.5 * w[:, 1])).numpy() & (truth.numpy() == 1) & lifted
+    assert partly.sum() > 10
+    wall_balls = {}
+    for share in (0.0, 0.5):
+        field = LabelField(model, cams, MaskParams().field.model_copy(update={"cut_share": share}))
+        field.set_view(0, maps[0])
+        alone = field.solve().labels.copy()
+        field.set_view(4, region, strokes)
+        after = field.solve()
+        assert (alone[partly] == 1).mean() > 0.9
+        wall_balls[share] = int((after.labels[partly] == 2).sum())
+        if share > 0:
+            np.testing.assert_array_equal(after.labels[partly], alone[partly])
+    assert wall_balls[0.0] > 0 and wall_balls[0.5] == 0, wall_balls

@@ -14,7 +14,8 @@ where the cut left a pixel undecided) and its strokes (a seed map: -1 none, 0 th
    (``cut_reach``); where GrabCut's two colour models differ little (``cut_margin``) the page's cut leaves the pixel
    undecided. A Gaussian's evidence for label l is its confident vote for l over its blending weight in the whole
    view (``evidence_of: view``; ``decided``: in the pixels the cut decided), so a large splat a correction covers in
-   part is weak evidence. With ``occlusion``, what lies behind the view's surface casts no vote there
+   part is weak evidence; under ``cut_share`` of that weight on decided pixels, the view casts no vote on it at all,
+   and the splat keeps what the other views say of it. With ``occlusion``, what lies behind the view's surface casts no vote there
    (:func:`~abcgs.masks.lifting.occluded_gaussians`).
 3. **The 3-D step** (:mod:`abcgs.masks.graph`, ``solver``): ``geodesic`` (the default) gives each Gaussian the label
    of the stroke or the evidence nearest to it along the Gaussians' neighbour graph, evidence e starting at
@@ -208,6 +209,9 @@ class LabelField:
                 v.votes, v.cover, v.seen = self._cut_votes(v, cam)
                 if self.params.occlusion > 0:  # what the view's surface hides casts no vote there
                     keep = (~occluded_gaussians(self.model, cam, self.params.occlusion, backend=self.backend)).float()
+                    v.votes, v.cover, v.seen = v.votes * keep[:, None], v.cover * keep, v.seen * keep
+                if self.params.cut_share > 0:  # a view votes only on the splats its cut decided the most of
+                    keep = (v.cover >= self.params.cut_share * v.seen).float()
                     v.votes, v.cover, v.seen = v.votes * keep[:, None], v.cover * keep, v.seen * keep
             if v.strokes is not None and v.stroke_votes is None:
                 v.stroke_votes = self._stroke_votes(v.strokes, cam)

@@ -84,6 +84,10 @@ class FieldParams(BaseModel):
         0.0, ge=0.0, le=10.0, description="a Gaussian whose centre lies behind a painted view's surface by more than "
         "this share of the surface's depth casts no vote in that view, neither from its cut nor from its strokes "
         "(abcgs.masks.lifting.occluded_gaussians; 0: every Gaussian votes with its blending weight)")
+    cut_share: float = Field(
+        0.5, ge=0.0, le=1.0, description="least share of a Gaussian's blending weight in a painted view that must "
+        "lie on pixels the view's cut decided for that view to vote on it: a splat that a correction's region covers "
+        "in part keeps what the other views say of it (0: every Gaussian the cut touches gets its vote)")
     leak: float = Field(
         1e-5, gt=0.0, le=1.0, description="share of a random walk lost at each step: a part no painted label "
         "reaches ends undecided, not split")
