@@ -373,3 +373,21 @@ def test_a_region_that_covers_a_splat_in_part_leaves_it_to_the_other_views() -> 
         if share > 0:
             np.testing.assert_array_equal(after.labels[partly], alone[partly])
     assert wall_balls[0.0] > 0 and wall_balls[0.5] == 0, wall_balls
+
+
+def test_a_label_map_from_elsewhere_is_a_views_evidence_and_the_strip_follows() -> None:
+    """``FieldSession.set_evidence``: a view's evidence given as a label map (a benchmark's ideal part mask) is lifted
+    as a cut is, and the labels and the strip are solved again; a wrong map moves the ball the other way."""
+    from abcgs.masks.page.field_session import FieldSession
+
+    model, truth = wall_and_ball(9)
+    cams = cameras(4)
+    maps = _truth_maps(model, truth, cams)
+    session = FieldSession(LabelField(model, cams), Strip.record(model, cams, side=48), {i: i for i in range(4)})
+    ball = truth.numpy() == 1
+    session.set_evidence(0, maps[0], None)
+    assert (session.result.labels[ball] == 1).mean() > 0.9 and session.state is not None
+    right = session.state.maps[2].copy()
+    session.set_evidence(0, np.full_like(maps[0], 2), None)  # everything wall
+    assert (session.result.labels[ball] == 1).mean() < 0.1
+    assert (session.state.maps[2] != right).any()

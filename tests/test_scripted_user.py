@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from eval.bench.scripted_user import next_stroke
+from eval.bench.scripted_user import largest_wrong_region, next_stroke
 from eval.labels import score_labels
 
 
@@ -16,6 +16,8 @@ def test_the_next_stroke_is_a_dot_inside_the_largest_wrong_region_with_the_refer
     pred = truth.copy()
     pred[10:20, 5:15] = 2  # a small wrong patch of label 1
     pred[20:50, 45:75] = 1  # a large wrong patch of label 2, centred at (x 60, y 35)
+    k, region = largest_wrong_region(pred, truth)
+    assert k == 2 and region.sum() == 30 * 30 and region[20:50, 45:75].all()
     s = next_stroke(pred, truth, radius=8.0)
     assert s is not None and s.label == 2
     x, y = s.points[0]

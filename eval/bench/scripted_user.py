@@ -21,6 +21,9 @@ geometry sets (:func:`eval.bench.strokes.geometry_bound`: all reference maps lif
 they are and refined the same way); the goal's pairs are held against the refined one. At the end, the ``masks``
 stage's labels from what the page saved (:func:`stage_maps`), scored the same way.
 
+With ``--clicks ideal`` each dot also brings the whole wrong region it lies in, with its reference label, as the
+view's evidence (:data:`Clicks`): what a perfect part mask per click would give the 3-D step.
+
 Every stroke is also a regression check: the change of the mean IoU and of each reference view's mean from the Segment
 before (``delta``), and the worst drop of either over the run (``regression``), which the figure's title shows.
 
@@ -37,6 +40,7 @@ import statistics
 import tempfile
 import time
 from pathlib import Path
+from typing import Literal
 
 from abcgs.runtime import setup
 
@@ -58,14 +62,19 @@ from eval.bench.strokes import DATA, FittedCase, geometry_bound, load_case, view
 from eval.labels import score_labels, stroke_overlay
 from eval.record import bench_parser, write_record
 
+Clicks = Literal["dot", "ideal"]
+"""What a scripted click gives the page: ``dot``, a dot (:func:`next_stroke`) that the page turns into a region
+(``masks.field.correction``); ``ideal``, the same dot and, as the view's evidence, the whole wrong region it lies in
+with its reference label (:func:`largest_wrong_region`): a perfect part mask per click, the most a better 2-D step
+could bring."""
+
 GOAL = {"strokes": 10, "mean_iou": 0.75, "pair_iou": 0.60, "below_bound": 0.05, "unlabelled": 0.02,
         "mean_drop": 0.01, "view_drop": 0.03}
 
 
-def next_stroke(pred: np.ndarray, truth: np.ndarray, radius: float) -> Stroke | None:
-    """A dot of the reference label at the interior-most pixel of the largest connected region of ``pred`` whose label
-    differs from ``truth`` (pixels where ``truth`` is a label > 0); None when none is wrong. Its radius is ``radius``
-    or less, to stay inside the region."""
+def largest_wrong_region(pred: np.ndarray, truth: np.ndarray) -> tuple[int, np.ndarray] | None:
+    """The largest connected region ``(H, W) bool`` of ``pred`` whose label differs from ``truth`` (pixels where
+    ``truth`` is a label > 0) and its reference label; None when none is wrong."""
     best = None
     for k in np.unique(truth[truth > 0]):
         wrong = ((truth == k) & (pred != k)).astype(np.uint8)
@@ -74,9 +83,17 @@ def next_stroke(pred: np.ndarray, truth: np.ndarray, radius: float) -> Stroke | 
             area = stats[c, cv2.CC_STAT_AREA]
             if best is None or area > best[0]:
                 best = (area, int(k), comp == c)
-    if best is None:
+    return None if best is None else best[1:]
+
+
+def next_stroke(pred: np.ndarray, truth: np.ndarray, radius: float) -> Stroke | None:
+    """A dot of the reference label at the interior-most pixel of the largest connected region of ``pred`` whose label
+    differs from ``truth`` (:func:`largest_wrong_region`); None when none is wrong. Its radius is ``radius`` or less,
+    to stay inside the region."""
+    wrong = largest_wrong_region(pred, truth)
+    if wrong is None:
         return None
-    _, k, region = best
+    k, region = wrong
     dist = cv2.distanceTransform(np.pad(region, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1]
     y, x = np.unravel_index(int(np.argmax(dist)), dist.shape)
     return Stroke(k, np.array([[x + 0.5, y + 0.5]]), float(max(1.0, min(radius, dist[y, x] - 1.0))))
@@ -113,9 +130,10 @@ class ScriptedUser:
     each painted view's strokes."""
 
     def __init__(self, model, scene, refs: dict[str, np.ndarray], by_stem: dict[str, int], params: FieldParams,
-                 strip: Strip | None = None):
-        self.scene, self.refs, self.by_stem = scene, refs, by_stem
+                 strip: Strip | None = None, clicks: Clicks = "dot"):
+        self.scene, self.refs, self.by_stem, self.clicks = scene, refs, by_stem, clicks
         self.strokes: dict[int, list[Stroke]] = {}
+        self.ideal: dict[int, np.ndarray] = {}  # clicks: ideal: each view's clicked wrong regions, -1 elsewhere
         photos = [to_uint8(load_image(p)) for p in scene.image_paths]
         self.photos = {s: photos[by_stem[s]] for s in refs}
         strip = strip if strip is not None else Strip.record(model, scene.cameras, photos)
@@ -132,7 +150,11 @@ class ScriptedUser:
         photo = to_uint8(load_image(self.scene.image_paths[index]))
         self.session.segment(index, photo, seeds, started=t0)
         state = self.session.state
-        return {**state.phases, "total": state.seconds}
+        seconds = {**state.phases, "total": state.seconds}  # the page's Segment
+        if index in self.ideal:  # the clicked regions, as a perfect part mask per click would give them
+            cut = self.session.field.cut_of(index)
+            self.session.set_evidence(index, np.where(self.ideal[index] >= 0, self.ideal[index], cut), seeds)
+        return seconds
 
     def maps(self, rendered: bool = False) -> dict[str, np.ndarray]:
         """Each reference view's labels as the stage writes them (refined against the view's photo, a painted view's
@@ -245,6 +267,9 @@ def run(user: ScriptedUser, front: int, first: list[Stroke], n_labels: int, max_
         if stroke is None:
             return steps
         idx = user.by_stem[worst]
+        if user.clicks == "ideal":
+            k, region = largest_wrong_region(maps[worst], user.refs[worst])
+            user.ideal.setdefault(idx, np.full(region.shape, -1, np.int64))[region] = k
         user.strokes.setdefault(idx, []).append(stroke)
         steps[-1]["next"] = {"view": worst, "label": stroke.label, "at": stroke.points[0].tolist()}
         seconds = user.segment(idx)
@@ -269,7 +294,7 @@ def figure(user: ScriptedUser, steps: list[dict], path: Path) -> None:
 
 
 def run_setting(case: FittedCase, params: FieldParams, max_strokes: int, radius: float,
-                strip: Strip | None = None) -> tuple[dict, ScriptedUser]:
+                strip: Strip | None = None, clicks: Clicks = "dot") -> tuple[dict, ScriptedUser]:
     """One scripted run on ``case`` at ``params``: the bounds, the steps, the ``masks`` stage's score; its record
     (without provenance) and the user, for the figure. ``strip``: a recorded strip to reuse (the Gaussians are the
     same)."""
@@ -278,7 +303,7 @@ def run_setting(case: FittedCase, params: FieldParams, max_strokes: int, radius:
     front_stem, items = spec["test"]["view"], spec["test"]["strokes"]
     front = by_stem[front_stem]
     bound = geometry_bound(model, scene.cameras, by_stem, refs, list(refs), n_labels)
-    user = ScriptedUser(model, scene, refs, by_stem, params, strip)
+    user = ScriptedUser(model, scene, refs, by_stem, params, strip, clicks)
     refined_bound = geometry_bound(model, scene.cameras, by_stem, refs, list(refs), n_labels, user.photos,
                                    params)
     print(f"bound (six reference maps lifted): mean IoU {bound['mean_iou']:.3f} rendered from the Gaussians, "
@@ -298,7 +323,8 @@ def run_setting(case: FittedCase, params: FieldParams, max_strokes: int, radius:
     print(f"the masks stage on what the page saved: mean IoU {stage['mean_iou']:.3f} (the page: "
           f"{steps[-1]['mean_iou']:.3f})", flush=True)
     record = {"scene": spec["title"], "n_gaussians": model.num_gaussians, "views": len(scene.cameras),
-              "labels": spec["labels"], "reference_views": list(refs), "field": params.model_dump(), "goal": GOAL,
+              "labels": spec["labels"], "reference_views": list(refs), "field": params.model_dump(), "clicks": clicks,
+              "goal": GOAL,
               "geometry_bound": bound, "refined_bound": refined_bound, "steps": steps, "stage": stage,
               "regression": regression(steps), "verdict": verdict(steps, refined_bound), "attribution": why,
               "median_segment_seconds": statistics.median(s["seconds"]["total"] for s in steps),
@@ -329,6 +355,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--work", type=Path, required=True, help="where eval.bench.fit left the fitted scene")
     ap.add_argument("--max-strokes", type=int, default=GOAL["strokes"], help="scripted strokes after the test ones")
     ap.add_argument("--radius", type=float, default=4.0, help="the scripted dots' largest radius (pixels)")
+    ap.add_argument("--clicks", choices=["dot", "ideal"], default="dot",
+                    help="ideal: each click also gives its whole wrong region as the view's evidence (Clicks)")
     ap.add_argument("--field", default="{}", help="masks.field settings as JSON (default: the masks section's)")
     ap.add_argument("--settings", type=Path,
                     help="a YAML file of named masks.field settings (name: {key: value}, over --field): one run "
@@ -339,7 +367,7 @@ def main(argv: list[str] | None = None) -> int:
     case = load_case(DATA / args.scene, args.scene, args.work)
     base = json.loads(args.field)
     if args.settings is None:
-        record, user = run_setting(case, FieldParams(**base), args.max_strokes, args.radius)
+        record, user = run_setting(case, FieldParams(**base), args.max_strokes, args.radius, clicks=args.clicks)
         if args.json:
             write_record(args.json, record, argv)
         if args.figure:
@@ -352,7 +380,7 @@ def main(argv: list[str] | None = None) -> int:
     for name, overrides in settings.items():
         print(f"== {name}: {json.dumps(overrides or {})}", flush=True)
         record, user = run_setting(case, FieldParams(**{**base, **(overrides or {})}), args.max_strokes, args.radius,
-                                   strip)
+                                   strip, args.clicks)
         strip = user.session.strip
         rows.append(summary(name, overrides or {}, record))
     if args.json:

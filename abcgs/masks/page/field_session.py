@@ -147,6 +147,15 @@ class FieldSession:
             else:
                 self.result, self.state = None, None
 
+    def set_evidence(self, item: int, cut: np.ndarray, strokes: np.ndarray | None) -> None:
+        """Page item ``item``'s evidence is ``cut`` ``(H, W) int64`` (0..L, :data:`NO_VOTE` undecided), a label map made
+        elsewhere (a benchmark's ideal part mask, say), with its ``strokes``; the labels and the strip are solved
+        again."""
+        with self._lock:
+            started = time.perf_counter()
+            self.field.set_view(self.camera_of[item], cut, strokes)
+            self._solve(started)
+
     def _solve(self, started: float, cut_seconds: float = 0.0) -> None:
         t0 = time.perf_counter()
         before = self.result
