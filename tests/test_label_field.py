@@ -391,3 +391,35 @@ def test_a_label_map_from_elsewhere_is_a_views_evidence_and_the_strip_follows() 
     session.set_evidence(0, np.full_like(maps[0], 2), None)  # everything wall
     assert (session.result.labels[ball] == 1).mean() < 0.1
     assert (session.state.maps[2] != right).any()
+
+
+def test_a_painted_views_cut_spreads_over_the_part_of_the_photo_it_lies_in() -> None:
+    """A painted view's cut decides a patch of label 1 inside a square of the photo of its own colour, which the wall
+    (label 2) renders into. Refined with the cut put in (:func:`~abcgs.masks.field.with_cut`), the rest of the square
+    takes the cut's label along the photo; refined from the Gaussians alone it stays wall, and so does the wall round
+    the square, beyond its edges."""
+    import cv2
+
+    model, truth = wall_and_ball(10)
+    cam = cameras(3)[0]
+    truth_map = _truth_maps(model, truth, [cam])[0]
+    field = LabelField(model, [cam])
+    field.set_view(0, truth_map)
+    result = field.solve()  # the labels in 3-D: the wall is wall
+    h, w = truth_map.shape
+    ys, xs = np.nonzero(truth_map == 2)
+    y0, x0 = int(ys.min()) + 2, int(xs.min()) + 2  # a square in the wall's top-left corner
+    square = np.zeros((h, w), bool)
+    square[y0 : y0 + 16, x0 : x0 + 16] = True
+    assert (truth_map[square] == 2).all()
+    photo = np.full((h, w, 3), (60, 160, 80), np.uint8)
+    photo[square] = (200, 40, 40)
+    cut = np.full((h, w), NO_VOTE, np.int64)
+    cut[y0 + 2 : y0 + 14, x0 + 2 : x0 + 14] = 1  # 144 of the square's 256 pixels
+    field.set_view(0, cut)  # what the user painted there; the labels in 3-D stay the ones solved above
+    shown = render_field(field, result, 0, photo=photo)
+    alone = render_field(field, result, 0, photo=photo, cut_where_painted=False)
+    ring = square & (cut < 0)
+    assert (shown[ring] == 1).mean() > 0.9 and (alone[ring] == 2).mean() > 0.9
+    around = cv2.dilate(square.astype(np.uint8), np.ones((13, 13), np.uint8)).astype(bool) & ~square & (truth_map == 2)
+    assert around.sum() > 100 and (shown[around] == 2).mean() > 0.95

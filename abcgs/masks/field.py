@@ -343,7 +343,8 @@ def render_field(field: LabelField, result: FieldResult, index: int, *, threshol
     the label around them, specks dropped); a view larger than :data:`~abcgs.masks.lifting.LIFT_PIXELS` is rendered
     and refined at that size and its labels brought to its own along the photo's edges
     (:func:`~abcgs.masks.edges.upsample_labels`); and, on a painted view with ``cut_where_painted``, its cut
-    wherever the cut decided: a painted view keeps what the user saw and accepted on the page."""
+    wherever the cut decided (a painted view keeps what the user saw and accepted on the page), which the refinement
+    also starts from there (:func:`with_cut`)."""
     from abcgs.masks.edges import upsample_labels
     from abcgs.masks.lifting import pick_labels, render_label_weights
 
@@ -351,16 +352,35 @@ def render_field(field: LabelField, result: FieldResult, index: int, *, threshol
     small = lift_camera(cam)
     img, alpha = render_label_weights(field.model, torch.as_tensor(result.labels), result.n_labels, small,
                                       decided=torch.as_tensor(result.decided), backend=field.backend)
+    cut = field.cut_of(index) if cut_where_painted else None
     if photo is not None and field.params.edge_radius > 0:
         photo_small = photo if small is cam else cv2.resize(photo, (small.width, small.height),
                                                             interpolation=cv2.INTER_AREA)
-        out = refine_labels(img.numpy(), alpha.numpy(), photo_small, field.params)
+        weights = img.numpy() if cut is None else with_cut(img.numpy(), _resized_labels(cut, small))
+        out = refine_labels(weights, alpha.numpy(), photo_small, field.params)
         if small is not cam:
             out = upsample_labels(out, np.ones(out.shape, bool), photo)[0]
     else:
         out = pick_labels(img, alpha, threshold, undecided=0).numpy().astype(np.int64)
         if small is not cam:
-            out = cv2.resize(out.astype(np.int32), (cam.width, cam.height), interpolation=cv2.INTER_NEAREST
-                             ).astype(np.int64)
-    cut = field.cut_of(index) if cut_where_painted else None
+            out = _resized_labels(out, cam)
     return out if cut is None else np.where(cut >= 0, cut, out)
+
+
+def _resized_labels(labels: np.ndarray, cam: Camera) -> np.ndarray:
+    """A label map ``(H, W) int64`` at ``cam``'s size (nearest neighbour; as it is when it has that size)."""
+    if labels.shape == (cam.height, cam.width):
+        return labels
+    return cv2.resize(labels.astype(np.int32), (cam.width, cam.height), interpolation=cv2.INTER_NEAREST).astype(np.int64)
+
+
+def with_cut(weights: np.ndarray, cut: np.ndarray) -> np.ndarray:
+    """A painted view's rendered label weights ``(H, W, L + 2)`` with its ``cut`` ``(H, W)`` (0..L, NO_VOTE) put in
+    where the cut decided: there the cut's label has the full weight 1 and every other channel 0, so that the
+    refinement (:func:`refine_labels`) carries what the user painted along the photo over the part it lies in, as
+    far as the part's colour goes, instead of the few pixels the cut covers."""
+    out = np.array(weights, np.float32, copy=True)
+    ys, xs = np.nonzero((cut >= 0) & (cut < out.shape[-1] - 1))
+    out[ys, xs] = 0.0
+    out[ys, xs, cut[ys, xs]] = 1.0
+    return out
