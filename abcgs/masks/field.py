@@ -15,8 +15,8 @@ where the cut left a pixel undecided) and its strokes (a seed map: -1 none, 0 th
    undecided. A Gaussian's evidence for label l is its confident vote for l over its blending weight in the whole
    view (``evidence_of: view``; ``decided``: in the pixels the cut decided), so a large splat a correction covers in
    part is weak evidence; under ``cut_share`` of that weight on decided pixels, the view casts no vote on it at all,
-   and the splat keeps what the other views say of it. With ``occlusion``, what lies behind the view's surface casts no vote there
-   (:func:`~abcgs.masks.lifting.occluded_gaussians`).
+   and the splat keeps what the other views say of it. With ``occlusion``, what lies behind the view's surface casts
+   no vote there (:func:`~abcgs.masks.lifting.occluded_gaussians`).
 3. **The 3-D step** (:mod:`abcgs.masks.graph`, ``solver``): ``geodesic`` (the default) gives each Gaussian the label
    of the stroke or the evidence nearest to it along the Gaussians' neighbour graph, evidence e starting at
    ``evidence_cost × (1 - e)``; ``walk`` is a random walk over the same graph with the strokes as seeds and the cuts'
@@ -210,7 +210,7 @@ class LabelField:
                 if self.params.occlusion > 0:  # what the view's surface hides casts no vote there
                     keep = (~occluded_gaussians(self.model, cam, self.params.occlusion, backend=self.backend)).float()
                     v.votes, v.cover, v.seen = v.votes * keep[:, None], v.cover * keep, v.seen * keep
-                if self.params.cut_share > 0:  # a view votes only on the splats its cut decided the most of
+                if self.params.cut_share > 0:  # a view votes only on the splats its cut decided cut_share of
                     keep = (v.cover >= self.params.cut_share * v.seen).float()
                     v.votes, v.cover, v.seen = v.votes * keep[:, None], v.cover * keep, v.seen * keep
             if v.strokes is not None and v.stroke_votes is None:
@@ -371,7 +371,8 @@ def _resized_labels(labels: np.ndarray, cam: Camera) -> np.ndarray:
     """A label map ``(H, W) int64`` at ``cam``'s size (nearest neighbour; as it is when it has that size)."""
     if labels.shape == (cam.height, cam.width):
         return labels
-    return cv2.resize(labels.astype(np.int32), (cam.width, cam.height), interpolation=cv2.INTER_NEAREST).astype(np.int64)
+    out = cv2.resize(labels.astype(np.int32), (cam.width, cam.height), interpolation=cv2.INTER_NEAREST)
+    return out.astype(np.int64)
 
 
 def with_cut(weights: np.ndarray, cut: np.ndarray) -> np.ndarray:

@@ -143,7 +143,9 @@ class ScriptedUser:
               f"{self.session.graph_seconds:.1f} s", flush=True)
 
     def segment(self, index: int) -> dict:
-        """What the page does on Segment for view ``index`` (:meth:`FieldSession.segment`); the seconds, split."""
+        """What the page does on Segment for view ``index`` (:meth:`FieldSession.segment`); the seconds, split. With
+        ideal clicks, the view's clicked regions then become its evidence (:meth:`FieldSession.set_evidence`, not
+        timed: no page does it)."""
         cam = self.scene.cameras[index]
         t0 = time.perf_counter()
         seeds = rasterize_strokes(self.strokes[index], (cam.height, cam.width))
