@@ -207,11 +207,11 @@ class LabelField:
             cam = self.cameras[i]
             if v.cut is not None and v.votes is None:
                 v.votes, v.cover, v.seen = self._cut_votes(v, cam)
+                keep = v.cover >= self.params.cut_share * v.seen  # the splats its cut decided cut_share of
                 if self.params.occlusion > 0:  # what the view's surface hides casts no vote there
-                    keep = (~occluded_gaussians(self.model, cam, self.params.occlusion, backend=self.backend)).float()
-                    v.votes, v.cover, v.seen = v.votes * keep[:, None], v.cover * keep, v.seen * keep
-                if self.params.cut_share > 0:  # a view votes only on the splats its cut decided cut_share of
-                    keep = (v.cover >= self.params.cut_share * v.seen).float()
+                    keep &= ~occluded_gaussians(self.model, cam, self.params.occlusion, backend=self.backend)
+                if not bool(keep.all()):
+                    keep = keep.float()
                     v.votes, v.cover, v.seen = v.votes * keep[:, None], v.cover * keep, v.seen * keep
             if v.strokes is not None and v.stroke_votes is None:
                 v.stroke_votes = self._stroke_votes(v.strokes, cam)

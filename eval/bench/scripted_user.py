@@ -91,12 +91,15 @@ def next_stroke(pred: np.ndarray, truth: np.ndarray, radius: float) -> Stroke | 
     differs from ``truth`` (:func:`largest_wrong_region`); None when none is wrong. Its radius is ``radius`` or less,
     to stay inside the region."""
     wrong = largest_wrong_region(pred, truth)
-    if wrong is None:
-        return None
-    k, region = wrong
+    return None if wrong is None else dot_inside(*wrong, radius)
+
+
+def dot_inside(label: int, region: np.ndarray, radius: float) -> Stroke:
+    """A dot of ``label`` at the interior-most pixel of ``region`` ``(H, W) bool`` (largest distance to its edge),
+    of radius ``radius`` or less, to stay inside it."""
     dist = cv2.distanceTransform(np.pad(region, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1]
     y, x = np.unravel_index(int(np.argmax(dist)), dist.shape)
-    return Stroke(k, np.array([[x + 0.5, y + 0.5]]), float(max(1.0, min(radius, dist[y, x] - 1.0))))
+    return Stroke(label, np.array([[x + 0.5, y + 0.5]]), float(max(1.0, min(radius, dist[y, x] - 1.0))))
 
 
 def regression(steps: list[dict]) -> dict:
@@ -265,12 +268,13 @@ def run(user: ScriptedUser, front: int, first: list[Stroke], n_labels: int, max_
             return steps
         view_means = {v: np.mean(list(d.values())) for v, d in s["iou"].items()}
         worst = min(view_means, key=view_means.get)
-        stroke = next_stroke(maps[worst], user.refs[worst], radius)
-        if stroke is None:
+        wrong = largest_wrong_region(maps[worst], user.refs[worst])
+        if wrong is None:
             return steps
+        stroke = dot_inside(*wrong, radius)
         idx = user.by_stem[worst]
         if user.clicks == "ideal":
-            k, region = largest_wrong_region(maps[worst], user.refs[worst])
+            k, region = wrong
             user.ideal.setdefault(idx, np.full(region.shape, -1, np.int64))[region] = k
         user.strokes.setdefault(idx, []).append(stroke)
         steps[-1]["next"] = {"view": worst, "label": stroke.label, "at": stroke.points[0].tolist()}
