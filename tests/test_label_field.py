@@ -194,7 +194,8 @@ def test_no_cut_flips_a_gaussian_that_a_stroke_on_another_view_bound(evidence: s
 def test_a_cut_far_from_its_strokes_weighs_less_than_one_near_them() -> None:
     """View 0's cut is right and painted all over; view 4's cut calls the ball wall, its one stroke in a corner of the
     wall. As soft evidence, view 4's cut where it has no stroke near counts for little and the ball stays a ball;
-    as a hard vote (the earlier rule) it outvotes view 0 on the Gaussians both see."""
+    as a hard vote (the earlier rule) it outvotes view 0 on the Gaussians both see. Occlusion is off: the back of the
+    ball, hidden from view 0, would otherwise hear view 4 alone."""
     model, truth = wall_and_ball(7)
     cams = cameras(5)
     maps = _truth_maps(model, truth, cams)
@@ -208,7 +209,7 @@ def test_a_cut_far_from_its_strokes_weighs_less_than_one_near_them() -> None:
     kept = {}
     for evidence in ("soft", "hard"):
         field = LabelField(model, cams, MaskParams().field.model_copy(update={"cut_evidence": evidence,
-                                                                                 "stroke_weight": 1e9}))
+                                                                                 "stroke_weight": 1e9, "occlusion": 0.0}))
         field.set_view(0, maps[0], everywhere)
         field.set_view(4, wrong, corner)
         kept[evidence] = float((field.solve().labels[ball] == 1).mean())
@@ -343,7 +344,7 @@ def test_a_region_that_covers_a_splat_in_part_leaves_it_to_the_other_views() -> 
     """View 0's cut is right. A correction on view 4 claims the wall in a disc that also covers the ball's rim (a
     region that bled across the border). With ``cut_share`` 0.5, a ball Gaussian with under half of its blending
     weight in view 4 on the disc takes no vote from it and keeps the label view 0's cut gave it; without, the disc
-    turns some of them into wall."""
+    turns some of them into wall. Occlusion is off: it holds some of those rim Gaussians too."""
     from abcgs.masks.lifting import blend_votes
 
     model, truth = wall_and_ball(8)
@@ -356,14 +357,14 @@ def test_a_region_that_covers_a_splat_in_part_leaves_it_to_the_other_views() -> 
     region = np.where(disc, 2, NO_VOTE)
     strokes = np.where((yy - cy) ** 2 + (xx - (cx - 8)) ** 2 <= 2.0**2, 2, -1)
     w = blend_votes(model, cams[4], torch.from_numpy(np.stack([disc, np.ones_like(disc)], -1).astype(np.float32)))
-    front = LabelField(model, cams)
+    front = LabelField(model, cams, MaskParams().field.model_copy(update={"occlusion": 0.0}))
     front.set_view(0, maps[0])
     lifted = front.solve().source == 2  # decided by view 0's cut
     partly = ((w[:, 0] > 0) & (w[:, 0] < 0.5 * w[:, 1])).numpy() & (truth.numpy() == 1) & lifted
     assert partly.sum() > 10
     wall_balls = {}
     for share in (0.0, 0.5):
-        field = LabelField(model, cams, MaskParams().field.model_copy(update={"cut_share": share}))
+        field = LabelField(model, cams, MaskParams().field.model_copy(update={"cut_share": share, "occlusion": 0.0}))
         field.set_view(0, maps[0])
         alone = field.solve().labels.copy()
         field.set_view(4, region, strokes)

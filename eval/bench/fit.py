@@ -48,6 +48,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--threads", type=int, default=0, help="torch threads (0 = all cores)")
     ap.add_argument("--device", default="auto", help="runtime.device: auto, cpu, cuda, cuda:N")
     ap.add_argument("--sh-degree", type=int, default=0, help="fit.sh_degree")
+    ap.add_argument("--seed", type=int, default=0, help="fit.seed: the fit's random draws (another seed, another fit)")
     ap.add_argument("--test-every", type=int, default=8, help="fit.test_every (0: train on every view, no held-out PSNR)")
     ap.add_argument("--refine-every", type=int, default=100)
     ap.add_argument("--refine-stop-fraction", type=float, default=0.6, help="densify until this fraction of the steps")
@@ -70,7 +71,7 @@ def main(argv=None) -> dict:
     scene = read_scene(colmap)
     params = FitParams(
         iterations=args.iterations, eval_every=args.eval_every, max_gaussians=args.max_gaussians,
-        threads=args.threads, sh_degree=args.sh_degree, test_every=args.test_every,
+        threads=args.threads, sh_degree=args.sh_degree, test_every=args.test_every, seed=args.seed,
         strategy=StrategyParams(
             refine_start=min(500, args.iterations // 10), refine_every=args.refine_every,
             refine_stop=int(args.refine_stop_fraction * args.iterations), reset_every=args.reset_every,

@@ -358,7 +358,9 @@ def summary(name: str, overrides: dict, record: dict) -> dict:
 def main(argv: list[str] | None = None) -> int:
     ap = bench_parser(__doc__)
     ap.add_argument("--scene", default="miku", help="eval/data/<scene>/ (strokes.json, reference/)")
-    ap.add_argument("--work", type=Path, required=True, help="where eval.bench.fit left the fitted scene")
+    ap.add_argument("--work", type=Path, nargs="+", required=True,
+                    help="where eval.bench.fit left the fitted scene; with --settings, several fits (one run per fit "
+                         "and setting: another seed or machine gives another fit)")
     ap.add_argument("--max-strokes", type=int, default=GOAL["strokes"], help="scripted strokes after the test ones")
     ap.add_argument("--radius", type=float, default=4.0, help="the scripted dots' largest radius (pixels)")
     ap.add_argument("--clicks", choices=["dot", "ideal"], default="dot",
@@ -370,9 +372,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--figure", type=Path, help="write the final labels beside the references here")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(message)s")
-    case = load_case(DATA / args.scene, args.scene, args.work)
     base = json.loads(args.field)
     if args.settings is None:
+        if len(args.work) > 1:
+            ap.error("one --work without --settings (a record is one run)")
+        case = load_case(DATA / args.scene, args.scene, args.work[0])
         record, user = run_setting(case, FieldParams(**base), args.max_strokes, args.radius, clicks=args.clicks)
         if args.json:
             write_record(args.json, record, argv)
@@ -382,18 +386,22 @@ def main(argv: list[str] | None = None) -> int:
     import yaml
 
     settings = yaml.safe_load(args.settings.read_text(encoding="utf-8"))
-    rows, strip = [], None
-    for name, overrides in settings.items():
-        print(f"== {name}: {json.dumps(overrides or {})}", flush=True)
-        record, user = run_setting(case, FieldParams(**{**base, **(overrides or {})}), args.max_strokes, args.radius,
-                                   strip, args.clicks)
-        strip = user.session.strip
-        rows.append(summary(name, overrides or {}, record))
+    rows, fits = [], []
+    for work in args.work:
+        case, strip = load_case(DATA / args.scene, args.scene, work), None
+        for name, overrides in settings.items():
+            print(f"== {work}: {name}: {json.dumps(overrides or {})}", flush=True)
+            record, user = run_setting(case, FieldParams(**{**base, **(overrides or {})}), args.max_strokes,
+                                       args.radius, strip, args.clicks)
+            strip = user.session.strip
+            rows.append({"fit": str(work), **summary(name, overrides or {}, record)})
+        fits.append({"fit": str(work), "n_gaussians": case.model.num_gaussians,
+                     "geometry_bound": record["geometry_bound"], "refined_bound": record["refined_bound"]})
     if args.json:
-        write_record(args.json, {"what": f"eval.bench.scripted_user on {case.spec['title']}, one run per masks.field "
-                                         f"setting of {args.settings.name}", "scene": case.spec["title"],
-                                 "n_gaussians": case.model.num_gaussians, "geometry_bound": record["geometry_bound"],
-                                 "refined_bound": record["refined_bound"], "runs": rows}, argv)
+        write_record(args.json, {"what": f"eval.bench.scripted_user on {case.spec['title']}, one run per fit and "
+                                         f"masks.field setting of {args.settings.name}", "scene": case.spec["title"],
+                                 "n_gaussians": fits[0]["n_gaussians"], "geometry_bound": fits[0]["geometry_bound"],
+                                 "refined_bound": fits[0]["refined_bound"], "fits": fits, "runs": rows}, argv)
     return 0
 
 
