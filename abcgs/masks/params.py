@@ -81,7 +81,7 @@ class FieldParams(BaseModel):
         "its blending weight in the pixels its views' cuts decided (decided), or in the whole of those views "
         "(view): a large splat that a correction's dot covers in part is then weak evidence, not a near-seed")
     occlusion: float = Field(
-        0.1, ge=0.0, le=10.0, description="a Gaussian whose centre lies behind a painted view's surface by more than "
+        0.2, ge=0.0, le=10.0, description="a Gaussian whose centre lies behind a painted view's surface by more than "
         "this share of the surface's depth takes no vote from that view's cut; its strokes still bind it, as hard "
         "constraints (abcgs.masks.lifting.occluded_gaussians; 0: every Gaussian takes the cut's vote with its "
         "blending weight; docs/MASKS.md, miku's scripted user)")
