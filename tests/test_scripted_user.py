@@ -5,6 +5,7 @@ docs/MASKS.md has its record)."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from eval.bench.scripted_user import largest_wrong_region, next_stroke
 from eval.labels import score_labels
@@ -91,3 +92,12 @@ def test_the_attribution_finds_gaussians_the_references_disagree_on() -> None:
     assert g["wrong"]["test_ref"] > 0.9 and g["wrong"]["test_ref_is_all"] < 0.2
     assert g["right"]["test_ref_is_all"] > 0.9 and disagree["wrong_pixels"]["lifted"] > 0.5
     assert g["wrong"]["hidden_in_test_view"] < 0.1 and g["wrong"]["test_view_weight"] > 0  # measured 2.7 %
+
+
+def test_several_fits_need_a_settings_file(tmp_path, capsys) -> None:
+    """A record without ``--settings`` is one run: two ``--work`` folders are refused before any fit is read."""
+    from eval.bench.scripted_user import main
+
+    with pytest.raises(SystemExit) as err:
+        main(["--work", str(tmp_path / "a"), str(tmp_path / "b")])
+    assert err.value.code == 2 and "one --work without --settings" in capsys.readouterr().err
