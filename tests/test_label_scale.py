@@ -25,6 +25,7 @@ from abcgs.io.images import (
     labels_for_view,
     load_labels,
     load_stroke_map,
+    resized_labels,
     same_picture_scaled,
     save_labels,
     save_stroke_map,
@@ -51,6 +52,18 @@ def test_the_same_picture_at_another_scale_is_scaled_with_the_nearest_label() ->
     with pytest.raises(InputError, match=r"label map masks/a\.png is 1920×1080 but its view a\.jpg is 480×480, another "
                                          r"aspect, .*save it at 480×480"):
         labels_for_view(labels, (480, 480), "masks/a.png", "a.jpg")
+
+
+def test_a_label_map_with_undecided_pixels_keeps_them_when_resized() -> None:
+    """``resized_labels`` (a cut at the lift's working size, a view's labels at a stylization's scale): nearest
+    label, the undecided -1 kept, up and down."""
+    labels = np.full((40, 60), -1, np.int64)
+    labels[:20, :30], labels[20:, 30:] = 2, 300
+    up = resized_labels(labels, (80, 120))
+    assert up.shape == (80, 120) and up.dtype == np.int64 and set(np.unique(up)) == {-1, 2, 300}
+    assert (up[:40, :60] == 2).all() and (up[40:, 60:] == 300).all() and (up[:40, 60:] == -1).all()
+    np.testing.assert_array_equal(resized_labels(up, (40, 60)), labels)
+    assert resized_labels(labels, (40, 60)) is labels
 
 
 def nerfstudio_quarter(folder: Path, tiny_scene: Path) -> Path:

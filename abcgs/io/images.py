@@ -160,6 +160,15 @@ def check_label_size(path: str | os.PathLike, map_hw: tuple[int, int], view_hw: 
         f"label){', ' + fix if fix else ''}")
 
 
+def resized_labels(labels: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
+    """A label map ``(h, w) int`` (negative values, e.g. an undecided -1, kept) at the size ``hw`` ``(H, W)``, nearest
+    label; as it is when it has that size. Returns ``(H, W) int64``."""
+    if tuple(labels.shape[:2]) == tuple(hw):
+        return np.asarray(labels, np.int64)
+    out = cv2.resize(np.asarray(labels, np.int32), (hw[1], hw[0]), interpolation=cv2.INTER_NEAREST)
+    return out.astype(np.int64)
+
+
 def labels_for_view(labels: np.ndarray, view_hw: tuple[int, int], path: str | os.PathLike = "",
                     view: str = "") -> np.ndarray:
     """A label map ``(h, w)`` at its view's size ``view_hw`` ``(H, W)``: as it is when the sizes agree, scaled with
@@ -168,8 +177,7 @@ def labels_for_view(labels: np.ndarray, view_hw: tuple[int, int], path: str | os
     if tuple(labels.shape[:2]) == tuple(view_hw):
         return labels
     check_label_size(path, labels.shape[:2], view_hw, view)
-    src = labels.astype(np.uint16 if labels.max(initial=0) > 255 else np.uint8)
-    return cv2.resize(src, (view_hw[1], view_hw[0]), interpolation=cv2.INTER_NEAREST).astype(np.int64)
+    return resized_labels(labels, view_hw)
 
 
 def strokes_for_view(raw: np.ndarray, view_hw: tuple[int, int], path: str | os.PathLike = "",

@@ -45,6 +45,7 @@ import torch
 
 from abcgs.cameras import Camera
 from abcgs.gaussians import GaussianModel
+from abcgs.io.images import resized_labels
 from abcgs.masks.graph import GaussianGraph, decide_diffused, diffuse_labels, gaussian_graph, geodesic_labels
 from abcgs.masks.lifting import (
     NO_VOTE,
@@ -357,23 +358,15 @@ def render_field(field: LabelField, result: FieldResult, index: int, *, threshol
     if photo is not None and field.params.edge_radius > 0:
         photo_small = photo if small is cam else cv2.resize(photo, (small.width, small.height),
                                                             interpolation=cv2.INTER_AREA)
-        weights = img.numpy() if cut is None else with_cut(img.numpy(), _resized_labels(cut, small))
+        weights = img.numpy() if cut is None else with_cut(img.numpy(), resized_labels(cut, (small.height, small.width)))
         out = refine_labels(weights, alpha.numpy(), photo_small, field.params)
         if small is not cam:
             out = upsample_labels(out, np.ones(out.shape, bool), photo)[0]
     else:
         out = pick_labels(img, alpha, threshold, undecided=0).numpy().astype(np.int64)
         if small is not cam:
-            out = _resized_labels(out, cam)
+            out = resized_labels(out, (cam.height, cam.width))
     return out if cut is None else np.where(cut >= 0, cut, out)
-
-
-def _resized_labels(labels: np.ndarray, cam: Camera) -> np.ndarray:
-    """A label map ``(H, W) int64`` at ``cam``'s size (nearest neighbour; as it is when it has that size)."""
-    if labels.shape == (cam.height, cam.width):
-        return labels
-    out = cv2.resize(labels.astype(np.int32), (cam.width, cam.height), interpolation=cv2.INTER_NEAREST)
-    return out.astype(np.int64)
 
 
 def with_cut(weights: np.ndarray, cut: np.ndarray) -> np.ndarray:

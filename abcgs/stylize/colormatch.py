@@ -24,7 +24,7 @@ from abcgs.fit.training import fit
 from abcgs.gaussians import FITTED_ROW, GaussianModel
 from abcgs.gaussians.ply import write_ply
 from abcgs.io.atomic import atomic_path, write_json
-from abcgs.io.images import save_image
+from abcgs.io.images import resized_labels, save_image
 from abcgs.layout import ColorMatchDir
 from abcgs.silhouette import (
     Silhouette,
@@ -121,10 +121,7 @@ def color_match_and_refit(
     re-fits the colours alone (``stylize.color_only``: the geometry stays bit-identical, nothing is densified)."""
     views = load_views(scene, params.resolution_scale, test_every=0, device=model.device)
     if params.resolution_scale != 1.0:
-        import cv2
-
-        view_labels = [cv2.resize(v.astype(np.int32), (c.width, c.height), interpolation=cv2.INTER_NEAREST).astype(np.int64)
-                       for v, c in zip(view_labels, views.cameras)]
+        view_labels = [resized_labels(v, (c.height, c.width)) for v, c in zip(view_labels, views.cameras)]
     rows = torch.arange(model.num_gaussians, device=model.device)
     model = GaussianModel(**model.params(), attributes={**model.attributes, FITTED_ROW: rows})
     if not params.enabled:

@@ -21,7 +21,6 @@ import logging
 import time
 from dataclasses import replace
 
-import cv2
 import numpy as np
 import torch
 from torch import Tensor
@@ -30,6 +29,7 @@ from abcgs.cameras import Camera
 from abcgs.errors import InputError
 from abcgs.features.vgg import VGG16Features
 from abcgs.gaussians import GaussianModel, fitted_rows
+from abcgs.io.images import resized_labels
 from abcgs.runtime import release_free_memory
 from abcgs.silhouette import object_gaussians
 from abcgs.stylize.color import recolor_to_content
@@ -129,8 +129,7 @@ def stylize_scene(
     cams, labels = cameras, masks.view_labels
     if params.resolution_scale != 1.0:
         cams = [c.scaled(params.resolution_scale) for c in cameras]
-        labels = [cv2.resize(v.astype(np.int32), (c.width, c.height), interpolation=cv2.INTER_NEAREST).astype(np.int64)
-                  for v, c in zip(labels, cams)]
+        labels = [resized_labels(v, (c.height, c.width)) for v, c in zip(labels, cams)]
     res = stylize(with_higher_sh(matched, original, params.higher_sh), cams, labels, masks.gaussian_labels, groups,
                   vgg, params, method=method, depth_model=original, background=background,
                    label_weights=label_weights)
