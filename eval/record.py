@@ -28,6 +28,11 @@ from abcgs.io.atomic import write_json
 from abcgs.runtime import available_cores
 
 CPUINFO = Path("/proc/cpuinfo")
+KERNELS_PREFIX = "abcgs.render._kernels_"
+"""The module name of a loaded variant of the C++ kernels, less its variant (:mod:`abcgs.render.kernel_variants`)."""
+ISA_LIMITS = ("ATEN_CPU_CAPABILITY", "ONEDNN_MAX_CPU_ISA", "MKL_ENABLE_INSTRUCTIONS")
+"""Environment variables that make torch's CPU kernels use less of the instruction set than the CPU has: ATen's own
+kernels, oneDNN's (convolutions) and MKL's (matrix products)."""
 
 
 def bench_parser(doc: str | None, json_help: str = "write the record here") -> argparse.ArgumentParser:
@@ -59,9 +64,12 @@ def _cpu_model() -> str:
 def provenance(argv: list[str] | None = None) -> dict:
     """Where and how a record was made: ``command`` (reproduces the run; ``argv`` are its arguments, default
     ``sys.argv[1:]``), ``machine`` (architecture), ``cpu`` (model), ``cores`` (this process may run on),
-    ``loadavg`` (1, 5 and 15 min, rounded to 0.01; None where the OS has none), ``python``, ``torch`` and
-    ``torch_threads`` (only when torch is already imported: this function does not load it) and ``date`` (UTC, ISO
-    8601 to the second)."""
+    ``loadavg`` (1, 5 and 15 min, rounded to 0.01; None where the OS has none), ``python``, ``torch``,
+    ``torch_threads`` and ``cpu_capability`` (the SIMD level ATen's kernels run at, e.g. ``AVX512`` or ``AVX2``:
+    ``ATEN_CPU_CAPABILITY`` lowers it; only when torch is already imported: this function does not load it),
+    ``kernels`` (the variant of abcgs's C++ kernels the run loaded, e.g. ``x86_64_v3``; only when it loaded them),
+    ``isa_limits`` (the environment variables that cap the instruction set of ATen, oneDNN or MKL, e.g.
+    ``ONEDNN_MAX_CPU_ISA``; only those set) and ``date`` (UTC, ISO 8601 to the second)."""
     try:
         load: list[float] | None = [round(x, 2) for x in os.getloadavg()]
     except (AttributeError, OSError):  # Windows
@@ -70,7 +78,14 @@ def provenance(argv: list[str] | None = None) -> dict:
            "loadavg": load, "python": platform.python_version()}
     torch = sys.modules.get("torch")
     if torch is not None:
-        out.update(torch=torch.__version__, torch_threads=torch.get_num_threads())
+        out.update(torch=torch.__version__, torch_threads=torch.get_num_threads(),
+                   cpu_capability=torch.backends.cpu.get_cpu_capability())
+    loaded = sorted(m for m in sys.modules if m.startswith(KERNELS_PREFIX))
+    if loaded:
+        out["kernels"] = loaded[0][len(KERNELS_PREFIX):]
+    limits = {k: os.environ[k] for k in ISA_LIMITS if k in os.environ}
+    if limits:
+        out["isa_limits"] = limits
     out["date"] = datetime.now(timezone.utc).isoformat(timespec="seconds")
     return out
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import ast
 import json
+import os
 import subprocess
 import sys
 from datetime import datetime, timedelta
@@ -115,11 +116,25 @@ def test_write_record_adds_the_provenance_and_keeps_the_records_own_keys(tmp_pat
     assert prov["command"].startswith("python ") and prov["command"].endswith(" --steps 3 --note 'a b'")
     assert prov["cores"] >= 1 and prov["machine"] and prov["python"].count(".") == 2
     assert prov["torch"] == torch.__version__ and prov["torch_threads"] == torch.get_num_threads()
+    assert prov["cpu_capability"] == torch.backends.cpu.get_cpu_capability()
     assert datetime.fromisoformat(prov["date"]).utcoffset() == timedelta(0)
     assert prov["loadavg"] is None or len(prov["loadavg"]) == 3
     write_record(path, {"provenance": {"command": "kept"}, "x": 1})
     assert json.loads(path.read_text()) == {"provenance": {"command": "kept"}, "x": 1}
     assert not list(path.parent.glob(".*.tmp*")), "the atomic writer left its temporary file"
+
+
+def test_provenance_names_the_simd_level_and_the_kernel_variant_a_run_used():
+    """A run with ``ATEN_CPU_CAPABILITY=default`` takes ATen's portable kernels and abcgs's portable build; the
+    record says so (a timing made with lower SIMD code than the machine has is labelled as such)."""
+    code = ("import json; import torch; from abcgs.render.cpu import load_extension; load_extension(); "
+            "from eval.record import provenance; p = provenance([]); "
+            "print(json.dumps([p['cpu_capability'], p['kernels'], p['isa_limits']]))")
+    env = {k: v for k, v in os.environ.items() if k not in ("ONEDNN_MAX_CPU_ISA", "MKL_ENABLE_INSTRUCTIONS")}
+    env["ATEN_CPU_CAPABILITY"] = "default"
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=REPO, env=env)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout) == ["DEFAULT", "portable", {"ATEN_CPU_CAPABILITY": "default"}]
 
 
 def test_provenance_does_not_load_torch():
