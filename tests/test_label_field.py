@@ -261,13 +261,15 @@ def test_a_dot_binds_the_gaussians_it_lies_on_not_a_large_splat_across_it() -> N
     cams = cameras(3)
     dot = _ball_stroke(model, truth, cams[0])
     bound = {}
-    for share in (0.0, 0.03):
+    default = MaskParams().field.stroke_share
+    for share in (0.0, 0.03, default):
         field = LabelField(both, cams, MaskParams().field.model_copy(update={"stroke_share": share}))
         field.set_view(0, None, dot)
         result = field.solve()
         bound[share] = result.source == 1
         assert bound[share][:n][truth.numpy() == 1].sum() > 5  # the ball under the dot is bound either way
-    assert bound[0.0][n] and not bound[0.03][n]
+    assert bound[0.0][n] and not bound[0.03][n] and not bound[default][n]
+    assert bound[default].sum() < bound[0.03].sum()  # the default binds only the splats mostly under the dot
 
 
 def test_what_a_painted_view_hides_casts_no_vote_with_occlusion() -> None:
@@ -322,7 +324,8 @@ def test_a_view_larger_than_the_lift_size_is_lifted_and_rendered_at_it(monkeypat
     runs = {}
     for name, pixels in (("own size", lifting.LIFT_PIXELS), ("lifted", cams[0].width * cams[0].height // 9)):
         monkeypatch.setattr(lifting, "LIFT_PIXELS", pixels)
-        field = LabelField(model, cams)
+        # every Gaussian's stroke weight kept (stroke_share 0): the units are compared, not which splats bind
+        field = LabelField(model, cams, MaskParams().field.model_copy(update={"stroke_share": 0.0}))
         field.set_view(0, maps[0], dots)
         result = field.solve()
         runs[name] = (field._views[0], result, render_field(field, result, 1, threshold=0.5),

@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from eval.bench.scripted_user import largest_wrong_region, next_stroke
+from abcgs.masks.strokes import rasterize_strokes
+from eval.bench.scripted_user import largest_wrong_region, line_inside, next_stroke
 from eval.labels import score_labels
 
 
@@ -28,6 +29,25 @@ def test_the_next_stroke_is_a_dot_inside_the_largest_wrong_region_with_the_refer
     thin = truth.copy()
     thin[:, 40] = 1  # a wrong region one pixel wide: the dot shrinks to stay inside
     assert next_stroke(thin, truth, radius=8.0).radius == 1.0
+
+
+def test_a_scripted_stroke_crosses_the_wrong_region_along_its_long_axis_and_stays_inside() -> None:
+    region = np.zeros((60, 120), bool)
+    region[25:36, 10:110] = True  # a bar 100 px long, 11 px high, centred at (x 60, y 30)
+    s = line_inside(3, region, radius=4.0, length=60.0)
+    assert s.label == 3 and s.points.shape == (2, 2) and 1.0 <= s.radius <= 4.0
+    (x0, y0), (x1, y1) = s.points
+    assert abs(y0 - y1) < 1.0 and 59 <= abs(x1 - x0) <= 60  # horizontal, as long as allowed
+    dot = next_stroke(np.where(region, 1, 3), np.where(region, 3, 0), radius=4.0).points[0]
+    assert min(x0, x1) <= dot[0] <= max(x0, x1) and abs(dot[1] - y0) <= 1  # through the dot's pixel
+    painted = rasterize_strokes([s], region.shape) >= 0
+    assert painted.sum() > 200 and not (painted & ~region).any()  # the brush never leaves the region
+    short = line_inside(3, region, radius=4.0, length=400.0)  # longer than the bar: stops at its ends
+    painted = rasterize_strokes([short], region.shape) >= 0
+    assert not (painted & ~region).any() and abs(short.points[1, 0] - short.points[0, 0]) >= 85
+    tall = region.T.copy()  # the same bar upright: the stroke turns with it
+    (x0, y0), (x1, y1) = line_inside(3, tall, radius=4.0, length=60.0).points
+    assert abs(x0 - x1) < 1.0 and abs(y1 - y0) >= 50
 
 
 def test_a_step_scores_every_pair_and_the_unlabelled_share() -> None:

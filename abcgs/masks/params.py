@@ -99,8 +99,9 @@ class FieldParams(BaseModel):
         0.1, gt=0.0, description="least blending weight (summed over a view's stroke pixels) for a Gaussian to take "
         "the stroke's label as a hard constraint")
     stroke_share: float = Field(
-        0.05, ge=0.0, le=1.0, description="least share of a Gaussian's blending weight in a view that must lie under "
-        "that view's strokes for them to bind it (0: any Gaussian that reaches stroke_weight)")
+        0.5, ge=0.0, le=1.0, description="least share of a Gaussian's blending weight in a view that must lie under "
+        "that view's strokes for them to bind it (0: any Gaussian that reaches stroke_weight); a large splat a stroke "
+        "crosses is left to the cuts' evidence (docs/MASKS.md, miku's scripted user)")
     correction: Literal["strokes", "region", "cut"] = Field(
         "region", description="a Segment on a view once labels exist in 3-D: strokes: its strokes alone correct the "
         "labels (bound where they cover a Gaussian, evidence where they touch it); region: each stroke's region in "

@@ -21,8 +21,10 @@ geometry sets (:func:`eval.bench.strokes.geometry_bound`: all reference maps lif
 they are and refined the same way); the goal's pairs are held against the refined one. At the end, the ``masks``
 stage's labels from what the page saved (:func:`stage_maps`), scored the same way.
 
-With ``--clicks ideal`` each dot also brings the whole wrong region it lies in, with its reference label, as the
-view's evidence (:data:`Clicks`): what a perfect part mask per click would give the 3-D step.
+With ``--clicks stroke`` each next mark is a straight brush stroke across that wrong region instead of a dot
+(:func:`line_inside`, at most :data:`STROKE_LENGTH` of the view's shorter side), as a user paints on the page. With
+``--clicks ideal`` each dot also brings the whole wrong region it lies in, with its reference label, as the view's
+evidence (:data:`Clicks`): what a perfect part mask per click would give the 3-D step.
 
 Every stroke is also a regression check: the change of the mean IoU and of each reference view's mean from the Segment
 before (``delta``), and the worst drop of either over the run (``regression``), which the figure's title shows.
@@ -62,11 +64,15 @@ from eval.bench.strokes import DATA, FittedCase, geometry_bound, load_case, view
 from eval.labels import score_labels, stroke_overlay
 from eval.record import bench_parser, write_record
 
-Clicks = Literal["dot", "ideal"]
-"""What a scripted click gives the page: ``dot``, a dot (:func:`next_stroke`) that the page turns into a region
-(``masks.field.correction``); ``ideal``, the same dot and, as the view's evidence, the whole wrong region it lies in
-with its reference label (:func:`largest_wrong_region`): a perfect part mask per click, the most a better 2-D step
-could bring."""
+Clicks = Literal["dot", "stroke", "ideal"]
+"""What each scripted mark is and gives the page: ``dot``, a dot (:func:`next_stroke`) that the page turns into a
+region (``masks.field.correction``), as the click benchmarks (NoC) count; ``stroke``, a straight brush stroke across
+the same wrong region (:func:`line_inside`), as a user paints on the page; ``ideal``, the dot and, as the view's
+evidence, the whole wrong region it lies in with its reference label (:func:`largest_wrong_region`): a perfect part
+mask per click, the most a better 2-D step could bring."""
+STROKE_LENGTH = 0.2
+"""A scripted stroke's largest length, a share of the view's shorter side (74 pixels on miku's 493 × 370 views, where
+the test strokes are 30–75 pixels long)."""
 
 GOAL = {"strokes": 10, "mean_iou": 0.75, "pair_iou": 0.60, "below_bound": 0.05, "unlabelled": 0.02,
         "mean_drop": 0.01, "view_drop": 0.03}
@@ -100,6 +106,33 @@ def dot_inside(label: int, region: np.ndarray, radius: float) -> Stroke:
     dist = cv2.distanceTransform(np.pad(region, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1]
     y, x = np.unravel_index(int(np.argmax(dist)), dist.shape)
     return Stroke(label, np.array([[x + 0.5, y + 0.5]]), float(max(1.0, min(radius, dist[y, x] - 1.0))))
+
+
+def line_inside(label: int, region: np.ndarray, radius: float, length: float) -> Stroke:
+    """A straight stroke of ``label`` across ``region`` ``(H, W) bool``: through its interior-most pixel (as
+    :func:`dot_inside`) along the region's longest axis (the principal axis of its pixels), ``length`` pixels long
+    where the region has room for it (centred on that pixel where both ways do), its brush (``radius`` or less)
+    inside the region all along."""
+    dist = cv2.distanceTransform(np.pad(region, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1]
+    y, x = np.unravel_index(int(np.argmax(dist)), dist.shape)
+    r = float(max(1.0, min(radius, dist[y, x] - 1.0)))
+    ys, xs = np.nonzero(region)
+    axis = np.array([1.0, 0.0])
+    if len(xs) > 2:
+        axis = np.linalg.eigh(np.cov(np.stack([xs, ys]).astype(np.float64)))[1][:, -1]
+    room = []  # how far the brush stays inside, each way along the axis (up to the whole length)
+    for sign in (-1.0, 1.0):
+        t = 0
+        while t + 1 <= length:
+            px, py = np.rint([x + sign * (t + 1) * axis[0], y + sign * (t + 1) * axis[1]]).astype(int)
+            if not (0 <= py < dist.shape[0] and 0 <= px < dist.shape[1]) or dist[py, px] < r + 1.0:
+                break
+            t += 1
+        room.append(t)
+    back = min(room[0], max(length / 2, length - room[1]))  # centred where both ways have room, else shifted
+    ahead = min(room[1], length - back)
+    ends = [[x + 0.5 + sign * t * axis[0], y + 0.5 + sign * t * axis[1]] for sign, t in ((-1.0, back), (1.0, ahead))]
+    return Stroke(label, np.array(ends), r)
 
 
 def regression(steps: list[dict]) -> dict:
@@ -271,7 +304,11 @@ def run(user: ScriptedUser, front: int, first: list[Stroke], n_labels: int, max_
         wrong = largest_wrong_region(maps[worst], user.refs[worst])
         if wrong is None:
             return steps
-        stroke = dot_inside(*wrong, radius)
+        if user.clicks == "stroke":
+            cam = user.scene.cameras[user.by_stem[worst]]
+            stroke = line_inside(*wrong, radius, STROKE_LENGTH * min(cam.height, cam.width))
+        else:
+            stroke = dot_inside(*wrong, radius)
         idx = user.by_stem[worst]
         if user.clicks == "ideal":
             k, region = wrong
@@ -362,9 +399,10 @@ def main(argv: list[str] | None = None) -> int:
                     help="where eval.bench.fit left the fitted scene; with --settings, several fits (one run per fit "
                          "and setting: another seed or machine gives another fit)")
     ap.add_argument("--max-strokes", type=int, default=GOAL["strokes"], help="scripted strokes after the test ones")
-    ap.add_argument("--radius", type=float, default=4.0, help="the scripted dots' largest radius (pixels)")
-    ap.add_argument("--clicks", choices=["dot", "ideal"], default="dot",
-                    help="ideal: each click also gives its whole wrong region as the view's evidence (Clicks)")
+    ap.add_argument("--radius", type=float, default=4.0, help="the scripted marks' largest radius (pixels)")
+    ap.add_argument("--clicks", choices=["dot", "stroke", "ideal"], default="dot",
+                    help="each scripted mark: a dot; a straight stroke across the wrong region; ideal: a dot that "
+                         "also gives its whole wrong region as the view's evidence (Clicks)")
     ap.add_argument("--field", default="{}", help="masks.field settings as JSON (default: the masks section's)")
     ap.add_argument("--settings", type=Path,
                     help="a YAML file of named masks.field settings (name: {key: value}, over --field): one run "
