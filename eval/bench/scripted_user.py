@@ -100,12 +100,19 @@ def next_stroke(pred: np.ndarray, truth: np.ndarray, radius: float) -> Stroke | 
     return None if wrong is None else dot_inside(*wrong, radius)
 
 
+def _interior(region: np.ndarray, radius: float) -> tuple[np.ndarray, int, int, float]:
+    """``region``'s distance to its edge ``(H, W) float32``, its interior-most pixel (x, y) and the brush radius
+    there that stays inside it (``radius`` or less, at least 1)."""
+    dist = cv2.distanceTransform(np.pad(region, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1]
+    y, x = np.unravel_index(int(np.argmax(dist)), dist.shape)
+    return dist, int(x), int(y), float(max(1.0, min(radius, dist[y, x] - 1.0)))
+
+
 def dot_inside(label: int, region: np.ndarray, radius: float) -> Stroke:
     """A dot of ``label`` at the interior-most pixel of ``region`` ``(H, W) bool`` (largest distance to its edge),
     of radius ``radius`` or less, to stay inside it."""
-    dist = cv2.distanceTransform(np.pad(region, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1]
-    y, x = np.unravel_index(int(np.argmax(dist)), dist.shape)
-    return Stroke(label, np.array([[x + 0.5, y + 0.5]]), float(max(1.0, min(radius, dist[y, x] - 1.0))))
+    _, x, y, r = _interior(region, radius)
+    return Stroke(label, np.array([[x + 0.5, y + 0.5]]), r)
 
 
 def line_inside(label: int, region: np.ndarray, radius: float, length: float) -> Stroke:
@@ -113,9 +120,7 @@ def line_inside(label: int, region: np.ndarray, radius: float, length: float) ->
     :func:`dot_inside`) along the region's longest axis (the principal axis of its pixels), ``length`` pixels long
     where the region has room for it (centred on that pixel where both ways do), its brush (``radius`` or less)
     inside the region all along."""
-    dist = cv2.distanceTransform(np.pad(region, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1]
-    y, x = np.unravel_index(int(np.argmax(dist)), dist.shape)
-    r = float(max(1.0, min(radius, dist[y, x] - 1.0)))
+    dist, x, y, r = _interior(region, radius)
     ys, xs = np.nonzero(region)
     axis = np.array([1.0, 0.0])
     if len(xs) > 2:
