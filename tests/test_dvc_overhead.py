@@ -26,4 +26,5 @@ def test_the_lock_timings_cover_each_way_dvc_reads_and_writes_it() -> None:
     seconds = lock_parse_seconds(yaml.safe_dump(lock), repeats=1)
     assert set(seconds) == {"safe_c", "safe_pure", "round_trip_load", "round_trip_dump"}
     assert all(v is not None and v > 0 for v in seconds.values()), seconds
-    assert seconds["safe_c"] < seconds["safe_pure"], seconds
+    # which loader is faster is the benchmark's figure (docs/measurements/dvc_overhead.json), not asserted here: one
+    # timing of each under the test suite's other lane can come out either way
