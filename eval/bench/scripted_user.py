@@ -309,14 +309,12 @@ def run(user: ScriptedUser, front: int, first: list[Stroke], n_labels: int, max_
         wrong = largest_wrong_region(maps[worst], user.refs[worst])
         if wrong is None:
             return steps
-        if user.clicks == "stroke":
-            cam = user.scene.cameras[user.by_stem[worst]]
-            stroke = line_inside(*wrong, radius, STROKE_LENGTH * min(cam.height, cam.width))
+        idx, (k, region) = user.by_stem[worst], wrong
+        if user.clicks == "stroke":  # the region is the view's size: its shorter side is the view's
+            stroke = line_inside(k, region, radius, STROKE_LENGTH * min(region.shape))
         else:
-            stroke = dot_inside(*wrong, radius)
-        idx = user.by_stem[worst]
+            stroke = dot_inside(k, region, radius)
         if user.clicks == "ideal":
-            k, region = wrong
             user.ideal.setdefault(idx, np.full(region.shape, -1, np.int64))[region] = k
         user.strokes.setdefault(idx, []).append(stroke)
         steps[-1]["next"] = {"view": worst, "label": stroke.label, "at": stroke.points[0].tolist()}
