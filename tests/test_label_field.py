@@ -427,3 +427,30 @@ def test_a_painted_views_cut_spreads_over_the_part_of_the_photo_it_lies_in() -> 
     assert (shown[ring] == 1).mean() > 0.9 and (alone[ring] == 2).mean() > 0.9
     around = cv2.dilate(square.astype(np.uint8), np.ones((13, 13), np.uint8)).astype(bool) & ~square & (truth_map == 2)
     assert around.sum() > 100 and (shown[around] == 2).mean() > 0.95
+
+
+def test_a_corrections_region_weighs_less_than_the_cut_it_disagrees_with() -> None:
+    """View 0's cut is right. A correction on view 4 is a wall stroke beside the ball whose colour region bled over
+    the ball's left half. Marked as its strokes' regions, the region beyond the stroke weighs ``region_weight`` of a
+    cut's evidence: at 0.2 fewer of the ball's Gaussians that view 0's cut decided turn into wall than at 1, where
+    the region weighs as a cut does (the same as a map not marked as regions)."""
+    model, truth = wall_and_ball(8)
+    cams = cameras(5)
+    maps = _truth_maps(model, truth, cams)
+    ball_px = np.argwhere(maps[4] == 1)
+    cy, cx = ball_px[:, 0].mean(), ball_px[:, 1].min()
+    yy, xx = np.mgrid[: maps[4].shape[0], : maps[4].shape[1]]
+    region = np.where((yy - cy) ** 2 + (xx - cx) ** 2 <= 16.0**2, 2, NO_VOTE)
+    strokes = np.where((yy - cy) ** 2 + (xx - (cx - 10)) ** 2 <= 2.0**2, 2, -1)
+    ball = truth.numpy() == 1
+    turned = {}
+    for weight, regions in ((1.0, False), (1.0, True), (0.2, True)):
+        field = LabelField(model, cams, MaskParams().field.model_copy(update={"occlusion": 0.0, "region_weight": weight}))
+        field.set_view(0, maps[0])
+        alone = field.solve().labels.copy()
+        field.set_view(4, region, strokes, regions=regions)
+        after = field.solve().labels
+        assert (alone[ball] == 1).mean() > 0.9
+        turned[weight, regions] = int((ball & (alone == 1) & (after == 2)).sum())
+    assert turned[1.0, True] == turned[1.0, False] > 0, turned
+    assert turned[0.2, True] < turned[1.0, True], turned

@@ -227,14 +227,16 @@ def test_a_region_correction_saves_each_strokes_colour_region_and_the_stage_read
     """``correction: region``: a correction's evidence is its strokes' regions in the photo
     (:func:`abcgs.masks.regions.stroke_regions`), larger than the strokes, inside the reach; the page saves that map,
     which is what the ``masks`` stage reads back as the view's cut."""
+    from abcgs.masks.lifting import NO_VOTE
     from abcgs.masks.params import FieldParams
-    from abcgs.masks.regions import stroke_regions
+    from abcgs.masks.regions import are_view_regions, stroke_regions
     from abcgs.masks.strokes import Stroke
 
     folder = fit_views(tiny_colmap, tmp_path / "scene")
     s = PaintSession.for_scene(folder)
     assert s.attach_fit(fitted, tiny_colmap, FieldParams(correction="region", correction_reach=0.1))
-    s.set_strokes(0, simulated_strokes(truth(tiny_colmap, 0), 2, radius=3.0))
+    first = simulated_strokes(truth(tiny_colmap, 0), 2, radius=3.0)
+    s.set_strokes(0, first)
     s.segment(0)  # the first Segment is a cut, whatever the correction
     inside = cv2.distanceTransform((truth(tiny_colmap, 5) == 1).astype(np.uint8), cv2.DIST_L2, 5)
     y, x = np.unravel_index(int(np.argmax(inside)), inside.shape)
@@ -249,5 +251,12 @@ def test_a_region_correction_saves_each_strokes_colour_region_and_the_stage_read
     truth_5 = truth(tiny_colmap, 5)
     assert ((truth_5 == 1)[region == 1]).mean() > 0.8  # and stays on the dot's part
     s.save()
-    maps, _ = read_label_files([folder / "masks" / "005.png"], [hw])
+    maps, _ = read_label_files([folder / "masks" / "005.png", folder / "masks" / "000.png"], [hw, hw])
     assert np.array_equal(maps[0], region)
+    # the stage knows a correction's regions from a cut: the map is what the view's strokes make of its photo
+    params = FieldParams(correction="region", correction_reach=0.1)
+    front = rasterize_strokes(first, hw)
+    assert are_view_regions(maps[0], s.image(5), seeds, params)
+    assert not are_view_regions(maps[1], s.image(0), front, params)
+    assert not are_view_regions(maps[0], s.image(5), seeds, params.model_copy(update={"correction": "cut"}))
+    assert not are_view_regions(np.where(region == 1, NO_VOTE, region), s.image(5), seeds, params)

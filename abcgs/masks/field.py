@@ -93,6 +93,7 @@ class FieldResult:
 class _View:
     cut: np.ndarray | None  # (H, W) int64, NO_VOTE undecided
     strokes: np.ndarray | None  # (H, W) int64 seed map, -1 none
+    regions: bool = False  # the cut is its strokes' colour regions (a correction), not a cut of the whole view
     votes: torch.Tensor | None = None  # (N, L_v + 1) the cut's Eq. 2 votes, each pixel weighted by its confidence
     cover: torch.Tensor | None = None  # (N,) blending weight in the cut's decided pixels
     seen: torch.Tensor | None = None  # (N,) blending weight in the whole view
@@ -153,9 +154,12 @@ class LabelField:
         view = self._views.get(index)
         return None if view is None else view.cut
 
-    def set_view(self, index: int, cut: np.ndarray | None, strokes: np.ndarray | None = None) -> None:
+    def set_view(self, index: int, cut: np.ndarray | None, strokes: np.ndarray | None = None, *,
+                 regions: bool = False) -> None:
         """Set (or, with both None, remove) view ``index``'s cut ``(H, W) int`` (0..L, NO_VOTE) and stroke seed map
-        ``(H, W) int`` (-1 none, 0..L); its votes are computed at the next :meth:`solve`."""
+        ``(H, W) int`` (-1 none, 0..L); with ``regions`` the cut is its strokes' colour regions
+        (:func:`~abcgs.masks.regions.stroke_regions`, a correction), whose pixels beyond the strokes weigh
+        ``region_weight``. Its votes are computed at the next :meth:`solve`."""
         if cut is None and strokes is None:
             self._views.pop(index, None)
             return
@@ -165,17 +169,19 @@ class LabelField:
                 raise ValueError(f"the {what} of view {cam.name} is {arr.shape[1]}x{arr.shape[0]}, the view "
                                  f"{cam.width}x{cam.height}")
         self._views[index] = _View(None if cut is None else np.asarray(cut, np.int64),
-                                   None if strokes is None else np.asarray(strokes, np.int64))
+                                   None if strokes is None else np.asarray(strokes, np.int64), regions)
 
     def _cut_votes(self, view: _View, cam: Camera) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """One view's cut votes ``(N, L_v + 1)``, each pixel weighted by its confidence (1 with ``cut_evidence:
-        hard``), each Gaussian's blending weight in the cut's decided pixels ``(N,)`` and in the whole view
-        ``(N,)``."""
+        hard``; × ``region_weight`` beyond the strokes of a view whose cut is its strokes' regions), each Gaussian's
+        blending weight in the cut's decided pixels ``(N,)`` and in the whole view ``(N,)``."""
         cut = view.cut
         if self.params.cut_evidence == "soft":
             conf = cut_confidence(cut.shape, view.strokes, self.params.cut_reach)
         else:
             conf = np.ones(cut.shape, np.float32)
+        if view.regions and view.strokes is not None:
+            conf = np.where(view.strokes >= 0, conf, conf * self.params.region_weight).astype(np.float32)
         small = lift_camera(cam)
         conf_small = torch.from_numpy(area_weights(conf[..., None], small))
         area = torch.full((small.height, small.width, 1), pixel_area(cut.shape, small))

@@ -115,6 +115,11 @@ class FieldParams(BaseModel):
     region_tolerance: float = Field(
         12.0, gt=0.0, le=200.0, description="correction: region: the largest CIELAB distance (ΔE*ab) from a stroke's "
         "mean colour that its region takes in")
+    region_weight: float = Field(
+        0.2, ge=0.0, le=1.0, description="correction: region: how much a stroke's region beyond the stroke's own "
+        "pixels weighs as evidence, against a cut's pixel as near the view's strokes (1: as much); a colour region is "
+        "less sure than a cut, so where the two disagree on a Gaussian the cut's evidence stays (docs/MASKS.md, "
+        "miku's scripted user)")
     edge_filter: EdgeFilter = Field(
         "domain", description="how each view's labels rendered from the Gaussians are refined against its photo "
         "(abcgs.masks.edges): domain: the domain transform's normalized convolution, a label spreads along the photo "

@@ -7,7 +7,8 @@ CIELAB of the photo) of the stroke's mean colour and that lie within ``reach`` o
 colour bounded by the photo's edges and by a disc. Where two strokes' regions meet, each pixel goes to the one nearer
 in colour. The map is the correction's evidence (``masks.field.correction: region``): it is computed from the photo
 and the strokes alone, so the ``masks`` stage, reading the label map the page saved, weighs the same evidence as the
-page did.
+page did, and knows it for a correction's regions (:func:`are_view_regions`): their pixels beyond the strokes weigh
+``masks.field.region_weight`` of a cut's.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import cv2
 import numpy as np
 
 from abcgs.masks.lifting import NO_VOTE
+from abcgs.masks.params import FieldParams
 
 
 def photo_lab(photo: np.ndarray) -> np.ndarray:
@@ -62,3 +64,22 @@ def stroke_regions(photo: np.ndarray, strokes: np.ndarray, reach_px: int, tolera
             sub_best[take] = dist[take]
             out[y0:y1, x0:x1][take] = k
     return np.where(strokes >= 0, strokes, out).astype(np.int64)
+
+
+def view_regions(photo: np.ndarray, strokes: np.ndarray, params: FieldParams) -> np.ndarray:
+    """:func:`stroke_regions` of a view's ``strokes`` ``(H, W) int`` on its ``photo`` ``(H, W, 3) uint8`` as the masks
+    page makes them: reach ``params.correction_reach`` × the view's shorter side, tolerance ``params.region_tolerance``."""
+    reach = int(round(params.correction_reach * min(strokes.shape)))
+    return stroke_regions(photo, strokes, reach, params.region_tolerance)
+
+
+def are_view_regions(label_map: np.ndarray, photo: np.ndarray, strokes: np.ndarray | None,
+                     params: FieldParams) -> bool:
+    """Whether a painted view's ``label_map`` ``(H, W) int`` (0..L, :data:`NO_VOTE` undecided) is its ``strokes``'
+    regions (:func:`view_regions`, what the page saves for a correction) rather than a cut of the view: with
+    ``correction: region``, the map equals them pixel for pixel."""
+    if strokes is None or params.correction != "region" or not (strokes >= 0).any():
+        return False
+    if photo.shape[:2] != label_map.shape or strokes.shape != label_map.shape:
+        return False
+    return bool(np.array_equal(view_regions(photo, strokes, params), np.asarray(label_map, np.int64)))

@@ -23,7 +23,7 @@ from abcgs.masks.field import FieldResult, LabelField, cut_painted_view, render_
 from abcgs.masks.lifting import NO_VOTE
 from abcgs.masks.page.strip import Strip
 from abcgs.masks.params import UNDECIDED, FieldParams, LiftParams
-from abcgs.masks.regions import stroke_regions
+from abcgs.masks.regions import view_regions
 from abcgs.masks.strokes import Segmentation
 from abcgs.viz import colorize_labels
 
@@ -117,15 +117,15 @@ class FieldSession:
         with self._lock:
             cam = self.camera_of[item]
             t0 = time.perf_counter()
+            regions = self.result is not None and self.field.params.correction == "region"
             if self.result is None or self.field.params.correction == "cut":
                 cut = cut_painted_view(self.field, self.result, cam, photo, strokes,
                                        reach=self.field.params.correction_reach, min_margin=self.field.params.cut_margin)
-            elif self.field.params.correction == "region":
-                reach = int(round(self.field.params.correction_reach * min(strokes.shape)))
-                cut = stroke_regions(photo, strokes, reach, self.field.params.region_tolerance)
+            elif regions:
+                cut = view_regions(photo, strokes, self.field.params)
             else:
                 cut = np.where(strokes >= 0, strokes, NO_VOTE)
-            self.field.set_view(cam, cut, strokes)
+            self.field.set_view(cam, cut, strokes, regions=regions)
             self._solve(started, cut_seconds=time.perf_counter() - t0)
             t1 = time.perf_counter()
             shown = render_field(self.field, self.result, cam, photo=photo)
