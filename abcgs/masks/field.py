@@ -12,7 +12,8 @@ where the cut left a pixel undecided) and its strokes (a seed map: -1 none, 0 th
    Gaussian for the labels of the pixels it blends into, each pixel weighted by how sure the cut is there
    (:func:`cut_confidence`): near the strokes of its own view fully, falling off with the distance to them
    (``cut_reach``); where GrabCut's two colour models differ little (``cut_margin``) the page's cut leaves the pixel
-   undecided. A Gaussian's evidence for label l is its confident vote for l over its blending weight in the whole
+   undecided. A correction's colour regions (``correction: region``) weigh ``region_weight`` of that beyond their
+   strokes: a flood of a stroke's colour is less sure than a cut. A Gaussian's evidence for label l is its confident vote for l over its blending weight in the whole
    view (``evidence_of: view``; ``decided``: in the pixels the cut decided), so a large splat a correction covers in
    part is weak evidence; under ``cut_share`` of that weight on decided pixels, the view casts no vote on it at all,
    and the splat keeps what the other views say of it. What lies behind the view's surface (by more than
