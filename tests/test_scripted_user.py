@@ -121,3 +121,27 @@ def test_several_fits_need_a_settings_file(tmp_path, capsys) -> None:
     with pytest.raises(SystemExit) as err:
         main(["--work", str(tmp_path / "a"), str(tmp_path / "b")])
     assert err.value.code == 2 and "one --work without --settings" in capsys.readouterr().err
+
+
+def test_the_pair_target_goes_to_the_pair_furthest_below_its_goal_and_the_view_target_to_the_worst_view() -> None:
+    """View a is worst by its mean, but its face (label 2) is under a bound too low to ask anything of it; view b's
+    label 2 spills over label 1 and is 0.1 under its goal. ``view`` marks a's largest wrong region; ``pair`` marks the
+    spill on b with b's reference label there (1), and, once no pair is below its goal, falls back to ``view``."""
+    from eval.bench.scripted_user import next_region
+
+    ref_a = np.zeros((40, 40), np.int64)
+    ref_a[:, :20], ref_a[:, 20:] = 1, 2
+    pred_a = np.ones_like(ref_a)  # a's label 2 missed: a wrong region of 800 px
+    ref_b = ref_a.copy()
+    pred_b = ref_b.copy()
+    pred_b[10:20, 10:20] = 2  # b's label 2 spills over label 1: 100 px
+    maps, refs = {"a": pred_a, "b": pred_b}, {"a": ref_a, "b": ref_b}
+    iou = {"a": {"1": 0.5, "2": 0.0}, "b": {"1": 0.7, "2": 0.5}}
+    bound = {"per_view": {"a": {"1": 0.6, "2": 0.03}, "b": {"1": 0.9, "2": 0.9}}}
+    view, (label, region) = next_region(maps, refs, iou, "view")
+    assert view == "a" and label == 2 and region.sum() == 800
+    view, (label, region) = next_region(maps, refs, iou, "pair", bound)
+    assert view == "b" and label == 1 and region.sum() == 100 and region[10:20, 10:20].all()
+    met = {"a": {"1": 0.7, "2": 0.0}, "b": {"1": 0.7, "2": 0.7}}
+    assert next_region(maps, refs, met, "pair", bound)[0] == "a"
+    assert next_region(refs, refs, iou, "view") is None
