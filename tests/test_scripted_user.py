@@ -145,3 +145,5 @@ def test_the_pair_target_goes_to_the_pair_furthest_below_its_goal_and_the_view_t
     met = {"a": {"1": 0.7, "2": 0.0}, "b": {"1": 0.7, "2": 0.7}}
     assert next_region(maps, refs, met, "pair", bound)[0] == "a"
     assert next_region(refs, refs, iou, "view") is None
+    with pytest.raises(ValueError, match="bound"):
+        next_region(maps, refs, iou, "pair")

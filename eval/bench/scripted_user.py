@@ -113,6 +113,8 @@ def next_region(maps: dict[str, np.ndarray], refs: dict[str, np.ndarray], iou: d
     labels ``maps``, its reference ``refs`` and their IoU per label ``iou``; ``bound`` (for ``pair``) as
     :func:`pair_goal` takes it. None when no reference view has a wrong pixel."""
     if target == "pair":
+        if bound is None:
+            raise ValueError("target pair needs the bound each pair's goal is held against")
         short = {(v, k): pair_goal(bound, v, k) - x for v, per in iou.items() for k, x in per.items()}
         (v, k), gap = max(short.items(), key=lambda kv: kv[1])
         if gap > 0:  # the errors that involve label k: every other pixel as the reference has it
