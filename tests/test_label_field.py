@@ -57,6 +57,28 @@ def test_a_stroke_binds_the_gaussians_under_it_against_the_cuts() -> None:
     stroked = after.source == 1
     assert stroked.sum() > 5 and (after.labels[stroked] == 1).all()
     assert (after.labels[truth.numpy() == 1] == 1).mean() > (before.labels[truth.numpy() == 1] == 1).mean()
+    changed = after.changes_from(before)  # the stroke's Gaussians turned from wall to ball, and what followed them
+    assert changed["stroke"] == int((stroked & (before.labels != 1)).sum()) > 5
+    assert sum(changed.values()) == int((after.labels != before.labels).sum())
+    assert sum(before.changes_from(before).values()) == 0
+
+
+def test_changes_from_counts_what_a_segment_changed_by_the_step_that_decided_it() -> None:
+    from abcgs.masks.field import FieldResult
+
+    def result(labels, decided, source):
+        labels = np.array(labels)
+        return FieldResult(labels, np.array(decided, bool), np.zeros((labels.size, 3)), np.array(source, np.uint8),
+                           2, 0.0)
+
+    before = result([1, 1, 2, 2, 0, 2], [1, 1, 1, 1, 0, 1], [2, 3, 3, 2, 0, 3])
+    after = result([1, 2, 2, 1, 2, 0], [1, 1, 1, 1, 1, 0], [1, 3, 3, 1, 2, 0])
+    # kept; graph 1 -> 2; kept; 2 -> 1 by a stroke; undecided -> 2 by the cuts; 2 -> undecided
+    assert after.changes_from(before) == {"undecided": 1, "stroke": 1, "lifted": 1, "graph": 1}
+    relabelled = result([1, 1, 2, 2, 0, 2], [1, 1, 1, 1, 0, 1], [1, 1, 1, 1, 0, 1])
+    assert sum(relabelled.changes_from(before).values()) == 0  # another step, the same labels: nothing changed
+    with pytest.raises(ValueError, match="5 Gaussians now, 6 before"):
+        result([1] * 5, [1] * 5, [1] * 5).changes_from(before)
 
 
 def test_correction_seeds_free_the_touched_region_near_the_stroke_only() -> None:

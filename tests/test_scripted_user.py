@@ -70,8 +70,11 @@ def test_the_regression_check_finds_the_worst_drop_of_the_mean_and_of_a_view() -
                 "iou": {"a": {"1": a}, "b": {"1": b}}, "unlabelled": {"a": 0.0, "b": 0.01}}
 
     steps = [step(15, 0.6, 0.6), step(16, 0.7, 0.55), step(17, 0.7, 0.62), step(18, 0.69, 0.59)]
+    for k, st in enumerate(steps[1:]):
+        st["delta"] = {"changed": {"undecided": 0, "stroke": 3, "lifted": k, "graph": 10 * k}}
     drops = regression(steps)
     assert drops["view"]["view"] == "b" and drops["view"]["strokes"] == 16
+    assert drops["view"]["changed"]["graph"] == 0 and drops["mean"]["changed"]["graph"] == 20  # strokes 16 and 18
     assert abs(drops["view"]["drop"] - 0.05) < 1e-9
     assert abs(drops["mean"]["drop"] - 0.02) < 1e-9 and drops["mean"]["strokes"] == 18
     bound = {"per_view": {"a": {"1": 0.9}, "b": {"1": 0.9}}}

@@ -89,6 +89,14 @@ class FieldResult:
         ``undecided``."""
         return {n: int((self.source == i).sum()) for i, n in enumerate(SOURCES)}
 
+    def changes_from(self, before: FieldResult) -> dict[str, int]:
+        """How many Gaussians carry another label (or another decidedness) than in ``before``, the result of the same
+        Gaussians one Segment earlier, counted by the step that decided each now (:data:`SOURCES`)."""
+        if before.labels.shape != self.labels.shape:
+            raise ValueError(f"{self.labels.shape[0]} Gaussians now, {before.labels.shape[0]} before")
+        moved = (self.labels != before.labels) | (self.decided != before.decided)
+        return {n: int((moved & (self.source == i)).sum()) for i, n in enumerate(SOURCES)}
+
 
 @dataclass
 class _View:

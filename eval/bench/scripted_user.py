@@ -30,7 +30,8 @@ With ``--clicks stroke`` each next mark is a straight brush stroke across that w
 evidence (:data:`Clicks`): what a perfect part mask per click would give the 3-D step.
 
 Every stroke is also a regression check: the change of the mean IoU and of each reference view's mean from the Segment
-before (``delta``), and the worst drop of either over the run (``regression``), which the figure's title shows.
+before, and how many Gaussians that Segment changed, by the step that decided each (``delta``); the worst drop of either
+mean over the run (``regression``), which the figure's title shows.
 
 The goal (``GOAL``): mean IoU ≥ 0.75, every pair ≥ min(0.60, bound − 0.05) and ≤ 2 % unlabelled pixels on every
 reference view, within 10 strokes after the test strokes; no stroke lowers the mean by more than 0.01 or a reference
@@ -178,15 +179,17 @@ def line_inside(label: int, region: np.ndarray, radius: float, length: float) ->
 
 def regression(steps: list[dict]) -> dict:
     """The worst drop over a run: of the mean IoU from one Segment to the next, and of any reference view's mean
-    (positive numbers are drops; each with the number of strokes after which it happened and, for a view, which)."""
-    mean = {"drop": 0.0, "strokes": None}
-    view = {"drop": 0.0, "strokes": None, "view": None}
+    (positive numbers are drops; each with the number of strokes after which it happened, for a view which, and the
+    Gaussians that Segment changed by the step that decided them, ``delta.changed``, where the steps hold it)."""
+    mean = {"drop": 0.0, "strokes": None, "changed": None}
+    view = {"drop": 0.0, "strokes": None, "view": None, "changed": None}
     for prev, cur in zip(steps, steps[1:]):
+        changed = cur.get("delta", {}).get("changed")
         if prev["mean_iou"] - cur["mean_iou"] > mean["drop"]:
-            mean = {"drop": prev["mean_iou"] - cur["mean_iou"], "strokes": cur["strokes"]}
+            mean = {"drop": prev["mean_iou"] - cur["mean_iou"], "strokes": cur["strokes"], "changed": changed}
         for v, m in cur["view_mean"].items():
             if prev["view_mean"][v] - m > view["drop"]:
-                view = {"drop": prev["view_mean"][v] - m, "strokes": cur["strokes"], "view": v}
+                view = {"drop": prev["view_mean"][v] - m, "strokes": cur["strokes"], "view": v, "changed": changed}
     return {"mean": mean, "view": view}
 
 
@@ -321,7 +324,7 @@ def run(user: ScriptedUser, front: int, first: list[Stroke], n_labels: int, max_
     ``bound`` for ``pair``); a record per Segment."""
     user.strokes[front] = list(first)
     steps = []
-    seconds = user.segment(front)
+    seconds, before = user.segment(front), None
     while True:
         maps = user.maps()
         s = score_labels(maps, user.refs, n_labels).as_record()
@@ -330,10 +333,12 @@ def run(user: ScriptedUser, front: int, first: list[Stroke], n_labels: int, max_
                 "counts": user.session.result.counts()}
         if steps:
             step["delta"] = {"mean": s["mean_iou"] - steps[-1]["mean_iou"],
-                             "views": {v: m - steps[-1]["view_mean"][v] for v, m in s["view_mean"].items()}}
+                             "views": {v: m - steps[-1]["view_mean"][v] for v, m in s["view_mean"].items()},
+                             "changed": user.session.result.changes_from(before)}
         steps.append(step)
         drop = "" if "delta" not in step else (f", Δ mean {step['delta']['mean']:+.3f}, worst Δ view "
-                                               f"{min(step['delta']['views'].values()):+.3f}")
+                                               f"{min(step['delta']['views'].values()):+.3f} "
+                                               f"({sum(step['delta']['changed'].values())} Gaussians changed)")
         print(f"{step['strokes']:3d} strokes: worst IoU {s['worst_iou']:.3f}, mean {s['mean_iou']:.3f} (Gaussians alone "
               f"{step['rendered']['mean_iou']:.3f}){drop}, "
               f"unlabelled ≤ {max(s['unlabelled'].values()):.1%}, Segment → every view {seconds['total']:.2f} s "
@@ -354,6 +359,7 @@ def run(user: ScriptedUser, front: int, first: list[Stroke], n_labels: int, max_
             user.ideal.setdefault(idx, np.full(region.shape, -1, np.int64))[region] = k
         user.strokes.setdefault(idx, []).append(stroke)
         steps[-1]["next"] = {"view": worst, "label": stroke.label, "at": stroke.points[0].tolist()}
+        before = user.session.result
         seconds = user.segment(idx)
 
 
