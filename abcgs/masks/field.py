@@ -13,12 +13,13 @@ where the cut left a pixel undecided) and its strokes (a seed map: -1 none, 0 th
    (:func:`cut_confidence`): near the strokes of its own view fully, falling off with the distance to them
    (``cut_reach``); where GrabCut's two colour models differ little (``cut_margin``) the page's cut leaves the pixel
    undecided. A correction's colour regions (``correction: region``) weigh ``region_weight`` of that beyond their
-   strokes: a flood of a stroke's colour is less sure than a cut. A Gaussian's evidence for label l is its confident vote for l over its blending weight in the whole
-   view (``evidence_of: view``; ``decided``: in the pixels the cut decided), so a large splat a correction covers in
-   part is weak evidence; under ``cut_share`` of that weight on decided pixels, the view casts no vote on it at all,
-   and the splat keeps what the other views say of it. What lies behind the view's surface (by more than
-   ``occlusion`` of its depth) takes no vote from its cut (:func:`~abcgs.masks.lifting.occluded_gaussians`): a large
-   splat that paints a part seen from the far side of the object is not given the label of the part in front of it.
+   strokes: a flood of a stroke's colour is less sure than a cut. A Gaussian's evidence for label l is its confident
+   vote for l over its blending weight in the whole view (``evidence_of: view``; ``decided``: in the pixels the cut
+   decided), so a large splat a correction covers in part is weak evidence; under ``cut_share`` of that weight on
+   decided pixels, the view casts no vote on it at all, and the splat keeps what the other views say of it. What lies
+   behind the view's surface (by more than ``occlusion`` of its depth) takes no vote from its cut
+   (:func:`~abcgs.masks.lifting.occluded_gaussians`): a large splat that paints a part seen from the far side of the
+   object is not given the label of the part in front of it.
 3. **The 3-D step** (:mod:`abcgs.masks.graph`, ``solver``): ``geodesic`` (the default) gives each Gaussian the label
    of the stroke or the evidence nearest to it along the Gaussians' neighbour graph, evidence e starting at
    ``evidence_cost × (1 - e)``; ``walk`` is a random walk over the same graph with the strokes as seeds and the cuts'
