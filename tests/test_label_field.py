@@ -455,7 +455,7 @@ def test_a_corrections_region_weighs_less_than_the_cut_it_disagrees_with() -> No
     """View 0's cut is right. A correction on view 4 is a wall stroke beside the ball whose colour region bled over
     the ball's left half. Marked as its strokes' regions, the region beyond the stroke weighs ``region_weight`` of a
     cut's evidence: at 0.2 fewer of the ball's Gaussians that view 0's cut decided turn into wall than at 1, where
-    the region weighs as a cut does (the same as a map not marked as regions)."""
+    the region weighs as a cut does (the same as the map given as view 4's cut)."""
     model, truth = wall_and_ball(8)
     cams = cameras(5)
     maps = _truth_maps(model, truth, cams)
@@ -470,7 +470,7 @@ def test_a_corrections_region_weighs_less_than_the_cut_it_disagrees_with() -> No
         field = LabelField(model, cams, MaskParams().field.model_copy(update={"occlusion": 0.0, "region_weight": weight}))
         field.set_view(0, maps[0])
         alone = field.solve().labels.copy()
-        field.set_view(4, region, strokes, regions=regions)
+        field.set_view(4, None if regions else region, strokes, regions=region if regions else None)
         after = field.solve().labels
         assert (alone[ball] == 1).mean() > 0.9
         turned[weight, regions] = int((ball & (alone == 1) & (after == 2)).sum())

@@ -229,7 +229,7 @@ def test_a_region_correction_saves_each_strokes_colour_region_and_the_stage_read
     which is what the ``masks`` stage reads back as the view's cut."""
     from abcgs.masks.lifting import NO_VOTE
     from abcgs.masks.params import FieldParams
-    from abcgs.masks.regions import are_view_regions, stroke_regions
+    from abcgs.masks.regions import stroke_regions, view_evidence
     from abcgs.masks.strokes import Stroke
 
     folder = fit_views(tiny_colmap, tmp_path / "scene")
@@ -256,7 +256,52 @@ def test_a_region_correction_saves_each_strokes_colour_region_and_the_stage_read
     # the stage knows a correction's regions from a cut: the map is what the view's strokes make of its photo
     params = FieldParams(correction="region", correction_reach=0.1)
     front = rasterize_strokes(first, hw)
-    assert are_view_regions(maps[0], s.image(5), seeds, params)
-    assert not are_view_regions(maps[1], s.image(0), front, params)
-    assert not are_view_regions(maps[0], s.image(5), seeds, params.model_copy(update={"correction": "cut"}))
-    assert not are_view_regions(np.where(region == 1, NO_VOTE, region), s.image(5), seeds, params)
+    cut, regions = view_evidence(maps[0], seeds, s.image(5), params)
+    assert cut is None and np.array_equal(regions, region)
+    cut, regions = view_evidence(maps[1], front, s.image(0), params)
+    assert np.array_equal(cut, maps[1]) and (regions == NO_VOTE).all()  # the cut's own strokes correct nothing
+    assert view_evidence(maps[0], seeds, s.image(5), params.model_copy(update={"correction": "cut"}))[1] is None
+    cut, _ = view_evidence(np.where(region == 1, NO_VOTE, region), seeds, s.image(5), params)
+    assert cut is not None  # a map that is not the regions is a cut
+
+
+def test_a_correction_on_a_view_once_cut_keeps_the_rest_of_its_cut(fitted, tiny_colmap, tmp_path) -> None:
+    """A dot on the view the first Segment cut overrules the cut in its colour region and keeps the cut elsewhere
+    (the cut of a whole view is not thrown away for one dot's region); the page still saves the cut, and the ``masks``
+    stage, from the saved map, strokes and photo, sets the view as the page did."""
+    from abcgs.masks.lifting import NO_VOTE
+    from abcgs.masks.params import FieldParams
+    from abcgs.masks.regions import view_evidence
+    from abcgs.masks.strokes import Stroke
+
+    params = FieldParams(correction="region", correction_reach=0.1)
+    folder = fit_views(tiny_colmap, tmp_path / "scene")
+    s = PaintSession.for_scene(folder)
+    assert s.attach_fit(fitted, tiny_colmap, params)
+    first = simulated_strokes(truth(tiny_colmap, 0), 2, radius=3.0)
+    s.set_strokes(0, first)
+    s.segment(0)
+    field = s.field.field
+    cam = s.field.camera_of[0]
+    cut = field.cut_of(cam).copy()
+    decided = np.flatnonzero(cut.ravel() >= 0)
+    y, x = np.unravel_index(decided[len(decided) // 2], cut.shape)
+    other = 1 + int(cut[y, x]) % max(1, int(cut.max()))  # a label the cut does not give there
+    dot = Stroke(other, np.array([[x + 0.5, y + 0.5]]), 2.0)
+    s.set_strokes(0, [*first, dot])
+    s.segment(0)
+    assert np.array_equal(field.cut_of(cam), cut)  # the cut is kept, not re-cut and not dropped
+    evidence = field.evidence_map(cam)
+    hw = cut.shape
+    seeds = rasterize_strokes([*first, dot], hw)
+    _, regions = view_evidence(cut, seeds, s.image(0), params)
+    assert (regions == other).any() and (regions[seeds < 0] != NO_VOTE).sum() > 0
+    assert np.array_equal(evidence, np.where(regions >= 0, regions, cut))
+    outside = regions == NO_VOTE
+    assert outside.mean() > 0.5 and np.array_equal(evidence[outside], cut[outside])
+    s.save()
+    maps, _ = read_label_files([folder / "masks" / "000.png"], [hw])
+    assert np.array_equal(maps[0], cut)  # what the page saves is the cut; the stage lays the same regions over it
+    stage_cut, stage_regions = view_evidence(maps[0], load_stroke_map(stroke_map_path(folder / "masks", "000"), hw),
+                                             s.image(0), params)
+    assert np.array_equal(stage_cut, cut) and np.array_equal(stage_regions, regions)

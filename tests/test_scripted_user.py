@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from abcgs.masks.strokes import rasterize_strokes
-from eval.bench.scripted_user import largest_wrong_region, line_inside, next_stroke
+from eval.bench.marks import largest_wrong_region, line_inside, next_stroke
 from eval.labels import score_labels
 
 
@@ -130,7 +130,7 @@ def test_the_pair_target_goes_to_the_pair_furthest_below_its_goal_and_the_view_t
     """View a is worst by its mean, but its face (label 2) is under a bound too low to ask anything of it; view b's
     label 2 spills over label 1 and is 0.1 under its goal. ``view`` marks a's largest wrong region; ``pair`` marks the
     spill on b with b's reference label there (1), and, once no pair is below its goal, falls back to ``view``."""
-    from eval.bench.scripted_user import next_region
+    from eval.bench.marks import next_region
 
     ref_a = np.zeros((40, 40), np.int64)
     ref_a[:, :20], ref_a[:, 20:] = 1, 2
@@ -150,3 +150,26 @@ def test_the_pair_target_goes_to_the_pair_furthest_below_its_goal_and_the_view_t
     assert next_region(refs, refs, iou, "view") is None
     with pytest.raises(ValueError, match="bound"):
         next_region(maps, refs, iou, "pair")
+
+
+def test_the_gain_target_goes_to_the_wrong_region_that_is_the_largest_share_of_its_pairs_union() -> None:
+    """View a misses 200 px of a large label 1 (union 1200 px: a sixth); view b misses 60 px of a small label 2
+    (union 100 px: three fifths). ``view`` goes to the worse view by its mean, a; ``gain`` to the smaller region
+    that costs more IoU, on b; with nothing wrong, nowhere."""
+    from eval.bench.marks import next_region
+
+    ref_a = np.full((40, 40), 3, np.int64)
+    ref_a[:30, :40] = 1  # label 1: 1200 px
+    pred_a = ref_a.copy()
+    pred_a[:5, :40] = 3  # 200 px of label 1 missed
+    ref_b = np.full((40, 40), 3, np.int64)
+    ref_b[:10, :10] = 2  # label 2: 100 px
+    pred_b = ref_b.copy()
+    pred_b[:6, :10] = 3  # 60 px of it missed
+    maps, refs = {"a": pred_a, "b": pred_b}, {"a": ref_a, "b": ref_b}
+    iou = {"a": {"1": 0.83, "3": 0.6}, "b": {"2": 0.4, "3": 0.98}}
+    view, (label, region) = next_region(maps, refs, {"a": {"1": 0.1, "3": 0.1}, "b": iou["b"]}, "view")
+    assert view == "a" and label == 1 and region.sum() == 200
+    view, (label, region) = next_region(maps, refs, iou, "gain")
+    assert view == "b" and label == 2 and region.sum() == 60 and region[:6, :10].all()
+    assert next_region(refs, refs, iou, "gain") is None

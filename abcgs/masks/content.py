@@ -340,8 +340,8 @@ def _field_labels(model: GaussianModel, cameras: list[Camera], label_paths: Sequ
                   images: list[Path] | None = None) -> tuple[LiftResult, int, list[np.ndarray]]:
     """Per-Gaussian labels from the label maps ``maps`` of the views ``idx`` and their saved strokes
     (``strokes/<stem>.png`` beside the view's label map ``label_paths[i]``, when there are any) by :class:`abcgs.masks.field.LabelField`, as the masks
-    page computes them (a map that is its strokes' regions on the view's photo weighs as a correction,
-    :func:`~abcgs.masks.regions.are_view_regions`), and every view's labels (refined against the view's photo in ``images`` where given; a
+    page computes them (the strokes' corrections on the view's photo laid over the map,
+    :func:`~abcgs.masks.regions.view_evidence`), and every view's labels (refined against the view's photo in ``images`` where given; a
     painted view keeps its map where it decided).
 
     Returns:
@@ -349,7 +349,7 @@ def _field_labels(model: GaussianModel, cameras: list[Camera], label_paths: Sequ
     """
     from abcgs.io.images import load_stroke_map, stroke_map_path
     from abcgs.masks.field import LabelField, render_field
-    from abcgs.masks.regions import are_view_regions
+    from abcgs.masks.regions import view_evidence
     from abcgs.progress import progress
 
     field_ = LabelField(model, cameras, params.field, params.lift, params.backend)
@@ -358,9 +358,9 @@ def _field_labels(model: GaussianModel, cameras: list[Camera], label_paths: Sequ
         given = label_paths[i] if label_paths is not None else None
         path = stroke_map_path(given.parent, Path(cam.name).stem) if given is not None else None
         strokes = load_stroke_map(path, (cam.height, cam.width)) if path is not None and path.is_file() else None
-        regions = strokes is not None and images is not None and are_view_regions(
-            m, to_uint8(load_image(images[i])), strokes, params.field)
-        field_.set_view(i, m, strokes, regions=regions)
+        cut, regions = (m, None) if images is None else view_evidence(m, strokes, to_uint8(load_image(images[i])),
+                                                                       params.field)
+        field_.set_view(i, cut, strokes, regions=regions)
     result = field_.solve()
     views = [render_field(field_, result, i, photo=None if images is None else to_uint8(load_image(images[i])))
              for i in progress(range(len(cameras)), "masks: render every view's labels", enabled=show_progress)]

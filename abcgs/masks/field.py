@@ -12,8 +12,9 @@ where the cut left a pixel undecided) and its strokes (a seed map: -1 none, 0 th
    Gaussian for the labels of the pixels it blends into, each pixel weighted by how sure the cut is there
    (:func:`cut_confidence`): near the strokes of its own view fully, falling off with the distance to them
    (``cut_reach``); where GrabCut's two colour models differ little (``cut_margin``) the page's cut leaves the pixel
-   undecided. A correction's colour regions (``correction: region``) weigh ``region_weight`` of that beyond their
-   strokes: a flood of a stroke's colour is less sure than a cut. A Gaussian's evidence for label l is its confident
+   undecided. A correction's colour regions (``correction: region``) lie over the view's cut, if it has one, and
+   beyond their strokes weigh ``region_weight`` of that where the cut gave another label: a flood of a stroke's colour
+   is less sure than a cut (:func:`~abcgs.masks.regions.view_evidence`). A Gaussian's evidence for label l is its confident
    vote for l over its blending weight in the whole view (``evidence_of: view``; ``decided``: in the pixels the cut
    decided), so a large splat a correction covers in part is weak evidence; under ``cut_share`` of that weight on
    decided pixels, the view casts no vote on it at all, and the splat keeps what the other views say of it. What lies
@@ -101,13 +102,21 @@ class FieldResult:
 
 @dataclass
 class _View:
-    cut: np.ndarray | None  # (H, W) int64, NO_VOTE undecided
+    cut: np.ndarray | None  # (H, W) int64, NO_VOTE undecided: the view's cut
     strokes: np.ndarray | None  # (H, W) int64 seed map, -1 none
-    regions: bool = False  # the cut is its strokes' colour regions (a correction), not a cut of the whole view
+    regions: np.ndarray | None = None  # (H, W) int64, NO_VOTE undecided: its corrections' regions, over the cut
     votes: torch.Tensor | None = None  # (N, L_v + 1) the cut's Eq. 2 votes, each pixel weighted by its confidence
     cover: torch.Tensor | None = None  # (N,) blending weight in the cut's decided pixels
     seen: torch.Tensor | None = None  # (N,) blending weight in the whole view
     stroke_votes: torch.Tensor | None = None  # (N, L_v + 1) blending weight in each label's stroke pixels, if bound
+
+
+def _evidence_map(cut: np.ndarray | None, regions: np.ndarray | None) -> np.ndarray | None:
+    """A view's evidence ``(H, W) int64``: ``regions`` where they decide, ``cut`` elsewhere (NO_VOTE where neither
+    does); None if both are None."""
+    if regions is None:
+        return cut
+    return regions if cut is None else np.where(regions >= 0, regions, cut)
 
 
 def cut_confidence(shape: tuple[int, int], strokes: np.ndarray | None, reach: float) -> np.ndarray:
@@ -160,38 +169,56 @@ class LabelField:
         return sorted(self._views)
 
     def cut_of(self, index: int) -> np.ndarray | None:
-        """View ``index``'s cut ``(H, W) int64`` (0..L, NO_VOTE undecided), or None if it has none."""
+        """View ``index``'s cut alone ``(H, W) int64`` (0..L, NO_VOTE undecided), or None if it has none."""
         view = self._views.get(index)
         return None if view is None else view.cut
 
+    def evidence_map(self, index: int) -> np.ndarray | None:
+        """View ``index``'s evidence ``(H, W) int64`` (0..L, NO_VOTE undecided): its corrections' regions where they
+        decide, its cut elsewhere; None if it has neither."""
+        view = self._views.get(index)
+        return None if view is None else _evidence_map(view.cut, view.regions)
+
+    def saved_of(self, index: int) -> np.ndarray | None:
+        """What the masks page saves of view ``index`` ``(H, W) int64`` (0..L, NO_VOTE undecided), from which, with
+        the view's strokes and photo, the ``masks`` stage sets the same view (:meth:`set_view`): its cut, or where it
+        has none its corrections' regions; None if it has neither."""
+        view = self._views.get(index)
+        return None if view is None else (view.cut if view.cut is not None else view.regions)
+
     def set_view(self, index: int, cut: np.ndarray | None, strokes: np.ndarray | None = None, *,
-                 regions: bool = False) -> None:
-        """Set (or, with both None, remove) view ``index``'s cut ``(H, W) int`` (0..L, NO_VOTE) and stroke seed map
-        ``(H, W) int`` (-1 none, 0..L); with ``regions`` the cut is its strokes' colour regions
-        (:func:`~abcgs.masks.regions.stroke_regions`, a correction), whose pixels beyond the strokes weigh
-        ``region_weight``. Its votes are computed at the next :meth:`solve`."""
-        if cut is None and strokes is None:
+                 regions: np.ndarray | None = None) -> None:
+        """Set (or, with all None, remove) view ``index``'s cut ``(H, W) int`` (0..L, NO_VOTE), stroke seed map
+        ``(H, W) int`` (-1 none, 0..L) and its corrections' regions ``(H, W) int`` (0..L, NO_VOTE;
+        :func:`~abcgs.masks.regions.correction_regions`). The regions overrule the cut where they decide, and there,
+        beyond the strokes, where the cut had not already their label, weigh ``region_weight``: a correction on a view
+        once cut keeps the rest of its cut (:func:`~abcgs.masks.regions.view_evidence` makes the pair). Its votes are
+        computed at the next :meth:`solve`."""
+        if cut is None and strokes is None and regions is None:
             self._views.pop(index, None)
             return
         cam = self.cameras[index]
-        for what, arr in (("cut", cut), ("strokes", strokes)):
+        for what, arr in (("cut", cut), ("strokes", strokes), ("regions", regions)):
             if arr is not None and tuple(arr.shape) != (cam.height, cam.width):
                 raise ValueError(f"the {what} of view {cam.name} is {arr.shape[1]}x{arr.shape[0]}, the view "
                                  f"{cam.width}x{cam.height}")
-        self._views[index] = _View(None if cut is None else np.asarray(cut, np.int64),
-                                   None if strokes is None else np.asarray(strokes, np.int64), regions)
+        self._views[index] = _View(*(None if a is None else np.asarray(a, np.int64) for a in (cut, strokes, regions)))
 
     def _cut_votes(self, view: _View, cam: Camera) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """One view's cut votes ``(N, L_v + 1)``, each pixel weighted by its confidence (1 with ``cut_evidence:
-        hard``; × ``region_weight`` beyond the strokes of a view whose cut is its strokes' regions), each Gaussian's
-        blending weight in the cut's decided pixels ``(N,)`` and in the whole view ``(N,)``."""
-        cut = view.cut
+        """One view's votes ``(N, L_v + 1)`` from its evidence map (:meth:`cut_of`), each pixel weighted by its
+        confidence (1 with ``cut_evidence: hard``; × ``region_weight`` where a correction's region beyond the strokes
+        gives a label the cut did not), each Gaussian's blending weight in the map's decided pixels ``(N,)`` and in
+        the whole view ``(N,)``."""
+        cut = _evidence_map(view.cut, view.regions)
         if self.params.cut_evidence == "soft":
             conf = cut_confidence(cut.shape, view.strokes, self.params.cut_reach)
         else:
             conf = np.ones(cut.shape, np.float32)
-        if view.regions and view.strokes is not None:
-            conf = np.where(view.strokes >= 0, conf, conf * self.params.region_weight).astype(np.float32)
+        if view.regions is not None:
+            weak = (view.regions >= 0) & (view.cut != view.regions if view.cut is not None else True)
+            if view.strokes is not None:
+                weak &= view.strokes < 0
+            conf = np.where(weak, conf * self.params.region_weight, conf).astype(np.float32)
         small = lift_camera(cam)
         conf_small = torch.from_numpy(area_weights(conf[..., None], small))
         area = torch.full((small.height, small.width, 1), pixel_area(cut.shape, small))
@@ -223,7 +250,7 @@ class LabelField:
         strokes = torch.zeros(n, n_labels + 1)
         for i, v in self._views.items():
             cam = self.cameras[i]
-            if v.cut is not None and v.votes is None:
+            if (v.cut is not None or v.regions is not None) and v.votes is None:
                 v.votes, v.cover, v.seen = self._cut_votes(v, cam)
                 keep = v.cover >= self.params.cut_share * v.seen  # the splats its cut decided cut_share of
                 if self.params.occlusion > 0:  # what the view's surface hides casts no vote there
@@ -243,7 +270,7 @@ class LabelField:
 
     def n_labels(self) -> int:
         """The largest label any painted view's cut or strokes holds."""
-        return max([0] + [int(a.max(initial=0)) for v in self._views.values() for a in (v.cut, v.strokes)
+        return max([0] + [int(a.max(initial=0)) for v in self._views.values() for a in (v.cut, v.strokes, v.regions)
                           if a is not None])
 
     def solve(self) -> FieldResult:
@@ -370,7 +397,7 @@ def render_field(field: LabelField, result: FieldResult, index: int, *, threshol
     small = lift_camera(cam)
     img, alpha = render_label_weights(field.model, torch.as_tensor(result.labels), result.n_labels, small,
                                       decided=torch.as_tensor(result.decided), backend=field.backend)
-    cut = field.cut_of(index) if cut_where_painted else None
+    cut = field.evidence_map(index) if cut_where_painted else None
     if photo is not None and field.params.edge_radius > 0:
         photo_small = photo if small is cam else cv2.resize(photo, (small.width, small.height),
                                                             interpolation=cv2.INTER_AREA)

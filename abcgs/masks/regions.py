@@ -5,10 +5,11 @@ the few Gaussians under them (:mod:`abcgs.masks.field`); the part it lies in is 
 for each connected stroke, the photo's pixels connected to it whose colour stays within ``tolerance`` (CIE ΔE*ab,
 CIELAB of the photo) of the stroke's mean colour and that lie within ``reach`` of it: a flood fill of the stroke's
 colour bounded by the photo's edges and by a disc. Where two strokes' regions meet, each pixel goes to the one nearer
-in colour. The map is the correction's evidence (``masks.field.correction: region``): it is computed from the photo
-and the strokes alone, so the ``masks`` stage, reading the label map the page saved, weighs the same evidence as the
-page did, and knows it for a correction's regions (:func:`are_view_regions`): their pixels beyond the strokes weigh
-``masks.field.region_weight`` of a cut's.
+in colour. The map is the correction's evidence (``masks.field.correction: region``). On a view the page once cut,
+only the strokes the cut contradicts are corrections (:func:`corrections`), and their regions lie over the cut: they
+overrule it where they reach and leave the rest of it (:func:`view_evidence`). Their pixels beyond the strokes weigh
+``masks.field.region_weight`` of a cut's where the cut gave another label. All of it is computed from the photo, the
+strokes and the saved map, so the ``masks`` stage, reading what the page saved, weighs the same evidence as the page.
 """
 
 from __future__ import annotations
@@ -73,13 +74,51 @@ def view_regions(photo: np.ndarray, strokes: np.ndarray, params: FieldParams) ->
     return stroke_regions(photo, strokes, reach, params.region_tolerance)
 
 
-def are_view_regions(label_map: np.ndarray, photo: np.ndarray, strokes: np.ndarray | None,
-                     params: FieldParams) -> bool:
-    """Whether a painted view's ``label_map`` ``(H, W) int`` (0..L, :data:`NO_VOTE` undecided) is its ``strokes``'
-    regions (:func:`view_regions`, what the page saves for a correction) rather than a cut of the view: with
-    ``correction: region``, the map equals them pixel for pixel."""
-    if strokes is None or params.correction != "region" or not (strokes >= 0).any():
-        return False
-    if photo.shape[:2] != label_map.shape or strokes.shape != label_map.shape:
-        return False
-    return bool(np.array_equal(view_regions(photo, strokes, params), np.asarray(label_map, np.int64)))
+def corrections(strokes: np.ndarray, cut: np.ndarray | None) -> np.ndarray:
+    """The strokes of a seed map ``(H, W) int`` (-1 none, 0..L) that correct ``cut`` ``(H, W) int`` (0..L,
+    :data:`~abcgs.masks.lifting.NO_VOTE`): each connected stroke of which some pixel the cut does not give the stroke's
+    label; the others (the strokes the cut was seeded with, or that it agrees with) are left out (-1). No cut: all."""
+    strokes = np.asarray(strokes, np.int64)
+    if cut is None:
+        return strokes
+    out = strokes.copy()
+    for k in np.unique(strokes[strokes >= 0]):
+        n, comp = cv2.connectedComponents((strokes == k).astype(np.uint8), connectivity=8)
+        agree = np.bincount(comp.ravel(), weights=(cut == k).ravel(), minlength=n)
+        size = np.bincount(comp.ravel(), minlength=n)
+        for c in np.flatnonzero(agree[1:] == size[1:]) + 1:
+            out[comp == c] = -1
+    return out
+
+
+def correction_regions(photo: np.ndarray, strokes: np.ndarray, params: FieldParams,
+                       cut: np.ndarray | None = None) -> np.ndarray | None:
+    """What a view's strokes that correct its ``cut`` (:func:`corrections`) say beyond the pixels they cover, on its
+    ``photo`` ``(H, W, 3) uint8``, as ``params.correction`` has it: ``region``, their colour regions
+    (:func:`view_regions`); ``strokes``, the strokes alone (``(H, W) int64``, :data:`~abcgs.masks.lifting.NO_VOTE`
+    elsewhere); ``cut``, None (the view is cut again instead). The masks page and the ``masks`` stage both lay them
+    over the view's cut (:meth:`abcgs.masks.field.LabelField.set_view`), so that a correction on a view once cut
+    overrules the cut where it lies and keeps the rest of it."""
+    if params.correction == "cut":
+        return None
+    strokes = corrections(strokes, cut)
+    if params.correction == "strokes":
+        return np.where(strokes >= 0, strokes, NO_VOTE).astype(np.int64)
+    return view_regions(photo, strokes, params)
+
+
+def view_evidence(cut: np.ndarray | None, strokes: np.ndarray | None, photo: np.ndarray,
+                  params: FieldParams) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """A painted view's cut and its corrections' regions ``(cut, regions)``, each ``(H, W) int64`` (0..L,
+    :data:`~abcgs.masks.lifting.NO_VOTE`) or None, as the masks page sets them in its 3-D labels
+    (:meth:`abcgs.masks.field.LabelField.set_view`) from the view's ``cut`` (None: the page never cut it), its
+    ``strokes`` ``(H, W) int`` and ``photo`` ``(H, W, 3) uint8``: its strokes that correct the cut and their regions
+    (:func:`correction_regions`). The page saves the cut, or the regions of a view it never cut
+    (:meth:`~abcgs.masks.field.LabelField.saved_of`); the ``masks`` stage passes that map as ``cut`` and gets the
+    same pair back: a map equal to the regions of all the view's strokes is those regions, not a cut."""
+    if strokes is None or params.correction == "cut":
+        return cut, None
+    every = correction_regions(photo, strokes, params)
+    if cut is None or np.array_equal(cut, every):
+        return None, every
+    return np.asarray(cut, np.int64), correction_regions(photo, strokes, params, cut)

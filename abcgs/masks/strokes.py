@@ -93,6 +93,7 @@ class Segmentation:
             foreground probability ``p`` (0 where its two colour models agree, 1 where one alone explains the pixel),
             1 on strokes, :data:`abcgs.masks.grabcut.FILL_MARGIN` where the gap fill decided, 0 where nothing claimed the pixel.
         seconds: time spent.
+        saved: ``(H, W) int64`` what the page saves of the view instead of the claimed labels, or None.
     """
 
     labels: np.ndarray
@@ -100,10 +101,14 @@ class Segmentation:
     probability: dict[int, np.ndarray] = field(default_factory=dict)
     margin: np.ndarray | None = None
     seconds: float = 0.0
+    saved: np.ndarray | None = None
 
     def saved_map(self) -> np.ndarray:
-        """The label PNG's content ``(H, W) int64``: the labels, 0 where the background was decided, and
-        :data:`UNDECIDED` where nothing claimed the pixel."""
+        """The label PNG's content ``(H, W) int64``: ``saved`` where given (what the page's 3-D labels keep of the
+        view, :meth:`abcgs.masks.field.LabelField.saved_of`), else the labels, 0 where the background was decided,
+        and :data:`UNDECIDED` where nothing claimed the pixel."""
+        if self.saved is not None:
+            return np.asarray(self.saved, np.int64)
         return np.where(self.claimed, self.labels, UNDECIDED).astype(np.int64)
 
     def counts(self) -> dict[int, int]:

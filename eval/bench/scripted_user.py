@@ -22,12 +22,13 @@ they are and refined the same way); the goal's pairs are held against the refine
 stage's labels from what the page saved (:func:`stage_maps`), scored the same way.
 
 With ``--target pair`` each next mark goes to the largest wrong region of the (view, label) pair furthest below its
-goal instead, until every pair meets it (:data:`Target`).
+goal instead, until every pair meets it; with ``--target gain`` to the wrong region that costs its pair the most IoU,
+on whichever reference view it lies, the painted ones included (:data:`eval.bench.marks.Target`).
 
 With ``--clicks stroke`` each next mark is a straight brush stroke across that wrong region instead of a dot
-(:func:`line_inside`, at most :data:`STROKE_LENGTH` of the view's shorter side), as a user paints on the page. With
+(:func:`~eval.bench.marks.line_inside`, at most :data:`~eval.bench.marks.STROKE_LENGTH` of the view's shorter side), as a user paints on the page. With
 ``--clicks ideal`` each dot also brings the whole wrong region it lies in, with its reference label, as the view's
-evidence (:data:`Clicks`): what a perfect part mask per click would give the 3-D step.
+evidence (:data:`~eval.bench.marks.Clicks`): what a perfect part mask per click would give the 3-D step.
 
 Every stroke is also a regression check: the change of the mean IoU and of each reference view's mean from the Segment
 before, and how many Gaussians that Segment changed, by the step that decided each (``delta``); the worst drop of either
@@ -46,14 +47,12 @@ import statistics
 import tempfile
 import time
 from pathlib import Path
-from typing import Literal
 
 from abcgs.runtime import setup
 
 setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
 
 # isort: split
-import cv2
 import numpy as np
 import torch
 
@@ -64,117 +63,10 @@ from abcgs.masks.page.field_session import FieldSession
 from abcgs.masks.page.strip import Strip
 from abcgs.masks.params import FieldParams, LiftParams
 from abcgs.masks.strokes import Stroke, rasterize_strokes
+from eval.bench.marks import GOAL, STROKE_LENGTH, Clicks, Target, dot_inside, line_inside, next_region, pair_goal
 from eval.bench.strokes import DATA, FittedCase, geometry_bound, load_case, view_strokes
 from eval.labels import score_labels, stroke_overlay
 from eval.record import bench_parser, write_record
-
-Clicks = Literal["dot", "stroke", "ideal"]
-"""What each scripted mark is and gives the page: ``dot``, a dot (:func:`next_stroke`) that the page turns into a
-region (``masks.field.correction``), as the click benchmarks (NoC) count; ``stroke``, a straight brush stroke across
-the same wrong region (:func:`line_inside`), as a user paints on the page; ``ideal``, the dot and, as the view's
-evidence, the whole wrong region it lies in with its reference label (:func:`largest_wrong_region`): a perfect part
-mask per click, the most a better 2-D step could bring."""
-Target = Literal["view", "pair"]
-"""Where each scripted mark goes (:func:`next_region`): ``view``, the largest wrong region of the reference view that
-is worst now (lowest mean IoU over its labels); ``pair``, the largest wrong region that involves the (view, label) pair
-furthest below its goal (:func:`pair_goal`), and once every pair meets its goal, as ``view``: a user who fixes first
-the part that is worst against what the geometry allows."""
-STROKE_LENGTH = 0.2
-"""A scripted stroke's largest length, a share of the view's shorter side (74 pixels on miku's 493 × 370 views, where
-the test strokes are 30–75 pixels long)."""
-
-GOAL = {"strokes": 10, "mean_iou": 0.75, "pair_iou": 0.60, "below_bound": 0.05, "unlabelled": 0.02,
-        "mean_drop": 0.01, "view_drop": 0.03}
-
-
-def largest_wrong_region(pred: np.ndarray, truth: np.ndarray) -> tuple[int, np.ndarray] | None:
-    """The largest connected region ``(H, W) bool`` of ``pred`` whose label differs from ``truth`` (pixels where
-    ``truth`` is a label > 0) and its reference label; None when none is wrong."""
-    best = None
-    for k in np.unique(truth[truth > 0]):
-        wrong = ((truth == k) & (pred != k)).astype(np.uint8)
-        n, comp, stats, _ = cv2.connectedComponentsWithStats(wrong, connectivity=8)
-        for c in range(1, n):
-            area = stats[c, cv2.CC_STAT_AREA]
-            if best is None or area > best[0]:
-                best = (area, int(k), comp == c)
-    return None if best is None else best[1:]
-
-
-def pair_goal(bound: dict, view: str, label: str) -> float:
-    """The IoU the goal asks of pair (``view``, ``label``): min(0.60, its bound − 0.05), ``bound`` as
-    :func:`eval.bench.strokes.geometry_bound` returns it (a pair the bound lacks: 0.60)."""
-    return min(GOAL["pair_iou"], bound["per_view"][view].get(label, 1.0) - GOAL["below_bound"])
-
-
-def next_region(maps: dict[str, np.ndarray], refs: dict[str, np.ndarray], iou: dict[str, dict[str, float]],
-                target: Target = "view", bound: dict | None = None) -> tuple[str, tuple[int, np.ndarray]] | None:
-    """The reference view and the wrong region there (its reference label and ``(H, W) bool``,
-    :func:`largest_wrong_region`) that the next mark goes to, as ``target`` says (:data:`Target`), from each view's
-    labels ``maps``, its reference ``refs`` and their IoU per label ``iou``; ``bound`` (for ``pair``) as
-    :func:`pair_goal` takes it. None when no reference view has a wrong pixel."""
-    if target == "pair":
-        if bound is None:
-            raise ValueError("target pair needs the bound each pair's goal is held against")
-        short = {(v, k): pair_goal(bound, v, k) - x for v, per in iou.items() for k, x in per.items()}
-        (v, k), gap = max(short.items(), key=lambda kv: kv[1])
-        if gap > 0:  # the errors that involve label k: every other pixel as the reference has it
-            mine = (refs[v] == int(k)) | (maps[v] == int(k))
-            wrong = largest_wrong_region(np.where(mine, maps[v], refs[v]), refs[v])
-            if wrong is not None:
-                return v, wrong
-    view_means = {v: float(np.mean(list(per.values()))) for v, per in iou.items()}
-    worst = min(view_means, key=view_means.get)
-    wrong = largest_wrong_region(maps[worst], refs[worst])
-    return None if wrong is None else (worst, wrong)
-
-
-def next_stroke(pred: np.ndarray, truth: np.ndarray, radius: float) -> Stroke | None:
-    """A dot of the reference label at the interior-most pixel of the largest connected region of ``pred`` whose label
-    differs from ``truth`` (:func:`largest_wrong_region`); None when none is wrong. Its radius is ``radius`` or less,
-    to stay inside the region."""
-    wrong = largest_wrong_region(pred, truth)
-    return None if wrong is None else dot_inside(*wrong, radius)
-
-
-def _interior(region: np.ndarray, radius: float) -> tuple[np.ndarray, int, int, float]:
-    """``region``'s distance to its edge ``(H, W) float32``, its interior-most pixel (x, y) and the brush radius
-    there that stays inside it (``radius`` or less, at least 1)."""
-    dist = cv2.distanceTransform(np.pad(region, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1]
-    y, x = np.unravel_index(int(np.argmax(dist)), dist.shape)
-    return dist, int(x), int(y), float(max(1.0, min(radius, dist[y, x] - 1.0)))
-
-
-def dot_inside(label: int, region: np.ndarray, radius: float) -> Stroke:
-    """A dot of ``label`` at the interior-most pixel of ``region`` ``(H, W) bool`` (largest distance to its edge),
-    of radius ``radius`` or less, to stay inside it."""
-    _, x, y, r = _interior(region, radius)
-    return Stroke(label, np.array([[x + 0.5, y + 0.5]]), r)
-
-
-def line_inside(label: int, region: np.ndarray, radius: float, length: float) -> Stroke:
-    """A straight stroke of ``label`` across ``region`` ``(H, W) bool``: through its interior-most pixel (as
-    :func:`dot_inside`) along the region's longest axis (the principal axis of its pixels), ``length`` pixels long
-    where the region has room for it (centred on that pixel where both ways do), its brush (``radius`` or less)
-    inside the region all along."""
-    dist, x, y, r = _interior(region, radius)
-    ys, xs = np.nonzero(region)
-    axis = np.array([1.0, 0.0])
-    if len(xs) > 2:
-        axis = np.linalg.eigh(np.cov(np.stack([xs, ys]).astype(np.float64)))[1][:, -1]
-    room = []  # how far the brush stays inside, each way along the axis (up to the whole length)
-    for sign in (-1.0, 1.0):
-        t = 0
-        while t + 1 <= length:
-            px, py = np.rint([x + sign * (t + 1) * axis[0], y + sign * (t + 1) * axis[1]]).astype(int)
-            if not (0 <= py < dist.shape[0] and 0 <= px < dist.shape[1]) or dist[py, px] < r + 1.0:
-                break
-            t += 1
-        room.append(t)
-    back = min(room[0], max(length / 2, length - room[1]))  # centred where both ways have room, else shifted
-    ahead = min(room[1], length - back)
-    ends = [[x + 0.5 + sign * t * axis[0], y + 0.5 + sign * t * axis[1]] for sign, t in ((-1.0, back), (1.0, ahead))]
-    return Stroke(label, np.array(ends), r)
 
 
 def regression(steps: list[dict]) -> dict:
@@ -233,7 +125,7 @@ class ScriptedUser:
         state = self.session.state
         seconds = {**state.phases, "total": state.seconds}  # the page's Segment
         if index in self.ideal:  # the clicked regions, as a perfect part mask per click would give them
-            cut = self.session.field.cut_of(index)
+            cut = self.session.field.evidence_map(index)
             self.session.set_evidence(index, np.where(self.ideal[index] >= 0, self.ideal[index], cut), seeds)
         return seconds
 
@@ -277,7 +169,7 @@ def attribute(user: ScriptedUser, n_labels: int, test_stem: str) -> dict:
     every = lift_labels(model, [cams[user.by_stem[s]] for s in user.refs], list(user.refs.values()), n_labels, LiftParams())
     t_lab, t_dec, a_lab = test.labels.numpy(), test.decided.numpy(), every.labels.numpy()
     front = cams[user.by_stem[test_stem]]
-    cut = f.cut_of(user.by_stem[test_stem])
+    cut = f.evidence_map(user.by_stem[test_stem])
     w = blend_votes(model, front, torch.cat([one_hot_labels(cut, int(cut.max(initial=0))),
                                              torch.ones(*cut.shape, 1)], -1))
     weight = w[:, -1].numpy()  # each Gaussian's blending weight in the test view
@@ -307,8 +199,8 @@ def stage_maps(user: ScriptedUser, params: FieldParams) -> dict[str, np.ndarray]
         masks = Path(tmp)
         for i in user.session.field.painted:
             stem = Path(user.scene.cameras[i].name).stem
-            cut = user.session.field.cut_of(i)
-            save_labels(masks / f"{stem}.png", np.where(cut >= 0, cut, UNDECIDED))
+            saved = user.session.field.saved_of(i)
+            save_labels(masks / f"{stem}.png", np.where(saved >= 0, saved, UNDECIDED))
             cam = user.scene.cameras[i]
             save_stroke_map(stroke_map_path(masks, stem), rasterize_strokes(user.strokes[i], (cam.height, cam.width)))
         result = make_content_masks(user.session.field.model, user.scene.cameras,
@@ -385,7 +277,7 @@ def run_setting(case: FittedCase, params: FieldParams, max_strokes: int, radius:
                 strip: Strip | None = None, clicks: Clicks = "dot", target: Target = "view") -> tuple[dict, ScriptedUser]:
     """One scripted run on ``case`` at ``params``: the bounds, the steps, the ``masks`` stage's score; its record
     (without provenance) and the user, for the figure. ``strip``: a recorded strip to reuse (the Gaussians are the
-    same); ``target``: where the marks go (:data:`Target`, against the refined bound)."""
+    same); ``target``: where the marks go (:data:`~eval.bench.marks.Target`, against the refined bound)."""
     spec, scene, model, by_stem, refs = case.spec, case.scene, case.model, case.by_stem, case.refs
     n_labels = len(spec["labels"])
     front_stem, items = spec["test"]["view"], spec["test"]["strokes"]
@@ -450,9 +342,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--clicks", choices=["dot", "stroke", "ideal"], default="dot",
                     help="each scripted mark: a dot; a straight stroke across the wrong region; ideal: a dot that "
                          "also gives its whole wrong region as the view's evidence (Clicks)")
-    ap.add_argument("--target", choices=["view", "pair"], default="view",
+    ap.add_argument("--target", choices=["view", "pair", "gain"], default="view",
                     help="where each mark goes: the worst view's largest wrong region; pair: the largest wrong region "
-                         "of the pair furthest below its goal first (Target)")
+                         "of the pair furthest below its goal first; gain: the wrong region that is the largest share "
+                         "of its pair's union, on any view (eval.bench.marks.Target)")
     ap.add_argument("--field", default="{}", help="masks.field settings as JSON (default: the masks section's)")
     ap.add_argument("--settings", type=Path,
                     help="a YAML file of named masks.field settings (name: {key: value}, over --field): one run "

@@ -9,7 +9,7 @@ it (labels 3, 1, 2), seen by ``--views`` cameras on an arc at ``--width`` × ``-
 portrait or landscape alike); each view's photo is the scene's own render, and its true labels the labels' render.
 The user (:func:`eval.bench.paint_iou.simulated_strokes`) draws ``--strokes`` strokes per label on view 0 and presses
 Segment (:meth:`abcgs.masks.page.field_session.FieldSession.segment`, as the page does); then, for each of ``--corrections``
-further views, a dot on its largest wrong region (:func:`eval.bench.scripted_user.next_stroke`) and Segment again.
+further views, a dot on its largest wrong region (:func:`eval.bench.marks.next_stroke`) and Segment again.
 Printed per Segment: the parts (``cut``: GrabCut at the working size, :data:`abcgs.masks.grabcut.WORK_PIXELS`, and the
 labels brought back to the photo's size; ``solve``: the lift of the changed view, at most
 :data:`abcgs.masks.lifting.LIFT_PIXELS` pixels, and the 3-D step; ``strip``: every view's small label map; ``view``:
@@ -42,7 +42,7 @@ from abcgs.masks.page.strip import Strip
 from abcgs.masks.strokes import rasterize_strokes
 from abcgs.render import rgb_to_sh0
 from eval.bench.paint_iou import simulated_strokes
-from eval.bench.scripted_user import next_stroke
+from eval.bench.marks import next_stroke
 from eval.record import bench_parser, write_record
 
 GOAL_SECONDS = 5.0

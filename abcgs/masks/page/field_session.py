@@ -20,10 +20,9 @@ import numpy as np
 from abcgs.errors import InputError
 from abcgs.io.images import image_header, load_image, to_uint8
 from abcgs.masks.field import FieldResult, LabelField, cut_painted_view, render_field
-from abcgs.masks.lifting import NO_VOTE
 from abcgs.masks.page.strip import Strip
 from abcgs.masks.params import UNDECIDED, FieldParams, LiftParams
-from abcgs.masks.regions import view_regions
+from abcgs.masks.regions import view_evidence
 from abcgs.masks.strokes import Segmentation
 from abcgs.viz import colorize_labels
 
@@ -106,32 +105,34 @@ class FieldSession:
     def segment(self, item: int, photo: np.ndarray, strokes: np.ndarray, started: float | None = None) -> Segmentation:
         """Segment page item ``item`` (``photo`` ``(H, W, 3) uint8``, its stroke seed map ``(H, W) int64``): while no
         label exists in 3-D, or with ``correction: cut``, cut the view seeded by its strokes and the labels in 3-D
-        (:func:`cut_painted_view`); with ``correction: region`` its strokes' regions in the photo
-        (:func:`~abcgs.masks.regions.stroke_regions`); otherwise (``correction: strokes``) its strokes alone are its evidence. Then lift
-        every painted view, solve and update the strip. Returns the view's labels as the page shows them (its cut
-        where the cut decided, the labels in 3-D refined against ``photo`` elsewhere: ``labels``) and the evidence the view gives the field
-        (``claimed``: the pixels of its cut or strokes; :meth:`Segmentation.saved_map` is what the page saves and the
-        ``masks`` stage reads back). The seconds count from ``started`` (``time.perf_counter()`` when the request
-        came; default now)."""
+        (:func:`cut_painted_view`); otherwise the view keeps the cut it has, if any. Over the cut lie the strokes'
+        corrections (:func:`~abcgs.masks.regions.correction_regions`: with ``correction: region`` their regions in the
+        photo, with ``strokes`` the strokes alone), so that a correction on a view once cut overrules the cut where it
+        lies and keeps the rest. Then lift every painted view, solve and update the strip. Returns the view's labels as
+        the page shows them (its evidence where it decided, the labels in 3-D refined against ``photo`` elsewhere:
+        ``labels``; ``claimed``: the pixels of its evidence) and what the page saves for the ``masks`` stage to set
+        the same view from (:meth:`Segmentation.saved_map`: :meth:`LabelField.saved_of`). The seconds count from
+        ``started`` (``time.perf_counter()`` when the request came; default now)."""
         started = time.perf_counter() if started is None else started
         with self._lock:
             cam = self.camera_of[item]
             t0 = time.perf_counter()
-            regions = self.result is not None and self.field.params.correction == "region"
-            if self.result is None or self.field.params.correction == "cut":
-                cut = cut_painted_view(self.field, self.result, cam, photo, strokes,
-                                       reach=self.field.params.correction_reach, min_margin=self.field.params.cut_margin)
-            elif regions:
-                cut = view_regions(photo, strokes, self.field.params)
+            p = self.field.params
+            if self.result is None or p.correction == "cut":
+                cut = cut_painted_view(self.field, self.result, cam, photo, strokes, reach=p.correction_reach,
+                                       min_margin=p.cut_margin)
             else:
-                cut = np.where(strokes >= 0, strokes, NO_VOTE)
+                cut = self.field.cut_of(cam)
+            cut, regions = view_evidence(cut, strokes, photo, p)
             self.field.set_view(cam, cut, strokes, regions=regions)
             self._solve(started, cut_seconds=time.perf_counter() - t0)
             t1 = time.perf_counter()
             shown = render_field(self.field, self.result, cam, photo=photo)
             self.state.phases["view"] = time.perf_counter() - t1
             self.state.seconds = time.perf_counter() - started
-            return Segmentation(shown, cut >= 0, seconds=self.state.seconds)
+            saved = self.field.saved_of(cam)
+            return Segmentation(shown, self.field.evidence_map(cam) >= 0, seconds=self.state.seconds,
+                                saved=np.where(saved >= 0, saved, UNDECIDED))
 
     def forget(self, item: int) -> None:
         """Page item ``item`` has no strokes any more: its cut and strokes leave the field, and the labels and the
