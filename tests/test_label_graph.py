@@ -194,6 +194,60 @@ def test_geodesic_labels_match_the_nearest_source_by_floyd_warshall():
         geodesic_labels(g, seeds, 2, evidence=-evidence)
 
 
+def test_weak_evidence_claims_only_within_its_reach_as_floyd_warshall_says():
+    """Evidence under ``weak_evidence`` is a source whose label reaches at most ``weak_reach`` (its start included):
+    each Gaussian's distance and label are the nearest source's among the strong ones (anywhere) and the weak ones
+    (within reach), by all-pairs shortest paths."""
+    pts, rgb = _two_blobs(6, 40)
+    g = gaussian_graph(_model(pts, rgb), k=6, colour_sigma=0.3, normal_weight=0.0)
+    rng = np.random.default_rng(11)
+    seeds = np.full(g.num_nodes, -1)
+    seeds[[0, 45]] = [1, 2]
+    evidence = np.zeros((g.num_nodes, 3))
+    some = rng.choice(g.num_nodes, 15, replace=False)
+    evidence[some, rng.integers(0, 3, 15)] = rng.uniform(0.05, 1.0, 15)
+    reach = 2.5
+    labels, distance = geodesic_labels(g, seeds, 2, contrast_weight=3.0, evidence=evidence, evidence_cost=4.0,
+                                       weak_evidence=0.6, weak_reach=reach)
+    d = _floyd(g.lengths(3.0).toarray())
+    best = np.full((g.num_nodes, 3), np.inf)
+    for i in np.flatnonzero(seeds >= 0):
+        best[:, seeds[i]] = np.minimum(best[:, seeds[i]], d[i])
+    for i, lab in zip(*np.nonzero((evidence > 0) & (seeds < 0)[:, None])):
+        far = 4.0 * (1 - evidence[i, lab]) + d[i]
+        if evidence[i, lab] < 0.6:
+            far = np.where(far <= reach, far, np.inf)
+        best[:, lab] = np.minimum(best[:, lab], far)
+    free = seeds < 0
+    np.testing.assert_allclose(distance[free], best[free].min(1), rtol=1e-9, atol=1e-6)
+    clear = np.sort(best, 1)[:, 1] - np.sort(best, 1)[:, 0] > 1e-9
+    np.testing.assert_array_equal(labels[free & clear], best[free & clear].argmin(1))
+    unlimited, _ = geodesic_labels(g, seeds, 2, contrast_weight=3.0, evidence=evidence, evidence_cost=4.0)
+    assert (unlimited != labels).any()  # the reach matters here: some Gaussians went to a weak source's label
+
+
+def test_a_faint_region_far_from_its_labels_sources_labels_what_it_covers_not_the_graph_beyond():
+    """A bar of one colour: label 1 is seeded at the left end, label 2 at the right end; a faint region of label 2
+    (evidence 0.1, as a click's colour region weighs) lies just right of the middle. Unlimited, it is a source as far as
+    the graph goes and takes Gaussians up to half-way to the left seed; with a weak reach, it labels what it covers
+    and what is next to it, and the rest stays with the seeds."""
+    rng = np.random.default_rng(3)
+    pts = rng.uniform([0, 0, 0], [4, 0.2, 0.2], (400, 3))
+    g = gaussian_graph(_model(pts, np.full((400, 3), 0.5)), k=8, normal_weight=0.0)
+    seeds = np.full(400, -1)
+    seeds[pts[:, 0] < 0.1] = 1
+    seeds[pts[:, 0] > 3.9] = 2
+    evidence = np.zeros((400, 3))
+    faint = (pts[:, 0] > 2.1) & (pts[:, 0] < 2.3)
+    evidence[faint, 2] = 0.1
+    free, _ = geodesic_labels(g, seeds, 2, evidence=evidence, evidence_cost=4.0)
+    near, _ = geodesic_labels(g, seeds, 2, evidence=evidence, evidence_cost=4.0, weak_evidence=0.25, weak_reach=6.0)
+    assert (near[faint] == 2).all() and (free[faint] == 2).all()
+    left_of_it = (pts[:, 0] > 1.4) & (pts[:, 0] < 1.75)
+    assert (free[left_of_it] == 2).mean() > 0.9  # unlimited, the faint source outruns label 1's seed
+    assert (near[left_of_it] == 1).mean() > 0.9  # within its reach, it does not
+
+
 def test_a_one_gaussian_correction_claims_its_part_where_the_walk_lets_the_big_seed_win():
     """Two parts of one colour, joined; the left part is covered by weak evidence for label 1 (a cut far from its
     strokes), the right end holds a large stroke of label 1. One seeded Gaussian of label 2 in the left part: the

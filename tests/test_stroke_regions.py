@@ -63,3 +63,24 @@ def test_a_stroke_across_the_edge_keeps_its_pixels_and_takes_both_sides_only_nea
 def test_a_photo_of_another_size_is_refused():
     with pytest.raises(ValueError, match="the photo is 90x59, the strokes 90x60"):
         stroke_regions(two_colour_photo()[:-1], dot(30, 20, 1), reach_px=5, tolerance=10.0)
+
+
+def test_a_click_is_a_round_mark_and_its_region_reaches_further_than_a_strokes():
+    """A dot is a click (:func:`abcgs.masks.regions.is_click`), a line of the same brush is not; with ``click`` the
+    dot's region takes the click's reach, the line's the stroke's."""
+    from abcgs.masks.regions import is_click
+
+    yy, xx = np.mgrid[:H, :W]
+    disc = (yy - 30) ** 2 + (xx - 15) ** 2 <= 9
+    line = (np.abs(yy - 30) <= 2) & (xx >= 5) & (xx <= 35)
+    assert is_click(disc) and not is_click(line) and not is_click(np.zeros((H, W), bool))
+    for mark, label in ((disc, 1), (line, 2)):
+        seeds = np.where(mark, label, -1)
+        out = stroke_regions(two_colour_photo(), seeds, reach_px=5, tolerance=12.0, click=(20, 12.0))
+        ys, xs = np.nonzero(out == label)
+        farthest = np.hypot(ys[:, None] - np.argwhere(mark)[:, 0], xs[:, None] - np.argwhere(mark)[:, 1]).min(1).max()
+        if label == 1:
+            assert 15 < farthest <= 20 + 1e-6  # the click's reach
+        else:
+            assert farthest <= 5 + 1e-6  # the stroke's
+        assert not (out[:, 40:] == label).any()  # the photo's edge holds for both

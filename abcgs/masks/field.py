@@ -302,7 +302,8 @@ class LabelField:
         if p.solver == "geodesic":
             labels, distance = geodesic_labels(
                 self.graph, seeds, n_labels, contrast_weight=p.contrast,
-                evidence=None if evidence is None else evidence * evident[:, None], evidence_cost=p.evidence_cost)
+                evidence=None if evidence is None else evidence * evident[:, None], evidence_cost=p.evidence_cost,
+                weak_evidence=p.weak_evidence, weak_reach=p.weak_reach)
             decided = np.isfinite(distance)
             probs = np.zeros((n, n_labels + 1))
             probs[np.flatnonzero(decided), labels[decided]] = 1.0

@@ -274,7 +274,8 @@ def decide_diffused(probs: np.ndarray, *, min_reach: float = 0.05, min_share: fl
 
 
 def geodesic_labels(graph: GaussianGraph, seeds: np.ndarray, n_labels: int, *, contrast_weight: float = 1.0,
-                    evidence: np.ndarray | None = None, evidence_cost: float = 4.0) -> tuple[np.ndarray, np.ndarray]:
+                    evidence: np.ndarray | None = None, evidence_cost: float = 4.0, weak_evidence: float = 0.0,
+                    weak_reach: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
     """The geodesic 3-D step: each Gaussian takes the label of the source nearest to it along the graph.
 
     An edge's length is :meth:`GaussianGraph.lengths` (a hop in the local scale, plus γ = ``contrast_weight`` times
@@ -287,14 +288,15 @@ def geodesic_labels(graph: GaussianGraph, seeds: np.ndarray, n_labels: int, *, c
 
     Unlike the random walk, where a seed pulls in proportion to its size, a seed of one Gaussian claims everything
     nearer to it than to any other source: a correction changes what lies near it and nothing else (adding a
-    source can only change the Gaussians it is now nearest to). Seeds keep their label.
+    source can only change the Gaussians it is now nearest to). Seeds keep their label. Evidence under
+    ``weak_evidence`` is a weak source: it claims only what lies within ``weak_reach`` of the graph's length (its
+    starting distance included) and is nearer to it than to any other source; beyond, the other sources decide, as
+    if it were not there. A faint colour region far from any stroke so labels the splats it covers and those next to
+    them, not a stretch of the graph that no source of its own label is near.
 
     Returns ``labels (N,) int64`` and ``distance (N,) float64`` to the nearest source (``inf`` where none is
     reachable; those Gaussians get label 0 and are the caller's undecided).
     """
-    from scipy.sparse import coo_matrix, csr_matrix
-    from scipy.sparse.csgraph import dijkstra
-
     n = graph.num_nodes
     seeds = np.asarray(seeds, np.int64)
     if seeds.shape != (n,):
@@ -311,21 +313,42 @@ def geodesic_labels(graph: GaussianGraph, seeds: np.ndarray, n_labels: int, *, c
         src_node.append(node)
         src_cost.append(evidence_cost * (1.0 - np.clip(evidence[node, label], 0.0, 1.0)))
     label, node, cost = (np.concatenate(a) for a in (src_label, src_node, src_cost))
+    weak = np.concatenate([np.zeros(len(src_node[0]), bool)] + (
+        [evidence[src_node[1], src_label[1]] < weak_evidence] if evidence is not None else []))
     labels = np.zeros(n, np.int64)
     distance = np.full(n, np.inf)
     if not len(node):
         return labels, distance
+    lengths = graph.lengths(contrast_weight).tocoo()
+    dist, origin = _nearest_source(lengths, n, n_labels, label[~weak], node[~weak], cost[~weak], np.inf)
+    if weak.any():  # the weak sources, within their reach, take what they are nearer to
+        near, near_origin = _nearest_source(lengths, n, n_labels, label[weak], node[weak], cost[weak], weak_reach)
+        take = near < dist
+        dist, origin = np.where(take, near, dist), np.where(take, near_origin, origin)
+    reached = np.isfinite(dist)
+    labels[reached] = origin[reached]
+    distance[reached] = dist[reached]
+    labels[seeds >= 0] = seeds[seeds >= 0]
+    return labels, distance
+
+
+def _nearest_source(lengths, n: int, n_labels: int, label: np.ndarray, node: np.ndarray, cost: np.ndarray,
+                    limit: float) -> tuple[np.ndarray, np.ndarray]:
+    """Each of the ``n`` nodes' distance ``(n,)`` to the nearest source (``node``, of ``label``, starting at ``cost``)
+    along the graph's edge ``lengths`` (COO, ``n × n``), ``inf`` past ``limit`` or where none is reachable, and that
+    source's label ``(n,) int64`` (-1 there)."""
+    from scipy.sparse import coo_matrix, csr_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    if not len(node):
+        return np.full(n, np.inf), np.full(n, -1, np.int64)
     # one virtual source per label (nodes n .. n + n_labels), joined to its sources by their starting distance
     m = n + n_labels + 1
-    lengths = graph.lengths(contrast_weight).tocoo()
     start = coo_matrix((np.maximum(cost, MIN_LENGTH), (n + label, node)), shape=(m, m))
     full = csr_matrix(coo_matrix((np.concatenate([lengths.data, start.data]),
                                   (np.concatenate([lengths.row, start.row]), np.concatenate([lengths.col, start.col]))),
                                  shape=(m, m)))
-    roots = n + np.unique(label)
-    dist, _, origin = dijkstra(full, directed=True, indices=roots, min_only=True, return_predecessors=True)
-    reached = np.isfinite(dist[:n])
-    labels[reached] = origin[:n][reached] - n
-    distance[reached] = dist[:n][reached]
-    labels[seeds >= 0] = seeds[seeds >= 0]
-    return labels, distance
+    dist, _, origin = dijkstra(full, directed=True, indices=n + np.unique(label), min_only=True,
+                               return_predecessors=True, limit=limit)
+    dist = dist[:n]
+    return dist, np.where(np.isfinite(dist), origin[:n] - n, -1).astype(np.int64)

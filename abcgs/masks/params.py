@@ -76,6 +76,12 @@ class FieldParams(BaseModel):
         4.0, ge=0.0, le=1000.0, description="solver: geodesic: a Gaussian with cut evidence e for a label starts "
         "that label at distance evidence_cost × (1 - e), in hops: the larger, the more a stroke nearby overrides "
         "what the cuts say")
+    weak_evidence: float = Field(
+        0.25, ge=0.0, le=1.0, description="solver: geodesic: cut evidence under this share is weak: its label claims "
+        "only what lies within weak_reach of it along the graph (0: none is weak; docs/MASKS.md, miku's scripted user)")
+    weak_reach: float = Field(
+        6.0, gt=0.0, le=1e6, description="solver: geodesic: how far a weak source's label reaches along the graph, in "
+        "hops, its starting distance evidence_cost × (1 - e) included")
     evidence_of: Literal["decided", "view"] = Field(
         "view", description="cut_evidence: soft: a Gaussian's evidence for a label is its vote for the label over "
         "its blending weight in the pixels its views' cuts decided (decided), or in the whole of those views "
@@ -115,6 +121,13 @@ class FieldParams(BaseModel):
     region_tolerance: float = Field(
         12.0, gt=0.0, le=200.0, description="correction: region: the largest CIELAB distance (ΔE*ab) from a stroke's "
         "mean colour that its region takes in")
+    click_reach: float = Field(
+        0.2, gt=0.0, le=10.0, description="correction: region: how far the region of a click (a mark about as long as "
+        "it is wide: a dot, which stands for the part it lies in) reaches, a share of the view's shorter side; a "
+        "longer stroke's region reaches correction_reach (docs/MASKS.md, miku's scripted user)")
+    click_tolerance: float = Field(
+        12.0, gt=0.0, le=200.0, description="correction: region: the largest CIELAB distance (ΔE*ab) from a click's "
+        "mean colour that its region takes in (16 floods a pale part's neighbours: docs/MASKS.md)")
     region_weight: float = Field(
         0.2, ge=0.0, le=1.0, description="correction: region: how much a stroke's region beyond the stroke's own "
         "pixels weighs as evidence, against a cut's pixel as near the view's strokes (1: as much); a colour region is "

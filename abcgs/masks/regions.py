@@ -4,8 +4,9 @@ A dot or a short stroke on a view already labelled in 3-D means "this part is la
 the few Gaussians under them (:mod:`abcgs.masks.field`); the part it lies in is larger. :func:`stroke_regions` takes,
 for each connected stroke, the photo's pixels connected to it whose colour stays within ``tolerance`` (CIE ΔE*ab,
 CIELAB of the photo) of the stroke's mean colour and that lie within ``reach`` of it: a flood fill of the stroke's
-colour bounded by the photo's edges and by a disc. Where two strokes' regions meet, each pixel goes to the one nearer
-in colour. The map is the correction's evidence (``masks.field.correction: region``). On a view the page once cut,
+colour bounded by the photo's edges and by a disc. A click (:func:`is_click`: a dot, about as long as it is wide)
+stands for the whole part it lies in and reaches further (``click_reach``, ``click_tolerance``) than a stroke, which
+stands for the pixels along it. Where two strokes' regions meet, each pixel goes to the one nearer in colour. The map is the correction's evidence (``masks.field.correction: region``). On a view the page once cut,
 only the strokes the cut contradicts are corrections (:func:`corrections`), and their regions lie over the cut: they
 overrule it where they reach and leave the rest of it (:func:`view_evidence`). Their pixels beyond the strokes weigh
 ``masks.field.region_weight`` of a cut's where the cut gave another label. All of it is computed from the photo, the
@@ -28,7 +29,23 @@ def photo_lab(photo: np.ndarray) -> np.ndarray:
     return cv2.GaussianBlur(lab, (3, 3), 0)
 
 
-def stroke_regions(photo: np.ndarray, strokes: np.ndarray, reach_px: int, tolerance: float) -> np.ndarray:
+CLICK_ROUNDNESS = 0.5
+"""A connected mark that fills at least this share of the disc round its longer side is a click (a dot: about as
+long as it is wide), not a stroke (:func:`is_click`)."""
+
+
+def is_click(mark: np.ndarray) -> bool:
+    """Whether a connected mark ``(H, W) bool`` is a click, a dot that stands for the part it lies in, rather than a
+    stroke along it: its pixels fill at least :data:`CLICK_ROUNDNESS` of the disc whose diameter is its longer side."""
+    ys, xs = np.nonzero(mark)
+    if not len(ys):
+        return False
+    side = max(ys.max() - ys.min(), xs.max() - xs.min()) + 1
+    return len(ys) >= CLICK_ROUNDNESS * np.pi * (side / 2.0) ** 2
+
+
+def stroke_regions(photo: np.ndarray, strokes: np.ndarray, reach_px: int, tolerance: float,
+                   click: tuple[int, float] | None = None) -> np.ndarray:
     """Each stroke's region in ``photo`` (module docstring), ``(H, W) int64``: the stroke's label (0 the background
     brush) in its region, :data:`~abcgs.masks.lifting.NO_VOTE` elsewhere; stroke pixels keep their own label.
 
@@ -37,12 +54,13 @@ def stroke_regions(photo: np.ndarray, strokes: np.ndarray, reach_px: int, tolera
         strokes: ``(H, W) int`` seed map, -1 where no stroke, else the stroke's label.
         reach_px: how far from its stroke a region reaches, in pixels (0: the strokes alone).
         tolerance: the largest CIELAB distance (ΔE*ab) from the stroke's mean colour a region's pixel may have.
+        click: ``(reach_px, tolerance)`` of a click's region instead (:func:`is_click`); None: as a stroke's.
     """
     h, w = strokes.shape
     if photo.shape[:2] != (h, w):
         raise ValueError(f"the photo is {photo.shape[1]}x{photo.shape[0]}, the strokes {w}x{h}")
     out = np.where(strokes >= 0, strokes, NO_VOTE).astype(np.int64)
-    if reach_px <= 0 or tolerance <= 0 or not (strokes >= 0).any():
+    if not (strokes >= 0).any():
         return out
     lab = photo_lab(photo)
     best = np.full((h, w), np.inf, np.float32)  # colour distance of the region that holds each pixel
@@ -50,13 +68,16 @@ def stroke_regions(photo: np.ndarray, strokes: np.ndarray, reach_px: int, tolera
         n, comp = cv2.connectedComponents((strokes == k).astype(np.uint8), connectivity=8)
         for c in range(1, n):
             mine = comp == c
+            reach, tol = click if click is not None and is_click(mine) else (reach_px, tolerance)
+            if reach <= 0 or tol <= 0:
+                continue
             ys, xs = np.nonzero(mine)
-            y0, y1 = max(0, ys.min() - reach_px), min(h, ys.max() + reach_px + 1)
-            x0, x1 = max(0, xs.min() - reach_px), min(w, xs.max() + reach_px + 1)
+            y0, y1 = max(0, ys.min() - reach), min(h, ys.max() + reach + 1)
+            x0, x1 = max(0, xs.min() - reach), min(w, xs.max() + reach + 1)
             box = mine[y0:y1, x0:x1]
-            near = cv2.distanceTransform((~box).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE) <= reach_px
+            near = cv2.distanceTransform((~box).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE) <= reach
             dist = np.linalg.norm(lab[y0:y1, x0:x1] - lab[y0:y1, x0:x1][box].mean(0), axis=-1)
-            cand = (near & (dist <= tolerance)) | box
+            cand = (near & (dist <= tol)) | box
             m, parts = cv2.connectedComponents(cand.astype(np.uint8), connectivity=4)
             touched = np.unique(parts[box])
             region = np.isin(parts, touched[touched > 0])
@@ -69,9 +90,11 @@ def stroke_regions(photo: np.ndarray, strokes: np.ndarray, reach_px: int, tolera
 
 def view_regions(photo: np.ndarray, strokes: np.ndarray, params: FieldParams) -> np.ndarray:
     """:func:`stroke_regions` of a view's ``strokes`` ``(H, W) int`` on its ``photo`` ``(H, W, 3) uint8`` as the masks
-    page makes them: reach ``params.correction_reach`` × the view's shorter side, tolerance ``params.region_tolerance``."""
-    reach = int(round(params.correction_reach * min(strokes.shape)))
-    return stroke_regions(photo, strokes, reach, params.region_tolerance)
+    page makes them: reach ``params.correction_reach`` × the view's shorter side and tolerance
+    ``params.region_tolerance``; a click's ``click_reach`` and ``click_tolerance``."""
+    short = min(strokes.shape)
+    return stroke_regions(photo, strokes, int(round(params.correction_reach * short)), params.region_tolerance,
+                          click=(int(round(params.click_reach * short)), params.click_tolerance))
 
 
 def corrections(strokes: np.ndarray, cut: np.ndarray | None) -> np.ndarray:
