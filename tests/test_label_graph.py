@@ -169,27 +169,43 @@ def test_edge_terms_are_aligned_with_the_weights_and_give_back_the_walk_s_weight
     np.testing.assert_allclose(g.lengths(2.0).data, g.spatial + 2.0 * g.contrast, rtol=1e-12)
 
 
-def test_geodesic_labels_match_the_nearest_source_by_floyd_warshall():
+def _sources(n_evidence: int, seed: int):
+    """The two-blob graph, two seeds and ``n_evidence`` random evidence entries in (0.05, 1)."""
     pts, rgb = _two_blobs(6, 40)
     g = gaussian_graph(_model(pts, rgb), k=6, colour_sigma=0.3, normal_weight=0.0)
-    rng = np.random.default_rng(7)
+    rng = np.random.default_rng(seed)
     seeds = np.full(g.num_nodes, -1)
     seeds[[0, 45]] = [1, 2]
     evidence = np.zeros((g.num_nodes, 3))
-    some = rng.choice(g.num_nodes, 25, replace=False)
-    evidence[some, rng.integers(0, 3, 25)] = rng.uniform(0.05, 1.0, 25)
-    labels, distance = geodesic_labels(g, seeds, 2, contrast_weight=3.0, evidence=evidence, evidence_cost=5.0)
-    d = _floyd(g.lengths(3.0).toarray())
+    some = rng.choice(g.num_nodes, n_evidence, replace=False)
+    evidence[some, rng.integers(0, 3, n_evidence)] = rng.uniform(0.05, 1.0, n_evidence)
+    return g, seeds, evidence
+
+
+def _assert_nearest_source(g, seeds, evidence, labels, distance, *, contrast: float, cost: float,
+                           weak: float = 0.0, reach: float = np.inf) -> None:
+    """``labels`` and ``distance`` are those of the nearest source by Floyd–Warshall: per label, the least of its
+    seeds' distances and of its evidence's ``cost × (1 - e)`` + path, evidence under ``weak`` only within ``reach``."""
+    d = _floyd(g.lengths(contrast).toarray())
     best = np.full((g.num_nodes, 3), np.inf)  # per label: min over its sources of (start + path)
     for i in np.flatnonzero(seeds >= 0):
         best[:, seeds[i]] = np.minimum(best[:, seeds[i]], d[i])
     for i, lab in zip(*np.nonzero((evidence > 0) & (seeds < 0)[:, None])):
-        best[:, lab] = np.minimum(best[:, lab], 5.0 * (1 - evidence[i, lab]) + d[i])
+        far = cost * (1 - evidence[i, lab]) + d[i]
+        if evidence[i, lab] < weak:
+            far = np.where(far <= reach, far, np.inf)
+        best[:, lab] = np.minimum(best[:, lab], far)
     free = seeds < 0
     np.testing.assert_allclose(distance[free], best[free].min(1), rtol=1e-9, atol=1e-6)
     clear = np.sort(best, 1)[:, 1] - np.sort(best, 1)[:, 0] > 1e-9  # ties may go either way
     np.testing.assert_array_equal(labels[free & clear], best[free & clear].argmin(1))
     np.testing.assert_array_equal(labels[~free], seeds[~free])
+
+
+def test_geodesic_labels_match_the_nearest_source_by_floyd_warshall():
+    g, seeds, evidence = _sources(25, 7)
+    labels, distance = geodesic_labels(g, seeds, 2, contrast_weight=3.0, evidence=evidence, evidence_cost=5.0)
+    _assert_nearest_source(g, seeds, evidence, labels, distance, contrast=3.0, cost=5.0)
     with pytest.raises(ValueError, match="evidence must be finite"):
         geodesic_labels(g, seeds, 2, evidence=-evidence)
 
@@ -198,30 +214,10 @@ def test_weak_evidence_claims_only_within_its_reach_as_floyd_warshall_says():
     """Evidence under ``weak_evidence`` is a source whose label reaches at most ``weak_reach`` (its start included):
     each Gaussian's distance and label are the nearest source's among the strong ones (anywhere) and the weak ones
     (within reach), by all-pairs shortest paths."""
-    pts, rgb = _two_blobs(6, 40)
-    g = gaussian_graph(_model(pts, rgb), k=6, colour_sigma=0.3, normal_weight=0.0)
-    rng = np.random.default_rng(11)
-    seeds = np.full(g.num_nodes, -1)
-    seeds[[0, 45]] = [1, 2]
-    evidence = np.zeros((g.num_nodes, 3))
-    some = rng.choice(g.num_nodes, 15, replace=False)
-    evidence[some, rng.integers(0, 3, 15)] = rng.uniform(0.05, 1.0, 15)
-    reach = 2.5
+    g, seeds, evidence = _sources(15, 11)
     labels, distance = geodesic_labels(g, seeds, 2, contrast_weight=3.0, evidence=evidence, evidence_cost=4.0,
-                                       weak_evidence=0.6, weak_reach=reach)
-    d = _floyd(g.lengths(3.0).toarray())
-    best = np.full((g.num_nodes, 3), np.inf)
-    for i in np.flatnonzero(seeds >= 0):
-        best[:, seeds[i]] = np.minimum(best[:, seeds[i]], d[i])
-    for i, lab in zip(*np.nonzero((evidence > 0) & (seeds < 0)[:, None])):
-        far = 4.0 * (1 - evidence[i, lab]) + d[i]
-        if evidence[i, lab] < 0.6:
-            far = np.where(far <= reach, far, np.inf)
-        best[:, lab] = np.minimum(best[:, lab], far)
-    free = seeds < 0
-    np.testing.assert_allclose(distance[free], best[free].min(1), rtol=1e-9, atol=1e-6)
-    clear = np.sort(best, 1)[:, 1] - np.sort(best, 1)[:, 0] > 1e-9
-    np.testing.assert_array_equal(labels[free & clear], best[free & clear].argmin(1))
+                                       weak_evidence=0.6, weak_reach=2.5)
+    _assert_nearest_source(g, seeds, evidence, labels, distance, contrast=3.0, cost=4.0, weak=0.6, reach=2.5)
     unlimited, _ = geodesic_labels(g, seeds, 2, contrast_weight=3.0, evidence=evidence, evidence_cost=4.0)
     assert (unlimited != labels).any()  # the reach matters here: some Gaussians went to a weak source's label
 
