@@ -14,10 +14,10 @@ where the cut left a pixel undecided) and its strokes (a seed map: -1 none, 0 th
    (``cut_reach``); where GrabCut's two colour models differ little (``cut_margin``) the page's cut leaves the pixel
    undecided. A correction's colour regions (``correction: region``) lie over the view's cut, if it has one, and
    beyond their strokes weigh ``region_weight`` of that where the cut gave another label: a flood of a stroke's colour
-   is less sure than a cut (:func:`~abcgs.masks.regions.view_evidence`). A Gaussian's evidence for label l is its confident
-   vote for l over its blending weight in the whole view (``evidence_of: view``; ``decided``: in the pixels the cut
-   decided), so a large splat a correction covers in part is weak evidence; under ``cut_share`` of that weight on
-   decided pixels, the view casts no vote on it at all, and the splat keeps what the other views say of it. What lies
+   is less sure than a cut (:func:`~abcgs.masks.regions.view_evidence`). A Gaussian's evidence for label l is its
+   confident vote for l over its blending weight in the whole view (``evidence_of: view``; ``decided``: in the pixels
+   the cut decided), so a large splat a correction covers in part is weak evidence; under ``cut_share`` of that weight
+   on decided pixels, the view casts no vote on it at all, and the splat keeps what the other views say of it. What lies
    behind the view's surface (by more than ``occlusion`` of its depth) takes no vote from its cut
    (:func:`~abcgs.masks.lifting.occluded_gaussians`): a large splat that paints a part seen from the far side of the
    object is not given the label of the part in front of it.
@@ -205,7 +205,7 @@ class LabelField:
         self._views[index] = _View(*(None if a is None else np.asarray(a, np.int64) for a in (cut, strokes, regions)))
 
     def _cut_votes(self, view: _View, cam: Camera) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """One view's votes ``(N, L_v + 1)`` from its evidence map (:meth:`cut_of`), each pixel weighted by its
+        """One view's votes ``(N, L_v + 1)`` from its evidence map (:meth:`evidence_map`), each pixel weighted by its
         confidence (1 with ``cut_evidence: hard``; × ``region_weight`` where a correction's region beyond the strokes
         gives a label the cut did not), each Gaussian's blending weight in the map's decided pixels ``(N,)`` and in
         the whole view ``(N,)``."""
@@ -214,11 +214,13 @@ class LabelField:
             conf = cut_confidence(cut.shape, view.strokes, self.params.cut_reach)
         else:
             conf = np.ones(cut.shape, np.float32)
-        if view.regions is not None:
-            weak = (view.regions >= 0) & (view.cut != view.regions if view.cut is not None else True)
+        if view.regions is not None:  # a region's own say: beyond its strokes, where the cut gave another label
+            flood = view.regions >= 0
+            if view.cut is not None:
+                flood &= view.cut != view.regions
             if view.strokes is not None:
-                weak &= view.strokes < 0
-            conf = np.where(weak, conf * self.params.region_weight, conf).astype(np.float32)
+                flood &= view.strokes < 0
+            conf = np.where(flood, conf * self.params.region_weight, conf).astype(np.float32)
         small = lift_camera(cam)
         conf_small = torch.from_numpy(area_weights(conf[..., None], small))
         area = torch.full((small.height, small.width, 1), pixel_area(cut.shape, small))
