@@ -41,8 +41,8 @@ from abcgs.masks.page.field_session import FieldSession
 from abcgs.masks.page.strip import Strip
 from abcgs.masks.strokes import rasterize_strokes
 from abcgs.render import rgb_to_sh0
-from eval.bench.paint_iou import simulated_strokes
 from eval.bench.marks import next_stroke
+from eval.bench.paint_iou import simulated_strokes
 from eval.record import bench_parser, write_record
 
 GOAL_SECONDS = 5.0
