@@ -5,6 +5,11 @@ from __future__ import annotations
 
 from typing import Literal
 
+from abcgs.runtime import setup
+
+setup()  # before torch loads: OpenMP's wait policy, OpenCV before pycolmap
+
+# isort: split
 import cv2
 import numpy as np
 
