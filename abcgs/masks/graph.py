@@ -303,7 +303,9 @@ def geodesic_labels(graph: GaussianGraph, seeds: np.ndarray, n_labels: int, *, c
         raise ValueError(f"seeds has shape {seeds.shape}, the graph {n} nodes")
     if not np.isfinite(contrast_weight) or contrast_weight < 0:
         raise ValueError(f"contrast_weight must be finite and ≥ 0, got {contrast_weight}")
-    src_label, src_node, src_cost = [seeds[seeds >= 0]], [np.flatnonzero(seeds >= 0)], [np.zeros(int((seeds >= 0).sum()))]
+    seeded = np.flatnonzero(seeds >= 0)
+    src_label, src_node = [seeds[seeded]], [seeded]
+    src_cost, src_weak = [np.zeros(len(seeded))], [np.zeros(len(seeded), bool)]
     if evidence is not None:
         evidence = np.asarray(evidence, np.float64)
         if evidence.shape != (n, n_labels + 1) or not np.isfinite(evidence).all() or (evidence < 0).any():
@@ -312,9 +314,8 @@ def geodesic_labels(graph: GaussianGraph, seeds: np.ndarray, n_labels: int, *, c
         src_label.append(label)
         src_node.append(node)
         src_cost.append(evidence_cost * (1.0 - np.clip(evidence[node, label], 0.0, 1.0)))
-    label, node, cost = (np.concatenate(a) for a in (src_label, src_node, src_cost))
-    weak = np.concatenate([np.zeros(len(src_node[0]), bool)] + (
-        [evidence[src_node[1], src_label[1]] < weak_evidence] if evidence is not None else []))
+        src_weak.append(evidence[node, label] < weak_evidence)
+    label, node, cost, weak = (np.concatenate(a) for a in (src_label, src_node, src_cost, src_weak))
     labels = np.zeros(n, np.int64)
     distance = np.full(n, np.inf)
     if not len(node):

@@ -6,9 +6,10 @@ for each connected stroke, the photo's pixels connected to it whose colour stays
 CIELAB of the photo) of the stroke's mean colour and that lie within ``reach`` of it: a flood fill of the stroke's
 colour bounded by the photo's edges and by a disc. A click (:func:`is_click`: a dot, about as long as it is wide)
 stands for the whole part it lies in and reaches further (``click_reach``, ``click_tolerance``) than a stroke, which
-stands for the pixels along it. Where two strokes' regions meet, each pixel goes to the one nearer in colour. The map is the correction's evidence (``masks.field.correction: region``). On a view the page once cut,
-only the strokes the cut contradicts are corrections (:func:`corrections`), and their regions lie over the cut: they
-overrule it where they reach and leave the rest of it (:func:`view_evidence`). Their pixels beyond the strokes weigh
+stands for the pixels along it. Where two strokes' regions meet, each pixel goes to the one nearer in colour. The map
+is the correction's evidence (``masks.field.correction: region``). On a view the page once cut, only the strokes
+the cut contradicts are corrections (:func:`corrections`), and their regions lie over the cut: they overrule it where
+they reach and leave the rest of it (:func:`view_evidence`). Their pixels beyond the strokes weigh
 ``masks.field.region_weight`` of a cut's where the cut gave another label. All of it is computed from the photo, the
 strokes and the saved map, so the ``masks`` stage, reading what the page saved, weighs the same evidence as the page.
 """
@@ -109,22 +110,19 @@ def corrections(strokes: np.ndarray, cut: np.ndarray | None) -> np.ndarray:
         n, comp = cv2.connectedComponents((strokes == k).astype(np.uint8), connectivity=8)
         agree = np.bincount(comp.ravel(), weights=(cut == k).ravel(), minlength=n)
         size = np.bincount(comp.ravel(), minlength=n)
-        for c in np.flatnonzero(agree[1:] == size[1:]) + 1:
-            out[comp == c] = -1
+        out[(comp > 0) & (agree == size)[comp]] = -1
     return out
 
 
-def correction_regions(photo: np.ndarray, strokes: np.ndarray, params: FieldParams,
-                       cut: np.ndarray | None = None) -> np.ndarray | None:
-    """What a view's strokes that correct its ``cut`` (:func:`corrections`) say beyond the pixels they cover, on its
-    ``photo`` ``(H, W, 3) uint8``, as ``params.correction`` has it: ``region``, their colour regions
+def correction_regions(photo: np.ndarray, strokes: np.ndarray, params: FieldParams) -> np.ndarray | None:
+    """What a view's correcting ``strokes`` ``(H, W) int`` (:func:`corrections`) say beyond the pixels they cover, on
+    its ``photo`` ``(H, W, 3) uint8``, as ``params.correction`` has it: ``region``, their colour regions
     (:func:`view_regions`); ``strokes``, the strokes alone (``(H, W) int64``, :data:`~abcgs.masks.lifting.NO_VOTE`
     elsewhere); ``cut``, None (the view is cut again instead). The masks page and the ``masks`` stage both lay them
-    over the view's cut (:meth:`abcgs.masks.field.LabelField.set_view`), so that a correction on a view once cut
-    overrules the cut where it lies and keeps the rest of it."""
+    over the view's cut (:func:`view_evidence`), so that a correction on a view once cut overrules the cut where it
+    lies and keeps the rest of it."""
     if params.correction == "cut":
         return None
-    strokes = corrections(strokes, cut)
     if params.correction == "strokes":
         return np.where(strokes >= 0, strokes, NO_VOTE).astype(np.int64)
     return view_regions(photo, strokes, params)
@@ -135,13 +133,18 @@ def view_evidence(cut: np.ndarray | None, strokes: np.ndarray | None, photo: np.
     """A painted view's cut and its corrections' regions ``(cut, regions)``, each ``(H, W) int64`` (0..L,
     :data:`~abcgs.masks.lifting.NO_VOTE`) or None, as the masks page sets them in its 3-D labels
     (:meth:`abcgs.masks.field.LabelField.set_view`) from the view's ``cut`` (None: the page never cut it), its
-    ``strokes`` ``(H, W) int`` and ``photo`` ``(H, W, 3) uint8``: its strokes that correct the cut and their regions
-    (:func:`correction_regions`). The page saves the cut, or the regions of a view it never cut
-    (:meth:`~abcgs.masks.field.LabelField.saved_of`); the ``masks`` stage passes that map as ``cut`` and gets the
-    same pair back: a map equal to the regions of all the view's strokes is those regions, not a cut."""
+    ``strokes`` ``(H, W) int`` and ``photo`` ``(H, W, 3) uint8``: its strokes that correct the cut
+    (:func:`corrections`) and their regions (:func:`correction_regions`). The page saves the cut, or the regions of a
+    view it never cut (:meth:`~abcgs.masks.field.LabelField.saved_of`); the ``masks`` stage passes that map as ``cut``
+    and gets the same pair back: a map equal to the regions of all the view's strokes is those regions, not a cut
+    (which it can be only if no stroke corrects it: the regions keep their strokes' labels)."""
     if strokes is None or params.correction == "cut":
         return cut, None
-    every = correction_regions(photo, strokes, params)
-    if cut is None or np.array_equal(cut, every):
-        return None, every
-    return np.asarray(cut, np.int64), correction_regions(photo, strokes, params, cut)
+    if cut is None:
+        return None, correction_regions(photo, strokes, params)
+    cut, fixes = np.asarray(cut, np.int64), corrections(strokes, cut)
+    if not (fixes >= 0).any():
+        every = correction_regions(photo, strokes, params)
+        if np.array_equal(cut, every):
+            return None, every
+    return cut, correction_regions(photo, fixes, params)
