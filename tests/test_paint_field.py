@@ -229,7 +229,7 @@ def test_a_region_correction_saves_each_strokes_colour_region_and_the_stage_read
     which is what the ``masks`` stage reads back as the view's cut."""
     from abcgs.masks.lifting import NO_VOTE
     from abcgs.masks.params import FieldParams
-    from abcgs.masks.regions import stroke_regions, view_evidence
+    from abcgs.masks.regions import depth_steps, stroke_regions, view_evidence
     from abcgs.masks.strokes import Stroke
 
     folder = fit_views(tiny_colmap, tmp_path / "scene")
@@ -245,7 +245,9 @@ def test_a_region_correction_saves_each_strokes_colour_region_and_the_stage_read
     seg = s.segment(5)
     hw = seg.labels.shape
     seeds = rasterize_strokes(dot, hw)
-    region = stroke_regions(s.image(5), seeds, int(round(0.1 * min(hw))), FieldParams().region_tolerance)
+    depth_5, depth_0 = (s.field.field.depth_of(s.field.camera_of[i]) for i in (5, 0))
+    region = stroke_regions(s.image(5), seeds, int(round(0.1 * min(hw))), FieldParams().region_tolerance,
+                            barrier=depth_steps(depth_5, FieldParams().region_depth_step, hw))
     assert np.array_equal(seg.claimed, region >= 0)
     assert (region == 1).sum() > 2 * (seeds == 1).sum()  # the region reaches past the dot
     truth_5 = truth(tiny_colmap, 5)
@@ -256,12 +258,12 @@ def test_a_region_correction_saves_each_strokes_colour_region_and_the_stage_read
     # the stage knows a correction's regions from a cut: the map is what the view's strokes make of its photo
     params = FieldParams(correction="region", correction_reach=0.1)
     front = rasterize_strokes(first, hw)
-    cut, regions = view_evidence(maps[0], seeds, s.image(5), params)
+    cut, regions = view_evidence(maps[0], seeds, s.image(5), params, depth_5)
     assert cut is None and np.array_equal(regions, region)
-    cut, regions = view_evidence(maps[1], front, s.image(0), params)
+    cut, regions = view_evidence(maps[1], front, s.image(0), params, depth_0)
     assert np.array_equal(cut, maps[1]) and (regions == NO_VOTE).all()  # the cut's own strokes correct nothing
-    assert view_evidence(maps[0], seeds, s.image(5), params.model_copy(update={"correction": "cut"}))[1] is None
-    cut, _ = view_evidence(np.where(region == 1, NO_VOTE, region), seeds, s.image(5), params)
+    assert view_evidence(maps[0], seeds, s.image(5), params.model_copy(update={"correction": "cut"}), depth_5)[1] is None
+    cut, _ = view_evidence(np.where(region == 1, NO_VOTE, region), seeds, s.image(5), params, depth_5)
     assert cut is not None  # a map that is not the regions is a cut
 
 
@@ -294,7 +296,7 @@ def test_a_correction_on_a_view_once_cut_keeps_the_rest_of_its_cut(fitted, tiny_
     evidence = field.evidence_map(cam)
     hw = cut.shape
     seeds = rasterize_strokes([*first, dot], hw)
-    _, regions = view_evidence(cut, seeds, s.image(0), params)
+    _, regions = view_evidence(cut, seeds, s.image(0), params, field.depth_of(cam))
     assert (regions == other).any() and (regions[seeds < 0] != NO_VOTE).sum() > 0
     assert np.array_equal(evidence, np.where(regions >= 0, regions, cut))
     outside = regions == NO_VOTE
@@ -303,5 +305,5 @@ def test_a_correction_on_a_view_once_cut_keeps_the_rest_of_its_cut(fitted, tiny_
     maps, _ = read_label_files([folder / "masks" / "000.png"], [hw])
     assert np.array_equal(maps[0], cut)  # what the page saves is the cut; the stage lays the same regions over it
     stage_cut, stage_regions = view_evidence(maps[0], load_stroke_map(stroke_map_path(folder / "masks", "000"), hw),
-                                             s.image(0), params)
+                                             s.image(0), params, field.depth_of(cam))
     assert np.array_equal(stage_cut, cut) and np.array_equal(stage_regions, regions)

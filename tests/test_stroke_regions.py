@@ -84,3 +84,29 @@ def test_a_click_is_a_round_mark_and_its_region_reaches_further_than_a_strokes()
         else:
             assert farthest <= 5 + 1e-6  # the stroke's
         assert not (out[:, 40:] == label).any()  # the photo's edge holds for both
+
+
+def test_a_region_of_one_colour_stops_at_a_step_of_the_views_depth():
+    """A grey object before a grey wall: colour alone floods both; the rendered depth's step (the object at 2 world
+    units, the wall at 5) stops the region at the object's outline, and a smooth slope or a hole in the render
+    (nothing rendered: no depth to go by) does not."""
+    from abcgs.masks.regions import depth_steps
+
+    photo = np.full((H, W, 3), 128, np.uint8)
+    depth = np.full((H, W), 5.0, np.float32)
+    depth[15:45, 20:60] = 2.0 + np.linspace(0.0, 0.02, 40)[None, :]  # a slope of 1 % across the object
+    depth[28:32, 30:34] = 0.0  # a hole in the render inside it
+    steps = depth_steps(depth, 0.02)
+    assert steps[14:16, 20:60].all() and steps[15:45, 59:61].all()  # the outline, on both sides of the step
+    assert not steps[18:42, 23:28].any() and not steps[26:34, 28:36].any()  # the slope and round the hole
+    seeds = dot(20, 40, 2)
+    free = stroke_regions(photo, seeds, reach_px=80, tolerance=12.0)
+    assert (free == 2).all()  # one colour: the whole photo
+    bound = stroke_regions(photo, seeds, reach_px=80, tolerance=12.0, barrier=steps)
+    region = bound == 2
+    assert region[17:43, 22:58].all()  # the object, its hole included
+    assert not region[:13].any() and not region[:, 62:].any()  # not the wall
+    half = depth_steps(depth[::2, ::2], 0.02, (H, W))  # a depth rendered at half the photo's size
+    assert half.shape == (H, W) and half[14:16, 24:56].any() and not half[20:40, 26:54].any()
+    with pytest.raises(ValueError, match="barrier"):
+        stroke_regions(photo, seeds, reach_px=10, tolerance=12.0, barrier=steps[:, :-1])

@@ -359,7 +359,7 @@ def _field_labels(model: GaussianModel, cameras: list[Camera], label_paths: Sequ
         path = stroke_map_path(given.parent, Path(cam.name).stem) if given is not None else None
         strokes = load_stroke_map(path, (cam.height, cam.width)) if path is not None and path.is_file() else None
         cut, regions = (m, None) if images is None or strokes is None else view_evidence(
-            m, strokes, to_uint8(load_image(images[i])), params.field)
+            m, strokes, to_uint8(load_image(images[i])), params.field, field_.depth_of(i))
         field_.set_view(i, cut, strokes, regions=regions)
     result = field_.solve()
     views = [render_field(field_, result, i, photo=None if images is None else to_uint8(load_image(images[i])))

@@ -59,6 +59,7 @@ from abcgs.masks.lifting import (
     occluded_gaussians,
     one_hot_labels,
     pixel_area,
+    rendered_depth,
 )
 from abcgs.masks.params import FieldParams, LiftParams
 from abcgs.types import Backend
@@ -145,6 +146,7 @@ class LabelField:
     _views: dict[int, _View] = field(default_factory=dict)
     _graph: GaussianGraph | None = None
     _last: FieldResult | None = None
+    _depths: dict[int, np.ndarray] = field(default_factory=dict)
 
     @property
     def graph(self) -> GaussianGraph:
@@ -162,6 +164,16 @@ class LabelField:
         if graph.num_nodes != self.model.num_gaussians:
             raise ValueError(f"the graph has {graph.num_nodes} nodes, the model {self.model.num_gaussians} Gaussians")
         self._graph, self._last = graph, None
+
+    def depth_of(self, index: int) -> np.ndarray | None:
+        """View ``index``'s rendered depth ``(h, w) float32`` at its lifting size
+        (:func:`~abcgs.masks.lifting.rendered_depth`), which bounds its strokes' regions
+        (:func:`~abcgs.masks.regions.view_evidence`), rendered once per view; None with ``region_depth_step`` 0."""
+        if self.params.region_depth_step <= 0:
+            return None
+        if index not in self._depths:
+            self._depths[index] = rendered_depth(self.model, self.cameras[index], backend=self.backend)
+        return self._depths[index]
 
     @property
     def painted(self) -> list[int]:

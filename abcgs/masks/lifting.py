@@ -153,6 +153,21 @@ def blend_votes(model: GaussianModel, camera: Camera, pixels: Tensor, *, backend
                               camera.torch_K(dev), pixels.to(dev), backend=backend).cpu()
 
 
+def rendered_depth(model: GaussianModel, camera: Camera, *, backend: Backend = "auto") -> np.ndarray:
+    """The expected depth ``(h, w) float32`` (world units) that ``camera`` sees of ``model`` at its lifting size
+    (:func:`lift_camera`), 0 where less than half of a pixel's alpha is rendered."""
+    camera = lift_camera(camera)
+    act = model.detach().activated()
+    dev = model.device
+    with torch.no_grad():
+        _, alpha, meta = rasterize(act["means"], act["quats"], act["scales"], act["opacities"],
+                                   torch.zeros(model.num_gaussians, 1, device=dev), camera.torch_viewmat(dev),
+                                   camera.torch_K(dev), camera.width, camera.height, render_mode="RGB+ED",
+                                   backend=backend)
+    solid = alpha[..., 0] >= 0.5
+    return torch.where(solid, meta.depth[..., 0], torch.zeros_like(alpha[..., 0])).numpy(force=True).astype(np.float32)
+
+
 def occluded_gaussians(model: GaussianModel, camera: Camera, tolerance: float, *, backend: Backend = "auto") -> Tensor:
     """``(N,) bool``: the Gaussians whose centre lies behind the surface ``camera`` sees there, its camera depth
     beyond ``(1 + tolerance)`` × the view's expected depth at the pixel of its projected centre (where the view's

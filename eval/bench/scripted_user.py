@@ -58,7 +58,7 @@ import torch
 
 from abcgs.io.images import load_image, save_image, to_uint8
 from abcgs.masks.field import SOURCES, FieldResult, LabelField, render_field
-from abcgs.masks.lifting import blend_votes, lift_labels, occluded_gaussians, one_hot_labels
+from abcgs.masks.lifting import NO_VOTE, blend_votes, lift_labels, occluded_gaussians, one_hot_labels
 from abcgs.masks.page.field_session import FieldSession
 from abcgs.masks.page.strip import Strip
 from abcgs.masks.params import FieldParams, LiftParams
@@ -115,8 +115,8 @@ class ScriptedUser:
 
     def segment(self, index: int) -> dict:
         """What the page does on Segment for view ``index`` (:meth:`FieldSession.segment`); the seconds, split. With
-        ideal clicks, the view's clicked regions then become its evidence (:meth:`FieldSession.set_evidence`, not
-        timed: no page does it)."""
+        ideal clicks, the view's clicked regions over its cut (not the marks' colour regions) then become its evidence
+        (:meth:`FieldSession.set_evidence`, not timed: no page does it)."""
         cam = self.scene.cameras[index]
         t0 = time.perf_counter()
         seeds = rasterize_strokes(self.strokes[index], (cam.height, cam.width))
@@ -124,8 +124,9 @@ class ScriptedUser:
         self.session.segment(index, photo, seeds, started=t0)
         state = self.session.state
         seconds = {**state.phases, "total": state.seconds}  # the page's Segment
-        if index in self.ideal:  # the clicked regions, as a perfect part mask per click would give them
-            cut = self.session.field.evidence_map(index)
+        if index in self.ideal:  # the clicked regions instead of the marks' colour regions, over the view's cut
+            cut = self.session.field.cut_of(index)
+            cut = np.full(seeds.shape, NO_VOTE, np.int64) if cut is None else cut
             self.session.set_evidence(index, np.where(self.ideal[index] >= 0, self.ideal[index], cut), seeds)
         return seconds
 

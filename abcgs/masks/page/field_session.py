@@ -123,7 +123,7 @@ class FieldSession:
                                        min_margin=p.cut_margin)
             else:
                 cut = self.field.cut_of(cam)
-            cut, regions = view_evidence(cut, strokes, photo, p)
+            cut, regions = view_evidence(cut, strokes, photo, p, self.field.depth_of(cam))
             self.field.set_view(cam, cut, strokes, regions=regions)
             self._solve(started, cut_seconds=time.perf_counter() - t0)
             t1 = time.perf_counter()
