@@ -77,7 +77,9 @@ def test_the_regression_check_finds_the_worst_drop_of_the_mean_and_of_a_view() -
     assert drops["view"]["changed"]["graph"] == 0 and drops["mean"]["changed"]["graph"] == 20  # strokes 16 and 18
     assert abs(drops["view"]["drop"] - 0.05) < 1e-9
     assert abs(drops["mean"]["drop"] - 0.02) < 1e-9 and drops["mean"]["strokes"] == 18
+    assert drops["view"]["fell"] == {"1": {"before": 0.6, "after": 0.55}}
     bound = {"per_view": {"a": {"1": 0.9}, "b": {"1": 0.9}}}
+    assert regression(steps, bound)["view"]["fell"]["1"]["bound"] == 0.9
     v = verdict(steps, bound)
     assert not v["mean_drop"] and not v["view_drop"] and v["unlabelled"] and not v["mean_iou"]
     assert v["pairs_below"] == {"b/1": 0.59}  # below min(0.60, 0.9 - 0.05); a's 0.69 is not
