@@ -129,7 +129,7 @@ class FieldParams(BaseModel):
         12.0, gt=0.0, le=200.0, description="correction: region: the largest CIELAB distance (ΔE*ab) from a click's "
         "mean colour that its region takes in (16 floods a pale part's neighbours: docs/MASKS.md)")
     region_depth_step: float = Field(
-        0.02, ge=0.0, le=1.0, description="correction: region: a stroke's region stops where the view's inverse depth, "
+        0.04, ge=0.0, le=1.0, description="correction: region: a stroke's region stops where the view's inverse depth, "
         "rendered from the Gaussians, steps between neighbouring pixels by more than this share (an object's outline "
         "against what lies behind it), so that a click on a pale part does not flood the wall or the bed of its "
         "colour; 0: its colour alone bounds it (docs/MASKS.md, miku's scripted user)")
