@@ -262,7 +262,8 @@ def test_a_region_correction_saves_each_strokes_colour_region_and_the_stage_read
     assert cut is None and np.array_equal(regions, region)
     cut, regions = view_evidence(maps[1], front, s.image(0), params, depth_0)
     assert np.array_equal(cut, maps[1]) and (regions == NO_VOTE).all()  # the cut's own strokes correct nothing
-    assert view_evidence(maps[0], seeds, s.image(5), params.model_copy(update={"correction": "cut"}), depth_5)[1] is None
+    by_cut = params.model_copy(update={"correction": "cut"})
+    assert view_evidence(maps[0], seeds, s.image(5), by_cut, depth_5)[1] is None
     cut, _ = view_evidence(np.where(region == 1, NO_VOTE, region), seeds, s.image(5), params, depth_5)
     assert cut is not None  # a map that is not the regions is a cut
 

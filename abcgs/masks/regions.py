@@ -13,7 +13,8 @@ is the correction's evidence (``masks.field.correction: region``). On a view the
 the cut contradicts are corrections (:func:`corrections`), and their regions lie over the cut: they overrule it where
 they reach and leave the rest of it (:func:`view_evidence`). Their pixels beyond the strokes weigh
 ``masks.field.region_weight`` of a cut's where the cut gave another label. All of it is computed from the photo, the
-strokes, the saved map and the fitted Gaussians' depth, so the ``masks`` stage, reading what the page saved, weighs the same evidence as the page.
+strokes, the saved map and the fitted Gaussians' depth, so the ``masks`` stage, reading what the page saved, weighs
+the same evidence as the page.
 """
 
 from __future__ import annotations
@@ -55,7 +56,8 @@ def depth_steps(depth: np.ndarray, step: float, shape: tuple[int, int] | None = 
     d = np.asarray(depth, np.float32)
     inv = np.where(np.isfinite(d) & (d > 0), 1.0 / np.maximum(d, 1e-12), 0.0).astype(np.float32)
     edge = np.zeros(inv.shape, bool)
-    for a, b, ea, eb in ((inv[:-1], inv[1:], edge[:-1], edge[1:]), (inv[:, :-1], inv[:, 1:], edge[:, :-1], edge[:, 1:])):
+    pairs = ((inv[:-1], inv[1:], edge[:-1], edge[1:]), (inv[:, :-1], inv[:, 1:], edge[:, :-1], edge[:, 1:]))
+    for a, b, ea, eb in pairs:
         jump = (a > 0) & (b > 0) & (np.abs(a - b) > step * np.maximum(a, b))
         ea |= jump
         eb |= jump
@@ -148,8 +150,8 @@ def correction_regions(photo: np.ndarray, strokes: np.ndarray, params: FieldPara
                        depth: np.ndarray | None = None) -> np.ndarray | None:
     """What a view's correcting ``strokes`` ``(H, W) int`` (:func:`corrections`) say beyond the pixels they cover, on
     its ``photo`` ``(H, W, 3) uint8`` (and its rendered ``depth``), as ``params.correction`` has it: ``region``, their
-    colour regions (:func:`view_regions`); ``strokes``, the strokes alone (``(H, W) int64``, :data:`~abcgs.masks.lifting.NO_VOTE`
-    elsewhere); ``cut``, None (the view is cut again instead). The masks page and the ``masks`` stage both lay them
+    colour regions (:func:`view_regions`); ``strokes``, the strokes alone (``(H, W) int64``,
+    :data:`~abcgs.masks.lifting.NO_VOTE` elsewhere); ``cut``, None (the view is cut again instead). The masks page and the ``masks`` stage both lay them
     over the view's cut (:func:`view_evidence`), so that a correction on a view once cut overrules the cut where it
     lies and keeps the rest of it."""
     if params.correction == "cut":
@@ -165,11 +167,11 @@ def view_evidence(cut: np.ndarray | None, strokes: np.ndarray | None, photo: np.
     :data:`~abcgs.masks.lifting.NO_VOTE`) or None, as the masks page sets them in its 3-D labels
     (:meth:`abcgs.masks.field.LabelField.set_view`) from the view's ``cut`` (None: the page never cut it), its
     ``strokes`` ``(H, W) int``, ``photo`` ``(H, W, 3) uint8`` and rendered ``depth`` ``(h, w)``
-    (:meth:`~abcgs.masks.field.LabelField.depth_of`; None: the regions are not bounded by depth): its strokes that correct the cut
-    (:func:`corrections`) and their regions (:func:`correction_regions`). The page saves the cut, or the regions of a
-    view it never cut (:meth:`~abcgs.masks.field.LabelField.saved_of`); the ``masks`` stage passes that map as ``cut``
-    and gets the same pair back: a map equal to the regions of all the view's strokes is those regions, not a cut
-    (which it can be only if no stroke corrects it: the regions keep their strokes' labels)."""
+    (:meth:`~abcgs.masks.field.LabelField.depth_of`; None: the regions are not bounded by depth): its strokes that
+    correct the cut (:func:`corrections`) and their regions (:func:`correction_regions`). The page saves the cut, or
+    the regions of a view it never cut (:meth:`~abcgs.masks.field.LabelField.saved_of`); the ``masks`` stage passes
+    that map as ``cut`` and gets the same pair back: a map equal to the regions of all the view's strokes is those
+    regions, not a cut (which it can be only if no stroke corrects it: the regions keep their strokes' labels)."""
     if strokes is None or params.correction == "cut":
         return cut, None
     if cut is None:
