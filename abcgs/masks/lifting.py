@@ -153,10 +153,9 @@ def blend_votes(model: GaussianModel, camera: Camera, pixels: Tensor, *, backend
                               camera.torch_K(dev), pixels.to(dev), backend=backend).cpu()
 
 
-def rendered_depth(model: GaussianModel, camera: Camera, *, backend: Backend = "auto") -> np.ndarray:
-    """The expected depth ``(h, w) float32`` (world units) that ``camera`` sees of ``model`` at its lifting size
-    (:func:`lift_camera`), 0 where less than half of a pixel's alpha is rendered."""
-    camera = lift_camera(camera)
+def _depth_pass(model: GaussianModel, camera: Camera, backend: Backend):
+    """``model`` rendered into ``camera`` for its depth alone: ``(alpha (H, W, 1), meta)`` (``meta.depth``: expected
+    depth, world units; ``meta.means2d``, ``meta.depths``: each Gaussian's projected centre and camera depth)."""
     act = model.detach().activated()
     dev = model.device
     with torch.no_grad():
@@ -164,6 +163,13 @@ def rendered_depth(model: GaussianModel, camera: Camera, *, backend: Backend = "
                                    torch.zeros(model.num_gaussians, 1, device=dev), camera.torch_viewmat(dev),
                                    camera.torch_K(dev), camera.width, camera.height, render_mode="RGB+ED",
                                    backend=backend)
+    return alpha, meta
+
+
+def rendered_depth(model: GaussianModel, camera: Camera, *, backend: Backend = "auto") -> np.ndarray:
+    """The expected depth ``(h, w) float32`` (world units) that ``camera`` sees of ``model`` at its lifting size
+    (:func:`lift_camera`), 0 where less than half of a pixel's alpha is rendered."""
+    alpha, meta = _depth_pass(model, lift_camera(camera), backend)
     solid = alpha[..., 0] >= 0.5
     return torch.where(solid, meta.depth[..., 0], torch.zeros_like(alpha[..., 0])).numpy(force=True).astype(np.float32)
 
@@ -175,13 +181,7 @@ def occluded_gaussians(model: GaussianModel, camera: Camera, tolerance: float, *
     behind a hood) still blends a little into its pixels, and would take that label from them. A view larger than
     :data:`LIFT_PIXELS` is rendered at that size (:func:`lift_camera`)."""
     camera = lift_camera(camera)
-    act = model.detach().activated()
-    dev = model.device
-    with torch.no_grad():
-        _, alpha, meta = rasterize(act["means"], act["quats"], act["scales"], act["opacities"],
-                                   torch.zeros(model.num_gaussians, 1, device=dev), camera.torch_viewmat(dev),
-                                   camera.torch_K(dev), camera.width, camera.height, render_mode="RGB+ED",
-                                   backend=backend)
+    alpha, meta = _depth_pass(model, camera, backend)
     uv = meta.means2d.detach().cpu().floor().long()
     z = meta.depths.detach().cpu()
     inside = (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
