@@ -272,6 +272,7 @@ def test_a_correction_on_a_view_once_cut_keeps_the_rest_of_its_cut(fitted, tiny_
     """A dot on the view the first Segment cut overrules the cut in its colour region and keeps the cut elsewhere
     (the cut of a whole view is not thrown away for one dot's region); the page still saves the cut, and the ``masks``
     stage, from the saved map, strokes and photo, sets the view as the page did."""
+    from abcgs.masks.field import LabelField
     from abcgs.masks.lifting import NO_VOTE
     from abcgs.masks.params import FieldParams
     from abcgs.masks.regions import view_evidence
@@ -297,6 +298,9 @@ def test_a_correction_on_a_view_once_cut_keeps_the_rest_of_its_cut(fitted, tiny_
     evidence = field.evidence_map(cam)
     hw = cut.shape
     seeds = rasterize_strokes([*first, dot], hw)
+    assert field.depth_of(cam) is field.depth_of(cam)  # rendered once, kept
+    by_cut = LabelField(field.model, field.cameras, params.model_copy(update={"correction": "cut"}))
+    assert by_cut.depth_of(cam) is None  # no colour region to bound: no depth rendered
     _, regions = view_evidence(cut, seeds, s.image(0), params, field.depth_of(cam))
     assert (regions == other).any() and (regions[seeds < 0] != NO_VOTE).sum() > 0
     assert np.array_equal(evidence, np.where(regions >= 0, regions, cut))

@@ -168,8 +168,9 @@ class LabelField:
     def depth_of(self, index: int) -> np.ndarray | None:
         """View ``index``'s rendered depth ``(h, w) float32`` at its lifting size
         (:func:`~abcgs.masks.lifting.rendered_depth`), which bounds its strokes' regions
-        (:func:`~abcgs.masks.regions.view_evidence`), rendered once per view; None with ``region_depth_step`` 0."""
-        if self.params.region_depth_step <= 0:
+        (:func:`~abcgs.masks.regions.view_evidence`), rendered once per view; None where no region is made
+        (``correction`` other than ``region``) or none is bounded by depth (``region_depth_step`` 0)."""
+        if self.params.correction != "region" or self.params.region_depth_step <= 0:
             return None
         if index not in self._depths:
             self._depths[index] = rendered_depth(self.model, self.cameras[index], backend=self.backend)

@@ -124,7 +124,7 @@ def view_regions(photo: np.ndarray, strokes: np.ndarray, params: FieldParams,
     rendered ``depth`` ``(h, w)`` (:func:`depth_steps`, ``params.region_depth_step``; None or 0: by colour alone)."""
     short = min(strokes.shape)
     barrier = None
-    if depth is not None and params.region_depth_step > 0:
+    if depth is not None and params.region_depth_step > 0 and (strokes >= 0).any():
         barrier = depth_steps(depth, params.region_depth_step, strokes.shape)
     return stroke_regions(photo, strokes, int(round(params.correction_reach * short)), params.region_tolerance,
                           click=(int(round(params.click_reach * short)), params.click_tolerance), barrier=barrier)
